@@ -1,0 +1,606 @@
+//! The single-input Takagi–Sugeno ANFIS that models the inclinometer's pitch
+//! error as a function of roll (He et al. 2021, Sec. 3.2, Eq. 20–25).
+//!
+//! Training is the standard hybrid rule on a bounded, recency-weighted set of
+//! (roll, pitch error) pairs: weighted least squares for the linear
+//! consequents, then a gradient step on centres and widths with an adaptive
+//! step length, warm-started from the current model. Each laser sample costs
+//! `epochs` passes over at most `window` samples, however long the drive.
+//!
+//! All angles here are radians.
+
+use std::collections::VecDeque;
+
+use nalgebra::{DMatrix, DVector};
+use serde::{Deserialize, Serialize};
+
+/// One training pair from a laser instant (Eq. 16).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct TrainingSample {
+    /// Laser time, Unix seconds.
+    pub t: f64,
+    /// Roll at the laser instant (the laser's, β_L).
+    pub roll_rad: f64,
+    /// Pitch error e_a = α_L − α_I at that instant.
+    pub error_rad: f64,
+}
+
+/// How the model is shaped and trained.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct AnfisConfig {
+    /// Number of Gaussian memberships (rules), m₁ in Eq. 20.
+    pub memberships: usize,
+    /// Most training samples kept; older ones are forgotten.
+    pub window: usize,
+    /// Age, in samples, at which a sample's weight has halved.
+    pub half_life: f64,
+    /// Hybrid epochs run per new sample.
+    pub epochs: usize,
+    /// Samples needed before the rules are fitted; until then the output is
+    /// the weighted mean error (a constant offset).
+    pub min_samples: usize,
+    /// Smallest membership width σ.
+    pub min_width_rad: f64,
+    /// Smallest roll span the memberships are spread over.
+    pub min_span_rad: f64,
+    /// How far beyond the trained roll range the input may go before it is
+    /// held at the edge (extrapolation guard).
+    pub extrapolation_rad: f64,
+    /// Ridge weight pulling each consequent towards the mean error with zero
+    /// slope; matters only for rules with little data.
+    pub ridge: f64,
+}
+
+/// One fuzzy rule: a Gaussian membership and a first-order consequent.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Rule {
+    /// c_i of Eq. 20.
+    pub centre_rad: f64,
+    /// σ_i of Eq. 20.
+    pub width_rad: f64,
+    /// p_i0 of Eq. 23.
+    pub p0_rad: f64,
+    /// p_i1 of Eq. 23 (rad of error per rad of roll).
+    pub p1: f64,
+}
+
+/// The model and its training set.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Anfis {
+    config: AnfisConfig,
+    samples: VecDeque<TrainingSample>,
+    /// Empty until `min_samples` pairs have been seen.
+    rules: Vec<Rule>,
+    /// Recency-weighted mean error: the output before the rules exist.
+    mean_error_rad: f64,
+    /// Roll range of the training set, for the extrapolation guard.
+    roll_lo_rad: f64,
+    roll_hi_rad: f64,
+    /// Current gradient step length on centres and widths (adapted).
+    step_rad: f64,
+    /// RMS residual of the model over the training set.
+    fit_rmse_rad: f64,
+    /// Times the model has been trained.
+    version: u64,
+}
+
+/// The part of a rule evaluation that training needs.
+struct Firing {
+    /// Normalised firing strengths ρ̄_i (Eq. 22).
+    weights: Vec<f64>,
+    /// Rule outputs y_i (Eq. 23).
+    outputs: Vec<f64>,
+    /// Model output ê (Eq. 24).
+    value: f64,
+}
+
+impl Anfis {
+    /// An untrained model.
+    pub fn new(config: AnfisConfig) -> Anfis {
+        Anfis {
+            config,
+            samples: VecDeque::with_capacity(config.window),
+            rules: Vec::new(),
+            mean_error_rad: 0.0,
+            roll_lo_rad: 0.0,
+            roll_hi_rad: 0.0,
+            step_rad: 0.0,
+            fit_rmse_rad: 0.0,
+            version: 0,
+        }
+    }
+
+    /// The training configuration.
+    pub fn config(&self) -> &AnfisConfig {
+        &self.config
+    }
+
+    /// The rules, empty before the model has enough samples.
+    pub fn rules(&self) -> &[Rule] {
+        &self.rules
+    }
+
+    /// The training set, oldest first.
+    pub fn samples(&self) -> &VecDeque<TrainingSample> {
+        &self.samples
+    }
+
+    /// RMS residual over the training set after the last training.
+    pub fn fit_rmse_rad(&self) -> f64 {
+        self.fit_rmse_rad
+    }
+
+    /// Times the model has been trained.
+    pub fn version(&self) -> u64 {
+        self.version
+    }
+
+    /// Roll range covered by the training set.
+    pub fn roll_range_rad(&self) -> (f64, f64) {
+        (self.roll_lo_rad, self.roll_hi_rad)
+    }
+
+    /// Recency-weighted mean error of the training set.
+    pub fn mean_error_rad(&self) -> f64 {
+        self.mean_error_rad
+    }
+
+    /// The modelled pitch error ê_a = f(β) (Eq. 17).
+    pub fn output(&self, roll_rad: f64) -> f64 {
+        if self.rules.is_empty() {
+            return self.mean_error_rad;
+        }
+        let x = self.guard(roll_rad);
+        let mut num = 0.0;
+        let mut den = 0.0;
+        let top = self.log_firing_max(x);
+        for rule in &self.rules {
+            let rho = (log_membership(rule, x) - top).exp();
+            num += rho * (rule.p0_rad + rule.p1 * x);
+            den += rho;
+        }
+        num / den
+    }
+
+    /// Holds the input within the trained range widened by the guard.
+    fn guard(&self, roll_rad: f64) -> f64 {
+        let margin = self.config.extrapolation_rad;
+        roll_rad.clamp(self.roll_lo_rad - margin, self.roll_hi_rad + margin)
+    }
+
+    fn log_firing_max(&self, x: f64) -> f64 {
+        self.rules
+            .iter()
+            .map(|r| log_membership(r, x))
+            .fold(f64::NEG_INFINITY, f64::max)
+    }
+
+    fn fire(&self, rules: &[Rule], x: f64) -> Firing {
+        // Eq. 20 in log form; Eq. 21 is ρ_i = μ_i with one input. Scaling all
+        // ρ_i by exp(−max) leaves the normalised ρ̄_i of Eq. 22 unchanged and
+        // keeps them from underflowing together far from every centre.
+        let top = rules
+            .iter()
+            .map(|r| log_membership(r, x))
+            .fold(f64::NEG_INFINITY, f64::max);
+        let mut weights: Vec<f64> = rules
+            .iter()
+            .map(|r| (log_membership(r, x) - top).exp())
+            .collect();
+        let total: f64 = weights.iter().sum();
+        for w in &mut weights {
+            *w /= total; // Eq. 22
+        }
+        let outputs: Vec<f64> = rules.iter().map(|r| r.p0_rad + r.p1 * x).collect(); // Eq. 23
+        // Eq. 24 with the normalised ρ̄ (NOTES.md: the printed ρ is a typo).
+        let value = weights.iter().zip(&outputs).map(|(w, y)| w * y).sum();
+        Firing {
+            weights,
+            outputs,
+            value,
+        }
+    }
+
+    /// Adds a pair, forgetting the oldest past the window. Does not train.
+    pub fn add_sample(&mut self, sample: TrainingSample) {
+        if self.samples.len() == self.config.window {
+            self.samples.pop_front();
+        }
+        self.samples.push_back(sample);
+    }
+
+    /// Recency weights, oldest first: the newest weighs 1, one half-life older 0.5.
+    fn weights(&self) -> Vec<f64> {
+        let n = self.samples.len();
+        let decay = 0.5_f64.powf(1.0 / self.config.half_life);
+        let mut w = vec![0.0; n];
+        let mut current = 1.0;
+        for slot in w.iter_mut().rev() {
+            *slot = current;
+            current *= decay;
+        }
+        w
+    }
+
+    /// Trains on the current set: hybrid epochs warm-started from the
+    /// current rules (or the weighted mean until there are enough samples).
+    pub fn train(&mut self) {
+        if self.samples.is_empty() {
+            return;
+        }
+        let weights = self.weights();
+        let total_w: f64 = weights.iter().sum();
+        self.mean_error_rad = self
+            .samples
+            .iter()
+            .zip(&weights)
+            .map(|(s, w)| w * s.error_rad)
+            .sum::<f64>()
+            / total_w;
+        let (lo, hi) = self
+            .samples
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), s| {
+                (lo.min(s.roll_rad), hi.max(s.roll_rad))
+            });
+        self.roll_lo_rad = lo;
+        self.roll_hi_rad = hi;
+        self.version += 1;
+        if self.samples.len() < self.config.min_samples {
+            self.fit_rmse_rad = self.rmse_of_constant();
+            return;
+        }
+        if self.rules.is_empty() {
+            self.rules = self.initial_rules();
+            self.step_rad = 0.1 * self.span_rad();
+        }
+        let mut cost = match self.fit_consequents(&self.rules.clone(), &weights) {
+            Some((rules, cost)) => {
+                self.rules = rules;
+                cost
+            }
+            None => return,
+        };
+        for _ in 0..self.config.epochs {
+            cost = self.premise_step(&weights, cost);
+        }
+        self.fit_rmse_rad = self.rmse();
+    }
+
+    fn span_rad(&self) -> f64 {
+        (self.roll_hi_rad - self.roll_lo_rad).max(self.config.min_span_rad)
+    }
+
+    /// Memberships spread evenly over the seen roll range (at least the
+    /// minimum span), neighbours crossing at half height.
+    fn initial_rules(&self) -> Vec<Rule> {
+        let m = self.config.memberships;
+        let span = self.span_rad();
+        let mid = 0.5 * (self.roll_lo_rad + self.roll_hi_rad);
+        let lo = mid - 0.5 * span;
+        let spacing = if m > 1 { span / (m - 1) as f64 } else { span };
+        // exp(−(s/2)²/σ²) = ½  ⇒  σ = s / (2 √ln 2)
+        let width =
+            (spacing / (2.0 * std::f64::consts::LN_2.sqrt())).max(self.config.min_width_rad);
+        (0..m)
+            .map(|i| Rule {
+                centre_rad: if m > 1 { lo + i as f64 * spacing } else { mid },
+                width_rad: width,
+                p0_rad: self.mean_error_rad,
+                p1: 0.0,
+            })
+            .collect()
+    }
+
+    /// Weighted least squares for the consequents given the premises
+    /// (forward half of the hybrid rule). Returns the rules with new
+    /// consequents and the cost ½ Σ w r² (Eq. 25 summed over the set).
+    fn fit_consequents(&self, premises: &[Rule], weights: &[f64]) -> Option<(Vec<Rule>, f64)> {
+        let m = premises.len();
+        let n_params = 2 * m;
+        let mut normal = DMatrix::<f64>::zeros(n_params, n_params);
+        let mut rhs = DVector::<f64>::zeros(n_params);
+        let mut row = vec![0.0; n_params];
+        let mut total_w = 0.0;
+        for (s, &w) in self.samples.iter().zip(weights) {
+            let firing = self.fire(premises, s.roll_rad);
+            for i in 0..m {
+                row[2 * i] = firing.weights[i];
+                row[2 * i + 1] = firing.weights[i] * s.roll_rad;
+            }
+            for a in 0..n_params {
+                let wa = w * row[a];
+                rhs[a] += wa * s.error_rad;
+                for b in a..n_params {
+                    normal[(a, b)] += wa * row[b];
+                }
+            }
+            total_w += w;
+        }
+        // Ridge towards (mean error, zero slope), slope measured across the span.
+        let lambda = self.config.ridge * total_w;
+        let span = self.span_rad();
+        for i in 0..m {
+            normal[(2 * i, 2 * i)] += lambda;
+            rhs[2 * i] += lambda * self.mean_error_rad;
+            normal[(2 * i + 1, 2 * i + 1)] += lambda * span * span;
+        }
+        for a in 0..n_params {
+            for b in 0..a {
+                normal[(a, b)] = normal[(b, a)];
+            }
+        }
+        let solution = normal.cholesky()?.solve(&rhs);
+        if solution.iter().any(|x| !x.is_finite()) {
+            return None;
+        }
+        let rules: Vec<Rule> = premises
+            .iter()
+            .enumerate()
+            .map(|(i, r)| Rule {
+                p0_rad: solution[2 * i],
+                p1: solution[2 * i + 1],
+                ..*r
+            })
+            .collect();
+        let cost = self.cost(&rules, weights);
+        Some((rules, cost))
+    }
+
+    fn cost(&self, rules: &[Rule], weights: &[f64]) -> f64 {
+        self.samples
+            .iter()
+            .zip(weights)
+            .map(|(s, w)| {
+                let r = self.fire(rules, s.roll_rad).value - s.error_rad;
+                0.5 * w * r * r // Eq. 25 per sample, recency-weighted
+            })
+            .sum()
+    }
+
+    /// Backward half of the hybrid rule: one gradient step on centres and
+    /// widths with the consequents held, kept only if the cost (with
+    /// consequents refitted) drops; the step length grows after a success
+    /// and halves after a failure.
+    fn premise_step(&mut self, weights: &[f64], cost: f64) -> f64 {
+        let m = self.rules.len();
+        let mut grad_c = vec![0.0; m];
+        let mut grad_s = vec![0.0; m];
+        for (s, &w) in self.samples.iter().zip(weights) {
+            let x = s.roll_rad;
+            let f = self.fire(&self.rules, x);
+            let r = f.value - s.error_rad; // ∂E/∂ê for E of Eq. 25
+            for (i, rule) in self.rules.iter().enumerate() {
+                let d = x - rule.centre_rad;
+                let sigma2 = rule.width_rad * rule.width_rad;
+                // ∂ê/∂μ_i · μ_i = ρ̄_i (y_i − ê); ∂ ln μ_i/∂c_i = 2d/σ², ∂ ln μ_i/∂σ_i = 2d²/σ³
+                let common = w * r * f.weights[i] * (f.outputs[i] - f.value);
+                grad_c[i] += common * 2.0 * d / sigma2;
+                grad_s[i] += common * 2.0 * d * d / (sigma2 * rule.width_rad);
+            }
+        }
+        let norm = grad_c
+            .iter()
+            .chain(&grad_s)
+            .map(|g| g * g)
+            .sum::<f64>()
+            .sqrt();
+        if !(norm > 0.0 && norm.is_finite()) {
+            return cost;
+        }
+        let span = self.span_rad();
+        let (lo, hi) = (self.roll_lo_rad - 0.5 * span, self.roll_hi_rad + 0.5 * span);
+        let max_width = (4.0 * span).max(self.config.min_width_rad);
+        let trial: Vec<Rule> = self
+            .rules
+            .iter()
+            .enumerate()
+            .map(|(i, r)| Rule {
+                centre_rad: (r.centre_rad - self.step_rad * grad_c[i] / norm).clamp(lo, hi),
+                width_rad: (r.width_rad - self.step_rad * grad_s[i] / norm)
+                    .clamp(self.config.min_width_rad, max_width),
+                ..*r
+            })
+            .collect();
+        match self.fit_consequents(&trial, weights) {
+            Some((rules, trial_cost)) if trial_cost < cost => {
+                self.rules = rules;
+                self.step_rad = (self.step_rad * 1.2).min(span);
+                trial_cost
+            }
+            _ => {
+                self.step_rad = (self.step_rad * 0.5).max(1e-6 * span);
+                cost
+            }
+        }
+    }
+
+    fn rmse(&self) -> f64 {
+        let n = self.samples.len() as f64;
+        let sse: f64 = self
+            .samples
+            .iter()
+            .map(|s| (self.fire(&self.rules, s.roll_rad).value - s.error_rad).powi(2))
+            .sum();
+        (sse / n).sqrt()
+    }
+
+    fn rmse_of_constant(&self) -> f64 {
+        let n = self.samples.len() as f64;
+        let sse: f64 = self
+            .samples
+            .iter()
+            .map(|s| (self.mean_error_rad - s.error_rad).powi(2))
+            .sum();
+        (sse / n).sqrt()
+    }
+}
+
+/// ln μ_i of Eq. 20: −(x − c_i)² / σ_i².
+fn log_membership(rule: &Rule, x: f64) -> f64 {
+    let d = x - rule.centre_rad;
+    -(d * d) / (rule.width_rad * rule.width_rad)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fusion::angles::{deg, rad};
+
+    fn config() -> AnfisConfig {
+        AnfisConfig {
+            memberships: 3,
+            window: 400,
+            half_life: 1.0e9,
+            epochs: 1,
+            min_samples: 6,
+            min_width_rad: rad(0.1),
+            min_span_rad: rad(1.0),
+            extrapolation_rad: rad(0.5),
+            ridge: 1e-6,
+        }
+    }
+
+    fn rules() -> Vec<Rule> {
+        vec![
+            Rule {
+                centre_rad: -1.0,
+                width_rad: 1.0,
+                p0_rad: 1.0,
+                p1: 0.5,
+            },
+            Rule {
+                centre_rad: 1.0,
+                width_rad: 2.0,
+                p0_rad: -1.0,
+                p1: 2.0,
+            },
+        ]
+    }
+
+    #[test]
+    fn output_matches_hand_computed_eq_20_to_24() {
+        let mut model = Anfis::new(config());
+        model.rules = rules();
+        model.roll_lo_rad = -10.0;
+        model.roll_hi_rad = 10.0;
+        // x = 0: μ₁ = e^{−1}, μ₂ = e^{−1/4}; ρ̄₁ = μ₁/(μ₁+μ₂); y₁ = 1, y₂ = −1.
+        let mu1 = (-1.0_f64).exp();
+        let mu2 = (-0.25_f64).exp();
+        let expected = (mu1 * 1.0 + mu2 * -1.0) / (mu1 + mu2);
+        assert!((model.output(0.0) - expected).abs() < 1e-15);
+        // x = 2: μ₁ = e^{−9}, μ₂ = e^{−1/4}; y₁ = 2, y₂ = 3.
+        let mu1 = (-9.0_f64).exp();
+        let expected = (mu1 * 2.0 + mu2 * 3.0) / (mu1 + mu2);
+        assert!((model.output(2.0) - expected).abs() < 1e-15);
+    }
+
+    #[test]
+    fn far_inputs_neither_underflow_nor_explode() {
+        let mut model = Anfis::new(config());
+        model.rules = rules();
+        model.roll_lo_rad = -1.0;
+        model.roll_hi_rad = 1.0;
+        // Held at the edge of the guarded range, not extrapolated to 1000.
+        let edge = model.output(1.0 + model.config.extrapolation_rad);
+        assert_eq!(model.output(1000.0), edge);
+        assert!(model.output(-1000.0).is_finite());
+    }
+
+    #[test]
+    fn constant_output_until_enough_samples() {
+        let mut model = Anfis::new(config());
+        for (i, e) in [0.1, 0.3].into_iter().enumerate() {
+            model.add_sample(TrainingSample {
+                t: i as f64,
+                roll_rad: i as f64,
+                error_rad: e,
+            });
+        }
+        model.train();
+        assert!(model.rules().is_empty());
+        // Half-life 1e9 samples: the two weights differ by ~7e-10.
+        assert!((model.output(5.0) - 0.2).abs() < 1e-9);
+    }
+
+    /// A smooth, clearly nonlinear error curve over roll −2°..4°, in degrees.
+    fn curve_deg(roll_deg: f64) -> f64 {
+        -0.30 + 0.04 * roll_deg - 0.012 * roll_deg * roll_deg + 0.02 * (1.1 * roll_deg).sin()
+    }
+
+    #[test]
+    fn fits_a_known_nonlinear_curve_on_noise_free_data() {
+        let mut model = Anfis::new(AnfisConfig {
+            epochs: 1,
+            ..config()
+        });
+        let n = 300;
+        for i in 0..n {
+            let roll_deg = -2.0 + 6.0 * ((i * 37) % n) as f64 / n as f64;
+            model.add_sample(TrainingSample {
+                t: i as f64,
+                roll_rad: rad(roll_deg),
+                error_rad: rad(curve_deg(roll_deg)),
+            });
+        }
+        for _ in 0..300 {
+            model.train();
+        }
+        let grid: Vec<f64> = (0..=600).map(|i| -2.0 + 6.0 * i as f64 / 600.0).collect();
+        let sse: f64 = grid
+            .iter()
+            .map(|&r| (deg(model.output(rad(r))) - curve_deg(r)).powi(2))
+            .sum();
+        let rmse_deg = (sse / grid.len() as f64).sqrt();
+        assert!(rmse_deg <= 0.002, "ANFIS fit RMSE {rmse_deg}° > 0.002°");
+        // And the fit is not trivially a constant or a line.
+        let line_rmse = {
+            let (a, b) = (curve_deg(-2.0), curve_deg(4.0));
+            let sse: f64 = grid
+                .iter()
+                .map(|&r| (a + (b - a) * (r + 2.0) / 6.0 - curve_deg(r)).powi(2))
+                .sum();
+            (sse / grid.len() as f64).sqrt()
+        };
+        assert!(line_rmse > 10.0 * rmse_deg);
+    }
+
+    #[test]
+    fn training_never_increases_the_cost() {
+        let mut model = Anfis::new(config());
+        for i in 0..50 {
+            let roll_deg = -2.0 + 6.0 * i as f64 / 50.0;
+            model.add_sample(TrainingSample {
+                t: i as f64,
+                roll_rad: rad(roll_deg),
+                error_rad: rad(curve_deg(roll_deg)),
+            });
+        }
+        model.train();
+        let w = model.weights();
+        let mut last = model.cost(&model.rules, &w);
+        for _ in 0..20 {
+            model.train();
+            let now = model.cost(&model.rules, &w);
+            assert!(now <= last * (1.0 + 1e-12));
+            last = now;
+        }
+    }
+
+    #[test]
+    fn window_is_bounded() {
+        let mut model = Anfis::new(AnfisConfig {
+            window: 20,
+            ..config()
+        });
+        for i in 0..100 {
+            model.add_sample(TrainingSample {
+                t: i as f64,
+                roll_rad: 0.0,
+                error_rad: 0.0,
+            });
+        }
+        assert_eq!(model.samples().len(), 20);
+        assert_eq!(model.samples()[0].t, 80.0);
+    }
+}

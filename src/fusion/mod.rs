@@ -1,0 +1,125 @@
+//! The pure fusion core: protocol types, the [`Engine`] trait and one module
+//! per engine. Nothing here does IO, spawns tasks or reads a clock: time
+//! arrives with each reading, so the server, `replay` and the tests run the
+//! very same code and get the very same estimates.
+
+pub mod angles;
+pub mod attitude;
+pub mod estimate;
+pub mod params;
+pub mod reading;
+pub mod reorder;
+
+pub use estimate::{AttitudeEstimate, EngineOutput, Estimate, EstimateRef, EstimateValues};
+pub use params::{ParamError, ParamKind, ParamSpec, ParamValue, Params};
+pub use reading::{Reading, ReadingError, SensorData, SensorKind, parse_reading};
+
+use serde::{Deserialize, Serialize};
+
+/// A fusion method that turns a machine's readings into estimates.
+///
+/// Readings are fed in time order (a [`reorder::ReorderBuffer`] in front
+/// absorbs small disorder); each engine documents what it does with the rest.
+pub trait Engine: Send {
+    /// Which engine this is.
+    fn kind(&self) -> EngineKind;
+
+    /// Feeds one validated reading; appends the estimates it produces to `out`.
+    /// Readings of sensors the engine does not use are ignored.
+    fn feed(&mut self, reading: &Reading, out: &mut Vec<EngineOutput>);
+
+    /// The parameters the engine runs with.
+    fn params(&self) -> &Params;
+
+    /// The whole state, serialisable: [`EngineKind::restore`] continues
+    /// from it exactly.
+    fn snapshot(&self) -> serde_json::Value;
+
+    /// Engine-specific model report (the `attitude` engine's learned
+    /// pitch-error curve), if the engine has one.
+    fn model(&self) -> Option<serde_json::Value> {
+        None
+    }
+}
+
+/// Why a snapshot could not be restored.
+#[derive(Debug, thiserror::Error)]
+pub enum SnapshotError {
+    #[error("snapshot does not match the {engine} engine's state: {source}")]
+    Shape {
+        engine: EngineKind,
+        source: serde_json::Error,
+    },
+    #[error("snapshot holds invalid parameters: {0}")]
+    Params(#[from] ParamError),
+}
+
+/// The engines tunnelnav knows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EngineKind {
+    /// Laser + inclinometer dual-rate ANFIS fusion (He et al. 2021).
+    Attitude,
+}
+
+/// An engine name that tunnelnav does not know.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("unknown engine `{0}` (known: attitude)")]
+pub struct UnknownEngine(pub String);
+
+impl EngineKind {
+    /// Every engine.
+    pub const ALL: [EngineKind; 1] = [EngineKind::Attitude];
+
+    /// The protocol name.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            EngineKind::Attitude => "attitude",
+        }
+    }
+
+    /// The parameters the engine accepts.
+    pub fn specs(self) -> &'static [ParamSpec] {
+        match self {
+            EngineKind::Attitude => attitude::PARAMS,
+        }
+    }
+
+    /// The sensors the engine consumes.
+    pub fn sensors(self) -> &'static [SensorKind] {
+        match self {
+            EngineKind::Attitude => &[SensorKind::Laser, SensorKind::Inclinometer],
+        }
+    }
+
+    /// A fresh engine with these parameters.
+    pub fn create(self, params: Params) -> Result<Box<dyn Engine>, ParamError> {
+        match self {
+            EngineKind::Attitude => Ok(Box::new(attitude::AttitudeEngine::new(params)?)),
+        }
+    }
+
+    /// An engine continuing from a [`Engine::snapshot`].
+    pub fn restore(self, snapshot: serde_json::Value) -> Result<Box<dyn Engine>, SnapshotError> {
+        match self {
+            EngineKind::Attitude => Ok(Box::new(attitude::AttitudeEngine::restore(snapshot)?)),
+        }
+    }
+}
+
+impl std::str::FromStr for EngineKind {
+    type Err = UnknownEngine;
+
+    fn from_str(name: &str) -> Result<Self, Self::Err> {
+        EngineKind::ALL
+            .into_iter()
+            .find(|k| k.as_str() == name)
+            .ok_or_else(|| UnknownEngine(name.to_string()))
+    }
+}
+
+impl std::fmt::Display for EngineKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}

@@ -1,0 +1,329 @@
+//! Engine parameters: each engine declares [`ParamSpec`]s (name, kind,
+//! default, range, unit, meaning); [`Params`] holds a validated, complete
+//! set of values resolved against those specs.
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+/// The type, default and allowed values of one parameter.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ParamKind {
+    /// A real number in `[min, max]`.
+    Real { default: f64, min: f64, max: f64 },
+    /// A whole number in `[min, max]`.
+    Integer { default: i64, min: i64, max: i64 },
+    /// `true` or `false`.
+    Bool { default: bool },
+    /// One of a fixed set of words.
+    Choice {
+        default: &'static str,
+        options: &'static [&'static str],
+    },
+}
+
+/// One parameter an engine accepts.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ParamSpec {
+    pub name: &'static str,
+    pub kind: ParamKind,
+    /// Unit of the value, empty when it has none.
+    pub unit: &'static str,
+    /// What the parameter does, one sentence.
+    pub doc: &'static str,
+}
+
+impl ParamSpec {
+    /// The default value.
+    pub fn default_value(&self) -> ParamValue {
+        match self.kind {
+            ParamKind::Real { default, .. } => ParamValue::Number(default),
+            ParamKind::Integer { default, .. } => ParamValue::Number(default as f64),
+            ParamKind::Bool { default } => ParamValue::Bool(default),
+            ParamKind::Choice { default, .. } => ParamValue::Text(default.to_string()),
+        }
+    }
+
+    /// A human description of the allowed values, e.g. `0 to 1`.
+    pub fn range_text(&self) -> String {
+        match self.kind {
+            ParamKind::Real { min, max, .. } => format!("{min} to {max}"),
+            ParamKind::Integer { min, max, .. } => format!("{min} to {max} (whole)"),
+            ParamKind::Bool { .. } => "true or false".to_string(),
+            ParamKind::Choice { options, .. } => options.join(" | "),
+        }
+    }
+
+    /// Parses a value given as text (command line `--param name=value`).
+    pub fn parse_text(&self, text: &str) -> Result<ParamValue, ParamError> {
+        let text = text.trim();
+        let value = match self.kind {
+            ParamKind::Real { .. } | ParamKind::Integer { .. } => text
+                .parse::<f64>()
+                .map(ParamValue::Number)
+                .map_err(|_| self.invalid(text))?,
+            ParamKind::Bool { .. } => match text {
+                "true" | "1" | "on" | "yes" => ParamValue::Bool(true),
+                "false" | "0" | "off" | "no" => ParamValue::Bool(false),
+                _ => return Err(self.invalid(text)),
+            },
+            ParamKind::Choice { .. } => ParamValue::Text(text.to_string()),
+        };
+        self.check(value)
+    }
+
+    /// Checks a value against the kind and range.
+    pub fn check(&self, value: ParamValue) -> Result<ParamValue, ParamError> {
+        match (self.kind, &value) {
+            (ParamKind::Real { min, max, .. }, ParamValue::Number(x)) => {
+                if !x.is_finite() || *x < min || *x > max {
+                    return Err(self.out_of_range(&value));
+                }
+            }
+            (ParamKind::Integer { min, max, .. }, ParamValue::Number(x)) => {
+                if x.fract() != 0.0 {
+                    return Err(self.invalid(&value.to_string()));
+                }
+                if *x < min as f64 || *x > max as f64 {
+                    return Err(self.out_of_range(&value));
+                }
+            }
+            (ParamKind::Bool { .. }, ParamValue::Bool(_)) => {}
+            (ParamKind::Choice { options, .. }, ParamValue::Text(word)) => {
+                if !options.contains(&word.as_str()) {
+                    return Err(self.out_of_range(&value));
+                }
+            }
+            _ => return Err(self.invalid(&value.to_string())),
+        }
+        Ok(value)
+    }
+
+    fn invalid(&self, value: &str) -> ParamError {
+        ParamError::Invalid {
+            name: self.name.to_string(),
+            value: value.to_string(),
+            expected: self.range_text(),
+        }
+    }
+
+    fn out_of_range(&self, value: &ParamValue) -> ParamError {
+        ParamError::OutOfRange {
+            name: self.name.to_string(),
+            value: value.to_string(),
+            allowed: self.range_text(),
+        }
+    }
+}
+
+/// A parameter value as it appears in configuration files and JSON.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum ParamValue {
+    Bool(bool),
+    Number(f64),
+    Text(String),
+}
+
+impl std::fmt::Display for ParamValue {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ParamValue::Bool(b) => write!(f, "{b}"),
+            ParamValue::Number(x) => write!(f, "{x}"),
+            ParamValue::Text(s) => write!(f, "{s}"),
+        }
+    }
+}
+
+/// Why a set of parameters was refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ParamError {
+    #[error("unknown parameter `{name}` (known: {known})")]
+    Unknown { name: String, known: String },
+    #[error("parameter `{name}` = `{value}` is not valid (expected {expected})")]
+    Invalid {
+        name: String,
+        value: String,
+        expected: String,
+    },
+    #[error("parameter `{name}` = {value} is out of range (allowed: {allowed})")]
+    OutOfRange {
+        name: String,
+        value: String,
+        allowed: String,
+    },
+    #[error("parameters do not fit together: {0}")]
+    Inconsistent(String),
+    #[error("malformed parameter `{0}`: expected name=value")]
+    Malformed(String),
+}
+
+/// A complete, validated set of parameter values for one engine.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Params {
+    values: BTreeMap<String, ParamValue>,
+}
+
+impl Params {
+    /// Every spec at its default.
+    pub fn defaults(specs: &[ParamSpec]) -> Params {
+        Params {
+            values: specs
+                .iter()
+                .map(|s| (s.name.to_string(), s.default_value()))
+                .collect(),
+        }
+    }
+
+    /// Defaults overridden by `overrides`; unknown names and bad values are
+    /// refused with an error naming them.
+    pub fn resolve(
+        specs: &[ParamSpec],
+        overrides: impl IntoIterator<Item = (String, ParamValue)>,
+    ) -> Result<Params, ParamError> {
+        let mut params = Params::defaults(specs);
+        for (name, value) in overrides {
+            let spec = find(specs, &name)?;
+            let value = spec.check(value)?;
+            params.values.insert(name, value);
+        }
+        Ok(params)
+    }
+
+    /// Like [`Params::resolve`], from `name=value` words.
+    pub fn from_assignments<'a>(
+        specs: &[ParamSpec],
+        assignments: impl IntoIterator<Item = &'a str>,
+    ) -> Result<Params, ParamError> {
+        let mut overrides = Vec::new();
+        for assignment in assignments {
+            let (name, text) = assignment
+                .split_once('=')
+                .ok_or_else(|| ParamError::Malformed(assignment.to_string()))?;
+            let name = name.trim();
+            let value = find(specs, name)?.parse_text(text)?;
+            overrides.push((name.to_string(), value));
+        }
+        Params::resolve(specs, overrides)
+    }
+
+    /// All values by name.
+    pub fn values(&self) -> &BTreeMap<String, ParamValue> {
+        &self.values
+    }
+
+    /// A real-valued (or integer) parameter.
+    pub fn real(&self, name: &'static str) -> Result<f64, ParamError> {
+        match self.values.get(name) {
+            Some(ParamValue::Number(x)) => Ok(*x),
+            other => Err(self.missing(name, other)),
+        }
+    }
+
+    /// A whole-number parameter.
+    pub fn integer(&self, name: &'static str) -> Result<i64, ParamError> {
+        self.real(name).map(|x| x as i64)
+    }
+
+    /// A boolean parameter.
+    pub fn flag(&self, name: &'static str) -> Result<bool, ParamError> {
+        match self.values.get(name) {
+            Some(ParamValue::Bool(b)) => Ok(*b),
+            other => Err(self.missing(name, other)),
+        }
+    }
+
+    /// A choice parameter.
+    pub fn choice(&self, name: &'static str) -> Result<&str, ParamError> {
+        match self.values.get(name) {
+            Some(ParamValue::Text(s)) => Ok(s),
+            other => Err(self.missing(name, other)),
+        }
+    }
+
+    fn missing(&self, name: &str, found: Option<&ParamValue>) -> ParamError {
+        ParamError::Invalid {
+            name: name.to_string(),
+            value: found.map(|v| v.to_string()).unwrap_or_default(),
+            expected: "a value of the declared kind".to_string(),
+        }
+    }
+}
+
+fn find<'a>(specs: &'a [ParamSpec], name: &str) -> Result<&'a ParamSpec, ParamError> {
+    specs
+        .iter()
+        .find(|s| s.name == name)
+        .ok_or_else(|| ParamError::Unknown {
+            name: name.to_string(),
+            known: specs.iter().map(|s| s.name).collect::<Vec<_>>().join(", "),
+        })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const SPECS: &[ParamSpec] = &[
+        ParamSpec {
+            name: "gain",
+            kind: ParamKind::Real {
+                default: 0.02,
+                min: 0.0,
+                max: 1.0,
+            },
+            unit: "",
+            doc: "a gain",
+        },
+        ParamSpec {
+            name: "count",
+            kind: ParamKind::Integer {
+                default: 3,
+                min: 1,
+                max: 9,
+            },
+            unit: "",
+            doc: "a count",
+        },
+        ParamSpec {
+            name: "mode",
+            kind: ParamKind::Choice {
+                default: "a",
+                options: &["a", "b"],
+            },
+            unit: "",
+            doc: "a mode",
+        },
+        ParamSpec {
+            name: "on",
+            kind: ParamKind::Bool { default: true },
+            unit: "",
+            doc: "a switch",
+        },
+    ];
+
+    #[test]
+    fn defaults_and_overrides() {
+        let p =
+            Params::from_assignments(SPECS, ["gain=0.5", "count=4", "mode=b", "on=false"]).unwrap();
+        assert_eq!(p.real("gain").unwrap(), 0.5);
+        assert_eq!(p.integer("count").unwrap(), 4);
+        assert_eq!(p.choice("mode").unwrap(), "b");
+        assert!(!p.flag("on").unwrap());
+        let d = Params::defaults(SPECS);
+        assert_eq!(d.real("gain").unwrap(), 0.02);
+    }
+
+    #[test]
+    fn refusals_name_the_parameter() {
+        let err = |a: &str| Params::from_assignments(SPECS, [a]).unwrap_err();
+        assert!(matches!(err("gian=1"), ParamError::Unknown { name, .. } if name == "gian"));
+        assert!(matches!(err("gain=2"), ParamError::OutOfRange { name, .. } if name == "gain"));
+        assert!(matches!(err("gain=x"), ParamError::Invalid { name, .. } if name == "gain"));
+        assert!(matches!(err("count=2.5"), ParamError::Invalid { name, .. } if name == "count"));
+        assert!(matches!(err("mode=c"), ParamError::OutOfRange { name, .. } if name == "mode"));
+        assert!(matches!(err("gain"), ParamError::Malformed(_)));
+        let json = Params::resolve(SPECS, [("gain".to_string(), ParamValue::Bool(true))]);
+        assert!(matches!(json, Err(ParamError::Invalid { .. })));
+    }
+}

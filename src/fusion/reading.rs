@@ -1,0 +1,516 @@
+//! Sensor readings of the wire protocol (`shared/protocol.md`, "Readings").
+//!
+//! Parsing has a fast path (serde straight into a flat struct) and, only when
+//! that fails, a slow diagnostic path that re-reads the JSON to say which
+//! field was wrong. Validation turns the flat struct into a typed [`Reading`]
+//! or a [`ReadingError`] naming the field.
+
+use std::borrow::Cow;
+
+use serde::{Deserialize, Serialize};
+
+/// Earliest accepted reading time: 2000-01-01T00:00:00Z.
+pub const EARLIEST_T_S: f64 = 946_684_800.0;
+/// Latest accepted reading time in the core: 2100-01-01T00:00:00Z. The
+/// server adds its own "not far in the future of now" check; the core has
+/// no clock.
+pub const LATEST_T_S: f64 = 4_102_444_800.0;
+
+/// The kinds of sensor a reading can come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SensorKind {
+    Laser,
+    Inclinometer,
+    Imu,
+    Magnetometer,
+    Level,
+    Odometer,
+}
+
+impl SensorKind {
+    /// Every sensor kind, in protocol order.
+    pub const ALL: [SensorKind; 6] = [
+        SensorKind::Laser,
+        SensorKind::Inclinometer,
+        SensorKind::Imu,
+        SensorKind::Magnetometer,
+        SensorKind::Level,
+        SensorKind::Odometer,
+    ];
+
+    /// The protocol name (`"laser"`, `"inclinometer"`, ...).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            SensorKind::Laser => "laser",
+            SensorKind::Inclinometer => "inclinometer",
+            SensorKind::Imu => "imu",
+            SensorKind::Magnetometer => "magnetometer",
+            SensorKind::Level => "level",
+            SensorKind::Odometer => "odometer",
+        }
+    }
+
+    /// Parses a protocol name.
+    pub fn from_name(name: &str) -> Option<SensorKind> {
+        SensorKind::ALL.into_iter().find(|k| k.as_str() == name)
+    }
+}
+
+impl std::fmt::Display for SensorKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// What a sensor measured. Serialised with the protocol's `sensor` tag.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(tag = "sensor", rename_all = "snake_case")]
+pub enum SensorData {
+    /// Laser targeting system / total station attitude.
+    Laser {
+        pitch_deg: f64,
+        roll_deg: f64,
+        #[serde(skip_serializing_if = "Option::is_none")]
+        yaw_deg: Option<f64>,
+    },
+    /// Two-axis gravity inclinometer.
+    Inclinometer {
+        pitch_deg: f64,
+        roll_deg: f64,
+        #[serde(skip_serializing_if = "Option::is_none")]
+        temp_c: Option<f64>,
+    },
+    /// Specific force (body frame x forward, y right, z down) and angular rate.
+    Imu {
+        accel_mps2: [f64; 3],
+        gyro_dps: [f64; 3],
+    },
+    /// Magnetic field in the body frame.
+    Magnetometer { field_ut: [f64; 3] },
+    /// Height from a level instrument.
+    Level { height_m: f64 },
+    /// Travelled distance from an odometer or encoder.
+    Odometer { distance_m: f64 },
+}
+
+impl SensorData {
+    /// Which sensor produced this data.
+    pub fn kind(&self) -> SensorKind {
+        match self {
+            SensorData::Laser { .. } => SensorKind::Laser,
+            SensorData::Inclinometer { .. } => SensorKind::Inclinometer,
+            SensorData::Imu { .. } => SensorKind::Imu,
+            SensorData::Magnetometer { .. } => SensorKind::Magnetometer,
+            SensorData::Level { .. } => SensorKind::Level,
+            SensorData::Odometer { .. } => SensorKind::Odometer,
+        }
+    }
+}
+
+/// One validated reading: a time and what was measured.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Reading {
+    /// Seconds since the Unix epoch (UTC).
+    pub t: f64,
+    #[serde(flatten)]
+    pub data: SensorData,
+}
+
+/// Why a reading was rejected. Every variant names the offending field.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ReadingError {
+    #[error("invalid JSON: {0}")]
+    Json(String),
+    #[error("a reading must be a JSON object")]
+    NotAnObject,
+    #[error("missing field `{field}`")]
+    Missing { field: &'static str },
+    #[error("field `{field}` must be {expected}")]
+    WrongType {
+        field: &'static str,
+        expected: &'static str,
+    },
+    #[error(
+        "unknown sensor `{0}` (expected laser, inclinometer, imu, magnetometer, level or odometer)"
+    )]
+    UnknownSensor(String),
+    #[error("field `{field}` is not a finite number")]
+    NonFinite { field: &'static str },
+    #[error("field `{field}` = {value} is outside [{min}, {max}]")]
+    OutOfRange {
+        field: &'static str,
+        value: f64,
+        min: f64,
+        max: f64,
+    },
+}
+
+impl ReadingError {
+    /// The field the error is about, if it is about one field.
+    pub fn field(&self) -> Option<&'static str> {
+        match self {
+            ReadingError::Missing { field }
+            | ReadingError::WrongType { field, .. }
+            | ReadingError::NonFinite { field }
+            | ReadingError::OutOfRange { field, .. } => Some(field),
+            ReadingError::UnknownSensor(_) => Some("sensor"),
+            ReadingError::Json(_) | ReadingError::NotAnObject => None,
+        }
+    }
+}
+
+/// Physical bounds of each numeric field: (field, min, max).
+const BOUNDS: &[(&str, f64, f64)] = &[
+    ("t", EARLIEST_T_S, LATEST_T_S),
+    ("pitch_deg", -90.0, 90.0),
+    ("roll_deg", -180.0, 180.0),
+    ("yaw_deg", -360.0, 360.0),
+    ("temp_c", -80.0, 200.0),
+    // ±200 g and ±10 000 °/s: well beyond any machine, well short of garbage.
+    ("accel_mps2", -2000.0, 2000.0),
+    ("gyro_dps", -10_000.0, 10_000.0),
+    // The Earth's field is ~50 µT; steel and motors can add a few mT.
+    ("field_ut", -10_000.0, 10_000.0),
+    ("height_m", -20_000.0, 20_000.0),
+    ("distance_m", -1.0e7, 1.0e7),
+];
+
+fn bounds(field: &'static str) -> (f64, f64) {
+    BOUNDS
+        .iter()
+        .find(|(name, _, _)| *name == field)
+        .map(|&(_, lo, hi)| (lo, hi))
+        .unwrap_or((f64::NEG_INFINITY, f64::INFINITY))
+}
+
+fn check(field: &'static str, value: f64) -> Result<f64, ReadingError> {
+    if !value.is_finite() {
+        return Err(ReadingError::NonFinite { field });
+    }
+    let (min, max) = bounds(field);
+    if value < min || value > max {
+        return Err(ReadingError::OutOfRange {
+            field,
+            value,
+            min,
+            max,
+        });
+    }
+    Ok(value)
+}
+
+fn required(field: &'static str, value: Option<f64>) -> Result<f64, ReadingError> {
+    check(field, value.ok_or(ReadingError::Missing { field })?)
+}
+
+fn optional(field: &'static str, value: Option<f64>) -> Result<Option<f64>, ReadingError> {
+    value.map(|v| check(field, v)).transpose()
+}
+
+fn vector(field: &'static str, value: Option<[f64; 3]>) -> Result<[f64; 3], ReadingError> {
+    let v = value.ok_or(ReadingError::Missing { field })?;
+    for x in v {
+        check(field, x)?;
+    }
+    Ok(v)
+}
+
+/// The flat shape every reading is first parsed into (fast path).
+#[derive(Debug, Default, Deserialize)]
+struct RawReading<'a> {
+    t: Option<f64>,
+    #[serde(borrow)]
+    sensor: Option<Cow<'a, str>>,
+    pitch_deg: Option<f64>,
+    roll_deg: Option<f64>,
+    yaw_deg: Option<f64>,
+    temp_c: Option<f64>,
+    accel_mps2: Option<[f64; 3]>,
+    gyro_dps: Option<[f64; 3]>,
+    field_ut: Option<[f64; 3]>,
+    height_m: Option<f64>,
+    distance_m: Option<f64>,
+}
+
+impl RawReading<'_> {
+    fn validate(self) -> Result<Reading, ReadingError> {
+        let t = required("t", self.t)?;
+        let sensor = self
+            .sensor
+            .ok_or(ReadingError::Missing { field: "sensor" })?;
+        let kind = SensorKind::from_name(&sensor)
+            .ok_or_else(|| ReadingError::UnknownSensor(sensor.into_owned()))?;
+        let data = match kind {
+            SensorKind::Laser => SensorData::Laser {
+                pitch_deg: required("pitch_deg", self.pitch_deg)?,
+                roll_deg: required("roll_deg", self.roll_deg)?,
+                yaw_deg: optional("yaw_deg", self.yaw_deg)?,
+            },
+            SensorKind::Inclinometer => SensorData::Inclinometer {
+                pitch_deg: required("pitch_deg", self.pitch_deg)?,
+                roll_deg: required("roll_deg", self.roll_deg)?,
+                temp_c: optional("temp_c", self.temp_c)?,
+            },
+            SensorKind::Imu => SensorData::Imu {
+                accel_mps2: vector("accel_mps2", self.accel_mps2)?,
+                gyro_dps: vector("gyro_dps", self.gyro_dps)?,
+            },
+            SensorKind::Magnetometer => SensorData::Magnetometer {
+                field_ut: vector("field_ut", self.field_ut)?,
+            },
+            SensorKind::Level => SensorData::Level {
+                height_m: required("height_m", self.height_m)?,
+            },
+            SensorKind::Odometer => SensorData::Odometer {
+                distance_m: required("distance_m", self.distance_m)?,
+            },
+        };
+        Ok(Reading { t, data })
+    }
+}
+
+/// The JSON type each known field must have, for error messages.
+const FIELD_TYPES: &[(&str, FieldType)] = &[
+    ("t", FieldType::Number),
+    ("sensor", FieldType::Text),
+    ("pitch_deg", FieldType::Number),
+    ("roll_deg", FieldType::Number),
+    ("yaw_deg", FieldType::Number),
+    ("temp_c", FieldType::Number),
+    ("accel_mps2", FieldType::Vector3),
+    ("gyro_dps", FieldType::Vector3),
+    ("field_ut", FieldType::Vector3),
+    ("height_m", FieldType::Number),
+    ("distance_m", FieldType::Number),
+];
+
+#[derive(Clone, Copy)]
+enum FieldType {
+    Number,
+    Text,
+    Vector3,
+}
+
+impl FieldType {
+    fn accepts(self, value: &serde_json::Value) -> bool {
+        match self {
+            FieldType::Number => value.is_number() || value.is_null(),
+            FieldType::Text => value.is_string() || value.is_null(),
+            FieldType::Vector3 => {
+                value.is_null()
+                    || value
+                        .as_array()
+                        .is_some_and(|a| a.len() == 3 && a.iter().all(|x| x.is_number()))
+            }
+        }
+    }
+
+    fn expected(self) -> &'static str {
+        match self {
+            FieldType::Number => "a number",
+            FieldType::Text => "a string",
+            FieldType::Vector3 => "an array of 3 numbers",
+        }
+    }
+}
+
+/// Explains why the fast path rejected a reading, naming the field.
+fn diagnose(value: &serde_json::Value, fast_path_error: serde_json::Error) -> ReadingError {
+    let Some(object) = value.as_object() else {
+        return ReadingError::NotAnObject;
+    };
+    for &(field, ty) in FIELD_TYPES {
+        if let Some(v) = object.get(field)
+            && !ty.accepts(v)
+        {
+            return ReadingError::WrongType {
+                field,
+                expected: ty.expected(),
+            };
+        }
+    }
+    ReadingError::Json(fast_path_error.to_string())
+}
+
+/// Parses and validates one reading from its JSON text.
+pub fn parse_reading(bytes: &[u8]) -> Result<Reading, ReadingError> {
+    match serde_json::from_slice::<RawReading>(bytes) {
+        Ok(raw) => raw.validate(),
+        Err(e) => match serde_json::from_slice::<serde_json::Value>(bytes) {
+            Ok(value) => Err(diagnose(&value, e)),
+            Err(e) => Err(ReadingError::Json(e.to_string())),
+        },
+    }
+}
+
+/// Validates an already-parsed JSON value as a reading (elements of an array).
+pub fn reading_from_value(value: &serde_json::Value) -> Result<Reading, ReadingError> {
+    match RawReading::deserialize(value) {
+        Ok(raw) => raw.validate(),
+        Err(e) => Err(diagnose(value, e)),
+    }
+}
+
+impl Reading {
+    /// Checks a reading built in Rust against the same rules as a parsed one.
+    pub fn validate(&self) -> Result<(), ReadingError> {
+        check("t", self.t)?;
+        match &self.data {
+            SensorData::Laser {
+                pitch_deg,
+                roll_deg,
+                yaw_deg,
+            } => {
+                check("pitch_deg", *pitch_deg)?;
+                check("roll_deg", *roll_deg)?;
+                optional("yaw_deg", *yaw_deg)?;
+            }
+            SensorData::Inclinometer {
+                pitch_deg,
+                roll_deg,
+                temp_c,
+            } => {
+                check("pitch_deg", *pitch_deg)?;
+                check("roll_deg", *roll_deg)?;
+                optional("temp_c", *temp_c)?;
+            }
+            SensorData::Imu {
+                accel_mps2,
+                gyro_dps,
+            } => {
+                vector("accel_mps2", Some(*accel_mps2))?;
+                vector("gyro_dps", Some(*gyro_dps))?;
+            }
+            SensorData::Magnetometer { field_ut } => {
+                vector("field_ut", Some(*field_ut))?;
+            }
+            SensorData::Level { height_m } => {
+                check("height_m", *height_m)?;
+            }
+            SensorData::Odometer { distance_m } => {
+                check("distance_m", *distance_m)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Which sensor produced this reading.
+    pub fn sensor(&self) -> SensorKind {
+        self.data.kind()
+    }
+
+    /// The reading as one line of protocol JSON.
+    pub fn to_json(&self) -> String {
+        // Serialising plain structs of finite floats cannot fail.
+        serde_json::to_string(self).unwrap_or_default()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_each_sensor_kind() {
+        let lines = [
+            r#"{"t":1772431200,"sensor":"laser","pitch_deg":0.5,"roll_deg":1.2,"yaw_deg":37.0}"#,
+            r#"{"t":1772431200.5,"sensor":"inclinometer","pitch_deg":0.8,"roll_deg":1.3,"temp_c":21}"#,
+            r#"{"t":1772431200,"sensor":"imu","accel_mps2":[0,0,-9.81],"gyro_dps":[0,0,0.004]}"#,
+            r#"{"t":1772431200,"sensor":"magnetometer","field_ut":[20,1,43]}"#,
+            r#"{"t":1772431200,"sensor":"level","height_m":12.5}"#,
+            r#"{"t":1772431200,"sensor":"odometer","distance_m":3.25}"#,
+        ];
+        for (line, kind) in lines.iter().zip(SensorKind::ALL) {
+            let r = parse_reading(line.as_bytes()).unwrap();
+            assert_eq!(r.sensor(), kind);
+            // The serialised form parses back to the same reading.
+            assert_eq!(parse_reading(r.to_json().as_bytes()).unwrap(), r);
+        }
+    }
+
+    #[test]
+    fn errors_name_the_field() {
+        let cases: &[(&str, ReadingError)] = &[
+            (
+                r#"{"sensor":"laser","pitch_deg":0,"roll_deg":0}"#,
+                ReadingError::Missing { field: "t" },
+            ),
+            (
+                r#"{"t":1772431200,"sensor":"laser","roll_deg":0}"#,
+                ReadingError::Missing { field: "pitch_deg" },
+            ),
+            (
+                r#"{"t":1772431200,"sensor":"laser","pitch_deg":"0.1","roll_deg":0}"#,
+                ReadingError::WrongType {
+                    field: "pitch_deg",
+                    expected: "a number",
+                },
+            ),
+            (
+                r#"{"t":1772431200,"sensor":"imu","accel_mps2":[0,0],"gyro_dps":[0,0,0]}"#,
+                ReadingError::WrongType {
+                    field: "accel_mps2",
+                    expected: "an array of 3 numbers",
+                },
+            ),
+            (
+                r#"{"t":1772431200,"sensor":"laser","pitch_deg":91,"roll_deg":0}"#,
+                ReadingError::OutOfRange {
+                    field: "pitch_deg",
+                    value: 91.0,
+                    min: -90.0,
+                    max: 90.0,
+                },
+            ),
+            (
+                r#"{"t":1772431200,"sensor":"sonar","pitch_deg":1}"#,
+                ReadingError::UnknownSensor("sonar".into()),
+            ),
+            (r#"[1,2]"#, ReadingError::NotAnObject),
+        ];
+        for (line, expected) in cases {
+            assert_eq!(
+                &parse_reading(line.as_bytes()).unwrap_err(),
+                expected,
+                "{line}"
+            );
+        }
+        let early = parse_reading(br#"{"t":100,"sensor":"level","height_m":1}"#).unwrap_err();
+        assert_eq!(early.field(), Some("t"));
+        assert!(matches!(
+            parse_reading(b"{\"t\":1e999}").unwrap_err(),
+            ReadingError::Json(_)
+        ));
+        assert!(matches!(
+            parse_reading(b"{not json").unwrap_err(),
+            ReadingError::Json(_)
+        ));
+    }
+
+    #[test]
+    fn value_path_matches_text_path() {
+        let text = r#"{"t":1772431200,"sensor":"laser","pitch_deg":true,"roll_deg":0}"#;
+        let value: serde_json::Value = serde_json::from_str(text).unwrap();
+        assert_eq!(
+            reading_from_value(&value).unwrap_err(),
+            parse_reading(text.as_bytes()).unwrap_err()
+        );
+    }
+
+    #[test]
+    fn rust_built_readings_are_checked_too() {
+        let r = Reading {
+            t: 1_772_431_200.0,
+            data: SensorData::Inclinometer {
+                pitch_deg: f64::NAN,
+                roll_deg: 0.0,
+                temp_c: None,
+            },
+        };
+        assert_eq!(
+            r.validate().unwrap_err(),
+            ReadingError::NonFinite { field: "pitch_deg" }
+        );
+    }
+}

@@ -1,0 +1,19 @@
+//! tunnelnav: live attitude and position of tunnel boring and pipe-jacking
+//! machines, fused from their sensors.
+//!
+//! # Layout
+//! - [`fusion`]: the pure core. Protocol readings and estimates, the
+//!   [`fusion::Engine`] trait, parameters, the reorder buffer, and one module
+//!   per engine (`attitude`: He et al. 2021). No IO, no async, no clocks.
+//! - [`sim`]: seeded, pure scenario generators with known truth (`simulate`,
+//!   `eval`, tests, benchmarks).
+//! - [`eval`]: runs engines and baselines over simulated drives and scores
+//!   them against the truth.
+//! - [`replay`]: streams an NDJSON file of readings through an engine.
+//! - [`cli`]: one file per subcommand; `main.rs` only parses and dispatches.
+
+pub mod cli;
+pub mod eval;
+pub mod fusion;
+pub mod replay;
+pub mod sim;
