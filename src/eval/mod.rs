@@ -1,1 +1,31 @@
-//! Evaluation.
+//! Scoring engines against simulated truth.
+
+pub mod attitude;
+
+use serde::Serialize;
+
+/// Running error statistics: RMS and largest absolute error.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct ErrorStats {
+    pub count: u64,
+    pub sum_sq: f64,
+    pub max_abs: f64,
+}
+
+impl ErrorStats {
+    /// Adds one error.
+    pub fn add(&mut self, error: f64) {
+        self.count += 1;
+        self.sum_sq += error * error;
+        self.max_abs = self.max_abs.max(error.abs());
+    }
+
+    /// Root mean square of the errors (0 when there are none).
+    pub fn rmse(&self) -> f64 {
+        if self.count == 0 {
+            0.0
+        } else {
+            (self.sum_sq / self.count as f64).sqrt()
+        }
+    }
+}

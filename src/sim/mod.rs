@@ -1,1 +1,4 @@
-//! Seeded scenario generators.
+//! Seeded, pure scenario generators with known truth. The same seed gives
+//! the same readings on every machine.
+
+pub mod tbm;

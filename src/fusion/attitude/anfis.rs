@@ -46,8 +46,9 @@ pub struct AnfisConfig {
     /// How far beyond the trained roll range the input may go before it is
     /// held at the edge (extrapolation guard).
     pub extrapolation_rad: f64,
-    /// Ridge weight pulling each consequent towards the mean error with zero
-    /// slope; matters only for rules with little data.
+    /// Ridge weight pulling each consequent towards the global weighted line
+    /// through the training set; matters for rules with little data and so
+    /// sets how the model extrapolates.
     pub ridge: f64,
 }
 
@@ -73,6 +74,9 @@ pub struct Anfis {
     rules: Vec<Rule>,
     /// Recency-weighted mean error: the output before the rules exist.
     mean_error_rad: f64,
+    /// Recency-weighted straight line error = a + b·roll through the
+    /// training set: the prior each rule's consequent is shrunk towards.
+    global_line: [f64; 2],
     /// Roll range of the training set, for the extrapolation guard.
     roll_lo_rad: f64,
     roll_hi_rad: f64,
@@ -102,6 +106,7 @@ impl Anfis {
             samples: VecDeque::with_capacity(config.window),
             rules: Vec::new(),
             mean_error_rad: 0.0,
+            global_line: [0.0, 0.0],
             roll_lo_rad: 0.0,
             roll_hi_rad: 0.0,
             step_rad: 0.0,
@@ -245,6 +250,7 @@ impl Anfis {
             });
         self.roll_lo_rad = lo;
         self.roll_hi_rad = hi;
+        self.global_line = self.fit_line(&weights);
         self.version += 1;
         if self.samples.len() < self.config.min_samples {
             self.fit_rmse_rad = self.rmse_of_constant();
@@ -317,13 +323,15 @@ impl Anfis {
             }
             total_w += w;
         }
-        // Ridge towards (mean error, zero slope), slope measured across the span.
+        // Ridge towards the global line, the slope measured across the span.
         let lambda = self.config.ridge * total_w;
         let span = self.span_rad();
+        let [a, b] = self.global_line;
         for i in 0..m {
             normal[(2 * i, 2 * i)] += lambda;
-            rhs[2 * i] += lambda * self.mean_error_rad;
+            rhs[2 * i] += lambda * a;
             normal[(2 * i + 1, 2 * i + 1)] += lambda * span * span;
+            rhs[2 * i + 1] += lambda * span * span * b;
         }
         for a in 0..n_params {
             for b in 0..a {
@@ -345,6 +353,31 @@ impl Anfis {
             .collect();
         let cost = self.cost(&rules, weights);
         Some((rules, cost))
+    }
+
+    /// Weighted least-squares line through the training set; flat at the
+    /// mean error when the roll has not varied enough to give a slope.
+    fn fit_line(&self, weights: &[f64]) -> [f64; 2] {
+        let (mut sw, mut sx, mut sy) = (0.0, 0.0, 0.0);
+        for (s, &w) in self.samples.iter().zip(weights) {
+            sw += w;
+            sx += w * s.roll_rad;
+            sy += w * s.error_rad;
+        }
+        let (mx, my) = (sx / sw, sy / sw);
+        let (mut sxx, mut sxy) = (0.0, 0.0);
+        for (s, &w) in self.samples.iter().zip(weights) {
+            let dx = s.roll_rad - mx;
+            sxx += w * dx * dx;
+            sxy += w * dx * (s.error_rad - my);
+        }
+        // Below a tenth of the minimum span of roll spread, a slope is noise.
+        let min_spread = 0.1 * self.config.min_span_rad;
+        if sxx <= sw * min_spread * min_spread {
+            return [my, 0.0];
+        }
+        let b = sxy / sxx;
+        [my - b * mx, b]
     }
 
     fn cost(&self, rules: &[Rule], weights: &[f64]) -> f64 {

@@ -78,8 +78,9 @@ const fn integer(
 }
 
 /// The `attitude` engine's parameters. Gains and membership count are the
-/// paper's; noise defaults are sized for a 1 Hz MEMS inclinometer under
-/// cutter vibration (σ ≈ 0.01°) and a laser system good to ≈ 0.002°.
+/// paper's; noise defaults are sized for a 1 Hz inclinometer under cutter
+/// vibration (σ ≈ 0.005°), a laser system good to ≈ 0.002°, and a shield
+/// whose pitch moves by a few hundredths of a degree within minutes.
 pub const PARAMS: &[ParamSpec] = &[
     real(
         "fusion_gain_pitch",
@@ -107,7 +108,7 @@ pub const PARAMS: &[ParamSpec] = &[
     ),
     real(
         "q_pitch_deg2_per_s",
-        2.0e-6,
+        1.2e-5,
         1.0e-14,
         1.0,
         "deg²/s",
@@ -123,7 +124,7 @@ pub const PARAMS: &[ParamSpec] = &[
     ),
     real(
         "r_incl_deg2",
-        1.0e-4,
+        3.0e-5,
         1.0e-12,
         100.0,
         "deg²",
@@ -178,7 +179,7 @@ pub const PARAMS: &[ParamSpec] = &[
     ),
     real(
         "training_half_life_samples",
-        120.0,
+        30.0,
         1.0,
         1.0e9,
         "samples",
@@ -200,7 +201,7 @@ pub const PARAMS: &[ParamSpec] = &[
     ),
     real(
         "anfis_min_width_deg",
-        0.1,
+        0.3,
         1.0e-3,
         90.0,
         "deg",
@@ -216,7 +217,7 @@ pub const PARAMS: &[ParamSpec] = &[
     ),
     real(
         "anfis_extrapolation_deg",
-        0.5,
+        2.0,
         0.0,
         90.0,
         "deg",
@@ -228,7 +229,7 @@ pub const PARAMS: &[ParamSpec] = &[
         0.0,
         1.0,
         "",
-        "weight pulling sparse rules towards the mean error with zero slope",
+        "weight pulling each rule towards the global line through the training pairs (sets extrapolation)",
     ),
     real(
         "roll_offset_gain",
