@@ -780,8 +780,8 @@ mod tests {
         // ê_a = 0.3 (one sample: the mean); its filtered value after the
         // first (gain 1) and second steps stays 0.3 because ê was 0 at the
         // first step: c_f = 0 + K (0.3 − 0) with K from Eq. 5.
-        let q = rad2(2.0e-6);
-        let r = rad2(1.0e-4);
+        let q = e.config().noise.q_pitch_per_s;
+        let r = e.config().noise.r_incl;
         let k = (r + q) / (r + q + r);
         let c_f = k * 0.3;
         let pitch = 0.02 * 0.8 + 0.98 * (0.5 + c_f);
