@@ -1,1 +1,60 @@
-//! CLI.
+//! The command line: one file per subcommand, each with a `run`.
+
+pub mod eval;
+pub mod params;
+pub mod replay;
+pub mod simulate;
+
+use clap::{Parser, Subcommand};
+
+/// Live attitude and position fusion for tunnel boring and pipe-jacking machines.
+#[derive(Debug, Parser)]
+#[command(name = "tunnelnav", version, about)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Simulate a drive: protocol NDJSON readings on stdout, truth to a file.
+    #[command(subcommand)]
+    Simulate(simulate::Scenario),
+    /// Run an engine over NDJSON readings (a file or - for stdin); estimates on stdout.
+    Replay(replay::ReplayArgs),
+    /// Simulate, run an engine and its baselines, and score them against the truth.
+    #[command(subcommand)]
+    Eval(eval::EvalTarget),
+    /// List an engine's parameters with their defaults and ranges.
+    Params(params::ParamsArgs),
+}
+
+/// Why a command failed.
+#[derive(Debug, thiserror::Error)]
+pub enum CliError {
+    #[error("{0}")]
+    Io(#[from] std::io::Error),
+    #[error("{context}: {source}")]
+    File {
+        context: String,
+        source: std::io::Error,
+    },
+    #[error(transparent)]
+    Params(#[from] crate::fusion::ParamError),
+    #[error(transparent)]
+    Engine(#[from] crate::fusion::UnknownEngine),
+    #[error(transparent)]
+    Eval(#[from] crate::eval::attitude::EvalError),
+    #[error("{0}")]
+    Scenario(String),
+}
+
+/// Runs a parsed command line.
+pub fn run(cli: Cli) -> Result<(), CliError> {
+    match cli.command {
+        Command::Simulate(scenario) => simulate::run(scenario),
+        Command::Replay(args) => replay::run(args),
+        Command::Eval(target) => eval::run(target),
+        Command::Params(args) => params::run(args),
+    }
+}

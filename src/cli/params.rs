@@ -1,0 +1,43 @@
+//! `tunnelnav params --engine NAME`
+
+use std::io::{self, Write};
+
+use clap::Args;
+
+use super::CliError;
+use crate::fusion::EngineKind;
+
+#[derive(Debug, Args)]
+pub struct ParamsArgs {
+    /// Engine whose parameters to list.
+    #[arg(long)]
+    pub engine: String,
+}
+
+pub fn run(args: ParamsArgs) -> Result<(), CliError> {
+    let kind: EngineKind = args.engine.parse()?;
+    let mut out = io::stdout().lock();
+    let result = (|| -> io::Result<()> {
+        writeln!(
+            out,
+            "{:<30} {:>10} {:<8} {:<28} meaning",
+            "parameter", "default", "unit", "allowed"
+        )?;
+        for spec in kind.specs() {
+            writeln!(
+                out,
+                "{:<30} {:>10} {:<8} {:<28} {}",
+                spec.name,
+                spec.default_value().to_string(),
+                spec.unit,
+                spec.range_text(),
+                spec.doc
+            )?;
+        }
+        Ok(())
+    })();
+    match result {
+        Err(e) if e.kind() == io::ErrorKind::BrokenPipe => Ok(()),
+        other => Ok(other?),
+    }
+}
