@@ -1,0 +1,216 @@
+//! The command line as a user runs it: the real binary, real files, pipes.
+
+use std::io::Write;
+use std::process::{Command, Stdio};
+
+fn tunnelnav() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_tunnelnav"))
+}
+
+fn temp_dir(name: &str) -> std::path::PathBuf {
+    let dir = std::env::temp_dir().join(format!("tunnelnav-cli-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+#[test]
+fn simulate_then_replay_gives_one_estimate_per_inclinometer_reading() {
+    let dir = temp_dir("pipeline");
+    let drive = dir.join("drive.ndjson");
+    let truth = dir.join("truth.ndjson");
+    let sim = tunnelnav()
+        .args([
+            "simulate",
+            "tbm",
+            "--hours",
+            "1",
+            "--seed",
+            "7",
+            "--dropout",
+            "0.5:10",
+        ])
+        .arg("--truth")
+        .arg(&truth)
+        .output()
+        .unwrap();
+    assert!(sim.status.success());
+    std::fs::write(&drive, &sim.stdout).unwrap();
+    let readings = String::from_utf8(sim.stdout).unwrap();
+    let incl = readings
+        .lines()
+        .filter(|l| l.contains("\"inclinometer\""))
+        .count();
+    assert_eq!(incl, 3600);
+    assert_eq!(
+        std::fs::read_to_string(&truth).unwrap().lines().count(),
+        3600
+    );
+
+    let replay = tunnelnav()
+        .args(["replay", "--engine", "attitude", "--machine", "tbm-7"])
+        .arg(&drive)
+        .output()
+        .unwrap();
+    assert!(replay.status.success());
+    let estimates = String::from_utf8(replay.stdout).unwrap();
+    assert_eq!(estimates.lines().count(), incl);
+    let last: serde_json::Value = serde_json::from_str(estimates.lines().last().unwrap()).unwrap();
+    assert_eq!(last["machine"], "tbm-7");
+    assert_eq!(last["engine"], "attitude");
+    for field in [
+        "t",
+        "pitch_deg",
+        "roll_deg",
+        "pitch_pred_deg",
+        "roll_pred_deg",
+        "pred_t",
+        "laser_ok",
+        "pitch_correction_deg",
+    ] {
+        assert!(!last[field].is_null(), "missing {field}");
+    }
+    let stderr = String::from_utf8(replay.stderr).unwrap();
+    assert!(stderr.contains("replay summary:"), "{stderr}");
+    assert!(stderr.contains("0 invalid"), "{stderr}");
+
+    // Same seed, same drive.
+    let again = tunnelnav()
+        .args([
+            "simulate",
+            "tbm",
+            "--hours",
+            "1",
+            "--seed",
+            "7",
+            "--dropout",
+            "0.5:10",
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(again.stdout, readings.as_bytes());
+    std::fs::remove_dir_all(dir).ok();
+}
+
+#[test]
+fn replay_reports_invalid_lines_by_number_and_skips_them() {
+    let mut child = tunnelnav()
+        .args(["replay", "--engine", "attitude", "-"])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    child
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(
+            b"{\"t\":1772431200,\"sensor\":\"inclinometer\",\"pitch_deg\":0.1,\"roll_deg\":1}\n\
+              {\"t\":1772431201,\"sensor\":\"inclinometer\",\"pitch_deg\":\"x\",\"roll_deg\":1}\n\
+              {\"t\":1772431202,\"sensor\":\"gyro\"}\n\
+              {\"t\":1772431203,\"sensor\":\"inclinometer\",\"pitch_deg\":0.1,\"roll_deg\":1}\n",
+        )
+        .unwrap();
+    let out = child.wait_with_output().unwrap();
+    assert!(out.status.success());
+    let stderr = String::from_utf8(out.stderr).unwrap();
+    assert!(
+        stderr.contains("line 2: field `pitch_deg` must be a number"),
+        "{stderr}"
+    );
+    assert!(stderr.contains("line 3: unknown sensor `gyro`"), "{stderr}");
+    assert!(
+        stderr.contains("4 lines: 2 readings, 2 invalid"),
+        "{stderr}"
+    );
+    assert_eq!(String::from_utf8(out.stdout).unwrap().lines().count(), 2);
+}
+
+#[test]
+fn bad_arguments_are_refused_with_a_clear_message() {
+    let cases: &[(&[&str], &str)] = &[
+        (
+            &["replay", "--engine", "kalman", "-"],
+            "unknown engine `kalman`",
+        ),
+        (
+            &[
+                "replay",
+                "--engine",
+                "attitude",
+                "--param",
+                "fusion_gain_pitch=1.5",
+                "-",
+            ],
+            "`fusion_gain_pitch` = 1.5 is out of range",
+        ),
+        (
+            &[
+                "replay",
+                "--engine",
+                "attitude",
+                "--param",
+                "fusion_gain=0.1",
+                "-",
+            ],
+            "unknown parameter `fusion_gain`",
+        ),
+        (
+            &[
+                "replay",
+                "--engine",
+                "attitude",
+                "/nonexistent/drive.ndjson",
+            ],
+            "cannot open /nonexistent/drive.ndjson",
+        ),
+        (&["simulate", "tbm", "--hours", "0"], "hours must be > 0"),
+    ];
+    for (args, message) in cases {
+        let out = tunnelnav().args(*args).output().unwrap();
+        assert_eq!(out.status.code(), Some(2), "{args:?}");
+        let stderr = String::from_utf8(out.stderr).unwrap();
+        assert!(stderr.contains(message), "{args:?}: {stderr}");
+    }
+    let out = tunnelnav()
+        .args(["simulate", "tbm", "--dropout", "2h"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(
+        String::from_utf8(out.stderr)
+            .unwrap()
+            .contains("START_H:MINUTES")
+    );
+}
+
+#[test]
+fn eval_prints_the_table_with_every_method() {
+    let out = tunnelnav()
+        .args(["eval", "attitude", "--hours", "3", "--dropout", "2:20"])
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let table = String::from_utf8(out.stdout).unwrap();
+    for method in [
+        "tunnelnav attitude",
+        "laser zero-order hold",
+        "raw inclinometer",
+        "constant-offset inclinometer",
+        "dropout 1 max",
+    ] {
+        assert!(table.contains(method), "{table}");
+    }
+}
+
+#[test]
+fn params_lists_every_parameter_with_its_default() {
+    let out = tunnelnav()
+        .args(["params", "--engine", "attitude"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8(out.stdout).unwrap();
+    for spec in tunnelnav::fusion::attitude::PARAMS {
+        assert!(text.contains(spec.name), "{} missing", spec.name);
+    }
+}
