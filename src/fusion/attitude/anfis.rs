@@ -88,14 +88,27 @@ pub struct Anfis {
     version: u64,
 }
 
-/// The part of a rule evaluation that training needs.
-struct Firing {
-    /// Normalised firing strengths ρ̄_i (Eq. 22).
+/// Normalised firing strengths ρ̄ (Eq. 22) of every rule for every training
+/// sample, row-major (sample, rule): computed once per premise and shared by
+/// the least squares, the cost and the gradient.
+struct Firings {
+    rules: usize,
     weights: Vec<f64>,
-    /// Rule outputs y_i (Eq. 23).
-    outputs: Vec<f64>,
-    /// Model output ê (Eq. 24).
-    value: f64,
+}
+
+impl Firings {
+    fn row(&self, sample: usize) -> &[f64] {
+        &self.weights[sample * self.rules..(sample + 1) * self.rules]
+    }
+}
+
+/// ê of Eq. 24 for one sample, given its normalised firings.
+fn blend(rules: &[Rule], firing: &[f64], x: f64) -> f64 {
+    rules
+        .iter()
+        .zip(firing)
+        .map(|(r, w)| w * (r.p0_rad + r.p1 * x)) // Eq. 23
+        .sum()
 }
 
 impl Anfis {
@@ -180,30 +193,30 @@ impl Anfis {
             .fold(f64::NEG_INFINITY, f64::max)
     }
 
-    fn fire(&self, rules: &[Rule], x: f64) -> Firing {
-        // Eq. 20 in log form; Eq. 21 is ρ_i = μ_i with one input. Scaling all
-        // ρ_i by exp(−max) leaves the normalised ρ̄_i of Eq. 22 unchanged and
-        // keeps them from underflowing together far from every centre.
-        let top = rules
-            .iter()
-            .map(|r| log_membership(r, x))
-            .fold(f64::NEG_INFINITY, f64::max);
-        let mut weights: Vec<f64> = rules
-            .iter()
-            .map(|r| (log_membership(r, x) - top).exp())
-            .collect();
-        let total: f64 = weights.iter().sum();
-        for w in &mut weights {
-            *w /= total; // Eq. 22
+    /// Eq. 20–22 for every training sample. In log form: Eq. 21 is
+    /// ρ_i = μ_i with one input, and scaling all ρ_i of a sample by
+    /// exp(−max ln μ) leaves ρ̄_i unchanged while keeping them from
+    /// underflowing together far from every centre.
+    fn firings(&self, rules: &[Rule]) -> Firings {
+        let m = rules.len();
+        let mut weights = Vec::with_capacity(self.samples.len() * m);
+        for s in &self.samples {
+            let start = weights.len();
+            let top = rules
+                .iter()
+                .map(|r| log_membership(r, s.roll_rad))
+                .fold(f64::NEG_INFINITY, f64::max);
+            let mut total = 0.0;
+            for r in rules {
+                let rho = (log_membership(r, s.roll_rad) - top).exp();
+                total += rho;
+                weights.push(rho);
+            }
+            for w in &mut weights[start..] {
+                *w /= total; // Eq. 22
+            }
         }
-        let outputs: Vec<f64> = rules.iter().map(|r| r.p0_rad + r.p1 * x).collect(); // Eq. 23
-        // Eq. 24 with the normalised ρ̄ (NOTES.md: the printed ρ is a typo).
-        let value = weights.iter().zip(&outputs).map(|(w, y)| w * y).sum();
-        Firing {
-            weights,
-            outputs,
-            value,
-        }
+        Firings { rules: m, weights }
     }
 
     /// Adds a pair, forgetting the oldest past the window. Does not train.
@@ -260,7 +273,8 @@ impl Anfis {
             self.rules = self.initial_rules();
             self.step_rad = 0.1 * self.span_rad();
         }
-        let mut cost = match self.fit_consequents(&self.rules.clone(), &weights) {
+        let mut firings = self.firings(&self.rules);
+        let mut cost = match self.fit_consequents(&self.rules, &firings, &weights) {
             Some((rules, cost)) => {
                 self.rules = rules;
                 cost
@@ -268,9 +282,9 @@ impl Anfis {
             None => return,
         };
         for _ in 0..self.config.epochs {
-            cost = self.premise_step(&weights, cost);
+            (firings, cost) = self.premise_step(firings, &weights, cost);
         }
-        self.fit_rmse_rad = self.rmse();
+        self.fit_rmse_rad = self.rmse(&firings);
     }
 
     fn span_rad(&self) -> f64 {
@@ -301,18 +315,23 @@ impl Anfis {
     /// Weighted least squares for the consequents given the premises
     /// (forward half of the hybrid rule). Returns the rules with new
     /// consequents and the cost ½ Σ w r² (Eq. 25 summed over the set).
-    fn fit_consequents(&self, premises: &[Rule], weights: &[f64]) -> Option<(Vec<Rule>, f64)> {
+    fn fit_consequents(
+        &self,
+        premises: &[Rule],
+        firings: &Firings,
+        weights: &[f64],
+    ) -> Option<(Vec<Rule>, f64)> {
         let m = premises.len();
         let n_params = 2 * m;
         let mut normal = DMatrix::<f64>::zeros(n_params, n_params);
         let mut rhs = DVector::<f64>::zeros(n_params);
         let mut row = vec![0.0; n_params];
         let mut total_w = 0.0;
-        for (s, &w) in self.samples.iter().zip(weights) {
-            let firing = self.fire(premises, s.roll_rad);
+        for (j, (s, &w)) in self.samples.iter().zip(weights).enumerate() {
+            let firing = firings.row(j);
             for i in 0..m {
-                row[2 * i] = firing.weights[i];
-                row[2 * i + 1] = firing.weights[i] * s.roll_rad;
+                row[2 * i] = firing[i];
+                row[2 * i + 1] = firing[i] * s.roll_rad;
             }
             for a in 0..n_params {
                 let wa = w * row[a];
@@ -351,7 +370,7 @@ impl Anfis {
                 ..*r
             })
             .collect();
-        let cost = self.cost(&rules, weights);
+        let cost = self.cost(&rules, firings, weights);
         Some((rules, cost))
     }
 
@@ -380,12 +399,13 @@ impl Anfis {
         [my - b * mx, b]
     }
 
-    fn cost(&self, rules: &[Rule], weights: &[f64]) -> f64 {
+    fn cost(&self, rules: &[Rule], firings: &Firings, weights: &[f64]) -> f64 {
         self.samples
             .iter()
             .zip(weights)
-            .map(|(s, w)| {
-                let r = self.fire(rules, s.roll_rad).value - s.error_rad;
+            .enumerate()
+            .map(|(j, (s, w))| {
+                let r = blend(rules, firings.row(j), s.roll_rad) - s.error_rad;
                 0.5 * w * r * r // Eq. 25 per sample, recency-weighted
             })
             .sum()
@@ -395,19 +415,21 @@ impl Anfis {
     /// widths with the consequents held, kept only if the cost (with
     /// consequents refitted) drops; the step length grows after a success
     /// and halves after a failure.
-    fn premise_step(&mut self, weights: &[f64], cost: f64) -> f64 {
+    fn premise_step(&mut self, firings: Firings, weights: &[f64], cost: f64) -> (Firings, f64) {
         let m = self.rules.len();
         let mut grad_c = vec![0.0; m];
         let mut grad_s = vec![0.0; m];
-        for (s, &w) in self.samples.iter().zip(weights) {
+        for (j, (s, &w)) in self.samples.iter().zip(weights).enumerate() {
             let x = s.roll_rad;
-            let f = self.fire(&self.rules, x);
-            let r = f.value - s.error_rad; // ∂E/∂ê for E of Eq. 25
+            let firing = firings.row(j);
+            let value = blend(&self.rules, firing, x);
+            let r = value - s.error_rad; // ∂E/∂ê for E of Eq. 25
             for (i, rule) in self.rules.iter().enumerate() {
                 let d = x - rule.centre_rad;
                 let sigma2 = rule.width_rad * rule.width_rad;
+                let y_i = rule.p0_rad + rule.p1 * x;
                 // ∂ê/∂μ_i · μ_i = ρ̄_i (y_i − ê); ∂ ln μ_i/∂c_i = 2d/σ², ∂ ln μ_i/∂σ_i = 2d²/σ³
-                let common = w * r * f.weights[i] * (f.outputs[i] - f.value);
+                let common = w * r * firing[i] * (y_i - value);
                 grad_c[i] += common * 2.0 * d / sigma2;
                 grad_s[i] += common * 2.0 * d * d / (sigma2 * rule.width_rad);
             }
@@ -419,7 +441,7 @@ impl Anfis {
             .sum::<f64>()
             .sqrt();
         if !(norm > 0.0 && norm.is_finite()) {
-            return cost;
+            return (firings, cost);
         }
         let span = self.span_rad();
         let (lo, hi) = (self.roll_lo_rad - 0.5 * span, self.roll_hi_rad + 0.5 * span);
@@ -435,25 +457,27 @@ impl Anfis {
                 ..*r
             })
             .collect();
-        match self.fit_consequents(&trial, weights) {
+        let trial_firings = self.firings(&trial);
+        match self.fit_consequents(&trial, &trial_firings, weights) {
             Some((rules, trial_cost)) if trial_cost < cost => {
                 self.rules = rules;
                 self.step_rad = (self.step_rad * 1.2).min(span);
-                trial_cost
+                (trial_firings, trial_cost)
             }
             _ => {
                 self.step_rad = (self.step_rad * 0.5).max(1e-6 * span);
-                cost
+                (firings, cost)
             }
         }
     }
 
-    fn rmse(&self) -> f64 {
+    fn rmse(&self, firings: &Firings) -> f64 {
         let n = self.samples.len() as f64;
         let sse: f64 = self
             .samples
             .iter()
-            .map(|s| (self.fire(&self.rules, s.roll_rad).value - s.error_rad).powi(2))
+            .enumerate()
+            .map(|(j, s)| (blend(&self.rules, firings.row(j), s.roll_rad) - s.error_rad).powi(2))
             .sum();
         (sse / n).sqrt()
     }
@@ -520,7 +544,7 @@ mod tests {
         // x = 0: μ₁ = e^{−1}, μ₂ = e^{−1/4}; ρ̄₁ = μ₁/(μ₁+μ₂); y₁ = 1, y₂ = −1.
         let mu1 = (-1.0_f64).exp();
         let mu2 = (-0.25_f64).exp();
-        let expected = (mu1 * 1.0 + mu2 * -1.0) / (mu1 + mu2);
+        let expected = (mu1 - mu2) / (mu1 + mu2); // y₁ = 1, y₂ = −1
         assert!((model.output(0.0) - expected).abs() < 1e-15);
         // x = 2: μ₁ = e^{−9}, μ₂ = e^{−1/4}; y₁ = 2, y₂ = 3.
         let mu1 = (-9.0_f64).exp();
@@ -611,10 +635,11 @@ mod tests {
         }
         model.train();
         let w = model.weights();
-        let mut last = model.cost(&model.rules, &w);
+        let cost = |m: &Anfis| m.cost(&m.rules, &m.firings(&m.rules), &w);
+        let mut last = cost(&model);
         for _ in 0..20 {
             model.train();
-            let now = model.cost(&model.rules, &w);
+            let now = cost(&model);
             assert!(now <= last * (1.0 + 1e-12));
             last = now;
         }
