@@ -334,6 +334,16 @@ fn diagnose(value: &serde_json::Value, fast_path_error: serde_json::Error) -> Re
 }
 
 /// Parses and validates one reading from its JSON text.
+///
+/// ```
+/// use tunnelnav::fusion::{parse_reading, ReadingError, SensorKind};
+///
+/// let r = parse_reading(br#"{"t":1772431200,"sensor":"laser","pitch_deg":0.4,"roll_deg":1.1}"#).unwrap();
+/// assert_eq!(r.sensor(), SensorKind::Laser);
+///
+/// let e = parse_reading(br#"{"t":1772431200,"sensor":"laser","pitch_deg":120,"roll_deg":1}"#);
+/// assert_eq!(e.unwrap_err().field(), Some("pitch_deg"));
+/// ```
 pub fn parse_reading(bytes: &[u8]) -> Result<Reading, ReadingError> {
     match serde_json::from_slice::<RawReading>(bytes) {
         Ok(raw) => raw.validate(),
