@@ -232,6 +232,14 @@ pub const PARAMS: &[ParamSpec] = &[
         "weight pulling each rule towards the global line through the training pairs (sets extrapolation)",
     ),
     real(
+        "correction_slew_deg_per_s",
+        5.0e-4,
+        1.0e-7,
+        10.0,
+        "deg/s",
+        "fastest the applied pitch correction may move once established, so a retrained model (e.g. after a dropout) is blended in without a jump",
+    ),
+    real(
         "roll_offset_gain",
         0.1,
         1.0e-4,
@@ -274,6 +282,8 @@ pub struct AttitudeConfig {
     pub anfis: AnfisConfig,
     pub roll_offset_gain: f64,
     pub pair_max_gap_s: f64,
+    /// rad/s
+    pub correction_slew_per_s: f64,
 }
 
 impl AttitudeConfig {
@@ -317,6 +327,7 @@ impl AttitudeConfig {
             },
             roll_offset_gain: p.real("roll_offset_gain")?,
             pair_max_gap_s: p.real("pair_max_gap_s")?,
+            correction_slew_per_s: rad(p.real("correction_slew_deg_per_s")?),
         })
     }
 }
@@ -358,6 +369,8 @@ pub struct AttitudeEngine {
     correction_filtered_rad: f64,
     /// The ê_a applied at the newest reading.
     correction_rad: f64,
+    /// True once a trained correction has been applied (slew limit active).
+    correction_established: bool,
     laser: LaserHold,
     anfis: Anfis,
     /// Learned β_L − β_I_f; `None` until the first pair.
@@ -427,6 +440,7 @@ impl AttitudeEngine {
             incl_roll: ScalarKalman::default(),
             correction_filtered_rad: 0.0,
             correction_rad: 0.0,
+            correction_established: false,
             laser: LaserHold::new(config.laser_period_s),
             anfis: Anfis::new(config.anfis),
             roll_offset_rad: None,
@@ -506,7 +520,17 @@ impl AttitudeEngine {
         let roll_corrected = self.incl_roll.x + self.roll_offset_rad.unwrap_or(0.0);
 
         // Eq. 17–18 through the filter: α_Ic_f = α_I_f + filtered ê_a.
-        self.correction_rad = self.correction_at(roll_corrected);
+        // Once the model has been trained, the applied ê_a moves towards it
+        // no faster than the slew limit: a retrain after a dropout is
+        // blended in, not jumped to. The first trained value applies at once.
+        let target = self.correction_at(roll_corrected);
+        if self.correction_established {
+            let step = self.config.correction_slew_per_s * dt_s;
+            self.correction_rad += (target - self.correction_rad).clamp(-step, step);
+        } else {
+            self.correction_rad = target;
+            self.correction_established = self.anfis.version() > 0;
+        }
         self.correction_filtered_rad += gain * (self.correction_rad - self.correction_filtered_rad);
         let pitch_corrected = self.incl_pitch.x + self.correction_filtered_rad;
 
