@@ -9,6 +9,9 @@ use serde::Serialize;
 use crate::fusion::reorder::{Admission, ReorderBuffer};
 use crate::fusion::{Engine, parse_reading};
 
+/// Estimates are written out in chunks of about this many bytes.
+const FLUSH_BYTES: usize = 64 * 1024;
+
 /// How to replay.
 #[derive(Debug, Clone)]
 pub struct ReplayOptions {
@@ -83,17 +86,21 @@ pub fn replay(
     let mut ready = Vec::new();
     let mut outputs = Vec::new();
 
+    // Estimates are serialised into one buffer and written in large chunks:
+    // serde_json writes many small pieces, which through a `dyn Write`
+    // dominated the replay's cost.
+    let mut pending = Vec::with_capacity(FLUSH_BYTES + 1024);
     let mut feed = |ready: &mut Vec<_>,
                     engine: &mut dyn Engine,
-                    output: &mut dyn Write,
+                    pending: &mut Vec<u8>,
                     summary: &mut ReplaySummary|
      -> io::Result<()> {
         for reading in ready.drain(..) {
             outputs.clear();
             engine.feed(&reading, &mut outputs);
             for estimate in &outputs {
-                serde_json::to_writer(&mut *output, &estimate.for_machine(&options.machine))?;
-                output.write_all(b"\n")?;
+                serde_json::to_writer(&mut *pending, &estimate.for_machine(&options.machine))?;
+                pending.push(b'\n');
                 summary.estimates += 1;
             }
         }
@@ -136,10 +143,15 @@ pub fn replay(
             Admission::Duplicate => {}
         }
         reorder.pop_ready(&mut ready);
-        feed(&mut ready, engine, &mut output, &mut summary)?;
+        feed(&mut ready, engine, &mut pending, &mut summary)?;
+        if pending.len() >= FLUSH_BYTES {
+            output.write_all(&pending)?;
+            pending.clear();
+        }
     }
     reorder.drain(&mut ready);
-    feed(&mut ready, engine, &mut output, &mut summary)?;
+    feed(&mut ready, engine, &mut pending, &mut summary)?;
+    output.write_all(&pending)?;
     let stats = reorder.stats();
     summary.late = stats.late;
     summary.duplicates = stats.duplicates;

@@ -16,6 +16,9 @@
 //! one-step prediction made just before each laser sample, compared with the
 //! truth at the time it predicts. "Through a dropout" is from the dropout's
 //! start until two laser periods after it ends, to include the recovery.
+//! The step excess (how much more an output moves between two readings than
+//! the truth does) is taken over the two laser periods after the laser
+//! returns, and over the two before the dropout as the ordinary reference.
 
 use crate::fusion::attitude::kalman::ScalarKalman;
 use crate::fusion::attitude::{AttitudeConfig, AttitudeEngine, PARAMS};
@@ -62,6 +65,9 @@ pub struct MethodScores {
     /// Largest step between consecutive pitch outputs beyond the true step,
     /// within two laser periods after each dropout ends.
     pub return_step_excess_deg: Vec<f64>,
+    /// The same over the two laser periods before each dropout starts: the
+    /// ordinary step noise the return is compared with.
+    pub steady_step_excess_deg: Vec<f64>,
 }
 
 /// The scores of every method on one drive.
@@ -121,6 +127,7 @@ impl Scorer {
                 pitch_pred_at_laser: ErrorStats::default(),
                 pitch_in_dropout: vec![ErrorStats::default(); dropouts],
                 return_step_excess_deg: vec![0.0; dropouts],
+                steady_step_excess_deg: vec![0.0; dropouts],
             },
             current: None,
             prediction: None,
@@ -135,6 +142,8 @@ struct Windows {
     scored_from_t: f64,
     /// (start, end, recovery end) of each dropout.
     dropouts: Vec<(f64, f64, f64)>,
+    /// Length of the recovery window (and of the steady window before).
+    recovery_s: f64,
 }
 
 /// The constant-offset baseline: filtered inclinometer plus a frozen offset.
@@ -207,6 +216,7 @@ pub fn evaluate(config: &AttitudeEvalConfig) -> Result<AttitudeEvaluation, EvalE
                 (start, end, end + recovery_s)
             })
             .collect(),
+        recovery_s,
     };
     let mut offset = ConstantOffset {
         pitch: ScalarKalman::default(),
@@ -332,12 +342,16 @@ fn score(
         if t >= start && t < recovery_end {
             scorer.scores.pitch_in_dropout[i].add(current.0 - truth.pitch_deg);
         }
-        if t >= end
-            && t < recovery_end
-            && let (Some(prev), Some(prev_truth)) = (scorer.previous_pitch, previous_truth_pitch)
-        {
-            let excess = (current.0 - prev).abs() - (truth.pitch_deg - prev_truth).abs();
+        let Some((prev, prev_truth)) = scorer.previous_pitch.zip(previous_truth_pitch) else {
+            continue;
+        };
+        let excess = (current.0 - prev).abs() - (truth.pitch_deg - prev_truth).abs();
+        if t >= end && t < recovery_end {
             let slot = &mut scorer.scores.return_step_excess_deg[i];
+            *slot = slot.max(excess);
+        }
+        if t >= start - windows.recovery_s && t < start {
+            let slot = &mut scorer.scores.steady_step_excess_deg[i];
             *slot = slot.max(excess);
         }
     }

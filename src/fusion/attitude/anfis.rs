@@ -14,6 +14,10 @@ use std::collections::VecDeque;
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
+/// Most memberships a model may have (the engine's parameter range).
+pub const MAX_MEMBERSHIPS: usize = 9;
+const MAX_PARAMS: usize = 2 * MAX_MEMBERSHIPS;
+
 /// One training pair from a laser instant (Eq. 16).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct TrainingSample {
@@ -23,6 +27,9 @@ pub struct TrainingSample {
     pub roll_rad: f64,
     /// Pitch error e_a = α_L − α_I at that instant.
     pub error_rad: f64,
+    /// Arrival number, assigned by [`Anfis::add_sample`]; ages are counted in it.
+    #[serde(default)]
+    pub seq: u64,
 }
 
 /// How the model is shaped and trained.
@@ -32,8 +39,17 @@ pub struct AnfisConfig {
     pub memberships: usize,
     /// Most training samples kept; older ones are forgotten.
     pub window: usize,
+    /// Width of the roll bins the training set is stratified by.
+    pub bin_width_rad: f64,
+    /// Most samples kept per roll bin: a new sample replaces the oldest of
+    /// its bin, so a roll region visited hours ago is not forgotten just
+    /// because the machine has spent the time elsewhere.
+    pub per_bin: usize,
     /// Age, in samples, at which a sample's weight has halved.
     pub half_life: f64,
+    /// Floor of the recency weight, so the only samples of a roll region
+    /// still count.
+    pub min_weight: f64,
     /// Hybrid epochs run per new sample.
     pub epochs: usize,
     /// Samples needed before the rules are fitted; until then the output is
@@ -219,25 +235,47 @@ impl Anfis {
         Firings { rules: m, weights }
     }
 
-    /// Adds a pair, forgetting the oldest past the window. Does not train.
-    pub fn add_sample(&mut self, sample: TrainingSample) {
-        if self.samples.len() == self.config.window {
+    /// Adds a pair: it replaces the oldest of its roll bin when the bin is
+    /// full, else the oldest of all when the window is full. Does not train.
+    pub fn add_sample(&mut self, mut sample: TrainingSample) {
+        sample.seq = self.samples.back().map_or(0, |s| s.seq + 1);
+        let bin = self.bin(sample.roll_rad);
+        let in_bin = self
+            .samples
+            .iter()
+            .filter(|s| self.bin(s.roll_rad) == bin)
+            .count();
+        if in_bin >= self.config.per_bin {
+            if let Some(oldest) = self
+                .samples
+                .iter()
+                .position(|s| self.bin(s.roll_rad) == bin)
+            {
+                self.samples.remove(oldest);
+            }
+        } else if self.samples.len() >= self.config.window {
             self.samples.pop_front();
         }
         self.samples.push_back(sample);
     }
 
-    /// Recency weights, oldest first: the newest weighs 1, one half-life older 0.5.
+    fn bin(&self, roll_rad: f64) -> i64 {
+        (roll_rad / self.config.bin_width_rad).floor() as i64
+    }
+
+    /// Recency weights, oldest first: the newest weighs 1, one half-life
+    /// older 0.5, never less than the floor.
     fn weights(&self) -> Vec<f64> {
-        let n = self.samples.len();
-        let decay = 0.5_f64.powf(1.0 / self.config.half_life);
-        let mut w = vec![0.0; n];
-        let mut current = 1.0;
-        for slot in w.iter_mut().rev() {
-            *slot = current;
-            current *= decay;
-        }
-        w
+        let newest = self.samples.back().map_or(0, |s| s.seq);
+        self.samples
+            .iter()
+            .map(|s| {
+                let age = (newest - s.seq) as f64;
+                0.5_f64
+                    .powf(age / self.config.half_life)
+                    .max(self.config.min_weight)
+            })
+            .collect()
     }
 
     /// Trains on the current set: hybrid epochs warm-started from the
@@ -323,9 +361,11 @@ impl Anfis {
     ) -> Option<(Vec<Rule>, f64)> {
         let m = premises.len();
         let n_params = 2 * m;
-        let mut normal = DMatrix::<f64>::zeros(n_params, n_params);
-        let mut rhs = DVector::<f64>::zeros(n_params);
-        let mut row = vec![0.0; n_params];
+        // Normal equations accumulated in a fixed array (upper triangle):
+        // this loop is the training's hot spot.
+        let mut normal = [[0.0_f64; MAX_PARAMS]; MAX_PARAMS];
+        let mut rhs = [0.0_f64; MAX_PARAMS];
+        let mut row = [0.0_f64; MAX_PARAMS];
         let mut total_w = 0.0;
         for (j, (s, &w)) in self.samples.iter().zip(weights).enumerate() {
             let firing = firings.row(j);
@@ -337,7 +377,7 @@ impl Anfis {
                 let wa = w * row[a];
                 rhs[a] += wa * s.error_rad;
                 for b in a..n_params {
-                    normal[(a, b)] += wa * row[b];
+                    normal[a][b] += wa * row[b];
                 }
             }
             total_w += w;
@@ -347,16 +387,15 @@ impl Anfis {
         let span = self.span_rad();
         let [a, b] = self.global_line;
         for i in 0..m {
-            normal[(2 * i, 2 * i)] += lambda;
+            normal[2 * i][2 * i] += lambda;
             rhs[2 * i] += lambda * a;
-            normal[(2 * i + 1, 2 * i + 1)] += lambda * span * span;
+            normal[2 * i + 1][2 * i + 1] += lambda * span * span;
             rhs[2 * i + 1] += lambda * span * span * b;
         }
-        for a in 0..n_params {
-            for b in 0..a {
-                normal[(a, b)] = normal[(b, a)];
-            }
-        }
+        let normal = DMatrix::from_fn(n_params, n_params, |r, c| {
+            if r <= c { normal[r][c] } else { normal[c][r] }
+        });
+        let rhs = DVector::from_column_slice(&rhs[..n_params]);
         let solution = normal.cholesky()?.solve(&rhs);
         if solution.iter().any(|x| !x.is_finite()) {
             return None;
@@ -508,7 +547,10 @@ mod tests {
         AnfisConfig {
             memberships: 3,
             window: 400,
+            bin_width_rad: rad(0.25),
+            per_bin: 1000,
             half_life: 1.0e9,
+            min_weight: 0.0,
             epochs: 1,
             min_samples: 6,
             min_width_rad: rad(0.1),
@@ -572,6 +614,7 @@ mod tests {
                 t: i as f64,
                 roll_rad: i as f64,
                 error_rad: e,
+                seq: 0,
             });
         }
         model.train();
@@ -598,6 +641,7 @@ mod tests {
                 t: i as f64,
                 roll_rad: rad(roll_deg),
                 error_rad: rad(curve_deg(roll_deg)),
+                seq: 0,
             });
         }
         for _ in 0..300 {
@@ -631,6 +675,7 @@ mod tests {
                 t: i as f64,
                 roll_rad: rad(roll_deg),
                 error_rad: rad(curve_deg(roll_deg)),
+                seq: 0,
             });
         }
         model.train();
@@ -656,6 +701,7 @@ mod tests {
                 t: i as f64,
                 roll_rad: 0.0,
                 error_rad: 0.0,
+                seq: 0,
             });
         }
         assert_eq!(model.samples().len(), 20);

@@ -108,7 +108,7 @@ pub const PARAMS: &[ParamSpec] = &[
     ),
     real(
         "q_pitch_deg2_per_s",
-        1.2e-5,
+        1.6e-5,
         1.0e-14,
         1.0,
         "deg²/s",
@@ -178,6 +178,21 @@ pub const PARAMS: &[ParamSpec] = &[
         "most (roll, pitch error) pairs kept for training",
     ),
     real(
+        "training_bin_deg",
+        0.25,
+        0.001,
+        10.0,
+        "deg",
+        "width of the roll bins the training pairs are stratified by",
+    ),
+    integer(
+        "training_per_bin",
+        12,
+        1,
+        5000,
+        "most training pairs kept per roll bin (a new pair replaces the oldest of its bin)",
+    ),
+    real(
         "training_half_life_samples",
         30.0,
         1.0,
@@ -185,9 +200,17 @@ pub const PARAMS: &[ParamSpec] = &[
         "samples",
         "age at which a training pair weighs half as much as the newest",
     ),
+    real(
+        "training_min_weight",
+        0.1,
+        0.0,
+        1.0,
+        "",
+        "floor of a training pair's recency weight, so the only pairs of a roll region still count",
+    ),
     integer(
         "anfis_epochs",
-        3,
+        1,
         1,
         50,
         "hybrid training epochs run per laser sample",
@@ -317,7 +340,10 @@ impl AttitudeConfig {
             anfis: AnfisConfig {
                 memberships: p.integer("anfis_memberships")? as usize,
                 window,
+                bin_width_rad: rad(p.real("training_bin_deg")?),
+                per_bin: p.integer("training_per_bin")? as usize,
                 half_life: p.real("training_half_life_samples")?,
+                min_weight: p.real("training_min_weight")?,
                 epochs: p.integer("anfis_epochs")? as usize,
                 min_samples,
                 min_width_rad: rad(p.real("anfis_min_width_deg")?),
@@ -638,6 +664,7 @@ impl AttitudeEngine {
             t,
             roll_rad: laser_roll,
             error_rad: laser_pitch - incl.pitch_rad,
+            seq: 0,
         });
         if self.config.correction != Correction::None {
             self.anfis.train();
@@ -876,6 +903,62 @@ mod tests {
         assert!(ok[..=240].iter().all(|&b| b));
         assert!(ok[241..].iter().all(|&b| !b));
         assert!(e.model_report(true).frozen);
+    }
+
+    #[test]
+    fn laser_return_is_blended_in_without_overshoot() {
+        // The inclinometer reads a constant 0.5°; the laser says 0.8° for an
+        // hour, drops out for 45 min, and comes back saying 0.85°: the
+        // inclinometer's error moved by 0.05° while nothing could see it.
+        let mut e =
+            AttitudeEngine::new(Params::from_assignments(PARAMS, ["laser_period_s=60"]).unwrap())
+                .unwrap();
+        let mut out = Vec::new();
+        let laser_at = |s: usize| s % 60 == 0 && !(3600..6300).contains(&s);
+        let mut pitch = Vec::new();
+        for s in 0..9000 {
+            let t = T0 + s as f64;
+            if laser_at(s) {
+                let truth = if s < 3600 { 0.8 } else { 0.85 };
+                e.feed(&laser(t, truth, 1.0), &mut out);
+            }
+            out.clear();
+            e.feed(&incl(t, 0.5, 1.0), &mut out);
+            let a = attitude(&out);
+            pitch.push((s, a.pitch_deg, a.laser_ok));
+        }
+        let before = pitch[3599].1;
+        assert!((before - 0.8).abs() < 1e-3, "{before}");
+        assert!(!pitch[6000].2, "the dropout is detected");
+        assert!(
+            (pitch[6000].1 - before).abs() < 1e-9,
+            "frozen during dropout"
+        );
+        // After the return: each step within the slew limit plus the laser
+        // weight's share of the change, never past the new truth, and there
+        // within twenty minutes (a roll bin holds 12 pairs: the new error is
+        // adopted over about 12 laser samples).
+        let max_step = 5.0e-4 + 0.02 * 0.05 + 1e-9;
+        for w in pitch[6300..].windows(2) {
+            assert!(
+                (w[1].1 - w[0].1).abs() <= max_step,
+                "step {} at {} s",
+                w[1].1 - w[0].1,
+                w[1].0
+            );
+            assert!(
+                w[1].1 <= 0.85 + 1e-3,
+                "overshoot {} at {} s",
+                w[1].1,
+                w[1].0
+            );
+        }
+        assert!(pitch[6300 + 600].1 > before + 0.03, "{}", pitch[6900].1);
+        assert!(
+            (pitch[6300 + 1200].1 - 0.85).abs() < 2e-3,
+            "{}",
+            pitch[7500].1
+        );
     }
 
     #[test]
