@@ -6,6 +6,7 @@ use std::io::{self, BufRead, Write};
 
 use serde::Serialize;
 
+use crate::fusion::estimate::EstimateWriter;
 use crate::fusion::reorder::{Admission, ReorderBuffer};
 use crate::fusion::{Engine, parse_reading};
 
@@ -86,10 +87,9 @@ pub fn replay(
     let mut ready = Vec::new();
     let mut outputs = Vec::new();
 
-    // Estimates are serialised into one buffer and written in large chunks:
-    // serde_json writes many small pieces, which through a `dyn Write`
-    // dominated the replay's cost.
+    // Estimates are formatted into one buffer and written in large chunks.
     let mut pending = Vec::with_capacity(FLUSH_BYTES + 1024);
+    let mut writer = EstimateWriter::new(&options.machine);
     let mut feed = |ready: &mut Vec<_>,
                     engine: &mut dyn Engine,
                     pending: &mut Vec<u8>,
@@ -99,8 +99,7 @@ pub fn replay(
             outputs.clear();
             engine.feed(&reading, &mut outputs);
             for estimate in &outputs {
-                serde_json::to_writer(&mut *pending, &estimate.for_machine(&options.machine))?;
-                pending.push(b'\n');
+                writer.write_line(estimate, pending);
                 summary.estimates += 1;
             }
         }

@@ -71,9 +71,126 @@ impl EngineOutput {
     }
 }
 
+/// Writes estimates as NDJSON lines, byte for byte what serde_json writes
+/// for [`EngineOutput::for_machine`], without serde's per-field overhead
+/// (the float and integer formatters are the ones serde_json uses). Used
+/// on replay's hot path; the tests hold it to serde_json's output.
+pub struct EstimateWriter {
+    /// `"machine":"<id>"`, escaped once.
+    machine_field: Vec<u8>,
+    floats: zmij::Buffer,
+    integers: itoa::Buffer,
+}
+
+impl EstimateWriter {
+    /// A writer for one machine's estimates.
+    pub fn new(machine: &str) -> EstimateWriter {
+        let mut machine_field = b"\"machine\":".to_vec();
+        // Serialising a string into a Vec cannot fail.
+        let _ = serde_json::to_writer(&mut machine_field, machine);
+        EstimateWriter {
+            machine_field,
+            floats: zmij::Buffer::new(),
+            integers: itoa::Buffer::new(),
+        }
+    }
+
+    /// Appends `output` and a newline to `out`.
+    pub fn write_line(&mut self, output: &EngineOutput, out: &mut Vec<u8>) {
+        out.push(b'{');
+        self.number(out, "t", output.t);
+        out.push(b',');
+        out.extend_from_slice(&self.machine_field);
+        match &output.values {
+            EstimateValues::Attitude(a) => {
+                out.extend_from_slice(b",\"engine\":\"attitude\"");
+                for (key, value) in [
+                    ("pitch_deg", a.pitch_deg),
+                    ("roll_deg", a.roll_deg),
+                    ("pitch_pred_deg", a.pitch_pred_deg),
+                    ("roll_pred_deg", a.roll_pred_deg),
+                    ("pred_t", a.pred_t),
+                ] {
+                    out.push(b',');
+                    self.number(out, key, value);
+                }
+                out.extend_from_slice(if a.laser_ok {
+                    b",\"laser_ok\":true"
+                } else {
+                    b",\"laser_ok\":false"
+                });
+                out.push(b',');
+                self.number(out, "pitch_correction_deg", a.pitch_correction_deg);
+                out.extend_from_slice(b",\"laser_age_s\":");
+                match a.laser_age_s {
+                    Some(age) => self.float(out, age),
+                    None => out.extend_from_slice(b"null"),
+                }
+                out.extend_from_slice(b",\"model_version\":");
+                out.extend_from_slice(self.integers.format(a.model_version).as_bytes());
+            }
+        }
+        out.extend_from_slice(b"}\n");
+    }
+
+    fn number(&mut self, out: &mut Vec<u8>, key: &str, value: f64) {
+        out.push(b'"');
+        out.extend_from_slice(key.as_bytes());
+        out.extend_from_slice(b"\":");
+        self.float(out, value);
+    }
+
+    fn float(&mut self, out: &mut Vec<u8>, value: f64) {
+        if value.is_finite() {
+            out.extend_from_slice(self.floats.format_finite(value).as_bytes());
+        } else {
+            out.extend_from_slice(b"null"); // as serde_json writes non-finite floats
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn estimate_writer_matches_serde_json_byte_for_byte() {
+        let mut state = 0x2545_f491_4f6c_dd1d_u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for machine in ["tbm-1", "a \"quoted\" \\ name", "é"] {
+            let mut writer = EstimateWriter::new(machine);
+            for i in 0..2000 {
+                let scale = 10f64.powi((i % 9) as i32 - 4);
+                let output = EngineOutput {
+                    t: 1.7e9 + next() * 1e6,
+                    values: EstimateValues::Attitude(AttitudeEstimate {
+                        pitch_deg: (next() - 0.5) * scale,
+                        roll_deg: (next() - 0.5) * 360.0,
+                        pitch_pred_deg: (next() - 0.5) * scale,
+                        roll_pred_deg: -0.0,
+                        pred_t: 1.7e9 + (i as f64),
+                        laser_ok: i % 3 == 0,
+                        pitch_correction_deg: if i % 5 == 0 { f64::NAN } else { next() },
+                        laser_age_s: (i % 4 != 0).then(|| next() * 1e4),
+                        model_version: i * 7919,
+                    }),
+                };
+                let mut ours = Vec::new();
+                writer.write_line(&output, &mut ours);
+                let mut expected = serde_json::to_vec(&output.for_machine(machine)).unwrap();
+                expected.push(b'\n');
+                assert_eq!(
+                    String::from_utf8(ours).unwrap(),
+                    String::from_utf8(expected).unwrap()
+                );
+            }
+        }
+    }
 
     #[test]
     fn serialises_with_engine_tag_and_parses_back() {

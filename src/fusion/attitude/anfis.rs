@@ -216,15 +216,17 @@ impl Anfis {
     fn firings(&self, rules: &[Rule]) -> Firings {
         let m = rules.len();
         let mut weights = Vec::with_capacity(self.samples.len() * m);
+        let mut logs = [0.0_f64; MAX_MEMBERSHIPS];
         for s in &self.samples {
             let start = weights.len();
-            let top = rules
-                .iter()
-                .map(|r| log_membership(r, s.roll_rad))
-                .fold(f64::NEG_INFINITY, f64::max);
+            let mut top = f64::NEG_INFINITY;
+            for (log, r) in logs.iter_mut().zip(rules) {
+                *log = log_membership(r, s.roll_rad);
+                top = top.max(*log);
+            }
             let mut total = 0.0;
-            for r in rules {
-                let rho = (log_membership(r, s.roll_rad) - top).exp();
+            for log in &logs[..m] {
+                let rho = (log - top).exp();
                 total += rho;
                 weights.push(rho);
             }
@@ -367,6 +369,7 @@ impl Anfis {
         let mut rhs = [0.0_f64; MAX_PARAMS];
         let mut row = [0.0_f64; MAX_PARAMS];
         let mut total_w = 0.0;
+        let mut weighted_sq = 0.0;
         for (j, (s, &w)) in self.samples.iter().zip(weights).enumerate() {
             let firing = firings.row(j);
             for i in 0..m {
@@ -381,7 +384,10 @@ impl Anfis {
                 }
             }
             total_w += w;
+            weighted_sq += w * s.error_rad * s.error_rad;
         }
+        // Kept before the ridge is added: the cost below is of the data alone.
+        let (data_normal, data_rhs) = (normal, rhs);
         // Ridge towards the global line, the slope measured across the span.
         let lambda = self.config.ridge * total_w;
         let span = self.span_rad();
@@ -409,7 +415,18 @@ impl Anfis {
                 ..*r
             })
             .collect();
-        let cost = self.cost(&rules, firings, weights);
+        // Eq. 25 summed with the weights, from the normal equations:
+        // ½ Σ w (e − aᵀp)² = ½ (Σ w e² − 2 pᵀ b + pᵀ N p).
+        let p = solution.as_slice();
+        let mut quadratic = 0.0;
+        for a in 0..n_params {
+            quadratic += p[a] * p[a] * data_normal[a][a];
+            for b in a + 1..n_params {
+                quadratic += 2.0 * p[a] * p[b] * data_normal[a][b];
+            }
+        }
+        let linear: f64 = (0..n_params).map(|a| p[a] * data_rhs[a]).sum();
+        let cost = (0.5 * (weighted_sq - 2.0 * linear + quadratic)).max(0.0);
         Some((rules, cost))
     }
 
@@ -438,6 +455,9 @@ impl Anfis {
         [my - b * mx, b]
     }
 
+    /// The cost summed directly over the samples: the reference that the
+    /// normal-equation form in `fit_consequents` is tested against.
+    #[cfg(test)]
     fn cost(&self, rules: &[Rule], firings: &Firings, weights: &[f64]) -> f64 {
         self.samples
             .iter()
@@ -688,6 +708,32 @@ mod tests {
             assert!(now <= last * (1.0 + 1e-12));
             last = now;
         }
+    }
+
+    #[test]
+    fn normal_equation_cost_matches_the_direct_sum() {
+        let mut model = Anfis::new(AnfisConfig {
+            half_life: 7.0,
+            ..config()
+        });
+        for i in 0..60 {
+            let roll_deg = -2.0 + 0.1 * i as f64;
+            model.add_sample(TrainingSample {
+                t: i as f64,
+                roll_rad: rad(roll_deg),
+                error_rad: rad(curve_deg(roll_deg) + 0.003 * ((i * 7) % 5) as f64),
+                seq: 0,
+            });
+        }
+        model.train();
+        let w = model.weights();
+        let firings = model.firings(&model.rules);
+        let (rules, cost) = model.fit_consequents(&model.rules, &firings, &w).unwrap();
+        let direct = model.cost(&rules, &firings, &w);
+        assert!(
+            (cost - direct).abs() <= 1e-9 * direct.max(1e-30),
+            "{cost} vs {direct}"
+        );
     }
 
     #[test]
