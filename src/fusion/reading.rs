@@ -5,8 +5,6 @@
 //! field was wrong. Validation turns the flat struct into a typed [`Reading`]
 //! or a [`ReadingError`] naming the field.
 
-use std::borrow::Cow;
-
 use serde::{Deserialize, Serialize};
 
 /// Earliest accepted reading time: 2000-01-01T00:00:00Z.
@@ -216,12 +214,37 @@ fn vector(field: &'static str, value: Option<[f64; 3]>) -> Result<[f64; 3], Read
     Ok(v)
 }
 
+/// The `sensor` field, matched without allocating for the known names.
+#[derive(Debug)]
+enum SensorTag {
+    Known(SensorKind),
+    Unknown(String),
+}
+
+impl<'de> Deserialize<'de> for SensorTag {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        struct Visitor;
+        impl serde::de::Visitor<'_> for Visitor {
+            type Value = SensorTag;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a sensor name")
+            }
+            fn visit_str<E: serde::de::Error>(self, name: &str) -> Result<SensorTag, E> {
+                Ok(match SensorKind::from_name(name) {
+                    Some(kind) => SensorTag::Known(kind),
+                    None => SensorTag::Unknown(name.to_string()),
+                })
+            }
+        }
+        deserializer.deserialize_str(Visitor)
+    }
+}
+
 /// The flat shape every reading is first parsed into (fast path).
 #[derive(Debug, Default, Deserialize)]
-struct RawReading<'a> {
+struct RawReading {
     t: Option<f64>,
-    #[serde(borrow)]
-    sensor: Option<Cow<'a, str>>,
+    sensor: Option<SensorTag>,
     pitch_deg: Option<f64>,
     roll_deg: Option<f64>,
     yaw_deg: Option<f64>,
@@ -233,14 +256,14 @@ struct RawReading<'a> {
     distance_m: Option<f64>,
 }
 
-impl RawReading<'_> {
+impl RawReading {
     fn validate(self) -> Result<Reading, ReadingError> {
         let t = required("t", self.t)?;
-        let sensor = self
-            .sensor
-            .ok_or(ReadingError::Missing { field: "sensor" })?;
-        let kind = SensorKind::from_name(&sensor)
-            .ok_or_else(|| ReadingError::UnknownSensor(sensor.into_owned()))?;
+        let kind = match self.sensor {
+            None => return Err(ReadingError::Missing { field: "sensor" }),
+            Some(SensorTag::Known(kind)) => kind,
+            Some(SensorTag::Unknown(name)) => return Err(ReadingError::UnknownSensor(name)),
+        };
         let data = match kind {
             SensorKind::Laser => SensorData::Laser {
                 pitch_deg: required("pitch_deg", self.pitch_deg)?,

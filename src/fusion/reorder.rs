@@ -9,7 +9,7 @@
 //! released early.
 
 use std::cmp::Ordering;
-use std::collections::BinaryHeap;
+use std::collections::VecDeque;
 
 use serde::{Deserialize, Serialize};
 
@@ -45,28 +45,15 @@ struct Entry {
 }
 
 impl Entry {
+    /// Release order: time, then sensor (protocol order), then arrival.
     fn key(&self) -> (f64, SensorKind, u64) {
         (self.reading.t, self.reading.sensor(), self.seq)
     }
-}
 
-impl PartialEq for Entry {
-    fn eq(&self, other: &Self) -> bool {
-        self.cmp(other) == Ordering::Equal
-    }
-}
-impl Eq for Entry {}
-impl PartialOrd for Entry {
-    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
-        Some(self.cmp(other))
-    }
-}
-impl Ord for Entry {
-    /// Reversed so that `BinaryHeap` (a max-heap) pops the oldest first.
-    fn cmp(&self, other: &Self) -> Ordering {
+    fn before(&self, other: &Entry) -> bool {
         let (ta, sa, qa) = self.key();
         let (tb, sb, qb) = other.key();
-        tb.total_cmp(&ta).then(sb.cmp(&sa)).then(qb.cmp(&qa))
+        ta.total_cmp(&tb).then(sa.cmp(&sb)).then(qa.cmp(&qb)) == Ordering::Less
     }
 }
 
@@ -75,7 +62,9 @@ impl Ord for Entry {
 pub struct ReorderBuffer {
     window_s: f64,
     max_len: usize,
-    heap: BinaryHeap<Entry>,
+    /// Held readings in release order. Streams are mostly in order, so a
+    /// new reading usually goes at the back.
+    held: VecDeque<Entry>,
     newest_t: f64,
     /// Time and sensors of the most recently released instant, for
     /// duplicate detection.
@@ -91,7 +80,7 @@ impl ReorderBuffer {
         ReorderBuffer {
             window_s: window_s.max(0.0),
             max_len: max_len.max(1),
-            heap: BinaryHeap::new(),
+            held: VecDeque::new(),
             newest_t: f64::NEG_INFINITY,
             released_t: f64::NEG_INFINITY,
             released_sensors: Vec::new(),
@@ -112,18 +101,25 @@ impl ReorderBuffer {
         }
         self.newest_t = self.newest_t.max(reading.t);
         self.seq += 1;
-        self.heap.push(Entry {
+        let entry = Entry {
             reading,
             seq: self.seq,
-        });
+        };
+        match self.held.back() {
+            Some(last) if entry.before(last) => {
+                let at = self.held.partition_point(|e| e.before(&entry));
+                self.held.insert(at, entry);
+            }
+            _ => self.held.push_back(entry),
+        }
         Admission::Buffered
     }
 
     /// Releases, in time order, every reading whose window has passed.
     pub fn pop_ready(&mut self, out: &mut Vec<Reading>) {
         let horizon = self.newest_t - self.window_s;
-        while let Some(top) = self.heap.peek() {
-            if top.reading.t <= horizon || self.heap.len() > self.max_len {
+        while let Some(first) = self.held.front() {
+            if first.reading.t <= horizon || self.held.len() > self.max_len {
                 self.release_top(out);
             } else {
                 break;
@@ -133,13 +129,13 @@ impl ReorderBuffer {
 
     /// Releases everything still held (end of input).
     pub fn drain(&mut self, out: &mut Vec<Reading>) {
-        while !self.heap.is_empty() {
+        while !self.held.is_empty() {
             self.release_top(out);
         }
     }
 
     fn release_top(&mut self, out: &mut Vec<Reading>) {
-        let Some(entry) = self.heap.pop() else {
+        let Some(entry) = self.held.pop_front() else {
             return;
         };
         let reading = entry.reading;
@@ -160,12 +156,12 @@ impl ReorderBuffer {
 
     /// Readings currently held.
     pub fn len(&self) -> usize {
-        self.heap.len()
+        self.held.len()
     }
 
     /// True when nothing is held.
     pub fn is_empty(&self) -> bool {
-        self.heap.is_empty()
+        self.held.is_empty()
     }
 
     /// What the buffer has done so far.

@@ -102,11 +102,14 @@ pub struct Anfis {
     fit_rmse_rad: f64,
     /// Times the model has been trained.
     version: u64,
+    #[serde(skip)]
+    cache: FiringCache,
 }
 
 /// Normalised firing strengths ρ̄ (Eq. 22) of every rule for every training
 /// sample, row-major (sample, rule): computed once per premise and shared by
 /// the least squares, the cost and the gradient.
+#[derive(Debug, Clone)]
 struct Firings {
     rules: usize,
     weights: Vec<f64>,
@@ -115,6 +118,23 @@ struct Firings {
 impl Firings {
     fn row(&self, sample: usize) -> &[f64] {
         &self.weights[sample * self.rules..(sample + 1) * self.rules]
+    }
+
+    fn rows(&self) -> usize {
+        self.weights.len() / self.rules.max(1)
+    }
+}
+
+/// The firings of the training set under the current premises, kept
+/// between trainings so that a new pair costs one row, not a recomputation.
+/// It is derived data: never serialised, rebuilt when missing, and ignored
+/// when models are compared.
+#[derive(Debug, Clone, Default)]
+struct FiringCache(Option<Firings>);
+
+impl PartialEq for FiringCache {
+    fn eq(&self, _other: &Self) -> bool {
+        true
     }
 }
 
@@ -141,6 +161,7 @@ impl Anfis {
             step_rad: 0.0,
             fit_rmse_rad: 0.0,
             version: 0,
+            cache: FiringCache::default(),
         }
     }
 
@@ -185,15 +206,10 @@ impl Anfis {
             return self.mean_error_rad;
         }
         let x = self.guard(roll_rad);
-        let mut num = 0.0;
-        let mut den = 0.0;
-        let top = self.log_firing_max(x);
-        for rule in &self.rules {
-            let rho = (log_membership(rule, x) - top).exp();
-            num += rho * (rule.p0_rad + rule.p1 * x);
-            den += rho;
-        }
-        num / den
+        let mut firing = [0.0; MAX_MEMBERSHIPS];
+        let firing = &mut firing[..self.rules.len()];
+        fire_into(&self.rules, x, firing);
+        blend(&self.rules, firing, x)
     }
 
     /// Holds the input within the trained range widened by the guard.
@@ -202,37 +218,12 @@ impl Anfis {
         roll_rad.clamp(self.roll_lo_rad - margin, self.roll_hi_rad + margin)
     }
 
-    fn log_firing_max(&self, x: f64) -> f64 {
-        self.rules
-            .iter()
-            .map(|r| log_membership(r, x))
-            .fold(f64::NEG_INFINITY, f64::max)
-    }
-
-    /// Eq. 20–22 for every training sample. In log form: Eq. 21 is
-    /// ρ_i = μ_i with one input, and scaling all ρ_i of a sample by
-    /// exp(−max ln μ) leaves ρ̄_i unchanged while keeping them from
-    /// underflowing together far from every centre.
+    /// Eq. 20–22 for every training sample.
     fn firings(&self, rules: &[Rule]) -> Firings {
         let m = rules.len();
-        let mut weights = Vec::with_capacity(self.samples.len() * m);
-        let mut logs = [0.0_f64; MAX_MEMBERSHIPS];
-        for s in &self.samples {
-            let start = weights.len();
-            let mut top = f64::NEG_INFINITY;
-            for (log, r) in logs.iter_mut().zip(rules) {
-                *log = log_membership(r, s.roll_rad);
-                top = top.max(*log);
-            }
-            let mut total = 0.0;
-            for log in &logs[..m] {
-                let rho = (log - top).exp();
-                total += rho;
-                weights.push(rho);
-            }
-            for w in &mut weights[start..] {
-                *w /= total; // Eq. 22
-            }
+        let mut weights = vec![0.0; self.samples.len() * m];
+        for (s, row) in self.samples.iter().zip(weights.chunks_exact_mut(m.max(1))) {
+            fire_into(rules, s.roll_rad, row);
         }
         Firings { rules: m, weights }
     }
@@ -247,18 +238,31 @@ impl Anfis {
             .iter()
             .filter(|s| self.bin(s.roll_rad) == bin)
             .count();
-        if in_bin >= self.config.per_bin {
-            if let Some(oldest) = self
-                .samples
+        let removed = if in_bin >= self.config.per_bin {
+            self.samples
                 .iter()
                 .position(|s| self.bin(s.roll_rad) == bin)
-            {
-                self.samples.remove(oldest);
-            }
         } else if self.samples.len() >= self.config.window {
-            self.samples.pop_front();
+            Some(0)
+        } else {
+            None
+        };
+        if let Some(index) = removed {
+            self.samples.remove(index);
         }
         self.samples.push_back(sample);
+        // Keep the cached firings in step with the samples.
+        let rules = &self.rules;
+        if let Some(cache) = self.cache.0.as_mut() {
+            if let Some(index) = removed {
+                cache
+                    .weights
+                    .drain(index * cache.rules..(index + 1) * cache.rules);
+            }
+            let start = cache.weights.len();
+            cache.weights.resize(start + cache.rules, 0.0);
+            fire_into(rules, sample.roll_rad, &mut cache.weights[start..]);
+        }
     }
 
     fn bin(&self, roll_rad: f64) -> i64 {
@@ -313,7 +317,14 @@ impl Anfis {
             self.rules = self.initial_rules();
             self.step_rad = 0.1 * self.span_rad();
         }
-        let mut firings = self.firings(&self.rules);
+        let mut firings = match self.cache.0.take() {
+            Some(cached)
+                if cached.rules == self.rules.len() && cached.rows() == self.samples.len() =>
+            {
+                cached
+            }
+            _ => self.firings(&self.rules),
+        };
         let mut cost = match self.fit_consequents(&self.rules, &firings, &weights) {
             Some((rules, cost)) => {
                 self.rules = rules;
@@ -325,6 +336,7 @@ impl Anfis {
             (firings, cost) = self.premise_step(firings, &weights, cost);
         }
         self.fit_rmse_rad = self.rmse(&firings);
+        self.cache = FiringCache(Some(firings));
     }
 
     fn span_rad(&self) -> f64 {
@@ -549,6 +561,26 @@ impl Anfis {
             .map(|s| (self.mean_error_rad - s.error_rad).powi(2))
             .sum();
         (sse / n).sqrt()
+    }
+}
+
+/// Eq. 20–22 for one input: the normalised firing strengths ρ̄ into `out`.
+/// In log form: Eq. 21 is ρ_i = μ_i with one input, and scaling all ρ_i by
+/// exp(−max ln μ) leaves ρ̄_i unchanged while keeping them from underflowing
+/// together far from every centre.
+fn fire_into(rules: &[Rule], x: f64, out: &mut [f64]) {
+    let mut top = f64::NEG_INFINITY;
+    for (log, r) in out.iter_mut().zip(rules) {
+        *log = log_membership(r, x);
+        top = top.max(*log);
+    }
+    let mut total = 0.0;
+    for rho in out.iter_mut() {
+        *rho = (*rho - top).exp();
+        total += *rho;
+    }
+    for rho in out.iter_mut() {
+        *rho /= total; // Eq. 22
     }
 }
 
