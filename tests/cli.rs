@@ -214,3 +214,46 @@ fn params_lists_every_parameter_with_its_default() {
         assert!(text.contains(spec.name), "{} missing", spec.name);
     }
 }
+
+#[test]
+fn replay_restores_order_and_drops_duplicates() {
+    // The same drive, once in order and once as a gateway might deliver it:
+    // lines swapped within a few seconds and some sent twice.
+    let sim = tunnelnav()
+        .args(["simulate", "tbm", "--hours", "1", "--seed", "3"])
+        .output()
+        .unwrap();
+    let ordered = String::from_utf8(sim.stdout).unwrap();
+    let mut lines: Vec<&str> = ordered.lines().collect();
+    for i in (0..lines.len() - 4).step_by(7) {
+        lines.swap(i, i + 3);
+    }
+    let mut messy = Vec::new();
+    for (i, line) in lines.iter().enumerate() {
+        messy.push(*line);
+        if i % 11 == 0 {
+            messy.push(*line);
+        }
+    }
+    let dir = temp_dir("disorder");
+    let (a, b) = (dir.join("ordered.ndjson"), dir.join("messy.ndjson"));
+    std::fs::write(&a, &ordered).unwrap();
+    std::fs::write(&b, messy.join("\n")).unwrap();
+    let run = |path: &std::path::Path| {
+        tunnelnav()
+            .args(["replay", "--engine", "attitude"])
+            .arg(path)
+            .output()
+            .unwrap()
+    };
+    let (clean, shuffled) = (run(&a), run(&b));
+    assert!(clean.status.success() && shuffled.status.success());
+    assert!(clean.stdout == shuffled.stdout, "estimates differ after reordering");
+    let summary = String::from_utf8(shuffled.stderr).unwrap();
+    let duplicates = messy.len() - lines.len();
+    assert!(
+        summary.contains(&format!("0 late, {duplicates} duplicates")),
+        "{summary}"
+    );
+    std::fs::remove_dir_all(dir).ok();
+}

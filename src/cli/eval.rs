@@ -20,7 +20,7 @@ pub struct AttitudeArgs {
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Length of the drive in hours.
-    #[arg(long, default_value_t = 6.0)]
+    #[arg(long, default_value_t = 10.0)]
     pub hours: f64,
     /// Inclinometer period in seconds.
     #[arg(long, default_value_t = 1.0)]
@@ -28,7 +28,7 @@ pub struct AttitudeArgs {
     /// Laser period in seconds.
     #[arg(long, default_value_t = 120.0)]
     pub laser_period_s: f64,
-    /// Laser dropouts as START_H:MINUTES (default: one of 45 min at 2.5 h).
+    /// Laser dropouts as START_H:MINUTES (default: one of 45 min at 7 h).
     #[arg(long = "dropout", value_name = "START_H:MINUTES")]
     pub dropouts: Vec<Dropout>,
     /// Hours of learning before scoring starts.
@@ -47,7 +47,7 @@ pub fn run(target: EvalTarget) -> Result<(), CliError> {
         EvalTarget::Attitude(args) => {
             let dropouts = if args.dropouts.is_empty() {
                 vec![Dropout {
-                    start_h: 2.5,
+                    start_h: 7.0,
                     minutes: 45.0,
                 }]
             } else {
