@@ -13,22 +13,25 @@ fn temp_dir(name: &str) -> std::path::PathBuf {
     dir
 }
 
+/// A one-hour drive with a ten-minute dropout.
+const SEVEN: [&str; 8] = [
+    "simulate",
+    "tbm",
+    "--hours",
+    "1",
+    "--seed",
+    "7",
+    "--dropout",
+    "0.5:10",
+];
+
 #[test]
 fn simulate_then_replay_gives_one_estimate_per_inclinometer_reading() {
     let dir = temp_dir("pipeline");
     let drive = dir.join("drive.ndjson");
     let truth = dir.join("truth.ndjson");
     let sim = tunnelnav()
-        .args([
-            "simulate",
-            "tbm",
-            "--hours",
-            "1",
-            "--seed",
-            "7",
-            "--dropout",
-            "0.5:10",
-        ])
+        .args(SEVEN)
         .arg("--truth")
         .arg(&truth)
         .output()
@@ -74,19 +77,7 @@ fn simulate_then_replay_gives_one_estimate_per_inclinometer_reading() {
     assert!(stderr.contains("0 invalid"), "{stderr}");
 
     // Same seed, same drive.
-    let again = tunnelnav()
-        .args([
-            "simulate",
-            "tbm",
-            "--hours",
-            "1",
-            "--seed",
-            "7",
-            "--dropout",
-            "0.5:10",
-        ])
-        .output()
-        .unwrap();
+    let again = tunnelnav().args(SEVEN).output().unwrap();
     assert_eq!(again.stdout, readings.as_bytes());
     std::fs::remove_dir_all(dir).ok();
 }
@@ -248,7 +239,10 @@ fn replay_restores_order_and_drops_duplicates() {
     };
     let (clean, shuffled) = (run(&a), run(&b));
     assert!(clean.status.success() && shuffled.status.success());
-    assert!(clean.stdout == shuffled.stdout, "estimates differ after reordering");
+    assert!(
+        clean.stdout == shuffled.stdout,
+        "estimates differ after reordering"
+    );
     let summary = String::from_utf8(shuffled.stderr).unwrap();
     let duplicates = messy.len() - lines.len();
     assert!(

@@ -16,10 +16,11 @@ pub enum Scenario {
     Tbm(TbmArgs),
 }
 
+/// The simulated drive: shared by `simulate tbm` and `eval attitude`.
 #[derive(Debug, Args)]
-pub struct TbmArgs {
+pub struct DriveArgs {
     /// Length of the drive in hours.
-    #[arg(long, default_value_t = 6.0)]
+    #[arg(long, default_value_t = 10.0)]
     pub hours: f64,
     /// Inclinometer period in seconds.
     #[arg(long, default_value_t = 1.0)]
@@ -27,7 +28,7 @@ pub struct TbmArgs {
     /// Laser period in seconds (the paper's system: 120).
     #[arg(long, default_value_t = 120.0)]
     pub laser_period_s: f64,
-    /// A laser dropout as START_H:MINUTES (repeatable), e.g. 2.5:45.
+    /// A laser dropout as START_H:MINUTES (repeatable), e.g. 7:45.
     #[arg(long = "dropout", value_name = "START_H:MINUTES")]
     pub dropouts: Vec<Dropout>,
     /// Random seed: the same seed gives the same drive.
@@ -36,12 +37,9 @@ pub struct TbmArgs {
     /// Unix seconds of the first reading.
     #[arg(long, default_value_t = DEFAULT_START_T)]
     pub start_t: f64,
-    /// Write the truth (one NDJSON line per inclinometer reading) to this file.
-    #[arg(long, value_name = "FILE")]
-    pub truth: Option<PathBuf>,
 }
 
-impl TbmArgs {
+impl DriveArgs {
     /// The scenario these arguments describe.
     pub fn scenario(&self) -> TbmScenario {
         TbmScenario {
@@ -55,6 +53,15 @@ impl TbmArgs {
     }
 }
 
+#[derive(Debug, Args)]
+pub struct TbmArgs {
+    #[command(flatten)]
+    pub drive: DriveArgs,
+    /// Write the truth (one NDJSON line per inclinometer reading) to this file.
+    #[arg(long, value_name = "FILE")]
+    pub truth: Option<PathBuf>,
+}
+
 pub fn run(scenario: Scenario) -> Result<(), CliError> {
     match scenario {
         Scenario::Tbm(args) => run_tbm(&args),
@@ -62,7 +69,7 @@ pub fn run(scenario: Scenario) -> Result<(), CliError> {
 }
 
 fn run_tbm(args: &TbmArgs) -> Result<(), CliError> {
-    let drive = TbmDrive::new(args.scenario()).map_err(CliError::Scenario)?;
+    let drive = TbmDrive::new(args.drive.scenario()).map_err(CliError::Scenario)?;
     let mut truth = match &args.truth {
         Some(path) => Some(BufWriter::new(File::create(path).map_err(|source| {
             CliError::File {
