@@ -68,7 +68,10 @@ impl LaserHold {
             Some(last) => t - last,
             None => 0.0,
         };
-        if self.last_t.is_some() {
+        // An interval under a tenth of the nominal period is a repeat or a
+        // burst, not the laser's rhythm: the sample is used, the interval
+        // is not counted.
+        if self.last_t.is_some() && dt_s >= 0.1 * self.nominal_period_s {
             if self.intervals_s.len() == PERIOD_INTERVALS {
                 self.intervals_s.pop_front();
             }
@@ -241,6 +244,20 @@ mod tests {
             laser.accept(1000.0, 0.0, 0.0, &NOISE),
             Err(LaserRefusal::Stale)
         );
+    }
+
+    #[test]
+    fn near_repeats_do_not_shrink_the_period() {
+        // A gateway re-sending each laser sample a few ms later must not
+        // make the laser look like a 5 ms sensor that is always in dropout.
+        let mut laser = LaserHold::new(120.0);
+        for i in 0..6 {
+            let t = 1000.0 + 60.0 * i as f64;
+            laser.accept(t, 0.0, 0.0, &NOISE).unwrap();
+            laser.accept(t + 0.005, 0.0, 0.0, &NOISE).unwrap();
+        }
+        assert!(laser.period_s() >= 12.0, "{}", laser.period_s());
+        assert!(laser.is_ok(1300.0 + 100.0, 2.5));
     }
 
     #[test]

@@ -144,7 +144,7 @@ pub const PARAMS: &[ParamSpec] = &[
         0.1,
         86_400.0,
         "s",
-        "laser period assumed until two samples have been seen (paper: 2 min)",
+        "laser period assumed until observed (paper: 2 min); intervals under a tenth of it are not taken as the period",
     ),
     real(
         "dropout_factor",
