@@ -156,6 +156,10 @@ fn bad_arguments_are_refused_with_a_clear_message() {
             "cannot open /nonexistent/drive.ndjson",
         ),
         (&["simulate", "tbm", "--hours", "0"], "hours must be > 0"),
+        (
+            &["eval", "attitude", "--hours", "2", "--learning-h", "3"],
+            "shorter than the 2 h drive",
+        ),
     ];
     for (args, message) in cases {
         let out = tunnelnav().args(*args).output().unwrap();

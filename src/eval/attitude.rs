@@ -175,6 +175,15 @@ fn attitude(output: &EngineOutput) -> &AttitudeEstimate {
 /// Simulates the drive and scores every method.
 pub fn evaluate(config: &AttitudeEvalConfig) -> Result<AttitudeEvaluation, EvalError> {
     let scenario = &config.scenario;
+    if !(config.learning_h.is_finite()
+        && config.learning_h >= 0.0
+        && config.learning_h < scenario.hours)
+    {
+        return Err(EvalError::Scenario(format!(
+            "learning period {} h must be ≥ 0 and shorter than the {} h drive",
+            config.learning_h, scenario.hours
+        )));
+    }
     let drive = TbmDrive::new(scenario.clone()).map_err(EvalError::Scenario)?;
     let with_correction = |word: &str| {
         let mut values: Vec<(String, ParamValue)> = config
