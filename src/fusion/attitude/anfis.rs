@@ -4,8 +4,11 @@
 //! Training is the standard hybrid rule on a bounded, recency-weighted set of
 //! (roll, pitch error) pairs: weighted least squares for the linear
 //! consequents, then a gradient step on centres and widths with an adaptive
-//! step length, warm-started from the current model. Each laser sample costs
-//! `epochs` passes over at most `window` samples, however long the drive.
+//! step length, warm-started from the current model. The set is stratified
+//! by roll (each bin keeps its newest pairs), so regions visited long ago are
+//! remembered; each rule is shrunk towards the set's global line, which sets
+//! how the model extrapolates. Each laser sample costs `epochs` passes over
+//! at most `window` samples, however long the drive.
 //!
 //! All angles here are radians.
 
