@@ -109,8 +109,7 @@ const BASELINES: [&str; 3] = [LASER_HOLD, RAW_INCLINOMETER, CONSTANT_OFFSET];
 /// One method's running output and score.
 struct Scorer {
     scores: MethodScores,
-    /// Latest (pitch, roll) output and the pitch it predicts for the next step.
-    current: Option<(f64, f64)>,
+    /// The pitch the latest output predicts for the next step.
     prediction: Option<f64>,
     /// A prediction made before a laser instant, waiting for the next truth.
     pending_check: Option<f64>,
@@ -129,7 +128,6 @@ impl Scorer {
                 return_step_excess_deg: vec![0.0; dropouts],
                 steady_step_excess_deg: vec![0.0; dropouts],
             },
-            current: None,
             prediction: None,
             pending_check: None,
             previous_pitch: None,
@@ -364,7 +362,6 @@ fn score(
             *slot = slot.max(excess);
         }
     }
-    scorer.current = Some(current);
     scorer.prediction = Some(prediction);
     scorer.previous_pitch = Some(current.0);
 }
