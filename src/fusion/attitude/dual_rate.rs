@@ -16,6 +16,9 @@ use super::kalman::ScalarKalman;
 
 /// Intervals remembered for the laser period estimate.
 const PERIOD_INTERVALS: usize = 5;
+/// A laser sample within this long of the held one is a re-send of it, not
+/// a new measurement: no laser targeting system samples faster.
+pub const LASER_REPEAT_S: f64 = 1.0;
 
 /// The held, filtered laser attitude and the laser's timing.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -35,7 +38,7 @@ pub struct LaserHold {
 /// Why a laser sample was not taken.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum LaserRefusal {
-    /// Same time as the held sample.
+    /// Same time as the held sample, or within [`LASER_REPEAT_S`] after it.
     Duplicate,
     /// Older than the held sample.
     Stale,
@@ -63,15 +66,12 @@ impl LaserHold {
         noise: &FilterNoise,
     ) -> Result<(), LaserRefusal> {
         let dt_s = match self.last_t {
-            Some(last) if t == last => return Err(LaserRefusal::Duplicate),
             Some(last) if t < last => return Err(LaserRefusal::Stale),
+            Some(last) if t - last < LASER_REPEAT_S => return Err(LaserRefusal::Duplicate),
             Some(last) => t - last,
             None => 0.0,
         };
-        // An interval under a tenth of the nominal period is a repeat or a
-        // burst, not the laser's rhythm: the sample is used, the interval
-        // is not counted.
-        if self.last_t.is_some() && dt_s >= 0.1 * self.nominal_period_s {
+        if self.last_t.is_some() {
             if self.intervals_s.len() == PERIOD_INTERVALS {
                 self.intervals_s.pop_front();
             }
@@ -247,17 +247,29 @@ mod tests {
     }
 
     #[test]
-    fn near_repeats_do_not_shrink_the_period() {
-        // A gateway re-sending each laser sample a few ms later must not
-        // make the laser look like a 5 ms sensor that is always in dropout.
+    fn re_sent_samples_are_duplicates_and_fast_lasers_are_learned() {
+        // A gateway re-sending each sample a few ms later: refused, so the
+        // laser neither looks like a 5 ms sensor nor counts twice.
         let mut laser = LaserHold::new(120.0);
         for i in 0..6 {
             let t = 1000.0 + 60.0 * i as f64;
             laser.accept(t, 0.0, 0.0, &NOISE).unwrap();
-            laser.accept(t + 0.005, 0.0, 0.0, &NOISE).unwrap();
+            assert_eq!(
+                laser.accept(t + 0.005, 0.0, 0.0, &NOISE),
+                Err(LaserRefusal::Duplicate)
+            );
         }
-        assert!(laser.period_s() >= 12.0, "{}", laser.period_s());
-        assert!(laser.is_ok(1300.0 + 100.0, 2.5));
+        assert_eq!(laser.period_s(), 60.0);
+        // A 10 s laser configured as 120 s: the real period is learned and
+        // a stop is noticed after 2.5 periods, not 2.5 × 120 s.
+        let mut fast = LaserHold::new(120.0);
+        for i in 0..6 {
+            fast.accept(2000.0 + 10.0 * i as f64, 0.0, 0.0, &NOISE)
+                .unwrap();
+        }
+        assert_eq!(fast.period_s(), 10.0);
+        assert!(fast.is_ok(2050.0 + 25.0, 2.5));
+        assert!(!fast.is_ok(2050.0 + 26.0, 2.5));
     }
 
     #[test]

@@ -144,7 +144,7 @@ pub const PARAMS: &[ParamSpec] = &[
         0.1,
         86_400.0,
         "s",
-        "laser period assumed until observed (paper: 2 min); intervals under a tenth of it are not taken as the period",
+        "laser period assumed until two samples have been seen (paper: 2 min)",
     ),
     real(
         "dropout_factor",
@@ -249,7 +249,7 @@ pub const PARAMS: &[ParamSpec] = &[
     real(
         "anfis_ridge",
         1.0e-3,
-        0.0,
+        1.0e-6,
         1.0,
         "",
         "weight pulling each rule towards the global line through the training pairs (sets extrapolation)",
@@ -620,15 +620,17 @@ impl AttitudeEngine {
             return;
         }
         self.stats.laser_used += 1;
+        // Wait for the inclinometer to reach the laser's instant (also when
+        // the laser comes first of all).
         match self.history.newest_t() {
-            Some(newest) if t > newest => {
+            Some(newest) if t <= newest => self.pair(t, pitch, roll),
+            _ => {
                 if self.pending_laser.len() == MAX_PENDING_LASER {
                     self.pending_laser.remove(0);
                     self.stats.laser_unpaired += 1;
                 }
                 self.pending_laser.push((t, pitch, roll));
             }
-            _ => self.pair(t, pitch, roll),
         }
     }
 
