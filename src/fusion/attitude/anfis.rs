@@ -246,7 +246,7 @@ impl Anfis {
                 .iter()
                 .position(|s| self.bin(s.roll_rad) == bin)
         } else if self.samples.len() >= self.config.window {
-            Some(0)
+            self.oldest_of_fullest_bin()
         } else {
             None
         };
@@ -266,6 +266,24 @@ impl Anfis {
             cache.weights.resize(start + cache.rules, 0.0);
             fire_into(rules, sample.roll_rad, &mut cache.weights[start..]);
         }
+    }
+
+    /// Where the window is full, the pair to forget: the oldest of the most
+    /// populated roll bin, so the rarest regions are the last to go.
+    fn oldest_of_fullest_bin(&self) -> Option<usize> {
+        let mut counts: Vec<(i64, usize)> = Vec::new();
+        for s in &self.samples {
+            let bin = self.bin(s.roll_rad);
+            match counts.iter_mut().find(|(b, _)| *b == bin) {
+                Some((_, n)) => *n += 1,
+                None => counts.push((bin, 1)),
+            }
+        }
+        let most = counts.iter().map(|&(_, n)| n).max()?;
+        self.samples.iter().position(|s| {
+            let bin = self.bin(s.roll_rad);
+            counts.iter().any(|&(b, n)| b == bin && n == most)
+        })
     }
 
     fn bin(&self, roll_rad: f64) -> i64 {
@@ -769,6 +787,35 @@ mod tests {
             (cost - direct).abs() <= 1e-9 * direct.max(1e-30),
             "{cost} vs {direct}"
         );
+    }
+
+    #[test]
+    fn a_full_window_forgets_from_its_fullest_bin() {
+        let mut model = Anfis::new(AnfisConfig {
+            window: 20,
+            ..config()
+        });
+        let add = |model: &mut Anfis, roll_deg: f64| {
+            model.add_sample(TrainingSample {
+                t: 0.0,
+                roll_rad: rad(roll_deg),
+                error_rad: 0.0,
+                seq: 0,
+            })
+        };
+        for _ in 0..5 {
+            add(&mut model, -2.0); // a region visited once, early
+        }
+        for _ in 0..100 {
+            add(&mut model, 1.1); // then the machine stays elsewhere
+        }
+        let early = model
+            .samples()
+            .iter()
+            .filter(|s| s.roll_rad < rad(-1.0))
+            .count();
+        assert_eq!(model.samples().len(), 20);
+        assert_eq!(early, 5);
     }
 
     #[test]
