@@ -52,6 +52,8 @@ pub enum SnapshotError {
     },
     #[error("snapshot holds invalid parameters: {0}")]
     Params(#[from] ParamError),
+    #[error("snapshot state is inconsistent: {0}")]
+    Invalid(String),
 }
 
 /// The engines tunnelnav knows.

@@ -168,6 +168,44 @@ impl Anfis {
         }
     }
 
+    /// Takes `config` (rebuilt from validated parameters) after a restore,
+    /// refusing state that does not fit it or is not finite.
+    pub fn reconfigure(&mut self, config: AnfisConfig) -> Result<(), String> {
+        if !self.rules.is_empty() && self.rules.len() != config.memberships {
+            return Err(format!(
+                "{} ANFIS rules for {} memberships",
+                self.rules.len(),
+                config.memberships
+            ));
+        }
+        if let Some(r) = self.rules.iter().find(|r| {
+            !(r.centre_rad.is_finite()
+                && r.width_rad.is_finite()
+                && r.width_rad > 0.0
+                && r.p0_rad.is_finite()
+                && r.p1.is_finite())
+        }) {
+            return Err(format!("ANFIS rule {r:?} is not usable"));
+        }
+        if self.samples.len() > config.window {
+            return Err(format!(
+                "{} training pairs for a window of {}",
+                self.samples.len(),
+                config.window
+            ));
+        }
+        if self
+            .samples
+            .iter()
+            .any(|s| !(s.roll_rad.is_finite() && s.error_rad.is_finite()))
+        {
+            return Err("a training pair is not finite".to_string());
+        }
+        self.config = config;
+        self.cache = FiringCache::default();
+        Ok(())
+    }
+
     /// The training configuration.
     pub fn config(&self) -> &AnfisConfig {
         &self.config

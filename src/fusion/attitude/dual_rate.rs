@@ -56,6 +56,11 @@ impl LaserHold {
         }
     }
 
+    /// Sets the period assumed until one is observed (after a restore).
+    pub fn set_nominal_period(&mut self, nominal_period_s: f64) {
+        self.nominal_period_s = nominal_period_s;
+    }
+
     /// Filters and holds a new laser sample (Eq. 1–7 on each laser angle,
     /// then Eq. 15: the value is held until the next sample).
     pub fn accept(
@@ -159,6 +164,14 @@ impl InclHistory {
         InclHistory {
             points: VecDeque::with_capacity(capacity),
             capacity: capacity.max(2),
+        }
+    }
+
+    /// Sets how many points are kept, forgetting the oldest beyond it.
+    pub fn set_capacity(&mut self, capacity: usize) {
+        self.capacity = capacity.max(2);
+        while self.points.len() > self.capacity {
+            self.points.pop_front();
         }
     }
 

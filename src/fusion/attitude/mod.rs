@@ -499,6 +499,16 @@ impl AttitudeEngine {
         )?;
         engine.config = AttitudeConfig::from_params(&params)?;
         engine.params = params;
+        // What the parameters shape is rebuilt from them, not trusted.
+        engine
+            .anfis
+            .reconfigure(engine.config.anfis)
+            .map_err(SnapshotError::Invalid)?;
+        engine
+            .laser
+            .set_nominal_period(engine.config.laser_period_s);
+        engine.history.set_capacity(HISTORY_POINTS);
+        engine.pending_laser.truncate(MAX_PENDING_LASER);
         Ok(engine)
     }
 
@@ -676,7 +686,15 @@ impl AttitudeEngine {
     /// The learned model in degrees, as `GET .../model` reports it.
     pub fn model_report(&self, frozen: bool) -> ModelReport {
         let rules = self.anfis.rules();
-        let (lo, hi) = self.anfis.roll_range_rad();
+        // The seen roll range, from the pairs themselves (training, which
+        // also tracks it, does not run with `correction=none`).
+        let (lo, hi) = self
+            .anfis
+            .samples()
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), s| {
+                (lo.min(s.roll_rad), hi.max(s.roll_rad))
+            });
         let curve = if self.anfis.samples().is_empty() {
             Vec::new()
         } else {
@@ -989,6 +1007,50 @@ mod tests {
             feed(&mut b, s, &mut out_b);
         }
         assert_eq!(out_a, out_b);
+    }
+
+    #[test]
+    fn corrupt_snapshots_are_refused_not_trusted() {
+        let mut e = AttitudeEngine::with_defaults();
+        let mut out = Vec::new();
+        for s in 0..1200 {
+            let t = T0 + s as f64;
+            if s % 60 == 0 {
+                e.feed(
+                    &laser(
+                        t,
+                        0.8 + 0.001 * (s / 60) as f64,
+                        1.0 + 0.05 * (s / 60) as f64,
+                    ),
+                    &mut out,
+                );
+            }
+            e.feed(&incl(t, 0.5, 1.0 + 0.05 * (s / 60) as f64), &mut out);
+        }
+        let snap = e.snapshot();
+        assert_eq!(snap["anfis"]["rules"].as_array().map(Vec::len), Some(3));
+        let mut too_many = snap.clone();
+        let rule = too_many["anfis"]["rules"][0].clone();
+        for _ in 0..10 {
+            too_many["anfis"]["rules"]
+                .as_array_mut()
+                .unwrap()
+                .push(rule.clone());
+        }
+        assert!(matches!(
+            AttitudeEngine::restore(too_many),
+            Err(SnapshotError::Invalid(_))
+        ));
+        let mut flat = snap.clone();
+        flat["anfis"]["rules"][1]["width_rad"] = serde_json::json!(0.0);
+        assert!(matches!(
+            AttitudeEngine::restore(flat),
+            Err(SnapshotError::Invalid(_))
+        ));
+        let mut unbounded = snap.clone();
+        unbounded["history"]["capacity"] = serde_json::json!(0);
+        let restored = AttitudeEngine::restore(unbounded).unwrap();
+        assert_eq!(restored, AttitudeEngine::restore(snap).unwrap());
     }
 
     #[test]
