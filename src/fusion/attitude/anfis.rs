@@ -96,7 +96,8 @@ pub struct Anfis {
     /// Recency-weighted straight line error = a + b·roll through the
     /// training set: the prior each rule's consequent is shrunk towards.
     global_line: [f64; 2],
-    /// Roll range of the training set, for the extrapolation guard.
+    /// Roll range of the training set when last trained, for the
+    /// extrapolation guard (kept: `output` runs on every reading).
     roll_lo_rad: f64,
     roll_hi_rad: f64,
     /// Current gradient step length on centres and widths (adapted).
@@ -231,9 +232,14 @@ impl Anfis {
         self.version
     }
 
-    /// Roll range covered by the training set.
+    /// Roll range covered by the training set as it is now (infinite
+    /// bounds when it is empty).
     pub fn roll_range_rad(&self) -> (f64, f64) {
-        (self.roll_lo_rad, self.roll_hi_rad)
+        self.samples
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), s| {
+                (lo.min(s.roll_rad), hi.max(s.roll_rad))
+            })
     }
 
     /// Recency-weighted mean error of the training set.
@@ -270,7 +276,8 @@ impl Anfis {
     }
 
     /// Adds a pair: it replaces the oldest of its roll bin when the bin is
-    /// full, else the oldest of all when the window is full. Does not train.
+    /// full, else the oldest of the fullest bin when the window is full.
+    /// Does not train.
     pub fn add_sample(&mut self, mut sample: TrainingSample) {
         sample.seq = self.samples.back().map_or(0, |s| s.seq + 1);
         let bin = self.bin(sample.roll_rad);
@@ -358,12 +365,7 @@ impl Anfis {
             .map(|(s, w)| w * s.error_rad)
             .sum::<f64>()
             / total_w;
-        let (lo, hi) = self
-            .samples
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), s| {
-                (lo.min(s.roll_rad), hi.max(s.roll_rad))
-            });
+        let (lo, hi) = self.roll_range_rad();
         self.roll_lo_rad = lo;
         self.roll_hi_rad = hi;
         self.global_line = self.fit_line(&weights);

@@ -686,15 +686,9 @@ impl AttitudeEngine {
     /// The learned model in degrees, as `GET .../model` reports it.
     pub fn model_report(&self, frozen: bool) -> ModelReport {
         let rules = self.anfis.rules();
-        // The seen roll range, from the pairs themselves (training, which
-        // also tracks it, does not run with `correction=none`).
-        let (lo, hi) = self
-            .anfis
-            .samples()
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), s| {
-                (lo.min(s.roll_rad), hi.max(s.roll_rad))
-            });
+        // The pairs' roll range as they are now (training, which also
+        // records it, does not run with `correction=none`).
+        let (lo, hi) = self.anfis.roll_range_rad();
         let curve = if self.anfis.samples().is_empty() {
             Vec::new()
         } else {
