@@ -10,10 +10,20 @@
 //! - [`eval`]: runs engines and baselines over simulated drives and scores
 //!   them against the truth.
 //! - [`replay`]: streams an NDJSON file of readings through an engine.
+//! - [`config`]: machine declarations (`PUT` bodies, the TOML config file).
+//! - [`store`]: the SQLite store; one writer thread with group commit,
+//!   pooled readers.
+//! - [`machine`]: one task per machine owning its engines; the only bridge
+//!   from async code to the fusion core.
+//! - [`server`]: axum routes, shared state, errors, live stream, metrics.
 //! - [`cli`]: one file per subcommand; `main.rs` only parses and dispatches.
 
 pub mod cli;
+pub mod config;
 pub mod eval;
 pub mod fusion;
+pub mod machine;
 pub mod replay;
+pub mod server;
 pub mod sim;
+pub mod store;

@@ -3,6 +3,7 @@
 pub mod eval;
 pub mod params;
 pub mod replay;
+pub mod serve;
 pub mod simulate;
 
 use clap::{Parser, Subcommand};
@@ -27,6 +28,8 @@ pub enum Command {
     Eval(eval::EvalTarget),
     /// List an engine's parameters with their defaults and ranges.
     Params(params::ParamsArgs),
+    /// Run the HTTP server: ingest, fusion, history, live stream.
+    Serve(serve::ServeArgs),
 }
 
 /// Why a command failed.
@@ -47,6 +50,10 @@ pub enum CliError {
     Eval(#[from] crate::eval::attitude::EvalError),
     #[error("{0}")]
     Scenario(String),
+    #[error(transparent)]
+    Config(#[from] crate::config::ConfigError),
+    #[error(transparent)]
+    Server(#[from] crate::server::ServerError),
 }
 
 /// Runs a parsed command line.
@@ -56,5 +63,6 @@ pub fn run(cli: Cli) -> Result<(), CliError> {
         Command::Replay(args) => replay::run(args),
         Command::Eval(target) => eval::run(target),
         Command::Params(args) => params::run(args),
+        Command::Serve(args) => serve::run(args),
     }
 }

@@ -34,6 +34,23 @@ pub enum EstimateValues {
     Attitude(AttitudeEstimate),
 }
 
+impl EstimateValues {
+    /// The engine that produced these values.
+    pub fn engine(&self) -> super::EngineKind {
+        match self {
+            EstimateValues::Attitude(_) => super::EngineKind::Attitude,
+        }
+    }
+
+    /// The two quantities whose extremes history downsampling keeps, so a
+    /// spike stays visible at any zoom (attitude: pitch, roll).
+    pub fn extremes(&self) -> [f64; 2] {
+        match self {
+            EstimateValues::Attitude(a) => [a.pitch_deg, a.roll_deg],
+        }
+    }
+}
+
 /// What an engine emits: an estimate before it is attributed to a machine.
 #[derive(Debug, Clone, PartialEq)]
 pub struct EngineOutput {

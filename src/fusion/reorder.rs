@@ -2,10 +2,14 @@
 //! order before they reach the engines.
 //!
 //! Readings are held until the newest time seen is `window_s` past them,
-//! then released oldest first. A reading older than one already released
-//! is *late* and dropped; a second reading of the same sensor at the same
-//! time is a *duplicate* and dropped (the first one received wins). Both are
-//! counted. Memory is bounded by `max_len`: past it the oldest reading is
+//! then released oldest first. Order is kept *per sensor*: a reading older
+//! than one of the same sensor already released is *late* and dropped; a
+//! second reading of the same sensor at the same time is a *duplicate* and
+//! dropped (the first one received wins). Both are counted. A reading of
+//! one sensor may still be released after a newer reading of another (a
+//! laser sample posted by its own gateway a second after the inclinometer's):
+//! the engines accept that, and dropping it would lose a rare, valuable
+//! sample. Memory is bounded by `max_len`: past it the oldest reading is
 //! released early.
 
 use std::cmp::Ordering;
@@ -13,7 +17,8 @@ use std::collections::VecDeque;
 
 use serde::{Deserialize, Serialize};
 
-use super::reading::{Reading, SensorKind};
+use super::SnapshotError;
+use super::reading::{Reading, SensorKind, reading_from_value};
 
 /// Counts of what the buffer did.
 #[derive(Debug, Default, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -66,10 +71,9 @@ pub struct ReorderBuffer {
     /// new reading usually goes at the back.
     held: VecDeque<Entry>,
     newest_t: f64,
-    /// Time and sensors of the most recently released instant, for
-    /// duplicate detection.
-    released_t: f64,
-    released_sensors: Vec<SensorKind>,
+    /// Time of the newest released reading of each sensor (indexed by
+    /// [`SensorKind`] in protocol order), for late and duplicate detection.
+    released_t: [f64; SensorKind::ALL.len()],
     seq: u64,
     stats: ReorderStats,
 }
@@ -82,8 +86,7 @@ impl ReorderBuffer {
             max_len: max_len.max(1),
             held: VecDeque::new(),
             newest_t: f64::NEG_INFINITY,
-            released_t: f64::NEG_INFINITY,
-            released_sensors: Vec::new(),
+            released_t: [f64::NEG_INFINITY; SensorKind::ALL.len()],
             seq: 0,
             stats: ReorderStats::default(),
         }
@@ -91,11 +94,12 @@ impl ReorderBuffer {
 
     /// Offers a reading.
     pub fn push(&mut self, reading: Reading) -> Admission {
-        if reading.t < self.released_t {
+        let released_t = self.released_t[reading.sensor() as usize];
+        if reading.t < released_t {
             self.stats.late += 1;
             return Admission::Late;
         }
-        if reading.t == self.released_t && self.released_sensors.contains(&reading.sensor()) {
+        if reading.t == released_t {
             self.stats.duplicates += 1;
             return Admission::Duplicate;
         }
@@ -139,17 +143,17 @@ impl ReorderBuffer {
             return;
         };
         let reading = entry.reading;
-        let sensor = reading.sensor();
-        if reading.t == self.released_t {
-            if self.released_sensors.contains(&sensor) {
+        let released_t = &mut self.released_t[reading.sensor() as usize];
+        if reading.t <= *released_t {
+            // Only when `max_len` forced an early release past it.
+            if reading.t == *released_t {
                 self.stats.duplicates += 1;
-                return;
+            } else {
+                self.stats.late += 1;
             }
-        } else {
-            self.released_t = reading.t;
-            self.released_sensors.clear();
+            return;
         }
-        self.released_sensors.push(sensor);
+        *released_t = reading.t;
         self.stats.released += 1;
         out.push(reading);
     }
@@ -168,6 +172,57 @@ impl ReorderBuffer {
     pub fn stats(&self) -> ReorderStats {
         self.stats
     }
+
+    /// The whole state, serialisable: [`ReorderBuffer::restore`] continues
+    /// from it exactly (held readings, what was released, counts).
+    pub fn snapshot(&self) -> serde_json::Value {
+        let finite = |t: f64| t.is_finite().then_some(t);
+        let state = ReorderState {
+            window_s: self.window_s,
+            max_len: self.max_len,
+            held: self
+                .held
+                .iter()
+                .map(|e| serde_json::to_value(&e.reading).unwrap_or_default())
+                .collect(),
+            newest_t: finite(self.newest_t),
+            released_t: self.released_t.map(finite),
+            stats: self.stats,
+        };
+        serde_json::to_value(state).unwrap_or_default()
+    }
+
+    /// A buffer continuing from a [`ReorderBuffer::snapshot`].
+    pub fn restore(snapshot: serde_json::Value) -> Result<ReorderBuffer, SnapshotError> {
+        let state: ReorderState =
+            serde_json::from_value(snapshot).map_err(|e| SnapshotError::Invalid(e.to_string()))?;
+        let mut buffer = ReorderBuffer::new(state.window_s, state.max_len);
+        for value in &state.held {
+            let reading = reading_from_value(value)
+                .map_err(|e| SnapshotError::Invalid(format!("held reading: {e}")))?;
+            buffer.seq += 1;
+            buffer.held.push_back(Entry {
+                reading,
+                seq: buffer.seq,
+            });
+        }
+        buffer.newest_t = state.newest_t.unwrap_or(f64::NEG_INFINITY);
+        buffer.released_t = state.released_t.map(|t| t.unwrap_or(f64::NEG_INFINITY));
+        buffer.stats = state.stats;
+        Ok(buffer)
+    }
+}
+
+/// Serialised form of a [`ReorderBuffer`] (`None` for "nothing yet").
+#[derive(Serialize, Deserialize)]
+struct ReorderState {
+    window_s: f64,
+    max_len: usize,
+    /// Held readings in release order, as protocol JSON.
+    held: Vec<serde_json::Value>,
+    newest_t: Option<f64>,
+    released_t: [Option<f64>; SensorKind::ALL.len()],
+    stats: ReorderStats,
 }
 
 #[cfg(test)]
@@ -237,6 +292,43 @@ mod tests {
                 duplicates: 2
             }
         );
+    }
+
+    #[test]
+    fn order_is_kept_per_sensor() {
+        let mut buf = ReorderBuffer::new(0.0, 100);
+        let mut out = Vec::new();
+        buf.push(incl(12.0, 0.0));
+        buf.pop_ready(&mut out);
+        // The laser's own gateway is a second behind: still released.
+        assert_eq!(buf.push(laser(11.0)), Admission::Buffered);
+        assert_eq!(buf.push(incl(11.5, 0.0)), Admission::Late);
+        buf.pop_ready(&mut out);
+        assert_eq!(out, vec![incl(12.0, 0.0), laser(11.0)]);
+    }
+
+    #[test]
+    fn a_restored_buffer_continues_exactly() {
+        const T0: f64 = 1.772e9;
+        let mut live = ReorderBuffer::new(2.0, 100);
+        let mut out = Vec::new();
+        for t in [10.0, 12.0, 11.0] {
+            live.push(incl(T0 + t, t));
+        }
+        live.push(laser(T0 + 10.5));
+        live.pop_ready(&mut out);
+        let mut restored = ReorderBuffer::restore(live.snapshot()).unwrap();
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        for t in [13.0, 10.0, 11.0, 15.0] {
+            let reading = incl(T0 + t, 1.0);
+            assert_eq!(live.push(reading.clone()), restored.push(reading), "at {t}");
+            live.pop_ready(&mut a);
+            restored.pop_ready(&mut b);
+        }
+        live.drain(&mut a);
+        restored.drain(&mut b);
+        assert_eq!(a, b);
+        assert_eq!(live.stats(), restored.stats());
     }
 
     #[test]

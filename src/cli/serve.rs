@@ -1,0 +1,88 @@
+//! `tunnelnav serve [--listen ADDR] [--data-dir DIR] [--config FILE]`
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+use clap::Args;
+
+use super::CliError;
+use crate::config::ServerConfig;
+use crate::server::{self, AppState, Limits, ServerOptions};
+
+#[derive(Debug, Args)]
+pub struct ServeArgs {
+    /// Address to listen on.
+    #[arg(long, default_value = "127.0.0.1:8080")]
+    pub listen: SocketAddr,
+    /// Directory holding the database (created if missing).
+    #[arg(long, default_value = "data")]
+    pub data_dir: PathBuf,
+    /// TOML file declaring machines (see README).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+}
+
+pub fn run(args: ServeArgs) -> Result<(), CliError> {
+    init_tracing();
+    let machines = match &args.config {
+        Some(path) => ServerConfig::load(path)?,
+        None => Vec::new(),
+    };
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()?;
+    runtime.block_on(async {
+        server::metrics::install();
+        let state = AppState::start(ServerOptions {
+            data_dir: args.data_dir.clone(),
+            machines,
+            limits: Limits::default(),
+        })
+        .await?;
+        let listener = tokio::net::TcpListener::bind(args.listen)
+            .await
+            .map_err(|source| CliError::File {
+                context: format!("cannot listen on {}", args.listen),
+                source,
+            })?;
+        let address = listener.local_addr()?;
+        tracing::info!(%address, data_dir = %args.data_dir.display(), "tunnelnav serving");
+        // The address on stdout, for scripts and tests that pass port 0.
+        println!("listening on http://{address}");
+        server::run(listener, state, shutdown_signal()).await?;
+        tracing::info!("stopped");
+        Ok(())
+    })
+}
+
+/// Resolves on Ctrl-C or SIGTERM.
+pub async fn shutdown_signal() {
+    let ctrl_c = async {
+        let _ = tokio::signal::ctrl_c().await;
+    };
+    #[cfg(unix)]
+    let terminate = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut signal) => {
+                signal.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    #[cfg(not(unix))]
+    let terminate = std::future::pending::<()>();
+    tokio::select! {
+        _ = ctrl_c => {},
+        _ = terminate => {},
+    }
+}
+
+/// Logs to stderr; `RUST_LOG` filters (default `info`).
+pub fn init_tracing() {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .try_init();
+}

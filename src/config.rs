@@ -1,0 +1,241 @@
+//! Machine definitions (the body of `PUT /api/v1/machines/{machine}`) and
+//! the server's TOML configuration file, which declares machines the same way.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::fusion::{EngineKind, ParamError, ParamValue, Params, UnknownEngine};
+
+/// Longest machine display name, in characters.
+pub const MAX_NAME_CHARS: usize = 200;
+/// Longest reorder window a machine may ask for: readings are held in memory
+/// for this long, and estimates come out this much later.
+pub const MAX_REORDER_WINDOW_S: f64 = 600.0;
+
+/// A machine as declared by an operator, before validation: what `PUT`
+/// bodies and the config file contain.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MachineDeclaration {
+    /// Display name; the id when absent.
+    #[serde(default)]
+    pub name: Option<String>,
+    /// Engine name → parameter overrides.
+    pub engines: BTreeMap<String, BTreeMap<String, ParamValue>>,
+    /// How long readings are held to restore time order, seconds of reading
+    /// time (tunnelnav extension, default 0: fused on arrival; see README).
+    #[serde(default)]
+    pub reorder_window_s: Option<f64>,
+}
+
+/// A validated machine: id, name, engines with complete parameters.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MachineSpec {
+    pub id: String,
+    pub name: String,
+    pub engines: BTreeMap<EngineKind, Params>,
+    pub reorder_window_s: f64,
+}
+
+/// Why a machine declaration or the config file was refused.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("machine id `{0}` is not valid: use 1 to 64 letters, digits, `-` or `_`")]
+    MachineId(String),
+    #[error("machine `{machine}`: {source}")]
+    Engine {
+        machine: String,
+        source: UnknownEngine,
+    },
+    #[error("machine `{machine}`, engine `{engine}`: {source}")]
+    Params {
+        machine: String,
+        engine: EngineKind,
+        source: ParamError,
+    },
+    #[error("machine `{0}` declares no engine (known: attitude)")]
+    NoEngine(String),
+    #[error("machine `{machine}`: {reason}")]
+    Invalid { machine: String, reason: String },
+    #[error("config file {path}: {reason}")]
+    File { path: String, reason: String },
+}
+
+/// True for ids matching `[A-Za-z0-9_-]{1,64}` (protocol, "HTTP API").
+pub fn valid_machine_id(id: &str) -> bool {
+    (1..=64).contains(&id.len())
+        && id
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'_')
+}
+
+impl MachineDeclaration {
+    /// Checks everything an engine would refuse later, naming the culprit.
+    pub fn validate(self, id: &str) -> Result<MachineSpec, ConfigError> {
+        if !valid_machine_id(id) {
+            return Err(ConfigError::MachineId(id.to_string()));
+        }
+        let invalid = |reason: String| ConfigError::Invalid {
+            machine: id.to_string(),
+            reason,
+        };
+        let name = self.name.unwrap_or_else(|| id.to_string());
+        if name.chars().count() > MAX_NAME_CHARS || name.chars().any(char::is_control) {
+            return Err(invalid(format!(
+                "`name` must be at most {MAX_NAME_CHARS} printable characters"
+            )));
+        }
+        let reorder_window_s = self.reorder_window_s.unwrap_or(0.0);
+        if !(0.0..=MAX_REORDER_WINDOW_S).contains(&reorder_window_s) {
+            return Err(invalid(format!(
+                "`reorder_window_s` = {reorder_window_s} is outside [0, {MAX_REORDER_WINDOW_S}]"
+            )));
+        }
+        if self.engines.is_empty() {
+            return Err(ConfigError::NoEngine(id.to_string()));
+        }
+        let mut engines = BTreeMap::new();
+        for (engine_name, overrides) in self.engines {
+            let engine: EngineKind = engine_name.parse().map_err(|source| ConfigError::Engine {
+                machine: id.to_string(),
+                source,
+            })?;
+            let params_error = |source| ConfigError::Params {
+                machine: id.to_string(),
+                engine,
+                source,
+            };
+            let params = Params::resolve(engine.specs(), overrides).map_err(params_error)?;
+            // Creating the engine runs its cross-parameter checks.
+            engine.create(params.clone()).map_err(params_error)?;
+            engines.insert(engine, params);
+        }
+        Ok(MachineSpec {
+            id: id.to_string(),
+            name,
+            engines,
+            reorder_window_s,
+        })
+    }
+}
+
+impl MachineSpec {
+    /// The declaration that reproduces this machine, with every parameter
+    /// spelled out (what `GET` shows).
+    pub fn declaration(&self) -> MachineDeclaration {
+        MachineDeclaration {
+            name: Some(self.name.clone()),
+            engines: self
+                .engines
+                .iter()
+                .map(|(engine, params)| (engine.as_str().to_string(), params.values().clone()))
+                .collect(),
+            reorder_window_s: Some(self.reorder_window_s),
+        }
+    }
+}
+
+/// The server's config file.
+///
+/// ```toml
+/// [machines.tbm-1]
+/// name = "TBM 1, north drive"
+/// [machines.tbm-1.engines.attitude]
+/// fusion_gain_pitch = 0.4
+/// ```
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ServerConfig {
+    /// Machine id → declaration.
+    #[serde(default)]
+    pub machines: BTreeMap<String, MachineDeclaration>,
+}
+
+impl ServerConfig {
+    /// Reads and validates a config file.
+    pub fn load(path: &Path) -> Result<Vec<MachineSpec>, ConfigError> {
+        let file_error = |reason: String| ConfigError::File {
+            path: path.display().to_string(),
+            reason,
+        };
+        let text = std::fs::read_to_string(path).map_err(|e| file_error(e.to_string()))?;
+        Self::parse(&text).map_err(|e| match e {
+            ConfigError::File { reason, .. } => file_error(reason),
+            other => file_error(other.to_string()),
+        })
+    }
+
+    /// Parses and validates config text.
+    pub fn parse(text: &str) -> Result<Vec<MachineSpec>, ConfigError> {
+        let config: ServerConfig = toml::from_str(text).map_err(|e| ConfigError::File {
+            path: String::new(),
+            reason: e.to_string(),
+        })?;
+        config
+            .machines
+            .into_iter()
+            .map(|(id, declaration)| declaration.validate(&id))
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn machine_ids_follow_the_protocol() {
+        assert!(valid_machine_id("tbm-1_A"));
+        assert!(valid_machine_id(&"a".repeat(64)));
+        assert!(!valid_machine_id(&"a".repeat(65)));
+        assert!(!valid_machine_id(""));
+        assert!(!valid_machine_id("tbm 1"));
+        assert!(!valid_machine_id("tbm/1"));
+    }
+
+    #[test]
+    fn a_config_file_declares_machines_with_parameters() {
+        let specs = ServerConfig::parse(
+            r#"
+            [machines.tbm-1]
+            name = "TBM 1"
+            [machines.tbm-1.engines.attitude]
+            fusion_gain_pitch = 0.4
+            [machines.tbm-2.engines.attitude]
+            "#,
+        )
+        .unwrap();
+        assert_eq!(specs.len(), 2);
+        assert_eq!(specs[0].name, "TBM 1");
+        assert_eq!(specs[1].name, "tbm-2");
+        let params = &specs[0].engines[&EngineKind::Attitude];
+        assert_eq!(params.real("fusion_gain_pitch").unwrap(), 0.4);
+    }
+
+    #[test]
+    fn errors_name_the_machine_engine_and_parameter() {
+        let err = ServerConfig::parse("[machines.m.engines.attitude]\nfusion_gain_pitch = 7\n")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("machine `m`, engine `attitude`"), "{err}");
+        assert!(err.contains("fusion_gain_pitch"), "{err}");
+        let err = ServerConfig::parse("[machines.m.engines.gps]\n")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("unknown engine `gps`"), "{err}");
+        let err = ServerConfig::parse("[machines.\"a b\".engines.attitude]\n")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("`a b` is not valid"), "{err}");
+        let err = ServerConfig::parse("[machines.m]\nengines = {}\n")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("declares no engine"), "{err}");
+        let err = ServerConfig::parse("[machines.m]\nengine = {}\n")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("unknown field `engine`"), "{err}");
+    }
+}

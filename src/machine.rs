@@ -1,0 +1,441 @@
+//! One machine: its engines behind a reorder buffer ([`MachineCore`], plain
+//! synchronous code) and the task that owns them ([`spawn`]), the only
+//! bridge from the async server to the fusion core.
+//!
+//! Per ingest request the task time-orders the batch, pushes it through the
+//! reorder buffer into every engine that uses each sensor, and sends the
+//! readings, the estimates they produced and now and then a snapshot to the
+//! store as one write. The request is answered by the store after the
+//! commit; the estimates are broadcast to live clients at the same moment.
+//! The task does not wait for the commit, so one machine's requests are
+//! pipelined into the store's group commits.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use serde::{Deserialize, Serialize};
+use tokio::sync::{broadcast, mpsc, oneshot, watch};
+
+use crate::config::MachineSpec;
+use crate::fusion::estimate::EstimateWriter;
+use crate::fusion::reorder::{Admission, ReorderBuffer};
+use crate::fusion::{
+    Engine, EngineKind, EngineOutput, ParamError, Reading, SensorKind, SnapshotError, parse_reading,
+};
+use crate::store::{EstimateRow, ReadingRow, Store, StoreError, Write, WriteOutcome};
+
+/// Most readings the reorder buffer holds per machine.
+pub const REORDER_MAX_LEN: usize = 100_000;
+/// A snapshot is stored after this many readings, so a restart re-feeds at
+/// most this many.
+pub const SNAPSHOT_EVERY_READINGS: u64 = 20_000;
+/// Estimates a slow live client may fall behind by before it gets a `gap`.
+pub const LIVE_BUFFER: usize = 4096;
+/// Ingest requests queued per machine.
+const COMMAND_QUEUE: usize = 256;
+/// Estimates written per store request while re-feeding after a restart.
+const REFEED_CHUNK: usize = 10_000;
+
+/// Why a machine could not be built or restored.
+#[derive(Debug, thiserror::Error)]
+pub enum MachineError {
+    #[error(transparent)]
+    Params(#[from] ParamError),
+    #[error(transparent)]
+    Snapshot(#[from] SnapshotError),
+    #[error(transparent)]
+    Store(#[from] StoreError),
+    #[error("stored reading is invalid: {0}")]
+    StoredReading(String),
+    #[error("machine `{0}` has stopped")]
+    Stopped(String),
+}
+
+/// An estimate as the machine emits it: attributed, serialised once.
+#[derive(Debug, Clone)]
+pub struct FusedEstimate {
+    pub engine: EngineKind,
+    pub t: f64,
+    pub extremes: [f64; 2],
+    /// The protocol JSON, one object, no newline.
+    pub json: Arc<str>,
+}
+
+/// What live clients receive.
+pub type LiveEstimate = Arc<FusedEstimate>;
+
+/// A machine's engines and reorder buffer: deterministic, no IO. The same
+/// readings in the same arrival order give the same estimates here, in a
+/// restored copy, and (for time-ordered input) in `replay`.
+pub struct MachineCore {
+    engines: Vec<Box<dyn Engine>>,
+    reorder: ReorderBuffer,
+    writer: EstimateWriter,
+    ready: Vec<Reading>,
+    outputs: Vec<EngineOutput>,
+    line: Vec<u8>,
+}
+
+#[derive(Serialize, Deserialize)]
+struct CoreState {
+    engines: BTreeMap<EngineKind, serde_json::Value>,
+    reorder: serde_json::Value,
+}
+
+impl MachineCore {
+    /// Fresh engines for `spec`.
+    pub fn new(spec: &MachineSpec) -> Result<MachineCore, ParamError> {
+        let engines = spec
+            .engines
+            .iter()
+            .map(|(kind, params)| kind.create(params.clone()))
+            .collect::<Result<_, _>>()?;
+        Ok(Self::assemble(
+            spec,
+            engines,
+            ReorderBuffer::new(spec.reorder_window_s, REORDER_MAX_LEN),
+        ))
+    }
+
+    /// Engines continuing from a [`MachineCore::snapshot`].
+    pub fn restore(spec: &MachineSpec, state: &str) -> Result<MachineCore, SnapshotError> {
+        let state: CoreState =
+            serde_json::from_str(state).map_err(|e| SnapshotError::Invalid(e.to_string()))?;
+        let mut engines = Vec::new();
+        for (kind, snapshot) in state.engines {
+            engines.push(kind.restore(snapshot)?);
+        }
+        Ok(Self::assemble(
+            spec,
+            engines,
+            ReorderBuffer::restore(state.reorder)?,
+        ))
+    }
+
+    fn assemble(spec: &MachineSpec, engines: Vec<Box<dyn Engine>>, reorder: ReorderBuffer) -> Self {
+        MachineCore {
+            engines,
+            reorder,
+            writer: EstimateWriter::new(&spec.id),
+            ready: Vec::new(),
+            outputs: Vec::new(),
+            line: Vec::new(),
+        }
+    }
+
+    /// The whole state as JSON.
+    pub fn snapshot(&self) -> String {
+        let state = CoreState {
+            engines: self
+                .engines
+                .iter()
+                .map(|e| (e.kind(), e.snapshot()))
+                .collect(),
+            reorder: self.reorder.snapshot(),
+        };
+        serde_json::to_string(&state).unwrap_or_default()
+    }
+
+    /// Offers one reading; appends the estimates that became ready to `out`.
+    pub fn push(&mut self, reading: Reading, out: &mut Vec<FusedEstimate>) -> Admission {
+        let admission = self.reorder.push(reading);
+        self.reorder.pop_ready(&mut self.ready);
+        for reading in self.ready.drain(..) {
+            let sensor = reading.sensor();
+            for engine in &mut self.engines {
+                if !engine.kind().sensors().contains(&sensor) {
+                    continue;
+                }
+                self.outputs.clear();
+                engine.feed(&reading, &mut self.outputs);
+                for output in &self.outputs {
+                    self.line.clear();
+                    self.writer.write_line(output, &mut self.line);
+                    let json = std::str::from_utf8(self.line.trim_ascii_end()).unwrap_or("{}");
+                    out.push(FusedEstimate {
+                        engine: output.values.engine(),
+                        t: output.t,
+                        extremes: output.values.extremes(),
+                        json: Arc::from(json),
+                    });
+                }
+            }
+        }
+        admission
+    }
+
+    /// Each engine's model report, if it has one.
+    pub fn models(&self) -> BTreeMap<EngineKind, serde_json::Value> {
+        self.engines
+            .iter()
+            .filter_map(|e| e.model().map(|m| (e.kind(), m)))
+            .collect()
+    }
+}
+
+/// Last reading of one sensor.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct SensorStatus {
+    /// Time of the newest reading received, Unix seconds.
+    pub last_t: f64,
+    /// Readings received since the server started.
+    pub readings: u64,
+}
+
+/// What a machine looks like now; published after every request.
+#[derive(Debug, Clone, Default)]
+pub struct MachineStatus {
+    /// Latest estimate of each engine, protocol JSON.
+    pub latest: BTreeMap<EngineKind, LiveEstimate>,
+    pub sensors: BTreeMap<SensorKind, SensorStatus>,
+    /// Readings dropped as older than one of the same sensor already fused
+    /// (stored all the same), since the server started.
+    pub late: u64,
+}
+
+enum Command {
+    Ingest {
+        readings: Vec<Reading>,
+        reply: oneshot::Sender<Result<WriteOutcome, StoreError>>,
+    },
+    Models {
+        reply: oneshot::Sender<BTreeMap<EngineKind, serde_json::Value>>,
+    },
+    Stop {
+        reply: oneshot::Sender<()>,
+    },
+}
+
+/// The server's handle on a running machine.
+pub struct MachineHandle {
+    pub spec: Arc<MachineSpec>,
+    pub db_id: i64,
+    commands: mpsc::Sender<Command>,
+    live: broadcast::Sender<LiveEstimate>,
+    status: watch::Receiver<Arc<MachineStatus>>,
+}
+
+impl MachineHandle {
+    /// Feeds readings; resolves once they are committed.
+    pub async fn ingest(&self, readings: Vec<Reading>) -> Result<WriteOutcome, MachineError> {
+        let (reply, answer) = oneshot::channel();
+        self.commands
+            .send(Command::Ingest { readings, reply })
+            .await
+            .map_err(|_| self.stopped())?;
+        Ok(answer.await.map_err(|_| self.stopped())??)
+    }
+
+    /// The engines' model reports.
+    pub async fn models(&self) -> Result<BTreeMap<EngineKind, serde_json::Value>, MachineError> {
+        let (reply, answer) = oneshot::channel();
+        self.commands
+            .send(Command::Models { reply })
+            .await
+            .map_err(|_| self.stopped())?;
+        answer.await.map_err(|_| self.stopped())
+    }
+
+    /// Stores a final snapshot and stops the task.
+    pub async fn stop(&self) {
+        let (reply, answer) = oneshot::channel();
+        if self.commands.send(Command::Stop { reply }).await.is_ok() {
+            let _ = answer.await;
+        }
+    }
+
+    /// New estimates from now on.
+    pub fn subscribe(&self) -> broadcast::Receiver<LiveEstimate> {
+        self.live.subscribe()
+    }
+
+    /// The current status.
+    pub fn status(&self) -> Arc<MachineStatus> {
+        self.status.borrow().clone()
+    }
+
+    /// Live clients connected.
+    pub fn live_clients(&self) -> usize {
+        self.live.receiver_count()
+    }
+
+    fn stopped(&self) -> MachineError {
+        MachineError::Stopped(self.spec.id.clone())
+    }
+}
+
+/// Restores the machine from its latest snapshot, re-feeds the readings
+/// stored after it (writing the estimates they give, which are usually
+/// already stored), and stores a fresh snapshot. Blocking.
+pub fn recover(store: &Store, spec: &MachineSpec, db_id: i64) -> Result<MachineCore, MachineError> {
+    let snapshot = store.snapshot(db_id)?;
+    let (mut core, after_id) = match &snapshot {
+        Some(s) => (MachineCore::restore(spec, &s.state)?, s.last_reading_id),
+        None => (MachineCore::new(spec)?, 0),
+    };
+    let mut estimates = Vec::new();
+    let flush = |estimates: &mut Vec<FusedEstimate>, snapshot: Option<String>| {
+        let (reply, answer) = oneshot::channel();
+        store.write_blocking(Write {
+            machine_id: db_id,
+            readings: Vec::new(),
+            estimates: estimates.drain(..).map(row).collect(),
+            snapshot,
+            after_commit: None,
+            reply: Some(reply),
+        })?;
+        answer.blocking_recv().map_err(|_| StoreError::Closed)??;
+        Ok::<_, MachineError>(())
+    };
+    let mut failure = None;
+    let refed = store.readings_since(db_id, after_id, |body| {
+        match parse_reading(body.as_bytes()) {
+            Ok(reading) => {
+                core.push(reading, &mut estimates);
+            }
+            Err(e) => failure = Some(MachineError::StoredReading(format!("{e}: {body}"))),
+        }
+        if estimates.len() >= REFEED_CHUNK {
+            flush(&mut estimates, None).map_err(|e| StoreError::Corrupt(e.to_string()))?;
+        }
+        Ok(())
+    })?;
+    if let Some(e) = failure {
+        return Err(e);
+    }
+    flush(&mut estimates, Some(core.snapshot()))?;
+    tracing::info!(machine = %spec.id, refed, "machine restored");
+    Ok(core)
+}
+
+fn row(estimate: FusedEstimate) -> EstimateRow {
+    EstimateRow {
+        engine: estimate.engine,
+        t: estimate.t,
+        extremes: estimate.extremes,
+        body: estimate.json,
+    }
+}
+
+/// Starts the task that owns `core`.
+pub fn spawn(store: Store, spec: MachineSpec, db_id: i64, core: MachineCore) -> MachineHandle {
+    let (commands, queue) = mpsc::channel(COMMAND_QUEUE);
+    let (live, _) = broadcast::channel(LIVE_BUFFER);
+    let (status_tx, status) = watch::channel(Arc::new(MachineStatus::default()));
+    let spec = Arc::new(spec);
+    let actor = Actor {
+        store,
+        db_id,
+        core,
+        live: live.clone(),
+        status: status_tx,
+        current: MachineStatus::default(),
+        since_snapshot: 0,
+    };
+    tokio::spawn(actor.run(queue));
+    MachineHandle {
+        spec,
+        db_id,
+        commands,
+        live,
+        status,
+    }
+}
+
+struct Actor {
+    store: Store,
+    db_id: i64,
+    core: MachineCore,
+    live: broadcast::Sender<LiveEstimate>,
+    status: watch::Sender<Arc<MachineStatus>>,
+    current: MachineStatus,
+    since_snapshot: u64,
+}
+
+impl Actor {
+    async fn run(mut self, mut queue: mpsc::Receiver<Command>) {
+        while let Some(command) = queue.recv().await {
+            match command {
+                Command::Ingest { readings, reply } => self.ingest(readings, reply).await,
+                Command::Models { reply } => {
+                    let _ = reply.send(self.core.models());
+                }
+                Command::Stop { reply } => {
+                    let (done, committed) = oneshot::channel();
+                    let write = Write {
+                        machine_id: self.db_id,
+                        readings: Vec::new(),
+                        estimates: Vec::new(),
+                        snapshot: Some(self.core.snapshot()),
+                        after_commit: None,
+                        reply: Some(done),
+                    };
+                    if self.store.write(write).await.is_ok() {
+                        let _ = committed.await;
+                    }
+                    let _ = reply.send(());
+                    return;
+                }
+            }
+        }
+    }
+
+    async fn ingest(
+        &mut self,
+        mut readings: Vec<Reading>,
+        reply: oneshot::Sender<Result<WriteOutcome, StoreError>>,
+    ) {
+        // A batch is one arrival: put it in time order before the buffer.
+        readings.sort_by(|a, b| a.t.total_cmp(&b.t));
+        let mut estimates = Vec::new();
+        let mut rows = Vec::with_capacity(readings.len());
+        for reading in readings {
+            let sensor = reading.sensor();
+            let entry = self.current.sensors.entry(sensor).or_insert(SensorStatus {
+                last_t: reading.t,
+                readings: 0,
+            });
+            entry.last_t = entry.last_t.max(reading.t);
+            entry.readings += 1;
+            rows.push(ReadingRow {
+                t: reading.t,
+                sensor,
+                body: reading.to_json(),
+            });
+            if self.core.push(reading, &mut estimates) == Admission::Late {
+                self.current.late += 1;
+            }
+        }
+        self.since_snapshot += rows.len() as u64;
+        let snapshot = (self.since_snapshot >= SNAPSHOT_EVERY_READINGS).then(|| {
+            self.since_snapshot = 0;
+            self.core.snapshot()
+        });
+        let live: Vec<LiveEstimate> = estimates.iter().cloned().map(Arc::new).collect();
+        for estimate in &live {
+            self.current
+                .latest
+                .insert(estimate.engine, estimate.clone());
+        }
+        self.status.send_replace(Arc::new(self.current.clone()));
+        let sender = self.live.clone();
+        let write = Write {
+            machine_id: self.db_id,
+            readings: rows,
+            estimates: estimates.into_iter().map(row).collect(),
+            snapshot,
+            after_commit: Some(Box::new(move |committed| {
+                if committed {
+                    for estimate in live {
+                        // No receivers is fine.
+                        let _ = sender.send(estimate);
+                    }
+                }
+            })),
+            reply: Some(reply),
+        };
+        if let Err(e) = self.store.write(write).await {
+            tracing::error!(error = %e, "store closed");
+        }
+    }
+}

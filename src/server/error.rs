@@ -1,0 +1,102 @@
+//! The HTTP edge's error: every failure is a status code and a JSON body
+//! `{"error": "...", ...}` naming what was wrong.
+
+use axum::Json;
+use axum::http::StatusCode;
+use axum::response::{IntoResponse, Response};
+use serde::Serialize;
+
+use crate::config::ConfigError;
+use crate::machine::MachineError;
+use crate::store::StoreError;
+
+/// One reading refused, by its position in the request.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct Rejected {
+    /// 0-based position in the array, or among the non-blank NDJSON lines.
+    pub index: usize,
+    pub error: String,
+    /// The sensor the reading claimed, when that much was readable (metrics).
+    #[serde(skip)]
+    pub sensor: Option<crate::fusion::SensorKind>,
+}
+
+/// Why a request failed.
+#[derive(Debug, thiserror::Error)]
+pub enum ApiError {
+    #[error("unknown machine `{0}`")]
+    UnknownMachine(String),
+    #[error("{0}")]
+    NotFound(String),
+    #[error("{0}")]
+    BadRequest(String),
+    #[error("no valid reading in the request")]
+    NoValidReading { rejected: Vec<Rejected> },
+    #[error("{0}")]
+    TooLarge(String),
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    #[error("{0}")]
+    Unavailable(String),
+    #[error("internal error")]
+    Internal(String),
+}
+
+impl From<StoreError> for ApiError {
+    fn from(e: StoreError) -> Self {
+        match e {
+            StoreError::Closed => ApiError::Unavailable("the store is shutting down".into()),
+            other => ApiError::Internal(other.to_string()),
+        }
+    }
+}
+
+impl From<MachineError> for ApiError {
+    fn from(e: MachineError) -> Self {
+        match e {
+            MachineError::Stopped(machine) => ApiError::Unavailable(format!(
+                "machine `{machine}` is restarting or the server is shutting down; retry"
+            )),
+            MachineError::Store(e) => e.into(),
+            other => ApiError::Internal(other.to_string()),
+        }
+    }
+}
+
+impl ApiError {
+    pub fn status(&self) -> StatusCode {
+        match self {
+            ApiError::UnknownMachine(_) | ApiError::NotFound(_) => StatusCode::NOT_FOUND,
+            ApiError::BadRequest(_) | ApiError::NoValidReading { .. } | ApiError::Config(_) => {
+                StatusCode::BAD_REQUEST
+            }
+            ApiError::TooLarge(_) => StatusCode::PAYLOAD_TOO_LARGE,
+            ApiError::Unavailable(_) => StatusCode::SERVICE_UNAVAILABLE,
+            ApiError::Internal(_) => StatusCode::INTERNAL_SERVER_ERROR,
+        }
+    }
+
+    /// The JSON body.
+    pub fn body(&self) -> serde_json::Value {
+        let mut body = serde_json::json!({ "error": self.to_string() });
+        match self {
+            ApiError::UnknownMachine(machine) => body["machine"] = machine.as_str().into(),
+            ApiError::NoValidReading { rejected } => {
+                body["accepted"] = 0.into();
+                body["rejected"] = serde_json::to_value(rejected).unwrap_or_default();
+            }
+            _ => {}
+        }
+        body
+    }
+}
+
+impl IntoResponse for ApiError {
+    fn into_response(self) -> Response {
+        if let ApiError::Internal(detail) = &self {
+            // Details go to the log, not to the client.
+            tracing::error!(%detail, "internal error");
+        }
+        (self.status(), Json(self.body())).into_response()
+    }
+}

@@ -1,0 +1,282 @@
+//! History: estimates (downsampled in the server), raw readings (streamed
+//! as NDJSON or CSV), and the `attitude` engine's learned model.
+
+use axum::body::{Body, Bytes};
+use axum::extract::rejection::QueryRejection;
+use axum::extract::{Path, Query, State};
+use axum::http::header;
+use axum::response::{IntoResponse, Response};
+use serde::Deserialize;
+use serde_json::value::RawValue;
+use tokio::sync::mpsc;
+use tokio_stream::wrappers::ReceiverStream;
+
+use super::SharedState;
+use super::error::ApiError;
+use crate::fusion::reading::{EARLIEST_T_S, LATEST_T_S};
+use crate::fusion::{EngineKind, SensorData, SensorKind, parse_reading};
+
+/// Points a history query returns unless told otherwise.
+pub const DEFAULT_MAX_POINTS: usize = 2000;
+/// Bytes per chunk of a streamed export.
+const CHUNK_BYTES: usize = 64 * 1024;
+
+/// Parses a query-string time: Unix seconds or RFC 3339.
+pub fn parse_time(field: &str, text: &str) -> Result<f64, ApiError> {
+    let t = match text.trim().parse::<f64>() {
+        Ok(t) if t.is_finite() => t,
+        _ => chrono::DateTime::parse_from_rfc3339(text.trim())
+            .map(|d| d.timestamp() as f64 + f64::from(d.timestamp_subsec_nanos()) * 1e-9)
+            .map_err(|_| {
+                ApiError::BadRequest(format!(
+                    "`{field}` = `{text}` is not a time: use Unix seconds or RFC 3339 (2026-03-02T06:00:00Z)"
+                ))
+            })?,
+    };
+    Ok(t)
+}
+
+fn range(from: Option<&str>, to: Option<&str>) -> Result<(f64, f64), ApiError> {
+    let from_t = from
+        .map(|t| parse_time("from", t))
+        .transpose()?
+        .unwrap_or(EARLIEST_T_S);
+    let to_t = to
+        .map(|t| parse_time("to", t))
+        .transpose()?
+        .unwrap_or(LATEST_T_S);
+    if from_t > to_t {
+        return Err(ApiError::BadRequest(format!(
+            "`from` ({from_t}) is after `to` ({to_t})"
+        )));
+    }
+    Ok((from_t, to_t))
+}
+
+fn query<T>(query: Result<Query<T>, QueryRejection>) -> Result<T, ApiError> {
+    query
+        .map(|Query(q)| q)
+        .map_err(|e| ApiError::BadRequest(format!("bad query string: {}", e.body_text())))
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EstimatesQuery {
+    engine: Option<String>,
+    from: Option<String>,
+    to: Option<String>,
+    max_points: Option<usize>,
+}
+
+/// `GET /api/v1/machines/{machine}/estimates`.
+pub async fn estimates(
+    State(state): State<SharedState>,
+    Path(machine): Path<String>,
+    params: Result<Query<EstimatesQuery>, QueryRejection>,
+) -> Result<Response, ApiError> {
+    let machine = state.machine(&machine)?;
+    let params = query(params)?;
+    let engines: Vec<EngineKind> = machine.spec.engines.keys().copied().collect();
+    let engine = match params.engine.as_deref() {
+        Some(name) => {
+            let engine: EngineKind = name
+                .parse()
+                .map_err(|e: crate::fusion::UnknownEngine| ApiError::BadRequest(e.to_string()))?;
+            if !engines.contains(&engine) {
+                return Err(ApiError::BadRequest(format!(
+                    "machine `{}` does not run the `{engine}` engine",
+                    machine.spec.id
+                )));
+            }
+            engine
+        }
+        None if engines.len() == 1 => engines[0],
+        None => {
+            return Err(ApiError::BadRequest(
+                "`engine` is required: the machine runs several".into(),
+            ));
+        }
+    };
+    let (from_t, to_t) = range(params.from.as_deref(), params.to.as_deref())?;
+    let max_points = params.max_points.unwrap_or(DEFAULT_MAX_POINTS);
+    if !(1..=state.limits.max_points_limit).contains(&max_points) {
+        return Err(ApiError::BadRequest(format!(
+            "`max_points` = {max_points} is outside [1, {}]",
+            state.limits.max_points_limit
+        )));
+    }
+    let store = state.store.clone();
+    let db_id = machine.db_id;
+    let page = tokio::task::spawn_blocking(move || {
+        store.estimates_page(db_id, engine, from_t, to_t, max_points)
+    })
+    .await
+    .map_err(|e| ApiError::Internal(e.to_string()))??;
+    let estimates: Vec<Box<RawValue>> = page
+        .bodies
+        .into_iter()
+        .map(RawValue::from_string)
+        .collect::<Result<_, _>>()
+        .map_err(|e| ApiError::Internal(format!("stored estimate is not JSON: {e}")))?;
+    let body = serde_json::json!({
+        "machine": machine.spec.id,
+        "engine": engine,
+        "from": from_t,
+        "to": to_t,
+        "downsampled": page.downsampled,
+        "estimates": estimates,
+    });
+    Ok(axum::Json(body).into_response())
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReadingsQuery {
+    sensor: Option<String>,
+    from: Option<String>,
+    to: Option<String>,
+    format: Option<String>,
+}
+
+/// Columns of the CSV export; a reading fills those of its sensor.
+pub const CSV_HEADER: &str = "t,sensor,pitch_deg,roll_deg,yaw_deg,temp_c,\
+accel_x_mps2,accel_y_mps2,accel_z_mps2,gyro_x_dps,gyro_y_dps,gyro_z_dps,\
+field_x_ut,field_y_ut,field_z_ut,height_m,distance_m\n";
+
+fn csv_row(body: &str, out: &mut String) {
+    use std::fmt::Write;
+    let Ok(reading) = parse_reading(body.as_bytes()) else {
+        return;
+    };
+    let mut cells: [Option<f64>; 15] = [None; 15];
+    match reading.data {
+        SensorData::Laser {
+            pitch_deg,
+            roll_deg,
+            yaw_deg,
+        } => {
+            (cells[0], cells[1], cells[2]) = (Some(pitch_deg), Some(roll_deg), yaw_deg);
+        }
+        SensorData::Inclinometer {
+            pitch_deg,
+            roll_deg,
+            temp_c,
+        } => {
+            (cells[0], cells[1], cells[3]) = (Some(pitch_deg), Some(roll_deg), temp_c);
+        }
+        SensorData::Imu {
+            accel_mps2,
+            gyro_dps,
+        } => {
+            for i in 0..3 {
+                cells[4 + i] = Some(accel_mps2[i]);
+                cells[7 + i] = Some(gyro_dps[i]);
+            }
+        }
+        SensorData::Magnetometer { field_ut } => {
+            for i in 0..3 {
+                cells[10 + i] = Some(field_ut[i]);
+            }
+        }
+        SensorData::Level { height_m } => cells[13] = Some(height_m),
+        SensorData::Odometer { distance_m } => cells[14] = Some(distance_m),
+    }
+    let _ = write!(out, "{},{}", reading.t, reading.sensor());
+    for cell in cells {
+        out.push(',');
+        if let Some(x) = cell {
+            let _ = write!(out, "{x}");
+        }
+    }
+    out.push('\n');
+}
+
+/// `GET /api/v1/machines/{machine}/readings`: streamed from the store in
+/// chunks; memory stays bounded whatever the range.
+pub async fn readings(
+    State(state): State<SharedState>,
+    Path(machine): Path<String>,
+    params: Result<Query<ReadingsQuery>, QueryRejection>,
+) -> Result<Response, ApiError> {
+    let machine = state.machine(&machine)?;
+    let params = query(params)?;
+    let sensor = params
+        .sensor
+        .as_deref()
+        .map(|name| {
+            SensorKind::from_name(name).ok_or_else(|| {
+                ApiError::BadRequest(format!(
+                    "unknown sensor `{name}` (expected laser, inclinometer, imu, magnetometer, level or odometer)"
+                ))
+            })
+        })
+        .transpose()?;
+    let (from_t, to_t) = range(params.from.as_deref(), params.to.as_deref())?;
+    let csv = match params.format.as_deref() {
+        None | Some("ndjson") => false,
+        Some("csv") => true,
+        Some(other) => {
+            return Err(ApiError::BadRequest(format!(
+                "`format` = `{other}`: expected ndjson or csv"
+            )));
+        }
+    };
+    let (chunks, receiver) = mpsc::channel::<Result<Bytes, std::io::Error>>(4);
+    let store = state.store.clone();
+    let db_id = machine.db_id;
+    tokio::task::spawn_blocking(move || {
+        let mut chunk = String::with_capacity(CHUNK_BYTES + 1024);
+        if csv {
+            chunk.push_str(CSV_HEADER);
+        }
+        let result = store.export_readings(db_id, sensor, from_t, to_t, |body| {
+            if csv {
+                csv_row(body, &mut chunk);
+            } else {
+                chunk.push_str(body);
+                chunk.push('\n');
+            }
+            if chunk.len() >= CHUNK_BYTES {
+                let full = std::mem::replace(&mut chunk, String::with_capacity(CHUNK_BYTES + 1024));
+                // A closed channel means the client went away: stop reading.
+                return chunks.blocking_send(Ok(Bytes::from(full))).is_ok();
+            }
+            true
+        });
+        let last = match result {
+            Ok(()) => Ok(Bytes::from(chunk)),
+            Err(e) => {
+                tracing::error!(error = %e, "readings export failed");
+                Err(std::io::Error::other(e.to_string()))
+            }
+        };
+        let _ = chunks.blocking_send(last);
+    });
+    let content_type = if csv {
+        "text/csv; charset=utf-8"
+    } else {
+        "application/x-ndjson"
+    };
+    Ok((
+        [(header::CONTENT_TYPE, content_type)],
+        Body::from_stream(ReceiverStream::new(receiver)),
+    )
+        .into_response())
+}
+
+/// `GET /api/v1/machines/{machine}/model`.
+pub async fn model(
+    State(state): State<SharedState>,
+    Path(machine): Path<String>,
+) -> Result<Response, ApiError> {
+    let machine = state.machine(&machine)?;
+    let mut models = machine.models().await?;
+    let mut model = models.remove(&EngineKind::Attitude).ok_or_else(|| {
+        ApiError::NotFound(format!(
+            "machine `{}` has no `attitude` engine, so no learned model",
+            machine.spec.id
+        ))
+    })?;
+    model["machine"] = machine.spec.id.as_str().into();
+    Ok(axum::Json(model).into_response())
+}

@@ -1,0 +1,254 @@
+//! Ingest: `POST .../readings` (one object, an array, or NDJSON) and the
+//! ingest WebSocket (one object or an array per text frame). Both answer
+//! `{"accepted", "duplicates", "rejected": [{"index", "error"}]}` after the
+//! accepted readings are committed.
+
+use std::time::Instant;
+
+use axum::Json;
+use axum::body::Bytes;
+use axum::extract::rejection::BytesRejection;
+use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
+use axum::extract::{Path, State};
+use axum::http::{HeaderMap, StatusCode, header};
+use axum::response::Response;
+use serde::Serialize;
+use serde_json::value::RawValue;
+
+use super::error::{ApiError, Rejected};
+use super::{SharedState, metrics};
+use crate::fusion::{Reading, SensorKind, parse_reading};
+use crate::machine::MachineHandle;
+
+/// The readings of one request, valid ones and refused ones.
+#[derive(Debug, Default)]
+pub struct ParsedBatch {
+    pub readings: Vec<Reading>,
+    pub rejected: Vec<Rejected>,
+}
+
+/// The answer to an ingest request or frame.
+#[derive(Debug, Serialize)]
+pub struct Ack {
+    /// Valid readings, now stored (including duplicates).
+    pub accepted: usize,
+    /// Of those, readings already stored before (same sensor and time).
+    pub duplicates: usize,
+    pub rejected: Vec<Rejected>,
+}
+
+/// Splits a body into readings: a JSON object, a JSON array of objects, or
+/// (`ndjson`) one object per line. Each invalid reading is named by its
+/// index; a body that is not JSON at all is a [`ApiError::BadRequest`].
+pub fn parse_batch(
+    body: &[u8],
+    ndjson: bool,
+    max_readings: usize,
+) -> Result<ParsedBatch, ApiError> {
+    let mut batch = ParsedBatch::default();
+    let text = body.trim_ascii();
+    if text.is_empty() {
+        return Err(ApiError::BadRequest(
+            "empty body: expected a reading, an array of readings or NDJSON".into(),
+        ));
+    }
+    let too_many = || {
+        ApiError::TooLarge(format!(
+            "more than {max_readings} readings in one request; split the batch"
+        ))
+    };
+    let mut take = |index: usize, bytes: &[u8]| match parse_reading(bytes) {
+        Ok(reading) => batch.readings.push(reading),
+        Err(e) => batch.rejected.push(Rejected {
+            index,
+            error: e.to_string(),
+            sensor: claimed_sensor(bytes),
+        }),
+    };
+    if ndjson {
+        for (index, line) in text
+            .split(|&b| b == b'\n')
+            .map(<[u8]>::trim_ascii)
+            .filter(|l| !l.is_empty())
+            .enumerate()
+        {
+            if index >= max_readings {
+                return Err(too_many());
+            }
+            take(index, line);
+        }
+    } else if text.first() == Some(&b'[') {
+        let items: Vec<&RawValue> = serde_json::from_slice(text).map_err(|e| {
+            ApiError::BadRequest(format!("body is not a JSON array of readings: {e}"))
+        })?;
+        if items.len() > max_readings {
+            return Err(too_many());
+        }
+        for (index, item) in items.into_iter().enumerate() {
+            take(index, item.get().as_bytes());
+        }
+    } else if text.first() == Some(&b'{') {
+        take(0, text);
+    } else {
+        return Err(ApiError::BadRequest(
+            "body is not JSON: expected a reading object, an array of readings, or NDJSON with Content-Type: application/x-ndjson".into(),
+        ));
+    }
+    Ok(batch)
+}
+
+/// The `sensor` a refused reading named, if it names a known one.
+fn claimed_sensor(bytes: &[u8]) -> Option<SensorKind> {
+    #[derive(serde::Deserialize)]
+    struct Probe<'a> {
+        #[serde(borrow)]
+        sensor: Option<&'a str>,
+    }
+    let probe: Probe = serde_json::from_slice(bytes).ok()?;
+    SensorKind::from_name(probe.sensor?)
+}
+
+/// Stores and fuses a parsed batch, answering after the commit.
+async fn ingest(machine: &MachineHandle, batch: ParsedBatch) -> Result<Ack, ApiError> {
+    let started = Instant::now();
+    let id = &machine.spec.id;
+    metrics::rejected(id, &batch.rejected);
+    if batch.readings.is_empty() {
+        if batch.rejected.is_empty() {
+            return Ok(Ack {
+                accepted: 0,
+                duplicates: 0,
+                rejected: Vec::new(),
+            });
+        }
+        return Err(ApiError::NoValidReading {
+            rejected: batch.rejected,
+        });
+    }
+    let counts = metrics::count_by_sensor(&batch.readings);
+    let accepted = batch.readings.len();
+    let outcome = machine.ingest(batch.readings).await?;
+    metrics::accepted(id, &counts, started.elapsed());
+    Ok(Ack {
+        accepted,
+        duplicates: outcome.duplicates,
+        rejected: batch.rejected,
+    })
+}
+
+/// `POST /api/v1/machines/{machine}/readings`.
+pub async fn post_readings(
+    State(state): State<SharedState>,
+    Path(machine): Path<String>,
+    headers: HeaderMap,
+    body: Result<Bytes, BytesRejection>,
+) -> Result<Json<Ack>, ApiError> {
+    let machine = state.machine(&machine)?;
+    let body = body.map_err(|rejection| {
+        if rejection.status() == StatusCode::PAYLOAD_TOO_LARGE {
+            ApiError::TooLarge(format!(
+                "body larger than {} bytes; split the batch",
+                state.limits.max_body_bytes
+            ))
+        } else {
+            ApiError::BadRequest(format!("could not read the body: {rejection}"))
+        }
+    })?;
+    let ndjson = headers
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.starts_with("application/x-ndjson"));
+    let batch = parse_batch(&body, ndjson, state.limits.max_readings_per_request)?;
+    Ok(Json(ingest(&machine, batch).await?))
+}
+
+/// `GET /api/v1/machines/{machine}/ingest`: WebSocket ingest.
+pub async fn websocket(
+    State(state): State<SharedState>,
+    Path(machine): Path<String>,
+    upgrade: WebSocketUpgrade,
+) -> Result<Response, ApiError> {
+    let machine = state.machine(&machine)?;
+    let limits = state.limits;
+    Ok(upgrade
+        .max_message_size(limits.max_frame_bytes)
+        .on_upgrade(move |socket| serve_ingest(socket, machine, limits.max_readings_per_request)))
+}
+
+async fn serve_ingest(
+    mut socket: WebSocket,
+    machine: std::sync::Arc<MachineHandle>,
+    max_readings: usize,
+) {
+    while let Some(Ok(message)) = socket.recv().await {
+        let answer = match message {
+            Message::Text(text) => match parse_batch(text.as_bytes(), false, max_readings) {
+                Ok(batch) => ingest(&machine, batch).await,
+                Err(e) => Err(e),
+            },
+            Message::Binary(_) => Err(ApiError::BadRequest(
+                "binary frames are not readings: send JSON text frames".into(),
+            )),
+            Message::Close(_) => break,
+            Message::Ping(_) | Message::Pong(_) => continue,
+        };
+        let json = match answer {
+            Ok(ack) => serde_json::to_string(&ack),
+            Err(e) => {
+                let mut body = e.body();
+                body["status"] = e.status().as_u16().into();
+                serde_json::to_string(&body)
+            }
+        };
+        let Ok(json) = json else { break };
+        if socket.send(Message::Text(json.into())).await.is_err() {
+            break;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const GOOD: &str = r#"{"t":1772431200,"sensor":"inclinometer","pitch_deg":0.5,"roll_deg":1}"#;
+
+    #[test]
+    fn arrays_name_each_bad_reading_by_index() {
+        let body = format!(r#"[{GOOD},{{"t":1772431201,"sensor":"sonar"}},{GOOD},3]"#);
+        let batch = parse_batch(body.as_bytes(), false, 10).unwrap();
+        assert_eq!(batch.readings.len(), 2);
+        let indices: Vec<usize> = batch.rejected.iter().map(|r| r.index).collect();
+        assert_eq!(indices, vec![1, 3]);
+        assert!(batch.rejected[0].error.contains("unknown sensor `sonar`"));
+    }
+
+    #[test]
+    fn ndjson_counts_non_blank_lines() {
+        let body = format!("{GOOD}\n\n{{\"t\":1}}\n{GOOD}\n");
+        let batch = parse_batch(body.as_bytes(), true, 10).unwrap();
+        assert_eq!(batch.readings.len(), 2);
+        assert_eq!(batch.rejected[0].index, 1);
+    }
+
+    #[test]
+    fn malformed_and_oversized_bodies_are_refused_whole() {
+        assert!(matches!(
+            parse_batch(b"[1,", false, 10),
+            Err(ApiError::BadRequest(_))
+        ));
+        assert!(matches!(
+            parse_batch(b"hello", false, 10),
+            Err(ApiError::BadRequest(_))
+        ));
+        assert!(matches!(
+            parse_batch(b"  ", false, 10),
+            Err(ApiError::BadRequest(_))
+        ));
+        let body = format!("[{GOOD},{GOOD},{GOOD}]");
+        assert!(matches!(
+            parse_batch(body.as_bytes(), false, 2),
+            Err(ApiError::TooLarge(_))
+        ));
+    }
+}

@@ -1,0 +1,142 @@
+//! `GET .../live`: every new estimate of a machine as a text frame, plus
+//! control objects with an `event` field:
+//! - `hello` on connect: the machine, its engines and the latest estimate
+//!   of each (`latest`), so a page has something to show at once;
+//! - `ping` every [`PING_EVERY`], so proxies and clients see a live socket;
+//! - `gap` when this client fell more than [`crate::machine::LIVE_BUFFER`]
+//!   estimates behind:
+//!   `missed` estimates between `from_t` and `to_t` (exclusive) were not
+//!   sent; fetch them from the history API. Ingest and other clients never
+//!   wait for a slow client.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::extract::ws::{CloseFrame, Message, Utf8Bytes, WebSocket, WebSocketUpgrade};
+use axum::extract::{Path, State};
+use axum::response::Response;
+use serde_json::json;
+use serde_json::value::RawValue;
+use tokio::sync::broadcast::error::RecvError;
+
+use super::SharedState;
+use super::error::ApiError;
+use crate::machine::MachineHandle;
+
+/// Interval between `ping` events.
+pub const PING_EVERY: Duration = Duration::from_secs(10);
+
+/// `GET /api/v1/machines/{machine}/live`.
+pub async fn websocket(
+    State(state): State<SharedState>,
+    Path(machine): Path<String>,
+    upgrade: WebSocketUpgrade,
+) -> Result<Response, ApiError> {
+    let machine = state.machine(&machine)?;
+    let shutdown = state.shutdown_signal();
+    Ok(upgrade.on_upgrade(move |socket| serve_live(socket, machine, shutdown)))
+}
+
+fn now_s() -> f64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0.0, |d| d.as_secs_f64())
+}
+
+fn text(value: serde_json::Value) -> Message {
+    Message::Text(value.to_string().into())
+}
+
+async fn serve_live(
+    mut socket: WebSocket,
+    machine: Arc<MachineHandle>,
+    mut shutdown: tokio::sync::watch::Receiver<bool>,
+) {
+    // Subscribe before reading the latest state, so nothing falls between
+    // the two (an estimate may come twice; `t` tells).
+    let mut estimates = machine.subscribe();
+    let status = machine.status();
+    let latest: serde_json::Map<String, serde_json::Value> = status
+        .latest
+        .iter()
+        .filter_map(|(engine, e)| {
+            let raw = RawValue::from_string(e.json.to_string()).ok()?;
+            Some((engine.as_str().to_string(), serde_json::to_value(raw).ok()?))
+        })
+        .collect();
+    let hello = json!({
+        "event": "hello",
+        "machine": machine.spec.id,
+        "name": machine.spec.name,
+        "engines": machine.spec.engines.keys().map(|e| e.as_str()).collect::<Vec<_>>(),
+        "latest": latest,
+        "server_t": now_s(),
+    });
+    if socket.send(text(hello)).await.is_err() {
+        return;
+    }
+    let mut ping = tokio::time::interval(PING_EVERY);
+    ping.tick().await;
+    let mut last_t: Option<f64> = None;
+    loop {
+        tokio::select! {
+            received = estimates.recv() => match received {
+                Ok(estimate) => {
+                    last_t = Some(estimate.t);
+                    let frame = Message::Text(Utf8Bytes::from(estimate.json.to_string()));
+                    if socket.send(frame).await.is_err() {
+                        return;
+                    }
+                }
+                Err(RecvError::Lagged(missed)) => {
+                    // The next estimate still buffered bounds the gap.
+                    let next = estimates.recv().await;
+                    let to_t = next.as_ref().ok().map(|e| e.t);
+                    let gap = json!({"event": "gap", "missed": missed, "from_t": last_t, "to_t": to_t});
+                    if socket.send(text(gap)).await.is_err() {
+                        return;
+                    }
+                    if let Ok(estimate) = next {
+                        last_t = Some(estimate.t);
+                        let frame = Message::Text(Utf8Bytes::from(estimate.json.to_string()));
+                        if socket.send(frame).await.is_err() {
+                            return;
+                        }
+                    }
+                }
+                Err(RecvError::Closed) => {
+                    close(socket, "machine reconfigured or stopped; reconnect").await;
+                    return;
+                }
+            },
+            _ = ping.tick() => {
+                if socket.send(text(json!({"event": "ping", "server_t": now_s()}))).await.is_err() {
+                    return;
+                }
+            }
+            incoming = socket.recv() => match incoming {
+                Some(Ok(Message::Close(_))) | None | Some(Err(_)) => return,
+                // Clients have nothing to say; anything else is ignored.
+                Some(Ok(_)) => {}
+            },
+            () = stopping(&mut shutdown) => {
+                close(socket, "server shutting down").await;
+                return;
+            }
+        }
+    }
+}
+
+/// Resolves when the server starts shutting down.
+async fn stopping(shutdown: &mut tokio::sync::watch::Receiver<bool>) {
+    let _ = shutdown.wait_for(|stopping| *stopping).await;
+}
+
+async fn close(mut socket: WebSocket, reason: &'static str) {
+    let _ = socket
+        .send(Message::Close(Some(CloseFrame {
+            code: axum::extract::ws::close_code::AWAY,
+            reason: reason.into(),
+        })))
+        .await;
+}

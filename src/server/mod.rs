@@ -1,0 +1,259 @@
+//! The HTTP server: routes, shared state, start-up and shutdown. Handlers
+//! only translate: extract, ask the store or a machine's task, map errors.
+
+mod error;
+mod history;
+mod ingest;
+mod live;
+mod machines;
+pub mod metrics;
+
+use std::collections::BTreeMap;
+use std::future::Future;
+use std::path::PathBuf;
+use std::sync::{Arc, RwLock};
+
+use axum::Router;
+use axum::extract::DefaultBodyLimit;
+use axum::routing::get;
+use tokio::net::TcpListener;
+use tokio::sync::watch;
+use tower_http::trace::TraceLayer;
+
+pub use error::{ApiError, Rejected};
+pub use ingest::{ParsedBatch, parse_batch};
+
+use crate::config::MachineSpec;
+use crate::machine::{self, MachineCore, MachineError, MachineHandle};
+use crate::store::{Store, StoreError};
+
+/// Limits on what clients may send.
+#[derive(Debug, Clone, Copy)]
+pub struct Limits {
+    /// Largest request body (413 beyond).
+    pub max_body_bytes: usize,
+    /// Most readings in one request or WebSocket frame (413 beyond).
+    pub max_readings_per_request: usize,
+    /// Largest WebSocket message.
+    pub max_frame_bytes: usize,
+    /// Most points a history query returns.
+    pub max_points_limit: usize,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Limits {
+            max_body_bytes: 16 * 1024 * 1024,
+            max_readings_per_request: 100_000,
+            max_frame_bytes: 4 * 1024 * 1024,
+            max_points_limit: 100_000,
+        }
+    }
+}
+
+/// How to start a server.
+#[derive(Debug, Clone)]
+pub struct ServerOptions {
+    pub data_dir: PathBuf,
+    /// Machines declared by the config file: created, or replaced where the
+    /// stored declaration differs.
+    pub machines: Vec<MachineSpec>,
+    pub limits: Limits,
+}
+
+/// Why the server could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum ServerError {
+    #[error(transparent)]
+    Store(#[from] StoreError),
+    #[error("machine `{machine}`: {source}")]
+    Machine {
+        machine: String,
+        source: MachineError,
+    },
+    #[error("{0}")]
+    Io(#[from] std::io::Error),
+}
+
+/// What every handler shares.
+pub struct AppState {
+    pub store: Store,
+    machines: RwLock<BTreeMap<String, Arc<MachineHandle>>>,
+    /// Serialises machine (re)declarations.
+    admin: tokio::sync::Mutex<()>,
+    pub limits: Limits,
+    /// Turns true when the server stops: live sockets close.
+    shutdown: watch::Sender<bool>,
+}
+
+pub type SharedState = Arc<AppState>;
+
+impl AppState {
+    /// Opens the store, applies the configured machines, restores every
+    /// machine from its snapshot and starts their tasks.
+    pub async fn start(options: ServerOptions) -> Result<SharedState, ServerError> {
+        let store = Store::open(&options.data_dir)?;
+        let stored = {
+            let store = store.clone();
+            tokio::task::spawn_blocking(move || store.machines())
+                .await
+                .map_err(std::io::Error::other)??
+        };
+        let mut specs: BTreeMap<String, (i64, MachineSpec)> = stored
+            .into_iter()
+            .map(|m| (m.spec.id.clone(), (m.db_id, m.spec)))
+            .collect();
+        for spec in options.machines {
+            let unchanged = specs.get(&spec.id).is_some_and(|(_, s)| *s == spec);
+            if !unchanged {
+                let fresh = fresh_snapshot(&spec)?;
+                let id = store.put_machine(spec.clone(), fresh).await?;
+                tracing::info!(machine = %spec.id, "machine declared by the config file");
+                specs.insert(spec.id.clone(), (id, spec));
+            }
+        }
+        let mut machines = BTreeMap::new();
+        for (id, (db_id, spec)) in specs {
+            let core = {
+                let (store, spec) = (store.clone(), spec.clone());
+                tokio::task::spawn_blocking(move || machine::recover(&store, &spec, db_id))
+                    .await
+                    .map_err(std::io::Error::other)?
+                    .map_err(|source| ServerError::Machine {
+                        machine: id.clone(),
+                        source,
+                    })?
+            };
+            machines.insert(
+                id,
+                Arc::new(machine::spawn(store.clone(), spec, db_id, core)),
+            );
+        }
+        Ok(Arc::new(AppState {
+            store,
+            machines: RwLock::new(machines),
+            admin: tokio::sync::Mutex::new(()),
+            limits: options.limits,
+            shutdown: watch::channel(false).0,
+        }))
+    }
+
+    /// A running machine.
+    pub fn machine(&self, id: &str) -> Result<Arc<MachineHandle>, ApiError> {
+        self.machines
+            .read()
+            .ok()
+            .and_then(|m| m.get(id).cloned())
+            .ok_or_else(|| ApiError::UnknownMachine(id.to_string()))
+    }
+
+    /// Every running machine, by id.
+    pub fn all_machines(&self) -> Vec<Arc<MachineHandle>> {
+        self.machines
+            .read()
+            .map(|m| m.values().cloned().collect())
+            .unwrap_or_default()
+    }
+
+    /// Creates or replaces a machine. Returns whether it was created and
+    /// whether anything changed (an identical declaration keeps the state).
+    pub async fn declare(&self, spec: MachineSpec) -> Result<(bool, bool), ApiError> {
+        let _admin = self.admin.lock().await;
+        let existing = self.machine(&spec.id).ok();
+        if let Some(existing) = &existing {
+            if *existing.spec == spec {
+                return Ok((false, false));
+            }
+            existing.stop().await;
+        }
+        let core = MachineCore::new(&spec).map_err(|e| ApiError::BadRequest(e.to_string()))?;
+        let db_id = self
+            .store
+            .put_machine(spec.clone(), core.snapshot())
+            .await?;
+        let handle = Arc::new(machine::spawn(
+            self.store.clone(),
+            spec.clone(),
+            db_id,
+            core,
+        ));
+        if let Ok(mut machines) = self.machines.write() {
+            machines.insert(spec.id, handle);
+        }
+        Ok((existing.is_none(), true))
+    }
+
+    /// A receiver that turns true when the server stops.
+    pub fn shutdown_signal(&self) -> watch::Receiver<bool> {
+        self.shutdown.subscribe()
+    }
+
+    /// Closes live sockets and stores a final snapshot of every machine.
+    pub async fn stop(&self) {
+        self.shutdown.send_replace(true);
+        for machine in self.all_machines() {
+            machine.stop().await;
+        }
+    }
+}
+
+fn fresh_snapshot(spec: &MachineSpec) -> Result<String, ServerError> {
+    MachineCore::new(spec)
+        .map(|core| core.snapshot())
+        .map_err(|e| ServerError::Machine {
+            machine: spec.id.clone(),
+            source: e.into(),
+        })
+}
+
+/// The application's routes (used by `serve` and by the tests).
+pub fn router(state: SharedState) -> Router {
+    let limit = state.limits.max_body_bytes;
+    Router::new()
+        .route("/healthz", get(metrics::healthz))
+        .route("/metrics", get(metrics::render))
+        .route("/api/v1/machines", get(machines::list))
+        .route(
+            "/api/v1/machines/{machine}",
+            get(machines::show).put(machines::put),
+        )
+        .route(
+            "/api/v1/machines/{machine}/readings",
+            get(history::readings).post(ingest::post_readings),
+        )
+        .route("/api/v1/machines/{machine}/ingest", get(ingest::websocket))
+        .route("/api/v1/machines/{machine}/live", get(live::websocket))
+        .route(
+            "/api/v1/machines/{machine}/estimates",
+            get(history::estimates),
+        )
+        .route("/api/v1/machines/{machine}/model", get(history::model))
+        .fallback(not_found)
+        .layer(DefaultBodyLimit::max(limit))
+        .layer(TraceLayer::new_for_http())
+        .with_state(state)
+}
+
+async fn not_found(uri: axum::http::Uri) -> ApiError {
+    ApiError::NotFound(format!("no such endpoint: {}", uri.path()))
+}
+
+/// Serves until `shutdown` resolves, then closes live sockets, lets
+/// in-flight requests finish and snapshots every machine.
+pub async fn run(
+    listener: TcpListener,
+    state: SharedState,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> Result<(), ServerError> {
+    let app = router(state.clone());
+    let stopping = state.clone();
+    axum::serve(listener, app)
+        .with_graceful_shutdown(async move {
+            shutdown.await;
+            // Live sockets never end by themselves: tell them first.
+            stopping.shutdown.send_replace(true);
+        })
+        .await?;
+    state.stop().await;
+    Ok(())
+}

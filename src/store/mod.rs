@@ -1,0 +1,547 @@
+//! The embedded store: one SQLite file (WAL) in the data dir holding
+//! machines, readings, estimates and engine snapshots.
+//!
+//! One thread owns the writing connection. The rest of the program holds a
+//! cheap [`Store`] handle: writes are typed requests sent to that thread,
+//! which takes every request waiting in its queue, applies them in one
+//! transaction (group commit) and answers each only after the commit.
+//! Reads use a small pool of read-only connections (WAL lets them run
+//! beside the writer) and are blocking calls: async callers run them with
+//! `spawn_blocking`.
+
+pub mod queries;
+pub mod schema;
+
+pub use queries::EstimatesPage;
+
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+
+use rusqlite::{Connection, OpenFlags, OptionalExtension, params};
+use tokio::sync::{mpsc, oneshot};
+
+use crate::config::MachineSpec;
+use crate::fusion::{EngineKind, SensorKind};
+
+/// The database file inside the data dir.
+pub const DB_FILE: &str = "tunnelnav.sqlite3";
+/// Most requests committed in one transaction.
+const MAX_GROUP: usize = 512;
+/// Requests waiting for the writer before senders wait (backpressure).
+const QUEUE_LEN: usize = 1024;
+
+/// Why the store failed.
+#[derive(Debug, thiserror::Error)]
+pub enum StoreError {
+    #[error("database: {0}")]
+    Sqlite(#[from] rusqlite::Error),
+    #[error("cannot create data dir {path}: {source}")]
+    DataDir {
+        path: String,
+        source: std::io::Error,
+    },
+    #[error("database schema version {found} is newer than this build supports ({supported})")]
+    NewerSchema { found: i64, supported: i64 },
+    #[error("the store has shut down")]
+    Closed,
+    #[error("stored data is corrupt: {0}")]
+    Corrupt(String),
+}
+
+/// A reading to store: its time, sensor and protocol JSON.
+#[derive(Debug, Clone)]
+pub struct ReadingRow {
+    pub t: f64,
+    pub sensor: SensorKind,
+    pub body: String,
+}
+
+/// An estimate to store.
+#[derive(Debug, Clone)]
+pub struct EstimateRow {
+    pub engine: EngineKind,
+    pub t: f64,
+    /// The two values whose extremes downsampling keeps.
+    pub extremes: [f64; 2],
+    /// The protocol JSON of the estimate.
+    pub body: Arc<str>,
+}
+
+/// Called once the write it belongs to is committed (`true`) or has failed.
+pub type AfterCommit = Box<dyn FnOnce(bool) + Send>;
+
+/// One machine's readings and the estimates and snapshot they led to,
+/// committed together.
+pub struct Write {
+    pub machine_id: i64,
+    pub readings: Vec<ReadingRow>,
+    pub estimates: Vec<EstimateRow>,
+    /// A snapshot of the machine's state after every reading written so far
+    /// (including these) arrived.
+    pub snapshot: Option<String>,
+    /// Runs on the writer thread right after the commit (live broadcast).
+    pub after_commit: Option<AfterCommit>,
+    pub reply: Option<oneshot::Sender<Result<WriteOutcome, StoreError>>>,
+}
+
+/// What a committed [`Write`] stored.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct WriteOutcome {
+    /// Readings newly stored.
+    pub stored: usize,
+    /// Readings already stored (same machine, sensor and time): kept once.
+    pub duplicates: usize,
+}
+
+/// A stored machine.
+#[derive(Debug, Clone)]
+pub struct StoredMachine {
+    pub db_id: i64,
+    pub spec: MachineSpec,
+}
+
+/// A machine's latest snapshot.
+#[derive(Debug, Clone)]
+pub struct StoredSnapshot {
+    pub last_reading_id: i64,
+    pub state: String,
+}
+
+enum Request {
+    Write(Write),
+    PutMachine {
+        spec: MachineSpec,
+        /// The fresh state of the (re)declared machine's engines.
+        snapshot: String,
+        reply: oneshot::Sender<Result<i64, StoreError>>,
+    },
+}
+
+/// Cheap, cloneable handle to the store.
+#[derive(Clone)]
+pub struct Store {
+    requests: mpsc::Sender<Request>,
+    readers: Arc<ReadPool>,
+    path: PathBuf,
+}
+
+impl Store {
+    /// Opens (creating and migrating) the database in `data_dir` and starts
+    /// the writer thread.
+    pub fn open(data_dir: &Path) -> Result<Store, StoreError> {
+        std::fs::create_dir_all(data_dir).map_err(|source| StoreError::DataDir {
+            path: data_dir.display().to_string(),
+            source,
+        })?;
+        let path = data_dir.join(DB_FILE);
+        let mut conn = Connection::open(&path)?;
+        conn.pragma_update(None, "journal_mode", "WAL")?;
+        // Every commit is fsynced: an acknowledged reading survives a power
+        // cut, not only a crash. Group commit keeps the cost per request low.
+        conn.pragma_update(None, "synchronous", "FULL")?;
+        conn.pragma_update(None, "foreign_keys", true)?;
+        conn.busy_timeout(std::time::Duration::from_secs(5))?;
+        schema::migrate(&mut conn)?;
+        let (requests, queue) = mpsc::channel(QUEUE_LEN);
+        std::thread::Builder::new()
+            .name("store-writer".into())
+            .spawn(move || writer(conn, queue))
+            .map_err(|source| StoreError::DataDir {
+                path: data_dir.display().to_string(),
+                source,
+            })?;
+        Ok(Store {
+            requests,
+            readers: Arc::new(ReadPool {
+                path: path.clone(),
+                idle: Mutex::new(Vec::new()),
+            }),
+            path,
+        })
+    }
+
+    /// The database file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Bytes on disk: the database and its write-ahead log.
+    pub fn size_bytes(&self) -> u64 {
+        let wal = self.path.with_extension("sqlite3-wal");
+        [&self.path, &wal]
+            .iter()
+            .filter_map(|p| std::fs::metadata(p).ok())
+            .map(|m| m.len())
+            .sum()
+    }
+
+    /// Queues a write; its `reply` is answered after the commit.
+    pub async fn write(&self, write: Write) -> Result<(), StoreError> {
+        self.requests
+            .send(Request::Write(write))
+            .await
+            .map_err(|_| StoreError::Closed)
+    }
+
+    /// Like [`Store::write`], from a blocking thread.
+    pub fn write_blocking(&self, write: Write) -> Result<(), StoreError> {
+        self.requests
+            .blocking_send(Request::Write(write))
+            .map_err(|_| StoreError::Closed)
+    }
+
+    /// Creates or replaces a machine with a fresh engine snapshot: readings
+    /// stored before are kept but not fed to the new engines. Returns its id.
+    pub async fn put_machine(
+        &self,
+        spec: MachineSpec,
+        snapshot: String,
+    ) -> Result<i64, StoreError> {
+        let (reply, answer) = oneshot::channel();
+        self.requests
+            .send(Request::PutMachine {
+                spec,
+                snapshot,
+                reply,
+            })
+            .await
+            .map_err(|_| StoreError::Closed)?;
+        answer.await.map_err(|_| StoreError::Closed)?
+    }
+
+    /// Runs `f` on a pooled read-only connection (blocking).
+    pub fn read<R>(
+        &self,
+        f: impl FnOnce(&Connection) -> Result<R, StoreError>,
+    ) -> Result<R, StoreError> {
+        self.readers.with(f)
+    }
+
+    /// Every stored machine.
+    pub fn machines(&self) -> Result<Vec<StoredMachine>, StoreError> {
+        self.read(|conn| {
+            let mut stmt = conn.prepare_cached("SELECT id, spec FROM machines ORDER BY machine")?;
+            let rows = stmt.query_map([], |row| {
+                Ok((row.get::<_, i64>(0)?, row.get::<_, String>(1)?))
+            })?;
+            let mut machines = Vec::new();
+            for row in rows {
+                let (db_id, spec) = row?;
+                let spec = serde_json::from_str(&spec)
+                    .map_err(|e| StoreError::Corrupt(format!("machine {db_id} spec: {e}")))?;
+                machines.push(StoredMachine { db_id, spec });
+            }
+            Ok(machines)
+        })
+    }
+
+    /// A machine's latest snapshot.
+    pub fn snapshot(&self, machine_id: i64) -> Result<Option<StoredSnapshot>, StoreError> {
+        self.read(|conn| {
+            Ok(conn
+                .prepare_cached(
+                    "SELECT last_reading_id, state FROM snapshots WHERE machine_id = ?1",
+                )?
+                .query_row([machine_id], |row| {
+                    Ok(StoredSnapshot {
+                        last_reading_id: row.get(0)?,
+                        state: row.get(1)?,
+                    })
+                })
+                .optional()?)
+        })
+    }
+
+    /// Calls `f` with each reading of the machine that arrived after
+    /// `after_id`, in arrival order, without holding them all in memory.
+    pub fn readings_since(
+        &self,
+        machine_id: i64,
+        after_id: i64,
+        mut f: impl FnMut(&str) -> Result<(), StoreError>,
+    ) -> Result<u64, StoreError> {
+        self.read(|conn| {
+            let mut stmt = conn.prepare_cached(
+                "SELECT body FROM readings WHERE machine_id = ?1 AND id > ?2 ORDER BY id",
+            )?;
+            let mut rows = stmt.query(params![machine_id, after_id])?;
+            let mut count = 0;
+            while let Some(row) = rows.next()? {
+                f(row.get_ref(0)?.as_str().map_err(rusqlite::Error::from)?)?;
+                count += 1;
+            }
+            Ok(count)
+        })
+    }
+}
+
+/// Read-only connections, opened on demand and reused.
+struct ReadPool {
+    path: PathBuf,
+    idle: Mutex<Vec<Connection>>,
+}
+
+impl ReadPool {
+    fn with<R>(
+        &self,
+        f: impl FnOnce(&Connection) -> Result<R, StoreError>,
+    ) -> Result<R, StoreError> {
+        let pooled = self.idle.lock().ok().and_then(|mut idle| idle.pop());
+        let conn = match pooled {
+            Some(conn) => conn,
+            None => {
+                let conn = Connection::open_with_flags(
+                    &self.path,
+                    OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX,
+                )?;
+                conn.busy_timeout(std::time::Duration::from_secs(5))?;
+                conn
+            }
+        };
+        let result = f(&conn);
+        if let Ok(mut idle) = self.idle.lock() {
+            idle.push(conn);
+        }
+        result
+    }
+}
+
+/// The writer thread: takes every waiting request, commits them together,
+/// then answers each.
+fn writer(mut conn: Connection, mut queue: mpsc::Receiver<Request>) {
+    let mut group = Vec::with_capacity(MAX_GROUP);
+    while let Some(first) = queue.blocking_recv() {
+        group.push(first);
+        while group.len() < MAX_GROUP {
+            match queue.try_recv() {
+                Ok(request) => group.push(request),
+                Err(_) => break,
+            }
+        }
+        match apply_group(&mut conn, &group) {
+            Ok(outcomes) => {
+                for (request, outcome) in group.drain(..).zip(outcomes) {
+                    answer(request, Ok(outcome));
+                }
+            }
+            Err(e) => {
+                // One bad request must not fail its neighbours: retry each alone.
+                tracing::warn!(error = %e, requests = group.len(), "group commit failed; retrying one by one");
+                for request in group.drain(..) {
+                    let result = apply_group(&mut conn, std::slice::from_ref(&request))
+                        .map(|mut outcomes| outcomes.pop().unwrap_or(Outcome::Put(0)));
+                    if let Err(e) = &result {
+                        tracing::error!(error = %e, "write failed");
+                    }
+                    answer(request, result);
+                }
+            }
+        }
+    }
+}
+
+enum Outcome {
+    Write(WriteOutcome),
+    Put(i64),
+}
+
+fn answer(request: Request, result: Result<Outcome, StoreError>) {
+    match request {
+        Request::Write(write) => {
+            if let Some(after_commit) = write.after_commit {
+                after_commit(result.is_ok());
+            }
+            if let Some(reply) = write.reply {
+                let _ = reply.send(result.map(|o| match o {
+                    Outcome::Write(w) => w,
+                    Outcome::Put(_) => WriteOutcome::default(),
+                }));
+            }
+        }
+        Request::PutMachine { reply, .. } => {
+            let _ = reply.send(result.map(|o| match o {
+                Outcome::Put(id) => id,
+                Outcome::Write(_) => 0,
+            }));
+        }
+    }
+}
+
+fn apply_group(conn: &mut Connection, group: &[Request]) -> Result<Vec<Outcome>, StoreError> {
+    let tx = conn.transaction()?;
+    let mut outcomes = Vec::with_capacity(group.len());
+    for request in group {
+        outcomes.push(match request {
+            Request::Write(write) => Outcome::Write(apply_write(&tx, write)?),
+            Request::PutMachine { spec, snapshot, .. } => {
+                Outcome::Put(apply_put_machine(&tx, spec, snapshot)?)
+            }
+        });
+    }
+    tx.commit()?;
+    Ok(outcomes)
+}
+
+fn apply_write(tx: &rusqlite::Transaction, write: &Write) -> Result<WriteOutcome, StoreError> {
+    let mut outcome = WriteOutcome::default();
+    let mut insert = tx.prepare_cached(
+        "INSERT OR IGNORE INTO readings (machine_id, t, sensor, body) VALUES (?1, ?2, ?3, ?4)",
+    )?;
+    for reading in &write.readings {
+        let inserted = insert.execute(params![
+            write.machine_id,
+            reading.t,
+            reading.sensor as i64,
+            reading.body
+        ])?;
+        if inserted == 1 {
+            outcome.stored += 1;
+        } else {
+            outcome.duplicates += 1;
+        }
+    }
+    // Estimates are a function of the readings: one recomputed after a
+    // restart is the same estimate, stored once.
+    let mut insert = tx.prepare_cached(
+        "INSERT OR IGNORE INTO estimates (machine_id, engine, t, extreme_a, extreme_b, body) \
+         VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
+    )?;
+    for estimate in &write.estimates {
+        insert.execute(params![
+            write.machine_id,
+            estimate.engine.as_str(),
+            estimate.t,
+            estimate.extremes[0],
+            estimate.extremes[1],
+            &*estimate.body
+        ])?;
+    }
+    if let Some(state) = &write.snapshot {
+        save_snapshot(tx, write.machine_id, state)?;
+    }
+    Ok(outcome)
+}
+
+/// Records `state` as the machine's state after every reading stored so far.
+fn save_snapshot(
+    tx: &rusqlite::Transaction,
+    machine_id: i64,
+    state: &str,
+) -> Result<(), StoreError> {
+    let last_reading_id: i64 = tx
+        .prepare_cached("SELECT coalesce(max(id), 0) FROM readings WHERE machine_id = ?1")?
+        .query_row([machine_id], |row| row.get(0))?;
+    tx.prepare_cached(
+        "INSERT INTO snapshots (machine_id, last_reading_id, state) VALUES (?1, ?2, ?3) \
+         ON CONFLICT (machine_id) DO UPDATE SET last_reading_id = ?2, state = ?3",
+    )?
+    .execute(params![machine_id, last_reading_id, state])?;
+    Ok(())
+}
+
+fn apply_put_machine(
+    tx: &rusqlite::Transaction,
+    spec: &MachineSpec,
+    snapshot: &str,
+) -> Result<i64, StoreError> {
+    let json = serde_json::to_string(spec).map_err(|e| StoreError::Corrupt(e.to_string()))?;
+    let id: i64 = tx
+        .prepare_cached(
+            "INSERT INTO machines (machine, spec) VALUES (?1, ?2) \
+             ON CONFLICT (machine) DO UPDATE SET spec = ?2 RETURNING id",
+        )?
+        .query_row(params![spec.id, json], |row| row.get(0))?;
+    save_snapshot(tx, id, snapshot)?;
+    Ok(id)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::MachineDeclaration;
+
+    fn spec(id: &str) -> MachineSpec {
+        serde_json::from_value::<MachineDeclaration>(
+            serde_json::json!({"engines": {"attitude": {}}}),
+        )
+        .unwrap()
+        .validate(id)
+        .unwrap()
+    }
+
+    fn reading(t: f64) -> ReadingRow {
+        ReadingRow {
+            t,
+            sensor: SensorKind::Inclinometer,
+            body: format!("{{\"t\":{t}}}"),
+        }
+    }
+
+    async fn write(
+        store: &Store,
+        machine_id: i64,
+        readings: Vec<ReadingRow>,
+        snapshot: Option<&str>,
+    ) -> WriteOutcome {
+        let (reply, answer) = oneshot::channel();
+        store
+            .write(Write {
+                machine_id,
+                readings,
+                estimates: Vec::new(),
+                snapshot: snapshot.map(str::to_string),
+                after_commit: None,
+                reply: Some(reply),
+            })
+            .await
+            .unwrap();
+        answer.await.unwrap().unwrap()
+    }
+
+    #[tokio::test]
+    async fn stores_readings_once_and_snapshots_where_they_stopped() {
+        let dir = tempfile::tempdir().unwrap();
+        let store = Store::open(dir.path()).unwrap();
+        let id = store.put_machine(spec("m1"), "fresh".into()).await.unwrap();
+        assert_eq!(store.snapshot(id).unwrap().unwrap().last_reading_id, 0);
+        let outcome = write(&store, id, vec![reading(1.0), reading(2.0)], None).await;
+        assert_eq!(
+            outcome,
+            WriteOutcome {
+                stored: 2,
+                duplicates: 0
+            }
+        );
+        let outcome = write(
+            &store,
+            id,
+            vec![reading(2.0), reading(3.0)],
+            Some("after 3"),
+        )
+        .await;
+        assert_eq!(
+            outcome,
+            WriteOutcome {
+                stored: 1,
+                duplicates: 1
+            }
+        );
+        let snapshot = store.snapshot(id).unwrap().unwrap();
+        assert_eq!(snapshot.state, "after 3");
+        write(&store, id, vec![reading(4.0)], None).await;
+        let mut after = Vec::new();
+        store
+            .readings_since(id, snapshot.last_reading_id, |body| {
+                after.push(body.to_string());
+                Ok(())
+            })
+            .unwrap();
+        assert_eq!(after, vec!["{\"t\":4}"]);
+        // Reopening sees the same machine.
+        drop(store);
+        let store = Store::open(dir.path()).unwrap();
+        let machines = store.machines().unwrap();
+        assert_eq!(machines.len(), 1);
+        assert_eq!(machines[0].spec, spec("m1"));
+    }
+}

@@ -1,0 +1,72 @@
+//! The SQLite schema, created and migrated at start, stepped by
+//! `PRAGMA user_version`.
+
+use rusqlite::Connection;
+
+/// Migration `i` takes the database from version `i` to `i + 1`.
+const MIGRATIONS: &[&str] = &[
+    // 1: machines, readings, estimates, snapshots.
+    "
+    CREATE TABLE machines (
+        id INTEGER PRIMARY KEY,
+        -- the protocol id, [A-Za-z0-9_-]{1,64}
+        machine TEXT NOT NULL UNIQUE,
+        -- the validated MachineSpec as JSON
+        spec TEXT NOT NULL
+    );
+    -- Every accepted reading, in arrival order (id), as protocol JSON.
+    CREATE TABLE readings (
+        id INTEGER PRIMARY KEY,
+        machine_id INTEGER NOT NULL REFERENCES machines(id),
+        t REAL NOT NULL,
+        -- SensorKind in protocol order: 0 laser, 1 inclinometer, 2 imu,
+        -- 3 magnetometer, 4 level, 5 odometer
+        sensor INTEGER NOT NULL,
+        body TEXT NOT NULL
+    );
+    -- A sensor has one reading per instant: a resent reading is stored once.
+    -- Also serves time-range exports.
+    CREATE UNIQUE INDEX readings_by_time ON readings(machine_id, t, sensor);
+    -- (machine_id, id): the readings that arrived after a snapshot.
+    CREATE INDEX readings_by_arrival ON readings(machine_id);
+    -- Engine outputs. `extreme_a`, `extreme_b` are the two quantities whose
+    -- extremes history downsampling keeps (attitude: pitch_deg, roll_deg).
+    CREATE TABLE estimates (
+        machine_id INTEGER NOT NULL REFERENCES machines(id),
+        engine TEXT NOT NULL,
+        t REAL NOT NULL,
+        extreme_a REAL NOT NULL,
+        extreme_b REAL NOT NULL,
+        body TEXT NOT NULL,
+        PRIMARY KEY (machine_id, engine, t)
+    ) WITHOUT ROWID;
+    -- The latest state of each machine's engines and reorder buffer, after
+    -- every reading up to `last_reading_id` had arrived.
+    CREATE TABLE snapshots (
+        machine_id INTEGER PRIMARY KEY REFERENCES machines(id),
+        last_reading_id INTEGER NOT NULL,
+        state TEXT NOT NULL
+    );
+    ",
+];
+
+/// The schema version this build writes.
+pub const SCHEMA_VERSION: i64 = MIGRATIONS.len() as i64;
+
+/// Brings the database to [`SCHEMA_VERSION`]; refuses a newer one.
+pub fn migrate(conn: &mut Connection) -> Result<(), super::StoreError> {
+    let version: i64 = conn.query_row("PRAGMA user_version", [], |row| row.get(0))?;
+    if version > SCHEMA_VERSION {
+        return Err(super::StoreError::NewerSchema {
+            found: version,
+            supported: SCHEMA_VERSION,
+        });
+    }
+    for (from, sql) in MIGRATIONS.iter().enumerate().skip(version as usize) {
+        let tx = conn.transaction()?;
+        tx.execute_batch(sql)?;
+        tx.pragma_update(None, "user_version", from as i64 + 1)?;
+        tx.commit()?;
+    }
+    Ok(())
+}
