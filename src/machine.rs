@@ -20,7 +20,8 @@ use crate::config::MachineSpec;
 use crate::fusion::estimate::EstimateWriter;
 use crate::fusion::reorder::{Admission, ReorderBuffer};
 use crate::fusion::{
-    Engine, EngineKind, EngineOutput, ParamError, Reading, SensorKind, SnapshotError, parse_reading,
+    Engine, EngineKind, EngineOutput, Estimate, ParamError, Reading, SensorKind, SnapshotError,
+    parse_reading,
 };
 use crate::store::{EstimateRow, ReadingRow, Store, StoreError, Write, WriteOutcome};
 
@@ -264,6 +265,44 @@ impl MachineHandle {
     }
 }
 
+/// The status a restarted machine starts from: each engine's latest stored
+/// estimate and each sensor's latest stored reading. Blocking.
+pub fn stored_status(
+    store: &Store,
+    spec: &MachineSpec,
+    db_id: i64,
+) -> Result<MachineStatus, MachineError> {
+    let mut status = MachineStatus::default();
+    for &engine in spec.engines.keys() {
+        let Some(json) = store.latest_estimate(db_id, engine)? else {
+            continue;
+        };
+        let estimate: Estimate = serde_json::from_str(&json)
+            .map_err(|e| StoreError::Corrupt(format!("stored estimate: {e}")))?;
+        status.latest.insert(
+            engine,
+            Arc::new(FusedEstimate {
+                engine,
+                t: estimate.t,
+                extremes: estimate.values.extremes(),
+                json: Arc::from(json),
+            }),
+        );
+    }
+    for sensor in SensorKind::ALL {
+        if let Some(last_t) = store.last_reading_t(db_id, sensor)? {
+            status.sensors.insert(
+                sensor,
+                SensorStatus {
+                    last_t,
+                    readings: 0,
+                },
+            );
+        }
+    }
+    Ok(status)
+}
+
 /// Restores the machine from its latest snapshot, re-feeds the readings
 /// stored after it (writing the estimates they give, which are usually
 /// already stored), and stores a fresh snapshot. Blocking.
@@ -318,10 +357,16 @@ fn row(estimate: FusedEstimate) -> EstimateRow {
 }
 
 /// Starts the task that owns `core`.
-pub fn spawn(store: Store, spec: MachineSpec, db_id: i64, core: MachineCore) -> MachineHandle {
+pub fn spawn(
+    store: Store,
+    spec: MachineSpec,
+    db_id: i64,
+    core: MachineCore,
+    current: MachineStatus,
+) -> MachineHandle {
     let (commands, queue) = mpsc::channel(COMMAND_QUEUE);
     let (live, _) = broadcast::channel(LIVE_BUFFER);
-    let (status_tx, status) = watch::channel(Arc::new(MachineStatus::default()));
+    let (status_tx, status) = watch::channel(Arc::new(current.clone()));
     let spec = Arc::new(spec);
     let actor = Actor {
         store,
@@ -329,7 +374,7 @@ pub fn spawn(store: Store, spec: MachineSpec, db_id: i64, core: MachineCore) -> 
         core,
         live: live.clone(),
         status: status_tx,
-        current: MachineStatus::default(),
+        current,
         since_snapshot: 0,
     };
     tokio::spawn(actor.run(queue));

@@ -114,19 +114,22 @@ impl AppState {
         }
         let mut machines = BTreeMap::new();
         for (id, (db_id, spec)) in specs {
-            let core = {
+            let (core, status) = {
                 let (store, spec) = (store.clone(), spec.clone());
-                tokio::task::spawn_blocking(move || machine::recover(&store, &spec, db_id))
-                    .await
-                    .map_err(std::io::Error::other)?
-                    .map_err(|source| ServerError::Machine {
-                        machine: id.clone(),
-                        source,
-                    })?
+                tokio::task::spawn_blocking(move || {
+                    let core = machine::recover(&store, &spec, db_id)?;
+                    Ok((core, machine::stored_status(&store, &spec, db_id)?))
+                })
+                .await
+                .map_err(std::io::Error::other)?
+                .map_err(|source| ServerError::Machine {
+                    machine: id.clone(),
+                    source,
+                })?
             };
             machines.insert(
                 id,
-                Arc::new(machine::spawn(store.clone(), spec, db_id, core)),
+                Arc::new(machine::spawn(store.clone(), spec, db_id, core, status)),
             );
         }
         Ok(Arc::new(AppState {
@@ -171,11 +174,17 @@ impl AppState {
             .store
             .put_machine(spec.clone(), core.snapshot())
             .await?;
+        // A redeclared machine keeps its history, so its status too.
+        let status = existing
+            .as_ref()
+            .map(|m| (*m.status()).clone())
+            .unwrap_or_default();
         let handle = Arc::new(machine::spawn(
             self.store.clone(),
             spec.clone(),
             db_id,
             core,
+            status,
         ));
         if let Ok(mut machines) = self.machines.write() {
             machines.insert(spec.id, handle);

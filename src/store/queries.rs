@@ -1,6 +1,6 @@
 //! History reads: estimates with downsampling, raw readings streamed.
 
-use rusqlite::params;
+use rusqlite::{OptionalExtension, params};
 
 use super::{Store, StoreError};
 use crate::fusion::{EngineKind, SensorKind};
@@ -154,6 +154,42 @@ impl Store {
                 }
             }
             Ok(())
+        })
+    }
+}
+
+impl Store {
+    /// The newest stored estimate of an engine: its time and JSON.
+    pub fn latest_estimate(
+        &self,
+        machine_id: i64,
+        engine: EngineKind,
+    ) -> Result<Option<String>, StoreError> {
+        self.read(|conn| {
+            Ok(conn
+                .prepare_cached(
+                    "SELECT body FROM estimates WHERE machine_id = ?1 AND engine = ?2 \
+                     ORDER BY t DESC LIMIT 1",
+                )?
+                .query_row(params![machine_id, engine.as_str()], |row| row.get(0))
+                .optional()?)
+        })
+    }
+
+    /// Time of the newest stored reading of a sensor.
+    pub fn last_reading_t(
+        &self,
+        machine_id: i64,
+        sensor: SensorKind,
+    ) -> Result<Option<f64>, StoreError> {
+        self.read(|conn| {
+            Ok(conn
+                .prepare_cached(
+                    "SELECT t FROM readings WHERE machine_id = ?1 AND sensor = ?2 \
+                     ORDER BY t DESC LIMIT 1",
+                )?
+                .query_row(params![machine_id, sensor as i64], |row| row.get(0))
+                .optional()?)
         })
     }
 }

@@ -1,0 +1,208 @@
+//! Helpers shared by the server tests: a server in this process on an
+//! ephemeral port, the real binary as a child process, simulated drives.
+
+#![allow(dead_code)]
+
+use std::io::{BufRead, BufReader};
+use std::net::SocketAddr;
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+
+use tokio::sync::oneshot;
+use tunnelnav::server::{self, AppState, Limits, ServerOptions, SharedState};
+use tunnelnav::sim::tbm::{Dropout, TbmDrive, TbmScenario};
+
+/// A server running in this process.
+pub struct TestServer {
+    pub address: SocketAddr,
+    pub state: SharedState,
+    stop: Option<oneshot::Sender<()>>,
+    task: Option<tokio::task::JoinHandle<()>>,
+}
+
+impl TestServer {
+    pub async fn start(data_dir: &Path) -> TestServer {
+        Self::start_with(data_dir, Limits::default()).await
+    }
+
+    pub async fn start_with(data_dir: &Path, limits: Limits) -> TestServer {
+        server::metrics::install();
+        let state = AppState::start(ServerOptions {
+            data_dir: data_dir.to_path_buf(),
+            machines: Vec::new(),
+            limits,
+        })
+        .await
+        .expect("server starts");
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let address = listener.local_addr().unwrap();
+        let (stop, stopped) = oneshot::channel::<()>();
+        let task = tokio::spawn(server::run(listener, state.clone(), async move {
+            let _ = stopped.await;
+        }));
+        TestServer {
+            address,
+            state,
+            stop: Some(stop),
+            task: Some(tokio::spawn(async move {
+                task.await.unwrap().unwrap();
+            })),
+        }
+    }
+
+    pub fn url(&self, path: &str) -> String {
+        format!("http://{}{path}", self.address)
+    }
+
+    pub fn ws_url(&self, path: &str) -> String {
+        format!("ws://{}{path}", self.address)
+    }
+
+    /// Graceful stop: live sockets closed, machines snapshotted.
+    pub async fn stop(mut self) {
+        if let Some(stop) = self.stop.take() {
+            let _ = stop.send(());
+        }
+        if let Some(task) = self.task.take() {
+            task.await.unwrap();
+        }
+    }
+}
+
+/// The real binary serving `data_dir` on an ephemeral port.
+pub struct ServerProcess {
+    pub child: Child,
+    pub address: SocketAddr,
+}
+
+impl ServerProcess {
+    pub fn start(data_dir: &Path) -> ServerProcess {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_tunnelnav"))
+            .args(["serve", "--listen", "127.0.0.1:0", "--data-dir"])
+            .arg(data_dir)
+            .env("RUST_LOG", "warn")
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("tunnelnav runs");
+        let stdout = child.stdout.take().unwrap();
+        let mut line = String::new();
+        BufReader::new(stdout).read_line(&mut line).unwrap();
+        let address = line
+            .trim()
+            .strip_prefix("listening on http://")
+            .unwrap_or_else(|| panic!("unexpected first line: {line:?}"))
+            .parse()
+            .unwrap();
+        ServerProcess { child, address }
+    }
+
+    pub fn url(&self, path: &str) -> String {
+        format!("http://{}{path}", self.address)
+    }
+
+    pub fn kill(mut self) {
+        self.child.kill().unwrap(); // SIGKILL
+        self.child.wait().unwrap();
+    }
+
+    /// SIGTERM, then waits for a clean exit.
+    pub fn terminate(mut self) -> std::process::ExitStatus {
+        let pid = self.child.id().to_string();
+        Command::new("kill").args(["-TERM", &pid]).status().unwrap();
+        self.child.wait().unwrap()
+    }
+}
+
+/// A simulated drive as NDJSON lines (readings only).
+pub fn drive(hours: f64, seed: u64, dropouts: Vec<Dropout>) -> Vec<String> {
+    TbmDrive::new(TbmScenario {
+        seed,
+        hours,
+        dropouts,
+        ..TbmScenario::default()
+    })
+    .unwrap()
+    .map(|event| event.reading.to_json())
+    .collect()
+}
+
+pub async fn put_machine(client: &reqwest::Client, base: &str, machine: &str) {
+    let response = client
+        .put(format!("{base}/api/v1/machines/{machine}"))
+        .body(r#"{"name": "Test TBM", "engines": {"attitude": {}}}"#)
+        .send()
+        .await
+        .unwrap();
+    assert!(
+        response.status().is_success(),
+        "{:?}",
+        response.text().await
+    );
+}
+
+/// Posts NDJSON lines as one request; returns the parsed ack.
+pub async fn post_ndjson(
+    client: &reqwest::Client,
+    base: &str,
+    machine: &str,
+    lines: &[String],
+) -> serde_json::Value {
+    let mut body = lines.join("\n");
+    body.push('\n');
+    let response = client
+        .post(format!("{base}/api/v1/machines/{machine}/readings"))
+        .header("content-type", "application/x-ndjson")
+        .body(body)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(response.status(), 200);
+    serde_json::from_slice(&response.bytes().await.unwrap()).unwrap()
+}
+
+/// Every stored estimate of a machine, not downsampled.
+pub async fn all_estimates(
+    client: &reqwest::Client,
+    base: &str,
+    machine: &str,
+) -> Vec<serde_json::Value> {
+    let response = client
+        .get(format!(
+            "{base}/api/v1/machines/{machine}/estimates?max_points=100000"
+        ))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(response.status(), 200);
+    let body: serde_json::Value = serde_json::from_slice(&response.bytes().await.unwrap()).unwrap();
+    assert_eq!(body["downsampled"], false);
+    body["estimates"].as_array().unwrap().clone()
+}
+
+/// Runs `tunnelnav replay` over the lines; its estimates.
+pub fn replay(machine: &str, lines: &[String]) -> Vec<serde_json::Value> {
+    use std::io::Write;
+    let mut child = Command::new(env!("CARGO_BIN_EXE_tunnelnav"))
+        .args(["replay", "--engine", "attitude", "--machine", machine, "-"])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    // Feed stdin from another thread while stdout is drained.
+    let mut stdin = child.stdin.take().unwrap();
+    let input = lines.join("\n");
+    let feeder = std::thread::spawn(move || {
+        stdin.write_all(input.as_bytes()).unwrap();
+        stdin.write_all(b"\n").unwrap();
+    });
+    let output = child.wait_with_output().unwrap();
+    feeder.join().unwrap();
+    assert!(output.status.success());
+    String::from_utf8(output.stdout)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect()
+}
