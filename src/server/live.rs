@@ -2,7 +2,8 @@
 //! control objects with an `event` field:
 //! - `hello` on connect: the machine, its engines and the latest estimate
 //!   of each (`latest`), so a page has something to show at once;
-//! - `ping` every [`PING_EVERY`], so proxies and clients see a live socket;
+//! - `ping` every 10 s (`Limits::live_ping_interval`), so proxies and
+//!   clients see a live socket;
 //! - `gap` when this client fell more than [`crate::machine::LIVE_BUFFER`]
 //!   estimates behind:
 //!   `missed` estimates between `from_t` and `to_t` (exclusive) were not
@@ -23,9 +24,6 @@ use super::SharedState;
 use super::error::ApiError;
 use crate::machine::MachineHandle;
 
-/// Interval between `ping` events.
-pub const PING_EVERY: Duration = Duration::from_secs(10);
-
 /// `GET /api/v1/machines/{machine}/live`.
 pub async fn websocket(
     State(state): State<SharedState>,
@@ -34,7 +32,8 @@ pub async fn websocket(
 ) -> Result<Response, ApiError> {
     let machine = state.machine(&machine)?;
     let shutdown = state.shutdown_signal();
-    Ok(upgrade.on_upgrade(move |socket| serve_live(socket, machine, shutdown)))
+    let ping_every = state.limits.live_ping_interval;
+    Ok(upgrade.on_upgrade(move |socket| serve_live(socket, machine, ping_every, shutdown)))
 }
 
 fn now_s() -> f64 {
@@ -50,6 +49,7 @@ fn text(value: serde_json::Value) -> Message {
 async fn serve_live(
     mut socket: WebSocket,
     machine: Arc<MachineHandle>,
+    ping_every: Duration,
     mut shutdown: tokio::sync::watch::Receiver<bool>,
 ) {
     // Subscribe before reading the latest state, so nothing falls between
@@ -75,7 +75,7 @@ async fn serve_live(
     if socket.send(text(hello)).await.is_err() {
         return;
     }
-    let mut ping = tokio::time::interval(PING_EVERY);
+    let mut ping = tokio::time::interval(ping_every);
     ping.tick().await;
     let mut last_t: Option<f64> = None;
     loop {

@@ -38,6 +38,8 @@ pub struct Limits {
     pub max_frame_bytes: usize,
     /// Most points a history query returns.
     pub max_points_limit: usize,
+    /// Interval between `ping` events on live sockets (at most 15 s).
+    pub live_ping_interval: std::time::Duration,
 }
 
 impl Default for Limits {
@@ -47,6 +49,7 @@ impl Default for Limits {
             max_readings_per_request: 100_000,
             max_frame_bytes: 4 * 1024 * 1024,
             max_points_limit: 100_000,
+            live_ping_interval: std::time::Duration::from_secs(10),
         }
     }
 }
