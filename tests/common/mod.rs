@@ -114,6 +114,14 @@ impl ServerProcess {
     }
 }
 
+impl Drop for ServerProcess {
+    /// A failed test must not leave a server behind.
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
 /// A simulated drive as NDJSON lines (readings only).
 pub fn drive(hours: f64, seed: u64, dropouts: Vec<Dropout>) -> Vec<String> {
     TbmDrive::new(TbmScenario {
