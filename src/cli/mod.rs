@@ -1,6 +1,7 @@
 //! The command line: one file per subcommand, each with a `run`.
 
 pub mod eval;
+pub mod load;
 pub mod params;
 pub mod replay;
 pub mod serve;
@@ -30,6 +31,8 @@ pub enum Command {
     Params(params::ParamsArgs),
     /// Run the HTTP server: ingest, fusion, history, live stream.
     Serve(serve::ServeArgs),
+    /// Load a server with concurrent gateways; report throughput and latency.
+    Load(load::LoadArgs),
 }
 
 /// Why a command failed.
@@ -64,5 +67,6 @@ pub fn run(cli: Cli) -> Result<(), CliError> {
         Command::Eval(target) => eval::run(target),
         Command::Params(args) => params::run(args),
         Command::Serve(args) => serve::run(args),
+        Command::Load(args) => load::run(args),
     }
 }

@@ -27,6 +27,8 @@ use crate::fusion::{EngineKind, SensorKind};
 pub const DB_FILE: &str = "tunnelnav.sqlite3";
 /// Most requests committed in one transaction.
 const MAX_GROUP: usize = 512;
+/// Interval between write-ahead-log checkpoints.
+const CHECKPOINT_EVERY: std::time::Duration = std::time::Duration::from_millis(500);
 /// Requests waiting for the writer before senders wait (backpressure).
 const QUEUE_LEN: usize = 1024;
 
@@ -140,12 +142,30 @@ impl Store {
         // cut, not only a crash. Group commit keeps the cost per request low.
         conn.pragma_update(None, "synchronous", "FULL")?;
         conn.pragma_update(None, "foreign_keys", true)?;
+        // 64 MiB of page cache: the indexes' hot pages stay in memory.
+        conn.pragma_update(None, "cache_size", -65_536)?;
+        // Checkpoints run on their own thread (below), not inside commits.
+        conn.pragma_update(None, "wal_autocheckpoint", 0)?;
         conn.busy_timeout(std::time::Duration::from_secs(5))?;
         schema::migrate(&mut conn)?;
+        let checkpointer = Connection::open(&path)?;
+        checkpointer.busy_timeout(std::time::Duration::from_secs(5))?;
+        // The writer holds `alive`; the checkpointer stops when it ends.
+        let (alive, writer_gone) = std::sync::mpsc::channel::<()>();
+        std::thread::Builder::new()
+            .name("store-checkpoint".into())
+            .spawn(move || checkpoints(checkpointer, writer_gone))
+            .map_err(|source| StoreError::DataDir {
+                path: data_dir.display().to_string(),
+                source,
+            })?;
         let (requests, queue) = mpsc::channel(QUEUE_LEN);
         std::thread::Builder::new()
             .name("store-writer".into())
-            .spawn(move || writer(conn, queue))
+            .spawn(move || {
+                writer(conn, queue);
+                drop(alive);
+            })
             .map_err(|source| StoreError::DataDir {
                 path: data_dir.display().to_string(),
                 source,
@@ -272,6 +292,27 @@ impl Store {
             }
             Ok(count)
         })
+    }
+}
+
+/// Copies the write-ahead log back into the database now and then, off
+/// the writer's path. A passive checkpoint never blocks the writer; when
+/// no reader holds an old snapshot the log is then reused from its start.
+/// Ends with the writer.
+fn checkpoints(conn: Connection, writer_gone: std::sync::mpsc::Receiver<()>) {
+    while let Err(std::sync::mpsc::RecvTimeoutError::Timeout) =
+        writer_gone.recv_timeout(CHECKPOINT_EVERY)
+    {
+        match conn.query_row("PRAGMA wal_checkpoint(PASSIVE)", [], |row| {
+            Ok((
+                row.get::<_, i64>(0)?,
+                row.get::<_, i64>(1)?,
+                row.get::<_, i64>(2)?,
+            ))
+        }) {
+            Ok(_) => {}
+            Err(e) => tracing::warn!(error = %e, "checkpoint failed"),
+        }
     }
 }
 

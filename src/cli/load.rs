@@ -1,0 +1,368 @@
+//! `tunnelnav load`: drives a server over loopback with many concurrent
+//! gateways and reports throughput and post-to-live-estimate latency.
+//!
+//! Without `--url` it starts `tunnelnav serve` itself (this binary, port 0,
+//! a fresh data dir under the system temp dir, removed afterwards), so one
+//! command reproduces a number.
+
+use std::collections::HashMap;
+use std::io::{BufRead, BufReader};
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use clap::{Args, ValueEnum};
+use futures_util::StreamExt;
+
+use super::CliError;
+use crate::sim::tbm::{TbmDrive, TbmScenario};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum LoadMode {
+    /// Each gateway posts batches of `--batch` readings.
+    Batch,
+    /// Each gateway posts one reading per request.
+    Single,
+    /// Paced single posts at `--rate` readings/s in all, a live socket per
+    /// machine; latency from post to the estimate on the socket.
+    Live,
+}
+
+#[derive(Debug, Args)]
+pub struct LoadArgs {
+    /// What to measure.
+    #[arg(long, value_enum, default_value = "batch")]
+    pub mode: LoadMode,
+    /// A running server; without it one is started for the run.
+    #[arg(long)]
+    pub url: Option<String>,
+    /// Machines (one gateway each, several for `single`).
+    #[arg(long, default_value_t = 50)]
+    pub machines: usize,
+    /// Concurrent connections posting (`batch`, `single`).
+    #[arg(long, default_value_t = 64)]
+    pub concurrency: usize,
+    /// Readings per request (`batch`).
+    #[arg(long, default_value_t = 1000)]
+    pub batch: usize,
+    /// Readings per machine to post (`batch`, `single`).
+    #[arg(long, default_value_t = 20_000)]
+    pub readings: usize,
+    /// Total readings/s across machines (`live`).
+    #[arg(long, default_value_t = 1000.0)]
+    pub rate: f64,
+    /// Seconds to run (`live`).
+    #[arg(long, default_value_t = 20.0)]
+    pub seconds: f64,
+}
+
+/// A `serve` child process started for the run.
+struct SpawnedServer {
+    child: Child,
+    data_dir: PathBuf,
+    url: String,
+}
+
+impl SpawnedServer {
+    fn start() -> Result<SpawnedServer, CliError> {
+        let data_dir = std::env::temp_dir().join(format!("tunnelnav-load-{}", std::process::id()));
+        let exe = std::env::current_exe()?;
+        let mut child = Command::new(exe)
+            .args(["serve", "--listen", "127.0.0.1:0", "--data-dir"])
+            .arg(&data_dir)
+            .env("RUST_LOG", "warn")
+            .stdout(Stdio::piped())
+            .spawn()?;
+        let mut line = String::new();
+        if let Some(stdout) = child.stdout.take() {
+            BufReader::new(stdout).read_line(&mut line)?;
+        }
+        let url = line
+            .trim()
+            .strip_prefix("listening on ")
+            .ok_or_else(|| CliError::Scenario(format!("server did not start: {line:?}")))?
+            .to_string();
+        Ok(SpawnedServer {
+            child,
+            data_dir,
+            url,
+        })
+    }
+}
+
+impl Drop for SpawnedServer {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        let _ = std::fs::remove_dir_all(&self.data_dir);
+    }
+}
+
+/// Percentile of sorted durations, in milliseconds.
+fn percentile_ms(sorted: &[Duration], p: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    let i = ((sorted.len() as f64 - 1.0) * p).round() as usize;
+    sorted[i].as_secs_f64() * 1e3
+}
+
+/// One machine's readings as NDJSON lines, starting `offset_s` into the drive.
+fn readings(machine: usize, count: usize) -> Vec<String> {
+    let hours = count as f64 / 3600.0 * 1.02 + 0.01;
+    TbmDrive::new(TbmScenario {
+        seed: machine as u64 + 1,
+        hours,
+        ..TbmScenario::default()
+    })
+    .map(|drive| drive.take(count).map(|e| e.reading.to_json()).collect())
+    .unwrap_or_default()
+}
+
+pub fn run(args: LoadArgs) -> Result<(), CliError> {
+    let spawned = match &args.url {
+        Some(_) => None,
+        None => Some(SpawnedServer::start()?),
+    };
+    let url = args
+        .url
+        .clone()
+        .or_else(|| spawned.as_ref().map(|s| s.url.clone()))
+        .unwrap_or_default();
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()?;
+    let result = runtime.block_on(async {
+        let client = reqwest::Client::builder()
+            .pool_max_idle_per_host(args.concurrency.max(args.machines))
+            .build()
+            .map_err(|e| CliError::Scenario(e.to_string()))?;
+        let run_id = std::process::id();
+        let machines: Vec<String> = (0..args.machines)
+            .map(|i| format!("load-{run_id}-{i}"))
+            .collect();
+        for machine in &machines {
+            let response = client
+                .put(format!("{url}/api/v1/machines/{machine}"))
+                .body(r#"{"engines":{"attitude":{}}}"#)
+                .send()
+                .await
+                .map_err(|e| CliError::Scenario(format!("declaring {machine}: {e}")))?;
+            if !response.status().is_success() {
+                return Err(CliError::Scenario(format!(
+                    "declaring {machine}: {}",
+                    response.status()
+                )));
+            }
+        }
+        match args.mode {
+            LoadMode::Batch | LoadMode::Single => throughput(&args, &client, &url, &machines).await,
+            LoadMode::Live => live(&args, &client, &url, &machines).await,
+        }
+    });
+    drop(spawned);
+    result
+}
+
+async fn throughput(
+    args: &LoadArgs,
+    client: &reqwest::Client,
+    url: &str,
+    machines: &[String],
+) -> Result<(), CliError> {
+    let batch = if args.mode == LoadMode::Single {
+        1
+    } else {
+        args.batch.max(1)
+    };
+    eprintln!(
+        "preparing {} readings for {} machines...",
+        args.readings * machines.len(),
+        machines.len()
+    );
+    // Requests per machine, in order; a machine's requests go one after
+    // another (a gateway), machines are spread over the connections.
+    let mut queues: Vec<(String, Vec<String>)> = Vec::new();
+    for (i, machine) in machines.iter().enumerate() {
+        let lines = readings(i, args.readings);
+        let bodies = lines.chunks(batch).map(|c| c.join("\n")).collect();
+        queues.push((machine.clone(), bodies));
+    }
+    let queues = Arc::new(Mutex::new(queues));
+    let started = Instant::now();
+    let mut workers = Vec::new();
+    for _ in 0..args.concurrency.max(1) {
+        let (client, url, queues) = (client.clone(), url.to_string(), queues.clone());
+        workers.push(tokio::spawn(async move {
+            let mut accepted = 0u64;
+            let mut requests = 0u64;
+            let mut latencies = Vec::new();
+            loop {
+                // Take a machine's whole queue: its requests stay in order.
+                let Some((machine, bodies)) = queues.lock().ok().and_then(|mut q| q.pop()) else {
+                    break;
+                };
+                let endpoint = format!("{url}/api/v1/machines/{machine}/readings");
+                for body in bodies {
+                    let sent = Instant::now();
+                    let response = client
+                        .post(&endpoint)
+                        .header("content-type", "application/x-ndjson")
+                        .body(body)
+                        .send()
+                        .await
+                        .map_err(|e| e.to_string())?;
+                    let status = response.status();
+                    let bytes = response.bytes().await.map_err(|e| e.to_string())?;
+                    if !status.is_success() {
+                        return Err(format!("{status}: {}", String::from_utf8_lossy(&bytes)));
+                    }
+                    let ack: serde_json::Value =
+                        serde_json::from_slice(&bytes).map_err(|e| e.to_string())?;
+                    accepted += ack["accepted"].as_u64().unwrap_or(0);
+                    requests += 1;
+                    latencies.push(sent.elapsed());
+                }
+            }
+            Ok::<_, String>((accepted, requests, latencies))
+        }));
+    }
+    let (mut accepted, mut requests, mut latencies) = (0, 0, Vec::new());
+    for worker in workers {
+        let (a, r, l) = worker
+            .await
+            .map_err(|e| CliError::Scenario(e.to_string()))?
+            .map_err(CliError::Scenario)?;
+        accepted += a;
+        requests += r;
+        latencies.extend(l);
+    }
+    let elapsed = started.elapsed().as_secs_f64();
+    latencies.sort();
+    println!(
+        "mode {:?}: {accepted} readings in {requests} requests over {elapsed:.2} s: \
+         {:.0} readings/s, {:.0} requests/s accepted, fused and committed; \
+         request latency p50 {:.2} ms, p99 {:.2} ms ({} machines, {} connections, {batch} per request)",
+        args.mode,
+        accepted as f64 / elapsed,
+        requests as f64 / elapsed,
+        percentile_ms(&latencies, 0.5),
+        percentile_ms(&latencies, 0.99),
+        machines.len(),
+        args.concurrency,
+    );
+    Ok(())
+}
+
+async fn live(
+    args: &LoadArgs,
+    client: &reqwest::Client,
+    url: &str,
+    machines: &[String],
+) -> Result<(), CliError> {
+    let per_machine_rate = args.rate / machines.len() as f64;
+    let count = (per_machine_rate * args.seconds).ceil() as usize + 1;
+    // Inclinometer readings only: each gives exactly one estimate.
+    let sent: Arc<Mutex<HashMap<(usize, u64), Instant>>> = Arc::default();
+    let latencies: Arc<Mutex<Vec<Duration>>> = Arc::default();
+    let ws_base = url.replacen("http://", "ws://", 1);
+    let mut readers = Vec::new();
+    for (i, machine) in machines.iter().enumerate() {
+        let (socket, _) =
+            tokio_tungstenite::connect_async(format!("{ws_base}/api/v1/machines/{machine}/live"))
+                .await
+                .map_err(|e| CliError::Scenario(format!("live socket: {e}")))?;
+        let (sent, latencies) = (sent.clone(), latencies.clone());
+        readers.push(tokio::spawn(async move {
+            let mut socket = socket;
+            let mut received = 0usize;
+            while received < count {
+                let Some(Ok(message)) = socket.next().await else {
+                    break;
+                };
+                let tokio_tungstenite::tungstenite::Message::Text(text) = message else {
+                    continue;
+                };
+                let arrived = Instant::now();
+                let Ok(frame) = serde_json::from_str::<serde_json::Value>(&text) else {
+                    continue;
+                };
+                let Some(t) = frame["t"].as_f64() else {
+                    continue;
+                };
+                if let Some(at) = sent
+                    .lock()
+                    .ok()
+                    .and_then(|mut s| s.remove(&(i, t.to_bits())))
+                {
+                    if let Ok(mut l) = latencies.lock() {
+                        l.push(arrived - at);
+                    }
+                    received += 1;
+                }
+            }
+        }));
+    }
+    let started = Instant::now();
+    let mut posters = Vec::new();
+    for (i, machine) in machines.iter().enumerate() {
+        let lines: Vec<String> = readings(i, count * 2)
+            .into_iter()
+            .filter(|l| l.contains("\"inclinometer\""))
+            .take(count)
+            .collect();
+        let (client, sent) = (client.clone(), sent.clone());
+        let endpoint = format!("{url}/api/v1/machines/{machine}/readings");
+        let period = Duration::from_secs_f64(1.0 / per_machine_rate);
+        // Spread the machines' phases over one period.
+        let phase = period.mul_f64(i as f64 / machines.len() as f64);
+        posters.push(tokio::spawn(async move {
+            let mut ticks = tokio::time::interval_at(tokio::time::Instant::now() + phase, period);
+            ticks.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Burst);
+            for line in lines {
+                ticks.tick().await;
+                let t = serde_json::from_str::<serde_json::Value>(&line)
+                    .ok()
+                    .and_then(|v| v["t"].as_f64())
+                    .unwrap_or(0.0);
+                if let Ok(mut s) = sent.lock() {
+                    s.insert((i, t.to_bits()), Instant::now());
+                }
+                let response = client.post(&endpoint).body(line).send().await;
+                match response {
+                    Ok(r) if r.status().is_success() => {
+                        let _ = r.bytes().await;
+                    }
+                    Ok(r) => return Err(format!("post: {}", r.status())),
+                    Err(e) => return Err(format!("post: {e}")),
+                }
+            }
+            Ok(())
+        }));
+    }
+    for poster in posters {
+        poster
+            .await
+            .map_err(|e| CliError::Scenario(e.to_string()))?
+            .map_err(CliError::Scenario)?;
+    }
+    let posting = started.elapsed().as_secs_f64();
+    for reader in readers {
+        let _ = tokio::time::timeout(Duration::from_secs(10), reader).await;
+    }
+    let mut latencies = latencies.lock().map(|l| l.clone()).unwrap_or_default();
+    latencies.sort();
+    let missing = sent.lock().map(|s| s.len()).unwrap_or(0);
+    println!(
+        "mode live: {} readings over {posting:.1} s ({:.0} readings/s, {} machines, single posts); \
+         post to live estimate p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms; {missing} estimates not seen",
+        latencies.len(),
+        latencies.len() as f64 / posting,
+        machines.len(),
+        percentile_ms(&latencies, 0.5),
+        percentile_ms(&latencies, 0.99),
+        percentile_ms(&latencies, 1.0),
+    );
+    Ok(())
+}
