@@ -198,11 +198,8 @@ async fn throughput(
             let mut accepted = 0u64;
             let mut requests = 0u64;
             let mut latencies = Vec::new();
-            loop {
-                // Take a machine's whole queue: its requests stay in order.
-                let Some((machine, bodies)) = queues.lock().ok().and_then(|mut q| q.pop()) else {
-                    break;
-                };
+            // Take a machine's whole queue: its requests stay in order.
+            while let Some((machine, bodies)) = queues.lock().ok().and_then(|mut q| q.pop()) {
                 let endpoint = format!("{url}/api/v1/machines/{machine}/readings");
                 for body in bodies {
                     let sent = Instant::now();
