@@ -27,6 +27,9 @@ pub enum LoadMode {
     /// Paced single posts at `--rate` readings/s in all, a live socket per
     /// machine; latency from post to the estimate on the socket.
     Live,
+    /// Stores `--estimates` estimates for one machine (1 Hz inclinometer),
+    /// then times 2000-point history queries over ranges of it.
+    History,
 }
 
 #[derive(Debug, Args)]
@@ -55,6 +58,9 @@ pub struct LoadArgs {
     /// Seconds to run (`live`).
     #[arg(long, default_value_t = 20.0)]
     pub seconds: f64,
+    /// Estimates to store before querying (`history`).
+    #[arg(long, default_value_t = 10_000_000)]
+    pub estimates: usize,
 }
 
 /// A `serve` child process started for the run.
@@ -139,7 +145,12 @@ pub fn run(args: LoadArgs) -> Result<(), CliError> {
             .build()
             .map_err(|e| CliError::Scenario(e.to_string()))?;
         let run_id = std::process::id();
-        let machines: Vec<String> = (0..args.machines)
+        let machine_count = if args.mode == LoadMode::History {
+            1
+        } else {
+            args.machines
+        };
+        let machines: Vec<String> = (0..machine_count)
             .map(|i| format!("load-{run_id}-{i}"))
             .collect();
         for machine in &machines {
@@ -159,6 +170,7 @@ pub fn run(args: LoadArgs) -> Result<(), CliError> {
         match args.mode {
             LoadMode::Batch | LoadMode::Single => throughput(&args, &client, &url, &machines).await,
             LoadMode::Live => live(&args, &client, &url, &machines).await,
+            LoadMode::History => history(&args, &client, &url, &machines[0]).await,
         }
     });
     drop(spawned);
@@ -361,5 +373,105 @@ async fn live(
         percentile_ms(&latencies, 0.99),
         percentile_ms(&latencies, 1.0),
     );
+    Ok(())
+}
+
+async fn history(
+    args: &LoadArgs,
+    client: &reqwest::Client,
+    url: &str,
+    machine: &str,
+) -> Result<(), CliError> {
+    const BATCH: usize = 5000;
+    let t0 = crate::sim::tbm::DEFAULT_START_T;
+    let endpoint = format!("{url}/api/v1/machines/{machine}/readings");
+    let started = Instant::now();
+    // Synthetic 1 Hz inclinometer readings, generated batch by batch; a few
+    // connections keep the machine's queue full.
+    let next = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let batches = args.estimates.div_ceil(BATCH);
+    let mut posters = Vec::new();
+    for _ in 0..4 {
+        let (client, endpoint, next) = (client.clone(), endpoint.clone(), next.clone());
+        let total = args.estimates;
+        posters.push(tokio::spawn(async move {
+            loop {
+                let b = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                if b >= batches {
+                    return Ok(());
+                }
+                let mut body = String::with_capacity(BATCH * 100);
+                for i in b * BATCH..((b + 1) * BATCH).min(total) {
+                    let x = i as f64;
+                    body.push_str(&format!(
+                        "{{\"t\":{},\"sensor\":\"inclinometer\",\"pitch_deg\":{:.5},\"roll_deg\":{:.5}}}\n",
+                        t0 + x,
+                        0.3 * (x / 5000.0).sin(),
+                        1.5 + (x / 20000.0).cos()
+                    ));
+                }
+                let response = client
+                    .post(&endpoint)
+                    .header("content-type", "application/x-ndjson")
+                    .body(body)
+                    .send()
+                    .await
+                    .map_err(|e| e.to_string())?;
+                if !response.status().is_success() {
+                    return Err(format!("post: {}", response.status()));
+                }
+                let _ = response.bytes().await;
+            }
+        }));
+    }
+    for poster in posters {
+        poster
+            .await
+            .map_err(|e| CliError::Scenario(e.to_string()))?
+            .map_err(CliError::Scenario)?;
+    }
+    let stored_s = started.elapsed().as_secs_f64();
+    println!(
+        "stored {} readings and their estimates in {stored_s:.1} s ({:.0}/s)",
+        args.estimates,
+        args.estimates as f64 / stored_s
+    );
+    let span_s = args.estimates as f64;
+    for (label, from, to) in [
+        ("whole history", t0, t0 + span_s),
+        ("last 7 days", t0 + span_s - 7.0 * 86400.0, t0 + span_s),
+        ("last 12 h", t0 + span_s - 12.0 * 3600.0, t0 + span_s),
+        ("last 15 min", t0 + span_s - 900.0, t0 + span_s),
+    ] {
+        let query = format!(
+            "{url}/api/v1/machines/{machine}/estimates?from={}&to={}&max_points=2000",
+            from.max(t0),
+            to
+        );
+        let mut times = Vec::new();
+        let mut points = 0;
+        for _ in 0..10 {
+            let sent = Instant::now();
+            let response = client
+                .get(&query)
+                .send()
+                .await
+                .map_err(|e| CliError::Scenario(e.to_string()))?;
+            let body = response
+                .bytes()
+                .await
+                .map_err(|e| CliError::Scenario(e.to_string()))?;
+            times.push(sent.elapsed());
+            let page: serde_json::Value = serde_json::from_slice(&body)
+                .map_err(|e| CliError::Scenario(format!("history answer: {e}")))?;
+            points = page["estimates"].as_array().map_or(0, Vec::len);
+        }
+        times.sort();
+        println!(
+            "history {label}: {points} points, p50 {:.1} ms, max {:.1} ms over 10 queries",
+            percentile_ms(&times, 0.5),
+            percentile_ms(&times, 1.0)
+        );
+    }
     Ok(())
 }

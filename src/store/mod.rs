@@ -12,8 +12,9 @@
 pub mod queries;
 pub mod schema;
 
-pub use queries::EstimatesPage;
+pub use queries::{BUCKET_WIDTHS_S, EstimatesPage, Extremes};
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
@@ -447,14 +448,55 @@ fn apply_write(tx: &rusqlite::Transaction, write: &Write) -> Result<WriteOutcome
         "INSERT OR IGNORE INTO estimates (machine_id, engine, t, extreme_a, extreme_b, body) \
          VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
     )?;
+    // Extremes of the newly stored estimates, per stored bucket.
+    let mut buckets: BTreeMap<(EngineKind, i64, i64), Extremes> = BTreeMap::new();
     for estimate in &write.estimates {
-        insert.execute(params![
+        let inserted = insert.execute(params![
             write.machine_id,
             estimate.engine.as_str(),
             estimate.t,
             estimate.extremes[0],
             estimate.extremes[1],
             &*estimate.body
+        ])?;
+        if inserted == 0 {
+            continue;
+        }
+        let point = Extremes::point(estimate.t, estimate.extremes);
+        for width_s in BUCKET_WIDTHS_S {
+            let bucket = (estimate.t / width_s as f64).floor() as i64;
+            buckets
+                .entry((estimate.engine, width_s, bucket))
+                .and_modify(|b| b.merge(&point))
+                .or_insert(point);
+        }
+    }
+    let mut upsert = tx.prepare_cached(
+        "INSERT INTO estimate_buckets VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12) \
+         ON CONFLICT DO UPDATE SET \
+         t_min_a = CASE WHEN excluded.min_a < min_a THEN excluded.t_min_a ELSE t_min_a END, \
+         min_a = min(min_a, excluded.min_a), \
+         t_max_a = CASE WHEN excluded.max_a > max_a THEN excluded.t_max_a ELSE t_max_a END, \
+         max_a = max(max_a, excluded.max_a), \
+         t_min_b = CASE WHEN excluded.min_b < min_b THEN excluded.t_min_b ELSE t_min_b END, \
+         min_b = min(min_b, excluded.min_b), \
+         t_max_b = CASE WHEN excluded.max_b > max_b THEN excluded.t_max_b ELSE t_max_b END, \
+         max_b = max(max_b, excluded.max_b)",
+    )?;
+    for ((engine, width_s, bucket), e) in buckets {
+        upsert.execute(params![
+            write.machine_id,
+            engine.as_str(),
+            width_s,
+            bucket,
+            e.min_a.0,
+            e.min_a.1,
+            e.max_a.0,
+            e.max_a.1,
+            e.min_b.0,
+            e.min_b.1,
+            e.max_b.0,
+            e.max_b.1
         ])?;
     }
     if let Some(state) = &write.snapshot {

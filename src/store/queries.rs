@@ -13,18 +13,27 @@ pub struct EstimatesPage {
     pub bodies: Vec<String>,
 }
 
-/// Per bucket, the times of the estimates holding each extreme.
-#[derive(Clone, Copy)]
-struct Bucket {
-    min_a: (f64, f64),
-    max_a: (f64, f64),
-    min_b: (f64, f64),
-    max_b: (f64, f64),
+/// Widths of the stored extreme buckets (`estimate_buckets`), seconds.
+/// A query uses the widest one no wider than its own buckets.
+pub const BUCKET_WIDTHS_S: [i64; 3] = [10, 300, 7200];
+
+/// Estimates a bucket contributes at most: the estimates holding the
+/// minimum and maximum of each of the two kept quantities.
+pub const POINTS_PER_BUCKET: usize = 4;
+
+/// The extremes of one bucket: (value, time) of min and max of `a` and `b`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Extremes {
+    pub min_a: (f64, f64),
+    pub max_a: (f64, f64),
+    pub min_b: (f64, f64),
+    pub max_b: (f64, f64),
 }
 
-impl Bucket {
-    fn new(t: f64, a: f64, b: f64) -> Bucket {
-        Bucket {
+impl Extremes {
+    /// One estimate's values at `t`.
+    pub fn point(t: f64, [a, b]: [f64; 2]) -> Extremes {
+        Extremes {
             min_a: (a, t),
             max_a: (a, t),
             min_b: (b, t),
@@ -32,19 +41,20 @@ impl Bucket {
         }
     }
 
-    fn add(&mut self, t: f64, a: f64, b: f64) {
-        if a < self.min_a.0 {
-            self.min_a = (a, t);
-        }
-        if a > self.max_a.0 {
-            self.max_a = (a, t);
-        }
-        if b < self.min_b.0 {
-            self.min_b = (b, t);
-        }
-        if b > self.max_b.0 {
-            self.max_b = (b, t);
-        }
+    /// No estimate yet: every extreme unset (time NaN).
+    const EMPTY: Extremes = Extremes {
+        min_a: (f64::INFINITY, f64::NAN),
+        max_a: (f64::NEG_INFINITY, f64::NAN),
+        min_b: (f64::INFINITY, f64::NAN),
+        max_b: (f64::NEG_INFINITY, f64::NAN),
+    };
+
+    /// Folds another bucket's extremes in (ties keep the earlier).
+    pub fn merge(&mut self, other: &Extremes) {
+        self.min_a = lower(self.min_a, other.min_a);
+        self.max_a = higher(self.max_a, other.max_a);
+        self.min_b = lower(self.min_b, other.min_b);
+        self.max_b = higher(self.max_b, other.max_b);
     }
 
     fn times(&self) -> [f64; 4] {
@@ -52,14 +62,74 @@ impl Bucket {
     }
 }
 
-/// Estimates a bucket contributes at most: the estimates holding the
-/// minimum and maximum of each of the two kept quantities.
-pub const POINTS_PER_BUCKET: usize = 4;
+/// The lower of two (value, time) pairs; the first on a tie.
+fn lower(x: (f64, f64), y: (f64, f64)) -> (f64, f64) {
+    if y.0 < x.0 { y } else { x }
+}
+
+/// The higher of two (value, time) pairs; the first on a tie.
+fn higher(x: (f64, f64), y: (f64, f64)) -> (f64, f64) {
+    if y.0 > x.0 { y } else { x }
+}
+
+/// The output buckets of a downsampled query.
+struct Downsample {
+    first_t: f64,
+    width_s: f64,
+    buckets: Vec<Option<Extremes>>,
+}
+
+impl Downsample {
+    /// Files each extreme under the output bucket its own time falls in.
+    fn offer(&mut self, extremes: &Extremes) {
+        let last = self.buckets.len() - 1;
+        let index = |t: f64| (((t - self.first_t) / self.width_s).max(0.0) as usize).min(last);
+        type Fold = fn(&mut Extremes, (f64, f64));
+        let parts: [((f64, f64), Fold); 4] = [
+            (extremes.min_a, |b: &mut Extremes, x| {
+                b.min_a = lower(b.min_a, x)
+            }),
+            (extremes.max_a, |b: &mut Extremes, x| {
+                b.max_a = higher(b.max_a, x)
+            }),
+            (extremes.min_b, |b: &mut Extremes, x| {
+                b.min_b = lower(b.min_b, x)
+            }),
+            (extremes.max_b, |b: &mut Extremes, x| {
+                b.max_b = higher(b.max_b, x)
+            }),
+        ];
+        for (extreme, fold) in parts {
+            let bucket = self.buckets[index(extreme.1)].get_or_insert(Extremes::EMPTY);
+            fold(bucket, extreme);
+        }
+    }
+
+    /// The times to return: every bucket's extremes, in order, once each.
+    fn times(&self) -> Vec<f64> {
+        let mut keep: Vec<f64> = self
+            .buckets
+            .iter()
+            .flatten()
+            .flat_map(|b| b.times())
+            .filter(|t| !t.is_nan())
+            .collect();
+        keep.sort_by(f64::total_cmp);
+        keep.dedup();
+        keep
+    }
+}
 
 impl Store {
     /// A machine's estimates of one engine in `[from_t, to_t]`. Above
     /// `max_points` the range is cut into `max_points / 4` equal buckets and
-    /// each keeps the estimates holding its extremes, so spikes stay visible.
+    /// each keeps the estimates holding the minimum and maximum of the
+    /// engine's two kept quantities (attitude: pitch, roll), so spikes stay
+    /// visible. Long ranges read the stored extreme buckets
+    /// ([`BUCKET_WIDTHS_S`]) instead of every estimate; an extreme is then
+    /// filed under the output bucket of its own time, so a stored bucket
+    /// straddling two output buckets can hide the lesser extreme of one of
+    /// them, never the range's own extremes.
     pub fn estimates_page(
         &self,
         machine_id: i64,
@@ -69,14 +139,19 @@ impl Store {
         max_points: usize,
     ) -> Result<EstimatesPage, StoreError> {
         self.read(|conn| {
-            let range = params![machine_id, engine.as_str(), from_t, to_t];
-            let (count, first_t, last_t): (i64, Option<f64>, Option<f64>) = conn
-                .prepare_cached(
-                    "SELECT count(*), min(t), max(t) FROM estimates \
-                     WHERE machine_id = ?1 AND engine = ?2 AND t >= ?3 AND t <= ?4",
-                )?
-                .query_row(range, |row| Ok((row.get(0)?, row.get(1)?, row.get(2)?)))?;
+            let engine_name = engine.as_str();
+            let range = params![machine_id, engine_name, from_t, to_t];
             let mut page = EstimatesPage::default();
+            // Count no further than needed to know whether to downsample.
+            let count: i64 = conn
+                .prepare_cached(
+                    "SELECT count(*) FROM (SELECT 1 FROM estimates \
+                     WHERE machine_id = ?1 AND engine = ?2 AND t >= ?3 AND t <= ?4 LIMIT ?5)",
+                )?
+                .query_row(
+                    params![machine_id, engine_name, from_t, to_t, max_points as i64 + 1],
+                    |row| row.get(0),
+                )?;
             if count <= max_points as i64 {
                 let mut stmt = conn.prepare_cached(
                     "SELECT body FROM estimates \
@@ -89,41 +164,79 @@ impl Store {
                 return Ok(page);
             }
             page.downsampled = true;
-            let (first_t, last_t) = (first_t.unwrap_or(from_t), last_t.unwrap_or(to_t));
+            let end = |order: &str| -> Result<f64, StoreError> {
+                Ok(conn
+                    .prepare_cached(&format!(
+                        "SELECT t FROM estimates WHERE machine_id = ?1 AND engine = ?2 \
+                         AND t >= ?3 AND t <= ?4 ORDER BY t {order} LIMIT 1"
+                    ))?
+                    .query_row(range, |row| row.get(0))?)
+            };
+            let (first_t, last_t) = (end("ASC")?, end("DESC")?);
             let buckets = (max_points / POINTS_PER_BUCKET).max(1);
-            let width = ((last_t - first_t) / buckets as f64).max(f64::MIN_POSITIVE);
-            let mut stmt = conn.prepare_cached(
-                "SELECT t, extreme_a, extreme_b FROM estimates \
-                 WHERE machine_id = ?1 AND engine = ?2 AND t >= ?3 AND t <= ?4 ORDER BY t",
-            )?;
-            let mut rows = stmt.query(range)?;
-            let mut current: Option<(usize, Bucket)> = None;
-            let mut keep: Vec<f64> = Vec::with_capacity(max_points);
-            while let Some(row) = rows.next()? {
-                let (t, a, b): (f64, f64, f64) = (row.get(0)?, row.get(1)?, row.get(2)?);
-                let index = (((t - first_t) / width) as usize).min(buckets - 1);
-                match &mut current {
-                    Some((i, bucket)) if *i == index => bucket.add(t, a, b),
-                    _ => {
-                        if let Some((_, bucket)) = current.take() {
-                            keep.extend(bucket.times());
+            let width_s = ((last_t - first_t) / buckets as f64).max(f64::MIN_POSITIVE);
+            let mut out = Downsample {
+                first_t,
+                width_s,
+                buckets: vec![None; buckets],
+            };
+            let stored_width = BUCKET_WIDTHS_S
+                .iter()
+                .rev()
+                .copied()
+                .find(|&w| w as f64 <= width_s);
+            let raw = |lo: f64, hi: f64, out: &mut Downsample| -> Result<(), StoreError> {
+                let mut stmt = conn.prepare_cached(
+                    "SELECT t, extreme_a, extreme_b FROM estimates \
+                     WHERE machine_id = ?1 AND engine = ?2 AND t >= ?3 AND t < ?4",
+                )?;
+                let mut rows = stmt.query(params![machine_id, engine_name, lo, hi])?;
+                while let Some(row) = rows.next()? {
+                    out.offer(&Extremes::point(row.get(0)?, [row.get(1)?, row.get(2)?]));
+                }
+                Ok(())
+            };
+            let after_last = f64::from_bits(last_t.to_bits() + 1);
+            match stored_width {
+                None => raw(first_t, after_last, &mut out)?,
+                Some(w) => {
+                    // Whole stored buckets inside the range; raw at the edges.
+                    let first_bucket = (first_t / w as f64).ceil() as i64;
+                    let end_bucket = (after_last / w as f64).floor() as i64;
+                    if first_bucket >= end_bucket {
+                        raw(first_t, after_last, &mut out)?;
+                    } else {
+                        raw(first_t, (first_bucket * w) as f64, &mut out)?;
+                        let mut stmt = conn.prepare_cached(
+                            "SELECT min_a, t_min_a, max_a, t_max_a, min_b, t_min_b, max_b, t_max_b \
+                             FROM estimate_buckets WHERE machine_id = ?1 AND engine = ?2 \
+                             AND width_s = ?3 AND bucket >= ?4 AND bucket < ?5",
+                        )?;
+                        let mut rows = stmt.query(params![
+                            machine_id,
+                            engine_name,
+                            w,
+                            first_bucket,
+                            end_bucket
+                        ])?;
+                        while let Some(row) = rows.next()? {
+                            out.offer(&Extremes {
+                                min_a: (row.get(0)?, row.get(1)?),
+                                max_a: (row.get(2)?, row.get(3)?),
+                                min_b: (row.get(4)?, row.get(5)?),
+                                max_b: (row.get(6)?, row.get(7)?),
+                            });
                         }
-                        current = Some((index, Bucket::new(t, a, b)));
+                        raw((end_bucket * w) as f64, after_last, &mut out)?;
                     }
                 }
             }
-            if let Some((_, bucket)) = current {
-                keep.extend(bucket.times());
-            }
-            keep.sort_by(f64::total_cmp);
-            keep.dedup();
             let mut stmt = conn.prepare_cached(
                 "SELECT body FROM estimates WHERE machine_id = ?1 AND engine = ?2 AND t = ?3",
             )?;
-            for t in keep {
-                page.bodies.push(
-                    stmt.query_row(params![machine_id, engine.as_str(), t], |row| row.get(0))?,
-                );
+            for t in out.times() {
+                page.bodies
+                    .push(stmt.query_row(params![machine_id, engine_name, t], |row| row.get(0))?);
             }
             Ok(page)
         })
@@ -191,5 +304,126 @@ impl Store {
                 .query_row(params![machine_id, sensor as i64], |row| row.get(0))
                 .optional()?)
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+
+    use super::*;
+    use crate::config::MachineDeclaration;
+    use crate::store::{EstimateRow, Write};
+
+    /// Stores `n` estimates at 1 Hz with values from `f`; returns the store.
+    async fn store_with(
+        dir: &std::path::Path,
+        n: usize,
+        f: impl Fn(usize) -> [f64; 2],
+    ) -> (Store, i64) {
+        let store = Store::open(dir).unwrap();
+        let spec = serde_json::from_value::<MachineDeclaration>(
+            serde_json::json!({"engines": {"attitude": {}}}),
+        )
+        .unwrap()
+        .validate("m")
+        .unwrap();
+        let id = store.put_machine(spec, "{}".into()).await.unwrap();
+        for chunk in (0..n).collect::<Vec<_>>().chunks(997) {
+            let (reply, answer) = tokio::sync::oneshot::channel();
+            let estimates = chunk
+                .iter()
+                .map(|&i| {
+                    let t = 1.0e9 + i as f64;
+                    EstimateRow {
+                        engine: EngineKind::Attitude,
+                        t,
+                        extremes: f(i),
+                        body: Arc::from(format!("{{\"t\":{t}}}")),
+                    }
+                })
+                .collect();
+            store
+                .write(Write {
+                    machine_id: id,
+                    readings: Vec::new(),
+                    estimates,
+                    snapshot: None,
+                    after_commit: None,
+                    reply: Some(reply),
+                })
+                .await
+                .unwrap();
+            answer.await.unwrap().unwrap();
+        }
+        (store, id)
+    }
+
+    fn times(page: &EstimatesPage) -> Vec<f64> {
+        page.bodies
+            .iter()
+            .map(|b| {
+                serde_json::from_str::<serde_json::Value>(b).unwrap()["t"]
+                    .as_f64()
+                    .unwrap()
+            })
+            .collect()
+    }
+
+    #[tokio::test]
+    async fn downsampling_keeps_every_bucket_extreme_from_stored_buckets_and_raw_edges() {
+        let dir = tempfile::tempdir().unwrap();
+        let n = 50_000;
+        // A slow wave with a few one-sample spikes.
+        let value = |i: usize| {
+            let x = (i as f64 * 0.001).sin();
+            let spike = if i % 9_973 == 5 { 3.0 } else { 0.0 };
+            [x + spike, -x - spike * 0.5]
+        };
+        let (store, id) = store_with(dir.path(), n, value).await;
+        let t0 = 1.0e9;
+        // Ranges not aligned to any stored bucket, long and short.
+        for (from, to, max_points) in [
+            (t0 + 3.5, t0 + 49_990.2, 400),
+            (t0 - 100.0, t0 + 1e6, 2000),
+            (t0 + 1234.0, t0 + 5678.0, 100),
+            (t0 + 20.0, t0 + 420.0, 40),
+        ] {
+            let page = store
+                .estimates_page(id, EngineKind::Attitude, from, to, max_points)
+                .unwrap();
+            assert!(page.downsampled);
+            let got = times(&page);
+            assert!(got.len() <= max_points, "{} > {max_points}", got.len());
+            assert!(got.windows(2).all(|w| w[0] < w[1]));
+            assert!(got.iter().all(|&t| t >= from && t <= to));
+            // The range's own extremes are always there.
+            let inside: Vec<usize> = (0..n)
+                .filter(|&i| (from..=to).contains(&(t0 + i as f64)))
+                .collect();
+            for k in 0..2 {
+                let by = |i: &&usize| value(**i)[k];
+                let min = inside
+                    .iter()
+                    .min_by(|a, b| by(a).total_cmp(&by(b)))
+                    .unwrap();
+                let max = inside
+                    .iter()
+                    .max_by(|a, b| by(a).total_cmp(&by(b)))
+                    .unwrap();
+                for i in [min, max] {
+                    assert!(
+                        got.contains(&(t0 + *i as f64)),
+                        "extreme at {i} missing in {from}..{to}"
+                    );
+                }
+            }
+        }
+        // At or under max_points nothing is dropped.
+        let page = store
+            .estimates_page(id, EngineKind::Attitude, t0, t0 + 99.0, 100)
+            .unwrap();
+        assert!(!page.downsampled);
+        assert_eq!(times(&page).len(), 100);
     }
 }

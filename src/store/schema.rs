@@ -5,7 +5,7 @@ use rusqlite::Connection;
 
 /// Migration `i` takes the database from version `i` to `i + 1`.
 const MIGRATIONS: &[&str] = &[
-    // 1: machines, readings, estimates, snapshots.
+    // 1: machines, readings, estimates and their buckets, snapshots.
     "
     CREATE TABLE machines (
         id INTEGER PRIMARY KEY,
@@ -39,6 +39,20 @@ const MIGRATIONS: &[&str] = &[
         extreme_b REAL NOT NULL,
         body TEXT NOT NULL,
         PRIMARY KEY (machine_id, engine, t)
+    ) WITHOUT ROWID;
+    -- Per-bucket extremes of the estimates, at a few bucket widths, so a
+    -- history query over months reads thousands of rows, not millions.
+    -- `bucket` = floor(t / width_s); each extreme with the time it holds.
+    CREATE TABLE estimate_buckets (
+        machine_id INTEGER NOT NULL REFERENCES machines(id),
+        engine TEXT NOT NULL,
+        width_s INTEGER NOT NULL,
+        bucket INTEGER NOT NULL,
+        min_a REAL NOT NULL, t_min_a REAL NOT NULL,
+        max_a REAL NOT NULL, t_max_a REAL NOT NULL,
+        min_b REAL NOT NULL, t_min_b REAL NOT NULL,
+        max_b REAL NOT NULL, t_max_b REAL NOT NULL,
+        PRIMARY KEY (machine_id, engine, width_s, bucket)
     ) WITHOUT ROWID;
     -- The latest state of each machine's engines and reorder buffer, after
     -- every reading up to `last_reading_id` had arrived.
