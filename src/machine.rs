@@ -12,6 +12,7 @@
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use serde::{Deserialize, Serialize};
 use tokio::sync::{broadcast, mpsc, oneshot, watch};
@@ -370,8 +371,10 @@ pub fn spawn(
     let spec = Arc::new(spec);
     let actor = Actor {
         store,
+        spec: spec.clone(),
         db_id,
         core,
+        write_failed: Arc::default(),
         live: live.clone(),
         status: status_tx,
         current,
@@ -389,8 +392,13 @@ pub fn spawn(
 
 struct Actor {
     store: Store,
+    spec: Arc<MachineSpec>,
     db_id: i64,
     core: MachineCore,
+    /// Set by the store when one of this machine's writes failed: the
+    /// engines have seen readings that are not stored, so they are rebuilt
+    /// from the store before the next request.
+    write_failed: Arc<AtomicBool>,
     live: broadcast::Sender<LiveEstimate>,
     status: watch::Sender<Arc<MachineStatus>>,
     current: MachineStatus,
@@ -400,6 +408,9 @@ struct Actor {
 impl Actor {
     async fn run(mut self, mut queue: mpsc::Receiver<Command>) {
         while let Some(command) = queue.recv().await {
+            if self.write_failed.swap(false, Ordering::SeqCst) {
+                self.rebuild().await;
+            }
             match command {
                 Command::Ingest { readings, reply } => self.ingest(readings, reply).await,
                 Command::Models { reply } => {
@@ -422,6 +433,26 @@ impl Actor {
                     return;
                 }
             }
+        }
+    }
+
+    /// Rebuilds the engines from the latest snapshot and the stored
+    /// readings after it. Writes queued before the failure was noticed may
+    /// still commit estimates computed from the lost readings; the readings
+    /// themselves are what the store holds.
+    async fn rebuild(&mut self) {
+        let (store, spec, db_id) = (self.store.clone(), self.spec.clone(), self.db_id);
+        match tokio::task::spawn_blocking(move || recover(&store, &spec, db_id)).await {
+            Ok(Ok(core)) => {
+                self.core = core;
+                self.since_snapshot = 0;
+                tracing::warn!(machine = %self.spec.id, "engines rebuilt from the store after a failed write");
+            }
+            Ok(Err(e)) => {
+                tracing::error!(machine = %self.spec.id, error = %e, "rebuild failed; retrying on the next request");
+                self.write_failed.store(true, Ordering::SeqCst);
+            }
+            Err(e) => tracing::error!(machine = %self.spec.id, error = %e, "rebuild panicked"),
         }
     }
 
@@ -464,6 +495,7 @@ impl Actor {
         }
         self.status.send_replace(Arc::new(self.current.clone()));
         let sender = self.live.clone();
+        let write_failed = self.write_failed.clone();
         let write = Write {
             machine_id: self.db_id,
             readings: rows,
@@ -475,6 +507,8 @@ impl Actor {
                         // No receivers is fine.
                         let _ = sender.send(estimate);
                     }
+                } else {
+                    write_failed.store(true, Ordering::SeqCst);
                 }
             })),
             reply: Some(reply),

@@ -434,6 +434,30 @@ async fn history_exports_model_and_health() {
     assert_eq!((status, &health["status"]), (200, &json!("ok")));
     let (status, _) = json_of(get("/api/v2/anything".into()).await.unwrap()).await;
     assert_eq!(status, 404);
+    let (status, error) = json_of(
+        client
+            .delete(format!("{base}/healthz"))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(status, 405);
+    assert!(error["error"].as_str().unwrap().contains("DELETE"));
+    // The sockets answer plain HTTP with JSON too: unknown machine, not an upgrade.
+    for socket in ["live", "ingest"] {
+        let (status, _) = json_of(
+            get(format!("/api/v1/machines/ghost/{socket}"))
+                .await
+                .unwrap(),
+        )
+        .await;
+        assert_eq!(status, 404, "{socket}");
+        let (status, error) =
+            json_of(get(format!("/api/v1/machines/m/{socket}")).await.unwrap()).await;
+        assert_eq!(status, 400, "{socket}: {error}");
+        assert!(error["error"].as_str().unwrap().contains("WebSocket"));
+    }
     server.stop().await;
 }
 

@@ -114,6 +114,27 @@ fn percentile_ms(sorted: &[Duration], p: f64) -> f64 {
     sorted[i].as_secs_f64() * 1e3
 }
 
+/// Posts an NDJSON body; the answer's bytes, or what went wrong.
+async fn post_ndjson(
+    client: &reqwest::Client,
+    endpoint: &str,
+    body: String,
+) -> Result<bytes::Bytes, String> {
+    let response = client
+        .post(endpoint)
+        .header("content-type", "application/x-ndjson")
+        .body(body)
+        .send()
+        .await
+        .map_err(|e| e.to_string())?;
+    let status = response.status();
+    let bytes = response.bytes().await.map_err(|e| e.to_string())?;
+    if !status.is_success() {
+        return Err(format!("{status}: {}", String::from_utf8_lossy(&bytes)));
+    }
+    Ok(bytes)
+}
+
 /// One machine's readings as NDJSON lines, starting `offset_s` into the drive.
 fn readings(machine: usize, count: usize) -> Vec<String> {
     let hours = count as f64 / 3600.0 * 1.02 + 0.01;
@@ -215,18 +236,7 @@ async fn throughput(
                 let endpoint = format!("{url}/api/v1/machines/{machine}/readings");
                 for body in bodies {
                     let sent = Instant::now();
-                    let response = client
-                        .post(&endpoint)
-                        .header("content-type", "application/x-ndjson")
-                        .body(body)
-                        .send()
-                        .await
-                        .map_err(|e| e.to_string())?;
-                    let status = response.status();
-                    let bytes = response.bytes().await.map_err(|e| e.to_string())?;
-                    if !status.is_success() {
-                        return Err(format!("{status}: {}", String::from_utf8_lossy(&bytes)));
-                    }
+                    let bytes = post_ndjson(&client, &endpoint, body).await?;
                     let ack: serde_json::Value =
                         serde_json::from_slice(&bytes).map_err(|e| e.to_string())?;
                     accepted += ack["accepted"].as_u64().unwrap_or(0);
@@ -410,17 +420,7 @@ async fn history(
                         1.5 + (x / 20000.0).cos()
                     ));
                 }
-                let response = client
-                    .post(&endpoint)
-                    .header("content-type", "application/x-ndjson")
-                    .body(body)
-                    .send()
-                    .await
-                    .map_err(|e| e.to_string())?;
-                if !response.status().is_success() {
-                    return Err(format!("post: {}", response.status()));
-                }
-                let _ = response.bytes().await;
+                post_ndjson(&client, &endpoint, body).await?;
             }
         }));
     }

@@ -30,6 +30,8 @@ pub enum ApiError {
     NotFound(String),
     #[error("{0}")]
     BadRequest(String),
+    #[error("method {method} is not allowed here")]
+    MethodNotAllowed { method: String },
     #[error("no valid reading in the request")]
     NoValidReading { rejected: Vec<Rejected> },
     #[error("{0}")]
@@ -40,6 +42,15 @@ pub enum ApiError {
     Unavailable(String),
     #[error("internal error")]
     Internal(String),
+}
+
+impl From<axum::extract::ws::rejection::WebSocketUpgradeRejection> for ApiError {
+    fn from(rejection: axum::extract::ws::rejection::WebSocketUpgradeRejection) -> Self {
+        ApiError::BadRequest(format!(
+            "this endpoint is a WebSocket: {}",
+            rejection.body_text()
+        ))
+    }
 }
 
 impl From<StoreError> for ApiError {
@@ -70,6 +81,7 @@ impl ApiError {
             ApiError::BadRequest(_) | ApiError::NoValidReading { .. } | ApiError::Config(_) => {
                 StatusCode::BAD_REQUEST
             }
+            ApiError::MethodNotAllowed { .. } => StatusCode::METHOD_NOT_ALLOWED,
             ApiError::TooLarge(_) => StatusCode::PAYLOAD_TOO_LARGE,
             ApiError::Unavailable(_) => StatusCode::SERVICE_UNAVAILABLE,
             ApiError::Internal(_) => StatusCode::INTERNAL_SERVER_ERROR,

@@ -8,6 +8,7 @@ use std::time::Instant;
 use axum::Json;
 use axum::body::Bytes;
 use axum::extract::rejection::BytesRejection;
+use axum::extract::ws::rejection::WebSocketUpgradeRejection;
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
 use axum::extract::{Path, State};
 use axum::http::{HeaderMap, StatusCode, header};
@@ -166,9 +167,10 @@ pub async fn post_readings(
 pub async fn websocket(
     State(state): State<SharedState>,
     Path(machine): Path<String>,
-    upgrade: WebSocketUpgrade,
+    upgrade: Result<WebSocketUpgrade, WebSocketUpgradeRejection>,
 ) -> Result<Response, ApiError> {
     let machine = state.machine(&machine)?;
+    let upgrade = upgrade.map_err(ApiError::from)?;
     let limits = state.limits;
     Ok(upgrade
         .max_message_size(limits.max_frame_bytes)

@@ -13,6 +13,7 @@
 use std::sync::Arc;
 use std::time::Duration;
 
+use axum::extract::ws::rejection::WebSocketUpgradeRejection;
 use axum::extract::ws::{CloseFrame, Message, Utf8Bytes, WebSocket, WebSocketUpgrade};
 use axum::extract::{Path, State};
 use axum::response::Response;
@@ -20,26 +21,21 @@ use serde_json::json;
 use serde_json::value::RawValue;
 use tokio::sync::broadcast::error::RecvError;
 
-use super::SharedState;
 use super::error::ApiError;
+use super::{SharedState, wall_clock_s};
 use crate::machine::MachineHandle;
 
 /// `GET /api/v1/machines/{machine}/live`.
 pub async fn websocket(
     State(state): State<SharedState>,
     Path(machine): Path<String>,
-    upgrade: WebSocketUpgrade,
+    upgrade: Result<WebSocketUpgrade, WebSocketUpgradeRejection>,
 ) -> Result<Response, ApiError> {
     let machine = state.machine(&machine)?;
+    let upgrade = upgrade.map_err(ApiError::from)?;
     let shutdown = state.shutdown_signal();
     let ping_every = state.limits.live_ping_interval;
     Ok(upgrade.on_upgrade(move |socket| serve_live(socket, machine, ping_every, shutdown)))
-}
-
-fn now_s() -> f64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0.0, |d| d.as_secs_f64())
 }
 
 fn text(value: serde_json::Value) -> Message {
@@ -70,7 +66,7 @@ async fn serve_live(
         "name": machine.spec.name,
         "engines": machine.spec.engines.keys().map(|e| e.as_str()).collect::<Vec<_>>(),
         "latest": latest,
-        "server_t": now_s(),
+        "server_t": wall_clock_s(),
     });
     if socket.send(text(hello)).await.is_err() {
         return;
@@ -110,7 +106,7 @@ async fn serve_live(
                 }
             },
             _ = ping.tick() => {
-                if socket.send(text(json!({"event": "ping", "server_t": now_s()}))).await.is_err() {
+                if socket.send(text(json!({"event": "ping", "server_t": wall_clock_s()}))).await.is_err() {
                     return;
                 }
             }

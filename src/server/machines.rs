@@ -8,21 +8,15 @@ use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
 use serde_json::{Map, Value, json};
 
-use super::SharedState;
 use super::error::ApiError;
+use super::{SharedState, wall_clock_s};
 use crate::config::{MachineDeclaration, valid_machine_id};
 use crate::machine::MachineHandle;
-
-fn now_s() -> f64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0.0, |d| d.as_secs_f64())
-}
 
 /// Status summary: sensors' last readings, laser state, latest estimates.
 fn status(machine: &MachineHandle, with_latest: bool) -> Value {
     let status = machine.status();
-    let now = now_s();
+    let now = wall_clock_s();
     let sensors: Map<String, Value> = status
         .sensors
         .iter()
@@ -75,7 +69,7 @@ pub async fn list(State(state): State<SharedState>) -> Json<Value> {
         .iter()
         .map(|m| status(m, false))
         .collect();
-    Json(json!({ "machines": machines, "server_t": now_s() }))
+    Json(json!({ "machines": machines, "server_t": wall_clock_s() }))
 }
 
 /// `GET /api/v1/machines/{machine}`.
@@ -86,7 +80,7 @@ pub async fn show(
     let machine = state.machine(&machine)?;
     let mut body = status(&machine, true);
     body["config"] = serde_json::to_value(machine.spec.declaration()).unwrap_or_default();
-    body["server_t"] = now_s().into();
+    body["server_t"] = wall_clock_s().into();
     Ok(Json(body))
 }
 

@@ -209,6 +209,14 @@ impl AppState {
     }
 }
 
+/// The server's clock, Unix seconds: only for telling clients how old a
+/// reading is. Engines never see it; their time comes with the readings.
+pub(crate) fn wall_clock_s() -> f64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0.0, |d| d.as_secs_f64())
+}
+
 fn fresh_snapshot(spec: &MachineSpec) -> Result<String, ServerError> {
     MachineCore::new(spec)
         .map(|core| core.snapshot())
@@ -241,9 +249,16 @@ pub fn router(state: SharedState) -> Router {
         )
         .route("/api/v1/machines/{machine}/model", get(history::model))
         .fallback(not_found)
+        .method_not_allowed_fallback(method_not_allowed)
         .layer(DefaultBodyLimit::max(limit))
         .layer(TraceLayer::new_for_http())
         .with_state(state)
+}
+
+async fn method_not_allowed(method: axum::http::Method) -> ApiError {
+    ApiError::MethodNotAllowed {
+        method: method.to_string(),
+    }
 }
 
 async fn not_found(uri: axum::http::Uri) -> ApiError {
