@@ -15,7 +15,7 @@ pub struct EstimatesPage {
 
 /// Widths of the stored extreme buckets (`estimate_buckets`), seconds.
 /// A query uses the widest one no wider than its own buckets.
-pub const BUCKET_WIDTHS_S: [i64; 3] = [10, 300, 7200];
+pub const BUCKET_WIDTHS_S: [i64; 3] = [60, 900, 14400];
 
 /// Estimates a bucket contributes at most: the estimates holding the
 /// minimum and maximum of each of the two kept quantities.
