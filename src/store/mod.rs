@@ -148,6 +148,8 @@ impl Store {
         // Checkpoints run on their own thread (below), not inside commits.
         conn.pragma_update(None, "wal_autocheckpoint", 0)?;
         conn.busy_timeout(std::time::Duration::from_secs(5))?;
+        // Multi-row inserts of every length up to ROWS_PER_INSERT stay prepared.
+        conn.set_prepared_statement_cache_capacity(2 * ROWS_PER_INSERT + 32);
         schema::migrate(&mut conn)?;
         let checkpointer = Connection::open(&path)?;
         checkpointer.busy_timeout(std::time::Duration::from_secs(5))?;
@@ -426,42 +428,41 @@ fn apply_group(conn: &mut Connection, group: &[Request]) -> Result<Vec<Outcome>,
 
 fn apply_write(tx: &rusqlite::Transaction, write: &Write) -> Result<WriteOutcome, StoreError> {
     let mut outcome = WriteOutcome::default();
-    let mut insert = tx.prepare_cached(
-        "INSERT OR IGNORE INTO readings (machine_id, t, sensor, body) VALUES (?1, ?2, ?3, ?4)",
+    let machine_id = write.machine_id;
+    let stored = insert_rows(
+        tx,
+        "INSERT OR IGNORE INTO readings (machine_id, t, sensor, body)",
+        4,
+        &write.readings,
+        |stmt, i, reading| {
+            stmt.raw_bind_parameter(i, machine_id)?;
+            stmt.raw_bind_parameter(i + 1, reading.t)?;
+            stmt.raw_bind_parameter(i + 2, reading.sensor as i64)?;
+            stmt.raw_bind_parameter(i + 3, &reading.body)
+        },
     )?;
-    for reading in &write.readings {
-        let inserted = insert.execute(params![
-            write.machine_id,
-            reading.t,
-            reading.sensor as i64,
-            reading.body
-        ])?;
-        if inserted == 1 {
-            outcome.stored += 1;
-        } else {
-            outcome.duplicates += 1;
-        }
-    }
+    outcome.stored = stored;
+    outcome.duplicates = write.readings.len() - stored;
     // Estimates are a function of the readings: one recomputed after a
     // restart is the same estimate, stored once.
-    let mut insert = tx.prepare_cached(
-        "INSERT OR IGNORE INTO estimates (machine_id, engine, t, extreme_a, extreme_b, body) \
-         VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
+    insert_rows(
+        tx,
+        "INSERT OR IGNORE INTO estimates (machine_id, engine, t, extreme_a, extreme_b, body)",
+        6,
+        &write.estimates,
+        |stmt, i, estimate| {
+            stmt.raw_bind_parameter(i, machine_id)?;
+            stmt.raw_bind_parameter(i + 1, estimate.engine.as_str())?;
+            stmt.raw_bind_parameter(i + 2, estimate.t)?;
+            stmt.raw_bind_parameter(i + 3, estimate.extremes[0])?;
+            stmt.raw_bind_parameter(i + 4, estimate.extremes[1])?;
+            stmt.raw_bind_parameter(i + 5, &*estimate.body)
+        },
     )?;
-    // Extremes of the newly stored estimates, per stored bucket.
+    // Extremes per stored bucket. A recomputed estimate is the stored one
+    // again (same time, same values), so folding it in changes nothing.
     let mut buckets: BTreeMap<(EngineKind, i64, i64), Extremes> = BTreeMap::new();
     for estimate in &write.estimates {
-        let inserted = insert.execute(params![
-            write.machine_id,
-            estimate.engine.as_str(),
-            estimate.t,
-            estimate.extremes[0],
-            estimate.extremes[1],
-            &*estimate.body
-        ])?;
-        if inserted == 0 {
-            continue;
-        }
         let point = Extremes::point(estimate.t, estimate.extremes);
         for width_s in BUCKET_WIDTHS_S {
             let bucket = (estimate.t / width_s as f64).floor() as i64;
@@ -503,6 +504,33 @@ fn apply_write(tx: &rusqlite::Transaction, write: &Write) -> Result<WriteOutcome
         save_snapshot(tx, write.machine_id, state)?;
     }
     Ok(outcome)
+}
+
+/// Rows per multi-row `INSERT`: one statement step stores many rows.
+const ROWS_PER_INSERT: usize = 64;
+
+/// Inserts `rows` with `head` (`INSERT ... (columns)`) followed by
+/// `VALUES (?, ...), ...`, [`ROWS_PER_INSERT`] rows per statement; `bind`
+/// binds one row's `columns` values from parameter index `i` on. Returns
+/// how many rows were inserted (an `OR IGNORE` skips some).
+fn insert_rows<T>(
+    tx: &rusqlite::Transaction,
+    head: &str,
+    columns: usize,
+    rows: &[T],
+    bind: impl Fn(&mut rusqlite::Statement, usize, &T) -> rusqlite::Result<()>,
+) -> Result<usize, StoreError> {
+    let mut inserted = 0;
+    for chunk in rows.chunks(ROWS_PER_INSERT) {
+        let row = format!("({})", vec!["?"; columns].join(","));
+        let sql = format!("{head} VALUES {}", vec![row; chunk.len()].join(","));
+        let mut stmt = tx.prepare_cached(&sql)?;
+        for (k, item) in chunk.iter().enumerate() {
+            bind(&mut stmt, 1 + k * columns, item)?;
+        }
+        inserted += stmt.raw_execute()?;
+    }
+    Ok(inserted)
 }
 
 /// Records `state` as the machine's state after every reading stored so far.
