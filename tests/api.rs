@@ -3,7 +3,9 @@
 
 mod common;
 
-use common::{TestServer, all_estimates, drive, post_ndjson, put_machine, replay};
+use common::{
+    TestServer, all_estimates, drive, exported_readings, post_ndjson, put_machine, replay,
+};
 use serde_json::{Value, json};
 use tunnelnav::server::Limits;
 use tunnelnav::sim::tbm::Dropout;
@@ -229,16 +231,9 @@ async fn ingest_accepts_every_body_shape_and_names_each_bad_reading() {
     assert_eq!((status, error["machine"].as_str()), (404, Some("ghost")));
 
     // Nothing refused was stored; everything accepted was, once.
-    let export = client
-        .get(server.url("/api/v1/machines/m/readings"))
-        .send()
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap();
+    let export = exported_readings(&client, &server.url(""), "m").await;
     let times: Vec<f64> = export
-        .lines()
+        .iter()
         .map(|l| {
             serde_json::from_str::<Value>(l).unwrap()["t"]
                 .as_f64()

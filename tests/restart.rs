@@ -7,7 +7,9 @@ use std::collections::BTreeSet;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use common::{ServerProcess, all_estimates, drive, post_ndjson, put_machine, replay};
+use common::{
+    ServerProcess, all_estimates, drive, exported_readings, post_ndjson, put_machine, replay,
+};
 use serde_json::Value;
 use tunnelnav::sim::tbm::Dropout;
 
@@ -133,15 +135,7 @@ async fn every_acknowledged_reading_survives_sigkill_under_load() {
     let base = server.url("");
     let mut total = 0;
     for machine in ["k0", "k1", "k2", "k3"] {
-        let export = client
-            .get(format!("{base}/api/v1/machines/{machine}/readings"))
-            .send()
-            .await
-            .unwrap()
-            .text()
-            .await
-            .unwrap();
-        let stored: Vec<String> = export.lines().map(str::to_string).collect();
+        let stored = exported_readings(&client, &base, machine).await;
         let stored_keys: BTreeSet<_> = times(&stored).into_iter().collect();
         assert_eq!(stored_keys.len(), stored.len(), "each reading stored once");
         for (m, chunk) in &acknowledged {

@@ -169,6 +169,18 @@ pub async fn post_ndjson(
     serde_json::from_slice(&response.bytes().await.unwrap()).unwrap()
 }
 
+/// Every stored reading of a machine, as the NDJSON export's lines.
+pub async fn exported_readings(client: &reqwest::Client, base: &str, machine: &str) -> Vec<String> {
+    let response = client
+        .get(format!("{base}/api/v1/machines/{machine}/readings"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(response.status(), 200);
+    let text = response.text().await.unwrap();
+    text.lines().map(str::to_string).collect()
+}
+
 /// Every stored estimate of a machine, not downsampled.
 pub async fn all_estimates(
     client: &reqwest::Client,
