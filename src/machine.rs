@@ -21,8 +21,7 @@ use crate::config::MachineSpec;
 use crate::fusion::estimate::EstimateWriter;
 use crate::fusion::reorder::{Admission, ReorderBuffer};
 use crate::fusion::{
-    Engine, EngineKind, EngineOutput, Estimate, ParamError, Reading, SensorKind, SnapshotError,
-    parse_reading,
+    Engine, EngineKind, EngineOutput, ParamError, Reading, SensorKind, SnapshotError,
 };
 use crate::store::{EstimateRow, ReadingRow, Store, StoreError, Write, WriteOutcome};
 
@@ -58,9 +57,16 @@ pub enum MachineError {
 pub struct FusedEstimate {
     pub engine: EngineKind,
     pub t: f64,
-    pub extremes: [f64; 2],
     /// The protocol JSON, one object, no newline.
     pub json: Arc<str>,
+}
+
+/// One engine output in both forms it leaves the machine in: JSON for live
+/// clients and the status, a compact row for the store.
+#[derive(Debug)]
+pub struct Emitted {
+    pub live: FusedEstimate,
+    pub row: EstimateRow,
 }
 
 /// What live clients receive.
@@ -139,7 +145,7 @@ impl MachineCore {
     }
 
     /// Offers one reading; appends the estimates that became ready to `out`.
-    pub fn push(&mut self, reading: Reading, out: &mut Vec<FusedEstimate>) -> Admission {
+    pub fn push(&mut self, reading: Reading, out: &mut Vec<Emitted>) -> Admission {
         let admission = self.reorder.push(reading);
         self.reorder.pop_ready(&mut self.ready);
         for reading in self.ready.drain(..) {
@@ -154,11 +160,13 @@ impl MachineCore {
                     self.line.clear();
                     self.writer.write_line(output, &mut self.line);
                     let json = std::str::from_utf8(self.line.trim_ascii_end()).unwrap_or("{}");
-                    out.push(FusedEstimate {
-                        engine: output.values.engine(),
-                        t: output.t,
-                        extremes: output.values.extremes(),
-                        json: Arc::from(json),
+                    out.push(Emitted {
+                        live: FusedEstimate {
+                            engine: output.values.engine(),
+                            t: output.t,
+                            json: Arc::from(json),
+                        },
+                        row: EstimateRow::new(output),
                     });
                 }
             }
@@ -275,17 +283,16 @@ pub fn stored_status(
 ) -> Result<MachineStatus, MachineError> {
     let mut status = MachineStatus::default();
     for &engine in spec.engines.keys() {
-        let Some(json) = store.latest_estimate(db_id, engine)? else {
+        let Some(output) = store.latest_estimate(db_id, engine)? else {
             continue;
         };
-        let estimate: Estimate = serde_json::from_str(&json)
+        let json = serde_json::to_string(&output.for_machine(&spec.id))
             .map_err(|e| StoreError::Corrupt(format!("stored estimate: {e}")))?;
         status.latest.insert(
             engine,
             Arc::new(FusedEstimate {
                 engine,
-                t: estimate.t,
-                extremes: estimate.values.extremes(),
+                t: output.t,
                 json: Arc::from(json),
             }),
         );
@@ -314,12 +321,12 @@ pub fn recover(store: &Store, spec: &MachineSpec, db_id: i64) -> Result<MachineC
         None => (MachineCore::new(spec)?, 0),
     };
     let mut estimates = Vec::new();
-    let flush = |estimates: &mut Vec<FusedEstimate>, snapshot: Option<String>| {
+    let flush = |estimates: &mut Vec<Emitted>, snapshot: Option<String>| {
         let (reply, answer) = oneshot::channel();
         store.write_blocking(Write {
             machine_id: db_id,
             readings: Vec::new(),
-            estimates: estimates.drain(..).map(row).collect(),
+            estimates: estimates.drain(..).map(|e| e.row).collect(),
             snapshot,
             after_commit: None,
             reply: Some(reply),
@@ -328,12 +335,14 @@ pub fn recover(store: &Store, spec: &MachineSpec, db_id: i64) -> Result<MachineC
         Ok::<_, MachineError>(())
     };
     let mut failure = None;
-    let refed = store.readings_since(db_id, after_id, |body| {
-        match parse_reading(body.as_bytes()) {
-            Ok(reading) => {
-                core.push(reading, &mut estimates);
-            }
-            Err(e) => failure = Some(MachineError::StoredReading(format!("{e}: {body}"))),
+    let refed = store.readings_since(db_id, after_id, |reading| {
+        if let Err(e) = reading.validate() {
+            failure = Some(MachineError::StoredReading(format!(
+                "{e}: {}",
+                reading.to_json()
+            )));
+        } else {
+            core.push(reading, &mut estimates);
         }
         if estimates.len() >= REFEED_CHUNK {
             flush(&mut estimates, None).map_err(|e| StoreError::Corrupt(e.to_string()))?;
@@ -346,15 +355,6 @@ pub fn recover(store: &Store, spec: &MachineSpec, db_id: i64) -> Result<MachineC
     flush(&mut estimates, Some(core.snapshot()))?;
     tracing::info!(machine = %spec.id, refed, "machine restored");
     Ok(core)
-}
-
-fn row(estimate: FusedEstimate) -> EstimateRow {
-    EstimateRow {
-        engine: estimate.engine,
-        t: estimate.t,
-        extremes: estimate.extremes,
-        body: estimate.json,
-    }
 }
 
 /// Starts the task that owns `core`.
@@ -473,11 +473,7 @@ impl Actor {
             });
             entry.last_t = entry.last_t.max(reading.t);
             entry.readings += 1;
-            rows.push(ReadingRow {
-                t: reading.t,
-                sensor,
-                body: reading.to_json(),
-            });
+            rows.push(ReadingRow::new(&reading));
             if self.core.push(reading, &mut estimates) == Admission::Late {
                 self.current.late += 1;
             }
@@ -487,7 +483,10 @@ impl Actor {
             self.since_snapshot = 0;
             self.core.snapshot()
         });
-        let live: Vec<LiveEstimate> = estimates.iter().cloned().map(Arc::new).collect();
+        let (live, estimate_rows): (Vec<LiveEstimate>, Vec<EstimateRow>) = estimates
+            .into_iter()
+            .map(|e| (Arc::new(e.live), e.row))
+            .unzip();
         for estimate in &live {
             self.current
                 .latest
@@ -499,7 +498,7 @@ impl Actor {
         let write = Write {
             machine_id: self.db_id,
             readings: rows,
-            estimates: estimates.into_iter().map(row).collect(),
+            estimates: estimate_rows,
             snapshot,
             after_commit: Some(Box::new(move |committed| {
                 if committed {

@@ -6,20 +6,30 @@ use axum::extract::rejection::QueryRejection;
 use axum::extract::{Path, Query, State};
 use axum::http::header;
 use axum::response::{IntoResponse, Response};
-use serde::Deserialize;
-use serde_json::value::RawValue;
+use serde::{Deserialize, Serialize};
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
 
 use super::SharedState;
 use super::error::ApiError;
 use crate::fusion::reading::{EARLIEST_T_S, LATEST_T_S};
-use crate::fusion::{EngineKind, SensorData, SensorKind, parse_reading};
+use crate::fusion::{EngineKind, EstimateRef, Reading, SensorData, SensorKind};
 
 /// Points a history query returns unless told otherwise.
 pub const DEFAULT_MAX_POINTS: usize = 2000;
 /// Bytes per chunk of a streamed export.
 const CHUNK_BYTES: usize = 64 * 1024;
+
+/// The body of an estimates history answer.
+#[derive(Serialize)]
+struct HistoryPage<'a> {
+    machine: &'a str,
+    engine: EngineKind,
+    from: f64,
+    to: f64,
+    downsampled: bool,
+    estimates: Vec<EstimateRef<'a>>,
+}
 
 /// Parses a query-string time: Unix seconds or RFC 3339.
 pub fn parse_time(field: &str, text: &str) -> Result<f64, ApiError> {
@@ -112,21 +122,20 @@ pub async fn estimates(
     })
     .await
     .map_err(|e| ApiError::Internal(e.to_string()))??;
-    let estimates: Vec<Box<RawValue>> = page
-        .bodies
-        .into_iter()
-        .map(RawValue::from_string)
-        .collect::<Result<_, _>>()
-        .map_err(|e| ApiError::Internal(format!("stored estimate is not JSON: {e}")))?;
-    let body = serde_json::json!({
-        "machine": machine.spec.id,
-        "engine": engine,
-        "from": from_t,
-        "to": to_t,
-        "downsampled": page.downsampled,
-        "estimates": estimates,
-    });
-    Ok(axum::Json(body).into_response())
+    let machine_id = machine.spec.id.as_str();
+    Ok(axum::Json(HistoryPage {
+        machine: machine_id,
+        engine,
+        from: from_t,
+        to: to_t,
+        downsampled: page.downsampled,
+        estimates: page
+            .estimates
+            .iter()
+            .map(|e| e.for_machine(machine_id))
+            .collect(),
+    })
+    .into_response())
 }
 
 #[derive(Debug, Deserialize)]
@@ -143,11 +152,8 @@ pub const CSV_HEADER: &str = "t,sensor,pitch_deg,roll_deg,yaw_deg,temp_c,\
 accel_x_mps2,accel_y_mps2,accel_z_mps2,gyro_x_dps,gyro_y_dps,gyro_z_dps,\
 field_x_ut,field_y_ut,field_z_ut,height_m,distance_m\n";
 
-fn csv_row(body: &str, out: &mut String) {
+fn csv_row(reading: &Reading, out: &mut String) {
     use std::fmt::Write;
-    let Ok(reading) = parse_reading(body.as_bytes()) else {
-        return;
-    };
     let mut cells: [Option<f64>; 15] = [None; 15];
     match reading.data {
         SensorData::Laser {
@@ -229,11 +235,11 @@ pub async fn readings(
         if csv {
             chunk.push_str(CSV_HEADER);
         }
-        let result = store.export_readings(db_id, sensor, from_t, to_t, |body| {
+        let result = store.export_readings(db_id, sensor, from_t, to_t, |reading| {
             if csv {
-                csv_row(body, &mut chunk);
+                csv_row(reading, &mut chunk);
             } else {
-                chunk.push_str(body);
+                chunk.push_str(&reading.to_json());
                 chunk.push('\n');
             }
             if chunk.len() >= CHUNK_BYTES {

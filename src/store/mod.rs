@@ -9,6 +9,7 @@
 //! beside the writer) and are blocking calls: async callers run them with
 //! `spawn_blocking`.
 
+pub mod codec;
 pub mod queries;
 pub mod schema;
 
@@ -22,7 +23,7 @@ use rusqlite::{Connection, OpenFlags, OptionalExtension, params};
 use tokio::sync::{mpsc, oneshot};
 
 use crate::config::MachineSpec;
-use crate::fusion::{EngineKind, SensorKind};
+use crate::fusion::{EngineKind, EngineOutput, Reading, SensorKind};
 
 /// The database file inside the data dir.
 pub const DB_FILE: &str = "tunnelnav.sqlite3";
@@ -51,12 +52,24 @@ pub enum StoreError {
     Corrupt(String),
 }
 
-/// A reading to store: its time, sensor and protocol JSON.
+/// A reading to store: its time, sensor and data.
 #[derive(Debug, Clone)]
 pub struct ReadingRow {
     pub t: f64,
     pub sensor: SensorKind,
-    pub body: String,
+    /// The data, encoded by [`codec::encode_reading`].
+    pub data: Vec<u8>,
+}
+
+impl ReadingRow {
+    /// The row that stores `reading`.
+    pub fn new(reading: &Reading) -> ReadingRow {
+        ReadingRow {
+            t: reading.t,
+            sensor: reading.sensor(),
+            data: codec::encode_reading(&reading.data),
+        }
+    }
 }
 
 /// An estimate to store.
@@ -66,8 +79,20 @@ pub struct EstimateRow {
     pub t: f64,
     /// The two values whose extremes downsampling keeps.
     pub extremes: [f64; 2],
-    /// The protocol JSON of the estimate.
-    pub body: Arc<str>,
+    /// The values, encoded by [`codec::encode_values`].
+    pub values: Vec<u8>,
+}
+
+impl EstimateRow {
+    /// The row that stores `output`.
+    pub fn new(output: &EngineOutput) -> EstimateRow {
+        EstimateRow {
+            engine: output.values.engine(),
+            t: output.t,
+            extremes: output.values.extremes(),
+            values: codec::encode_values(&output.values),
+        }
+    }
 }
 
 /// Called once the write it belongs to is committed (`true`) or has failed.
@@ -281,16 +306,16 @@ impl Store {
         &self,
         machine_id: i64,
         after_id: i64,
-        mut f: impl FnMut(&str) -> Result<(), StoreError>,
+        mut f: impl FnMut(Reading) -> Result<(), StoreError>,
     ) -> Result<u64, StoreError> {
         self.read(|conn| {
             let mut stmt = conn.prepare_cached(
-                "SELECT body FROM readings WHERE machine_id = ?1 AND id > ?2 ORDER BY id",
+                "SELECT t, sensor, body FROM readings WHERE machine_id = ?1 AND id > ?2 ORDER BY id",
             )?;
             let mut rows = stmt.query(params![machine_id, after_id])?;
             let mut count = 0;
             while let Some(row) = rows.next()? {
-                f(row.get_ref(0)?.as_str().map_err(rusqlite::Error::from)?)?;
+                f(queries::reading_row(row)?)?;
                 count += 1;
             }
             Ok(count)
@@ -438,7 +463,7 @@ fn apply_write(tx: &rusqlite::Transaction, write: &Write) -> Result<WriteOutcome
             stmt.raw_bind_parameter(i, machine_id)?;
             stmt.raw_bind_parameter(i + 1, reading.t)?;
             stmt.raw_bind_parameter(i + 2, reading.sensor as i64)?;
-            stmt.raw_bind_parameter(i + 3, &reading.body)
+            stmt.raw_bind_parameter(i + 3, &reading.data)
         },
     )?;
     outcome.stored = stored;
@@ -456,7 +481,7 @@ fn apply_write(tx: &rusqlite::Transaction, write: &Write) -> Result<WriteOutcome
             stmt.raw_bind_parameter(i + 2, estimate.t)?;
             stmt.raw_bind_parameter(i + 3, estimate.extremes[0])?;
             stmt.raw_bind_parameter(i + 4, estimate.extremes[1])?;
-            stmt.raw_bind_parameter(i + 5, &*estimate.body)
+            stmt.raw_bind_parameter(i + 5, &estimate.values)
         },
     )?;
     // Extremes per stored bucket. A recomputed estimate is the stored one
@@ -581,11 +606,10 @@ mod tests {
     }
 
     fn reading(t: f64) -> ReadingRow {
-        ReadingRow {
+        ReadingRow::new(&Reading {
             t,
-            sensor: SensorKind::Inclinometer,
-            body: format!("{{\"t\":{t}}}"),
-        }
+            data: crate::fusion::SensorData::Level { height_m: t },
+        })
     }
 
     async fn write(
@@ -642,12 +666,12 @@ mod tests {
         write(&store, id, vec![reading(4.0)], None).await;
         let mut after = Vec::new();
         store
-            .readings_since(id, snapshot.last_reading_id, |body| {
-                after.push(body.to_string());
+            .readings_since(id, snapshot.last_reading_id, |reading| {
+                after.push(reading.to_json());
                 Ok(())
             })
             .unwrap();
-        assert_eq!(after, vec!["{\"t\":4}"]);
+        assert_eq!(after, vec![r#"{"t":4.0,"sensor":"level","height_m":4.0}"#]);
         // Reopening sees the same machine.
         drop(store);
         let store = Store::open(dir.path()).unwrap();

@@ -2,15 +2,36 @@
 
 use rusqlite::{OptionalExtension, params};
 
+use super::codec::{decode_reading, decode_values};
 use super::{Store, StoreError};
-use crate::fusion::{EngineKind, SensorKind};
+use crate::fusion::{EngineKind, EngineOutput, Reading, SensorKind};
 
 /// Estimates of a time range, possibly downsampled.
 #[derive(Debug, Clone, Default)]
 pub struct EstimatesPage {
     pub downsampled: bool,
-    /// Protocol JSON of each estimate, in time order.
-    pub bodies: Vec<String>,
+    /// The estimates, in time order.
+    pub estimates: Vec<EngineOutput>,
+}
+
+/// Decodes a `(t, sensor, body)` row of `readings`.
+pub(super) fn reading_row(row: &rusqlite::Row) -> Result<Reading, StoreError> {
+    let sensor_index: i64 = row.get(1)?;
+    let sensor = usize::try_from(sensor_index)
+        .ok()
+        .and_then(|i| SensorKind::ALL.get(i).copied())
+        .ok_or_else(|| StoreError::Corrupt(format!("stored sensor number {sensor_index}")))?;
+    let bytes = row.get_ref(2)?.as_blob().map_err(rusqlite::Error::from)?;
+    decode_reading(row.get(0)?, sensor, bytes)
+}
+
+/// Decodes a `(t, body)` row of `estimates`.
+fn output_row(engine: EngineKind, row: &rusqlite::Row) -> Result<EngineOutput, StoreError> {
+    let bytes = row.get_ref(1)?.as_blob().map_err(rusqlite::Error::from)?;
+    Ok(EngineOutput {
+        t: row.get(0)?,
+        values: decode_values(engine, bytes)?,
+    })
 }
 
 /// Widths of the stored extreme buckets (`estimate_buckets`), seconds.
@@ -154,12 +175,12 @@ impl Store {
                 )?;
             if count <= max_points as i64 {
                 let mut stmt = conn.prepare_cached(
-                    "SELECT body FROM estimates \
+                    "SELECT t, body FROM estimates \
                      WHERE machine_id = ?1 AND engine = ?2 AND t >= ?3 AND t <= ?4 ORDER BY t",
                 )?;
-                let rows = stmt.query_map(range, |row| row.get(0))?;
-                for body in rows {
-                    page.bodies.push(body?);
+                let mut rows = stmt.query(range)?;
+                while let Some(row) = rows.next()? {
+                    page.estimates.push(output_row(engine, row)?);
                 }
                 return Ok(page);
             }
@@ -232,11 +253,14 @@ impl Store {
                 }
             }
             let mut stmt = conn.prepare_cached(
-                "SELECT body FROM estimates WHERE machine_id = ?1 AND engine = ?2 AND t = ?3",
+                "SELECT t, body FROM estimates WHERE machine_id = ?1 AND engine = ?2 AND t = ?3",
             )?;
             for t in out.times() {
-                page.bodies
-                    .push(stmt.query_row(params![machine_id, engine_name, t], |row| row.get(0))?);
+                let mut rows = stmt.query(params![machine_id, engine_name, t])?;
+                let row = rows.next()?.ok_or_else(|| {
+                    StoreError::Corrupt(format!("bucket extreme at t = {t} has no estimate"))
+                })?;
+                page.estimates.push(output_row(engine, row)?);
             }
             Ok(page)
         })
@@ -251,18 +275,17 @@ impl Store {
         sensor: Option<SensorKind>,
         from_t: f64,
         to_t: f64,
-        mut f: impl FnMut(&str) -> bool,
+        mut f: impl FnMut(&Reading) -> bool,
     ) -> Result<(), StoreError> {
         self.read(|conn| {
             let mut stmt = conn.prepare_cached(
-                "SELECT body FROM readings WHERE machine_id = ?1 AND t >= ?2 AND t <= ?3 \
+                "SELECT t, sensor, body FROM readings WHERE machine_id = ?1 AND t >= ?2 AND t <= ?3 \
                  AND (?4 IS NULL OR sensor = ?4) ORDER BY t, sensor",
             )?;
             let mut rows =
                 stmt.query(params![machine_id, from_t, to_t, sensor.map(|s| s as i64)])?;
             while let Some(row) = rows.next()? {
-                let body = row.get_ref(0)?.as_str().map_err(rusqlite::Error::from)?;
-                if !f(body) {
+                if !f(&reading_row(row)?) {
                     break;
                 }
             }
@@ -272,20 +295,19 @@ impl Store {
 }
 
 impl Store {
-    /// The newest stored estimate of an engine: its time and JSON.
+    /// The newest stored estimate of an engine.
     pub fn latest_estimate(
         &self,
         machine_id: i64,
         engine: EngineKind,
-    ) -> Result<Option<String>, StoreError> {
+    ) -> Result<Option<EngineOutput>, StoreError> {
         self.read(|conn| {
-            Ok(conn
-                .prepare_cached(
-                    "SELECT body FROM estimates WHERE machine_id = ?1 AND engine = ?2 \
-                     ORDER BY t DESC LIMIT 1",
-                )?
-                .query_row(params![machine_id, engine.as_str()], |row| row.get(0))
-                .optional()?)
+            let mut stmt = conn.prepare_cached(
+                "SELECT t, body FROM estimates WHERE machine_id = ?1 AND engine = ?2 \
+                 ORDER BY t DESC LIMIT 1",
+            )?;
+            let mut rows = stmt.query(params![machine_id, engine.as_str()])?;
+            rows.next()?.map(|row| output_row(engine, row)).transpose()
         })
     }
 
@@ -309,10 +331,9 @@ impl Store {
 
 #[cfg(test)]
 mod tests {
-    use std::sync::Arc;
-
     use super::*;
     use crate::config::MachineDeclaration;
+    use crate::fusion::{AttitudeEstimate, EstimateValues};
     use crate::store::{EstimateRow, Write};
 
     /// Stores `n` estimates at 1 Hz with values from `f`; returns the store.
@@ -334,13 +355,21 @@ mod tests {
             let estimates = chunk
                 .iter()
                 .map(|&i| {
-                    let t = 1.0e9 + i as f64;
-                    EstimateRow {
-                        engine: EngineKind::Attitude,
-                        t,
-                        extremes: f(i),
-                        body: Arc::from(format!("{{\"t\":{t}}}")),
-                    }
+                    let [pitch_deg, roll_deg] = f(i);
+                    EstimateRow::new(&EngineOutput {
+                        t: 1.0e9 + i as f64,
+                        values: EstimateValues::Attitude(AttitudeEstimate {
+                            pitch_deg,
+                            roll_deg,
+                            pitch_pred_deg: pitch_deg,
+                            roll_pred_deg: roll_deg,
+                            pred_t: 1.0e9 + i as f64 + 1.0,
+                            laser_ok: true,
+                            pitch_correction_deg: 0.0,
+                            laser_age_s: None,
+                            model_version: 0,
+                        }),
+                    })
                 })
                 .collect();
             store
@@ -360,14 +389,7 @@ mod tests {
     }
 
     fn times(page: &EstimatesPage) -> Vec<f64> {
-        page.bodies
-            .iter()
-            .map(|b| {
-                serde_json::from_str::<serde_json::Value>(b).unwrap()["t"]
-                    .as_f64()
-                    .unwrap()
-            })
-            .collect()
+        page.estimates.iter().map(|e| e.t).collect()
     }
 
     #[tokio::test]

@@ -14,7 +14,8 @@ const MIGRATIONS: &[&str] = &[
         -- the validated MachineSpec as JSON
         spec TEXT NOT NULL
     );
-    -- Every accepted reading, in arrival order (id), as protocol JSON.
+    -- Every accepted reading, in arrival order (id); `body` its data,
+    -- compact (store/codec.rs).
     CREATE TABLE readings (
         id INTEGER PRIMARY KEY,
         machine_id INTEGER NOT NULL REFERENCES machines(id),
@@ -22,7 +23,7 @@ const MIGRATIONS: &[&str] = &[
         -- SensorKind in protocol order: 0 laser, 1 inclinometer, 2 imu,
         -- 3 magnetometer, 4 level, 5 odometer
         sensor INTEGER NOT NULL,
-        body TEXT NOT NULL
+        body BLOB NOT NULL
     );
     -- A sensor has one reading per instant: a resent reading is stored once.
     -- Also serves time-range exports.
@@ -30,14 +31,15 @@ const MIGRATIONS: &[&str] = &[
     -- (machine_id, id): the readings that arrived after a snapshot.
     CREATE INDEX readings_by_arrival ON readings(machine_id);
     -- Engine outputs. `extreme_a`, `extreme_b` are the two quantities whose
-    -- extremes history downsampling keeps (attitude: pitch_deg, roll_deg).
+    -- extremes history downsampling keeps (attitude: pitch_deg, roll_deg);
+    -- `body` the engine's values, compact (store/codec.rs).
     CREATE TABLE estimates (
         machine_id INTEGER NOT NULL REFERENCES machines(id),
         engine TEXT NOT NULL,
         t REAL NOT NULL,
         extreme_a REAL NOT NULL,
         extreme_b REAL NOT NULL,
-        body TEXT NOT NULL,
+        body BLOB NOT NULL,
         PRIMARY KEY (machine_id, engine, t)
     ) WITHOUT ROWID;
     -- Per-bucket extremes of the estimates, at a few bucket widths, so a

@@ -1,0 +1,211 @@
+//! The stored forms of readings and estimates: compact bytes, because the
+//! single writer's work grows with the bytes it stores. The machine, time,
+//! sensor or engine of a row are its columns, so they are not repeated in
+//! its body; decoding takes them from the columns.
+//!
+//! - A reading's data: its numbers in protocol field order as little-endian
+//!   f64s; an absent optional field (`yaw_deg`, `temp_c`) is left off the
+//!   end. 16–48 bytes where the JSON is 90–180. Written by hand: the
+//!   variant is the `sensor` column and every field is an f64.
+//! - An estimate's values: postcard, about 60 bytes for an `attitude`
+//!   estimate where its JSON is about 330.
+
+use crate::fusion::{
+    AttitudeEstimate, EngineKind, EstimateValues, Reading, SensorData, SensorKind,
+};
+
+use super::StoreError;
+
+/// The stored bytes of a reading's data.
+pub fn encode_reading(data: &SensorData) -> Vec<u8> {
+    let mut numbers = Vec::with_capacity(6);
+    match data {
+        SensorData::Laser {
+            pitch_deg,
+            roll_deg,
+            yaw_deg,
+        } => numbers.extend([*pitch_deg, *roll_deg].into_iter().chain(*yaw_deg)),
+        SensorData::Inclinometer {
+            pitch_deg,
+            roll_deg,
+            temp_c,
+        } => numbers.extend([*pitch_deg, *roll_deg].into_iter().chain(*temp_c)),
+        SensorData::Imu {
+            accel_mps2,
+            gyro_dps,
+        } => numbers.extend(accel_mps2.iter().chain(gyro_dps)),
+        SensorData::Magnetometer { field_ut } => numbers.extend(field_ut),
+        SensorData::Level { height_m } => numbers.push(*height_m),
+        SensorData::Odometer { distance_m } => numbers.push(*distance_m),
+    }
+    numbers.iter().flat_map(|x| x.to_le_bytes()).collect()
+}
+
+/// The reading stored as `bytes` with its `t` and `sensor` columns.
+pub fn decode_reading(t: f64, sensor: SensorKind, bytes: &[u8]) -> Result<Reading, StoreError> {
+    let corrupt = || {
+        StoreError::Corrupt(format!(
+            "stored {sensor} reading at t = {t} has {} bytes",
+            bytes.len()
+        ))
+    };
+    if bytes.len() % 8 != 0 {
+        return Err(corrupt());
+    }
+    let n: Vec<f64> = bytes
+        .chunks_exact(8)
+        .map(|b| f64::from_le_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]]))
+        .collect();
+    let data = match (sensor, n.as_slice()) {
+        (SensorKind::Laser, [pitch_deg, roll_deg, yaw @ ..]) if yaw.len() <= 1 => {
+            SensorData::Laser {
+                pitch_deg: *pitch_deg,
+                roll_deg: *roll_deg,
+                yaw_deg: yaw.first().copied(),
+            }
+        }
+        (SensorKind::Inclinometer, [pitch_deg, roll_deg, temp @ ..]) if temp.len() <= 1 => {
+            SensorData::Inclinometer {
+                pitch_deg: *pitch_deg,
+                roll_deg: *roll_deg,
+                temp_c: temp.first().copied(),
+            }
+        }
+        (SensorKind::Imu, [ax, ay, az, gx, gy, gz]) => SensorData::Imu {
+            accel_mps2: [*ax, *ay, *az],
+            gyro_dps: [*gx, *gy, *gz],
+        },
+        (SensorKind::Magnetometer, [x, y, z]) => SensorData::Magnetometer {
+            field_ut: [*x, *y, *z],
+        },
+        (SensorKind::Level, [height_m]) => SensorData::Level {
+            height_m: *height_m,
+        },
+        (SensorKind::Odometer, [distance_m]) => SensorData::Odometer {
+            distance_m: *distance_m,
+        },
+        _ => return Err(corrupt()),
+    };
+    Ok(Reading { t, data })
+}
+
+/// The compact bytes of `values`.
+pub fn encode_values(values: &EstimateValues) -> Vec<u8> {
+    let encoded = match values {
+        EstimateValues::Attitude(a) => postcard::to_stdvec(a),
+    };
+    // postcard fails only on types it cannot express (maps of unknown
+    // length, self-describing values); engine estimates are plain structs.
+    encoded.expect("engine estimates are plain structs postcard can encode")
+}
+
+/// The values `bytes` hold, for an estimate of `engine`.
+pub fn decode_values(engine: EngineKind, bytes: &[u8]) -> Result<EstimateValues, StoreError> {
+    let corrupt =
+        |e: postcard::Error| StoreError::Corrupt(format!("stored {engine} estimate: {e}"));
+    match engine {
+        EngineKind::Attitude => postcard::from_bytes::<AttitudeEstimate>(bytes)
+            .map(EstimateValues::Attitude)
+            .map_err(corrupt),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn readings_of_every_sensor_round_trip_exactly() {
+        let t = 1_772_431_200.123_456_7;
+        for data in [
+            SensorData::Laser {
+                pitch_deg: 0.1 + 0.2,
+                roll_deg: -0.0,
+                yaw_deg: Some(359.999_999_999),
+            },
+            SensorData::Laser {
+                pitch_deg: 1.0,
+                roll_deg: 2.0,
+                yaw_deg: None,
+            },
+            SensorData::Inclinometer {
+                pitch_deg: -89.5,
+                roll_deg: 1e-300,
+                temp_c: Some(21.5),
+            },
+            SensorData::Inclinometer {
+                pitch_deg: 3.0,
+                roll_deg: 4.0,
+                temp_c: None,
+            },
+            SensorData::Imu {
+                accel_mps2: [0.01, -0.02, -9.81],
+                gyro_dps: [1e-5, 2e-5, -3e-5],
+            },
+            SensorData::Magnetometer {
+                field_ut: [20.0, -3.5, 44.1],
+            },
+            SensorData::Level { height_m: -12.345 },
+            SensorData::Odometer { distance_m: 36.0 },
+        ] {
+            let bytes = encode_reading(&data);
+            let back = decode_reading(t, data.kind(), &bytes).unwrap();
+            let reading = Reading { t, data };
+            assert_eq!(back.to_json(), reading.to_json());
+            assert_eq!(back, reading);
+        }
+    }
+
+    #[test]
+    fn a_reading_with_the_wrong_number_of_values_is_corrupt() {
+        let bytes = encode_reading(&SensorData::Level { height_m: 1.0 });
+        assert!(decode_reading(1.0, SensorKind::Imu, &bytes).is_err());
+        assert!(decode_reading(1.0, SensorKind::Level, &bytes[..7]).is_err());
+        assert!(decode_reading(1.0, SensorKind::Laser, &bytes).is_err());
+        let four = [bytes.clone(), bytes.clone(), bytes.clone(), bytes].concat();
+        let err = decode_reading(1.0, SensorKind::Inclinometer, &four).unwrap_err();
+        assert!(err.to_string().contains("inclinometer"), "{err}");
+    }
+
+    #[test]
+    fn values_round_trip_bit_for_bit_and_small() {
+        let values = EstimateValues::Attitude(AttitudeEstimate {
+            pitch_deg: 0.1 + 0.2,
+            roll_deg: -1.0e-300,
+            pitch_pred_deg: f64::MIN_POSITIVE,
+            roll_pred_deg: 12.345_678_901_234_567,
+            pred_t: 1_772_431_200.123_456_7,
+            laser_ok: false,
+            pitch_correction_deg: -0.0,
+            laser_age_s: None,
+            model_version: u64::MAX,
+        });
+        let bytes = encode_values(&values);
+        assert!(bytes.len() <= 70, "{} bytes", bytes.len());
+        let back = decode_values(EngineKind::Attitude, &bytes).unwrap();
+        assert_eq!(format!("{back:?}"), format!("{values:?}"));
+        let (EstimateValues::Attitude(a), EstimateValues::Attitude(b)) = (&back, &values);
+        assert_eq!(
+            a.pitch_correction_deg.to_bits(),
+            b.pitch_correction_deg.to_bits()
+        );
+    }
+
+    #[test]
+    fn truncated_bytes_are_reported_corrupt() {
+        let values = EstimateValues::Attitude(AttitudeEstimate {
+            pitch_deg: 1.0,
+            roll_deg: 2.0,
+            pitch_pred_deg: 1.0,
+            roll_pred_deg: 2.0,
+            pred_t: 3.0,
+            laser_ok: true,
+            pitch_correction_deg: 0.5,
+            laser_age_s: Some(12.0),
+            model_version: 3,
+        });
+        let bytes = encode_values(&values);
+        let err = decode_values(EngineKind::Attitude, &bytes[..bytes.len() - 3]).unwrap_err();
+        assert!(err.to_string().contains("attitude"), "{err}");
+    }
+}
