@@ -200,12 +200,14 @@ impl AppState {
         self.shutdown.subscribe()
     }
 
-    /// Closes live sockets and stores a final snapshot of every machine.
+    /// Closes live sockets, stores a final snapshot of every machine and
+    /// closes the store.
     pub async fn stop(&self) {
         self.shutdown.send_replace(true);
         for machine in self.all_machines() {
             machine.stop().await;
         }
+        self.store.close().await;
     }
 }
 

@@ -135,6 +135,13 @@ pub struct StoredSnapshot {
     pub state: String,
 }
 
+/// What the writer's queue carries.
+enum Queued {
+    Request(Request),
+    /// Checkpoint the log into the database and stop writing.
+    Close(oneshot::Sender<()>),
+}
+
 enum Request {
     Write(Write),
     PutMachine {
@@ -148,7 +155,7 @@ enum Request {
 /// Cheap, cloneable handle to the store.
 #[derive(Clone)]
 pub struct Store {
-    requests: mpsc::Sender<Request>,
+    requests: mpsc::Sender<Queued>,
     readers: Arc<ReadPool>,
     path: PathBuf,
 }
@@ -172,6 +179,8 @@ impl Store {
         conn.pragma_update(None, "cache_size", -65_536)?;
         // Checkpoints run on their own thread (below), not inside commits.
         conn.pragma_update(None, "wal_autocheckpoint", 0)?;
+        // A burst can grow the log; once checkpointed it is cut back to this.
+        conn.pragma_update(None, "journal_size_limit", 64 * 1024 * 1024)?;
         conn.busy_timeout(std::time::Duration::from_secs(5))?;
         // Multi-row inserts of every length up to ROWS_PER_INSERT stay prepared.
         conn.set_prepared_statement_cache_capacity(2 * ROWS_PER_INSERT + 32);
@@ -226,15 +235,25 @@ impl Store {
     /// Queues a write; its `reply` is answered after the commit.
     pub async fn write(&self, write: Write) -> Result<(), StoreError> {
         self.requests
-            .send(Request::Write(write))
+            .send(Queued::Request(Request::Write(write)))
             .await
             .map_err(|_| StoreError::Closed)
+    }
+
+    /// Commits what is queued, copies the write-ahead log into the database
+    /// (so the next start has no log to replay) and stops the writer: later
+    /// writes fail with [`StoreError::Closed`]. Reads still work.
+    pub async fn close(&self) {
+        let (reply, done) = oneshot::channel();
+        if self.requests.send(Queued::Close(reply)).await.is_ok() {
+            let _ = done.await;
+        }
     }
 
     /// Like [`Store::write`], from a blocking thread.
     pub fn write_blocking(&self, write: Write) -> Result<(), StoreError> {
         self.requests
-            .blocking_send(Request::Write(write))
+            .blocking_send(Queued::Request(Request::Write(write)))
             .map_err(|_| StoreError::Closed)
     }
 
@@ -247,11 +266,11 @@ impl Store {
     ) -> Result<i64, StoreError> {
         let (reply, answer) = oneshot::channel();
         self.requests
-            .send(Request::PutMachine {
+            .send(Queued::Request(Request::PutMachine {
                 spec,
                 snapshot,
                 reply,
-            })
+            }))
             .await
             .map_err(|_| StoreError::Closed)?;
         answer.await.map_err(|_| StoreError::Closed)?
@@ -377,15 +396,27 @@ impl ReadPool {
 
 /// The writer thread: takes every waiting request, commits them together,
 /// then answers each.
-fn writer(mut conn: Connection, mut queue: mpsc::Receiver<Request>) {
+fn writer(mut conn: Connection, mut queue: mpsc::Receiver<Queued>) {
     let mut group = Vec::with_capacity(MAX_GROUP);
-    while let Some(first) = queue.blocking_recv() {
-        group.push(first);
-        while group.len() < MAX_GROUP {
-            match queue.try_recv() {
-                Ok(request) => group.push(request),
-                Err(_) => break,
+    let mut close = None;
+    while close.is_none() {
+        let Some(first) = queue.blocking_recv() else {
+            break;
+        };
+        let mut next = Some(first);
+        while let Some(request) = next.take() {
+            match request {
+                Queued::Close(reply) => close = Some(reply),
+                Queued::Request(request) => {
+                    group.push(request);
+                    if group.len() < MAX_GROUP {
+                        next = queue.try_recv().ok();
+                    }
+                }
             }
+        }
+        if group.is_empty() {
+            continue;
         }
         match apply_group(&mut conn, &group) {
             Ok(outcomes) => {
@@ -406,6 +437,16 @@ fn writer(mut conn: Connection, mut queue: mpsc::Receiver<Request>) {
                 }
             }
         }
+    }
+    // Later sends fail at once; requests already queued are dropped, and
+    // their senders see the store closed.
+    queue.close();
+    // Whether closed or dropped by every handle: leave no log behind.
+    if let Err(e) = conn.query_row("PRAGMA wal_checkpoint(TRUNCATE)", [], |_| Ok(())) {
+        tracing::warn!(error = %e, "final checkpoint failed");
+    }
+    if let Some(reply) = close {
+        let _ = reply.send(());
     }
 }
 
@@ -672,6 +713,22 @@ mod tests {
             })
             .unwrap();
         assert_eq!(after, vec![r#"{"t":4.0,"sensor":"level","height_m":4.0}"#]);
+        // Closing leaves no log behind and refuses later writes.
+        store.close().await;
+        let wal = store.path().with_extension("sqlite3-wal");
+        assert_eq!(std::fs::metadata(&wal).map(|m| m.len()).unwrap_or(0), 0);
+        let (reply, _answer) = oneshot::channel();
+        let late = store
+            .write(Write {
+                machine_id: id,
+                readings: vec![reading(5.0)],
+                estimates: Vec::new(),
+                snapshot: None,
+                after_commit: None,
+                reply: Some(reply),
+            })
+            .await;
+        assert!(matches!(late, Err(StoreError::Closed)), "{late:?}");
         // Reopening sees the same machine.
         drop(store);
         let store = Store::open(dir.path()).unwrap();
