@@ -5,6 +5,7 @@ mod common;
 
 use common::{
     TestServer, all_estimates, drive, exported_readings, post_ndjson, put_machine, replay,
+    server_with_machine,
 };
 use serde_json::{Value, json};
 use tunnelnav::server::Limits;
@@ -277,10 +278,7 @@ async fn ingest_accepts_every_body_shape_and_names_each_bad_reading() {
 #[tokio::test]
 async fn history_exports_model_and_health() {
     let dir = tempfile::tempdir().unwrap();
-    let server = TestServer::start(dir.path()).await;
-    let client = reqwest::Client::new();
-    let base = server.url("");
-    put_machine(&client, &base, "m").await;
+    let (server, client, base) = server_with_machine(dir.path(), "m").await;
     // Two hours with a spike the downsampling must keep.
     let mut lines = drive(
         2.0,
@@ -459,10 +457,7 @@ async fn history_exports_model_and_health() {
 #[tokio::test]
 async fn server_estimates_equal_replay_of_the_same_readings() {
     let dir = tempfile::tempdir().unwrap();
-    let server = TestServer::start(dir.path()).await;
-    let client = reqwest::Client::new();
-    let base = server.url("");
-    put_machine(&client, &base, "eq").await;
+    let (server, client, base) = server_with_machine(dir.path(), "eq").await;
     let lines = drive(
         3.0,
         11,

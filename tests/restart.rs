@@ -9,6 +9,7 @@ use std::time::Duration;
 
 use common::{
     ServerProcess, all_estimates, drive, exported_readings, post_ndjson, put_machine, replay,
+    send_ndjson,
 };
 use serde_json::Value;
 use tunnelnav::sim::tbm::Dropout;
@@ -95,14 +96,7 @@ async fn every_acknowledged_reading_survives_sigkill_under_load() {
         let lines = lines.clone();
         gateways.push(tokio::spawn(async move {
             for chunk in lines.chunks(50 + 37 * g) {
-                let mut body = chunk.join("\n");
-                body.push('\n');
-                let response = client
-                    .post(format!("{base}/api/v1/machines/{machine}/readings"))
-                    .header("content-type", "application/x-ndjson")
-                    .body(body)
-                    .send()
-                    .await;
+                let response = send_ndjson(&client, &base, machine, chunk).await;
                 // Only a complete 200 answer is an acknowledgement.
                 let complete = match response {
                     Ok(r) if r.status() == 200 => r.bytes().await.is_ok(),

@@ -4,7 +4,7 @@ mod common;
 
 use std::time::{Duration, Instant};
 
-use common::{TestServer, drive, post_ndjson, put_machine};
+use common::{TestServer, drive, post_ndjson, put_machine, server_with_machine};
 use futures_util::{SinkExt, StreamExt};
 use serde_json::Value;
 use tokio_tungstenite::tungstenite::Message;
@@ -145,10 +145,7 @@ async fn readings_sent_on_the_ingest_socket_come_back_as_estimates_on_the_live_s
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_stalled_live_client_gets_a_gap_and_blocks_nobody() {
     let dir = tempfile::tempdir().unwrap();
-    let server = TestServer::start(dir.path()).await;
-    let client = reqwest::Client::new();
-    let base = server.url("");
-    put_machine(&client, &base, "gap").await;
+    let (server, client, base) = server_with_machine(dir.path(), "gap").await;
 
     // 40 hours of readings in small batches: far more estimates than the
     // live buffer (4096) and the stalled socket's TCP buffers hold.

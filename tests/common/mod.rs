@@ -149,22 +149,44 @@ pub async fn put_machine(client: &reqwest::Client, base: &str, machine: &str) {
     );
 }
 
-/// Posts NDJSON lines as one request; returns the parsed ack.
+/// A server in `data_dir` with one declared `attitude` machine, a client
+/// and the server's base URL.
+pub async fn server_with_machine(
+    data_dir: &Path,
+    machine: &str,
+) -> (TestServer, reqwest::Client, String) {
+    let server = TestServer::start(data_dir).await;
+    let client = reqwest::Client::new();
+    let base = server.url("");
+    put_machine(&client, &base, machine).await;
+    (server, client, base)
+}
+
+/// Sends NDJSON lines as one ingest request, whatever the answer.
+pub async fn send_ndjson(
+    client: &reqwest::Client,
+    base: &str,
+    machine: &str,
+    lines: &[String],
+) -> reqwest::Result<reqwest::Response> {
+    let mut body = lines.join("\n");
+    body.push('\n');
+    client
+        .post(format!("{base}/api/v1/machines/{machine}/readings"))
+        .header("content-type", "application/x-ndjson")
+        .body(body)
+        .send()
+        .await
+}
+
+/// Posts NDJSON lines as one request; asserts a 200 and returns the ack.
 pub async fn post_ndjson(
     client: &reqwest::Client,
     base: &str,
     machine: &str,
     lines: &[String],
 ) -> serde_json::Value {
-    let mut body = lines.join("\n");
-    body.push('\n');
-    let response = client
-        .post(format!("{base}/api/v1/machines/{machine}/readings"))
-        .header("content-type", "application/x-ndjson")
-        .body(body)
-        .send()
-        .await
-        .unwrap();
+    let response = send_ndjson(client, base, machine, lines).await.unwrap();
     assert_eq!(response.status(), 200);
     serde_json::from_slice(&response.bytes().await.unwrap()).unwrap()
 }
