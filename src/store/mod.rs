@@ -480,19 +480,30 @@ fn answer(request: Request, result: Result<Outcome, StoreError>) {
 fn apply_group(conn: &mut Connection, group: &[Request]) -> Result<Vec<Outcome>, StoreError> {
     let tx = conn.transaction()?;
     let mut outcomes = Vec::with_capacity(group.len());
+    // Bucket extremes of the whole group, upserted once each: with many
+    // small writes most of them fall in the same few buckets.
+    let mut buckets = Buckets::new();
     for request in group {
         outcomes.push(match request {
-            Request::Write(write) => Outcome::Write(apply_write(&tx, write)?),
+            Request::Write(write) => Outcome::Write(apply_write(&tx, write, &mut buckets)?),
             Request::PutMachine { spec, snapshot, .. } => {
                 Outcome::Put(apply_put_machine(&tx, spec, snapshot)?)
             }
         });
     }
+    upsert_buckets(&tx, buckets)?;
     tx.commit()?;
     Ok(outcomes)
 }
 
-fn apply_write(tx: &rusqlite::Transaction, write: &Write) -> Result<WriteOutcome, StoreError> {
+/// Extremes per (machine, engine, bucket width, bucket).
+type Buckets = BTreeMap<(i64, EngineKind, i64, i64), Extremes>;
+
+fn apply_write(
+    tx: &rusqlite::Transaction,
+    write: &Write,
+    buckets: &mut Buckets,
+) -> Result<WriteOutcome, StoreError> {
     let mut outcome = WriteOutcome::default();
     let machine_id = write.machine_id;
     let stored = insert_rows(
@@ -527,17 +538,24 @@ fn apply_write(tx: &rusqlite::Transaction, write: &Write) -> Result<WriteOutcome
     )?;
     // Extremes per stored bucket. A recomputed estimate is the stored one
     // again (same time, same values), so folding it in changes nothing.
-    let mut buckets: BTreeMap<(EngineKind, i64, i64), Extremes> = BTreeMap::new();
     for estimate in &write.estimates {
         let point = Extremes::point(estimate.t, estimate.extremes);
         for width_s in BUCKET_WIDTHS_S {
             let bucket = (estimate.t / width_s as f64).floor() as i64;
             buckets
-                .entry((estimate.engine, width_s, bucket))
+                .entry((machine_id, estimate.engine, width_s, bucket))
                 .and_modify(|b| b.merge(&point))
                 .or_insert(point);
         }
     }
+    if let Some(state) = &write.snapshot {
+        save_snapshot(tx, write.machine_id, state)?;
+    }
+    Ok(outcome)
+}
+
+/// Folds a group's bucket extremes into `estimate_buckets`.
+fn upsert_buckets(tx: &rusqlite::Transaction, buckets: Buckets) -> Result<(), StoreError> {
     let mut upsert = tx.prepare_cached(
         "INSERT INTO estimate_buckets VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12) \
          ON CONFLICT DO UPDATE SET \
@@ -550,9 +568,9 @@ fn apply_write(tx: &rusqlite::Transaction, write: &Write) -> Result<WriteOutcome
          t_max_b = CASE WHEN excluded.max_b > max_b THEN excluded.t_max_b ELSE t_max_b END, \
          max_b = max(max_b, excluded.max_b)",
     )?;
-    for ((engine, width_s, bucket), e) in buckets {
+    for ((machine_id, engine, width_s, bucket), e) in buckets {
         upsert.execute(params![
-            write.machine_id,
+            machine_id,
             engine.as_str(),
             width_s,
             bucket,
@@ -566,10 +584,7 @@ fn apply_write(tx: &rusqlite::Transaction, write: &Write) -> Result<WriteOutcome
             e.max_b.1
         ])?;
     }
-    if let Some(state) = &write.snapshot {
-        save_snapshot(tx, write.machine_id, state)?;
-    }
-    Ok(outcome)
+    Ok(())
 }
 
 /// Rows per multi-row `INSERT`: one statement step stores many rows.
