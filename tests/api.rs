@@ -168,7 +168,8 @@ async fn ingest_accepts_every_body_shape_and_names_each_bad_reading() {
         {"t":1772431203,"sensor":"inclinometer","pitch_deg":95,"roll_deg":1},
         {"t":1772431204,"sensor":"laser","pitch_deg":0.4},
         {"t":1e308,"sensor":"laser","pitch_deg":0.4,"roll_deg":1},
-        {"t":1772431205,"sensor":"inclinometer","pitch_deg":0.5,"roll_deg":1}
+        {"t":1772431205,"sensor":"inclinometer","pitch_deg":0.5,"roll_deg":1},
+        {"t":4000000000,"sensor":"level","height_m":1}
     ]"#;
     let (status, ack) = json_of(post(body.into(), "application/json").await.unwrap()).await;
     assert_eq!(status, 200);
@@ -178,7 +179,7 @@ async fn ingest_accepts_every_body_shape_and_names_each_bad_reading() {
         .iter()
         .map(|r| (r["index"].as_u64().unwrap(), r["error"].as_str().unwrap()))
         .collect();
-    assert_eq!(summary.len(), 4, "{ack}");
+    assert_eq!(summary.len(), 5, "{ack}");
     assert_eq!(summary[0].0, 1);
     assert!(summary[0].1.contains("unknown sensor `sonar`"));
     assert_eq!(summary[1].0, 2);
@@ -187,6 +188,13 @@ async fn ingest_accepts_every_body_shape_and_names_each_bad_reading() {
     assert!(summary[2].1.contains("missing field `roll_deg`"));
     assert_eq!(summary[3].0, 4);
     assert!(summary[3].1.contains("`t`"));
+    // Before 2100, but far ahead of the server clock.
+    assert_eq!(summary[4].0, 6);
+    assert!(
+        summary[4].1.contains("ahead of the server clock"),
+        "{}",
+        summary[4].1
+    );
 
     // NDJSON.
     let body = format!(

@@ -10,8 +10,8 @@ use serde::{Deserialize, Serialize};
 /// Earliest accepted reading time: 2000-01-01T00:00:00Z.
 pub const EARLIEST_T_S: f64 = 946_684_800.0;
 /// Latest accepted reading time in the core: 2100-01-01T00:00:00Z. The
-/// server adds its own "not far in the future of now" check; the core has
-/// no clock.
+/// server adds its own "not far ahead of now" check (`max_future_s`); the
+/// core has no clock.
 pub const LATEST_T_S: f64 = 4_102_444_800.0;
 
 /// The kinds of sensor a reading can come from.

@@ -17,7 +17,7 @@ use serde::Serialize;
 use serde_json::value::RawValue;
 
 use super::error::{ApiError, Rejected};
-use super::{SharedState, metrics};
+use super::{Limits, SharedState, metrics, wall_clock_s};
 use crate::fusion::{Reading, SensorKind, parse_reading};
 use crate::machine::MachineHandle;
 
@@ -38,14 +38,44 @@ pub struct Ack {
     pub rejected: Vec<Rejected>,
 }
 
+/// What the readings of a request must meet beyond the protocol's checks.
+#[derive(Debug, Clone, Copy)]
+pub struct BatchRules {
+    /// Most readings in one request or frame.
+    pub max_readings: usize,
+    /// The server clock now, Unix seconds.
+    pub now_s: f64,
+    /// How far a reading's `t` may be ahead of `now_s` (gateway clock skew).
+    pub max_future_s: f64,
+}
+
+impl BatchRules {
+    /// The rules of `limits` at the server clock's present.
+    pub fn now(limits: &Limits) -> BatchRules {
+        BatchRules {
+            max_readings: limits.max_readings_per_request,
+            now_s: wall_clock_s(),
+            max_future_s: limits.max_future_s,
+        }
+    }
+
+    fn check(&self, reading: &Reading) -> Result<(), String> {
+        let ahead_s = reading.t - self.now_s;
+        if ahead_s > self.max_future_s {
+            return Err(format!(
+                "`t` = {} is {ahead_s:.0} s ahead of the server clock (at most {} s allowed): check the gateway's clock",
+                reading.t, self.max_future_s
+            ));
+        }
+        Ok(())
+    }
+}
+
 /// Splits a body into readings: a JSON object, a JSON array of objects, or
 /// (`ndjson`) one object per line. Each invalid reading is named by its
 /// index; a body that is not JSON at all is a [`ApiError::BadRequest`].
-pub fn parse_batch(
-    body: &[u8],
-    ndjson: bool,
-    max_readings: usize,
-) -> Result<ParsedBatch, ApiError> {
+pub fn parse_batch(body: &[u8], ndjson: bool, rules: &BatchRules) -> Result<ParsedBatch, ApiError> {
+    let max_readings = rules.max_readings;
     let mut batch = ParsedBatch::default();
     let text = body.trim_ascii();
     if text.is_empty() {
@@ -58,11 +88,16 @@ pub fn parse_batch(
             "more than {max_readings} readings in one request; split the batch"
         ))
     };
-    let mut take = |index: usize, bytes: &[u8]| match parse_reading(bytes) {
+    let mut take = |index: usize, bytes: &[u8]| match parse_reading(bytes)
+        .map_err(|e| e.to_string())
+        .and_then(|reading| {
+            rules.check(&reading)?;
+            Ok(reading)
+        }) {
         Ok(reading) => batch.readings.push(reading),
-        Err(e) => batch.rejected.push(Rejected {
+        Err(error) => batch.rejected.push(Rejected {
             index,
-            error: e.to_string(),
+            error,
             sensor: claimed_sensor(bytes),
         }),
     };
@@ -159,7 +194,7 @@ pub async fn post_readings(
         .get(header::CONTENT_TYPE)
         .and_then(|v| v.to_str().ok())
         .is_some_and(|v| v.starts_with("application/x-ndjson"));
-    let batch = parse_batch(&body, ndjson, state.limits.max_readings_per_request)?;
+    let batch = parse_batch(&body, ndjson, &BatchRules::now(&state.limits))?;
     Ok(Json(ingest(&machine, batch).await?))
 }
 
@@ -174,20 +209,22 @@ pub async fn websocket(
     let limits = state.limits;
     Ok(upgrade
         .max_message_size(limits.max_frame_bytes)
-        .on_upgrade(move |socket| serve_ingest(socket, machine, limits.max_readings_per_request)))
+        .on_upgrade(move |socket| serve_ingest(socket, machine, limits)))
 }
 
 async fn serve_ingest(
     mut socket: WebSocket,
     machine: std::sync::Arc<MachineHandle>,
-    max_readings: usize,
+    limits: Limits,
 ) {
     while let Some(Ok(message)) = socket.recv().await {
         let answer = match message {
-            Message::Text(text) => match parse_batch(text.as_bytes(), false, max_readings) {
-                Ok(batch) => ingest(&machine, batch).await,
-                Err(e) => Err(e),
-            },
+            Message::Text(text) => {
+                match parse_batch(text.as_bytes(), false, &BatchRules::now(&limits)) {
+                    Ok(batch) => ingest(&machine, batch).await,
+                    Err(e) => Err(e),
+                }
+            }
             Message::Binary(_) => Err(ApiError::BadRequest(
                 "binary frames are not readings: send JSON text frames".into(),
             )),
@@ -215,10 +252,35 @@ mod tests {
 
     const GOOD: &str = r#"{"t":1772431200,"sensor":"inclinometer","pitch_deg":0.5,"roll_deg":1}"#;
 
+    /// Rules at 2026-03-02T06:00:00Z, ten minutes of lead allowed.
+    fn rules(max_readings: usize) -> BatchRules {
+        BatchRules {
+            max_readings,
+            now_s: 1_772_431_200.0,
+            max_future_s: 600.0,
+        }
+    }
+
+    #[test]
+    fn readings_ahead_of_the_server_clock_are_refused_by_index() {
+        let body = r#"[{"t":1772431800,"sensor":"level","height_m":1},{"t":1772431801,"sensor":"level","height_m":1}]"#;
+        let batch = parse_batch(body.as_bytes(), false, &rules(10)).unwrap();
+        assert_eq!(batch.readings.len(), 1);
+        assert_eq!(batch.rejected[0].index, 1);
+        assert!(
+            batch.rejected[0]
+                .error
+                .contains("ahead of the server clock"),
+            "{}",
+            batch.rejected[0].error
+        );
+        assert_eq!(batch.rejected[0].sensor, Some(SensorKind::Level));
+    }
+
     #[test]
     fn arrays_name_each_bad_reading_by_index() {
         let body = format!(r#"[{GOOD},{{"t":1772431201,"sensor":"sonar"}},{GOOD},3]"#);
-        let batch = parse_batch(body.as_bytes(), false, 10).unwrap();
+        let batch = parse_batch(body.as_bytes(), false, &rules(10)).unwrap();
         assert_eq!(batch.readings.len(), 2);
         let indices: Vec<usize> = batch.rejected.iter().map(|r| r.index).collect();
         assert_eq!(indices, vec![1, 3]);
@@ -228,7 +290,7 @@ mod tests {
     #[test]
     fn ndjson_counts_non_blank_lines() {
         let body = format!("{GOOD}\n\n{{\"t\":1}}\n{GOOD}\n");
-        let batch = parse_batch(body.as_bytes(), true, 10).unwrap();
+        let batch = parse_batch(body.as_bytes(), true, &rules(10)).unwrap();
         assert_eq!(batch.readings.len(), 2);
         assert_eq!(batch.rejected[0].index, 1);
     }
@@ -236,20 +298,20 @@ mod tests {
     #[test]
     fn malformed_and_oversized_bodies_are_refused_whole() {
         assert!(matches!(
-            parse_batch(b"[1,", false, 10),
+            parse_batch(b"[1,", false, &rules(10)),
             Err(ApiError::BadRequest(_))
         ));
         assert!(matches!(
-            parse_batch(b"hello", false, 10),
+            parse_batch(b"hello", false, &rules(10)),
             Err(ApiError::BadRequest(_))
         ));
         assert!(matches!(
-            parse_batch(b"  ", false, 10),
+            parse_batch(b"  ", false, &rules(10)),
             Err(ApiError::BadRequest(_))
         ));
         let body = format!("[{GOOD},{GOOD},{GOOD}]");
         assert!(matches!(
-            parse_batch(body.as_bytes(), false, 2),
+            parse_batch(body.as_bytes(), false, &rules(2)),
             Err(ApiError::TooLarge(_))
         ));
     }

@@ -40,6 +40,8 @@ pub struct Limits {
     pub max_points_limit: usize,
     /// Interval between `ping` events on live sockets (at most 15 s).
     pub live_ping_interval: std::time::Duration,
+    /// How far ahead of the server clock a reading's time may be.
+    pub max_future_s: f64,
 }
 
 impl Default for Limits {
@@ -50,6 +52,7 @@ impl Default for Limits {
             max_frame_bytes: 4 * 1024 * 1024,
             max_points_limit: 100_000,
             live_ping_interval: std::time::Duration::from_secs(10),
+            max_future_s: 600.0,
         }
     }
 }
