@@ -7,7 +7,7 @@ use clap::Args;
 
 use super::CliError;
 use crate::config::ServerConfig;
-use crate::server::{self, AppState, Limits, ServerOptions};
+use crate::server::{self, AppState, Clock, Limits, ServerOptions};
 
 #[derive(Debug, Args)]
 pub struct ServeArgs {
@@ -37,6 +37,7 @@ pub fn run(args: ServeArgs) -> Result<(), CliError> {
             data_dir: args.data_dir.clone(),
             machines,
             limits: Limits::default(),
+            clock: Clock::system(),
         })
         .await?;
         let listener = tokio::net::TcpListener::bind(args.listen)

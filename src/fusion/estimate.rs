@@ -25,6 +25,11 @@ pub struct AttitudeEstimate {
     /// Number of times the pitch-error model has been trained; a client
     /// refetches the model when it changes. (tunnelnav extension.)
     pub model_version: u64,
+    /// The inclinometer reading this estimate was made from, as received
+    /// (tunnelnav extension: a display plots raw against fused).
+    pub incl_pitch_deg: f64,
+    /// See `incl_pitch_deg`.
+    pub incl_roll_deg: f64,
 }
 
 /// The engine-specific part of an estimate, tagged by `engine`.
@@ -145,6 +150,13 @@ impl EstimateWriter {
                 }
                 out.extend_from_slice(b",\"model_version\":");
                 out.extend_from_slice(self.integers.format(a.model_version).as_bytes());
+                for (key, value) in [
+                    ("incl_pitch_deg", a.incl_pitch_deg),
+                    ("incl_roll_deg", a.incl_roll_deg),
+                ] {
+                    out.push(b',');
+                    self.number(out, key, value);
+                }
             }
         }
         out.extend_from_slice(b"}\n");
@@ -195,6 +207,8 @@ mod tests {
                         pitch_correction_deg: if i % 5 == 0 { f64::NAN } else { next() },
                         laser_age_s: (i % 4 != 0).then(|| next() * 1e4),
                         model_version: i * 7919,
+                        incl_pitch_deg: (next() - 0.5) * scale,
+                        incl_roll_deg: next() * 10.0,
                     }),
                 };
                 let mut ours = Vec::new();
@@ -223,6 +237,8 @@ mod tests {
                 pitch_correction_deg: -0.3,
                 laser_age_s: Some(12.0),
                 model_version: 7,
+                incl_pitch_deg: 0.5,
+                incl_roll_deg: 1.6,
             }),
         };
         let text = serde_json::to_string(&output.for_machine("tbm-1")).unwrap();

@@ -17,7 +17,7 @@ use serde::Serialize;
 use serde_json::value::RawValue;
 
 use super::error::{ApiError, Rejected};
-use super::{Limits, SharedState, metrics, wall_clock_s};
+use super::{Clock, Limits, SharedState, metrics};
 use crate::fusion::{Reading, SensorKind, parse_reading};
 use crate::machine::MachineHandle;
 
@@ -50,11 +50,11 @@ pub struct BatchRules {
 }
 
 impl BatchRules {
-    /// The rules of `limits` at the server clock's present.
-    pub fn now(limits: &Limits) -> BatchRules {
+    /// The rules of `limits` at `clock`'s present.
+    pub fn now(limits: &Limits, clock: &Clock) -> BatchRules {
         BatchRules {
             max_readings: limits.max_readings_per_request,
-            now_s: wall_clock_s(),
+            now_s: clock.now_s(),
             max_future_s: limits.max_future_s,
         }
     }
@@ -194,7 +194,7 @@ pub async fn post_readings(
         .get(header::CONTENT_TYPE)
         .and_then(|v| v.to_str().ok())
         .is_some_and(|v| v.starts_with("application/x-ndjson"));
-    let batch = parse_batch(&body, ndjson, &BatchRules::now(&state.limits))?;
+    let batch = parse_batch(&body, ndjson, &BatchRules::now(&state.limits, &state.clock))?;
     Ok(Json(ingest(&machine, batch).await?))
 }
 
@@ -206,21 +206,22 @@ pub async fn websocket(
 ) -> Result<Response, ApiError> {
     let machine = state.machine(&machine)?;
     let upgrade = upgrade.map_err(ApiError::from)?;
-    let limits = state.limits;
+    let (limits, clock) = (state.limits, state.clock);
     Ok(upgrade
         .max_message_size(limits.max_frame_bytes)
-        .on_upgrade(move |socket| serve_ingest(socket, machine, limits)))
+        .on_upgrade(move |socket| serve_ingest(socket, machine, limits, clock)))
 }
 
 async fn serve_ingest(
     mut socket: WebSocket,
     machine: std::sync::Arc<MachineHandle>,
     limits: Limits,
+    clock: Clock,
 ) {
     while let Some(Ok(message)) = socket.recv().await {
         let answer = match message {
             Message::Text(text) => {
-                match parse_batch(text.as_bytes(), false, &BatchRules::now(&limits)) {
+                match parse_batch(text.as_bytes(), false, &BatchRules::now(&limits, &clock)) {
                     Ok(batch) => ingest(&machine, batch).await,
                     Err(e) => Err(e),
                 }

@@ -22,7 +22,7 @@ use serde_json::value::RawValue;
 use tokio::sync::broadcast::error::RecvError;
 
 use super::error::ApiError;
-use super::{SharedState, wall_clock_s};
+use super::{Clock, SharedState};
 use crate::machine::MachineHandle;
 
 /// `GET /api/v1/machines/{machine}/live`.
@@ -34,8 +34,8 @@ pub async fn websocket(
     let machine = state.machine(&machine)?;
     let upgrade = upgrade.map_err(ApiError::from)?;
     let shutdown = state.shutdown_signal();
-    let ping_every = state.limits.live_ping_interval;
-    Ok(upgrade.on_upgrade(move |socket| serve_live(socket, machine, ping_every, shutdown)))
+    let (ping_every, clock) = (state.limits.live_ping_interval, state.clock);
+    Ok(upgrade.on_upgrade(move |socket| serve_live(socket, machine, ping_every, clock, shutdown)))
 }
 
 fn text(value: serde_json::Value) -> Message {
@@ -46,6 +46,7 @@ async fn serve_live(
     mut socket: WebSocket,
     machine: Arc<MachineHandle>,
     ping_every: Duration,
+    clock: Clock,
     mut shutdown: tokio::sync::watch::Receiver<bool>,
 ) {
     // Subscribe before reading the latest state, so nothing falls between
@@ -66,7 +67,8 @@ async fn serve_live(
         "name": machine.spec.name,
         "engines": machine.spec.engines.keys().map(|e| e.as_str()).collect::<Vec<_>>(),
         "latest": latest,
-        "server_t": wall_clock_s(),
+        "server_t": clock.now_s(),
+        "clock_rate": clock.rate(),
     });
     if socket.send(text(hello)).await.is_err() {
         return;
@@ -106,7 +108,7 @@ async fn serve_live(
                 }
             },
             _ = ping.tick() => {
-                if socket.send(text(json!({"event": "ping", "server_t": wall_clock_s()}))).await.is_err() {
+                if socket.send(text(json!({"event": "ping", "server_t": clock.now_s()}))).await.is_err() {
                     return;
                 }
             }

@@ -8,15 +8,15 @@ use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
 use serde_json::{Map, Value, json};
 
+use super::SharedState;
 use super::error::ApiError;
-use super::{SharedState, wall_clock_s};
 use crate::config::{MachineDeclaration, valid_machine_id};
 use crate::machine::MachineHandle;
 
-/// Status summary: sensors' last readings, laser state, latest estimates.
-fn status(machine: &MachineHandle, with_latest: bool) -> Value {
+/// Status summary: sensors' last readings and their age at `now` (server
+/// clock), laser state, latest estimate of each engine.
+fn status(machine: &MachineHandle, now: f64) -> Value {
     let status = machine.status();
-    let now = wall_clock_s();
     let sensors: Map<String, Value> = status
         .sensors
         .iter()
@@ -46,7 +46,7 @@ fn status(machine: &MachineHandle, with_latest: bool) -> Value {
         .fold(None, |acc: Option<f64>, t| {
             Some(acc.map_or(t, |a| a.max(t)))
         });
-    let mut body = json!({
+    json!({
         "machine": machine.spec.id,
         "name": machine.spec.name,
         "engines": machine.spec.engines.keys().map(|e| e.as_str()).collect::<Vec<_>>(),
@@ -55,21 +55,25 @@ fn status(machine: &MachineHandle, with_latest: bool) -> Value {
         "laser": laser,
         "late_readings": status.late,
         "live_clients": machine.live_clients(),
-    });
-    if with_latest {
-        body["latest"] = Value::Object(latest);
-    }
-    body
+        "latest": latest,
+    })
+}
+
+/// The server clock's reading and rate (above 1 in the demo), so a page can
+/// age what it shows between fetches.
+fn clock(state: &SharedState) -> (f64, f64) {
+    (state.clock.now_s(), state.clock.rate())
 }
 
 /// `GET /api/v1/machines`.
 pub async fn list(State(state): State<SharedState>) -> Json<Value> {
+    let (now, rate) = clock(&state);
     let machines: Vec<Value> = state
         .all_machines()
         .iter()
-        .map(|m| status(m, false))
+        .map(|m| status(m, now))
         .collect();
-    Json(json!({ "machines": machines, "server_t": wall_clock_s() }))
+    Json(json!({ "machines": machines, "server_t": now, "clock_rate": rate }))
 }
 
 /// `GET /api/v1/machines/{machine}`.
@@ -78,9 +82,11 @@ pub async fn show(
     Path(machine): Path<String>,
 ) -> Result<Json<Value>, ApiError> {
     let machine = state.machine(&machine)?;
-    let mut body = status(&machine, true);
+    let (now, rate) = clock(&state);
+    let mut body = status(&machine, now);
     body["config"] = serde_json::to_value(machine.spec.declaration()).unwrap_or_default();
-    body["server_t"] = wall_clock_s().into();
+    body["server_t"] = now.into();
+    body["clock_rate"] = rate.into();
     Ok(Json(body))
 }
 

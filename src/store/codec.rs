@@ -49,7 +49,7 @@ pub fn decode_reading(t: f64, sensor: SensorKind, bytes: &[u8]) -> Result<Readin
             bytes.len()
         ))
     };
-    if bytes.len() % 8 != 0 {
+    if !bytes.len().is_multiple_of(8) {
         return Err(corrupt());
     }
     let n: Vec<f64> = bytes
@@ -179,9 +179,11 @@ mod tests {
             pitch_correction_deg: -0.0,
             laser_age_s: None,
             model_version: u64::MAX,
+            incl_pitch_deg: 0.3,
+            incl_roll_deg: -7.25,
         });
         let bytes = encode_values(&values);
-        assert!(bytes.len() <= 70, "{} bytes", bytes.len());
+        assert!(bytes.len() <= 86, "{} bytes", bytes.len());
         let back = decode_values(EngineKind::Attitude, &bytes).unwrap();
         assert_eq!(format!("{back:?}"), format!("{values:?}"));
         let (EstimateValues::Attitude(a), EstimateValues::Attitude(b)) = (&back, &values);
@@ -203,6 +205,8 @@ mod tests {
             pitch_correction_deg: 0.5,
             laser_age_s: Some(12.0),
             model_version: 3,
+            incl_pitch_deg: 1.1,
+            incl_roll_deg: 2.1,
         });
         let bytes = encode_values(&values);
         let err = decode_values(EngineKind::Attitude, &bytes[..bytes.len() - 3]).unwrap_err();

@@ -368,6 +368,8 @@ mod tests {
                             pitch_correction_deg: 0.0,
                             laser_age_s: None,
                             model_version: 0,
+                            incl_pitch_deg: pitch_deg,
+                            incl_roll_deg: roll_deg,
                         }),
                     })
                 })

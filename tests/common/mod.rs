@@ -9,7 +9,7 @@ use std::path::Path;
 use std::process::{Child, Command, Stdio};
 
 use tokio::sync::oneshot;
-use tunnelnav::server::{self, AppState, Limits, ServerOptions, SharedState};
+use tunnelnav::server::{self, AppState, Clock, Limits, ServerOptions, SharedState};
 use tunnelnav::sim::tbm::{Dropout, TbmDrive, TbmScenario};
 
 /// A server running in this process.
@@ -31,6 +31,7 @@ impl TestServer {
             data_dir: data_dir.to_path_buf(),
             machines: Vec::new(),
             limits,
+            clock: Clock::system(),
         })
         .await
         .expect("server starts");

@@ -615,6 +615,8 @@ impl AttitudeEngine {
                 pitch_correction_deg: deg(self.correction_rad),
                 laser_age_s: self.laser.age_s(t),
                 model_version: self.anfis.version(),
+                incl_pitch_deg: pitch_deg,
+                incl_roll_deg: roll_deg,
             }),
         })
     }
@@ -928,7 +930,7 @@ mod tests {
             AttitudeEngine::new(Params::from_assignments(PARAMS, ["laser_period_s=60"]).unwrap())
                 .unwrap();
         let mut out = Vec::new();
-        let laser_at = |s: usize| s % 60 == 0 && !(3600..6300).contains(&s);
+        let laser_at = |s: usize| s.is_multiple_of(60) && !(3600..6300).contains(&s);
         let mut pitch = Vec::new();
         for s in 0..9000 {
             let t = T0 + s as f64;
@@ -982,7 +984,7 @@ mod tests {
         let feed = |e: &mut dyn Engine, s: usize, out: &mut Vec<EngineOutput>| {
             let t = T0 + s as f64;
             let roll = 1.0 + (s as f64 / 300.0).sin();
-            if s % 60 == 0 {
+            if s.is_multiple_of(60) {
                 e.feed(&laser(t, 0.3 + 0.01 * roll * roll, roll), out);
             }
             e.feed(&incl(t, 0.1 + 0.001 * (s % 7) as f64, roll + 0.2), out);
