@@ -1,5 +1,6 @@
 //! The command line: one file per subcommand, each with a `run`.
 
+pub mod demo;
 pub mod eval;
 pub mod load;
 pub mod params;
@@ -33,6 +34,8 @@ pub enum Command {
     Serve(serve::ServeArgs),
     /// Load a server with concurrent gateways; report throughput and latency.
     Load(load::LoadArgs),
+    /// The server with simulated machines and gateways at an accelerated clock.
+    Demo(demo::DemoArgs),
 }
 
 /// Why a command failed.
@@ -57,6 +60,8 @@ pub enum CliError {
     Config(#[from] crate::config::ConfigError),
     #[error(transparent)]
     Server(#[from] crate::server::ServerError),
+    #[error(transparent)]
+    Store(#[from] crate::store::StoreError),
 }
 
 /// Runs a parsed command line.
@@ -68,5 +73,6 @@ pub fn run(cli: Cli) -> Result<(), CliError> {
         Command::Params(args) => params::run(args),
         Command::Serve(args) => serve::run(args),
         Command::Load(args) => load::run(args),
+        Command::Demo(args) => demo::run(args),
     }
 }

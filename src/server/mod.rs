@@ -1,12 +1,14 @@
 //! The HTTP server: routes, shared state, start-up and shutdown. Handlers
 //! only translate: extract, ask the store or a machine's task, map errors.
 
+mod clock;
 mod error;
 mod history;
 mod ingest;
 mod live;
 mod machines;
 pub mod metrics;
+mod pages;
 
 use std::collections::BTreeMap;
 use std::future::Future;
@@ -20,6 +22,7 @@ use tokio::net::TcpListener;
 use tokio::sync::watch;
 use tower_http::trace::TraceLayer;
 
+pub use clock::{Clock, wall_clock_s};
 pub use error::{ApiError, Rejected};
 pub use ingest::{ParsedBatch, parse_batch};
 
@@ -65,6 +68,8 @@ pub struct ServerOptions {
     /// stored declaration differs.
     pub machines: Vec<MachineSpec>,
     pub limits: Limits,
+    /// The clock for ages and the future check ([`Clock::system`] but in the demo).
+    pub clock: Clock,
 }
 
 /// Why the server could not start.
@@ -88,6 +93,7 @@ pub struct AppState {
     /// Serialises machine (re)declarations.
     admin: tokio::sync::Mutex<()>,
     pub limits: Limits,
+    pub clock: Clock,
     /// Turns true when the server stops: live sockets close.
     shutdown: watch::Sender<bool>,
 }
@@ -143,6 +149,7 @@ impl AppState {
             machines: RwLock::new(machines),
             admin: tokio::sync::Mutex::new(()),
             limits: options.limits,
+            clock: options.clock,
             shutdown: watch::channel(false).0,
         }))
     }
@@ -214,14 +221,6 @@ impl AppState {
     }
 }
 
-/// The server's clock, Unix seconds: only for telling clients how old a
-/// reading is. Engines never see it; their time comes with the readings.
-pub(crate) fn wall_clock_s() -> f64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0.0, |d| d.as_secs_f64())
-}
-
 fn fresh_snapshot(spec: &MachineSpec) -> Result<String, ServerError> {
     MachineCore::new(spec)
         .map(|core| core.snapshot())
@@ -235,6 +234,9 @@ fn fresh_snapshot(spec: &MachineSpec) -> Result<String, ServerError> {
 pub fn router(state: SharedState) -> Router {
     let limit = state.limits.max_body_bytes;
     Router::new()
+        .route("/", get(pages::fleet))
+        .route("/machines/{machine}", get(pages::machine))
+        .route("/static/{*path}", get(pages::asset))
         .route("/healthz", get(metrics::healthz))
         .route("/metrics", get(metrics::render))
         .route("/api/v1/machines", get(machines::list))

@@ -1,0 +1,369 @@
+//! `tunnelnav demo [--listen ADDR] [--data-dir DIR] [--rate R] [--seconds S]`
+//!
+//! The server, three simulated TBMs and their field gateways, at an
+//! accelerated clock: the gateways post the simulator's readings over real
+//! HTTP (NDJSON) and WebSocket as the clock reaches their time, so a
+//! 2-minute laser period shows up every few seconds. One machine's laser
+//! is blocked for 20 minutes of every hour. The server runs with the same
+//! clock, so ages and its future check agree with the gateways.
+//!
+//! A second run on the same data dir resumes: the clock starts after the
+//! newest stored reading, and each machine starts a new stretch of drive.
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use clap::Args;
+use futures_util::{SinkExt, StreamExt};
+use tokio::sync::watch;
+use tokio_tungstenite::tungstenite::Message;
+
+use super::CliError;
+use super::serve::{init_tracing, shutdown_signal};
+use crate::config::ServerConfig;
+use crate::fusion::{Reading, SensorData, SensorKind};
+use crate::server::{self, AppState, Clock, Limits, ServerOptions, wall_clock_s};
+use crate::sim::tbm::{TbmDrive, TbmScenario};
+use crate::store::Store;
+
+/// The demo machines, declared as a config file would.
+const DEMO_MACHINES: &str = r#"
+[machines.tbm-north]
+name = "TBM North · S-1 drive"
+engines = { attitude = {} }
+
+[machines.tbm-south]
+name = "TBM South · S-2 drive (WebSocket gateway)"
+engines = { attitude = {} }
+
+[machines.pipejack-3]
+name = "Pipe jack P-3 · laser blocked 20 min per hour"
+engines = { attitude = {} }
+"#;
+
+/// How a gateway reaches the server.
+#[derive(Debug, Clone, Copy)]
+enum Transport {
+    /// `POST .../readings` with an NDJSON body.
+    Http,
+    /// Frames on `GET .../ingest`.
+    WebSocket,
+}
+
+struct Gateway {
+    machine: &'static str,
+    seed: u64,
+    transport: Transport,
+    /// The laser's line of sight is blocked for minutes 10–30 of every hour.
+    laser_blocked: bool,
+}
+
+const GATEWAYS: [Gateway; 3] = [
+    Gateway {
+        machine: "tbm-north",
+        seed: 11,
+        transport: Transport::Http,
+        laser_blocked: false,
+    },
+    Gateway {
+        machine: "tbm-south",
+        seed: 22,
+        transport: Transport::WebSocket,
+        laser_blocked: false,
+    },
+    Gateway {
+        machine: "pipejack-3",
+        seed: 33,
+        transport: Transport::Http,
+        laser_blocked: true,
+    },
+];
+
+/// Real time between a gateway's sends.
+const SEND_EVERY: Duration = Duration::from_millis(200);
+/// Readings a gateway keeps while the server cannot be reached.
+const MAX_PENDING: usize = 100_000;
+
+#[derive(Debug, Args)]
+pub struct DemoArgs {
+    /// Address to listen on.
+    #[arg(long, default_value = "127.0.0.1:8080")]
+    pub listen: SocketAddr,
+    /// Directory holding the demo's database (created if missing; a second
+    /// run continues its history).
+    #[arg(long, default_value = "tunnelnav-demo")]
+    pub data_dir: PathBuf,
+    /// Server-clock seconds per real second.
+    #[arg(long, default_value_t = 30.0)]
+    pub rate: f64,
+    /// Stop after this many real seconds (default: until Ctrl-C).
+    #[arg(long)]
+    pub seconds: Option<f64>,
+}
+
+pub fn run(args: DemoArgs) -> Result<(), CliError> {
+    init_tracing();
+    if !(args.rate.is_finite() && args.rate > 0.0 && args.rate <= 10_000.0) {
+        return Err(CliError::Scenario(format!(
+            "--rate {} is not in (0, 10000]",
+            args.rate
+        )));
+    }
+    let machines = ServerConfig::parse(DEMO_MACHINES)?;
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()?;
+    runtime.block_on(async {
+        server::metrics::install();
+        // Start after anything an earlier demo stored, so nothing new is older.
+        let resume_t = newest_reading_t(&args.data_dir).await?;
+        let start_t = resume_t.map_or(wall_clock_s(), |t| wall_clock_s().max(t + 1.0));
+        let clock = Clock::accelerated(args.rate, start_t).map_err(CliError::Scenario)?;
+        let state = AppState::start(ServerOptions {
+            data_dir: args.data_dir.clone(),
+            machines,
+            limits: Limits::default(),
+            clock,
+        })
+        .await?;
+        let listener = tokio::net::TcpListener::bind(args.listen)
+            .await
+            .map_err(|source| CliError::File {
+                context: format!("cannot listen on {}", args.listen),
+                source,
+            })?;
+        let address = listener.local_addr()?;
+        println!("listening on http://{address}");
+        println!(
+            "tunnelnav demo: open http://{address}/ in a browser. Three simulated machines, \
+             server clock ×{} (a 2-minute laser period every {:.0} s), data in {}. Ctrl-C stops.",
+            args.rate,
+            120.0 / args.rate,
+            args.data_dir.display()
+        );
+
+        let (stop_gateways, stopping) = watch::channel(false);
+        let mut gateways = Vec::new();
+        for gateway in &GATEWAYS {
+            gateways.push(tokio::spawn(run_gateway(
+                gateway,
+                address,
+                clock,
+                stopping.clone(),
+            )));
+        }
+        let seconds = args.seconds;
+        let shutdown = async move {
+            match seconds {
+                Some(s) => {
+                    tokio::select! {
+                        _ = shutdown_signal() => {},
+                        _ = tokio::time::sleep(Duration::from_secs_f64(s.max(0.0))) => {},
+                    }
+                }
+                None => shutdown_signal().await,
+            }
+            // Gateways first, so their last sends are answered.
+            stop_gateways.send_replace(true);
+            for gateway in gateways {
+                let _ = gateway.await;
+            }
+        };
+        server::run(listener, state, shutdown).await?;
+        tracing::info!("demo stopped");
+        Ok(())
+    })
+}
+
+/// The newest reading stored in `data_dir`, if any.
+async fn newest_reading_t(data_dir: &Path) -> Result<Option<f64>, CliError> {
+    let store = Store::open(data_dir)?;
+    let newest = {
+        let store = store.clone();
+        tokio::task::spawn_blocking(move || {
+            let mut newest: Option<f64> = None;
+            for machine in store.machines()? {
+                for sensor in SensorKind::ALL {
+                    if let Some(t) = store.last_reading_t(machine.db_id, sensor)? {
+                        newest = Some(newest.map_or(t, |n| n.max(t)));
+                    }
+                }
+            }
+            Ok::<_, crate::store::StoreError>(newest)
+        })
+        .await
+        .map_err(std::io::Error::other)??
+    };
+    store.close().await;
+    Ok(newest)
+}
+
+fn laser_blocked(gateway: &Gateway, since_start_s: f64) -> bool {
+    gateway.laser_blocked && (600.0..1800.0).contains(&since_start_s.rem_euclid(3600.0))
+}
+
+/// One field gateway: sends the simulator's readings as the clock reaches
+/// them, keeping what could not be delivered for the next send.
+async fn run_gateway(
+    gateway: &'static Gateway,
+    address: SocketAddr,
+    clock: Clock,
+    mut stop: watch::Receiver<bool>,
+) {
+    let start_t = clock.now_s();
+    let scenario = TbmScenario {
+        seed: gateway.seed,
+        start_t,
+        hours: 24.0 * 366.0,
+        incl_period_s: 1.0,
+        laser_period_s: 120.0,
+        dropouts: Vec::new(),
+    };
+    let mut drive = match TbmDrive::new(scenario) {
+        Ok(drive) => drive.peekable(),
+        Err(e) => {
+            tracing::error!(machine = gateway.machine, "demo drive: {e}");
+            return;
+        }
+    };
+    let mut sender = Sender::new(gateway, address);
+    let mut pending: Vec<Reading> = Vec::new();
+    let mut tick = tokio::time::interval(SEND_EVERY);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        tokio::select! {
+            _ = tick.tick() => {}
+            _ = stop.changed() => break,
+        }
+        let now = clock.now_s();
+        while let Some(event) = drive.next_if(|e| e.reading.t <= now) {
+            let reading = event.reading;
+            let is_laser = matches!(reading.data, SensorData::Laser { .. });
+            if is_laser && laser_blocked(gateway, reading.t - start_t) {
+                continue;
+            }
+            pending.push(reading);
+        }
+        if pending.is_empty() {
+            continue;
+        }
+        match sender.send(&pending).await {
+            Ok(()) => pending.clear(),
+            Err(e) => {
+                tracing::warn!(machine = gateway.machine, "demo gateway: {e}; will retry");
+                if pending.len() > MAX_PENDING {
+                    let excess = pending.len() - MAX_PENDING;
+                    pending.drain(..excess);
+                }
+            }
+        }
+    }
+}
+
+/// A gateway's connection to the server.
+struct Sender {
+    gateway: &'static Gateway,
+    base: String,
+    http: reqwest::Client,
+    socket: Option<
+        tokio_tungstenite::WebSocketStream<
+            tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>,
+        >,
+    >,
+}
+
+impl Sender {
+    fn new(gateway: &'static Gateway, address: SocketAddr) -> Sender {
+        Sender {
+            gateway,
+            base: format!("{address}/api/v1/machines/{}", gateway.machine),
+            http: reqwest::Client::new(),
+            socket: None,
+        }
+    }
+
+    /// Sends the readings; `Ok` once the server acknowledged the batch. A
+    /// reading the server rejects is logged, not retried.
+    async fn send(&mut self, readings: &[Reading]) -> Result<(), String> {
+        let ack = match self.gateway.transport {
+            Transport::Http => self.post(readings).await?,
+            Transport::WebSocket => {
+                let answer = self.frame(readings).await;
+                if answer.is_err() {
+                    self.socket = None; // reconnect next time
+                }
+                answer?
+            }
+        };
+        if let Some(rejected) = ack["rejected"].as_array().filter(|r| !r.is_empty()) {
+            tracing::warn!(
+                machine = self.gateway.machine,
+                ?rejected,
+                "readings rejected"
+            );
+        }
+        if let Some(error) = ack.get("error") {
+            return Err(format!("server answered {error}"));
+        }
+        Ok(())
+    }
+
+    async fn post(&self, readings: &[Reading]) -> Result<serde_json::Value, String> {
+        let mut body = String::new();
+        for reading in readings {
+            body.push_str(&reading.to_json());
+            body.push('\n');
+        }
+        let response = self
+            .http
+            .post(format!("http://{}/readings", self.base))
+            .header("content-type", "application/x-ndjson")
+            .body(body)
+            .send()
+            .await
+            .map_err(|e| e.to_string())?;
+        let status = response.status();
+        let body = response.bytes().await.map_err(|e| e.to_string())?;
+        let ack: serde_json::Value = serde_json::from_slice(&body).map_err(|e| e.to_string())?;
+        if !status.is_success() {
+            return Err(format!("{status}: {ack}"));
+        }
+        Ok(ack)
+    }
+
+    async fn frame(&mut self, readings: &[Reading]) -> Result<serde_json::Value, String> {
+        if self.socket.is_none() {
+            let (socket, _) =
+                tokio_tungstenite::connect_async(format!("ws://{}/ingest", self.base))
+                    .await
+                    .map_err(|e| e.to_string())?;
+            self.socket = Some(socket);
+        }
+        let Some(socket) = self.socket.as_mut() else {
+            return Err("no socket".into());
+        };
+        let frame = format!(
+            "[{}]",
+            readings
+                .iter()
+                .map(Reading::to_json)
+                .collect::<Vec<_>>()
+                .join(",")
+        );
+        socket
+            .send(Message::Text(frame.into()))
+            .await
+            .map_err(|e| e.to_string())?;
+        loop {
+            match socket.next().await {
+                Some(Ok(Message::Text(text))) => {
+                    return serde_json::from_str(text.as_str()).map_err(|e| e.to_string());
+                }
+                Some(Ok(Message::Close(_))) | None => return Err("socket closed".into()),
+                Some(Ok(_)) => continue,
+                Some(Err(e)) => return Err(e.to_string()),
+            }
+        }
+    }
+}

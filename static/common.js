@@ -1,0 +1,109 @@
+// tunnelnav dashboard: what every page shares (the server clock, number and
+// duration formats, JSON fetches, the theme toggle). No framework.
+'use strict';
+
+const tn = (function () {
+  // The server's clock: Unix seconds, possibly accelerated (the demo runs
+  // it faster than real time). Synced from `server_t` and `clock_rate`,
+  // which the status endpoints and the live socket's hello/ping carry.
+  const clock = {
+    serverT: null, rate: 1, syncedAt: 0,
+    sync(serverT, rate) {
+      if (typeof serverT !== 'number') return;
+      this.serverT = serverT;
+      if (typeof rate === 'number' && rate > 0) this.rate = rate;
+      this.syncedAt = performance.now();
+    },
+    now() {
+      if (this.serverT === null) return Date.now() / 1000;
+      return this.serverT + (performance.now() - this.syncedAt) / 1000 * this.rate;
+    },
+  };
+
+  const DEG = Math.PI / 180;
+
+  function fixed(value, digits) {
+    return (typeof value === 'number' && isFinite(value)) ? value.toFixed(digits) : '—';
+  }
+
+  // A slope in degrees as millimetres per metre (tan of the angle × 1000).
+  function mmPerM(deg) {
+    return (typeof deg === 'number' && isFinite(deg)) ? Math.tan(deg * DEG) * 1000 : NaN;
+  }
+
+  // "42 s", "3 min 05 s", "2 h 04 min", "3 d 2 h".
+  function duration(s) {
+    if (typeof s !== 'number' || !isFinite(s)) return '—';
+    s = Math.max(0, s);
+    if (s < 60) return `${Math.floor(s)} s`;
+    const pad = (n) => String(n).padStart(2, '0');
+    if (s < 3600) return `${Math.floor(s / 60)} min ${pad(Math.floor(s % 60))} s`;
+    if (s < 86400) return `${Math.floor(s / 3600)} h ${pad(Math.floor((s % 3600) / 60))} min`;
+    return `${Math.floor(s / 86400)} d ${Math.floor((s % 86400) / 3600)} h`;
+  }
+
+  function timeOfDay(t) {
+    if (typeof t !== 'number' || !isFinite(t)) return '—';
+    return new Date(t * 1000).toLocaleString([], { hour12: false });
+  }
+
+  async function json(url) {
+    const response = await fetch(url, { headers: { Accept: 'application/json' } });
+    if (!response.ok) {
+      let reason = response.statusText;
+      try { reason = (await response.json()).error || reason; } catch (e) { /* not JSON */ }
+      throw new Error(`${url}: ${response.status} ${reason}`);
+    }
+    return response.json();
+  }
+
+  // NDJSON lines of `url`, at most `limit` of them (the rest is not read).
+  async function ndjson(url, limit) {
+    const response = await fetch(url);
+    if (!response.ok) throw new Error(`${url}: ${response.status}`);
+    const reader = response.body.getReader();
+    const decoder = new TextDecoder();
+    const out = [];
+    let rest = '';
+    for (;;) {
+      const { value, done } = await reader.read();
+      if (done) break;
+      rest += decoder.decode(value, { stream: true });
+      const lines = rest.split('\n');
+      rest = lines.pop();
+      for (const line of lines) {
+        if (line.trim()) out.push(JSON.parse(line));
+        if (out.length >= limit) { reader.cancel(); return out; }
+      }
+    }
+    if (rest.trim()) out.push(JSON.parse(rest));
+    return out;
+  }
+
+  function setText(el, text) {
+    if (el && el.textContent !== text) el.textContent = text;
+  }
+
+  function css(name) {
+    return getComputedStyle(document.documentElement).getPropertyValue(name).trim();
+  }
+
+  // Header: theme toggle and the server clock.
+  document.getElementById('theme-toggle').addEventListener('click', () => {
+    const root = document.documentElement;
+    const dark = root.dataset.theme
+      ? root.dataset.theme === 'dark'
+      : matchMedia('(prefers-color-scheme: dark)').matches;
+    root.dataset.theme = dark ? 'light' : 'dark';
+    try { localStorage.setItem('tunnelnav-theme', root.dataset.theme); } catch (e) { /* private mode */ }
+    window.dispatchEvent(new Event('tn-theme'));
+  });
+  const clockEl = document.getElementById('server-clock');
+  setInterval(() => {
+    if (clock.serverT === null) return;
+    const rate = clock.rate === 1 ? '' : ` (×${clock.rate})`;
+    setText(clockEl, `server clock ${timeOfDay(clock.now())}${rate}`);
+  }, 250);
+
+  return { clock, fixed, mmPerM, duration, timeOfDay, json, ndjson, setText, css };
+})();

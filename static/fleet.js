@@ -1,0 +1,90 @@
+// Fleet overview: polls /api/v1/machines every second and fills the cards
+// the server rendered.
+'use strict';
+
+(function () {
+  // Seconds (server clock) since a machine's newest reading before it is
+  // marked stale, then offline.
+  const STALE_S = 30, OFFLINE_S = 600;
+  const cards = new Map();
+  document.querySelectorAll('.machine-card').forEach((card) => {
+    const fields = {};
+    card.querySelectorAll('[data-field]').forEach((el) => { fields[el.dataset.field] = el; });
+    cards.set(card.dataset.machine, fields);
+  });
+
+  function figures(latest) {
+    const rows = [];
+    const a = latest.attitude;
+    if (a) {
+      rows.push(['pitch', `${tn.fixed(a.pitch_deg, 3)}° · ${tn.fixed(tn.mmPerM(a.pitch_deg), 1)} mm/m`]);
+      rows.push(['roll', `${tn.fixed(a.roll_deg, 3)}° · ${tn.fixed(tn.mmPerM(a.roll_deg), 1)} mm/m`]);
+    }
+    const z = latest.zupt;
+    if (z) {
+      rows.push(['distance', `${tn.fixed(z.distance_m, 2)} m`]);
+      rows.push(['heading', `${tn.fixed(z.yaw_deg, 2)}°`]);
+    }
+    const f = latest.fuzzy;
+    if (f) {
+      rows.push(['heading', `${tn.fixed(f.heading_deg, 1)}°`]);
+      rows.push(['pitch / roll', `${tn.fixed(f.pitch_deg, 2)}° / ${tn.fixed(f.roll_deg, 2)}°`]);
+    }
+    return rows;
+  }
+
+  function render(card, m, now) {
+    const age = typeof m.last_reading_t === 'number' ? now - m.last_reading_t : null;
+    let [state, cls] = ['no data', ''];
+    if (age !== null) {
+      if (age <= STALE_S) [state, cls] = ['live', 'ok'];
+      else if (age <= OFFLINE_S) [state, cls] = [`stale ${tn.duration(age)}`, 'warn'];
+      else [state, cls] = [`offline ${tn.duration(age)}`, 'bad'];
+    }
+    tn.setText(card.state, state);
+    card.state.className = `badge ${cls}`;
+
+    const html = figures(m.latest || {})
+      .map(([k, v]) => `<dt>${k}</dt><dd>${v}</dd>`).join('');
+    if (card.figures.innerHTML !== html) card.figures.innerHTML = html;
+
+    let laser = '\u00a0', laserCls = '';
+    if (m.laser) {
+      if (m.laser.dropout) {
+        const latestT = m.latest && m.latest.attitude ? m.latest.attitude.t : now;
+        laser = `LASER DROPOUT · out for ${tn.duration(m.laser.age_s + (now - latestT))}`;
+        laserCls = 'bad';
+      } else if (m.laser.ok) {
+        laser = 'laser OK';
+        laserCls = 'ok';
+      } else {
+        laser = 'no laser sample yet';
+      }
+    }
+    tn.setText(card.laser, laser);
+    card.laser.className = `laser-line ${laserCls}`;
+
+    const sensors = Object.entries(m.sensors || {})
+      .map(([name, s]) => `<li>${name}: ${tn.duration(now - s.last_t)} ago</li>`).join('');
+    if (card.sensors.innerHTML !== sensors) card.sensors.innerHTML = sensors;
+  }
+
+  async function poll() {
+    try {
+      const body = await tn.json('/api/v1/machines');
+      tn.clock.sync(body.server_t, body.clock_rate);
+      const ids = body.machines.map((m) => m.machine);
+      if (ids.length !== cards.size || ids.some((id) => !cards.has(id))) {
+        // Machines were declared or removed: the server renders the new set.
+        location.reload();
+        return;
+      }
+      for (const m of body.machines) render(cards.get(m.machine), m, body.server_t);
+    } catch (e) {
+      console.warn('fleet poll failed:', e.message);
+    }
+  }
+
+  poll();
+  setInterval(poll, 1000);
+})();
