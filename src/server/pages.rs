@@ -99,6 +99,7 @@ macro_rules! asset {
 const ASSETS: &[Asset] = &[
     asset!("app.css", "text/css; charset=utf-8"),
     asset!("common.js", "text/javascript; charset=utf-8"),
+    asset!("favicon.svg", "image/svg+xml"),
     asset!("fleet.js", "text/javascript; charset=utf-8"),
     asset!("machine.js", "text/javascript; charset=utf-8"),
     asset!(

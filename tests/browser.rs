@@ -1,0 +1,400 @@
+//! The dashboard in a real browser: Debian's headless Chromium driven over
+//! WebDriver (chromedriver). A server with one `attitude` machine gets a
+//! simulated drive posted in phases while the machine page is open; the
+//! test asserts what a driver would see, then that the console is clean.
+//! Screenshots go to `target/browser-*.png`.
+//!
+//! Skipped (and says so) when chromedriver or chromium is missing, unless
+//! `TUNNELNAV_BROWSER_TEST=required` (set by `.ci/run`): then it fails.
+
+mod common;
+
+use std::net::TcpListener;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use fantoccini::wd::WebDriverCompatibleCommand;
+use fantoccini::{Client, ClientBuilder};
+use serde_json::{Value, json};
+use tunnelnav::fusion::SensorData;
+use tunnelnav::sim::tbm::{TbmDrive, TbmScenario};
+
+use common::{post_ndjson, server_with_machine};
+
+const MACHINE: &str = "tbm-browser";
+
+fn find_program(candidates: &[&str]) -> Option<PathBuf> {
+    let path = std::env::var_os("PATH")?;
+    candidates.iter().find_map(|name| {
+        std::env::split_paths(&path)
+            .map(|dir| dir.join(name))
+            .find(|p| p.is_file())
+    })
+}
+
+/// chromedriver on a free port, killed when dropped.
+struct Driver {
+    child: Child,
+    url: String,
+}
+
+impl Driver {
+    fn start(program: &Path) -> Driver {
+        let port = TcpListener::bind("127.0.0.1:0")
+            .and_then(|l| l.local_addr())
+            .expect("a free port")
+            .port();
+        let child = Command::new(program)
+            .arg(format!("--port={port}"))
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("chromedriver starts");
+        Driver {
+            child,
+            url: format!("http://127.0.0.1:{port}"),
+        }
+    }
+}
+
+impl Drop for Driver {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// chromedriver's browser log (`goog:loggingPrefs`), which holds console
+/// messages and uncaught errors; not part of W3C WebDriver.
+#[derive(Debug)]
+struct BrowserLog;
+
+impl WebDriverCompatibleCommand for BrowserLog {
+    fn endpoint(
+        &self,
+        base: &url::Url,
+        session: Option<&str>,
+    ) -> Result<url::Url, url::ParseError> {
+        base.join(&format!("session/{}/se/log", session.unwrap_or_default()))
+    }
+
+    fn method_and_body(&self, _: &url::Url) -> (http::Method, Option<String>) {
+        (
+            http::Method::POST,
+            Some(json!({"type": "browser"}).to_string()),
+        )
+    }
+}
+
+async fn connect(driver: &Driver, chromium: Option<&Path>) -> Client {
+    let mut chrome = json!({
+        "args": ["--headless=new", "--no-sandbox", "--disable-gpu",
+                 "--disable-dev-shm-usage", "--window-size=1400,1900"],
+    });
+    if let Some(binary) = chromium {
+        chrome["binary"] = binary.display().to_string().into();
+    }
+    let capabilities = json!({
+        "browserName": "chrome",
+        "goog:chromeOptions": chrome,
+        "goog:loggingPrefs": {"browser": "ALL"},
+    });
+    let Value::Object(capabilities) = capabilities else {
+        unreachable!()
+    };
+    let deadline = Instant::now() + Duration::from_secs(20);
+    loop {
+        let mut builder =
+            ClientBuilder::new(hyper_util::client::legacy::connect::HttpConnector::new());
+        builder.capabilities(capabilities.clone());
+        match builder.connect(&driver.url).await {
+            Ok(client) => return client,
+            Err(e) if Instant::now() < deadline => {
+                eprintln!("waiting for chromedriver: {e}");
+                tokio::time::sleep(Duration::from_millis(250)).await;
+            }
+            Err(e) => panic!("no WebDriver session: {e}"),
+        }
+    }
+}
+
+async fn js(browser: &Client, script: &str) -> Value {
+    browser
+        .execute(script, Vec::new())
+        .await
+        .unwrap_or_else(|e| panic!("script failed: {e}\n{script}"))
+}
+
+/// Polls `script` until it returns true; panics with `what` after `secs`.
+async fn wait_for(browser: &Client, what: &str, script: &str, secs: u64) {
+    let deadline = Instant::now() + Duration::from_secs(secs);
+    loop {
+        if js(browser, script).await == Value::Bool(true) {
+            return;
+        }
+        if Instant::now() > deadline {
+            let state = js(
+                browser,
+                "return {laser: document.getElementById('laser-status').dataset.state, \
+                 conn: document.getElementById('conn-state').textContent, \
+                 pitch: document.getElementById('pitch-value').textContent, \
+                 note: document.getElementById('history-note').textContent};",
+            )
+            .await;
+            save_screenshot(browser, "browser-failure.png").await;
+            panic!("timed out waiting for {what}; page: {state}");
+        }
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+}
+
+async fn save_screenshot(browser: &Client, name: &str) -> PathBuf {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("target")
+        .join(name);
+    let png = browser.screenshot().await.expect("screenshot");
+    std::fs::write(&path, png).expect("screenshot written");
+    path
+}
+
+/// A 40-minute drive ending now: 1 Hz inclinometer, 60 s laser.
+fn drive_ending_now() -> Vec<tunnelnav::fusion::Reading> {
+    let now = tunnelnav::server::wall_clock_s();
+    TbmDrive::new(TbmScenario {
+        seed: 5,
+        start_t: (now - 2400.0).floor(),
+        hours: 2400.0 / 3600.0,
+        incl_period_s: 1.0,
+        laser_period_s: 60.0,
+        dropouts: Vec::new(),
+    })
+    .unwrap()
+    .map(|e| e.reading)
+    .collect()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn machine_page_shows_live_attitude_dropout_and_model() {
+    let required = std::env::var("TUNNELNAV_BROWSER_TEST").as_deref() == Ok("required");
+    let driver_program = find_program(&["chromedriver"]);
+    let chromium = find_program(&["chromium", "chromium-browser", "google-chrome"]);
+    let Some(driver_program) = driver_program.filter(|_| chromium.is_some()) else {
+        assert!(
+            !required,
+            "TUNNELNAV_BROWSER_TEST=required but chromedriver/chromium are not installed \
+             (apt-get install -y chromium chromium-driver)"
+        );
+        eprintln!(
+            "SKIPPED: the browser test needs chromium and chromedriver \
+             (apt-get install -y chromium chromium-driver); none found on PATH"
+        );
+        return;
+    };
+
+    let dir = tempfile::tempdir().unwrap();
+    let (server, client, base) = server_with_machine(dir.path(), MACHINE).await;
+    let readings = drive_ending_now();
+    let start_t = readings[0].t;
+    let phase = |from_s: f64, to_s: f64, laser: bool| -> Vec<String> {
+        readings
+            .iter()
+            .filter(|r| r.t >= start_t + from_s && r.t < start_t + to_s)
+            .filter(|r| laser || !matches!(r.data, SensorData::Laser { .. }))
+            .map(|r| r.to_json())
+            .collect()
+    };
+    // Posts a phase a simulated minute at a time, as a gateway would.
+    let post_live = |lines: Vec<String>| {
+        let (client, base) = (client.clone(), base.clone());
+        async move {
+            for chunk in lines.chunks(60) {
+                post_ndjson(&client, &base, MACHINE, chunk).await;
+                tokio::time::sleep(Duration::from_millis(150)).await;
+            }
+        }
+    };
+
+    // History: the first 20 minutes before the page opens.
+    post_ndjson(&client, &base, MACHINE, &phase(0.0, 1200.0, true)).await;
+
+    let driver = Driver::start(&driver_program);
+    let browser = connect(&driver, chromium.as_deref()).await;
+    browser
+        .goto(&format!("{base}/machines/{MACHINE}"))
+        .await
+        .expect("page loads");
+
+    wait_for(
+        &browser,
+        "the live socket",
+        "return document.getElementById('conn-state').dataset.state === 'live';",
+        15,
+    )
+    .await;
+    wait_for(
+        &browser,
+        "readouts from history",
+        "return /^-?\\d+\\.\\d{3}$/.test(document.getElementById('pitch-value').textContent);",
+        15,
+    )
+    .await;
+    // The history ends 20 minutes ago: the 15-minute window is empty, the
+    // 2-hour one is not.
+    wait_for(
+        &browser,
+        "an empty 15-minute window",
+        "return /no estimates/.test(document.getElementById('history-note').textContent);",
+        15,
+    )
+    .await;
+    browser
+        .find(fantoccini::Locator::Css(
+            "#windows button[data-window='7200']",
+        ))
+        .await
+        .expect("the 2 h button")
+        .click()
+        .await
+        .expect("click");
+    wait_for(
+        &browser,
+        "charts with history",
+        "const c = window.tunnelnav.charts; \
+         return c.pitch.data[0].length > 100 && c.roll.data[0].length > 100 \
+           && c.pitch.data[4].some(v => v !== null);",
+        15,
+    )
+    .await;
+    let first = js(
+        &browser,
+        "return document.getElementById('est-time').textContent \
+           + ' ' + document.getElementById('pitch-value').textContent;",
+    )
+    .await;
+
+    // Live: ten more minutes, laser on; the readouts move, the model trains.
+    post_live(phase(1200.0, 1800.0, true)).await;
+    wait_for(
+        &browser,
+        "the readouts to change",
+        &format!(
+            "return (document.getElementById('est-time').textContent + ' ' + \
+             document.getElementById('pitch-value').textContent) !== {first};"
+        ),
+        15,
+    )
+    .await;
+    wait_for(
+        &browser,
+        "laser OK",
+        "return document.getElementById('laser-status').dataset.state === 'ok';",
+        15,
+    )
+    .await;
+    wait_for(
+        &browser,
+        "the ANFIS curve",
+        "const m = window.tunnelnav.state.model; const a = window.tunnelnav.charts.anfis; \
+         return !!m && m.version > 0 && m.curve.length > 0 && m.memberships.length > 0 \
+           && !!a && a.data[0].length > 0 && a.data[1].some(v => v !== null) \
+           && a.data.length === 3 + m.memberships.length;",
+        20,
+    )
+    .await;
+    let live_points = js(
+        &browser,
+        "return window.tunnelnav.charts.pitch.data[1].filter(v => v !== null).length;",
+    )
+    .await;
+    assert!(
+        live_points.as_u64().unwrap_or(0) > 1500,
+        "fused pitch points after live: {live_points}"
+    );
+    save_screenshot(&browser, "browser-machine.png").await;
+
+    // The laser stops for five minutes: the banner appears, the model freezes.
+    post_live(phase(1800.0, 2100.0, false)).await;
+    wait_for(
+        &browser,
+        "the dropout banner",
+        "const s = document.getElementById('laser-status'); \
+         return s.dataset.state === 'dropout' \
+           && /LASER DROPOUT/.test(s.textContent) && /inclinometer/.test(s.textContent) \
+           && /out for \\d+ min/.test(s.textContent);",
+        20,
+    )
+    .await;
+    wait_for(
+        &browser,
+        "the frozen model",
+        "return /frozen/.test(document.getElementById('anfis-state').textContent);",
+        20,
+    )
+    .await;
+    let dropout_png = save_screenshot(&browser, "browser-dropout.png").await;
+
+    // The connection drops while the laser returns: on reconnecting the
+    // page fetches what it missed from the history API.
+    js(&browser, "window.tunnelnav.socket.close(); return true;").await;
+    post_ndjson(&client, &base, MACHINE, &phase(2100.0, 2220.0, true)).await;
+    wait_for(
+        &browser,
+        "the gap to be backfilled",
+        "const c = document.getElementById('conn-state'); \
+         return c.dataset.state === 'backfilled' \
+           && /reconnected: [1-9]\\d* estimates backfilled/.test(c.textContent);",
+        20,
+    )
+    .await;
+    let backfilled = js(&browser, "return window.tunnelnav.state.backfilled;").await;
+    assert!(
+        backfilled.as_u64().unwrap_or(0) >= 100,
+        "backfilled {backfilled}"
+    );
+
+    // The laser is back: the banner clears.
+    post_live(phase(2220.0, 2400.0, true)).await;
+    wait_for(
+        &browser,
+        "the banner to clear",
+        "return document.getElementById('laser-status').dataset.state === 'ok';",
+        20,
+    )
+    .await;
+
+    // The fleet page shows the machine live with its laser state.
+    browser
+        .goto(&format!("{base}/"))
+        .await
+        .expect("fleet loads");
+    wait_for(
+        &browser,
+        "the fleet card",
+        &format!(
+            "const c = document.querySelector('[data-machine=\"{MACHINE}\"]'); \
+             return !!c && /pitch/.test(c.textContent) && /laser OK/.test(c.textContent) \
+               && /live/.test(c.querySelector('[data-field=state]').textContent);"
+        ),
+        15,
+    )
+    .await;
+    save_screenshot(&browser, "browser-fleet.png").await;
+
+    let log = browser
+        .issue_cmd(BrowserLog)
+        .await
+        .expect("chromedriver returns the browser log");
+    let errors: Vec<&Value> = log
+        .as_array()
+        .map(|entries| entries.iter().filter(|e| e["level"] == "SEVERE").collect())
+        .unwrap_or_default();
+    assert!(errors.is_empty(), "console errors: {errors:#?}");
+    eprintln!(
+        "browser test passed; screenshots in {}",
+        dropout_png.parent().unwrap().display()
+    );
+
+    browser.close().await.ok();
+    server.stop().await;
+}
