@@ -13,6 +13,7 @@ const tn = (function () {
       this.serverT = serverT;
       if (typeof rate === 'number' && rate > 0) this.rate = rate;
       this.syncedAt = performance.now();
+      showClock();
     },
     now() {
       if (this.serverT === null) return Date.now() / 1000;
@@ -98,12 +99,13 @@ const tn = (function () {
     try { localStorage.setItem('tunnelnav-theme', root.dataset.theme); } catch (e) { /* private mode */ }
     window.dispatchEvent(new Event('tn-theme'));
   });
-  const clockEl = document.getElementById('server-clock');
-  setInterval(() => {
-    if (clock.serverT === null) return;
+  function showClock() {
+    const el = document.getElementById('server-clock');
+    if (!el || clock.serverT === null) return;
     const rate = clock.rate === 1 ? '' : ` (×${clock.rate})`;
-    setText(clockEl, `server clock ${timeOfDay(clock.now())}${rate}`);
-  }, 250);
+    setText(el, `server clock ${timeOfDay(clock.now())}${rate}`);
+  }
+  setInterval(showClock, 250);
 
   return { clock, fixed, mmPerM, duration, timeOfDay, json, ndjson, setText, css };
 })();
