@@ -92,10 +92,7 @@ const tn = (function () {
   // Header: theme toggle and the server clock.
   document.getElementById('theme-toggle').addEventListener('click', () => {
     const root = document.documentElement;
-    const dark = root.dataset.theme
-      ? root.dataset.theme === 'dark'
-      : matchMedia('(prefers-color-scheme: dark)').matches;
-    root.dataset.theme = dark ? 'light' : 'dark';
+    root.dataset.theme = root.dataset.theme === 'dark' ? 'light' : 'dark';
     try { localStorage.setItem('tunnelnav-theme', root.dataset.theme); } catch (e) { /* private mode */ }
     window.dispatchEvent(new Event('tn-theme'));
   });

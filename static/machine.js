@@ -240,7 +240,12 @@
   let redrawTimer = null;
   function scheduleRedraw() {
     if (redrawTimer === null) {
-      redrawTimer = setTimeout(() => { redrawTimer = null; drawTimeCharts(); if (charts.anfis) charts.anfis.redraw(false); }, 200);
+      redrawTimer = setTimeout(() => {
+        redrawTimer = null;
+        compactIfLarge();
+        drawTimeCharts();
+        if (charts.anfis) charts.anfis.redraw(false);
+      }, 200);
     }
   }
 
@@ -304,17 +309,26 @@
     }
   }
 
+  // Loads the window from the history API. With `replace`, what the page
+  // holds is swapped for the server's downsampled copy (keeping what came
+  // live after it): this bounds memory when a page stays open for days.
   let historyRequest = 0;
-  async function loadHistory() {
+  async function loadHistory(replace) {
     const request = ++historyRequest;
     const from = windowStart();
-    setText($('history-note'), 'loading history…');
+    if (!replace) setText($('history-note'), 'loading history…');
     try {
       const [history, lasers] = await Promise.all([
         tn.json(`${API}/estimates?engine=attitude&from=${from}&max_points=${HISTORY_POINTS}`),
         tn.ndjson(`${API}/readings?sensor=laser&from=${from}&format=ndjson`, MAX_LASER),
       ]);
       if (request !== historyRequest) return; // the window changed meanwhile
+      if (replace && history.estimates.length > 0) {
+        const lastT = history.estimates[history.estimates.length - 1].t;
+        const newer = [...state.estimates.values()].filter((e) => e.t > lastT);
+        state.estimates.clear();
+        for (const e of newer) state.estimates.set(e.t, e);
+      }
       for (const e of history.estimates) addEstimate(e);
       for (const r of lasers) addLaser(r);
       const how = history.downsampled ? ', downsampled by the server keeping each bucket’s extremes' : '';
@@ -326,6 +340,18 @@
     } catch (e) {
       console.error('history:', e.message);
       setText($('history-note'), `history could not be loaded: ${e.message}`);
+    } finally {
+      compacting = false;
+    }
+  }
+
+  // Most estimates held before the window is reloaded downsampled.
+  const MAX_HELD = 4 * HISTORY_POINTS;
+  let compacting = false;
+  function compactIfLarge() {
+    if (!compacting && state.estimates.size > MAX_HELD) {
+      compacting = true;
+      loadHistory(true);
     }
   }
 
@@ -380,7 +406,7 @@
     } else if (m.event === 'ping') {
       tn.clock.sync(m.server_t, m.clock_rate || tn.clock.rate);
     } else if (m.event === 'gap') {
-      backfill(m.from_t, `fell behind (${m.missed} missed)`);
+      backfill(num(m.from_t) ? m.from_t : windowStart(), `fell behind (${m.missed} missed)`);
     } else if (m.event === undefined && m.engine) {
       if (m.engine === 'attitude') {
         addEstimate(m);

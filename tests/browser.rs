@@ -313,6 +313,26 @@ async fn machine_page_shows_live_attitude_dropout_and_model() {
     );
     save_screenshot(&browser, "browser-machine.png").await;
 
+    // The theme switch redraws the charts in the other palette.
+    let theme = js(&browser, "return document.documentElement.dataset.theme;").await;
+    browser
+        .find(fantoccini::Locator::Css("#theme-toggle"))
+        .await
+        .expect("the theme button")
+        .click()
+        .await
+        .expect("click");
+    wait_for(
+        &browser,
+        "the other theme with charts redrawn",
+        &format!(
+            "return document.documentElement.dataset.theme !== {theme} \
+               && window.tunnelnav.charts.pitch.data[0].length > 100;"
+        ),
+        10,
+    )
+    .await;
+
     // The laser stops for five minutes: the banner appears, the model freezes.
     post_live(phase(1800.0, 2100.0, false)).await;
     wait_for(

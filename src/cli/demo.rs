@@ -20,10 +20,11 @@ use tokio::sync::watch;
 use tokio_tungstenite::tungstenite::Message;
 
 use super::CliError;
-use super::serve::{init_tracing, shutdown_signal};
+use super::load::post_ndjson;
+use super::serve::{init_tracing, shutdown_signal, start};
 use crate::config::ServerConfig;
 use crate::fusion::{Reading, SensorData, SensorKind};
-use crate::server::{self, AppState, Clock, Limits, ServerOptions, wall_clock_s};
+use crate::server::{self, Clock, Limits, ServerOptions, wall_clock_s};
 use crate::sim::tbm::{TbmDrive, TbmScenario};
 use crate::store::Store;
 
@@ -115,26 +116,18 @@ pub fn run(args: DemoArgs) -> Result<(), CliError> {
         .enable_all()
         .build()?;
     runtime.block_on(async {
-        server::metrics::install();
         // Start after anything an earlier demo stored, so nothing new is older.
         let resume_t = newest_reading_t(&args.data_dir).await?;
         let start_t = resume_t.map_or(wall_clock_s(), |t| wall_clock_s().max(t + 1.0));
         let clock = Clock::accelerated(args.rate, start_t).map_err(CliError::Scenario)?;
-        let state = AppState::start(ServerOptions {
+        let options = ServerOptions {
             data_dir: args.data_dir.clone(),
             machines,
             limits: Limits::default(),
             clock,
-        })
-        .await?;
-        let listener = tokio::net::TcpListener::bind(args.listen)
-            .await
-            .map_err(|source| CliError::File {
-                context: format!("cannot listen on {}", args.listen),
-                source,
-            })?;
+        };
+        let (state, listener) = start(options, args.listen).await?;
         let address = listener.local_addr()?;
-        println!("listening on http://{address}");
         println!(
             "tunnelnav demo: open http://{address}/ in a browser. Three simulated machines, \
              server clock ×{} (a 2-minute laser period every {:.0} s), data in {}. Ctrl-C stops.",
@@ -315,21 +308,9 @@ impl Sender {
             body.push_str(&reading.to_json());
             body.push('\n');
         }
-        let response = self
-            .http
-            .post(format!("http://{}/readings", self.base))
-            .header("content-type", "application/x-ndjson")
-            .body(body)
-            .send()
-            .await
-            .map_err(|e| e.to_string())?;
-        let status = response.status();
-        let body = response.bytes().await.map_err(|e| e.to_string())?;
-        let ack: serde_json::Value = serde_json::from_slice(&body).map_err(|e| e.to_string())?;
-        if !status.is_success() {
-            return Err(format!("{status}: {ack}"));
-        }
-        Ok(ack)
+        let endpoint = format!("http://{}/readings", self.base);
+        let answer = post_ndjson(&self.http, &endpoint, body).await?;
+        serde_json::from_slice(&answer).map_err(|e| e.to_string())
     }
 
     async fn frame(&mut self, readings: &[Reading]) -> Result<serde_json::Value, String> {

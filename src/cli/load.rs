@@ -115,7 +115,7 @@ fn percentile_ms(sorted: &[Duration], p: f64) -> f64 {
 }
 
 /// Posts an NDJSON body; the answer's bytes, or what went wrong.
-async fn post_ndjson(
+pub(super) async fn post_ndjson(
     client: &reqwest::Client,
     endpoint: &str,
     body: String,

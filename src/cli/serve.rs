@@ -7,7 +7,7 @@ use clap::Args;
 
 use super::CliError;
 use crate::config::ServerConfig;
-use crate::server::{self, AppState, Clock, Limits, ServerOptions};
+use crate::server::{self, AppState, Clock, Limits, ServerOptions, SharedState};
 
 #[derive(Debug, Args)]
 pub struct ServeArgs {
@@ -32,28 +32,39 @@ pub fn run(args: ServeArgs) -> Result<(), CliError> {
         .enable_all()
         .build()?;
     runtime.block_on(async {
-        server::metrics::install();
-        let state = AppState::start(ServerOptions {
+        let options = ServerOptions {
             data_dir: args.data_dir.clone(),
             machines,
             limits: Limits::default(),
             clock: Clock::system(),
-        })
-        .await?;
-        let listener = tokio::net::TcpListener::bind(args.listen)
-            .await
-            .map_err(|source| CliError::File {
-                context: format!("cannot listen on {}", args.listen),
-                source,
-            })?;
-        let address = listener.local_addr()?;
-        tracing::info!(%address, data_dir = %args.data_dir.display(), "tunnelnav serving");
-        // The address on stdout, for scripts and tests that pass port 0.
-        println!("listening on http://{address}");
+        };
+        let (state, listener) = start(options, args.listen).await?;
         server::run(listener, state, shutdown_signal()).await?;
         tracing::info!("stopped");
         Ok(())
     })
+}
+
+/// Opens the store, restores the machines, binds `listen` and prints
+/// `listening on http://ADDR` as the first line on stdout (for scripts and
+/// tests that pass port 0). Shared by `serve` and `demo`.
+pub async fn start(
+    options: ServerOptions,
+    listen: SocketAddr,
+) -> Result<(SharedState, tokio::net::TcpListener), CliError> {
+    server::metrics::install();
+    let data_dir = options.data_dir.clone();
+    let state = AppState::start(options).await?;
+    let listener = tokio::net::TcpListener::bind(listen)
+        .await
+        .map_err(|source| CliError::File {
+            context: format!("cannot listen on {listen}"),
+            source,
+        })?;
+    let address = listener.local_addr()?;
+    tracing::info!(%address, data_dir = %data_dir.display(), "tunnelnav serving");
+    println!("listening on http://{address}");
+    Ok((state, listener))
 }
 
 /// Resolves on Ctrl-C or SIGTERM.
