@@ -3,9 +3,7 @@
 //! exactly.
 
 use proptest::prelude::*;
-use tunnelnav::fusion::{
-    Engine, EngineKind, EngineOutput, EstimateValues, Params, Reading, SensorData,
-};
+use tunnelnav::fusion::{Engine, EngineKind, EngineOutput, Params, Reading, SensorData};
 
 const T0: f64 = 1_772_431_200.0;
 
@@ -47,7 +45,7 @@ fn reading() -> impl Strategy<Value = (f64, Reading)> {
 
 fn all_finite(outputs: &[EngineOutput]) -> bool {
     outputs.iter().all(|o| {
-        let EstimateValues::Attitude(a) = &o.values;
+        let a = o.values.as_attitude().expect("attitude estimates");
         [
             o.t,
             a.pitch_deg,

@@ -23,8 +23,7 @@
 use crate::fusion::attitude::kalman::ScalarKalman;
 use crate::fusion::attitude::{AttitudeConfig, AttitudeEngine, PARAMS};
 use crate::fusion::{
-    AttitudeEstimate, Engine, EngineOutput, EstimateValues, ParamError, ParamValue, Params,
-    SensorData,
+    AttitudeEstimate, Engine, EngineOutput, ParamError, ParamValue, Params, SensorData,
 };
 use crate::sim::tbm::{TbmDrive, TbmScenario};
 
@@ -164,10 +163,8 @@ impl ConstantOffset {
     }
 }
 
-fn attitude(output: &EngineOutput) -> &AttitudeEstimate {
-    match &output.values {
-        EstimateValues::Attitude(a) => a,
-    }
+fn attitude(output: &EngineOutput) -> Option<&AttitudeEstimate> {
+    output.values.as_attitude()
 }
 
 /// Simulates the drive and scores every method.
@@ -291,10 +288,8 @@ pub fn evaluate(config: &AttitudeEvalConfig) -> Result<AttitudeEvaluation, EvalE
                 let (dp, dr) = offset.offsets();
                 let mut values: Vec<((f64, f64), f64)> = outputs
                     .iter()
-                    .map(|o| {
-                        let a = attitude(o);
-                        ((a.pitch_deg, a.roll_deg), a.pitch_pred_deg)
-                    })
+                    .filter_map(attitude)
+                    .map(|a| ((a.pitch_deg, a.roll_deg), a.pitch_pred_deg))
                     .collect();
                 let hold = laser_hold.unwrap_or((pitch_deg, roll_deg));
                 values.push((hold, hold.0));

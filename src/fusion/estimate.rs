@@ -32,11 +32,45 @@ pub struct AttitudeEstimate {
     pub incl_roll_deg: f64,
 }
 
+/// What the `zupt` engine estimates at one IMU reading.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ZuptEstimate {
+    /// True where the detector declares zero velocity.
+    pub zv: bool,
+    /// North, east, down of the start point.
+    pub position_m: [f64; 3],
+    /// Along-track distance travelled: displacement along the body's x axis.
+    pub distance_m: f64,
+    /// North, east, down.
+    pub velocity_mps: [f64; 3],
+    pub pitch_deg: f64,
+    pub roll_deg: f64,
+    /// Clockwise from north, in [0, 360).
+    pub yaw_deg: f64,
+    /// False until the first still window levels the platform: until then
+    /// position and velocity are zero and the attitude is the raw levelling
+    /// (tunnelnav extension, as are the fields below).
+    pub aligned: bool,
+    /// 1σ of the position error (north, east, down) from the filter's covariance.
+    pub position_sigma_m: [f64; 3],
+    /// Height from the level datum (start point's height as first levelled
+    /// minus `position_m` down); `null` before the first level reading.
+    pub height_m: Option<f64>,
+    /// The newest odometer distance at `t`; `null` before the first.
+    pub odometer_m: Option<f64>,
+    /// Each test statistic over its threshold γ (below 1: still).
+    pub mv_ratio: f64,
+    pub are_ratio: f64,
+    pub shoe_ratio: f64,
+    pub mag_ratio: f64,
+}
+
 /// The engine-specific part of an estimate, tagged by `engine`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "engine", rename_all = "snake_case")]
 pub enum EstimateValues {
     Attitude(AttitudeEstimate),
+    Zupt(ZuptEstimate),
 }
 
 impl EstimateValues {
@@ -44,14 +78,33 @@ impl EstimateValues {
     pub fn engine(&self) -> super::EngineKind {
         match self {
             EstimateValues::Attitude(_) => super::EngineKind::Attitude,
+            EstimateValues::Zupt(_) => super::EngineKind::Zupt,
+        }
+    }
+
+    /// The `attitude` engine's values, if these are.
+    pub fn as_attitude(&self) -> Option<&AttitudeEstimate> {
+        match self {
+            EstimateValues::Attitude(a) => Some(a),
+            _ => None,
+        }
+    }
+
+    /// The `zupt` engine's values, if these are.
+    pub fn as_zupt(&self) -> Option<&ZuptEstimate> {
+        match self {
+            EstimateValues::Zupt(z) => Some(z),
+            _ => None,
         }
     }
 
     /// The two quantities whose extremes history downsampling keeps, so a
-    /// spike stays visible at any zoom (attitude: pitch, roll).
+    /// spike stays visible at any zoom (attitude: pitch, roll; zupt:
+    /// distance, depth).
     pub fn extremes(&self) -> [f64; 2] {
         match self {
             EstimateValues::Attitude(a) => [a.pitch_deg, a.roll_deg],
+            EstimateValues::Zupt(z) => [z.distance_m, z.position_m[2]],
         }
     }
 }
@@ -158,8 +211,69 @@ impl EstimateWriter {
                     self.number(out, key, value);
                 }
             }
+            EstimateValues::Zupt(z) => {
+                out.extend_from_slice(b",\"engine\":\"zupt\"");
+                self.flag(out, "zv", z.zv);
+                self.triple(out, "position_m", &z.position_m);
+                out.push(b',');
+                self.number(out, "distance_m", z.distance_m);
+                self.triple(out, "velocity_mps", &z.velocity_mps);
+                for (key, value) in [
+                    ("pitch_deg", z.pitch_deg),
+                    ("roll_deg", z.roll_deg),
+                    ("yaw_deg", z.yaw_deg),
+                ] {
+                    out.push(b',');
+                    self.number(out, key, value);
+                }
+                self.flag(out, "aligned", z.aligned);
+                self.triple(out, "position_sigma_m", &z.position_sigma_m);
+                self.optional(out, "height_m", z.height_m);
+                self.optional(out, "odometer_m", z.odometer_m);
+                for (key, value) in [
+                    ("mv_ratio", z.mv_ratio),
+                    ("are_ratio", z.are_ratio),
+                    ("shoe_ratio", z.shoe_ratio),
+                    ("mag_ratio", z.mag_ratio),
+                ] {
+                    out.push(b',');
+                    self.number(out, key, value);
+                }
+            }
         }
         out.extend_from_slice(b"}\n");
+    }
+
+    /// `,"key":true|false`
+    fn flag(&mut self, out: &mut Vec<u8>, key: &str, value: bool) {
+        out.extend_from_slice(b",\"");
+        out.extend_from_slice(key.as_bytes());
+        out.extend_from_slice(if value { b"\":true" } else { b"\":false" });
+    }
+
+    /// `,"key":[x,y,z]`
+    fn triple(&mut self, out: &mut Vec<u8>, key: &str, values: &[f64; 3]) {
+        out.extend_from_slice(b",\"");
+        out.extend_from_slice(key.as_bytes());
+        out.extend_from_slice(b"\":[");
+        for (i, value) in values.iter().enumerate() {
+            if i > 0 {
+                out.push(b',');
+            }
+            self.float(out, *value);
+        }
+        out.push(b']');
+    }
+
+    /// `,"key":number|null`
+    fn optional(&mut self, out: &mut Vec<u8>, key: &str, value: Option<f64>) {
+        out.extend_from_slice(b",\"");
+        out.extend_from_slice(key.as_bytes());
+        out.extend_from_slice(b"\":");
+        match value {
+            Some(value) => self.float(out, value),
+            None => out.extend_from_slice(b"null"),
+        }
     }
 
     fn number(&mut self, out: &mut Vec<u8>, key: &str, value: f64) {
@@ -220,6 +334,42 @@ mod tests {
                     String::from_utf8(expected).unwrap()
                 );
             }
+        }
+    }
+
+    #[test]
+    fn zupt_estimates_match_serde_json_byte_for_byte() {
+        let mut writer = EstimateWriter::new("pj-3");
+        for i in 0..500u32 {
+            let x = f64::from(i) * 0.37 - 40.0;
+            let output = EngineOutput {
+                t: 1.7e9 + f64::from(i) * 0.01,
+                values: EstimateValues::Zupt(ZuptEstimate {
+                    zv: i % 3 == 0,
+                    position_m: [x, -x * 1e-3, x.sin()],
+                    distance_m: x.abs(),
+                    velocity_mps: [x * 1e-4, 0.0, -0.0],
+                    pitch_deg: x * 0.01,
+                    roll_deg: -x,
+                    yaw_deg: 359.999,
+                    aligned: i % 7 != 0,
+                    position_sigma_m: [1e-3, 2e-3, f64::from(i)],
+                    height_m: (i % 2 == 0).then_some(x * 0.5),
+                    odometer_m: (i % 5 != 0).then_some(x.abs()),
+                    mv_ratio: x.abs() * 10.0,
+                    are_ratio: 0.5,
+                    shoe_ratio: if i == 9 { f64::INFINITY } else { 1.5 },
+                    mag_ratio: 1e-9,
+                }),
+            };
+            let mut ours = Vec::new();
+            writer.write_line(&output, &mut ours);
+            let mut expected = serde_json::to_vec(&output.for_machine("pj-3")).unwrap();
+            expected.push(b'\n');
+            assert_eq!(
+                String::from_utf8(ours).unwrap(),
+                String::from_utf8(expected).unwrap()
+            );
         }
     }
 

@@ -9,8 +9,11 @@ pub mod estimate;
 pub mod params;
 pub mod reading;
 pub mod reorder;
+pub mod zupt;
 
-pub use estimate::{AttitudeEstimate, EngineOutput, Estimate, EstimateRef, EstimateValues};
+pub use estimate::{
+    AttitudeEstimate, EngineOutput, Estimate, EstimateRef, EstimateValues, ZuptEstimate,
+};
 pub use params::{ParamError, ParamKind, ParamSpec, ParamValue, Params};
 pub use reading::{Reading, ReadingError, SensorData, SensorKind, parse_reading};
 
@@ -27,6 +30,11 @@ pub trait Engine: Send {
     /// Feeds one validated reading; appends the estimates it produces to `out`.
     /// Readings of sensors the engine does not use are ignored.
     fn feed(&mut self, reading: &Reading, out: &mut Vec<EngineOutput>);
+
+    /// The input has ended (end of a replayed file): emits the estimates of
+    /// readings the engine was still holding. Engines that answer every
+    /// reading at once hold none.
+    fn flush(&mut self, _out: &mut Vec<EngineOutput>) {}
 
     /// The parameters the engine runs with.
     fn params(&self) -> &Params;
@@ -62,21 +70,24 @@ pub enum SnapshotError {
 pub enum EngineKind {
     /// Laser + inclinometer dual-rate ANFIS fusion (He et al. 2021).
     Attitude,
+    /// FOG strapdown INS with zero-velocity updates (Zhang et al. 2024).
+    Zupt,
 }
 
 /// An engine name that tunnelnav does not know.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("unknown engine `{0}` (known: attitude)")]
+#[error("unknown engine `{0}` (known: attitude, zupt)")]
 pub struct UnknownEngine(pub String);
 
 impl EngineKind {
     /// Every engine.
-    pub const ALL: [EngineKind; 1] = [EngineKind::Attitude];
+    pub const ALL: [EngineKind; 2] = [EngineKind::Attitude, EngineKind::Zupt];
 
     /// The protocol name.
     pub fn as_str(self) -> &'static str {
         match self {
             EngineKind::Attitude => "attitude",
+            EngineKind::Zupt => "zupt",
         }
     }
 
@@ -84,6 +95,7 @@ impl EngineKind {
     pub fn specs(self) -> &'static [ParamSpec] {
         match self {
             EngineKind::Attitude => attitude::PARAMS,
+            EngineKind::Zupt => zupt::PARAMS,
         }
     }
 
@@ -91,6 +103,7 @@ impl EngineKind {
     pub fn sensors(self) -> &'static [SensorKind] {
         match self {
             EngineKind::Attitude => &[SensorKind::Laser, SensorKind::Inclinometer],
+            EngineKind::Zupt => &[SensorKind::Imu, SensorKind::Level, SensorKind::Odometer],
         }
     }
 
@@ -98,6 +111,7 @@ impl EngineKind {
     pub fn create(self, params: Params) -> Result<Box<dyn Engine>, ParamError> {
         match self {
             EngineKind::Attitude => Ok(Box::new(attitude::AttitudeEngine::new(params)?)),
+            EngineKind::Zupt => Ok(Box::new(zupt::ZuptEngine::new(params)?)),
         }
     }
 
@@ -105,6 +119,7 @@ impl EngineKind {
     pub fn restore(self, snapshot: serde_json::Value) -> Result<Box<dyn Engine>, SnapshotError> {
         match self {
             EngineKind::Attitude => Ok(Box::new(attitude::AttitudeEngine::restore(snapshot)?)),
+            EngineKind::Zupt => Ok(Box::new(zupt::ZuptEngine::restore(snapshot)?)),
         }
     }
 }

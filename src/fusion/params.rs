@@ -116,6 +116,64 @@ impl ParamSpec {
     }
 }
 
+/// A real parameter spec (for engines' `PARAMS` tables).
+pub const fn real(
+    name: &'static str,
+    default: f64,
+    min: f64,
+    max: f64,
+    unit: &'static str,
+    doc: &'static str,
+) -> ParamSpec {
+    ParamSpec {
+        name,
+        kind: ParamKind::Real { default, min, max },
+        unit,
+        doc,
+    }
+}
+
+/// A whole-number parameter spec without a unit.
+pub const fn integer(
+    name: &'static str,
+    default: i64,
+    min: i64,
+    max: i64,
+    doc: &'static str,
+) -> ParamSpec {
+    ParamSpec {
+        name,
+        kind: ParamKind::Integer { default, min, max },
+        unit: "",
+        doc,
+    }
+}
+
+/// A choice parameter spec.
+pub const fn choice(
+    name: &'static str,
+    default: &'static str,
+    options: &'static [&'static str],
+    doc: &'static str,
+) -> ParamSpec {
+    ParamSpec {
+        name,
+        kind: ParamKind::Choice { default, options },
+        unit: "",
+        doc,
+    }
+}
+
+/// A true/false parameter spec.
+pub const fn flag(name: &'static str, default: bool, doc: &'static str) -> ParamSpec {
+    ParamSpec {
+        name,
+        kind: ParamKind::Bool { default },
+        unit: "",
+        doc,
+    }
+}
+
 /// A parameter value as it appears in configuration files and JSON.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(untagged)]

@@ -11,7 +11,7 @@
 //!   estimate where its JSON is about 330.
 
 use crate::fusion::{
-    AttitudeEstimate, EngineKind, EstimateValues, Reading, SensorData, SensorKind,
+    AttitudeEstimate, EngineKind, EstimateValues, Reading, SensorData, SensorKind, ZuptEstimate,
 };
 
 use super::StoreError;
@@ -93,6 +93,7 @@ pub fn decode_reading(t: f64, sensor: SensorKind, bytes: &[u8]) -> Result<Readin
 pub fn encode_values(values: &EstimateValues) -> Vec<u8> {
     let encoded = match values {
         EstimateValues::Attitude(a) => postcard::to_stdvec(a),
+        EstimateValues::Zupt(z) => postcard::to_stdvec(z),
     };
     // postcard fails only on types it cannot express (maps of unknown
     // length, self-describing values); engine estimates are plain structs.
@@ -106,6 +107,9 @@ pub fn decode_values(engine: EngineKind, bytes: &[u8]) -> Result<EstimateValues,
     match engine {
         EngineKind::Attitude => postcard::from_bytes::<AttitudeEstimate>(bytes)
             .map(EstimateValues::Attitude)
+            .map_err(corrupt),
+        EngineKind::Zupt => postcard::from_bytes::<ZuptEstimate>(bytes)
+            .map(EstimateValues::Zupt)
             .map_err(corrupt),
     }
 }
@@ -186,7 +190,7 @@ mod tests {
         assert!(bytes.len() <= 86, "{} bytes", bytes.len());
         let back = decode_values(EngineKind::Attitude, &bytes).unwrap();
         assert_eq!(format!("{back:?}"), format!("{values:?}"));
-        let (EstimateValues::Attitude(a), EstimateValues::Attitude(b)) = (&back, &values);
+        let (a, b) = (back.as_attitude().unwrap(), values.as_attitude().unwrap());
         assert_eq!(
             a.pitch_correction_deg.to_bits(),
             b.pitch_correction_deg.to_bits()

@@ -35,7 +35,7 @@ use self::dual_rate::{FilterNoise, InclHistory, InclPoint, LaserHold, fuse, pred
 use self::kalman::ScalarKalman;
 use super::angles::{deg, rad, rad2};
 use super::estimate::{AttitudeEstimate, EngineOutput, EstimateValues};
-use super::params::{ParamError, ParamKind, ParamSpec, Params};
+use super::params::{ParamError, ParamKind, ParamSpec, Params, integer, real};
 use super::reading::{Reading, SensorData};
 use super::{Engine, EngineKind, SnapshotError};
 
@@ -45,37 +45,6 @@ const HISTORY_POINTS: usize = 512;
 const MAX_PENDING_LASER: usize = 8;
 /// Points on the reported model curve.
 const CURVE_POINTS: usize = 61;
-
-const fn real(
-    name: &'static str,
-    default: f64,
-    min: f64,
-    max: f64,
-    unit: &'static str,
-    doc: &'static str,
-) -> ParamSpec {
-    ParamSpec {
-        name,
-        kind: ParamKind::Real { default, min, max },
-        unit,
-        doc,
-    }
-}
-
-const fn integer(
-    name: &'static str,
-    default: i64,
-    min: i64,
-    max: i64,
-    doc: &'static str,
-) -> ParamSpec {
-    ParamSpec {
-        name,
-        kind: ParamKind::Integer { default, min, max },
-        unit: "",
-        doc,
-    }
-}
 
 /// The `attitude` engine's parameters. Gains and membership count are the
 /// paper's; noise defaults are sized for a 1 Hz inclinometer under cutter
@@ -808,9 +777,8 @@ mod tests {
     }
 
     fn attitude(out: &[EngineOutput]) -> &AttitudeEstimate {
-        match &out.last().expect("an estimate").values {
-            EstimateValues::Attitude(a) => a,
-        }
+        let values = &out.last().expect("an estimate").values;
+        values.as_attitude().expect("an attitude estimate")
     }
 
     const T0: f64 = 1_772_431_200.0;
@@ -911,9 +879,7 @@ mod tests {
         }
         let ok: Vec<bool> = out
             .iter()
-            .map(|o| match &o.values {
-                EstimateValues::Attitude(a) => a.laser_ok,
-            })
+            .map(|o| o.values.as_attitude().expect("attitude").laser_ok)
             .collect();
         // Held sample at 120 s, period 60 s: ok through 240 s, dropout after.
         assert!(ok[..=240].iter().all(|&b| b));

@@ -1,0 +1,985 @@
+//! The `zupt` engine: a FOG strapdown INS corrected by zero-velocity
+//! updates whenever a three-condition detector finds the machine standing
+//! still, and by level-instrument heights (Zhang et al. 2024).
+//!
+//! Per IMU reading:
+//! 1. the reading enters the zero-velocity pipeline ([`zero_velocity`]):
+//!    MV, ARE, SHOE and MAG over a window centred on it ([`detectors`]),
+//!    the selected test, a binary median filter, a minimum run. Decisions
+//!    come out late by a bounded amount ([`ZuptEngine::latency_bound_s`]:
+//!    about 4 s at the defaults), and so do the estimates: each reading's
+//!    estimate is made once its decision is known;
+//! 2. the first reading decided still aligns the platform (levelling from
+//!    its window's mean specific force, heading from `initial_yaw_deg`);
+//! 3. each later reading advances the strapdown solution ([`strapdown`]);
+//!    every `filter_period_s` the error-state covariance is propagated and
+//!    the zero-velocity, height and (if enabled) odometer updates are made,
+//!    with the estimated errors fed back ([`eskf`]).
+//!
+//! `level` and `odometer` readings wait until the (late) navigation time
+//! reaches them. An IMU gap longer than `max_imu_gap_s` ends a stream: the
+//! waiting readings are decided with the data there is, the navigation
+//! state is held across the gap and its covariance grown, and the
+//! detector's windows start afresh. IMU readings at or before the newest
+//! one are dropped and counted.
+
+pub mod detectors;
+pub mod eskf;
+pub mod strapdown;
+pub mod zero_velocity;
+
+use std::collections::VecDeque;
+
+use nalgebra::{SMatrix, SVector, UnitQuaternion};
+use serde::{Deserialize, Serialize};
+
+use self::detectors::{DetectorNoise, Statistics};
+use self::eskf::{
+    ACCEL_BIAS, ATT, Dynamics, ErrorStateFilter, GYRO_BIAS, POS, ProcessNoise, VEL,
+    body_velocity_matrix, height_matrix, zupt_matrix,
+};
+use self::strapdown::{
+    Increment, NavState, Site, V3, attitude_from_euler, earth_rate_n, level, normal_gravity_mps2,
+    radii_m,
+};
+use self::zero_velocity::{
+    Decision, DetectorKind, PipelineConfig, Thresholds, ZeroVelocityPipeline,
+};
+use super::angles::{deg, rad};
+use super::estimate::{EngineOutput, EstimateValues, ZuptEstimate};
+use super::params::{ParamError, ParamSpec, Params, choice, flag, integer, real};
+use super::reading::{Reading, SensorData};
+use super::{Engine, EngineKind, SnapshotError};
+
+/// Standard gravity, for µg and mg parameters.
+const STANDARD_GRAVITY_MPS2: f64 = 9.806_65;
+/// Level or odometer readings kept waiting for the navigation time.
+const MAX_PENDING_AIDS: usize = 1024;
+
+/// The `zupt` engine's parameters. Sensor defaults are the paper's Table 1
+/// FOG IMU (gyro bias stability 0.5 °/h, ARW ≤ 0.05 °/√h, accelerometer
+/// bias 1 mg); detector defaults are the paper's W = L = 100 and 3 s, with
+/// thresholds set on the simulated trolley runs (README: how to tune).
+pub const PARAMS: &[ParamSpec] = &[
+    real(
+        "latitude_deg",
+        30.0,
+        -90.0,
+        90.0,
+        "deg",
+        "site latitude (Earth rate, gravity)",
+    ),
+    real(
+        "initial_height_m",
+        0.0,
+        -11_000.0,
+        9_000.0,
+        "m",
+        "ellipsoidal height of the start point (gravity)",
+    ),
+    real(
+        "initial_yaw_deg",
+        0.0,
+        -360.0,
+        360.0,
+        "deg",
+        "heading of the machine at the start, clockwise from north",
+    ),
+    real(
+        "initial_yaw_sigma_deg",
+        0.5,
+        0.0,
+        180.0,
+        "deg",
+        "uncertainty of initial_yaw_deg",
+    ),
+    choice(
+        "detector",
+        "tczvd",
+        &["tczvd", "mv", "are", "shoe", "mag", "none"],
+        "zero-velocity test: MV ∧ ARE ∧ SHOE, one test alone, or none (pure INS)",
+    ),
+    integer(
+        "window_samples",
+        100,
+        1,
+        10_000,
+        "W: samples in each detector window, centred on the sample decided",
+    ),
+    integer(
+        "median_samples",
+        100,
+        1,
+        10_000,
+        "L: length of the binary median filter over the test decisions (1: off)",
+    ),
+    real(
+        "min_zv_s",
+        3.0,
+        0.0,
+        60.0,
+        "s",
+        "shortest zero-velocity run kept",
+    ),
+    real(
+        "sigma_accel_mps2",
+        0.005,
+        1.0e-6,
+        10.0,
+        "m/s²",
+        "σ_a normalising MV, SHOE and MAG: accelerometer noise per sample",
+    ),
+    real(
+        "sigma_gyro_dps",
+        0.01,
+        1.0e-6,
+        10.0,
+        "deg/s",
+        "σ_g normalising ARE and SHOE: gyro noise per sample",
+    ),
+    real(
+        "threshold_mv",
+        6.0,
+        0.0,
+        1.0e9,
+        "",
+        "γ of MV (at rest MV ≈ 3 when σ_a is the true noise)",
+    ),
+    real(
+        "threshold_are",
+        6.0,
+        0.0,
+        1.0e9,
+        "",
+        "γ of ARE (at rest ≈ 3 · (true σ / σ_g)²)",
+    ),
+    real(
+        "threshold_shoe",
+        20.0,
+        0.0,
+        1.0e9,
+        "",
+        "γ of SHOE (at rest ≈ MV + ARE + (‖f‖ − g)²/σ_a², the last from accelerometer bias)",
+    ),
+    real(
+        "threshold_mag",
+        12.0,
+        0.0,
+        1.0e9,
+        "",
+        "γ of MAG (at rest ≈ 1 + (‖f‖ − g)²/σ_a²)",
+    ),
+    real(
+        "gyro_arw_deg_per_sqrt_h",
+        0.05,
+        1.0e-6,
+        100.0,
+        "deg/√h",
+        "gyro angle random walk (filter process noise)",
+    ),
+    real(
+        "gyro_bias_sigma_deg_per_h",
+        0.5,
+        0.0,
+        1.0e5,
+        "deg/h",
+        "initial uncertainty of each gyro bias",
+    ),
+    real(
+        "gyro_bias_rw_deg_per_h_per_sqrt_h",
+        0.05,
+        0.0,
+        1.0e5,
+        "deg/h/√h",
+        "random walk of the gyro biases",
+    ),
+    real(
+        "accel_vrw_ug_per_sqrt_hz",
+        50.0,
+        1.0e-3,
+        1.0e6,
+        "µg/√Hz",
+        "accelerometer white noise (velocity random walk)",
+    ),
+    real(
+        "accel_bias_sigma_mg",
+        1.0,
+        0.0,
+        1.0e4,
+        "mg",
+        "initial uncertainty of each accelerometer bias",
+    ),
+    real(
+        "accel_bias_rw_ug_per_sqrt_s",
+        1.0,
+        0.0,
+        1.0e6,
+        "µg/√s",
+        "random walk of the accelerometer biases",
+    ),
+    real(
+        "filter_period_s",
+        0.1,
+        0.001,
+        10.0,
+        "s",
+        "how often the covariance is propagated and the updates are made",
+    ),
+    real(
+        "zupt_sigma_mps",
+        0.002,
+        1.0e-6,
+        10.0,
+        "m/s",
+        "noise of the zero-velocity pseudo-measurement",
+    ),
+    real(
+        "level_sigma_m",
+        0.002,
+        1.0e-6,
+        100.0,
+        "m",
+        "noise of a level-instrument height",
+    ),
+    real(
+        "level_gate_sigma",
+        6.0,
+        0.0,
+        1.0e6,
+        "",
+        "a height further than this many σ from the prediction is refused (0: no gate)",
+    ),
+    flag(
+        "odometer_aiding",
+        false,
+        "fuse odometer speed (and zero sideways/vertical body speed); off: odometer shown only",
+    ),
+    real(
+        "odometer_sigma_mps",
+        0.005,
+        1.0e-6,
+        10.0,
+        "m/s",
+        "noise of the odometer speed (and of the zero sideways speed)",
+    ),
+    real(
+        "max_imu_gap_s",
+        0.5,
+        0.001,
+        3600.0,
+        "s",
+        "longer gaps between IMU readings end a stream (no integration across)",
+    ),
+];
+
+/// The engine's parameters in working units (SI, radians).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ZuptConfig {
+    pub site: Site,
+    pub initial_yaw_rad: f64,
+    pub initial_yaw_sigma_rad: f64,
+    pub pipeline: PipelineConfig,
+    pub process_noise: ProcessNoise,
+    pub gyro_bias_sigma_rad_per_s: f64,
+    pub accel_bias_sigma_mps2: f64,
+    pub filter_period_s: f64,
+    pub zupt_sigma_mps: f64,
+    pub level_sigma_m: f64,
+    pub level_gate_sigma: f64,
+    pub odometer_aiding: bool,
+    pub odometer_sigma_mps: f64,
+    pub max_imu_gap_s: f64,
+}
+
+/// °/h to rad/s.
+fn rad_per_s_from_deg_per_h(x: f64) -> f64 {
+    rad(x) / 3600.0
+}
+
+impl ZuptConfig {
+    /// Converts validated parameters; degrees become radians here.
+    pub fn from_params(p: &Params) -> Result<ZuptConfig, ParamError> {
+        let site = Site {
+            lat_rad: rad(p.real("latitude_deg")?),
+            height_m: p.real("initial_height_m")?,
+        };
+        let detector =
+            DetectorKind::from_name(p.choice("detector")?).unwrap_or(DetectorKind::Tczvd);
+        Ok(ZuptConfig {
+            site,
+            initial_yaw_rad: rad(p.real("initial_yaw_deg")?),
+            initial_yaw_sigma_rad: rad(p.real("initial_yaw_sigma_deg")?),
+            pipeline: PipelineConfig {
+                detector,
+                thresholds: Thresholds {
+                    mv: p.real("threshold_mv")?,
+                    are: p.real("threshold_are")?,
+                    shoe: p.real("threshold_shoe")?,
+                    mag: p.real("threshold_mag")?,
+                },
+                noise: DetectorNoise {
+                    sigma_accel_mps2: p.real("sigma_accel_mps2")?,
+                    sigma_gyro_rad_per_s: rad(p.real("sigma_gyro_dps")?),
+                    gravity_mps2: normal_gravity_mps2(site.lat_rad, site.height_m),
+                },
+                window_samples: p.integer("window_samples")? as usize,
+                median_samples: p.integer("median_samples")? as usize,
+                min_run_s: p.real("min_zv_s")?,
+            },
+            process_noise: ProcessNoise {
+                // °/√h → rad/√s; µg/√Hz → (m/s²)/√Hz = (m/s)/√s.
+                gyro_arw: rad(p.real("gyro_arw_deg_per_sqrt_h")?) / 60.0,
+                gyro_bias_rw: rad_per_s_from_deg_per_h(
+                    p.real("gyro_bias_rw_deg_per_h_per_sqrt_h")?,
+                ) / 60.0,
+                accel_vrw: p.real("accel_vrw_ug_per_sqrt_hz")? * 1e-6 * STANDARD_GRAVITY_MPS2,
+                accel_bias_rw: p.real("accel_bias_rw_ug_per_sqrt_s")?
+                    * 1e-6
+                    * STANDARD_GRAVITY_MPS2,
+            },
+            gyro_bias_sigma_rad_per_s: rad_per_s_from_deg_per_h(
+                p.real("gyro_bias_sigma_deg_per_h")?,
+            ),
+            accel_bias_sigma_mps2: p.real("accel_bias_sigma_mg")? * 1e-3 * STANDARD_GRAVITY_MPS2,
+            filter_period_s: p.real("filter_period_s")?,
+            zupt_sigma_mps: p.real("zupt_sigma_mps")?,
+            level_sigma_m: p.real("level_sigma_m")?,
+            level_gate_sigma: p.real("level_gate_sigma")?,
+            odometer_aiding: p.flag("odometer_aiding")?,
+            odometer_sigma_mps: p.real("odometer_sigma_mps")?,
+            max_imu_gap_s: p.real("max_imu_gap_s")?,
+        })
+    }
+}
+
+/// One IMU reading in working units.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ImuSample {
+    pub t: f64,
+    pub accel_mps2: V3,
+    pub gyro_rad_per_s: V3,
+}
+
+/// Counts of what the engine did with its readings.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ZuptStats {
+    pub imu_used: u64,
+    /// IMU readings at or before the newest one.
+    pub imu_dropped: u64,
+    /// Gaps longer than `max_imu_gap_s`.
+    pub imu_gaps: u64,
+    pub zupt_updates: u64,
+    pub height_updates: u64,
+    /// Heights refused by the gate.
+    pub heights_refused: u64,
+    pub odometer_updates: u64,
+    /// Updates skipped because the innovation covariance was singular.
+    pub updates_failed: u64,
+    /// Level or odometer readings dropped because too many were waiting.
+    pub aids_dropped: u64,
+}
+
+/// The navigation once aligned.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct Navigation {
+    state: NavState,
+    filter: ErrorStateFilter,
+    /// b̂_a, m/s², and b̂_g, rad/s: subtracted from every reading.
+    accel_bias_mps2: V3,
+    gyro_bias_rad_per_s: V3,
+    /// The previous IMU reading (the input is averaged over each interval);
+    /// `None` right after alignment or a gap.
+    previous: Option<ImuSample>,
+    /// Time and ∫fⁿ dt since the last filter epoch.
+    interval_s: f64,
+    force_integral: V3,
+    /// Along-track distance: displacement projected on the body's x axis.
+    distance_m: f64,
+    /// Height of the start point, set by the first level reading.
+    height_datum_m: Option<f64>,
+    /// The newest height not yet used, and odometer speed not yet used.
+    pending_height_m: Option<f64>,
+    pending_odometer_speed_mps: Option<f64>,
+}
+
+/// The `zupt` engine; see the module documentation.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ZuptEngine {
+    params: Params,
+    #[serde(skip_serializing, default = "placeholder_config")]
+    config: ZuptConfig,
+    pipeline: ZeroVelocityPipeline<ImuSample>,
+    newest_imu_t: Option<f64>,
+    navigation: Option<Navigation>,
+    /// Level readings (t, height m) and odometer readings (t, distance m)
+    /// waiting for the navigation time.
+    levels: VecDeque<(f64, f64)>,
+    odometers: VecDeque<(f64, f64)>,
+    /// The newest odometer reading the navigation time has passed.
+    odometer: Option<(f64, f64)>,
+    stats: ZuptStats,
+}
+
+/// Used only while deserialising; `restore` rebuilds the config from `params`.
+fn placeholder_config() -> ZuptConfig {
+    ZuptConfig::from_params(&Params::defaults(PARAMS)).expect("default parameters are valid")
+}
+
+impl ZuptEngine {
+    /// A fresh engine.
+    pub fn new(params: Params) -> Result<ZuptEngine, ParamError> {
+        let config = ZuptConfig::from_params(&params)?;
+        Ok(ZuptEngine {
+            params,
+            config,
+            pipeline: ZeroVelocityPipeline::new(config.pipeline),
+            newest_imu_t: None,
+            navigation: None,
+            levels: VecDeque::new(),
+            odometers: VecDeque::new(),
+            odometer: None,
+            stats: ZuptStats::default(),
+        })
+    }
+
+    /// An engine with every parameter at its default.
+    pub fn with_defaults() -> ZuptEngine {
+        ZuptEngine::new(Params::defaults(PARAMS)).expect("default parameters are valid")
+    }
+
+    /// Continues from a snapshot taken by [`Engine::snapshot`].
+    pub fn restore(snapshot: serde_json::Value) -> Result<ZuptEngine, SnapshotError> {
+        let mut engine: ZuptEngine =
+            serde_json::from_value(snapshot).map_err(|source| SnapshotError::Shape {
+                engine: EngineKind::Zupt,
+                source,
+            })?;
+        let params = Params::resolve(
+            PARAMS,
+            engine
+                .params
+                .values()
+                .iter()
+                .map(|(k, v)| (k.clone(), v.clone())),
+        )?;
+        engine.config = ZuptConfig::from_params(&params)?;
+        engine.params = params;
+        if engine.pipeline.config() != &engine.config.pipeline {
+            return Err(SnapshotError::Invalid(
+                "detector state does not match the parameters".into(),
+            ));
+        }
+        if let Some(nav) = &engine.navigation
+            && !nav.filter.is_sane()
+        {
+            return Err(SnapshotError::Invalid("covariance is not valid".into()));
+        }
+        engine.levels.truncate(MAX_PENDING_AIDS);
+        engine.odometers.truncate(MAX_PENDING_AIDS);
+        Ok(engine)
+    }
+
+    /// The working configuration.
+    pub fn config(&self) -> &ZuptConfig {
+        &self.config
+    }
+
+    /// What the engine has done with its readings.
+    pub fn stats(&self) -> ZuptStats {
+        self.stats
+    }
+
+    /// The longest an IMU reading waits for its estimate, in seconds of
+    /// its own stream, at a sample period of `period_s`.
+    pub fn latency_bound_s(&self, period_s: f64) -> f64 {
+        self.config.pipeline.lookahead_samples() as f64 * period_s
+            + self.config.pipeline.min_run_s
+            + period_s
+    }
+
+    /// The error-state covariance, once aligned (tests check consistency).
+    pub fn covariance(&self) -> Option<&eskf::Covariance> {
+        self.navigation.as_ref().map(|n| &n.filter.p)
+    }
+
+    /// The Earth's rotation in the body frame, for ARE and SHOE.
+    fn earth_rate_b(&self, accel_mps2: &V3) -> V3 {
+        let attitude = match &self.navigation {
+            Some(nav) => nav.state.attitude,
+            None => {
+                let (roll, pitch) = level(accel_mps2);
+                attitude_from_euler(roll, pitch, self.config.initial_yaw_rad)
+            }
+        };
+        let (lat, _) = match &self.navigation {
+            Some(nav) => self.config.site.at(&nav.state.position_m),
+            None => (self.config.site.lat_rad, 0.0),
+        };
+        attitude.inverse() * earth_rate_n(lat)
+    }
+
+    fn on_imu(&mut self, sample: ImuSample, out: &mut Vec<EngineOutput>) {
+        if let Some(newest) = self.newest_imu_t {
+            if sample.t <= newest {
+                self.stats.imu_dropped += 1;
+                return;
+            }
+            if sample.t - newest > self.config.max_imu_gap_s {
+                self.stats.imu_gaps += 1;
+                self.end_stream(out);
+                if let Some(nav) = &mut self.navigation {
+                    let gap_s = sample.t - newest;
+                    nav.filter.inflate(gap_s);
+                    nav.previous = None;
+                }
+            }
+        }
+        self.newest_imu_t = Some(sample.t);
+        self.stats.imu_used += 1;
+        let earth_rate_b = self.earth_rate_b(&sample.accel_mps2);
+        let mut decided = Vec::new();
+        self.pipeline.push(
+            sample.t,
+            sample.accel_mps2,
+            sample.gyro_rad_per_s,
+            sample,
+            &earth_rate_b,
+            &mut decided,
+        );
+        for (sample, decision) in decided {
+            out.push(self.navigate(sample, decision));
+        }
+    }
+
+    /// Decides and navigates every waiting IMU reading.
+    fn end_stream(&mut self, out: &mut Vec<EngineOutput>) {
+        let accel = V3::new(0.0, 0.0, -1.0);
+        let earth_rate_b = self.earth_rate_b(&accel);
+        let mut decided = Vec::new();
+        self.pipeline.flush(&earth_rate_b, &mut decided);
+        for (sample, decision) in decided {
+            out.push(self.navigate(sample, decision));
+        }
+    }
+
+    fn queue_aid(queue: &mut VecDeque<(f64, f64)>, stats: &mut ZuptStats, t: f64, value: f64) {
+        if queue.len() == MAX_PENDING_AIDS {
+            queue.pop_front();
+            stats.aids_dropped += 1;
+        }
+        // Kept in time order; a late one is slotted in.
+        let at = queue.partition_point(|&(queued_t, _)| queued_t <= t);
+        queue.insert(at, (t, value));
+    }
+
+    /// Takes the level and odometer readings the navigation time `t` has
+    /// reached.
+    fn take_aids(&mut self, t: f64) {
+        while let Some(&(level_t, height_m)) = self.levels.front() {
+            if level_t > t {
+                break;
+            }
+            self.levels.pop_front();
+            if let Some(nav) = &mut self.navigation {
+                nav.pending_height_m = Some(height_m);
+            }
+        }
+        while let Some(&(odo_t, distance_m)) = self.odometers.front() {
+            if odo_t > t {
+                break;
+            }
+            self.odometers.pop_front();
+            if let (Some((prev_t, prev_m)), Some(nav)) = (self.odometer, &mut self.navigation)
+                && odo_t > prev_t
+            {
+                nav.pending_odometer_speed_mps = Some((distance_m - prev_m) / (odo_t - prev_t));
+            }
+            self.odometer = Some((odo_t, distance_m));
+        }
+    }
+
+    fn navigate(&mut self, sample: ImuSample, decision: Decision) -> EngineOutput {
+        let config = self.config;
+        if self.navigation.is_none()
+            && (decision.zv || config.pipeline.detector == DetectorKind::None)
+        {
+            self.navigation = Some(self.align(&decision.statistics, sample));
+        }
+        self.take_aids(sample.t);
+        let Some(nav) = self.navigation.as_mut() else {
+            return self.unaligned_estimate(sample.t, &decision);
+        };
+        if let Some(previous) = nav.previous {
+            let dt_s = sample.t - previous.t;
+            let increment = Increment {
+                accel_mps2: (previous.accel_mps2 + sample.accel_mps2) * 0.5 - nav.accel_bias_mps2,
+                gyro_rad_per_s: (previous.gyro_rad_per_s + sample.gyro_rad_per_s) * 0.5
+                    - nav.gyro_bias_rad_per_s,
+                dt_s,
+            };
+            let before = nav.state.position_m;
+            let force_n = nav.state.advance(&config.site, &increment);
+            nav.distance_m += along_track(&nav.state, &(nav.state.position_m - before));
+            nav.interval_s += dt_s;
+            nav.force_integral += force_n * dt_s;
+        }
+        nav.previous = Some(sample);
+        if nav.interval_s >= config.filter_period_s {
+            nav.epoch(&config, decision.zv, &mut self.stats);
+        }
+        let Some(nav) = self.navigation.as_ref() else {
+            return self.unaligned_estimate(sample.t, &decision);
+        };
+        let (roll, pitch, yaw) = nav.state.euler();
+        let position = nav.state.position_m;
+        let sigma = nav.filter.sigma(POS);
+        let velocity = nav.state.velocity_mps;
+        EngineOutput {
+            t: sample.t,
+            values: EstimateValues::Zupt(self.estimate(
+                &decision,
+                true,
+                [position.x, position.y, position.z],
+                nav.distance_m,
+                [velocity.x, velocity.y, velocity.z],
+                (roll, pitch, yaw),
+                [sigma.x, sigma.y, sigma.z],
+                nav.height_datum_m.map(|datum| datum - position.z),
+            )),
+        }
+    }
+
+    /// Before alignment: at the start point, levelled from the window.
+    fn unaligned_estimate(&self, t: f64, decision: &Decision) -> EngineOutput {
+        let (roll, pitch) = level(&decision.statistics.mean_accel_mps2);
+        EngineOutput {
+            t,
+            values: EstimateValues::Zupt(self.estimate(
+                decision,
+                false,
+                [0.0; 3],
+                0.0,
+                [0.0; 3],
+                (roll, pitch, self.config.initial_yaw_rad),
+                [0.0; 3],
+                None,
+            )),
+        }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn estimate(
+        &self,
+        decision: &Decision,
+        aligned: bool,
+        position_m: [f64; 3],
+        distance_m: f64,
+        velocity_mps: [f64; 3],
+        (roll, pitch, yaw): (f64, f64, f64),
+        position_sigma_m: [f64; 3],
+        height_m: Option<f64>,
+    ) -> ZuptEstimate {
+        let s = &decision.statistics;
+        let g = &self.config.pipeline.thresholds;
+        let ratio = |t: f64, gamma: f64| {
+            if gamma > 0.0 {
+                t / gamma
+            } else {
+                f64::INFINITY
+            }
+        };
+        ZuptEstimate {
+            zv: decision.zv,
+            position_m,
+            distance_m,
+            velocity_mps,
+            pitch_deg: deg(pitch),
+            roll_deg: deg(roll),
+            yaw_deg: deg(yaw).rem_euclid(360.0),
+            aligned,
+            position_sigma_m,
+            height_m,
+            odometer_m: self.odometer.map(|(_, d)| d),
+            mv_ratio: ratio(s.mv, g.mv),
+            are_ratio: ratio(s.are, g.are),
+            shoe_ratio: ratio(s.shoe, g.shoe),
+            mag_ratio: ratio(s.mag, g.mag),
+        }
+    }
+
+    /// Static coarse alignment on a still window.
+    fn align(&self, statistics: &Statistics, sample: ImuSample) -> Navigation {
+        let c = &self.config;
+        let mean = if statistics.mean_accel_mps2.norm() > 0.0 {
+            statistics.mean_accel_mps2
+        } else {
+            sample.accel_mps2
+        };
+        let (roll, pitch) = level(&mean);
+        let attitude = attitude_from_euler(roll, pitch, c.initial_yaw_rad);
+        // Levelling absorbs the horizontal accelerometer biases into tilt:
+        // its error is about σ_ba / g.
+        let g = c.pipeline.noise.gravity_mps2;
+        let tilt_sigma = (c.accel_bias_sigma_mps2 / g).max(1e-5);
+        let filter = ErrorStateFilter::new(
+            [
+                V3::repeat(1e-3),
+                V3::repeat(c.zupt_sigma_mps),
+                V3::new(tilt_sigma, tilt_sigma, c.initial_yaw_sigma_rad.max(1e-6)),
+                V3::repeat(c.accel_bias_sigma_mps2.max(1e-7)),
+                V3::repeat(c.gyro_bias_sigma_rad_per_s.max(1e-10)),
+            ],
+            c.process_noise,
+        );
+        Navigation {
+            state: NavState::at_rest(attitude),
+            filter,
+            accel_bias_mps2: V3::zeros(),
+            gyro_bias_rad_per_s: V3::zeros(),
+            previous: Some(sample),
+            interval_s: 0.0,
+            force_integral: V3::zeros(),
+            distance_m: 0.0,
+            height_datum_m: None,
+            pending_height_m: None,
+            pending_odometer_speed_mps: None,
+        }
+    }
+}
+
+/// A displacement projected on the body's forward axis.
+fn along_track(state: &NavState, displacement_m: &V3) -> f64 {
+    let forward = state.attitude * V3::x();
+    displacement_m.dot(&forward)
+}
+
+impl Navigation {
+    /// A filter epoch: propagate the covariance, make the updates that are
+    /// due, feed the errors back.
+    fn epoch(&mut self, config: &ZuptConfig, zv: bool, stats: &mut ZuptStats) {
+        let site = &config.site;
+        let (lat, height) = site.at(&self.state.position_m);
+        let (meridian, transverse) = radii_m(lat);
+        let radius = (meridian * transverse).sqrt() + height;
+        let c_bn = self.state.attitude.to_rotation_matrix().into_inner();
+        let dynamics = Dynamics {
+            specific_force_n: self.force_integral / self.interval_s,
+            c_bn,
+            earth_rate_n: earth_rate_n(lat),
+            transport_rate_n: site
+                .transport_rate_n(&self.state.position_m, &self.state.velocity_mps),
+            gravity_gradient: 2.0 * normal_gravity_mps2(lat, height) / radius,
+        };
+        self.filter.propagate(&dynamics, self.interval_s);
+        self.interval_s = 0.0;
+        self.force_integral = V3::zeros();
+
+        if zv {
+            let r = SMatrix::<f64, 3, 3>::identity() * config.zupt_sigma_mps.powi(2);
+            let result = self
+                .filter
+                .update(&zupt_matrix(), &self.state.velocity_mps, &r, None);
+            self.apply(result, stats, |s| s.zupt_updates += 1);
+        }
+        if let Some(measured_m) = self.pending_height_m.take() {
+            match self.height_datum_m {
+                // The first height fixes the datum of the start point.
+                None => self.height_datum_m = Some(measured_m + self.state.position_m.z),
+                Some(datum) => {
+                    let innovation =
+                        SVector::<f64, 1>::new(datum - self.state.position_m.z - measured_m);
+                    let r = SMatrix::<f64, 1, 1>::new(config.level_sigma_m.powi(2));
+                    let gate =
+                        (config.level_gate_sigma > 0.0).then(|| config.level_gate_sigma.powi(2));
+                    let result = self.filter.update(&height_matrix(), &innovation, &r, gate);
+                    if result == Err(eskf::UpdateError::Gated) {
+                        stats.heights_refused += 1;
+                    } else {
+                        self.apply(result, stats, |s| s.height_updates += 1);
+                    }
+                }
+            }
+        }
+        if let Some(speed_mps) = self.pending_odometer_speed_mps.take()
+            && config.odometer_aiding
+        {
+            let velocity_b = self.state.attitude.inverse() * self.state.velocity_mps;
+            let innovation = velocity_b - V3::new(speed_mps, 0.0, 0.0);
+            let r = SMatrix::<f64, 3, 3>::identity() * config.odometer_sigma_mps.powi(2);
+            let h = body_velocity_matrix(&c_bn, &self.state.velocity_mps);
+            let result = self.filter.update(&h, &innovation, &r, None);
+            self.apply(result, stats, |s| s.odometer_updates += 1);
+        }
+    }
+
+    /// Closed-loop feedback of an estimated error state.
+    fn apply(
+        &mut self,
+        result: Result<eskf::ErrorState, eskf::UpdateError>,
+        stats: &mut ZuptStats,
+        count: impl FnOnce(&mut ZuptStats),
+    ) {
+        let Ok(dx) = result else {
+            stats.updates_failed += 1;
+            return;
+        };
+        count(stats);
+        let block = |at: usize| V3::new(dx[at], dx[at + 1], dx[at + 2]);
+        let position_correction = -block(POS);
+        self.distance_m += along_track(&self.state, &position_correction);
+        self.state.position_m += position_correction;
+        self.state.velocity_mps -= block(VEL);
+        // Ĉ = (I − [φ×])·C, so C ≈ (I + [φ×])·Ĉ.
+        self.state.attitude = UnitQuaternion::from_scaled_axis(block(ATT)) * self.state.attitude;
+        self.accel_bias_mps2 += block(ACCEL_BIAS);
+        self.gyro_bias_rad_per_s += block(GYRO_BIAS);
+    }
+}
+
+impl Engine for ZuptEngine {
+    fn kind(&self) -> EngineKind {
+        EngineKind::Zupt
+    }
+
+    fn feed(&mut self, reading: &Reading, out: &mut Vec<EngineOutput>) {
+        match &reading.data {
+            SensorData::Imu {
+                accel_mps2,
+                gyro_dps,
+            } => {
+                let sample = ImuSample {
+                    t: reading.t,
+                    accel_mps2: V3::from(*accel_mps2),
+                    gyro_rad_per_s: V3::from(*gyro_dps).map(rad),
+                };
+                self.on_imu(sample, out);
+            }
+            SensorData::Level { height_m } => {
+                Self::queue_aid(&mut self.levels, &mut self.stats, reading.t, *height_m);
+            }
+            SensorData::Odometer { distance_m } => {
+                Self::queue_aid(&mut self.odometers, &mut self.stats, reading.t, *distance_m);
+            }
+            _ => {}
+        }
+    }
+
+    fn flush(&mut self, out: &mut Vec<EngineOutput>) {
+        self.end_stream(out);
+    }
+
+    fn params(&self) -> &Params {
+        &self.params
+    }
+
+    fn snapshot(&self) -> serde_json::Value {
+        serde_json::to_value(self).unwrap_or(serde_json::Value::Null)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn imu(t: f64, accel: V3, gyro_rad: V3) -> Reading {
+        Reading {
+            t,
+            data: SensorData::Imu {
+                accel_mps2: [accel.x, accel.y, accel.z],
+                gyro_dps: [deg(gyro_rad.x), deg(gyro_rad.y), deg(gyro_rad.z)],
+            },
+        }
+    }
+
+    /// A perfect IMU standing still at the default latitude, yawed.
+    fn still_readings(seconds: f64, yaw_deg: f64) -> Vec<Reading> {
+        let c = ZuptEngine::with_defaults().config;
+        let attitude = attitude_from_euler(0.01, -0.02, rad(yaw_deg));
+        let g = normal_gravity_mps2(c.site.lat_rad, c.site.height_m);
+        let accel = attitude.inverse() * V3::new(0.0, 0.0, -g);
+        let gyro = attitude.inverse() * earth_rate_n(c.site.lat_rad);
+        (0..(seconds * 100.0) as usize)
+            .map(|k| imu(1.7e9 + k as f64 * 0.01, accel, gyro))
+            .collect()
+    }
+
+    #[test]
+    fn one_estimate_per_imu_reading_in_order_with_bounded_latency() {
+        let mut engine =
+            ZuptEngine::new(Params::from_assignments(PARAMS, ["initial_yaw_deg=40"]).unwrap())
+                .unwrap();
+        let readings = still_readings(20.0, 40.0);
+        let bound = engine.latency_bound_s(0.01);
+        let mut out = Vec::new();
+        for reading in &readings {
+            engine.feed(reading, &mut out);
+            if let Some(last) = out.last() {
+                assert!(reading.t - last.t <= bound + 1e-9);
+            }
+        }
+        engine.flush(&mut out);
+        assert_eq!(out.len(), readings.len());
+        assert!(out.windows(2).all(|w| w[0].t < w[1].t));
+        let EstimateValues::Zupt(last) = &out.last().unwrap().values else {
+            panic!("not a zupt estimate");
+        };
+        assert!(last.zv && last.aligned);
+        assert!((last.yaw_deg - 40.0).abs() < 1e-6);
+        assert!(last.position_m.iter().all(|p| p.abs() < 1e-4));
+        // (49 + 49) samples of lookahead, the 3 s run, one period.
+        assert!((bound - 3.99).abs() < 1e-9, "{bound}");
+    }
+
+    #[test]
+    fn snapshot_and_restore_continue_exactly() {
+        let readings = still_readings(12.0, 10.0);
+        let mut whole = ZuptEngine::with_defaults();
+        let mut expected = Vec::new();
+        for r in &readings {
+            whole.feed(r, &mut expected);
+        }
+        let mut first = ZuptEngine::with_defaults();
+        let mut got = Vec::new();
+        for r in &readings[..700] {
+            first.feed(r, &mut got);
+        }
+        let text = serde_json::to_string(&first.snapshot()).unwrap();
+        let mut second = ZuptEngine::restore(serde_json::from_str(&text).unwrap()).unwrap();
+        for r in &readings[700..] {
+            second.feed(r, &mut got);
+        }
+        assert_eq!(got, expected);
+    }
+
+    #[test]
+    fn a_gap_ends_the_stream_and_nothing_is_lost() {
+        let mut readings = still_readings(10.0, 0.0);
+        let mut later = still_readings(10.0, 0.0);
+        for r in &mut later {
+            r.t += 30.0;
+        }
+        readings.extend(later);
+        let mut engine = ZuptEngine::with_defaults();
+        let mut out = Vec::new();
+        for r in &readings {
+            engine.feed(r, &mut out);
+        }
+        engine.flush(&mut out);
+        assert_eq!(out.len(), readings.len());
+        assert_eq!(engine.stats().imu_gaps, 1);
+        // Late and repeated readings are dropped and counted.
+        engine.feed(&readings[5], &mut out);
+        assert_eq!(engine.stats().imu_dropped, 1);
+    }
+
+    #[test]
+    fn restore_refuses_a_pipeline_that_does_not_match_the_parameters() {
+        let engine = ZuptEngine::with_defaults();
+        let mut snapshot = engine.snapshot();
+        snapshot["params"]["values"]["window_samples"] = serde_json::json!(20);
+        assert!(matches!(
+            ZuptEngine::restore(snapshot),
+            Err(SnapshotError::Invalid(_))
+        ));
+    }
+}
