@@ -164,6 +164,13 @@ pub fn replay(
     }
     reorder.drain(&mut ready);
     feed(&mut ready, engine, &mut pending, &mut summary)?;
+    // The end of the input: what the engine still holds comes out too.
+    let mut held = Vec::new();
+    engine.flush(&mut held);
+    for estimate in &held {
+        writer.write_line(estimate, &mut pending);
+        summary.estimates += 1;
+    }
     output.write_all(&pending)?;
     let stats = reorder.stats();
     summary.late = stats.late;

@@ -3,8 +3,9 @@
 use clap::{Args, Subcommand};
 
 use super::CliError;
-use super::simulate::DriveArgs;
+use super::simulate::{DriveArgs, PipeJackArgs};
 use crate::eval::attitude::{AttitudeEvalConfig, evaluate, render_table};
+use crate::eval::zupt;
 use crate::fusion::Params;
 use crate::fusion::attitude::PARAMS;
 use crate::sim::tbm::Dropout;
@@ -13,6 +14,23 @@ use crate::sim::tbm::Dropout;
 pub enum EvalTarget {
     /// The laser + inclinometer engine on a simulated TBM drive.
     Attitude(AttitudeArgs),
+    /// The FOG INS with each zero-velocity detector on a simulated pipe-jacking drive.
+    Zupt(ZuptArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct ZuptArgs {
+    #[command(flatten)]
+    pub drive: PipeJackArgs,
+    /// Seeds to run from --seed on (each a separate drive; a table each).
+    #[arg(long, default_value_t = 1)]
+    pub seeds: u64,
+    /// An engine parameter as name=value (repeatable).
+    #[arg(long = "param", value_name = "NAME=VALUE")]
+    pub params: Vec<String>,
+    /// Print the scores as JSON instead of a table.
+    #[arg(long)]
+    pub json: bool,
 }
 
 #[derive(Debug, Args)]
@@ -33,6 +51,29 @@ pub struct AttitudeArgs {
 
 pub fn run(target: EvalTarget) -> Result<(), CliError> {
     match target {
+        EvalTarget::Zupt(args) => {
+            let params = Params::from_assignments(
+                crate::fusion::zupt::PARAMS,
+                args.params.iter().map(String::as_str),
+            )?;
+            for seed in args.drive.seed..args.drive.seed.saturating_add(args.seeds.max(1)) {
+                let mut scenario = args.drive.scenario();
+                scenario.seed = seed;
+                let evaluation = zupt::evaluate(&zupt::ZuptEvalConfig {
+                    scenario,
+                    params: params.clone(),
+                })?;
+                if args.json {
+                    println!(
+                        "{}",
+                        serde_json::to_string(&evaluation).map_err(std::io::Error::other)?
+                    );
+                } else {
+                    print!("{}", zupt::render_table(&evaluation));
+                }
+            }
+            Ok(())
+        }
         EvalTarget::Attitude(args) => {
             let mut scenario = args.drive.scenario();
             if scenario.dropouts.is_empty() {

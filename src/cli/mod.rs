@@ -54,6 +54,8 @@ pub enum CliError {
     Engine(#[from] crate::fusion::UnknownEngine),
     #[error(transparent)]
     Eval(#[from] crate::eval::attitude::EvalError),
+    #[error(transparent)]
+    EvalZupt(#[from] crate::eval::zupt::ZuptEvalError),
     #[error("{0}")]
     Scenario(String),
     #[error(transparent)]

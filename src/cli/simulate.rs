@@ -8,12 +8,87 @@ use clap::{Args, Subcommand};
 
 use super::CliError;
 use crate::fusion::SensorKind;
+use crate::sim::pipejack::{Case, PipeJackDrive, PipeJackScenario};
 use crate::sim::tbm::{DEFAULT_START_T, Dropout, TbmDrive, TbmScenario};
 
 #[derive(Debug, Subcommand)]
 pub enum Scenario {
     /// A TBM drive: excavation and ring building, laser + inclinometer.
     Tbm(TbmArgs),
+    /// A pipe-jacking drive: FOG IMU at 100 Hz, level and odometer at 1 Hz.
+    PipeJacking(PipeJackingArgs),
+}
+
+/// The simulated pipe-jacking drive: shared by `simulate pipe-jacking` and `eval zupt`.
+#[derive(Debug, Args)]
+pub struct PipeJackArgs {
+    /// trolley: the paper's 30 s push / 30 s rest over 36.55 m; varied:
+    /// pushes of 15–45 s, rests of 10–60 s; field: 2 mm/s with cutter vibration.
+    #[arg(long, value_enum, default_value_t = Case::Trolley)]
+    pub case: Case,
+    /// Heading of the drive, degrees clockwise from north.
+    #[arg(long, default_value_t = 30.0, allow_negative_numbers = true)]
+    pub heading_deg: f64,
+    /// Slope of the drive, degrees, positive rising.
+    #[arg(long, default_value_t = 0.5, allow_negative_numbers = true)]
+    pub slope_deg: f64,
+    /// Site latitude, degrees.
+    #[arg(long, default_value_t = 30.0, allow_negative_numbers = true)]
+    pub latitude_deg: f64,
+    /// Push durations as MIN:MAX seconds (or one value), instead of the case's.
+    #[arg(long, value_name = "MIN:MAX", value_parser = parse_range)]
+    pub push_s: Option<(f64, f64)>,
+    /// Rest durations as MIN:MAX seconds (or one value), instead of the case's.
+    #[arg(long, value_name = "MIN:MAX", value_parser = parse_range)]
+    pub rest_s: Option<(f64, f64)>,
+    /// Random seed: the same seed gives the same drive.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Unix seconds of the first reading.
+    #[arg(long, default_value_t = DEFAULT_START_T)]
+    pub start_t: f64,
+}
+
+/// `MIN:MAX` or one number, in seconds.
+fn parse_range(text: &str) -> Result<(f64, f64), String> {
+    let number = |s: &str| {
+        s.trim()
+            .parse::<f64>()
+            .map_err(|_| format!("`{s}` is not a number of seconds"))
+    };
+    let (min, max) = match text.split_once(':') {
+        Some((a, b)) => (number(a)?, number(b)?),
+        None => (number(text)?, number(text)?),
+    };
+    if !(min.is_finite() && max.is_finite() && min > 0.0 && max >= min) {
+        return Err(format!("`{text}`: expected 0 < MIN ≤ MAX"));
+    }
+    Ok((min, max))
+}
+
+impl PipeJackArgs {
+    /// The scenario these arguments describe.
+    pub fn scenario(&self) -> PipeJackScenario {
+        PipeJackScenario {
+            case: self.case,
+            seed: self.seed,
+            start_t: self.start_t,
+            heading_deg: self.heading_deg,
+            slope_deg: self.slope_deg,
+            latitude_deg: self.latitude_deg,
+            push_s: self.push_s,
+            rest_s: self.rest_s,
+        }
+    }
+}
+
+#[derive(Debug, Args)]
+pub struct PipeJackingArgs {
+    #[command(flatten)]
+    pub drive: PipeJackArgs,
+    /// Write the truth (one NDJSON line per IMU reading) to this file.
+    #[arg(long, value_name = "FILE")]
+    pub truth: Option<PathBuf>,
 }
 
 /// The simulated drive: shared by `simulate tbm` and `eval attitude`.
@@ -65,42 +140,66 @@ pub struct TbmArgs {
 pub fn run(scenario: Scenario) -> Result<(), CliError> {
     match scenario {
         Scenario::Tbm(args) => run_tbm(&args),
+        Scenario::PipeJacking(args) => run_pipe_jacking(&args),
     }
 }
 
-fn run_tbm(args: &TbmArgs) -> Result<(), CliError> {
-    let drive = TbmDrive::new(args.drive.scenario()).map_err(CliError::Scenario)?;
-    let mut truth = match &args.truth {
-        Some(path) => Some(BufWriter::new(File::create(path).map_err(|source| {
-            CliError::File {
+fn create_truth(path: &Option<PathBuf>) -> Result<Option<BufWriter<File>>, CliError> {
+    match path {
+        Some(path) => Ok(Some(BufWriter::new(File::create(path).map_err(
+            |source| CliError::File {
                 context: format!("cannot create truth file {}", path.display()),
                 source,
-            }
-        })?)),
-        None => None,
-    };
+            },
+        )?))),
+        None => Ok(None),
+    }
+}
+
+/// Writes readings to stdout and truths to `truth`; a reader that stops
+/// early (`| head`) is not an error.
+fn write_events<T: serde::Serialize>(
+    events: impl Iterator<Item = (crate::fusion::Reading, Option<T>)>,
+    mut truth: Option<BufWriter<File>>,
+) -> Result<(), CliError> {
     let stdout = io::stdout();
     let mut out = BufWriter::with_capacity(1 << 16, stdout.lock());
     let result = (|| -> io::Result<()> {
-        for event in drive {
-            serde_json::to_writer(&mut out, &event.reading)?;
+        for (reading, event_truth) in events {
+            serde_json::to_writer(&mut out, &reading)?;
             out.write_all(b"\n")?;
-            if let Some(truth) = truth.as_mut()
-                && event.reading.sensor() == SensorKind::Inclinometer
-            {
-                serde_json::to_writer(&mut *truth, &event.truth)?;
-                truth.write_all(b"\n")?;
+            if let (Some(file), Some(event_truth)) = (truth.as_mut(), event_truth) {
+                serde_json::to_writer(&mut *file, &event_truth)?;
+                file.write_all(b"\n")?;
             }
         }
         out.flush()?;
-        if let Some(truth) = truth.as_mut() {
-            truth.flush()?;
+        if let Some(file) = truth.as_mut() {
+            file.flush()?;
         }
         Ok(())
     })();
     match result {
-        // A reader that stops early (`| head`) is not an error.
         Err(e) if e.kind() == io::ErrorKind::BrokenPipe => Ok(()),
         other => Ok(other?),
     }
+}
+
+fn run_pipe_jacking(args: &PipeJackingArgs) -> Result<(), CliError> {
+    let drive = PipeJackDrive::new(args.drive.scenario()).map_err(CliError::Scenario)?;
+    let truth = create_truth(&args.truth)?;
+    write_events(drive.map(|e| (e.reading, e.truth)), truth)
+}
+
+fn run_tbm(args: &TbmArgs) -> Result<(), CliError> {
+    let drive = TbmDrive::new(args.drive.scenario()).map_err(CliError::Scenario)?;
+    let truth = create_truth(&args.truth)?;
+    // The truth is written per inclinometer reading.
+    write_events(
+        drive.map(|e| {
+            let truth = (e.reading.sensor() == SensorKind::Inclinometer).then_some(e.truth);
+            (e.reading, truth)
+        }),
+        truth,
+    )
 }

@@ -1,4 +1,5 @@
 //! Seeded, pure scenario generators with known truth. The same seed gives
 //! the same readings on every machine.
 
+pub mod pipejack;
 pub mod tbm;
