@@ -225,9 +225,24 @@ pub async fn all_estimates(
 
 /// Runs `tunnelnav replay` over the lines; its estimates.
 pub fn replay(machine: &str, lines: &[String]) -> Vec<serde_json::Value> {
+    replay_engine(machine, "attitude", &[], lines)
+}
+
+/// Runs `tunnelnav replay --engine ENGINE --param ...` over the lines.
+pub fn replay_engine(
+    machine: &str,
+    engine: &str,
+    params: &[&str],
+    lines: &[String],
+) -> Vec<serde_json::Value> {
     use std::io::Write;
+    let mut args = vec!["replay", "--engine", engine, "--machine", machine];
+    for param in params {
+        args.extend(["--param", param]);
+    }
+    args.push("-");
     let mut child = Command::new(env!("CARGO_BIN_EXE_tunnelnav"))
-        .args(["replay", "--engine", "attitude", "--machine", machine, "-"])
+        .args(&args)
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
