@@ -104,5 +104,81 @@ const tn = (function () {
   }
   setInterval(showClock, 250);
 
-  return { clock, fixed, mmPerM, duration, timeOfDay, json, ndjson, setText, css };
+  // A machine page's connection line: connecting, live, reconnecting,
+  // fetching missed estimates, or live with what a backfill brought.
+  function showConnection(el, connection, detail) {
+    el.dataset.state = connection;
+    const text = {
+      connecting: 'connecting…',
+      live: '● live',
+      reconnecting: 'reconnecting…',
+      backfilling: 'fetching missed estimates…',
+      backfilled: `● live · ${detail}`,
+    }[connection];
+    setText(el, text || connection);
+  }
+
+  // Follows a machine's `live` socket, reconnecting with back-off. `on`
+  // has hello(message, isReconnect), estimate(message), gap(message) and
+  // closed(); hello and ping sync the clock, unknown events are ignored.
+  // The returned handle's `socket` is the current WebSocket.
+  function follow(api, on) {
+    const handle = { socket: null };
+    let retryMs = 500, connected = false;
+    function connect() {
+      const scheme = location.protocol === 'https:' ? 'wss:' : 'ws:';
+      const socket = new WebSocket(`${scheme}//${location.host}${api}/live`);
+      handle.socket = socket;
+      socket.onmessage = (event) => {
+        let m;
+        try { m = JSON.parse(event.data); } catch (e) { return; }
+        if (m.event === 'hello') {
+          retryMs = 500;
+          clock.sync(m.server_t, m.clock_rate);
+          on.hello(m, connected);
+          connected = true;
+        } else if (m.event === 'ping') {
+          clock.sync(m.server_t, m.clock_rate || clock.rate);
+        } else if (m.event === 'gap') {
+          on.gap(m);
+        } else if (m.event === undefined && m.engine) {
+          on.estimate(m);
+        }
+      };
+      socket.onclose = () => {
+        on.closed();
+        setTimeout(connect, retryMs);
+        retryMs = Math.min(retryMs * 2, 10000);
+      };
+    }
+    connect();
+    return handle;
+  }
+
+  // The sensors table of a machine page from its status.
+  function showSensors(body, status) {
+    const rows = Object.entries(status.sensors || {}).map(([name, sensor]) =>
+      `<tr><td>${name}</td><td>${timeOfDay(sensor.last_t)}</td>` +
+      `<td>${duration(status.server_t - sensor.last_t)}</td><td>${sensor.readings}</td></tr>`).join('');
+    const html = rows || '<tr><td colspan="4">no readings yet</td></tr>';
+    if (body.innerHTML !== html) body.innerHTML = html;
+  }
+
+  // A uPlot axis in the page's colours.
+  function axis(extra) {
+    return Object.assign({
+      stroke: css('--muted'),
+      grid: { stroke: css('--grid'), width: 1 },
+      ticks: { stroke: css('--grid'), width: 1 },
+    }, extra || {});
+  }
+
+  function num(v) {
+    return typeof v === 'number' && isFinite(v);
+  }
+
+  return {
+    clock, fixed, mmPerM, duration, timeOfDay, json, ndjson, setText, css,
+    showConnection, follow, showSensors, axis, num,
+  };
 })();

@@ -22,8 +22,8 @@
     }
     const z = latest.zupt;
     if (z) {
-      rows.push(['distance', `${tn.fixed(z.distance_m, 2)} m`]);
-      rows.push(['heading', `${tn.fixed(z.yaw_deg, 2)}°`]);
+      rows.push(['distance', `${tn.fixed(z.distance_m, 2)} m · ${z.zv ? 'standing still' : 'moving'}`]);
+      rows.push(['heading', `${tn.fixed(z.yaw_deg, 2)}° · pitch ${tn.fixed(z.pitch_deg, 3)}°`]);
     }
     const f = latest.fuzzy;
     if (f) {

@@ -18,6 +18,7 @@ use fantoccini::wd::WebDriverCompatibleCommand;
 use fantoccini::{Client, ClientBuilder};
 use serde_json::{Value, json};
 use tunnelnav::fusion::SensorData;
+use tunnelnav::sim::pipejack::{PipeJackDrive, PipeJackScenario};
 use tunnelnav::sim::tbm::{TbmDrive, TbmScenario};
 
 use common::{post_ndjson, server_with_machine};
@@ -174,8 +175,9 @@ fn drive_ending_now() -> Vec<tunnelnav::fusion::Reading> {
     .collect()
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn machine_page_shows_live_attitude_dropout_and_model() {
+/// chromedriver and chromium, or `None` (the test is skipped, and says
+/// so) when they are missing and the test is not required.
+fn browser_programs() -> Option<(PathBuf, Option<PathBuf>)> {
     let required = std::env::var("TUNNELNAV_BROWSER_TEST").as_deref() == Ok("required");
     let driver_program = find_program(&["chromedriver"]);
     let chromium = find_program(&["chromium", "chromium-browser", "google-chrome"]);
@@ -189,6 +191,27 @@ async fn machine_page_shows_live_attitude_dropout_and_model() {
             "SKIPPED: the browser test needs chromium and chromedriver \
              (apt-get install -y chromium chromium-driver); none found on PATH"
         );
+        return None;
+    };
+    Some((driver_program, chromium))
+}
+
+/// Fails on any SEVERE entry in the browser's console log.
+async fn assert_clean_console(browser: &Client) {
+    let log = browser
+        .issue_cmd(BrowserLog)
+        .await
+        .expect("chromedriver returns the browser log");
+    let errors: Vec<&Value> = log
+        .as_array()
+        .map(|entries| entries.iter().filter(|e| e["level"] == "SEVERE").collect())
+        .unwrap_or_default();
+    assert!(errors.is_empty(), "console errors: {errors:#?}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn machine_page_shows_live_attitude_dropout_and_model() {
+    let Some((driver_program, chromium)) = browser_programs() else {
         return;
     };
 
@@ -401,20 +424,127 @@ async fn machine_page_shows_live_attitude_dropout_and_model() {
     .await;
     save_screenshot(&browser, "browser-fleet.png").await;
 
-    let log = browser
-        .issue_cmd(BrowserLog)
-        .await
-        .expect("chromedriver returns the browser log");
-    let errors: Vec<&Value> = log
-        .as_array()
-        .map(|entries| entries.iter().filter(|e| e["level"] == "SEVERE").collect())
-        .unwrap_or_default();
-    assert!(errors.is_empty(), "console errors: {errors:#?}");
+    assert_clean_console(&browser).await;
     eprintln!(
         "browser test passed; screenshots in {}",
         dropout_png.parent().unwrap().display()
     );
 
+    browser.close().await.ok();
+    server.stop().await;
+}
+
+/// A `zupt` machine's page: the trolley run's first minutes are posted, the
+/// page opens, the rest arrives live; the detector state, the readouts,
+/// plan and profile, distance with the rests shaded, and the uncertainty
+/// are all drawn, and a dropped socket is backfilled.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn zupt_page_shows_the_drive_and_the_detector() {
+    let Some((driver_program, chromium)) = browser_programs() else {
+        return;
+    };
+    const INS: &str = "pj-browser";
+    let dir = tempfile::tempdir().unwrap();
+    let server = common::TestServer::start(dir.path()).await;
+    let client = reqwest::Client::new();
+    let base = server.url("");
+    let declared = client
+        .put(format!("{base}/api/v1/machines/{INS}"))
+        .body(r#"{"name": "Trolley", "engines": {"zupt": {"initial_yaw_deg": 30}}}"#)
+        .send()
+        .await
+        .unwrap();
+    assert!(declared.status().is_success());
+    // Seven minutes of the trolley run, ending now.
+    let now = tunnelnav::server::wall_clock_s();
+    let drive = PipeJackDrive::new(PipeJackScenario {
+        start_t: (now - 420.0).floor(),
+        ..PipeJackScenario::default()
+    })
+    .unwrap();
+    let lines: Vec<String> = drive
+        .take_while(|e| e.reading.t < now)
+        .map(|e| e.reading.to_json())
+        .collect();
+    let (history, live) = lines.split_at(lines.len() / 2);
+    for chunk in history.chunks(5000) {
+        post_ndjson(&client, &base, INS, chunk).await;
+    }
+
+    let driver = Driver::start(&driver_program);
+    let browser = connect(&driver, chromium.as_deref()).await;
+    browser
+        .goto(&format!("{base}/machines/{INS}"))
+        .await
+        .expect("page loads");
+    wait_for(
+        &browser,
+        "the live socket and the aligned INS",
+        "return document.getElementById('conn-state').dataset.state === 'live' \
+           && document.getElementById('z-aligned').textContent === 'aligned' \
+           && ['still', 'moving'].includes(document.getElementById('zv-status').dataset.state);",
+        15,
+    )
+    .await;
+    let first = js(
+        &browser,
+        "return document.getElementById('z-distance').textContent;",
+    )
+    .await;
+    for chunk in live.chunks(2000) {
+        post_ndjson(&client, &base, INS, chunk).await;
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    wait_for(
+        &browser,
+        "the distance to grow, the rests shaded, the drive drawn",
+        &format!(
+            "const z = window.tunnelnavZupt; \
+             const points = [...z.state.points.values()]; \
+             return document.getElementById('z-distance').textContent !== {first} \
+               && parseFloat(document.getElementById('z-distance').textContent) > 3 \
+               && points.some(p => p.zv) && points.some(p => !p.zv) \
+               && z.charts.distance.data[0].length > 200 \
+               && z.charts.sigma.data[1].some(v => v > 0) \
+               && z.state.track.length > 20 \
+               && /^\\d+\\.\\d+$/.test(document.getElementById('ratio-mv').textContent);"
+        ),
+        20,
+    )
+    .await;
+    save_screenshot(&browser, "browser-zupt.png").await;
+
+    // A dropped socket is backfilled from the history API.
+    js(
+        &browser,
+        "window.tunnelnavZupt.socket.close(); return true;",
+    )
+    .await;
+    wait_for(
+        &browser,
+        "the socket to come back",
+        "return document.getElementById('conn-state').dataset.state === 'live' \
+           || document.getElementById('conn-state').dataset.state === 'backfilled';",
+        20,
+    )
+    .await;
+
+    // The fleet card shows the INS's distance and state.
+    browser
+        .goto(&format!("{base}/"))
+        .await
+        .expect("fleet loads");
+    wait_for(
+        &browser,
+        "the INS fleet card",
+        &format!(
+            "const c = document.querySelector('[data-machine=\"{INS}\"]'); \
+             return !!c && /distance/.test(c.textContent) && /heading/.test(c.textContent);"
+        ),
+        15,
+    )
+    .await;
+    assert_clean_console(&browser).await;
     browser.close().await.ok();
     server.stop().await;
 }

@@ -61,7 +61,7 @@ async fn pages_render_and_assets_are_served_embedded() {
         ("/static/app.css", "text/css"),
         ("/static/common.js", "text/javascript"),
         ("/static/fleet.js", "text/javascript"),
-        ("/static/machine.js", "text/javascript"),
+        ("/static/attitude.js", "text/javascript"),
         ("/static/favicon.svg", "image/svg+xml"),
         ("/static/vendor/uplot/uPlot.iife.min.js", "text/javascript"),
         ("/static/vendor/uplot/uPlot.min.css", "text/css"),
@@ -107,9 +107,10 @@ async fn json(client: &reqwest::Client, url: String) -> Value {
 
 /// The demo at 300× for 8 s is 40 simulated minutes: every machine has
 /// history, the blocked laser has had its first dropout (minutes 10–30),
-/// and a second run on the same data dir continues after the first.
+/// the INS machine has moved and rested, and a second run on the same
+/// data dir continues after the first (the INS's level and odometer too).
 #[tokio::test]
-async fn demo_posts_three_machines_with_a_dropout_and_resumes() {
+async fn demo_posts_four_machines_with_a_dropout_and_resumes() {
     let dir = tempfile::tempdir().unwrap();
     run_demo(dir.path(), "300", "8");
 
@@ -117,7 +118,7 @@ async fn demo_posts_three_machines_with_a_dropout_and_resumes() {
     let client = reqwest::Client::new();
     let list = json(&client, server.url("/api/v1/machines")).await;
     let machines = list["machines"].as_array().unwrap();
-    assert_eq!(machines.len(), 3, "{list}");
+    assert_eq!(machines.len(), 4, "{list}");
     let mut first_end = 0.0_f64;
     for machine in machines {
         let id = machine["machine"].as_str().unwrap();
@@ -129,6 +130,11 @@ async fn demo_posts_three_machines_with_a_dropout_and_resumes() {
         )
         .await;
         let estimates = history["estimates"].as_array().unwrap();
+        if id == "pipejack-ins" {
+            check_ins(estimates);
+            first_end = first_end.max(machine["last_reading_t"].as_f64().unwrap());
+            continue;
+        }
         // About 2400 at 1 Hz; a loaded CI machine may fall a little behind.
         assert!(
             estimates.len() > 1000,
@@ -158,5 +164,60 @@ async fn demo_posts_three_machines_with_a_dropout_and_resumes() {
         let end = machine["last_reading_t"].as_f64().unwrap();
         assert!(end > first_end + 60.0, "{machine}: did not continue");
     }
+    // The INS's second stretch continued the first: the fused height still
+    // follows the level (its readings were not refused as a jump).
+    let ins = json(&client, server.url("/api/v1/machines/pipejack-ins")).await;
+    let latest = &ins["latest"]["zupt"];
+    let levels = client
+        .get(server.url("/api/v1/machines/pipejack-ins/readings?sensor=level&format=ndjson"))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    let heights: Vec<f64> = levels
+        .lines()
+        .map(|l| {
+            serde_json::from_str::<Value>(l).unwrap()["height_m"]
+                .as_f64()
+                .unwrap()
+        })
+        .collect();
+    let steps = heights.windows(2).map(|w| (w[1] - w[0]).abs());
+    assert!(
+        steps.fold(0.0, f64::max) < 0.01,
+        "a level jump between the runs"
+    );
+    let fused = latest["height_m"].as_f64().unwrap();
+    let level = *heights.last().unwrap();
+    assert!(
+        (fused - level).abs() < 0.02,
+        "fused {fused} m, level {level} m"
+    );
     server.terminate();
+}
+
+/// The INS machine's history: 25 Hz estimates, aligned, with rests and
+/// motion, a height that follows the level, an odometer shown.
+fn check_ins(estimates: &[Value]) {
+    // 40 simulated minutes at 25 Hz is 60 000; allow a slow CI machine.
+    assert!(
+        estimates.len() > 20_000,
+        "{} INS estimates",
+        estimates.len()
+    );
+    let last = estimates.last().unwrap();
+    assert_eq!(last["engine"], "zupt");
+    assert_eq!(last["aligned"], true, "{last}");
+    assert!(estimates.iter().any(|e| e["zv"] == true));
+    assert!(
+        estimates
+            .iter()
+            .any(|e| e["zv"] == false && e["aligned"] == true)
+    );
+    assert!(
+        last["odometer_m"].is_number() && last["height_m"].is_number(),
+        "{last}"
+    );
 }

@@ -35,7 +35,11 @@ async fn declare(client: &reqwest::Client, base: &str) {
         .send()
         .await
         .unwrap();
-    assert!(response.status().is_success(), "{:?}", response.text().await);
+    assert!(
+        response.status().is_success(),
+        "{:?}",
+        response.text().await
+    );
 }
 
 async fn post_all(client: &reqwest::Client, base: &str, lines: &[String]) {
@@ -83,7 +87,11 @@ async fn served_estimates_match_replay_across_a_restart() {
     // Served: every IMU reading but the last few seconds, still held by
     // the zero-velocity decision (and the reorder buffer).
     let imu = imu_count(&lines);
-    assert!(served.len() < imu && served.len() + 1500 >= imu, "{} of {imu}", served.len());
+    assert!(
+        served.len() < imu && served.len() + 1500 >= imu,
+        "{} of {imu}",
+        served.len()
+    );
     // Replay flushes at the end of its input, so it has them all; the
     // served ones are its prefix, value for value.
     let replayed = replay_engine(MACHINE, "zupt", &PARAMS, &lines);

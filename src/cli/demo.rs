@@ -1,10 +1,11 @@
 //! `tunnelnav demo [--listen ADDR] [--data-dir DIR] [--rate R] [--seconds S]`
 //!
-//! The server, three simulated TBMs and their field gateways, at an
-//! accelerated clock: the gateways post the simulator's readings over real
-//! HTTP (NDJSON) and WebSocket as the clock reaches their time, so a
-//! 2-minute laser period shows up every few seconds. One machine's laser
-//! is blocked for 20 minutes of every hour. The server runs with the same
+//! The server, three simulated TBMs, a pipe-jacking machine guided by a
+//! FOG INS, and their field gateways, at an accelerated clock: the gateways
+//! post the simulator's readings over real HTTP (NDJSON) and WebSocket as
+//! the clock reaches their time, so a 2-minute laser period shows up every
+//! few seconds. One machine's laser is blocked for 20 minutes of every
+//! hour; the INS machine advances at 2 mm/s and stops for each pipe. The server runs with the same
 //! clock, so ages and its future check agree with the gateways.
 //!
 //! A second run on the same data dir resumes: the clock starts after the
@@ -25,6 +26,7 @@ use super::serve::{init_tracing, shutdown_signal, start};
 use crate::config::ServerConfig;
 use crate::fusion::{Reading, SensorData, SensorKind};
 use crate::server::{self, Clock, Limits, ServerOptions, wall_clock_s};
+use crate::sim::pipejack::{Case, PipeJackDrive, PipeJackScenario};
 use crate::sim::tbm::{TbmDrive, TbmScenario};
 use crate::store::Store;
 
@@ -41,7 +43,16 @@ engines = { attitude = {} }
 [machines.pipejack-3]
 name = "Pipe jack P-3 · laser blocked 20 min per hour"
 engines = { attitude = {} }
+
+[machines.pipejack-ins]
+name = "Pipe jack P-7 · FOG INS, zero-velocity updates, odometer"
+engines = { zupt = { latitude_deg = 30, initial_yaw_deg = 30, window_samples = 25, median_samples = 25, odometer_aiding = true } }
 "#;
+
+/// The demo INS's IMU rate: a quarter of the field's 100 Hz keeps the
+/// accelerated demo's database growth modest (the detector windows are
+/// set to the same second of data).
+const DEMO_IMU_RATE_HZ: f64 = 25.0;
 
 /// How a gateway reaches the server.
 #[derive(Debug, Clone, Copy)]
@@ -52,32 +63,53 @@ enum Transport {
     WebSocket,
 }
 
+/// What a gateway's machine is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Kind {
+    /// A TBM with laser and inclinometer.
+    Tbm,
+    /// A pipe-jacking machine with a FOG IMU, level and odometer (the
+    /// simulator's field case).
+    PipeJack,
+}
+
 struct Gateway {
     machine: &'static str,
+    kind: Kind,
     seed: u64,
     transport: Transport,
     /// The laser's line of sight is blocked for minutes 10–30 of every hour.
     laser_blocked: bool,
 }
 
-const GATEWAYS: [Gateway; 3] = [
+const GATEWAYS: [Gateway; 4] = [
     Gateway {
         machine: "tbm-north",
+        kind: Kind::Tbm,
         seed: 11,
         transport: Transport::Http,
         laser_blocked: false,
     },
     Gateway {
         machine: "tbm-south",
+        kind: Kind::Tbm,
         seed: 22,
         transport: Transport::WebSocket,
         laser_blocked: false,
     },
     Gateway {
         machine: "pipejack-3",
+        kind: Kind::Tbm,
         seed: 33,
         transport: Transport::Http,
         laser_blocked: true,
+    },
+    Gateway {
+        machine: "pipejack-ins",
+        kind: Kind::PipeJack,
+        seed: 44,
+        transport: Transport::Http,
+        laser_blocked: false,
     },
 ];
 
@@ -117,8 +149,10 @@ pub fn run(args: DemoArgs) -> Result<(), CliError> {
         .build()?;
     runtime.block_on(async {
         // Start after anything an earlier demo stored, so nothing new is older.
-        let resume_t = newest_reading_t(&args.data_dir).await?;
-        let start_t = resume_t.map_or(wall_clock_s(), |t| wall_clock_s().max(t + 1.0));
+        let resume = resume_point(&args.data_dir).await?;
+        let start_t = resume
+            .newest_t
+            .map_or(wall_clock_s(), |t| wall_clock_s().max(t + 1.0));
         let clock = Clock::accelerated(args.rate, start_t).map_err(CliError::Scenario)?;
         let options = ServerOptions {
             data_dir: args.data_dir.clone(),
@@ -129,7 +163,7 @@ pub fn run(args: DemoArgs) -> Result<(), CliError> {
         let (state, listener) = start(options, args.listen).await?;
         let address = listener.local_addr()?;
         println!(
-            "tunnelnav demo: open http://{address}/ in a browser. Three simulated machines, \
+            "tunnelnav demo: open http://{address}/ in a browser. Four simulated machines, \
              server clock ×{} (a 2-minute laser period every {:.0} s), data in {}. Ctrl-C stops.",
             args.rate,
             120.0 / args.rate,
@@ -143,6 +177,7 @@ pub fn run(args: DemoArgs) -> Result<(), CliError> {
                 gateway,
                 address,
                 clock,
+                resume.aids,
                 stopping.clone(),
             )));
         }
@@ -169,31 +204,87 @@ pub fn run(args: DemoArgs) -> Result<(), CliError> {
     })
 }
 
-/// The newest reading stored in `data_dir`, if any.
-async fn newest_reading_t(data_dir: &Path) -> Result<Option<f64>, CliError> {
+/// Where an earlier demo in the same data dir stopped.
+#[derive(Debug, Clone, Copy, Default)]
+struct Resume {
+    /// The newest reading of any machine.
+    newest_t: Option<f64>,
+    /// The INS machine's last level height and odometer distance: its next
+    /// stretch of drive starts there, so the engine sees one drive.
+    aids: (Option<f64>, Option<f64>),
+}
+
+/// What `data_dir` holds from an earlier demo.
+async fn resume_point(data_dir: &Path) -> Result<Resume, CliError> {
     let store = Store::open(data_dir)?;
-    let newest = {
+    let resume = {
         let store = store.clone();
         tokio::task::spawn_blocking(move || {
-            let mut newest: Option<f64> = None;
+            let mut resume = Resume::default();
             for machine in store.machines()? {
                 for sensor in SensorKind::ALL {
-                    if let Some(t) = store.last_reading_t(machine.db_id, sensor)? {
-                        newest = Some(newest.map_or(t, |n| n.max(t)));
+                    let Some(t) = store.last_reading_t(machine.db_id, sensor)? else {
+                        continue;
+                    };
+                    resume.newest_t = Some(resume.newest_t.map_or(t, |n| n.max(t)));
+                    if machine.spec.id != "pipejack-ins" {
+                        continue;
                     }
+                    store.export_readings(machine.db_id, Some(sensor), t, t, |r| {
+                        match r.data {
+                            SensorData::Level { height_m } => resume.aids.0 = Some(height_m),
+                            SensorData::Odometer { distance_m } => resume.aids.1 = Some(distance_m),
+                            _ => {}
+                        }
+                        false
+                    })?;
                 }
             }
-            Ok::<_, crate::store::StoreError>(newest)
+            Ok::<_, crate::store::StoreError>(resume)
         })
         .await
         .map_err(std::io::Error::other)??
     };
     store.close().await;
-    Ok(newest)
+    Ok(resume)
 }
 
 fn laser_blocked(gateway: &Gateway, since_start_s: f64) -> bool {
     gateway.laser_blocked && (600.0..1800.0).contains(&since_start_s.rem_euclid(3600.0))
+}
+
+/// The simulated readings of a gateway's machine, for a year from `start_t`.
+fn readings(
+    gateway: &Gateway,
+    start_t: f64,
+    (height_m, odometer_m): (Option<f64>, Option<f64>),
+) -> Result<Box<dyn Iterator<Item = Reading> + Send>, String> {
+    Ok(match gateway.kind {
+        Kind::Tbm => Box::new(
+            TbmDrive::new(TbmScenario {
+                seed: gateway.seed,
+                start_t,
+                hours: 24.0 * 366.0,
+                incl_period_s: 1.0,
+                laser_period_s: 120.0,
+                dropouts: Vec::new(),
+            })?
+            .map(|e| e.reading),
+        ),
+        Kind::PipeJack => Box::new(
+            PipeJackDrive::new(PipeJackScenario {
+                case: Case::Field,
+                seed: gateway.seed,
+                start_t,
+                imu_rate_hz: DEMO_IMU_RATE_HZ,
+                field_duration_s: 366.0 * 86_400.0,
+                start_height_m: height_m.unwrap_or(12.0),
+                start_odometer_m: odometer_m.unwrap_or(0.0),
+                ..PipeJackScenario::default()
+            })?
+            .map(|e| e.reading),
+        ),
+    })
 }
 
 /// One field gateway: sends the simulator's readings as the clock reaches
@@ -202,18 +293,11 @@ async fn run_gateway(
     gateway: &'static Gateway,
     address: SocketAddr,
     clock: Clock,
+    aids: (Option<f64>, Option<f64>),
     mut stop: watch::Receiver<bool>,
 ) {
     let start_t = clock.now_s();
-    let scenario = TbmScenario {
-        seed: gateway.seed,
-        start_t,
-        hours: 24.0 * 366.0,
-        incl_period_s: 1.0,
-        laser_period_s: 120.0,
-        dropouts: Vec::new(),
-    };
-    let mut drive = match TbmDrive::new(scenario) {
+    let mut drive = match readings(gateway, start_t, aids) {
         Ok(drive) => drive.peekable(),
         Err(e) => {
             tracing::error!(machine = gateway.machine, "demo drive: {e}");
@@ -230,8 +314,7 @@ async fn run_gateway(
             _ = stop.changed() => break,
         }
         let now = clock.now_s();
-        while let Some(event) = drive.next_if(|e| e.reading.t <= now) {
-            let reading = event.reading;
+        while let Some(reading) = drive.next_if(|r| r.t <= now) {
             let is_laser = matches!(reading.data, SensorData::Laser { .. });
             if is_laser && laser_blocked(gateway, reading.t - start_t) {
                 continue;

@@ -8,7 +8,7 @@ use clap::{Args, Subcommand};
 
 use super::CliError;
 use crate::fusion::SensorKind;
-use crate::sim::pipejack::{Case, PipeJackDrive, PipeJackScenario};
+use crate::sim::pipejack::{Case, IMU_RATE_HZ, PipeJackDrive, PipeJackScenario};
 use crate::sim::tbm::{DEFAULT_START_T, Dropout, TbmDrive, TbmScenario};
 
 #[derive(Debug, Subcommand)]
@@ -41,6 +41,12 @@ pub struct PipeJackArgs {
     /// Rest durations as MIN:MAX seconds (or one value), instead of the case's.
     #[arg(long, value_name = "MIN:MAX", value_parser = parse_range)]
     pub rest_s: Option<(f64, f64)>,
+    /// IMU rate, Hz.
+    #[arg(long, default_value_t = IMU_RATE_HZ)]
+    pub imu_rate_hz: f64,
+    /// Length of a field drive, hours.
+    #[arg(long, default_value_t = 2.0)]
+    pub field_hours: f64,
     /// Random seed: the same seed gives the same drive.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -78,6 +84,9 @@ impl PipeJackArgs {
             latitude_deg: self.latitude_deg,
             push_s: self.push_s,
             rest_s: self.rest_s,
+            imu_rate_hz: self.imu_rate_hz,
+            field_duration_s: self.field_hours * 3600.0,
+            ..PipeJackScenario::default()
         }
     }
 }

@@ -18,7 +18,7 @@ use serde::Serialize;
 
 use crate::fusion::zupt::{PARAMS, ZuptEngine};
 use crate::fusion::{Engine, EngineOutput, ParamError, ParamValue, Params, Reading};
-use crate::sim::pipejack::{Case, IMU_PERIOD_S, PipeJackDrive, PipeJackScenario, PipeJackTruth};
+use crate::sim::pipejack::{Case, PipeJackDrive, PipeJackScenario, PipeJackTruth};
 
 /// What to evaluate.
 #[derive(Debug, Clone)]
@@ -125,6 +125,7 @@ pub fn evaluate_runs(
             &truths,
             &rests,
             config.scenario.start_t,
+            config.scenario.imu_period_s(),
         ));
     }
     Ok(ZuptEvaluation {
@@ -182,6 +183,7 @@ pub fn score(
     truths: &[PipeJackTruth],
     rests_s: &[(f64, f64)],
     start_t: f64,
+    period_s: f64,
 ) -> DetectorScores {
     let (mut tp, mut fp, mut fn_, mut within, mut scored) = (0u64, 0u64, 0u64, [0u64; 3], 0u64);
     let mut last: Option<(&PipeJackTruth, &crate::fusion::ZuptEstimate)> = None;
@@ -271,7 +273,7 @@ pub fn score(
         position_error_m,
         position_error_pct: pct(position_error_m),
         within_3_sigma: within.map(|w| ratio(w, scored)),
-        false_zv_s: fp as f64 * IMU_PERIOD_S,
+        false_zv_s: fp as f64 * period_s,
         long_rests: long.len(),
         long_rests_found: long.iter().filter(|&&i| found[i]).count(),
     }

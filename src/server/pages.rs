@@ -11,6 +11,7 @@ use axum::response::{IntoResponse, Response};
 
 use super::SharedState;
 use crate::fusion::EngineKind;
+use crate::fusion::zupt::ZuptConfig;
 
 /// `GET /`: one card per machine.
 #[derive(Template, WebTemplate)]
@@ -35,6 +36,16 @@ pub struct MachinePage {
     engines: String,
     /// The machine runs the `attitude` engine (charts, laser, ANFIS).
     attitude: bool,
+    /// The `zupt` engine's detector and decision latency (about), if the
+    /// machine runs it (plan, profile, distance, detector state).
+    zupt: Option<ZuptView>,
+}
+
+struct ZuptView {
+    detector: String,
+    /// Samples the centred windows wait for, and the minimum rest, s.
+    lookahead_samples: usize,
+    min_zv_s: f64,
 }
 
 #[derive(Template, WebTemplate)]
@@ -75,6 +86,19 @@ pub async fn machine(State(state): State<SharedState>, Path(id): Path<String>) -
         name: machine.spec.name.clone(),
         engines: engine_list(machine.spec.engines.keys().copied()),
         attitude: machine.spec.engines.contains_key(&EngineKind::Attitude),
+        zupt: machine
+            .spec
+            .engines
+            .get(&EngineKind::Zupt)
+            .and_then(|params| ZuptConfig::from_params(params).ok())
+            .map(|config| {
+                let pipeline = &config.pipeline;
+                ZuptView {
+                    detector: pipeline.detector.as_str().to_string(),
+                    lookahead_samples: pipeline.lookahead_samples(),
+                    min_zv_s: pipeline.min_run_s,
+                }
+            }),
     }
     .into_response()
 }
@@ -101,7 +125,8 @@ const ASSETS: &[Asset] = &[
     asset!("common.js", "text/javascript; charset=utf-8"),
     asset!("favicon.svg", "image/svg+xml"),
     asset!("fleet.js", "text/javascript; charset=utf-8"),
-    asset!("machine.js", "text/javascript; charset=utf-8"),
+    asset!("attitude.js", "text/javascript; charset=utf-8"),
+    asset!("zupt.js", "text/javascript; charset=utf-8"),
     asset!(
         "vendor/uplot/uPlot.iife.min.js",
         "text/javascript; charset=utf-8"

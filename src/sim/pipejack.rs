@@ -10,7 +10,7 @@
 //!   does not give its durations; these are ours);
 //! - `field`: a jacking machine advancing at a steady 2 mm/s for 10–20 min
 //!   with its cutter running, then resting 2–6 min for the next pipe, for
-//!   two hours.
+//!   two hours (`field_duration_s`).
 //!
 //! Motion: the machine moves along a straight line at `heading_deg` and
 //! `slope_deg`. Each push's speed rises and falls smoothly (sin² ramps);
@@ -28,7 +28,7 @@
 //! true trajectory.
 //!
 //! Sensors (the paper's Table 1 FOG IMU):
-//! - IMU at 100 Hz: gyro bias 0.5 °/h (1σ per axis) plus a 0.05 °/h/√h
+//! - IMU at 100 Hz (`imu_rate_hz`): gyro bias 0.5 °/h (1σ per axis) plus a 0.05 °/h/√h
 //!   random walk, angle random walk 0.05 °/√h; accelerometer bias 1 mg (1σ
 //!   per axis), white noise 50 µg/√Hz; both sense the Earth's rotation
 //!   and WGS84 normal gravity at `latitude_deg`;
@@ -46,10 +46,8 @@ use crate::fusion::{Reading, SensorData};
 
 use super::tbm::DEFAULT_START_T;
 
-/// IMU period, s.
-pub const IMU_PERIOD_S: f64 = 0.01;
-/// The level datum's height of the start point, m.
-const START_HEIGHT_M: f64 = 12.0;
+/// The IMU's usual rate, Hz (the paper's FOG-INS).
+pub const IMU_RATE_HZ: f64 = 100.0;
 /// Trolley: the paper's distance and push count.
 const TROLLEY_DISTANCE_M: f64 = 36.55;
 const TROLLEY_PUSHES: usize = 32;
@@ -83,6 +81,14 @@ pub struct PipeJackScenario {
     /// 600–1200/120–360).
     pub push_s: Option<(f64, f64)>,
     pub rest_s: Option<(f64, f64)>,
+    /// IMU rate, Hz; the shaking stays below a quarter of it.
+    pub imu_rate_hz: f64,
+    /// Length of a field drive, s (the trolley cases end with their distance).
+    pub field_duration_s: f64,
+    /// What the level reads at the start point, m, and the odometer, m (a
+    /// drive continued after a stop starts where the last one ended).
+    pub start_height_m: f64,
+    pub start_odometer_m: f64,
 }
 
 impl PipeJackScenario {
@@ -93,6 +99,11 @@ impl PipeJackScenario {
             Case::Varied => (15.0, 45.0),
             Case::Field => (600.0, 1200.0),
         })
+    }
+
+    /// Time between IMU readings, s.
+    pub fn imu_period_s(&self) -> f64 {
+        1.0 / self.imu_rate_hz
     }
 
     /// Rest durations (min, max), s.
@@ -116,6 +127,10 @@ impl Default for PipeJackScenario {
             latitude_deg: 30.0,
             push_s: None,
             rest_s: None,
+            imu_rate_hz: IMU_RATE_HZ,
+            field_duration_s: 7200.0,
+            start_height_m: 12.0,
+            start_odometer_m: 0.0,
         }
     }
 }
@@ -328,6 +343,12 @@ impl PipeJackDrive {
             return Err("slope must be within ±30°, latitude within ±89°".into());
         }
         let (push, rest) = (scenario.push_range_s(), scenario.rest_range_s());
+        if !(scenario.imu_rate_hz >= 10.0 && scenario.imu_rate_hz <= 2000.0) {
+            return Err("the IMU rate must be 10 to 2000 Hz".into());
+        }
+        if !(scenario.field_duration_s >= 60.0 && scenario.field_duration_s <= 400.0 * 86_400.0) {
+            return Err("a field drive lasts 1 min to 400 days".into());
+        }
         if !(push.0 >= 5.0 && push.1 >= push.0 && push.1 <= 7200.0) {
             return Err("pushes must last 5 s to 2 h, min ≤ max".into());
         }
@@ -343,22 +364,25 @@ impl PipeJackDrive {
         } else {
             30.0
         };
+        // Shaking stays below a quarter of the IMU rate, so it is sampled.
+        let top = scenario.imu_rate_hz / 4.0;
+        let band = |lo: f64, hi: f64| (lo.min(top * 0.5), hi.min(top));
         let shaking = match scenario.case {
             // Wheels on rails: the trolley at ≈ 4 cm/s.
             Case::Trolley | Case::Varied => Shaking {
-                vertical: Tones::random(&mut rng, 3, (3.0, 15.0), 0.05, 2),
-                sideways: Tones::random(&mut rng, 3, (2.0, 10.0), 0.03, 2),
-                roll: Tones::random(&mut rng, 2, (1.0, 6.0), rad(0.08), 1),
-                pitch: Tones::random(&mut rng, 2, (1.0, 6.0), rad(0.08), 1),
-                yaw: Tones::random(&mut rng, 2, (0.5, 3.0), rad(0.05), 1),
+                vertical: Tones::random(&mut rng, 3, band(3.0, 15.0), 0.05, 2),
+                sideways: Tones::random(&mut rng, 3, band(2.0, 10.0), 0.03, 2),
+                roll: Tones::random(&mut rng, 2, band(1.0, 6.0), rad(0.08), 1),
+                pitch: Tones::random(&mut rng, 2, band(1.0, 6.0), rad(0.08), 1),
+                yaw: Tones::random(&mut rng, 2, band(0.5, 3.0), rad(0.05), 1),
             },
             // A cutter grinding: stronger, faster.
             Case::Field => Shaking {
-                vertical: Tones::random(&mut rng, 4, (8.0, 25.0), 0.15, 2),
-                sideways: Tones::random(&mut rng, 4, (8.0, 25.0), 0.10, 2),
-                roll: Tones::random(&mut rng, 3, (2.0, 12.0), rad(0.1), 1),
-                pitch: Tones::random(&mut rng, 3, (2.0, 12.0), rad(0.06), 1),
-                yaw: Tones::random(&mut rng, 3, (2.0, 12.0), rad(0.06), 1),
+                vertical: Tones::random(&mut rng, 4, band(8.0, 25.0), 0.15, 2),
+                sideways: Tones::random(&mut rng, 4, band(8.0, 25.0), 0.10, 2),
+                roll: Tones::random(&mut rng, 3, band(2.0, 12.0), rad(0.1), 1),
+                pitch: Tones::random(&mut rng, 3, band(2.0, 12.0), rad(0.06), 1),
+                yaw: Tones::random(&mut rng, 3, band(2.0, 12.0), rad(0.06), 1),
             },
         };
         let mut imu_rng = ChaCha8Rng::seed_from_u64(scenario.seed);
@@ -371,7 +395,7 @@ impl PipeJackDrive {
         Ok(PipeJackDrive {
             site: Site {
                 lat_rad: rad(scenario.latitude_deg),
-                height_m: START_HEIGHT_M,
+                height_m: scenario.start_height_m,
             },
             heading_rad: rad(scenario.heading_deg),
             slope_rad: rad(scenario.slope_deg),
@@ -471,7 +495,7 @@ impl PipeJackDrive {
     }
 
     fn imu_event(&mut self) -> PipeJackEvent {
-        let s = self.sample as f64 * IMU_PERIOD_S;
+        let s = self.sample as f64 * self.scenario.imu_period_s();
         self.sample += 1;
         let k = self.truth_at(s);
         let [roll, pitch, yaw] = k.angles;
@@ -498,7 +522,7 @@ impl PipeJackDrive {
         );
         let rate_b = body_rate + attitude.inverse() * (earth + transport);
         // Sensor errors.
-        let dt = IMU_PERIOD_S;
+        let dt = self.scenario.imu_period_s();
         let bias_rw = rad(0.05) / 3600.0 / 60.0 * dt.sqrt();
         let rng = &mut self.imu_rng;
         self.gyro_bias_rad_per_s += V3::from_fn(|_, _| bias_rw * normal(rng));
@@ -531,8 +555,11 @@ impl PipeJackDrive {
     fn aid_readings(&mut self, s: f64) {
         let k = self.truth_at(s);
         let t = self.scenario.start_t + s;
-        let height_m = START_HEIGHT_M - k.position_m.z + 0.0005 * normal(&mut self.aid_rng);
-        let distance_m = k.distance_m * 1.002 + 0.001 * normal(&mut self.aid_rng);
+        let height_m =
+            self.scenario.start_height_m - k.position_m.z + 0.0005 * normal(&mut self.aid_rng);
+        let distance_m = self.scenario.start_odometer_m
+            + k.distance_m * 1.002
+            + 0.001 * normal(&mut self.aid_rng);
         self.queued.push(Reading {
             t,
             data: SensorData::Odometer {
@@ -652,7 +679,7 @@ fn schedule(scenario: &PipeJackScenario, rng: &mut ChaCha8Rng) -> Vec<Push> {
         let done = match case {
             Case::Trolley => pushes.len() == TROLLEY_PUSHES,
             Case::Varied => distance >= TROLLEY_DISTANCE_M,
-            Case::Field => t >= 7200.0,
+            Case::Field => t >= scenario.field_duration_s,
         };
         if done {
             break;
@@ -671,7 +698,7 @@ impl Iterator for PipeJackDrive {
                 truth: None,
             });
         }
-        let s = self.sample as f64 * IMU_PERIOD_S;
+        let s = self.sample as f64 * self.scenario.imu_period_s();
         if s > self.end_t {
             return None;
         }
@@ -766,7 +793,7 @@ mod tests {
                 None => aids += 1,
             }
         }
-        assert_eq!(imu, (duration / IMU_PERIOD_S).floor() as usize + 1);
+        assert_eq!(imu, (duration * IMU_RATE_HZ).floor() as usize + 1);
         assert_eq!(aids, 2 * (duration.floor() as usize + 1));
     }
 }

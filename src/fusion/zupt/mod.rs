@@ -55,6 +55,8 @@ use super::{Engine, EngineKind, SnapshotError};
 const STANDARD_GRAVITY_MPS2: f64 = 9.806_65;
 /// Level or odometer readings kept waiting for the navigation time.
 const MAX_PENDING_AIDS: usize = 1024;
+/// Two odometer readings further apart than this give no speed.
+const ODOMETER_MAX_GAP_S: f64 = 10.0;
 
 /// The `zupt` engine's parameters. Sensor defaults are the paper's Table 1
 /// FOG IMU (gyro bias stability 0.5 °/h, ARW ≤ 0.05 °/√h, accelerometer
@@ -242,12 +244,12 @@ pub const PARAMS: &[ParamSpec] = &[
         "noise of a level-instrument height",
     ),
     real(
-        "level_gate_sigma",
+        "aid_gate_sigma",
         6.0,
         0.0,
         1.0e6,
         "",
-        "a height further than this many σ from the prediction is refused (0: no gate)",
+        "a level height or odometer speed further than this many σ from the prediction is refused (0: no gate)",
     ),
     flag(
         "odometer_aiding",
@@ -285,7 +287,7 @@ pub struct ZuptConfig {
     pub filter_period_s: f64,
     pub zupt_sigma_mps: f64,
     pub level_sigma_m: f64,
-    pub level_gate_sigma: f64,
+    pub aid_gate_sigma: f64,
     pub odometer_aiding: bool,
     pub odometer_sigma_mps: f64,
     pub max_imu_gap_s: f64,
@@ -344,7 +346,7 @@ impl ZuptConfig {
             filter_period_s: p.real("filter_period_s")?,
             zupt_sigma_mps: p.real("zupt_sigma_mps")?,
             level_sigma_m: p.real("level_sigma_m")?,
-            level_gate_sigma: p.real("level_gate_sigma")?,
+            aid_gate_sigma: p.real("aid_gate_sigma")?,
             odometer_aiding: p.flag("odometer_aiding")?,
             odometer_sigma_mps: p.real("odometer_sigma_mps")?,
             max_imu_gap_s: p.real("max_imu_gap_s")?,
@@ -373,6 +375,8 @@ pub struct ZuptStats {
     /// Heights refused by the gate.
     pub heights_refused: u64,
     pub odometer_updates: u64,
+    /// Odometer speeds refused by the gate (a slipping wheel, a reset counter).
+    pub odometer_refused: u64,
     /// Updates skipped because the innovation covariance was singular.
     pub updates_failed: u64,
     /// Level or odometer readings dropped because too many were waiting.
@@ -591,6 +595,7 @@ impl ZuptEngine {
             self.odometers.pop_front();
             if let (Some((prev_t, prev_m)), Some(nav)) = (self.odometer, &mut self.navigation)
                 && odo_t > prev_t
+                && odo_t - prev_t <= ODOMETER_MAX_GAP_S
             {
                 nav.pending_odometer_speed_mps = Some((distance_m - prev_m) / (odo_t - prev_t));
             }
@@ -774,6 +779,8 @@ impl Navigation {
         self.interval_s = 0.0;
         self.force_integral = V3::zeros();
 
+        // The gate is on the squared Mahalanobis distance.
+        let gate = (config.aid_gate_sigma > 0.0).then(|| config.aid_gate_sigma.powi(2));
         if zv {
             let r = SMatrix::<f64, 3, 3>::identity() * config.zupt_sigma_mps.powi(2);
             let result = self
@@ -789,8 +796,6 @@ impl Navigation {
                     let innovation =
                         SVector::<f64, 1>::new(datum - self.state.position_m.z - measured_m);
                     let r = SMatrix::<f64, 1, 1>::new(config.level_sigma_m.powi(2));
-                    let gate =
-                        (config.level_gate_sigma > 0.0).then(|| config.level_gate_sigma.powi(2));
                     let result = self.filter.update(&height_matrix(), &innovation, &r, gate);
                     if result == Err(eskf::UpdateError::Gated) {
                         stats.heights_refused += 1;
@@ -807,8 +812,12 @@ impl Navigation {
             let innovation = velocity_b - V3::new(speed_mps, 0.0, 0.0);
             let r = SMatrix::<f64, 3, 3>::identity() * config.odometer_sigma_mps.powi(2);
             let h = body_velocity_matrix(&c_bn, &self.state.velocity_mps);
-            let result = self.filter.update(&h, &innovation, &r, None);
-            self.apply(result, stats, |s| s.odometer_updates += 1);
+            let result = self.filter.update(&h, &innovation, &r, gate);
+            if result == Err(eskf::UpdateError::Gated) {
+                stats.odometer_refused += 1;
+            } else {
+                self.apply(result, stats, |s| s.odometer_updates += 1);
+            }
         }
     }
 

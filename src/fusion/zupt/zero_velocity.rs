@@ -40,6 +40,18 @@ pub enum DetectorKind {
 }
 
 impl DetectorKind {
+    /// The `detector` parameter value.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            DetectorKind::Tczvd => "tczvd",
+            DetectorKind::Mv => "mv",
+            DetectorKind::Are => "are",
+            DetectorKind::Shoe => "shoe",
+            DetectorKind::Mag => "mag",
+            DetectorKind::None => "none",
+        }
+    }
+
     /// Parses a `detector` parameter value.
     pub fn from_name(name: &str) -> Option<DetectorKind> {
         Some(match name {

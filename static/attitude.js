@@ -1,4 +1,4 @@
-// One machine's live page. History comes from the JSON API (downsampled by
+// The `attitude` engine's part of a machine page. History comes from the JSON API (downsampled by
 // the server), then the `live` WebSocket extends it; on a reconnect or a
 // `gap` event the missed range is fetched from the history API again.
 'use strict';
@@ -7,7 +7,6 @@
   const root = document.getElementById('machine');
   const MACHINE = root.dataset.machine;
   const API = `/api/v1/machines/${encodeURIComponent(MACHINE)}`;
-  const ATTITUDE = root.dataset.engines.split(', ').includes('attitude');
   const $ = (id) => document.getElementById(id);
   const { fixed, setText } = tn;
 
@@ -37,26 +36,11 @@
   // ---- connection state -------------------------------------------------
   function setConnection(connection, detail) {
     state.connection = connection;
-    const el = $('conn-state');
-    el.dataset.state = connection;
-    const text = {
-      connecting: 'connecting…',
-      live: '● live',
-      reconnecting: 'reconnecting…',
-      backfilling: 'fetching missed estimates…',
-      backfilled: `● live · ${detail}`,
-    }[connection];
-    setText(el, text || connection);
+    tn.showConnection($('conn-state'), connection, detail);
   }
 
   // ---- charts -------------------------------------------------------------
-  function axis(extra) {
-    return Object.assign({
-      stroke: tn.css('--muted'),
-      grid: { stroke: tn.css('--grid'), width: 1 },
-      ticks: { stroke: tn.css('--grid'), width: 1 },
-    }, extra || {});
-  }
+  const { axis, num } = tn;
 
   function pointSeries(label, color, size) {
     return { label, stroke: color, paths: () => null, points: { show: true, size, width: 0, fill: color } };
@@ -104,10 +88,6 @@
       ys[s][xs.length - 1] = y;
     }
     return [xs, ...ys];
-  }
-
-  function num(v) {
-    return typeof v === 'number' && isFinite(v);
   }
 
   function drawTimeCharts() {
@@ -375,47 +355,27 @@
   }
 
   // ---- live socket --------------------------------------------------------
-  let retryMs = 500, everConnected = false;
   function connect() {
-    const scheme = location.protocol === 'https:' ? 'wss:' : 'ws:';
-    const socket = new WebSocket(`${scheme}//${location.host}${API}/live`);
-    window.tunnelnav.socket = socket;
-    socket.onmessage = (event) => {
-      let message;
-      try { message = JSON.parse(event.data); } catch (e) { return; }
-      onMessage(message);
-    };
-    socket.onclose = () => {
-      setConnection('reconnecting');
-      setTimeout(connect, retryMs);
-      retryMs = Math.min(retryMs * 2, 10000);
-    };
-  }
-
-  function onMessage(m) {
-    if (m.event === 'hello') {
-      retryMs = 500;
-      tn.clock.sync(m.server_t, m.clock_rate);
-      const resumeFrom = state.lastLiveT;
-      if (m.latest && m.latest.attitude) addEstimate(m.latest.attitude);
-      if (!ATTITUDE && m.latest) showLatestJson(m.latest);
-      if (everConnected && resumeFrom !== null) backfill(resumeFrom, 'reconnected');
-      else setConnection('live');
-      everConnected = true;
-      scheduleRedraw();
-    } else if (m.event === 'ping') {
-      tn.clock.sync(m.server_t, m.clock_rate || tn.clock.rate);
-    } else if (m.event === 'gap') {
-      backfill(num(m.from_t) ? m.from_t : windowStart(), `fell behind (${m.missed} missed)`);
-    } else if (m.event === undefined && m.engine) {
-      if (m.engine === 'attitude') {
+    const live = tn.follow(API, {
+      hello(m, isReconnect) {
+        const resumeFrom = state.lastLiveT;
+        if (m.latest && m.latest.attitude) addEstimate(m.latest.attitude);
+        if (isReconnect && resumeFrom !== null) backfill(resumeFrom, 'reconnected');
+        else setConnection('live');
+        scheduleRedraw();
+      },
+      gap(m) {
+        backfill(num(m.from_t) ? m.from_t : windowStart(), `fell behind (${m.missed} missed)`);
+      },
+      estimate(m) {
+        if (m.engine !== 'attitude') return;
         addEstimate(m);
         state.lastLiveT = Math.max(state.lastLiveT || 0, m.t);
         scheduleRedraw();
-      } else if (!ATTITUDE) {
-        showLatestJson({ [m.engine]: m });
-      }
-    }
+      },
+      closed() { setConnection('reconnecting'); },
+    });
+    Object.defineProperty(window.tunnelnav, 'socket', { get: () => live.socket });
   }
 
   // ---- readouts and status ------------------------------------------------
@@ -466,22 +426,11 @@
     setText($('laser-detail'), detail);
   }
 
-  function showLatestJson(latest) {
-    const el = $('latest-json');
-    if (el) setText(el, JSON.stringify(latest, null, 2));
-  }
-
   async function pollStatus() {
     try {
       const s = await tn.json(API);
       tn.clock.sync(s.server_t, s.clock_rate);
-      const rows = Object.entries(s.sensors || {}).map(([name, sensor]) =>
-        `<tr><td>${name}</td><td>${tn.timeOfDay(sensor.last_t)}</td>` +
-        `<td>${tn.duration(s.server_t - sensor.last_t)}</td><td>${sensor.readings}</td></tr>`).join('');
-      const body = $('sensor-rows');
-      const html = rows || '<tr><td colspan="4">no readings yet</td></tr>';
-      if (body.innerHTML !== html) body.innerHTML = html;
-      if (!ATTITUDE && s.latest) showLatestJson(s.latest);
+      tn.showSensors($('sensor-rows'), s);
     } catch (e) {
       console.warn('status:', e.message);
     }
@@ -491,28 +440,26 @@
   async function start() {
     await pollStatus(); // syncs the clock before the first window is computed
     setInterval(pollStatus, 2000);
-    if (ATTITUDE) {
-      createCharts();
-      document.querySelectorAll('#windows button').forEach((button) => {
-        button.addEventListener('click', () => {
-          document.querySelectorAll('#windows button').forEach((b) => b.classList.toggle('active', b === button));
-          state.windowS = Number(button.dataset.window);
-          drawTimeCharts();
-          loadHistory();
-        });
+    createCharts();
+    document.querySelectorAll('#windows button').forEach((button) => {
+      button.addEventListener('click', () => {
+        document.querySelectorAll('#windows button').forEach((b) => b.classList.toggle('active', b === button));
+        state.windowS = Number(button.dataset.window);
+        drawTimeCharts();
+        loadHistory();
       });
-      window.addEventListener('tn-theme', createCharts);
-      new ResizeObserver(() => {
-        for (const [name, chart] of Object.entries(charts)) {
-          const el = $(`${name}-chart`);
-          if (el.clientWidth && Math.abs(chart.width - el.clientWidth) > 2) chart.setSize({ width: el.clientWidth, height: CHART_HEIGHT });
-        }
-      }).observe(root);
-      setInterval(showLaser, 250);
-      setInterval(scheduleRedraw, 1000); // the window slides even when nothing arrives
-      await loadHistory();
-      fetchModel();
-    }
+    });
+    window.addEventListener('tn-theme', createCharts);
+    new ResizeObserver(() => {
+      for (const [name, chart] of Object.entries(charts)) {
+        const el = $(`${name}-chart`);
+        if (el.clientWidth && Math.abs(chart.width - el.clientWidth) > 2) chart.setSize({ width: el.clientWidth, height: CHART_HEIGHT });
+      }
+    }).observe(root);
+    setInterval(showLaser, 250);
+    setInterval(scheduleRedraw, 1000); // the window slides even when nothing arrives
+    await loadHistory();
+    fetchModel();
     connect();
   }
 
