@@ -1,4 +1,4 @@
-//! `tunnelnav params --engine NAME`
+//! `tunnelnav params --engine NAME [--markdown]`
 
 use std::io::{self, Write};
 
@@ -12,12 +12,31 @@ pub struct ParamsArgs {
     /// Engine whose parameters to list.
     #[arg(long)]
     pub engine: String,
+    /// As a Markdown table (the README's).
+    #[arg(long)]
+    pub markdown: bool,
 }
 
 pub fn run(args: ParamsArgs) -> Result<(), CliError> {
     let kind: EngineKind = args.engine.parse()?;
     let mut out = io::stdout().lock();
     let result = (|| -> io::Result<()> {
+        if args.markdown {
+            writeln!(out, "| parameter | default | unit | allowed | meaning |")?;
+            writeln!(out, "|---|---|---|---|---|")?;
+            for spec in kind.specs() {
+                writeln!(
+                    out,
+                    "| `{}` | {} | {} | {} | {} |",
+                    spec.name,
+                    spec.default_value(),
+                    spec.unit,
+                    spec.range_text().replace('|', "\\|"),
+                    spec.doc
+                )?;
+            }
+            return Ok(());
+        }
         writeln!(
             out,
             "{:<30} {:>10} {:<8} {:<28} meaning",
