@@ -426,28 +426,15 @@
     setText($('laser-detail'), detail);
   }
 
-  async function pollStatus() {
-    try {
-      const s = await tn.json(API);
-      tn.clock.sync(s.server_t, s.clock_rate);
-      tn.showSensors($('sensor-rows'), s);
-    } catch (e) {
-      console.warn('status:', e.message);
-    }
-  }
-
   // ---- start --------------------------------------------------------------
   async function start() {
-    await pollStatus(); // syncs the clock before the first window is computed
-    setInterval(pollStatus, 2000);
+    // The first status syncs the clock before the first window is computed.
+    await tn.pollStatus(API, $('sensor-rows'));
     createCharts();
-    document.querySelectorAll('#windows button').forEach((button) => {
-      button.addEventListener('click', () => {
-        document.querySelectorAll('#windows button').forEach((b) => b.classList.toggle('active', b === button));
-        state.windowS = Number(button.dataset.window);
-        drawTimeCharts();
-        loadHistory();
-      });
+    tn.windowButtons('#windows', (seconds) => {
+      state.windowS = seconds;
+      drawTimeCharts();
+      loadHistory();
     });
     window.addEventListener('tn-theme', createCharts);
     new ResizeObserver(() => {

@@ -164,6 +164,32 @@ const tn = (function () {
     if (body.innerHTML !== html) body.innerHTML = html;
   }
 
+  // A machine page's status every 2 s: syncs the clock and fills the
+  // sensors table. Resolves after the first poll.
+  async function pollStatus(api, body) {
+    const poll = async () => {
+      try {
+        const s = await json(api);
+        clock.sync(s.server_t, s.clock_rate);
+        showSensors(body, s);
+      } catch (e) {
+        console.warn('status:', e.message);
+      }
+    };
+    await poll();
+    setInterval(poll, 2000);
+  }
+
+  // A group of time-window buttons: the clicked one becomes active and
+  // onSelect gets its window in seconds.
+  function windowButtons(group, onSelect) {
+    const buttons = document.querySelectorAll(`${group} button`);
+    buttons.forEach((button) => button.addEventListener('click', () => {
+      buttons.forEach((b) => b.classList.toggle('active', b === button));
+      onSelect(Number(button.dataset.window));
+    }));
+  }
+
   // A uPlot axis in the page's colours.
   function axis(extra) {
     return Object.assign({
@@ -179,6 +205,6 @@ const tn = (function () {
 
   return {
     clock, fixed, mmPerM, duration, timeOfDay, json, ndjson, setText, css,
-    showConnection, follow, showSensors, axis, num,
+    showConnection, follow, showSensors, pollStatus, windowButtons, axis, num,
   };
 })();

@@ -353,26 +353,12 @@
     Object.defineProperty(window.tunnelnavZupt, 'socket', { get: () => live.socket });
   }
 
-  async function pollStatus() {
-    try {
-      const s = await tn.json(API);
-      tn.clock.sync(s.server_t, s.clock_rate);
-      tn.showSensors($('sensor-rows'), s);
-    } catch (e) {
-      console.warn('status:', e.message);
-    }
-  }
-
   async function start() {
-    await pollStatus();
-    setInterval(pollStatus, 2000);
+    await tn.pollStatus(API, $('sensor-rows'));
     createCharts();
-    document.querySelectorAll('#zupt-windows button').forEach((button) => {
-      button.addEventListener('click', () => {
-        document.querySelectorAll('#zupt-windows button').forEach((b) => b.classList.toggle('active', b === button));
-        state.windowS = Number(button.dataset.window);
-        loadHistory();
-      });
+    tn.windowButtons('#zupt-windows', (seconds) => {
+      state.windowS = seconds;
+      loadHistory();
     });
     window.addEventListener('tn-theme', createCharts);
     new ResizeObserver(() => {

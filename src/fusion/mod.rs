@@ -64,6 +64,16 @@ pub enum SnapshotError {
     Invalid(String),
 }
 
+impl SnapshotError {
+    /// An engine's state deserialised from its snapshot.
+    pub fn parse<T: serde::de::DeserializeOwned>(
+        engine: EngineKind,
+        snapshot: serde_json::Value,
+    ) -> Result<T, SnapshotError> {
+        serde_json::from_value(snapshot).map_err(|source| SnapshotError::Shape { engine, source })
+    }
+}
+
 /// The engines tunnelnav knows.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]

@@ -248,6 +248,15 @@ impl Params {
         Ok(params)
     }
 
+    /// The same values checked again against `specs` (a restored
+    /// snapshot's parameters are not trusted).
+    pub fn revalidated(&self, specs: &[ParamSpec]) -> Result<Params, ParamError> {
+        Params::resolve(
+            specs,
+            self.values.iter().map(|(k, v)| (k.clone(), v.clone())),
+        )
+    }
+
     /// Like [`Params::resolve`], from `name=value` words.
     pub fn from_assignments<'a>(
         specs: &[ParamSpec],

@@ -453,19 +453,8 @@ impl AttitudeEngine {
 
     /// Continues from a snapshot taken by [`Engine::snapshot`].
     pub fn restore(snapshot: serde_json::Value) -> Result<AttitudeEngine, SnapshotError> {
-        let mut engine: AttitudeEngine =
-            serde_json::from_value(snapshot).map_err(|source| SnapshotError::Shape {
-                engine: EngineKind::Attitude,
-                source,
-            })?;
-        let params = Params::resolve(
-            PARAMS,
-            engine
-                .params
-                .values()
-                .iter()
-                .map(|(k, v)| (k.clone(), v.clone())),
-        )?;
+        let mut engine: AttitudeEngine = SnapshotError::parse(EngineKind::Attitude, snapshot)?;
+        let params = engine.params.revalidated(PARAMS)?;
         engine.config = AttitudeConfig::from_params(&params)?;
         engine.params = params;
         // What the parameters shape is rebuilt from them, not trusted.

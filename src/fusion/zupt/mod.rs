@@ -453,19 +453,8 @@ impl ZuptEngine {
 
     /// Continues from a snapshot taken by [`Engine::snapshot`].
     pub fn restore(snapshot: serde_json::Value) -> Result<ZuptEngine, SnapshotError> {
-        let mut engine: ZuptEngine =
-            serde_json::from_value(snapshot).map_err(|source| SnapshotError::Shape {
-                engine: EngineKind::Zupt,
-                source,
-            })?;
-        let params = Params::resolve(
-            PARAMS,
-            engine
-                .params
-                .values()
-                .iter()
-                .map(|(k, v)| (k.clone(), v.clone())),
-        )?;
+        let mut engine: ZuptEngine = SnapshotError::parse(EngineKind::Zupt, snapshot)?;
+        let params = engine.params.revalidated(PARAMS)?;
         engine.config = ZuptConfig::from_params(&params)?;
         engine.params = params;
         if engine.pipeline.config() != &engine.config.pipeline {
