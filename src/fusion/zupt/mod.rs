@@ -381,6 +381,8 @@ pub struct ZuptStats {
     pub updates_failed: u64,
     /// Level or odometer readings dropped because too many were waiting.
     pub aids_dropped: u64,
+    /// Times the solution became non-finite and alignment started again.
+    pub navigation_resets: u64,
 }
 
 /// The navigation once aligned.
@@ -620,6 +622,13 @@ impl ZuptEngine {
         nav.previous = Some(sample);
         if nav.interval_s >= config.filter_period_s {
             nav.epoch(&config, decision.zv, &mut self.stats);
+            // Readings within range but absurd for long enough (a broken
+            // sensor) can run the solution off to infinity: start again at
+            // the next still window rather than report garbage.
+            if !nav.is_finite() {
+                self.navigation = None;
+                self.stats.navigation_resets += 1;
+            }
         }
         let Some(nav) = self.navigation.as_ref() else {
             return self.unaligned_estimate(sample.t, &decision);
@@ -748,6 +757,15 @@ fn along_track(state: &NavState, displacement_m: &V3) -> f64 {
 }
 
 impl Navigation {
+    /// True while state and covariance are finite numbers.
+    fn is_finite(&self) -> bool {
+        self.state.position_m.iter().all(|x| x.is_finite())
+            && self.state.velocity_mps.iter().all(|x| x.is_finite())
+            && self.state.attitude.coords.iter().all(|x| x.is_finite())
+            && self.distance_m.is_finite()
+            && self.filter.is_sane()
+    }
+
     /// A filter epoch: propagate the covariance, make the updates that are
     /// due, feed the errors back.
     fn epoch(&mut self, config: &ZuptConfig, zv: bool, stats: &mut ZuptStats) {
@@ -968,6 +986,38 @@ mod tests {
         // Late and repeated readings are dropped and counted.
         engine.feed(&readings[5], &mut out);
         assert_eq!(engine.stats().imu_dropped, 1);
+    }
+
+    #[test]
+    fn a_sensor_gone_wild_leaves_every_estimate_finite() {
+        let mut readings = still_readings(10.0, 0.0);
+        let t0 = readings.last().unwrap().t;
+        // 2000 m/s² and 10 000 °/s, within the protocol's range, for 10 min.
+        for k in 1..60_000 {
+            let sign = if k % 2 == 0 { 1.0 } else { -1.0 };
+            readings.push(imu(
+                t0 + k as f64 * 0.01,
+                V3::new(2000.0 * sign, 2000.0, -2000.0),
+                V3::new(rad(10_000.0), rad(-10_000.0) * sign, rad(10_000.0)),
+            ));
+        }
+        let mut engine = ZuptEngine::with_defaults();
+        let mut out = Vec::new();
+        for r in &readings {
+            engine.feed(r, &mut out);
+        }
+        engine.flush(&mut out);
+        assert_eq!(out.len(), readings.len());
+        for o in &out {
+            let z = o.values.as_zupt().unwrap();
+            assert!(
+                z.position_m
+                    .iter()
+                    .chain(&z.velocity_mps)
+                    .all(|x| x.is_finite())
+            );
+            assert!(z.distance_m.is_finite() && z.yaw_deg.is_finite());
+        }
     }
 
     #[test]
