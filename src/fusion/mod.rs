@@ -6,6 +6,7 @@
 pub mod angles;
 pub mod attitude;
 pub mod estimate;
+pub mod fuzzy;
 pub mod params;
 pub mod reading;
 pub mod reorder;
