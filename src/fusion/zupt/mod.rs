@@ -424,6 +424,10 @@ pub struct ZuptEngine {
     /// The newest odometer reading the navigation time has passed.
     odometer: Option<(f64, f64)>,
     stats: ZuptStats,
+    /// Scratch for the pipeline's decisions, kept to spare an allocation
+    /// per reading; always empty between calls.
+    #[serde(skip)]
+    decided: Vec<(ImuSample, Decision)>,
 }
 
 /// Used only while deserialising; `restore` rebuilds the config from `params`.
@@ -445,6 +449,7 @@ impl ZuptEngine {
             odometers: VecDeque::new(),
             odometer: None,
             stats: ZuptStats::default(),
+            decided: Vec::new(),
         })
     }
 
@@ -532,7 +537,7 @@ impl ZuptEngine {
         self.newest_imu_t = Some(sample.t);
         self.stats.imu_used += 1;
         let earth_rate_b = self.earth_rate_b(&sample.accel_mps2);
-        let mut decided = Vec::new();
+        let mut decided = std::mem::take(&mut self.decided);
         self.pipeline.push(
             sample.t,
             sample.accel_mps2,
@@ -541,20 +546,31 @@ impl ZuptEngine {
             &earth_rate_b,
             &mut decided,
         );
-        for (sample, decision) in decided {
+        self.navigate_all(&mut decided, out);
+        self.decided = decided;
+    }
+
+    /// Navigates decided readings in order, leaving `decided` empty.
+    fn navigate_all(
+        &mut self,
+        decided: &mut Vec<(ImuSample, Decision)>,
+        out: &mut Vec<EngineOutput>,
+    ) {
+        for (sample, decision) in decided.drain(..) {
             out.push(self.navigate(sample, decision));
         }
     }
 
     /// Decides and navigates every waiting IMU reading.
     fn end_stream(&mut self, out: &mut Vec<EngineOutput>) {
-        let accel = V3::new(0.0, 0.0, -1.0);
-        let earth_rate_b = self.earth_rate_b(&accel);
-        let mut decided = Vec::new();
+        // The flush tests the last windows: the Earth rate comes from the
+        // navigation's attitude, or (not aligned yet) a level body.
+        let level_body = V3::new(0.0, 0.0, -1.0);
+        let earth_rate_b = self.earth_rate_b(&level_body);
+        let mut decided = std::mem::take(&mut self.decided);
         self.pipeline.flush(&earth_rate_b, &mut decided);
-        for (sample, decision) in decided {
-            out.push(self.navigate(sample, decision));
-        }
+        self.navigate_all(&mut decided, out);
+        self.decided = decided;
     }
 
     fn queue_aid(queue: &mut VecDeque<(f64, f64)>, stats: &mut ZuptStats, t: f64, value: f64) {
