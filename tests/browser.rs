@@ -448,13 +448,13 @@ async fn zupt_page_shows_the_drive_and_the_detector() {
     let server = common::TestServer::start(dir.path()).await;
     let client = reqwest::Client::new();
     let base = server.url("");
-    let declared = client
-        .put(format!("{base}/api/v1/machines/{INS}"))
-        .body(r#"{"name": "Trolley", "engines": {"zupt": {"initial_yaw_deg": 30}}}"#)
-        .send()
-        .await
-        .unwrap();
-    assert!(declared.status().is_success());
+    common::declare_machine(
+        &client,
+        &base,
+        INS,
+        r#"{"name": "Trolley", "engines": {"zupt": {"initial_yaw_deg": 30}}}"#,
+    )
+    .await;
     // Seven minutes of the trolley run, ending now.
     let now = tunnelnav::server::wall_clock_s();
     let drive = PipeJackDrive::new(PipeJackScenario {

@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::{TestServer, all_estimates, post_ndjson, replay_engine};
+use common::{TestServer, all_estimates, declare_machine, post_ndjson, replay_engine};
 use serde_json::{Value, json};
 use tunnelnav::sim::pipejack::{PipeJackDrive, PipeJackScenario};
 
@@ -23,23 +23,11 @@ fn trolley(seconds: f64) -> Vec<String> {
 }
 
 async fn declare(client: &reqwest::Client, base: &str) {
-    let response = client
-        .put(format!("{base}/api/v1/machines/{MACHINE}"))
-        .body(
-            json!({
-                "name": "Pipe jacking, FOG INS",
-                "engines": {"zupt": {"latitude_deg": 30, "initial_yaw_deg": 30}}
-            })
-            .to_string(),
-        )
-        .send()
-        .await
-        .unwrap();
-    assert!(
-        response.status().is_success(),
-        "{:?}",
-        response.text().await
-    );
+    let body = json!({
+        "name": "Pipe jacking, FOG INS",
+        "engines": {"zupt": {"latitude_deg": 30, "initial_yaw_deg": 30}}
+    });
+    declare_machine(client, base, MACHINE, &body.to_string()).await;
 }
 
 async fn post_all(client: &reqwest::Client, base: &str, lines: &[String]) {

@@ -181,14 +181,11 @@ pub fn evaluate(config: &AttitudeEvalConfig) -> Result<AttitudeEvaluation, EvalE
     }
     let drive = TbmDrive::new(scenario.clone()).map_err(EvalError::Scenario)?;
     let with_correction = |word: &str| {
-        let mut values: Vec<(String, ParamValue)> = config
+        let correction = ("correction".to_string(), ParamValue::Text(word.into()));
+        config
             .params
-            .values()
-            .iter()
-            .map(|(k, v)| (k.clone(), v.clone()))
-            .collect();
-        values.push(("correction".into(), ParamValue::Text(word.into())));
-        Params::resolve(PARAMS, values).and_then(AttitudeEngine::new)
+            .with_overrides(PARAMS, [correction])
+            .and_then(AttitudeEngine::new)
     };
     let mut engines: Vec<AttitudeEngine> = vec![
         AttitudeEngine::new(config.params.clone())?,

@@ -144,25 +144,21 @@ pub fn run_params(
     detector: &str,
     odometer_aiding: bool,
 ) -> Result<Params, ParamError> {
-    let mut values: Vec<(String, ParamValue)> = config
-        .params
-        .values()
-        .iter()
-        .map(|(k, v)| (k.clone(), v.clone()))
-        .collect();
-    values.push((
-        "latitude_deg".into(),
-        ParamValue::Number(config.scenario.latitude_deg),
-    ));
-    values.push((
-        "initial_yaw_deg".into(),
-        ParamValue::Number(config.scenario.heading_deg),
-    ));
-    values.push(("detector".into(), ParamValue::Text(detector.into())));
+    let mut overrides = vec![
+        (
+            "latitude_deg".to_string(),
+            ParamValue::Number(config.scenario.latitude_deg),
+        ),
+        (
+            "initial_yaw_deg".to_string(),
+            ParamValue::Number(config.scenario.heading_deg),
+        ),
+        ("detector".to_string(), ParamValue::Text(detector.into())),
+    ];
     if odometer_aiding {
-        values.push(("odometer_aiding".into(), ParamValue::Bool(true)));
+        overrides.push(("odometer_aiding".to_string(), ParamValue::Bool(true)));
     }
-    Params::resolve(PARAMS, values)
+    config.params.with_overrides(PARAMS, overrides)
 }
 
 /// Runs the engine over time-ordered readings; one output per IMU reading.

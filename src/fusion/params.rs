@@ -251,9 +251,21 @@ impl Params {
     /// The same values checked again against `specs` (a restored
     /// snapshot's parameters are not trusted).
     pub fn revalidated(&self, specs: &[ParamSpec]) -> Result<Params, ParamError> {
+        self.with_overrides(specs, [])
+    }
+
+    /// These values with `overrides` on top, resolved against `specs`.
+    pub fn with_overrides(
+        &self,
+        specs: &[ParamSpec],
+        overrides: impl IntoIterator<Item = (String, ParamValue)>,
+    ) -> Result<Params, ParamError> {
         Params::resolve(
             specs,
-            self.values.iter().map(|(k, v)| (k.clone(), v.clone())),
+            self.values
+                .iter()
+                .map(|(k, v)| (k.clone(), v.clone()))
+                .chain(overrides),
         )
     }
 

@@ -137,9 +137,20 @@ pub fn drive(hours: f64, seed: u64, dropouts: Vec<Dropout>) -> Vec<String> {
 }
 
 pub async fn put_machine(client: &reqwest::Client, base: &str, machine: &str) {
+    declare_machine(
+        client,
+        base,
+        machine,
+        r#"{"name": "Test TBM", "engines": {"attitude": {}}}"#,
+    )
+    .await;
+}
+
+/// `PUT`s a machine declaration; asserts it was accepted.
+pub async fn declare_machine(client: &reqwest::Client, base: &str, machine: &str, body: &str) {
     let response = client
         .put(format!("{base}/api/v1/machines/{machine}"))
-        .body(r#"{"name": "Test TBM", "engines": {"attitude": {}}}"#)
+        .body(body.to_string())
         .send()
         .await
         .unwrap();
