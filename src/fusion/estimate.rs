@@ -65,12 +65,62 @@ pub struct ZuptEstimate {
     pub mag_ratio: f64,
 }
 
+/// The `fuzzy` engine's decision of the motion status.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Motion {
+    Static,
+    Moving,
+}
+
+impl Motion {
+    /// The protocol name.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Motion::Static => "static",
+            Motion::Moving => "moving",
+        }
+    }
+}
+
+/// What the `fuzzy` engine estimates at one IMU reading.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FuzzyEstimate {
+    /// `static` when `static_degree` reaches the engine's threshold.
+    pub motion: Motion,
+    /// The motion expert's degree of "static", in [0, 1].
+    pub static_degree: f64,
+    pub pitch_deg: f64,
+    pub roll_deg: f64,
+    /// True heading (magnetic plus declination), clockwise from north, [0, 360).
+    pub heading_deg: f64,
+    /// Current gyro drift estimate, subtracted from every reading.
+    pub gyro_bias_dps: [f64; 3],
+    /// False until a still window has levelled the platform and fixed the
+    /// first gyro bias (tunnelnav extension, as are the fields below).
+    pub aligned: bool,
+    /// Magnetometer calibration: `collecting`, `planar` or `ellipsoid`.
+    pub mag_calibration: crate::fusion::fuzzy::magcal::CalibrationState,
+    /// Azimuth of the field seen so far, degrees (of 360).
+    pub mag_coverage_deg: f64,
+    /// RMS relative radius error of the calibration fit; `null` before one.
+    pub mag_fit_rms: Option<f64>,
+    /// True heading from the newest calibrated, tilt-compensated
+    /// magnetometer reading alone; `null` before calibration.
+    pub mag_heading_deg: Option<f64>,
+    /// The motion expert's inputs.
+    pub accel_dev_mps2: f64,
+    pub accel_activity_mps2: f64,
+    pub gyro_activity_dps: f64,
+}
+
 /// The engine-specific part of an estimate, tagged by `engine`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "engine", rename_all = "snake_case")]
 pub enum EstimateValues {
     Attitude(AttitudeEstimate),
     Zupt(ZuptEstimate),
+    Fuzzy(FuzzyEstimate),
 }
 
 impl EstimateValues {
@@ -79,6 +129,7 @@ impl EstimateValues {
         match self {
             EstimateValues::Attitude(_) => super::EngineKind::Attitude,
             EstimateValues::Zupt(_) => super::EngineKind::Zupt,
+            EstimateValues::Fuzzy(_) => super::EngineKind::Fuzzy,
         }
     }
 
@@ -98,13 +149,22 @@ impl EstimateValues {
         }
     }
 
+    /// The `fuzzy` engine's values, if these are.
+    pub fn as_fuzzy(&self) -> Option<&FuzzyEstimate> {
+        match self {
+            EstimateValues::Fuzzy(f) => Some(f),
+            _ => None,
+        }
+    }
+
     /// The two quantities whose extremes history downsampling keeps, so a
     /// spike stays visible at any zoom (attitude: pitch, roll; zupt:
-    /// distance, depth).
+    /// distance, depth; fuzzy: pitch, roll).
     pub fn extremes(&self) -> [f64; 2] {
         match self {
             EstimateValues::Attitude(a) => [a.pitch_deg, a.roll_deg],
             EstimateValues::Zupt(z) => [z.distance_m, z.position_m[2]],
+            EstimateValues::Fuzzy(f) => [f.pitch_deg, f.roll_deg],
         }
     }
 }
@@ -240,6 +300,36 @@ impl EstimateWriter {
                     self.number(out, key, value);
                 }
             }
+            EstimateValues::Fuzzy(f) => {
+                out.extend_from_slice(b",\"engine\":\"fuzzy\",\"motion\":\"");
+                out.extend_from_slice(f.motion.as_str().as_bytes());
+                out.push(b'"');
+                for (key, value) in [
+                    ("static_degree", f.static_degree),
+                    ("pitch_deg", f.pitch_deg),
+                    ("roll_deg", f.roll_deg),
+                    ("heading_deg", f.heading_deg),
+                ] {
+                    out.push(b',');
+                    self.number(out, key, value);
+                }
+                self.triple(out, "gyro_bias_dps", &f.gyro_bias_dps);
+                self.flag(out, "aligned", f.aligned);
+                out.extend_from_slice(b",\"mag_calibration\":\"");
+                out.extend_from_slice(f.mag_calibration.as_str().as_bytes());
+                out.extend_from_slice(b"\",");
+                self.number(out, "mag_coverage_deg", f.mag_coverage_deg);
+                self.optional(out, "mag_fit_rms", f.mag_fit_rms);
+                self.optional(out, "mag_heading_deg", f.mag_heading_deg);
+                for (key, value) in [
+                    ("accel_dev_mps2", f.accel_dev_mps2),
+                    ("accel_activity_mps2", f.accel_activity_mps2),
+                    ("gyro_activity_dps", f.gyro_activity_dps),
+                ] {
+                    out.push(b',');
+                    self.number(out, key, value);
+                }
+            }
         }
         out.extend_from_slice(b"}\n");
     }
@@ -365,6 +455,51 @@ mod tests {
             let mut ours = Vec::new();
             writer.write_line(&output, &mut ours);
             let mut expected = serde_json::to_vec(&output.for_machine("pj-3")).unwrap();
+            expected.push(b'\n');
+            assert_eq!(
+                String::from_utf8(ours).unwrap(),
+                String::from_utf8(expected).unwrap()
+            );
+        }
+    }
+
+    #[test]
+    fn fuzzy_estimates_match_serde_json_byte_for_byte() {
+        use crate::fusion::fuzzy::magcal::CalibrationState;
+        let mut writer = EstimateWriter::new("van-2");
+        let states = [
+            CalibrationState::Collecting,
+            CalibrationState::Planar,
+            CalibrationState::Ellipsoid,
+        ];
+        for i in 0..300u32 {
+            let x = f64::from(i) * 0.731 - 90.0;
+            let output = EngineOutput {
+                t: 1.7e9 + f64::from(i) * 0.01,
+                values: EstimateValues::Fuzzy(FuzzyEstimate {
+                    motion: if i % 2 == 0 {
+                        Motion::Static
+                    } else {
+                        Motion::Moving
+                    },
+                    static_degree: (x * 0.1).sin().abs(),
+                    pitch_deg: x * 0.01,
+                    roll_deg: -x,
+                    heading_deg: x.rem_euclid(360.0),
+                    gyro_bias_dps: [x * 1e-3, -0.0, 0.5],
+                    aligned: i % 5 != 0,
+                    mag_calibration: states[i as usize % 3],
+                    mag_coverage_deg: f64::from(i % 37) * 10.0,
+                    mag_fit_rms: (i % 3 != 0).then_some(x.abs() * 1e-4),
+                    mag_heading_deg: (i % 4 != 0).then_some(x + 180.0),
+                    accel_dev_mps2: x.abs() * 1e-3,
+                    accel_activity_mps2: if i == 7 { f64::NAN } else { 0.02 },
+                    gyro_activity_dps: 1e-7 * f64::from(i),
+                }),
+            };
+            let mut ours = Vec::new();
+            writer.write_line(&output, &mut ours);
+            let mut expected = serde_json::to_vec(&output.for_machine("van-2")).unwrap();
             expected.push(b'\n');
             assert_eq!(
                 String::from_utf8(ours).unwrap(),

@@ -13,7 +13,8 @@ pub mod reorder;
 pub mod zupt;
 
 pub use estimate::{
-    AttitudeEstimate, EngineOutput, Estimate, EstimateRef, EstimateValues, ZuptEstimate,
+    AttitudeEstimate, EngineOutput, Estimate, EstimateRef, EstimateValues, FuzzyEstimate, Motion,
+    ZuptEstimate,
 };
 pub use params::{ParamError, ParamKind, ParamSpec, ParamValue, Params};
 pub use reading::{Reading, ReadingError, SensorData, SensorKind, parse_reading};
@@ -83,22 +84,25 @@ pub enum EngineKind {
     Attitude,
     /// FOG strapdown INS with zero-velocity updates (Zhang et al. 2024).
     Zupt,
+    /// MEMS IMU + magnetometer fused by a fuzzy expert's motion status (Wang 2005).
+    Fuzzy,
 }
 
 /// An engine name that tunnelnav does not know.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("unknown engine `{0}` (known: attitude, zupt)")]
+#[error("unknown engine `{0}` (known: attitude, zupt, fuzzy)")]
 pub struct UnknownEngine(pub String);
 
 impl EngineKind {
     /// Every engine.
-    pub const ALL: [EngineKind; 2] = [EngineKind::Attitude, EngineKind::Zupt];
+    pub const ALL: [EngineKind; 3] = [EngineKind::Attitude, EngineKind::Zupt, EngineKind::Fuzzy];
 
     /// The protocol name.
     pub fn as_str(self) -> &'static str {
         match self {
             EngineKind::Attitude => "attitude",
             EngineKind::Zupt => "zupt",
+            EngineKind::Fuzzy => "fuzzy",
         }
     }
 
@@ -107,6 +111,7 @@ impl EngineKind {
         match self {
             EngineKind::Attitude => attitude::PARAMS,
             EngineKind::Zupt => zupt::PARAMS,
+            EngineKind::Fuzzy => fuzzy::PARAMS,
         }
     }
 
@@ -115,6 +120,7 @@ impl EngineKind {
         match self {
             EngineKind::Attitude => &[SensorKind::Laser, SensorKind::Inclinometer],
             EngineKind::Zupt => &[SensorKind::Imu, SensorKind::Level, SensorKind::Odometer],
+            EngineKind::Fuzzy => &[SensorKind::Imu, SensorKind::Magnetometer],
         }
     }
 
@@ -123,6 +129,7 @@ impl EngineKind {
         match self {
             EngineKind::Attitude => Ok(Box::new(attitude::AttitudeEngine::new(params)?)),
             EngineKind::Zupt => Ok(Box::new(zupt::ZuptEngine::new(params)?)),
+            EngineKind::Fuzzy => Ok(Box::new(fuzzy::FuzzyEngine::new(params)?)),
         }
     }
 
@@ -131,6 +138,7 @@ impl EngineKind {
         match self {
             EngineKind::Attitude => Ok(Box::new(attitude::AttitudeEngine::restore(snapshot)?)),
             EngineKind::Zupt => Ok(Box::new(zupt::ZuptEngine::restore(snapshot)?)),
+            EngineKind::Fuzzy => Ok(Box::new(fuzzy::FuzzyEngine::restore(snapshot)?)),
         }
     }
 }

@@ -11,7 +11,8 @@
 //!   estimate where its JSON is about 330.
 
 use crate::fusion::{
-    AttitudeEstimate, EngineKind, EstimateValues, Reading, SensorData, SensorKind, ZuptEstimate,
+    AttitudeEstimate, EngineKind, EstimateValues, FuzzyEstimate, Reading, SensorData, SensorKind,
+    ZuptEstimate,
 };
 
 use super::StoreError;
@@ -94,6 +95,7 @@ pub fn encode_values(values: &EstimateValues) -> Vec<u8> {
     let encoded = match values {
         EstimateValues::Attitude(a) => postcard::to_stdvec(a),
         EstimateValues::Zupt(z) => postcard::to_stdvec(z),
+        EstimateValues::Fuzzy(f) => postcard::to_stdvec(f),
     };
     // postcard fails only on types it cannot express (maps of unknown
     // length, self-describing values); engine estimates are plain structs.
@@ -110,6 +112,9 @@ pub fn decode_values(engine: EngineKind, bytes: &[u8]) -> Result<EstimateValues,
             .map_err(corrupt),
         EngineKind::Zupt => postcard::from_bytes::<ZuptEstimate>(bytes)
             .map(EstimateValues::Zupt)
+            .map_err(corrupt),
+        EngineKind::Fuzzy => postcard::from_bytes::<FuzzyEstimate>(bytes)
+            .map(EstimateValues::Fuzzy)
             .map_err(corrupt),
     }
 }

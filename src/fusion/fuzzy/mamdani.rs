@@ -134,13 +134,20 @@ pub enum Antecedent {
 }
 
 impl Antecedent {
-    /// The firing strength given each input's term degrees.
-    fn firing(&self, degrees: &[Vec<f64>]) -> f64 {
+    /// The firing strength given every input term's degree, flattened
+    /// (`offsets[input] + term`).
+    fn firing(&self, degrees: &[f64], offsets: &[usize]) -> f64 {
         match self {
-            Antecedent::Is { input, term } => degrees[*input][*term],
-            Antecedent::And(parts) => parts.iter().map(|p| p.firing(degrees)).fold(1.0, f64::min),
-            Antecedent::Or(parts) => parts.iter().map(|p| p.firing(degrees)).fold(0.0, f64::max),
-            Antecedent::Not(part) => 1.0 - part.firing(degrees),
+            Antecedent::Is { input, term } => degrees[offsets[*input] + *term],
+            Antecedent::And(parts) => parts
+                .iter()
+                .map(|p| p.firing(degrees, offsets))
+                .fold(1.0, f64::min),
+            Antecedent::Or(parts) => parts
+                .iter()
+                .map(|p| p.firing(degrees, offsets))
+                .fold(0.0, f64::max),
+            Antecedent::Not(part) => 1.0 - part.firing(degrees, offsets),
         }
     }
 
@@ -195,6 +202,16 @@ pub struct Mamdani {
     /// Output sample points and each output term's membership at them.
     points: Vec<f64>,
     tables: Vec<Vec<f64>>,
+    /// Where each input's term degrees start in the flattened degrees.
+    offsets: Vec<usize>,
+}
+
+/// Reusable buffers for [`Mamdani::infer_with`], so a caller inferring at
+/// every sample allocates nothing.
+#[derive(Debug, Clone, Default)]
+pub struct Scratch {
+    degrees: Vec<f64>,
+    strength: Vec<f64>,
 }
 
 impl Mamdani {
@@ -227,12 +244,21 @@ impl Mamdani {
             .iter()
             .map(|(_, m)| points.iter().map(|&y| m.degree(y)).collect())
             .collect();
+        let offsets = inputs
+            .iter()
+            .scan(0, |start, v| {
+                let offset = *start;
+                *start += v.terms.len();
+                Some(offset)
+            })
+            .collect();
         Ok(Mamdani {
             inputs,
             output,
             rules,
             points,
             tables,
+            offsets,
         })
     }
 
@@ -248,37 +274,49 @@ impl Mamdani {
 
     /// Each rule's firing strength for these input values.
     pub fn firings(&self, values: &[f64]) -> Result<Vec<f64>, FuzzyError> {
-        let degrees = self.fuzzify(values)?;
+        let mut degrees = Vec::new();
+        self.fuzzify(values, &mut degrees)?;
         Ok(self
             .rules
             .iter()
-            .map(|r| r.antecedent.firing(&degrees))
+            .map(|r| r.antecedent.firing(&degrees, &self.offsets))
             .collect())
     }
 
-    fn fuzzify(&self, values: &[f64]) -> Result<Vec<Vec<f64>>, FuzzyError> {
+    /// Every input term's degree, flattened into `degrees`.
+    fn fuzzify(&self, values: &[f64], degrees: &mut Vec<f64>) -> Result<(), FuzzyError> {
         if values.len() != self.inputs.len() {
             return Err(FuzzyError::Inputs {
                 expected: self.inputs.len(),
                 got: values.len(),
             });
         }
-        Ok(self
-            .inputs
-            .iter()
-            .zip(values)
-            .map(|(v, &x)| v.terms.iter().map(|(_, m)| m.degree(x)).collect())
-            .collect())
+        degrees.clear();
+        for (variable, &x) in self.inputs.iter().zip(values) {
+            degrees.extend(variable.terms.iter().map(|(_, m)| m.degree(x)));
+        }
+        Ok(())
     }
 
     /// The crisp output: centroid of the aggregated output set, or `None`
     /// when no rule fires at all.
     pub fn infer(&self, values: &[f64]) -> Result<Option<f64>, FuzzyError> {
-        let degrees = self.fuzzify(values)?;
+        self.infer_with(values, &mut Scratch::default())
+    }
+
+    /// [`Mamdani::infer`] with caller-owned buffers.
+    pub fn infer_with(
+        &self,
+        values: &[f64],
+        scratch: &mut Scratch,
+    ) -> Result<Option<f64>, FuzzyError> {
+        self.fuzzify(values, &mut scratch.degrees)?;
         // Rules with the same output term combine by max first.
-        let mut strength = vec![0.0_f64; self.output.terms.len()];
+        let strength = &mut scratch.strength;
+        strength.clear();
+        strength.resize(self.output.terms.len(), 0.0);
         for rule in &self.rules {
-            let w = rule.antecedent.firing(&degrees);
+            let w = rule.antecedent.firing(&scratch.degrees, &self.offsets);
             strength[rule.term] = strength[rule.term].max(w);
         }
         let (mut moment, mut area) = (0.0, 0.0);

@@ -1,0 +1,480 @@
+//! Magnetometer calibration from the data itself: hard iron (an offset
+//! `b`) and soft iron (a symmetric matrix), so that the calibrated field
+//! `m_c = S (m − b)` lies on a sphere whatever the body's orientation.
+//!
+//! Samples are kept one per direction bin (the newest wins, so the fit
+//! follows slow changes): 36 azimuth bins of 10° of the field's body x–y
+//! direction about the current centre, times 9 elevation bands of 20°.
+//! Before the first fit the centre is only the middle of the extremes
+//! seen and moves as they grow, so samples are not replaced then: one is
+//! appended whenever the bin changes, and the kept samples are binned
+//! again when the centre moves. From the first fit on, the newest sample
+//! of a bin replaces the others there. At most 512 samples are kept (the
+//! oldest go first).
+//! - **ellipsoid**: once the samples span enough of the sphere (azimuths
+//!   over `min_coverage_deg` and at least 5 elevation bands), the general
+//!   quadric mᵀQm + 2uᵀm = 1 is fitted by linear least squares (9
+//!   unknowns); b = −Q⁻¹u, and S = (Q / (1 + bᵀQb))^½ scaled to det S = 1.
+//! - **planar**: a ground vehicle turns about its z axis and barely tilts,
+//!   so the vertical is unobservable. With azimuths over
+//!   `min_coverage_deg` in a narrow elevation range, the conic
+//!   [x² y² 2xy 2x 2y]·p = 1 is fitted in the body x–y plane: 2-D hard and
+//!   soft iron (det 1); the z axis keeps the configured offset
+//!   `hard_iron_z_ut` and unit scale.
+//!
+//! A fit whose residual RMS (relative radius) exceeds 10 % is refused and
+//! the previous calibration kept.
+
+use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, Vector2};
+use serde::{Deserialize, Serialize};
+
+use crate::fusion::zupt::strapdown::V3;
+
+const AZIMUTH_BINS: usize = 36;
+const ELEVATION_BANDS: usize = 9;
+/// Elevation bands needed for a full ellipsoid fit.
+const MIN_ELEVATION_BANDS: usize = 5;
+/// A fit worse than this (RMS of the relative radius error) is refused.
+const MAX_FIT_RMS: f64 = 0.1;
+/// Samples kept for the fit.
+const MAX_SAMPLES: usize = 512;
+
+/// How far the calibration has come.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CalibrationState {
+    /// Not enough directions seen: heading from the magnetometer is not used.
+    Collecting,
+    /// Hard and soft iron in the body x–y plane (ground vehicle).
+    Planar,
+    /// Full 3-D hard and soft iron.
+    Ellipsoid,
+}
+
+impl CalibrationState {
+    /// The protocol name.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            CalibrationState::Collecting => "collecting",
+            CalibrationState::Planar => "planar",
+            CalibrationState::Ellipsoid => "ellipsoid",
+        }
+    }
+}
+
+/// A fitted correction `m_c = soft_iron (m − hard_iron_ut)`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Correction {
+    pub hard_iron_ut: V3,
+    pub soft_iron: Matrix3<f64>,
+    /// RMS of the relative radius error over the samples fitted.
+    pub fit_rms: f64,
+}
+
+impl Correction {
+    /// The calibrated field, µT.
+    pub fn apply(&self, field_ut: &V3) -> V3 {
+        self.soft_iron * (field_ut - self.hard_iron_ut)
+    }
+}
+
+/// Online calibration; see the module documentation.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MagCalibration {
+    min_coverage_deg: f64,
+    hard_iron_z_ut: f64,
+    refit_every: u32,
+    /// Samples kept, oldest first, each with its (azimuth, elevation) bin.
+    samples: std::collections::VecDeque<(V3, usize)>,
+    /// Componentwise extremes of every sample, for the centre before a fit.
+    min_ut: Option<V3>,
+    max_ut: Option<V3>,
+    state: CalibrationState,
+    correction: Option<Correction>,
+    /// The centre the bins were made around.
+    binned_centre: V3,
+    /// Samples binned since the last fit.
+    since_fit: u32,
+}
+
+impl MagCalibration {
+    /// Fits once azimuths over `min_coverage_deg` are seen, refitting every
+    /// `refit_every` samples; `hard_iron_z_ut` is the z offset a planar fit
+    /// cannot see.
+    pub fn new(min_coverage_deg: f64, hard_iron_z_ut: f64, refit_every: u32) -> MagCalibration {
+        MagCalibration {
+            min_coverage_deg,
+            hard_iron_z_ut,
+            refit_every: refit_every.max(1),
+            samples: std::collections::VecDeque::new(),
+            min_ut: None,
+            max_ut: None,
+            state: CalibrationState::Collecting,
+            correction: None,
+            binned_centre: V3::zeros(),
+            since_fit: 0,
+        }
+    }
+
+    /// The state reached.
+    pub fn state(&self) -> CalibrationState {
+        self.state
+    }
+
+    /// The current correction, once fitted.
+    pub fn correction(&self) -> Option<&Correction> {
+        self.correction.as_ref()
+    }
+
+    /// Degrees of azimuth seen (10° per occupied azimuth bin).
+    pub fn coverage_deg(&self) -> f64 {
+        self.azimuths_seen() as f64 * (360.0 / AZIMUTH_BINS as f64)
+    }
+
+    fn azimuths_seen(&self) -> usize {
+        let mut seen = [false; AZIMUTH_BINS];
+        for (_, bin) in &self.samples {
+            seen[bin % AZIMUTH_BINS] = true;
+        }
+        seen.iter().filter(|&&s| s).count()
+    }
+
+    fn elevations_seen(&self) -> usize {
+        let mut seen = [false; ELEVATION_BANDS];
+        for (_, bin) in &self.samples {
+            seen[bin / AZIMUTH_BINS] = true;
+        }
+        seen.iter().filter(|&&s| s).count()
+    }
+
+    /// Where samples are binned around: the fitted centre, or the middle of
+    /// the extremes seen.
+    fn centre(&self) -> V3 {
+        match (&self.correction, self.min_ut, self.max_ut) {
+            (Some(c), _, _) => c.hard_iron_ut,
+            (None, Some(lo), Some(hi)) => (lo + hi) * 0.5,
+            _ => V3::zeros(),
+        }
+    }
+
+    /// Adds a raw reading (µT); refits when due. Returns true when the
+    /// correction changed.
+    pub fn add(&mut self, field_ut: V3) -> bool {
+        if !field_ut.iter().all(|x| x.is_finite()) {
+            return false;
+        }
+        self.min_ut = Some(self.min_ut.map_or(field_ut, |m| m.inf(&field_ut)));
+        self.max_ut = Some(self.max_ut.map_or(field_ut, |m| m.sup(&field_ut)));
+        // The centre moves while the extremes grow (and with each fit):
+        // the samples kept are binned again around the new one.
+        let centre = self.centre();
+        if let (Some(lo), Some(hi)) = (self.min_ut, self.max_ut)
+            && (centre - self.binned_centre).norm() > 0.02 * (hi - lo).norm()
+        {
+            self.binned_centre = centre;
+            for i in 0..self.samples.len() {
+                let sample = self.samples[i].0;
+                if let Some(bin) = self.bin_of(&sample) {
+                    self.samples[i].1 = bin;
+                }
+            }
+        }
+        let Some(bin) = self.bin_of(&field_ut) else {
+            return false;
+        };
+        if self.correction.is_some() {
+            self.samples.retain(|(_, b)| *b != bin);
+        } else if self.samples.back().is_some_and(|(_, b)| *b == bin) {
+            return false;
+        }
+        self.samples.push_back((field_ut, bin));
+        if self.samples.len() > MAX_SAMPLES {
+            self.samples.pop_front();
+        }
+        self.since_fit += 1;
+        if self.since_fit < self.refit_every && self.state != CalibrationState::Collecting {
+            return false;
+        }
+        self.refit()
+    }
+
+    /// A sample's direction bin around the binning centre.
+    fn bin_of(&self, field_ut: &V3) -> Option<usize> {
+        let d = field_ut - self.binned_centre;
+        let norm = d.norm();
+        if norm <= 0.0 {
+            return None;
+        }
+        let azimuth = d.y.atan2(d.x).rem_euclid(std::f64::consts::TAU);
+        let elevation = (d.z / norm).clamp(-1.0, 1.0).asin() + std::f64::consts::FRAC_PI_2;
+        let a = ((azimuth / std::f64::consts::TAU) * AZIMUTH_BINS as f64) as usize;
+        let e = ((elevation / std::f64::consts::PI) * ELEVATION_BANDS as f64) as usize;
+        Some(e.min(ELEVATION_BANDS - 1) * AZIMUTH_BINS + a.min(AZIMUTH_BINS - 1))
+    }
+
+    /// Fits from the binned samples if they cover enough directions.
+    fn refit(&mut self) -> bool {
+        self.since_fit = 0;
+        if self.coverage_deg() < self.min_coverage_deg {
+            return false;
+        }
+        let samples: Vec<V3> = self.samples.iter().map(|(s, _)| *s).collect();
+        let (state, fit) = if self.elevations_seen() >= MIN_ELEVATION_BANDS {
+            (CalibrationState::Ellipsoid, fit_ellipsoid(&samples))
+        } else {
+            (
+                CalibrationState::Planar,
+                fit_planar(&samples, self.hard_iron_z_ut),
+            )
+        };
+        match fit {
+            Some(correction) if correction.fit_rms <= MAX_FIT_RMS => {
+                self.correction = Some(correction);
+                self.state = state;
+                true
+            }
+            _ => false,
+        }
+    }
+}
+
+/// Centre and scale for conditioning: the samples' mean and RMS spread.
+fn normaliser(samples: &[V3]) -> (V3, f64) {
+    let n = samples.len().max(1) as f64;
+    let mean = samples.iter().sum::<V3>() / n;
+    let spread = (samples
+        .iter()
+        .map(|s| (s - mean).norm_squared())
+        .sum::<f64>()
+        / n)
+        .sqrt();
+    (mean, if spread > 0.0 { spread } else { 1.0 })
+}
+
+/// The symmetric square root of a positive-definite 3×3 matrix, or `None`.
+fn sqrt_spd3(m: &Matrix3<f64>) -> Option<Matrix3<f64>> {
+    let eigen = nalgebra::SymmetricEigen::new(*m);
+    if eigen
+        .eigenvalues
+        .iter()
+        .any(|&l| l <= 0.0 || !l.is_finite())
+    {
+        return None;
+    }
+    let root = eigen.eigenvalues.map(f64::sqrt);
+    Some(eigen.eigenvectors * Matrix3::from_diagonal(&root) * eigen.eigenvectors.transpose())
+}
+
+fn sqrt_spd2(m: &Matrix2<f64>) -> Option<Matrix2<f64>> {
+    let eigen = nalgebra::SymmetricEigen::new(*m);
+    if eigen
+        .eigenvalues
+        .iter()
+        .any(|&l| l <= 0.0 || !l.is_finite())
+    {
+        return None;
+    }
+    let root = eigen.eigenvalues.map(f64::sqrt);
+    Some(eigen.eigenvectors * Matrix2::from_diagonal(&root) * eigen.eigenvectors.transpose())
+}
+
+/// RMS of ‖S(m − b)‖ / mean − 1 over the samples, on the chosen axes.
+fn radius_rms(samples: &[V3], correct: impl Fn(&V3) -> f64) -> f64 {
+    let radii: Vec<f64> = samples.iter().map(correct).collect();
+    let n = radii.len().max(1) as f64;
+    let mean = radii.iter().sum::<f64>() / n;
+    if mean <= 0.0 {
+        return f64::INFINITY;
+    }
+    (radii.iter().map(|r| (r / mean - 1.0).powi(2)).sum::<f64>() / n).sqrt()
+}
+
+/// Least-squares quadric fit; see the module documentation.
+pub fn fit_ellipsoid(samples: &[V3]) -> Option<Correction> {
+    if samples.len() < 9 {
+        return None;
+    }
+    let (mean, scale) = normaliser(samples);
+    let mut normal = SMatrix::<f64, 9, 9>::zeros();
+    let mut rhs = SVector::<f64, 9>::zeros();
+    for s in samples {
+        let p = (s - mean) / scale;
+        let row = SVector::<f64, 9>::from([
+            p.x * p.x,
+            p.y * p.y,
+            p.z * p.z,
+            2.0 * p.x * p.y,
+            2.0 * p.x * p.z,
+            2.0 * p.y * p.z,
+            2.0 * p.x,
+            2.0 * p.y,
+            2.0 * p.z,
+        ]);
+        normal += row * row.transpose();
+        rhs += row;
+    }
+    let v = normal.cholesky()?.solve(&rhs);
+    let q = Matrix3::new(v[0], v[3], v[4], v[3], v[1], v[5], v[4], v[5], v[2]);
+    let u = V3::new(v[6], v[7], v[8]);
+    let centre = -(q.try_inverse()? * u);
+    let k = 1.0 + centre.dot(&(q * centre));
+    if k <= 0.0 {
+        return None;
+    }
+    let root = sqrt_spd3(&(q / k))?;
+    // det 1: keep the field's magnitude in µT on average.
+    let det = root.determinant();
+    if det <= 0.0 {
+        return None;
+    }
+    let soft_iron = root / det.cbrt();
+    let hard_iron_ut = mean + centre * scale;
+    let fit_rms = radius_rms(samples, |m| (soft_iron * (m - hard_iron_ut)).norm());
+    Some(Correction {
+        hard_iron_ut,
+        soft_iron,
+        fit_rms,
+    })
+}
+
+/// Least-squares conic fit in the body x–y plane; see the module documentation.
+pub fn fit_planar(samples: &[V3], hard_iron_z_ut: f64) -> Option<Correction> {
+    if samples.len() < 5 {
+        return None;
+    }
+    let (mean, _) = normaliser(samples);
+    let n = samples.len() as f64;
+    let scale = (samples
+        .iter()
+        .map(|s| (s.x - mean.x).powi(2) + (s.y - mean.y).powi(2))
+        .sum::<f64>()
+        / n)
+        .sqrt();
+    if scale <= 0.0 {
+        return None;
+    }
+    let mut normal = SMatrix::<f64, 5, 5>::zeros();
+    let mut rhs = SVector::<f64, 5>::zeros();
+    for s in samples {
+        let (x, y) = ((s.x - mean.x) / scale, (s.y - mean.y) / scale);
+        let row = SVector::<f64, 5>::from([x * x, y * y, 2.0 * x * y, 2.0 * x, 2.0 * y]);
+        normal += row * row.transpose();
+        rhs += row;
+    }
+    let v = normal.cholesky()?.solve(&rhs);
+    let q = Matrix2::new(v[0], v[2], v[2], v[1]);
+    let u = Vector2::new(v[3], v[4]);
+    let centre = -(q.try_inverse()? * u);
+    let k = 1.0 + centre.dot(&(q * centre));
+    if k <= 0.0 {
+        return None;
+    }
+    let root = sqrt_spd2(&(q / k))?;
+    let det = root.determinant();
+    if det <= 0.0 {
+        return None;
+    }
+    let root = root / det.sqrt();
+    let mut soft_iron = Matrix3::identity();
+    soft_iron.fixed_view_mut::<2, 2>(0, 0).copy_from(&root);
+    let hard_iron_ut = V3::new(
+        mean.x + centre.x * scale,
+        mean.y + centre.y * scale,
+        hard_iron_z_ut,
+    );
+    let fit_rms = radius_rms(samples, |m| {
+        let c = soft_iron * (m - hard_iron_ut);
+        (c.x * c.x + c.y * c.y).sqrt()
+    });
+    Some(Correction {
+        hard_iron_ut,
+        soft_iron,
+        fit_rms,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::UnitQuaternion;
+
+    fn distortion() -> (Matrix3<f64>, V3) {
+        let a = Matrix3::new(1.08, 0.04, -0.02, 0.04, 0.93, 0.03, -0.02, 0.03, 1.01);
+        (a, V3::new(18.0, -11.0, 6.0))
+    }
+
+    /// The calibrated field's direction error after correcting `raw`.
+    fn direction_error_deg(c: &Correction, truth: &V3, raw: &V3) -> f64 {
+        c.apply(raw).angle(truth).to_degrees()
+    }
+
+    #[test]
+    fn ellipsoid_fit_recovers_hard_and_soft_iron_from_all_directions() {
+        let (a, b) = distortion();
+        let earth = V3::new(20.0, 1.0, 44.0);
+        let mut calibration = MagCalibration::new(300.0, 0.0, 10);
+        let mut cases = Vec::new();
+        for i in 0..2000 {
+            let t = f64::from(i);
+            let attitude = UnitQuaternion::from_euler_angles(
+                1.3 * (t * 0.011).sin(),
+                0.9 * (t * 0.007).cos(),
+                t * 0.05,
+            );
+            let body = attitude.inverse() * earth;
+            let raw = a * body + b;
+            calibration.add(raw);
+            cases.push((body, raw));
+        }
+        assert_eq!(calibration.state(), CalibrationState::Ellipsoid);
+        let c = calibration.correction().unwrap();
+        assert!((c.hard_iron_ut - b).norm() < 1e-6, "{:?}", c.hard_iron_ut);
+        for (body, raw) in &cases {
+            assert!(direction_error_deg(c, body, raw) < 1e-4);
+        }
+    }
+
+    #[test]
+    fn planar_fit_levels_the_horizontal_circle_of_a_turning_vehicle() {
+        let (a, b) = distortion();
+        let earth = V3::new(20.0, 1.0, 44.0);
+        let mut calibration = MagCalibration::new(300.0, b.z, 10);
+        // A calibration turn of a little over a full circle.
+        for i in 0..=380 {
+            let attitude = UnitQuaternion::from_euler_angles(0.0, 0.0, f64::from(i).to_radians());
+            calibration.add(a * (attitude.inverse() * earth) + b);
+            if i < 290 {
+                assert_eq!(calibration.state(), CalibrationState::Collecting, "{i}");
+            }
+        }
+        assert_eq!(calibration.state(), CalibrationState::Planar);
+        let c = *calibration.correction().unwrap();
+        // Level: the corrected horizontal field is a circle, so heading
+        // from it is right to the accuracy the soft iron's z coupling allows.
+        for i in 0..72 {
+            let yaw = f64::from(i * 5).to_radians();
+            let attitude = UnitQuaternion::from_euler_angles(0.0, 0.0, yaw);
+            let corrected = c.apply(&(a * (attitude.inverse() * earth) + b));
+            let heading = (-corrected.y).atan2(corrected.x) + earth.y.atan2(earth.x);
+            let error = (heading - yaw + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
+                - std::f64::consts::PI;
+            assert!(
+                error.to_degrees().abs() < 0.5,
+                "{i}: {}",
+                error.to_degrees()
+            );
+        }
+    }
+
+    #[test]
+    fn too_few_directions_or_bad_data_give_no_calibration() {
+        let mut calibration = MagCalibration::new(300.0, 0.0, 10);
+        for i in 0..200 {
+            calibration.add(V3::new(20.0 + f64::from(i % 7) * 0.01, 1.0, 44.0));
+        }
+        calibration.add(V3::new(f64::NAN, 0.0, 0.0));
+        assert_eq!(calibration.state(), CalibrationState::Collecting);
+        assert!(calibration.correction().is_none());
+        assert!(fit_ellipsoid(&[V3::zeros(); 20]).is_none());
+    }
+}
