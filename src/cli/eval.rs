@@ -3,9 +3,9 @@
 use clap::{Args, Subcommand};
 
 use super::CliError;
-use super::simulate::{DriveArgs, PipeJackArgs};
+use super::simulate::{DriveArgs, PipeJackArgs, VehicleDriveArgs};
 use crate::eval::attitude::{AttitudeEvalConfig, evaluate, render_table};
-use crate::eval::zupt;
+use crate::eval::{fuzzy, zupt};
 use crate::fusion::Params;
 use crate::fusion::attitude::PARAMS;
 use crate::sim::tbm::Dropout;
@@ -16,6 +16,24 @@ pub enum EvalTarget {
     Attitude(AttitudeArgs),
     /// The FOG INS with each zero-velocity detector on a simulated pipe-jacking drive.
     Zupt(ZuptArgs),
+    /// The MEMS + magnetometer fuzzy expert on a simulated vehicle drive,
+    /// against gyro-only, accelerometer-only and raw-compass solutions.
+    Fuzzy(FuzzyArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct FuzzyArgs {
+    #[command(flatten)]
+    pub drive: VehicleDriveArgs,
+    /// Seeds to run from --seed on (each a separate drive; a table each).
+    #[arg(long, default_value_t = 1)]
+    pub seeds: u64,
+    /// An engine parameter as name=value (repeatable).
+    #[arg(long = "param", value_name = "NAME=VALUE")]
+    pub params: Vec<String>,
+    /// Print the scores as JSON instead of a table.
+    #[arg(long)]
+    pub json: bool,
 }
 
 #[derive(Debug, Args)]
@@ -51,6 +69,29 @@ pub struct AttitudeArgs {
 
 pub fn run(target: EvalTarget) -> Result<(), CliError> {
     match target {
+        EvalTarget::Fuzzy(args) => {
+            let params = Params::from_assignments(
+                crate::fusion::fuzzy::PARAMS,
+                args.params.iter().map(String::as_str),
+            )?;
+            for seed in args.drive.seed..args.drive.seed.saturating_add(args.seeds.max(1)) {
+                let mut scenario = args.drive.scenario();
+                scenario.seed = seed;
+                let evaluation = fuzzy::evaluate(&fuzzy::FuzzyEvalConfig {
+                    scenario,
+                    params: params.clone(),
+                })?;
+                if args.json {
+                    println!(
+                        "{}",
+                        serde_json::to_string(&evaluation).map_err(std::io::Error::other)?
+                    );
+                } else {
+                    print!("{}", fuzzy::render_table(&evaluation));
+                }
+            }
+            Ok(())
+        }
         EvalTarget::Zupt(args) => {
             let params = Params::from_assignments(
                 crate::fusion::zupt::PARAMS,

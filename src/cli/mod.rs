@@ -56,6 +56,8 @@ pub enum CliError {
     Eval(#[from] crate::eval::attitude::EvalError),
     #[error(transparent)]
     EvalZupt(#[from] crate::eval::zupt::ZuptEvalError),
+    #[error(transparent)]
+    EvalFuzzy(#[from] crate::eval::fuzzy::FuzzyEvalError),
     #[error("{0}")]
     Scenario(String),
     #[error(transparent)]

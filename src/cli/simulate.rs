@@ -10,6 +10,7 @@ use super::CliError;
 use crate::fusion::SensorKind;
 use crate::sim::pipejack::{Case, IMU_RATE_HZ, PipeJackDrive, PipeJackScenario};
 use crate::sim::tbm::{DEFAULT_START_T, Dropout, TbmDrive, TbmScenario};
+use crate::sim::vehicle::{VehicleDrive, VehicleScenario};
 
 #[derive(Debug, Subcommand)]
 pub enum Scenario {
@@ -17,6 +18,66 @@ pub enum Scenario {
     Tbm(TbmArgs),
     /// A pipe-jacking drive: FOG IMU at 100 Hz, level and odometer at 1 Hz.
     PipeJacking(PipeJackingArgs),
+    /// A small tunnel vehicle: MEMS IMU at 100 Hz, magnetometer at 10 Hz.
+    Vehicle(VehicleArgs),
+}
+
+/// The simulated vehicle drive: shared by `simulate vehicle` and `eval fuzzy`.
+#[derive(Debug, Args)]
+pub struct VehicleDriveArgs {
+    /// Length of the drive, minutes.
+    #[arg(long, default_value_t = 20.0)]
+    pub minutes: f64,
+    /// Heading at the start, degrees clockwise from north.
+    #[arg(long, default_value_t = 75.0, allow_negative_numbers = true)]
+    pub heading_deg: f64,
+    /// The Earth's field at the site: total intensity, µT.
+    #[arg(long, default_value_t = 50.0)]
+    pub field_ut: f64,
+    /// Inclination of the field, degrees, down positive.
+    #[arg(long, default_value_t = 60.0, allow_negative_numbers = true)]
+    pub inclination_deg: f64,
+    /// Magnetic declination, degrees, east positive.
+    #[arg(long, default_value_t = 2.5, allow_negative_numbers = true)]
+    pub declination_deg: f64,
+    /// IMU rate, Hz.
+    #[arg(long, default_value_t = 100.0)]
+    pub imu_rate_hz: f64,
+    /// Magnetometer rate, Hz.
+    #[arg(long, default_value_t = 10.0)]
+    pub mag_rate_hz: f64,
+    /// Random seed: the same seed gives the same drive.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Unix seconds of the first reading.
+    #[arg(long, default_value_t = DEFAULT_START_T)]
+    pub start_t: f64,
+}
+
+impl VehicleDriveArgs {
+    /// The scenario these arguments describe.
+    pub fn scenario(&self) -> VehicleScenario {
+        VehicleScenario {
+            seed: self.seed,
+            start_t: self.start_t,
+            duration_s: self.minutes * 60.0,
+            imu_rate_hz: self.imu_rate_hz,
+            mag_rate_hz: self.mag_rate_hz,
+            initial_heading_deg: self.heading_deg,
+            field_ut: self.field_ut,
+            inclination_deg: self.inclination_deg,
+            declination_deg: self.declination_deg,
+        }
+    }
+}
+
+#[derive(Debug, Args)]
+pub struct VehicleArgs {
+    #[command(flatten)]
+    pub drive: VehicleDriveArgs,
+    /// Write the truth (one NDJSON line per IMU reading) to this file.
+    #[arg(long, value_name = "FILE")]
+    pub truth: Option<PathBuf>,
 }
 
 /// The simulated pipe-jacking drive: shared by `simulate pipe-jacking` and `eval zupt`.
@@ -150,6 +211,11 @@ pub fn run(scenario: Scenario) -> Result<(), CliError> {
     match scenario {
         Scenario::Tbm(args) => run_tbm(&args),
         Scenario::PipeJacking(args) => run_pipe_jacking(&args),
+        Scenario::Vehicle(args) => {
+            let drive = VehicleDrive::new(args.drive.scenario()).map_err(CliError::Scenario)?;
+            let truth = create_truth(&args.truth)?;
+            write_events(drive.map(|e| (e.reading, e.truth)), truth)
+        }
     }
 }
 

@@ -1,6 +1,7 @@
 //! Scoring engines against simulated truth.
 
 pub mod attitude;
+pub mod fuzzy;
 pub mod zupt;
 
 use serde::Serialize;

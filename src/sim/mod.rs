@@ -3,3 +3,4 @@
 
 pub mod pipejack;
 pub mod tbm;
+pub mod vehicle;

@@ -17,10 +17,18 @@
 //!   unknowns); b = −Q⁻¹u, and S = (Q / (1 + bᵀQb))^½ scaled to det S = 1.
 //! - **planar**: a ground vehicle turns about its z axis and barely tilts,
 //!   so the vertical is unobservable. With azimuths over
-//!   `min_coverage_deg` in a narrow elevation range, the conic
-//!   [x² y² 2xy 2x 2y]·p = 1 is fitted in the body x–y plane: 2-D hard and
-//!   soft iron (det 1); the z axis keeps the configured offset
-//!   `hard_iron_z_ut` and unit scale.
+//!   `min_coverage_deg` among the samples taken level (tilt within
+//!   `level_tolerance`) in a narrow elevation range, the conic
+//!   [x² y² 2xy 2x 2y]·p = 1 is fitted to them in the body x–y plane: 2-D
+//!   hard and soft iron (det 1). The z axis keeps unit scale; its offset
+//!   is set so that the level samples' mean vertical field is R·tan I, R
+//!   the corrected horizontal radius and I the site's inclination: the
+//!   vertical then has the size the tilt compensation needs.
+//!
+//! Level and tilted samples are kept apart (a tilted sample never
+//! replaces a level one), and a level sample gives way only to one at
+//! most 0.1° more tilted, so a vehicle that later drives on grades keeps
+//! the most level samples it has seen.
 //!
 //! A fit whose residual RMS (relative radius) exceeds 10 % is refused and
 //! the previous calibration kept.
@@ -36,6 +44,9 @@ const ELEVATION_BANDS: usize = 9;
 const MIN_ELEVATION_BANDS: usize = 5;
 /// A fit worse than this (RMS of the relative radius error) is refused.
 const MAX_FIT_RMS: f64 = 0.1;
+/// A level sample is replaced in its bin only by one tilted at most this
+/// much more (0.1°), so the level set gets more level over time.
+const LEVEL_SLACK_RAD: f64 = 0.001_745;
 /// Samples kept for the fit.
 const MAX_SAMPLES: usize = 512;
 
@@ -82,10 +93,11 @@ impl Correction {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct MagCalibration {
     min_coverage_deg: f64,
-    hard_iron_z_ut: f64,
+    inclination_rad: f64,
+    level_tolerance_rad: f64,
     refit_every: u32,
     /// Samples kept, oldest first, each with its (azimuth, elevation) bin.
-    samples: std::collections::VecDeque<(V3, usize)>,
+    samples: std::collections::VecDeque<Sample>,
     /// Componentwise extremes of every sample, for the centre before a fit.
     min_ut: Option<V3>,
     max_ut: Option<V3>,
@@ -99,12 +111,20 @@ pub struct MagCalibration {
 
 impl MagCalibration {
     /// Fits once azimuths over `min_coverage_deg` are seen, refitting every
-    /// `refit_every` samples; `hard_iron_z_ut` is the z offset a planar fit
-    /// cannot see.
-    pub fn new(min_coverage_deg: f64, hard_iron_z_ut: f64, refit_every: u32) -> MagCalibration {
+    /// `refit_every` samples. A sample tilted by at most
+    /// `level_tolerance_rad` counts as level; `inclination_rad` is the
+    /// site's field inclination (down positive), which sizes the vertical
+    /// of a planar calibration.
+    pub fn new(
+        min_coverage_deg: f64,
+        inclination_rad: f64,
+        level_tolerance_rad: f64,
+        refit_every: u32,
+    ) -> MagCalibration {
         MagCalibration {
             min_coverage_deg,
-            hard_iron_z_ut,
+            inclination_rad,
+            level_tolerance_rad,
             refit_every: refit_every.max(1),
             samples: std::collections::VecDeque::new(),
             min_ut: None,
@@ -126,23 +146,23 @@ impl MagCalibration {
         self.correction.as_ref()
     }
 
-    /// Degrees of azimuth seen (10° per occupied azimuth bin).
+    /// Degrees of azimuth seen (10° per occupied azimuth bin), level or not.
     pub fn coverage_deg(&self) -> f64 {
-        self.azimuths_seen() as f64 * (360.0 / AZIMUTH_BINS as f64)
+        self.azimuths_seen(false) as f64 * (360.0 / AZIMUTH_BINS as f64)
     }
 
-    fn azimuths_seen(&self) -> usize {
+    fn azimuths_seen(&self, level_only: bool) -> usize {
         let mut seen = [false; AZIMUTH_BINS];
-        for (_, bin) in &self.samples {
-            seen[bin % AZIMUTH_BINS] = true;
+        for sample in self.samples.iter().filter(|s| s.level || !level_only) {
+            seen[sample.bin % AZIMUTH_BINS] = true;
         }
         seen.iter().filter(|&&s| s).count()
     }
 
     fn elevations_seen(&self) -> usize {
         let mut seen = [false; ELEVATION_BANDS];
-        for (_, bin) in &self.samples {
-            seen[bin / AZIMUTH_BINS] = true;
+        for sample in &self.samples {
+            seen[sample.bin / AZIMUTH_BINS] = true;
         }
         seen.iter().filter(|&&s| s).count()
     }
@@ -157,9 +177,10 @@ impl MagCalibration {
         }
     }
 
-    /// Adds a raw reading (µT); refits when due. Returns true when the
-    /// correction changed.
-    pub fn add(&mut self, field_ut: V3) -> bool {
+    /// Adds a raw reading (µT) taken at a tilt (the larger of |roll| and
+    /// |pitch|, rad); refits when due. Returns true when the correction
+    /// changed.
+    pub fn add(&mut self, field_ut: V3, tilt_rad: f64) -> bool {
         if !field_ut.iter().all(|x| x.is_finite()) {
             return false;
         }
@@ -173,21 +194,37 @@ impl MagCalibration {
         {
             self.binned_centre = centre;
             for i in 0..self.samples.len() {
-                let sample = self.samples[i].0;
-                if let Some(bin) = self.bin_of(&sample) {
-                    self.samples[i].1 = bin;
+                if let Some(bin) = self.bin_of(&self.samples[i].field_ut) {
+                    self.samples[i].bin = bin;
                 }
             }
         }
         let Some(bin) = self.bin_of(&field_ut) else {
             return false;
         };
+        let tilt_rad = tilt_rad.abs();
+        let level = tilt_rad <= self.level_tolerance_rad;
+        let same = |s: &Sample| s.bin == bin && s.level == level;
         if self.correction.is_some() {
-            self.samples.retain(|(_, b)| *b != bin);
-        } else if self.samples.back().is_some_and(|(_, b)| *b == bin) {
+            // A level sample gives way only to one about as level or more.
+            if level
+                && self
+                    .samples
+                    .iter()
+                    .any(|s| same(s) && s.tilt_rad + LEVEL_SLACK_RAD < tilt_rad)
+            {
+                return false;
+            }
+            self.samples.retain(|s| !same(s));
+        } else if self.samples.back().is_some_and(same) {
             return false;
         }
-        self.samples.push_back((field_ut, bin));
+        self.samples.push_back(Sample {
+            field_ut,
+            bin,
+            level,
+            tilt_rad,
+        });
         if self.samples.len() > MAX_SAMPLES {
             self.samples.pop_front();
         }
@@ -215,17 +252,25 @@ impl MagCalibration {
     /// Fits from the binned samples if they cover enough directions.
     fn refit(&mut self) -> bool {
         self.since_fit = 0;
-        if self.coverage_deg() < self.min_coverage_deg {
-            return false;
-        }
-        let samples: Vec<V3> = self.samples.iter().map(|(s, _)| *s).collect();
-        let (state, fit) = if self.elevations_seen() >= MIN_ELEVATION_BANDS {
+        let degrees_per_bin = 360.0 / AZIMUTH_BINS as f64;
+        let (state, fit) = if self.elevations_seen() >= MIN_ELEVATION_BANDS
+            && self.azimuths_seen(false) as f64 * degrees_per_bin >= self.min_coverage_deg
+        {
+            let samples: Vec<V3> = self.samples.iter().map(|s| s.field_ut).collect();
             (CalibrationState::Ellipsoid, fit_ellipsoid(&samples))
-        } else {
+        } else if self.azimuths_seen(true) as f64 * degrees_per_bin >= self.min_coverage_deg {
+            let level: Vec<V3> = self
+                .samples
+                .iter()
+                .filter(|s| s.level)
+                .map(|s| s.field_ut)
+                .collect();
             (
                 CalibrationState::Planar,
-                fit_planar(&samples, self.hard_iron_z_ut),
+                fit_planar(&level, self.inclination_rad),
             )
+        } else {
+            return false;
         };
         match fit {
             Some(correction) if correction.fit_rms <= MAX_FIT_RMS => {
@@ -236,6 +281,16 @@ impl MagCalibration {
             _ => false,
         }
     }
+}
+
+/// A kept reading: the raw field, its direction bin, and whether it was
+/// taken level.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+struct Sample {
+    field_ut: V3,
+    bin: usize,
+    level: bool,
+    tilt_rad: f64,
 }
 
 /// Centre and scale for conditioning: the samples' mean and RMS spread.
@@ -338,7 +393,7 @@ pub fn fit_ellipsoid(samples: &[V3]) -> Option<Correction> {
 }
 
 /// Least-squares conic fit in the body x–y plane; see the module documentation.
-pub fn fit_planar(samples: &[V3], hard_iron_z_ut: f64) -> Option<Correction> {
+pub fn fit_planar(samples: &[V3], inclination_rad: f64) -> Option<Correction> {
     if samples.len() < 5 {
         return None;
     }
@@ -377,15 +432,18 @@ pub fn fit_planar(samples: &[V3], hard_iron_z_ut: f64) -> Option<Correction> {
     let root = root / det.sqrt();
     let mut soft_iron = Matrix3::identity();
     soft_iron.fixed_view_mut::<2, 2>(0, 0).copy_from(&root);
-    let hard_iron_ut = V3::new(
-        mean.x + centre.x * scale,
-        mean.y + centre.y * scale,
-        hard_iron_z_ut,
-    );
-    let fit_rms = radius_rms(samples, |m| {
-        let c = soft_iron * (m - hard_iron_ut);
+    let horizontal = |m: &V3, hard_iron: &V3| {
+        let c = soft_iron * (m - hard_iron);
         (c.x * c.x + c.y * c.y).sqrt()
-    });
+    };
+    let mut hard_iron_ut = V3::new(mean.x + centre.x * scale, mean.y + centre.y * scale, 0.0);
+    let radius = samples
+        .iter()
+        .map(|m| horizontal(m, &hard_iron_ut))
+        .sum::<f64>()
+        / n;
+    hard_iron_ut.z = mean.z - radius * inclination_rad.tan();
+    let fit_rms = radius_rms(samples, |m| horizontal(m, &hard_iron_ut));
     Some(Correction {
         hard_iron_ut,
         soft_iron,
@@ -412,7 +470,7 @@ mod tests {
     fn ellipsoid_fit_recovers_hard_and_soft_iron_from_all_directions() {
         let (a, b) = distortion();
         let earth = V3::new(20.0, 1.0, 44.0);
-        let mut calibration = MagCalibration::new(300.0, 0.0, 10);
+        let mut calibration = MagCalibration::new(300.0, 1.0, 0.03, 10);
         let mut cases = Vec::new();
         for i in 0..2000 {
             let t = f64::from(i);
@@ -423,7 +481,7 @@ mod tests {
             );
             let body = attitude.inverse() * earth;
             let raw = a * body + b;
-            calibration.add(raw);
+            calibration.add(raw, 0.5);
             cases.push((body, raw));
         }
         assert_eq!(calibration.state(), CalibrationState::Ellipsoid);
@@ -438,11 +496,12 @@ mod tests {
     fn planar_fit_levels_the_horizontal_circle_of_a_turning_vehicle() {
         let (a, b) = distortion();
         let earth = V3::new(20.0, 1.0, 44.0);
-        let mut calibration = MagCalibration::new(300.0, b.z, 10);
+        let mut calibration =
+            MagCalibration::new(300.0, earth.z.atan2(earth.xy().norm()), 0.03, 10);
         // A calibration turn of a little over a full circle.
         for i in 0..=380 {
             let attitude = UnitQuaternion::from_euler_angles(0.0, 0.0, f64::from(i).to_radians());
-            calibration.add(a * (attitude.inverse() * earth) + b);
+            calibration.add(a * (attitude.inverse() * earth) + b, 0.0);
             if i < 290 {
                 assert_eq!(calibration.state(), CalibrationState::Collecting, "{i}");
             }
@@ -464,15 +523,32 @@ mod tests {
                 error.to_degrees()
             );
         }
+        // Tilted, the vertical sized from the inclination makes the tilt
+        // compensation right too (to the soft iron's z coupling).
+        for i in 0..72 {
+            let yaw = f64::from(i * 5).to_radians();
+            let (roll, pitch) = (2.0_f64.to_radians(), -4.0_f64.to_radians());
+            let attitude = UnitQuaternion::from_euler_angles(roll, pitch, yaw);
+            let corrected = c.apply(&(a * (attitude.inverse() * earth) + b));
+            let heading =
+                crate::fusion::fuzzy::orientation::magnetic_heading(&corrected, roll, pitch)
+                    + earth.y.atan2(earth.x);
+            let error = crate::fusion::fuzzy::orientation::angle_difference(heading, yaw);
+            assert!(
+                error.to_degrees().abs() < 0.6,
+                "{i}: {}",
+                error.to_degrees()
+            );
+        }
     }
 
     #[test]
     fn too_few_directions_or_bad_data_give_no_calibration() {
-        let mut calibration = MagCalibration::new(300.0, 0.0, 10);
+        let mut calibration = MagCalibration::new(300.0, 1.0, 0.03, 10);
         for i in 0..200 {
-            calibration.add(V3::new(20.0 + f64::from(i % 7) * 0.01, 1.0, 44.0));
+            calibration.add(V3::new(20.0 + f64::from(i % 7) * 0.01, 1.0, 44.0), 0.0);
         }
-        calibration.add(V3::new(f64::NAN, 0.0, 0.0));
+        calibration.add(V3::new(f64::NAN, 0.0, 0.0), 0.0);
         assert_eq!(calibration.state(), CalibrationState::Collecting);
         assert!(calibration.correction().is_none());
         assert!(fit_ellipsoid(&[V3::zeros(); 20]).is_none());

@@ -134,7 +134,7 @@ pub const PARAMS: &[ParamSpec] = &[
     ),
     real(
         "tilt_time_constant_s",
-        1.0,
+        4.0,
         0.001,
         1.0e6,
         "s",
@@ -165,12 +165,20 @@ pub const PARAMS: &[ParamSpec] = &[
         "field azimuth that must be seen before the magnetometer is calibrated",
     ),
     real(
-        "mag_hard_iron_z_ut",
+        "mag_inclination_deg",
+        60.0,
+        -89.0,
+        89.0,
+        "deg",
+        "inclination of the Earth's field at the site, down positive (sizes the vertical of a planar calibration)",
+    ),
+    real(
+        "mag_level_tolerance_deg",
+        1.5,
         0.0,
-        -1000.0,
-        1000.0,
-        "µT",
-        "z hard iron for a planar calibration, which cannot see it",
+        90.0,
+        "deg",
+        "magnetometer readings tilted less than this count as level (a planar calibration uses only those)",
     ),
     integer(
         "mag_refit_every",
@@ -208,7 +216,8 @@ pub struct FuzzyConfig {
     pub heading_time_constant_s: f64,
     pub bias_time_constant_s: f64,
     pub mag_min_coverage_deg: f64,
-    pub mag_hard_iron_z_ut: f64,
+    pub mag_inclination_rad: f64,
+    pub mag_level_tolerance_rad: f64,
     pub mag_refit_every: u32,
     pub max_mag_age_s: f64,
     pub max_imu_gap_s: f64,
@@ -256,7 +265,8 @@ impl FuzzyConfig {
             heading_time_constant_s: p.real("heading_time_constant_s")?,
             bias_time_constant_s: p.real("bias_time_constant_s")?,
             mag_min_coverage_deg: p.real("mag_min_coverage_deg")?,
-            mag_hard_iron_z_ut: p.real("mag_hard_iron_z_ut")?,
+            mag_inclination_rad: rad(p.real("mag_inclination_deg")?),
+            mag_level_tolerance_rad: rad(p.real("mag_level_tolerance_deg")?),
             mag_refit_every: p.integer("mag_refit_every")? as u32,
             max_mag_age_s: p.real("max_mag_age_s")?,
             max_imu_gap_s: p.real("max_imu_gap_s")?,
@@ -305,6 +315,8 @@ pub struct FuzzyEngine {
     /// The newest magnetometer reading: time and raw field, µT.
     magnetometer: Option<(f64, V3)>,
     stats: FuzzyStats,
+    /// Set by the first calibration: take the heading from the compass.
+    reheading: bool,
     #[serde(skip)]
     scratch: Scratch,
 }
@@ -333,11 +345,13 @@ impl FuzzyEngine {
             solution: None,
             calibration: MagCalibration::new(
                 config.mag_min_coverage_deg,
-                config.mag_hard_iron_z_ut,
+                config.mag_inclination_rad,
+                config.mag_level_tolerance_rad,
                 config.mag_refit_every,
             ),
             magnetometer: None,
             stats: FuzzyStats::default(),
+            reheading: false,
             scratch: Scratch::default(),
         })
     }
@@ -363,6 +377,7 @@ impl FuzzyEngine {
         fresh.calibration = engine.calibration;
         fresh.magnetometer = engine.magnetometer;
         fresh.stats = engine.stats;
+        fresh.reheading = engine.reheading;
         Ok(fresh)
     }
 
@@ -383,8 +398,21 @@ impl FuzzyEngine {
 
     fn feed_magnetometer(&mut self, t: f64, field_ut: V3) {
         self.stats.mag_used += 1;
-        if self.calibration.add(field_ut) {
+        let (roll, pitch) = match &self.solution {
+            Some(s) => {
+                let (roll, pitch, _) = s.attitude.euler_angles();
+                (roll, pitch)
+            }
+            None => tilt_from_accel(&self.window.mean_force()),
+        };
+        let was_calibrated = self.calibration.correction().is_some();
+        if self.calibration.add(field_ut, roll.abs().max(pitch.abs())) {
             self.stats.mag_fits += 1;
+            // The heading so far rests on the raw compass at alignment:
+            // the first calibration replaces it at the next IMU reading.
+            if !was_calibrated {
+                self.reheading = true;
+            }
         }
         if self.magnetometer.is_none_or(|(newest, _)| t >= newest) {
             self.magnetometer = Some((t, field_ut));
@@ -450,6 +478,9 @@ impl FuzzyEngine {
                 && updated.gyro_bias_rad_per_s.iter().all(|x| x.is_finite());
             if finite {
                 self.solution = Some(updated);
+                if self.fresh_field(t).is_some() {
+                    self.reheading = false;
+                }
             } else {
                 self.stats.resets += 1;
                 self.solution = None;
@@ -511,11 +542,12 @@ impl FuzzyEngine {
         );
         let (roll, pitch, _) = solution.attitude.euler_angles();
         if let Some(heading) = self.compass_heading(t, roll, pitch, false) {
-            solution.attitude = pull_heading(
-                &solution.attitude,
-                heading,
-                static_degree * dt_s / c.heading_time_constant_s,
-            );
+            let gain = if self.reheading {
+                1.0
+            } else {
+                static_degree * dt_s / c.heading_time_constant_s
+            };
+            solution.attitude = pull_heading(&solution.attitude, heading, gain);
         }
 
         if static_degree > c.static_threshold {

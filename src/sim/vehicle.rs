@@ -1,0 +1,645 @@
+//! A simulated drive of a small tunnel vehicle (a service vehicle or a
+//! segment carrier) with known truth, for `simulate vehicle`, `eval fuzzy`,
+//! the accuracy tests and the benchmarks.
+//!
+//! The drive (`duration_s`, 20 min by default): parked for 30 s with the
+//! engine idling; a slow calibration turn (380° at about 5 °/s at walking
+//! pace) and a 20 s stop; then legs until a minute before the end, each an
+//! acceleration to 2–6 m/s, 20–90 s of driving with turns of 30–120°,
+//! changes of grade (within ±5°) and bank (within ±2°), and bumps (a 0.5–
+//! 1.5° pitch or roll kick of 0.4–1 s every 3–15 s), a braking to rest, and
+//! a stop of 10–40 s; parked to the end. Every manoeuvre is a raised-cosine
+//! pulse of a rate, so the truth is smooth and the IMU readings are the
+//! exact derivatives of it. While rolling, the chassis also wobbles (tones
+//! of 0.02–0.06° at 4–12 Hz in pitch and roll, part of the truth) and
+//! shakes (0.3 m/s² translational vibration per axis, not part of it).
+//!
+//! Sensors (a MEMS IMU of the kind Wang 2005 uses):
+//! - IMU at 100 Hz: gyro bias 0.3 °/s (1σ per axis) plus a warm-up drift
+//!   of 0.05 °/s (1σ, time constant 400 s) and a 3·10⁻⁴ °/s/√s random
+//!   walk, white noise 0.05 °/s per sample; accelerometer bias 0.02 m/s²
+//!   (1σ), white noise 0.02 m/s² per sample, engine vibration 0.01 m/s²
+//!   parked and 0.3 m/s² rolling (AR(1), ρ = 0.7);
+//! - magnetometer at 10 Hz: the Earth's field (`field_ut`, `inclination_deg`,
+//!   `declination_deg`) through soft iron (I + symmetric, diagonal 8 %,
+//!   off-diagonal 4 %, 1σ) and hard iron (15 µT in x and y, 5 µT in z,
+//!   1σ), white noise 0.3 µT.
+
+use nalgebra::{Matrix3, UnitQuaternion};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::StandardNormal;
+use serde::{Deserialize, Serialize};
+
+use crate::fusion::angles::{deg, rad};
+use crate::fusion::zupt::strapdown::{V3, attitude_from_euler};
+use crate::fusion::{Reading, SensorData};
+
+use super::tbm::DEFAULT_START_T;
+
+/// Standard gravity used by the simulated accelerometer, m/s².
+const GRAVITY_MPS2: f64 = 9.806_65;
+/// Rolling speed at which the wobble and vibration are fully developed.
+const FULL_SHAKE_SPEED_MPS: f64 = 0.5;
+
+/// What to simulate.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct VehicleScenario {
+    pub seed: u64,
+    /// Unix seconds of the first reading.
+    pub start_t: f64,
+    pub duration_s: f64,
+    pub imu_rate_hz: f64,
+    pub mag_rate_hz: f64,
+    /// Heading at the start, clockwise from north.
+    pub initial_heading_deg: f64,
+    /// The Earth's field at the site: total intensity, inclination (down
+    /// positive), declination (east positive).
+    pub field_ut: f64,
+    pub inclination_deg: f64,
+    pub declination_deg: f64,
+}
+
+impl Default for VehicleScenario {
+    fn default() -> Self {
+        VehicleScenario {
+            seed: 1,
+            start_t: DEFAULT_START_T,
+            duration_s: 1200.0,
+            imu_rate_hz: 100.0,
+            mag_rate_hz: 10.0,
+            initial_heading_deg: 75.0,
+            field_ut: 50.0,
+            inclination_deg: 60.0,
+            declination_deg: 2.5,
+        }
+    }
+}
+
+/// The true state at one IMU reading.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct VehicleTruth {
+    pub t: f64,
+    /// True while the vehicle rolls or turns.
+    pub moving: bool,
+    pub speed_mps: f64,
+    pub pitch_deg: f64,
+    pub roll_deg: f64,
+    /// Clockwise from true north, [0, 360).
+    pub heading_deg: f64,
+    /// The gyro bias at this instant.
+    pub gyro_bias_dps: [f64; 3],
+}
+
+/// One simulated reading, and the truth if it is an IMU reading.
+#[derive(Debug, Clone, PartialEq)]
+pub struct VehicleEvent {
+    pub reading: Reading,
+    pub truth: Option<VehicleTruth>,
+}
+
+/// What a manoeuvre changes.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Channel {
+    Speed,
+    Heading,
+    Grade,
+    Bank,
+    BumpPitch,
+    BumpRoll,
+}
+
+/// A raised-cosine pulse of a rate: the channel changes by `change` over
+/// `[start, start + duration]` (a bump's change is its peak, and it returns).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Pulse {
+    channel: Channel,
+    start: f64,
+    duration: f64,
+    change: f64,
+}
+
+impl Pulse {
+    /// The channel's rate at `t`.
+    fn rate(&self, t: f64) -> f64 {
+        let x = (t - self.start) / self.duration;
+        if !(0.0..=1.0).contains(&x) {
+            return 0.0;
+        }
+        let w = std::f64::consts::TAU / self.duration;
+        match self.channel {
+            // Out and back: angle = change·(1 − cos 2πx)/2.
+            Channel::BumpPitch | Channel::BumpRoll => {
+                self.change * 0.5 * w * (w * (t - self.start)).sin()
+            }
+            _ => self.change / self.duration * (1.0 - (w * (t - self.start)).cos()),
+        }
+    }
+
+    /// The channel's value change from the pulse's start to `t`.
+    fn integral(&self, t: f64) -> f64 {
+        let x = ((t - self.start) / self.duration).clamp(0.0, 1.0);
+        let phase = std::f64::consts::TAU * x;
+        match self.channel {
+            Channel::BumpPitch | Channel::BumpRoll => self.change * 0.5 * (1.0 - phase.cos()),
+            _ => self.change * (x - phase.sin() / std::f64::consts::TAU),
+        }
+    }
+}
+
+/// A wobble tone: amplitude (rad), angular frequency (rad/s), phase.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Tone {
+    amplitude: f64,
+    omega: f64,
+    phase: f64,
+}
+
+/// The simulated drive; iterate it for the readings in time order.
+pub struct VehicleDrive {
+    scenario: VehicleScenario,
+    pulses: Vec<Pulse>,
+    pitch_tones: Vec<Tone>,
+    roll_tones: Vec<Tone>,
+    earth_field_n: V3,
+    soft_iron: Matrix3<f64>,
+    hard_iron_ut: V3,
+    gyro_bias0: V3,
+    gyro_warmup: V3,
+    gyro_walk: V3,
+    accel_bias: V3,
+    vibration: V3,
+    imu_rng: ChaCha8Rng,
+    mag_rng: ChaCha8Rng,
+    sample: u64,
+    next_mag: u64,
+    queued: Option<Reading>,
+}
+
+fn normal(rng: &mut ChaCha8Rng) -> f64 {
+    rng.sample::<f64, _>(StandardNormal)
+}
+
+fn normal3(rng: &mut ChaCha8Rng, sigma: f64) -> V3 {
+    V3::new(normal(rng), normal(rng), normal(rng)) * sigma
+}
+
+/// The drive's manoeuvres.
+fn plan(scenario: &VehicleScenario, rng: &mut ChaCha8Rng) -> Vec<Pulse> {
+    let mut pulses = Vec::new();
+    let mut push = |channel, start, duration, change| {
+        pulses.push(Pulse {
+            channel,
+            start,
+            duration,
+            change,
+        })
+    };
+    // Parked 30 s, then the calibration turn at walking pace.
+    let mut t = 30.0;
+    push(Channel::Speed, t, 4.0, 1.0);
+    let direction = if rng.random_bool(0.5) { 1.0 } else { -1.0 };
+    push(Channel::Heading, t + 4.0, 80.0, rad(380.0) * direction);
+    t += 84.0;
+    push(Channel::Speed, t, 4.0, -1.0);
+    t += 4.0 + 20.0;
+    let (mut grade, mut bank) = (0.0_f64, 0.0_f64);
+    let end = scenario.duration_s - 60.0;
+    loop {
+        let speed = rng.random_range(2.0..6.0);
+        let accelerate = rng.random_range(4.0..8.0);
+        let cruise = rng.random_range(20.0..90.0);
+        let brake = rng.random_range(3.0..6.0);
+        if t + accelerate + cruise + brake > end {
+            break;
+        }
+        push(Channel::Speed, t, accelerate, speed);
+        let (cruise_start, cruise_end) = (t + accelerate, t + accelerate + cruise);
+        // Turns, one after another.
+        let mut turn_t = cruise_start + rng.random_range(2.0..10.0);
+        for _ in 0..rng.random_range(0..3) {
+            let duration = rng.random_range(6.0..15.0);
+            if turn_t + duration > cruise_end {
+                break;
+            }
+            let angle =
+                rng.random_range(30.0..120.0) * if rng.random_bool(0.5) { 1.0 } else { -1.0 };
+            push(Channel::Heading, turn_t, duration, rad(angle));
+            turn_t += duration + rng.random_range(3.0..20.0);
+        }
+        // A change of grade and of bank.
+        let duration = rng.random_range(8.0_f64..15.0).min(cruise);
+        let target = rad(rng.random_range(-5.0..5.0));
+        push(Channel::Grade, cruise_start, duration, target - grade);
+        grade = target;
+        let target = rad(rng.random_range(-2.0..2.0));
+        push(Channel::Bank, cruise_start + 1.0, duration, target - bank);
+        bank = target;
+        // Bumps.
+        let mut bump_t = cruise_start + rng.random_range(3.0..15.0);
+        while bump_t + 1.0 < cruise_end {
+            let channel = if rng.random_bool(0.5) {
+                Channel::BumpPitch
+            } else {
+                Channel::BumpRoll
+            };
+            let size =
+                rad(rng.random_range(0.5..1.5)) * if rng.random_bool(0.5) { 1.0 } else { -1.0 };
+            push(channel, bump_t, rng.random_range(0.4..1.0), size);
+            bump_t += rng.random_range(3.0..15.0);
+        }
+        push(Channel::Speed, cruise_end, brake, -speed);
+        t = cruise_end + brake + rng.random_range(10.0..40.0);
+    }
+    // `state` reads the pulses that have started, in order.
+    pulses.sort_by(|a, b| a.start.total_cmp(&b.start));
+    pulses
+}
+
+fn tones(rng: &mut ChaCha8Rng) -> Vec<Tone> {
+    (0..3)
+        .map(|_| Tone {
+            amplitude: rad(rng.random_range(0.02..0.06)),
+            omega: std::f64::consts::TAU * rng.random_range(4.0..12.0),
+            phase: rng.random_range(0.0..std::f64::consts::TAU),
+        })
+        .collect()
+}
+
+/// The kinematic state at one instant.
+struct State {
+    speed: f64,
+    speed_rate: f64,
+    heading: f64,
+    heading_rate: f64,
+    grade: f64,
+    grade_rate: f64,
+    roll: f64,
+    roll_rate: f64,
+    pitch: f64,
+    pitch_rate: f64,
+    moving: bool,
+}
+
+impl VehicleDrive {
+    /// Generates the drive.
+    pub fn new(scenario: VehicleScenario) -> Result<VehicleDrive, String> {
+        if !(scenario.duration_s >= 300.0
+            && scenario.duration_s <= 86_400.0
+            && scenario.imu_rate_hz >= 20.0
+            && scenario.imu_rate_hz <= 1000.0
+            && scenario.mag_rate_hz > 0.0
+            && scenario.mag_rate_hz <= scenario.imu_rate_hz
+            && scenario.field_ut > 0.0
+            && scenario.inclination_deg.abs() < 90.0
+            && scenario.start_t.is_finite())
+        {
+            return Err("duration must be 300 s–24 h, IMU rate 20–1000 Hz, magnetometer rate up to the IMU's, field positive, inclination within ±90°".into());
+        }
+        let mut rng = ChaCha8Rng::seed_from_u64(scenario.seed);
+        let pulses = plan(&scenario, &mut rng);
+        let pitch_tones = tones(&mut rng);
+        let roll_tones = tones(&mut rng);
+        let (inclination, declination) =
+            (rad(scenario.inclination_deg), rad(scenario.declination_deg));
+        let horizontal = scenario.field_ut * inclination.cos();
+        let earth_field_n = V3::new(
+            horizontal * declination.cos(),
+            horizontal * declination.sin(),
+            scenario.field_ut * inclination.sin(),
+        );
+        let d = normal3(&mut rng, 0.08);
+        let o = normal3(&mut rng, 0.04);
+        let soft_iron = Matrix3::new(
+            1.0 + d.x,
+            o.x,
+            o.y,
+            o.x,
+            1.0 + d.y,
+            o.z,
+            o.y,
+            o.z,
+            1.0 + d.z,
+        );
+        let hard_iron_ut = V3::new(
+            15.0 * normal(&mut rng),
+            15.0 * normal(&mut rng),
+            5.0 * normal(&mut rng),
+        );
+        let gyro_bias0 = normal3(&mut rng, rad(0.3));
+        let gyro_warmup = normal3(&mut rng, rad(0.05));
+        let accel_bias = normal3(&mut rng, 0.02);
+        let imu_rng = ChaCha8Rng::seed_from_u64(scenario.seed.wrapping_mul(31).wrapping_add(7));
+        let mag_rng = ChaCha8Rng::seed_from_u64(scenario.seed.wrapping_mul(37).wrapping_add(11));
+        Ok(VehicleDrive {
+            scenario,
+            pulses,
+            pitch_tones,
+            roll_tones,
+            earth_field_n,
+            soft_iron,
+            hard_iron_ut,
+            gyro_bias0,
+            gyro_warmup,
+            gyro_walk: V3::zeros(),
+            accel_bias,
+            vibration: V3::zeros(),
+            imu_rng,
+            mag_rng,
+            sample: 0,
+            next_mag: 0,
+            queued: None,
+        })
+    }
+
+    /// The scenario.
+    pub fn scenario(&self) -> &VehicleScenario {
+        &self.scenario
+    }
+
+    /// The magnetometer's hard iron, µT (for reports).
+    pub fn hard_iron_ut(&self) -> V3 {
+        self.hard_iron_ut
+    }
+
+    fn state(&self, s: f64) -> State {
+        let mut speed = 0.0;
+        let mut speed_rate = 0.0;
+        let mut heading = rad(self.scenario.initial_heading_deg);
+        let mut heading_rate = 0.0;
+        let (mut grade, mut grade_rate) = (0.0, 0.0);
+        let (mut bank, mut bank_rate) = (0.0, 0.0);
+        let (mut bump_pitch, mut bump_pitch_rate) = (0.0, 0.0);
+        let (mut bump_roll, mut bump_roll_rate) = (0.0, 0.0);
+        let mut active = false;
+        for p in self.pulses.iter().take_while(|p| p.start <= s) {
+            let value = p.integral(s);
+            let rate = p.rate(s);
+            let running = s <= p.start + p.duration;
+            match p.channel {
+                Channel::Speed => {
+                    speed += value;
+                    speed_rate += rate;
+                }
+                Channel::Heading => {
+                    heading += value;
+                    heading_rate += rate;
+                    active |= running;
+                }
+                Channel::Grade => {
+                    grade += value;
+                    grade_rate += rate;
+                }
+                Channel::Bank => {
+                    bank += value;
+                    bank_rate += rate;
+                }
+                Channel::BumpPitch => {
+                    bump_pitch += value;
+                    bump_pitch_rate += rate;
+                }
+                Channel::BumpRoll => {
+                    bump_roll += value;
+                    bump_roll_rate += rate;
+                }
+            }
+        }
+        let speed = speed.max(0.0);
+        // Wobble grows with speed: envelope e = min(1, v / v_full).
+        let (envelope, envelope_rate) = if speed < FULL_SHAKE_SPEED_MPS {
+            (
+                speed / FULL_SHAKE_SPEED_MPS,
+                speed_rate / FULL_SHAKE_SPEED_MPS,
+            )
+        } else {
+            (1.0, 0.0)
+        };
+        let wobble = |tones: &[Tone]| -> (f64, f64) {
+            tones.iter().fold((0.0, 0.0), |(a, r), tone| {
+                let x = tone.omega * s + tone.phase;
+                (
+                    a + envelope * tone.amplitude * x.sin(),
+                    r + envelope_rate * tone.amplitude * x.sin()
+                        + envelope * tone.amplitude * tone.omega * x.cos(),
+                )
+            })
+        };
+        let (pitch_wobble, pitch_wobble_rate) = wobble(&self.pitch_tones);
+        let (roll_wobble, roll_wobble_rate) = wobble(&self.roll_tones);
+        State {
+            speed,
+            speed_rate,
+            heading,
+            heading_rate,
+            grade,
+            grade_rate,
+            roll: bank + bump_roll + roll_wobble,
+            roll_rate: bank_rate + bump_roll_rate + roll_wobble_rate,
+            pitch: grade + bump_pitch + pitch_wobble,
+            pitch_rate: grade_rate + bump_pitch_rate + pitch_wobble_rate,
+            moving: speed > 0.01 || active,
+        }
+    }
+
+    /// Gyro bias at `s` seconds (without the random walk).
+    fn gyro_bias(&self, s: f64) -> V3 {
+        self.gyro_bias0 + self.gyro_warmup * (1.0 - (-s / 400.0).exp()) + self.gyro_walk
+    }
+
+    fn imu_event(&mut self) -> VehicleEvent {
+        let dt = 1.0 / self.scenario.imu_rate_hz;
+        let s = self.sample as f64 * dt;
+        self.sample += 1;
+        let st = self.state(s);
+        let attitude: UnitQuaternion<f64> = attitude_from_euler(st.roll, st.pitch, st.heading);
+        // Body rates from Euler rates (Z-Y-X).
+        let (sr, cr) = st.roll.sin_cos();
+        let (sp, cp) = st.pitch.sin_cos();
+        let rate_b = V3::new(
+            st.roll_rate - st.heading_rate * sp,
+            st.pitch_rate * cr + st.heading_rate * sr * cp,
+            -st.pitch_rate * sr + st.heading_rate * cr * cp,
+        );
+        // Acceleration along the path (heading, grade): a = v̇ t̂ + v dt̂/dt.
+        let (sg, cg) = st.grade.sin_cos();
+        let (sh, ch) = st.heading.sin_cos();
+        let tangent = V3::new(cg * ch, cg * sh, -sg);
+        let tangent_rate = V3::new(
+            -sg * st.grade_rate * ch - cg * sh * st.heading_rate,
+            -sg * st.grade_rate * sh + cg * ch * st.heading_rate,
+            -cg * st.grade_rate,
+        );
+        let accel_n = tangent * st.speed_rate + tangent_rate * st.speed;
+        let force_true = attitude.inverse() * (accel_n - V3::new(0.0, 0.0, GRAVITY_MPS2));
+
+        let shake = if st.speed < FULL_SHAKE_SPEED_MPS {
+            0.01 + 0.29 * st.speed / FULL_SHAKE_SPEED_MPS
+        } else {
+            0.3
+        };
+        let rho = 0.7_f64;
+        let innovation = normal3(&mut self.imu_rng, shake * (1.0 - rho * rho).sqrt());
+        self.vibration = self.vibration * rho + innovation;
+        self.gyro_walk += normal3(&mut self.imu_rng, rad(3e-4) * dt.sqrt());
+        let bias = self.gyro_bias(s);
+        let gyro = rate_b + bias + normal3(&mut self.imu_rng, rad(0.05));
+        let accel =
+            force_true + self.accel_bias + self.vibration + normal3(&mut self.imu_rng, 0.02);
+        let t = self.scenario.start_t + s;
+        VehicleEvent {
+            reading: Reading {
+                t,
+                data: SensorData::Imu {
+                    accel_mps2: [accel.x, accel.y, accel.z],
+                    gyro_dps: [deg(gyro.x), deg(gyro.y), deg(gyro.z)],
+                },
+            },
+            truth: Some(VehicleTruth {
+                t,
+                moving: st.moving,
+                speed_mps: st.speed,
+                pitch_deg: deg(st.pitch),
+                roll_deg: deg(st.roll),
+                heading_deg: deg(st.heading).rem_euclid(360.0),
+                gyro_bias_dps: [deg(bias.x), deg(bias.y), deg(bias.z)],
+            }),
+        }
+    }
+
+    fn mag_reading(&mut self, s: f64) -> Reading {
+        let st = self.state(s);
+        let attitude = attitude_from_euler(st.roll, st.pitch, st.heading);
+        let body = attitude.inverse() * self.earth_field_n;
+        let field = self.soft_iron * body + self.hard_iron_ut + normal3(&mut self.mag_rng, 0.3);
+        Reading {
+            t: self.scenario.start_t + s,
+            data: SensorData::Magnetometer {
+                field_ut: [field.x, field.y, field.z],
+            },
+        }
+    }
+}
+
+impl Iterator for VehicleDrive {
+    type Item = VehicleEvent;
+
+    fn next(&mut self) -> Option<VehicleEvent> {
+        if let Some(reading) = self.queued.take() {
+            return Some(VehicleEvent {
+                reading,
+                truth: None,
+            });
+        }
+        let dt = 1.0 / self.scenario.imu_rate_hz;
+        let s = self.sample as f64 * dt;
+        if s > self.scenario.duration_s {
+            return None;
+        }
+        let mag_s = self.next_mag as f64 / self.scenario.mag_rate_hz;
+        let event = self.imu_event();
+        // A magnetometer reading at the same instant follows the IMU one.
+        if mag_s <= s + 1e-9 {
+            self.next_mag += 1;
+            self.queued = Some(self.mag_reading(mag_s));
+        }
+        Some(event)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pulses_integrate_their_rates() {
+        for channel in [Channel::Heading, Channel::BumpRoll] {
+            let p = Pulse {
+                channel,
+                start: 3.0,
+                duration: 2.0,
+                change: 0.7,
+            };
+            let mut integral = 0.0;
+            let step = 1e-4;
+            let mut t = 2.0;
+            while t < 6.0 {
+                integral += p.rate(t + step / 2.0) * step;
+                t += step;
+                assert!((integral - p.integral(t)).abs() < 1e-6, "{channel:?} {t}");
+            }
+        }
+    }
+
+    #[test]
+    fn the_drive_has_stops_turns_and_a_calibration_turn() {
+        let drive = VehicleDrive::new(VehicleScenario::default()).unwrap();
+        let truths: Vec<VehicleTruth> = drive.filter_map(|e| e.truth).collect();
+        assert_eq!(truths.len(), 120_001);
+        let moving = truths.iter().filter(|t| t.moving).count() as f64 / truths.len() as f64;
+        assert!((0.4..0.9).contains(&moving), "{moving}");
+        let stops = truths
+            .windows(2)
+            .filter(|w| w[0].moving && !w[1].moving)
+            .count();
+        assert!(stops >= 8, "{stops}");
+        assert!(!truths[2000].moving && truths[6000].moving);
+        let max_speed = truths.iter().map(|t| t.speed_mps).fold(0.0, f64::max);
+        assert!((2.0..6.0).contains(&max_speed));
+    }
+
+    #[test]
+    fn the_gyros_integrate_to_the_true_attitude() {
+        // The readings minus the true bias, integrated, follow the truth
+        // to within what the white noise random-walks to.
+        let mut drive = VehicleDrive::new(VehicleScenario::default()).unwrap();
+        let mut attitude: Option<UnitQuaternion<f64>> = None;
+        let mut previous: Option<V3> = None;
+        let mut worst = 0.0_f64;
+        for event in drive.by_ref() {
+            let (Some(truth), SensorData::Imu { gyro_dps, .. }) =
+                (event.truth, &event.reading.data)
+            else {
+                continue;
+            };
+            let rate = (V3::from(*gyro_dps) - V3::from(truth.gyro_bias_dps)).map(rad);
+            let q = attitude.get_or_insert_with(|| {
+                attitude_from_euler(
+                    rad(truth.roll_deg),
+                    rad(truth.pitch_deg),
+                    rad(truth.heading_deg),
+                )
+            });
+            if let Some(p) = previous {
+                *q = *q * UnitQuaternion::from_scaled_axis((p + rate) * 0.005);
+            }
+            previous = Some(rate);
+            let truth_q = attitude_from_euler(
+                rad(truth.roll_deg),
+                rad(truth.pitch_deg),
+                rad(truth.heading_deg),
+            );
+            worst = worst.max(deg(q.angle_to(&truth_q)));
+            if truth.t - DEFAULT_START_T > 600.0 {
+                break;
+            }
+        }
+        assert!(worst < 0.5, "{worst}");
+    }
+
+    #[test]
+    fn a_still_imu_reads_gravity_and_its_bias() {
+        let mut drive = VehicleDrive::new(VehicleScenario::default()).unwrap();
+        let first = drive.next().unwrap();
+        let truth = first.truth.unwrap();
+        let SensorData::Imu { accel_mps2, .. } = first.reading.data else {
+            panic!("the first reading is the IMU's");
+        };
+        let norm = V3::from(accel_mps2).norm();
+        assert!((norm - GRAVITY_MPS2).abs() < 0.2, "{norm}");
+        assert!(!truth.moving && truth.speed_mps == 0.0);
+        assert_eq!(
+            drive.next().unwrap().reading.sensor().as_str(),
+            "magnetometer"
+        );
+    }
+}
