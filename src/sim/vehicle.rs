@@ -610,7 +610,7 @@ mod tests {
                 )
             });
             if let Some(p) = previous {
-                *q = *q * UnitQuaternion::from_scaled_axis((p + rate) * 0.005);
+                *q *= UnitQuaternion::from_scaled_axis((p + rate) * 0.005);
             }
             previous = Some(rate);
             let truth_q = attitude_from_euler(
