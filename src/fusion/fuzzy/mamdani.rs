@@ -207,11 +207,15 @@ pub struct Mamdani {
 }
 
 /// Reusable buffers for [`Mamdani::infer_with`], so a caller inferring at
-/// every sample allocates nothing.
+/// every sample allocates nothing. It also remembers the last aggregate:
+/// when the output terms' strengths repeat (a machine that stays fully
+/// static or fully moving), the centroid is not summed again.
 #[derive(Debug, Clone, Default)]
 pub struct Scratch {
     degrees: Vec<f64>,
     strength: Vec<f64>,
+    aggregate: Vec<f64>,
+    last: Option<(Vec<f64>, Option<f64>)>,
 }
 
 impl Mamdani {
@@ -319,17 +323,45 @@ impl Mamdani {
             let w = rule.antecedent.firing(&scratch.degrees, &self.offsets);
             strength[rule.term] = strength[rule.term].max(w);
         }
+        if let Some((last_strength, last_output)) = &scratch.last
+            && last_strength == strength
+        {
+            return Ok(*last_output);
+        }
+        let output = self.centroid(strength, &mut scratch.aggregate);
+        match &mut scratch.last {
+            Some((last_strength, last_output)) => {
+                last_strength.clone_from(strength);
+                *last_output = output;
+            }
+            None => scratch.last = Some((strength.clone(), output)),
+        }
+        Ok(output)
+    }
+
+    /// Centroid of the aggregate max_k min(w_k, μ_k(y)) over the points;
+    /// terms that do not fire add nothing and are skipped.
+    fn centroid(&self, strength: &[f64], aggregate: &mut Vec<f64>) -> Option<f64> {
+        // Plain comparisons rather than f64::min/max: no NaN can occur
+        // here (strengths and tables are in [0, 1]), and they vectorise.
+        aggregate.clear();
+        aggregate.resize(self.points.len(), 0.0);
+        for (&w, table) in strength.iter().zip(&self.tables) {
+            if w > 0.0 {
+                for (mu, &m) in aggregate.iter_mut().zip(table) {
+                    let clipped = if m < w { m } else { w };
+                    if clipped > *mu {
+                        *mu = clipped;
+                    }
+                }
+            }
+        }
         let (mut moment, mut area) = (0.0, 0.0);
-        for (i, &y) in self.points.iter().enumerate() {
-            let mu = strength
-                .iter()
-                .zip(&self.tables)
-                .map(|(&w, table)| w.min(table[i]))
-                .fold(0.0, f64::max);
+        for (&y, &mu) in self.points.iter().zip(aggregate.iter()) {
             moment += y * mu;
             area += mu;
         }
-        Ok((area > 0.0).then(|| moment / area))
+        (area > 0.0).then(|| moment / area)
     }
 }
 

@@ -314,6 +314,10 @@ pub struct FuzzyEngine {
     calibration: MagCalibration,
     /// The newest magnetometer reading: time and raw field, µT.
     magnetometer: Option<(f64, V3)>,
+    /// True heading (rad) from the newest magnetometer reading, calibrated
+    /// and tilt-compensated with the tilt at its time; `None` before the
+    /// calibration.
+    compass: Option<(f64, f64)>,
     stats: FuzzyStats,
     /// Set by the first calibration: take the heading from the compass.
     reheading: bool,
@@ -350,6 +354,7 @@ impl FuzzyEngine {
                 config.mag_refit_every,
             ),
             magnetometer: None,
+            compass: None,
             stats: FuzzyStats::default(),
             reheading: false,
             scratch: Scratch::default(),
@@ -376,6 +381,7 @@ impl FuzzyEngine {
         fresh.solution = engine.solution;
         fresh.calibration = engine.calibration;
         fresh.magnetometer = engine.magnetometer;
+        fresh.compass = engine.compass;
         fresh.stats = engine.stats;
         fresh.reheading = engine.reheading;
         Ok(fresh)
@@ -416,7 +422,21 @@ impl FuzzyEngine {
         }
         if self.magnetometer.is_none_or(|(newest, _)| t >= newest) {
             self.magnetometer = Some((t, field_ut));
+            self.compass = self.calibration.correction().map(|c| {
+                (
+                    t,
+                    magnetic_heading(&c.apply(&field_ut), roll, pitch)
+                        + self.config.declination_rad,
+                )
+            });
         }
+    }
+
+    /// The compass heading (rad) if its reading is young enough at `t`.
+    fn fresh_compass(&self, t: f64) -> Option<f64> {
+        self.compass
+            .filter(|(mag_t, _)| (t - mag_t).abs() <= self.config.max_mag_age_s)
+            .map(|(_, heading)| heading)
     }
 
     /// The newest magnetometer reading young enough at `t`.
@@ -478,7 +498,7 @@ impl FuzzyEngine {
                 && updated.gyro_bias_rad_per_s.iter().all(|x| x.is_finite());
             if finite {
                 self.solution = Some(updated);
-                if self.fresh_field(t).is_some() {
+                if self.fresh_compass(t).is_some() {
                     self.reheading = false;
                 }
             } else {
@@ -533,15 +553,18 @@ impl FuzzyEngine {
         solution.attitude = integrate(&solution.attitude, &mean_rate, dt_s);
         solution.previous_rate_rad_per_s = Some(compensated);
 
-        let (roll, pitch) = tilt_from_accel(&self.window.mean_force());
-        solution.attitude = pull_tilt(
-            &solution.attitude,
-            roll,
-            pitch,
-            static_degree * dt_s / c.tilt_time_constant_s,
-        );
-        let (roll, pitch, _) = solution.attitude.euler_angles();
-        if let Some(heading) = self.compass_heading(t, roll, pitch, false) {
+        if static_degree > 0.0 {
+            let (roll, pitch) = tilt_from_accel(&self.window.mean_force());
+            solution.attitude = pull_tilt(
+                &solution.attitude,
+                roll,
+                pitch,
+                static_degree * dt_s / c.tilt_time_constant_s,
+            );
+        }
+        if (static_degree > 0.0 || self.reheading)
+            && let Some(heading) = self.fresh_compass(t)
+        {
             let gain = if self.reheading {
                 1.0
             } else {
@@ -591,9 +614,7 @@ impl FuzzyEngine {
                 mag_calibration: self.calibration.state(),
                 mag_coverage_deg: self.calibration.coverage_deg(),
                 mag_fit_rms: correction.map(|c| c.fit_rms),
-                mag_heading_deg: self
-                    .compass_heading(t, roll, pitch, false)
-                    .map(|h| deg(h).rem_euclid(360.0)),
+                mag_heading_deg: self.fresh_compass(t).map(|h| deg(h).rem_euclid(360.0)),
                 accel_dev_mps2: signals.accel_dev_mps2,
                 accel_activity_mps2: signals.accel_activity_mps2,
                 gyro_activity_dps: deg(signals.gyro_activity_rad_per_s),
