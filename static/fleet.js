@@ -27,7 +27,7 @@
     }
     const f = latest.fuzzy;
     if (f) {
-      rows.push(['heading', `${tn.fixed(f.heading_deg, 1)}°`]);
+      rows.push(['heading', `${tn.fixed(f.heading_deg, 1)}° · ${f.motion === 'static' ? 'static' : 'moving'} · compass ${f.mag_calibration}`]);
       rows.push(['pitch / roll', `${tn.fixed(f.pitch_deg, 2)}° / ${tn.fixed(f.roll_deg, 2)}°`]);
     }
     return rows;

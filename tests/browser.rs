@@ -20,6 +20,7 @@ use serde_json::{Value, json};
 use tunnelnav::fusion::SensorData;
 use tunnelnav::sim::pipejack::{PipeJackDrive, PipeJackScenario};
 use tunnelnav::sim::tbm::{TbmDrive, TbmScenario};
+use tunnelnav::sim::vehicle::{VehicleDrive, VehicleScenario};
 
 use common::{post_ndjson, server_with_machine};
 
@@ -540,6 +541,107 @@ async fn zupt_page_shows_the_drive_and_the_detector() {
         &format!(
             "const c = document.querySelector('[data-machine=\"{INS}\"]'); \
              return !!c && /distance/.test(c.textContent) && /heading/.test(c.textContent);"
+        ),
+        15,
+    )
+    .await;
+    assert_clean_console(&browser).await;
+    browser.close().await.ok();
+    server.stop().await;
+}
+
+/// A `fuzzy` machine's page: the vehicle's first two minutes (parked, the
+/// calibration turn) are posted, the page opens, the next three minutes
+/// arrive live; the motion status, the compass rose, the calibration
+/// state, and the static degree and gyro bias over time are all shown.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn fuzzy_page_shows_compass_motion_and_calibration() {
+    let Some((driver_program, chromium)) = browser_programs() else {
+        return;
+    };
+    const VAN: &str = "van-browser";
+    let dir = tempfile::tempdir().unwrap();
+    let server = common::TestServer::start(dir.path()).await;
+    let client = reqwest::Client::new();
+    let base = server.url("");
+    common::declare_machine(
+        &client,
+        &base,
+        VAN,
+        r#"{"name": "Service van", "engines": {"fuzzy": {"declination_deg": 2.5}}}"#,
+    )
+    .await;
+    // Five minutes of the vehicle drive, ending now.
+    let now = tunnelnav::server::wall_clock_s();
+    let start_t = (now - 300.0).floor();
+    let drive = VehicleDrive::new(VehicleScenario {
+        start_t,
+        ..VehicleScenario::default()
+    })
+    .unwrap();
+    let lines: Vec<(f64, String)> = drive
+        .take_while(|e| e.reading.t < now)
+        .map(|e| (e.reading.t, e.reading.to_json()))
+        .collect();
+    let split = lines.partition_point(|(t, _)| *t < start_t + 125.0);
+    let (history, live) = lines.split_at(split);
+    let history: Vec<String> = history.iter().map(|(_, l)| l.clone()).collect();
+    for chunk in history.chunks(5000) {
+        post_ndjson(&client, &base, VAN, chunk).await;
+    }
+
+    let driver = Driver::start(&driver_program);
+    let browser = connect(&driver, chromium.as_deref()).await;
+    browser
+        .goto(&format!("{base}/machines/{VAN}"))
+        .await
+        .expect("page loads");
+    wait_for(
+        &browser,
+        "the live socket, the motion status and the calibration",
+        "return document.getElementById('conn-state').dataset.state === 'live' \
+           && ['static', 'moving'].includes(document.getElementById('fz-status').dataset.state) \
+           && document.getElementById('f-calibration').textContent === 'planar' \
+           && /^\\d+\\.\\d$/.test(document.getElementById('f-heading').textContent) \
+           && /^\\d+\\.\\d$/.test(document.getElementById('f-compass').textContent);",
+        15,
+    )
+    .await;
+    let live: Vec<String> = live.iter().map(|(_, l)| l.clone()).collect();
+    for chunk in live.chunks(2000) {
+        post_ndjson(&client, &base, VAN, chunk).await;
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    wait_for(
+        &browser,
+        "static and moving spans, the static degree, the bias and the compass rose",
+        "const f = window.tunnelnavFuzzy; \
+         const points = [...f.state.points.values()]; \
+         const rose = document.getElementById('compass-canvas'); \
+         const pixels = rose.getContext('2d').getImageData(0, 0, rose.width, rose.height).data; \
+         let painted = 0; for (let i = 3; i < pixels.length; i += 4) if (pixels[i] > 0) painted++; \
+         return points.some(p => p.still) && points.some(p => !p.still) \
+           && f.charts.degree.data[1].some(v => v > 0.9) && f.charts.degree.data[1].some(v => v < 0.1) \
+           && f.charts.bias.data[1].length > 200 \
+           && f.charts.attitude.data[3].some(v => v > 0) \
+           && painted > 500 \
+           && /^-?\\d+\\.\\d{4}$/.test(document.getElementById('f-bias-z').textContent);",
+        20,
+    )
+    .await;
+    save_screenshot(&browser, "browser-fuzzy.png").await;
+
+    // The fleet card shows the vehicle's heading.
+    browser
+        .goto(&format!("{base}/"))
+        .await
+        .expect("fleet loads");
+    wait_for(
+        &browser,
+        "the vehicle's fleet card",
+        &format!(
+            "const c = document.querySelector('[data-machine=\"{VAN}\"]'); \
+             return !!c && /heading/.test(c.textContent);"
         ),
         15,
     )

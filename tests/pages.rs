@@ -107,10 +107,12 @@ async fn json(client: &reqwest::Client, url: String) -> Value {
 
 /// The demo at 300× for 8 s is 40 simulated minutes: every machine has
 /// history, the blocked laser has had its first dropout (minutes 10–30),
-/// the INS machine has moved and rested, and a second run on the same
-/// data dir continues after the first (the INS's level and odometer too).
+/// the INS machine has moved and rested, the service vehicle has turned
+/// its magnetometer into calibration and driven, and a second run on the
+/// same data dir continues after the first (the INS's level and odometer
+/// too).
 #[tokio::test]
-async fn demo_posts_four_machines_with_a_dropout_and_resumes() {
+async fn demo_posts_five_machines_with_a_dropout_and_resumes() {
     let dir = tempfile::tempdir().unwrap();
     run_demo(dir.path(), "300", "8");
 
@@ -118,7 +120,7 @@ async fn demo_posts_four_machines_with_a_dropout_and_resumes() {
     let client = reqwest::Client::new();
     let list = json(&client, server.url("/api/v1/machines")).await;
     let machines = list["machines"].as_array().unwrap();
-    assert_eq!(machines.len(), 4, "{list}");
+    assert_eq!(machines.len(), 5, "{list}");
     let mut first_end = 0.0_f64;
     for machine in machines {
         let id = machine["machine"].as_str().unwrap();
@@ -132,6 +134,11 @@ async fn demo_posts_four_machines_with_a_dropout_and_resumes() {
         let estimates = history["estimates"].as_array().unwrap();
         if id == "pipejack-ins" {
             check_ins(estimates);
+            first_end = first_end.max(machine["last_reading_t"].as_f64().unwrap());
+            continue;
+        }
+        if id == "service-van" {
+            check_vehicle(estimates);
             first_end = first_end.max(machine["last_reading_t"].as_f64().unwrap());
             continue;
         }
@@ -200,6 +207,26 @@ async fn demo_posts_four_machines_with_a_dropout_and_resumes() {
 
 /// The INS machine's history: 25 Hz estimates, aligned, with rests and
 /// motion, a height that follows the level, an odometer shown.
+fn check_vehicle(estimates: &[Value]) {
+    // 40 simulated minutes at 25 Hz is 60 000; allow a slow CI machine.
+    assert!(
+        estimates.len() > 20_000,
+        "{} vehicle estimates",
+        estimates.len()
+    );
+    let last = estimates.last().unwrap();
+    assert_eq!(last["engine"], "fuzzy");
+    assert_eq!(last["aligned"], true, "{last}");
+    assert_ne!(last["mag_calibration"], "collecting", "{last}");
+    for motion in ["static", "moving"] {
+        assert!(estimates.iter().any(|e| e["motion"] == motion), "{motion}");
+    }
+    assert!(
+        last["heading_deg"].is_number() && last["mag_heading_deg"].is_number(),
+        "{last}"
+    );
+}
+
 fn check_ins(estimates: &[Value]) {
     // 40 simulated minutes at 25 Hz is 60 000; allow a slow CI machine.
     assert!(

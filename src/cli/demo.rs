@@ -1,7 +1,8 @@
 //! `tunnelnav demo [--listen ADDR] [--data-dir DIR] [--rate R] [--seconds S]`
 //!
 //! The server, three simulated TBMs, a pipe-jacking machine guided by a
-//! FOG INS, and their field gateways, at an accelerated clock: the gateways
+//! FOG INS, a service vehicle with a MEMS IMU and a magnetometer, and
+//! their field gateways, at an accelerated clock: the gateways
 //! post the simulator's readings over real HTTP (NDJSON) and WebSocket as
 //! the clock reaches their time, so a 2-minute laser period shows up every
 //! few seconds. One machine's laser is blocked for 20 minutes of every
@@ -28,6 +29,7 @@ use crate::fusion::{Reading, SensorData, SensorKind};
 use crate::server::{self, Clock, Limits, ServerOptions, wall_clock_s};
 use crate::sim::pipejack::{Case, PipeJackDrive, PipeJackScenario};
 use crate::sim::tbm::{TbmDrive, TbmScenario};
+use crate::sim::vehicle::{VehicleDrive, VehicleScenario};
 use crate::store::Store;
 
 /// The demo machines, declared as a config file would.
@@ -47,6 +49,10 @@ engines = { attitude = {} }
 [machines.pipejack-ins]
 name = "Pipe jack P-7 · FOG INS, zero-velocity updates, odometer"
 engines = { zupt = { latitude_deg = 30, initial_yaw_deg = 30, window_samples = 25, median_samples = 25, odometer_aiding = true } }
+
+[machines.service-van]
+name = "Service vehicle V-2 · MEMS IMU + compass, fuzzy motion expert"
+engines = { fuzzy = { declination_deg = 2.5, mag_inclination_deg = 60, window_samples = 13 } }
 "#;
 
 /// The demo INS's IMU rate: a quarter of the field's 100 Hz keeps the
@@ -71,6 +77,9 @@ enum Kind {
     /// A pipe-jacking machine with a FOG IMU, level and odometer (the
     /// simulator's field case).
     PipeJack,
+    /// A tunnel service vehicle with a MEMS IMU and a magnetometer
+    /// (hour-long simulated shifts, one after another).
+    Vehicle,
 }
 
 struct Gateway {
@@ -82,7 +91,7 @@ struct Gateway {
     laser_blocked: bool,
 }
 
-const GATEWAYS: [Gateway; 4] = [
+const GATEWAYS: [Gateway; 5] = [
     Gateway {
         machine: "tbm-north",
         kind: Kind::Tbm,
@@ -111,7 +120,21 @@ const GATEWAYS: [Gateway; 4] = [
         transport: Transport::Http,
         laser_blocked: false,
     },
+    Gateway {
+        machine: "service-van",
+        kind: Kind::Vehicle,
+        seed: 55,
+        transport: Transport::WebSocket,
+        laser_blocked: false,
+    },
 ];
+
+/// The demo vehicle's IMU and magnetometer rates (a quarter of the
+/// simulator's usual; its window is set to the same half second).
+const DEMO_VEHICLE_IMU_HZ: f64 = 25.0;
+const DEMO_VEHICLE_MAG_HZ: f64 = 5.0;
+/// Length of one simulated shift of the demo vehicle.
+const DEMO_SHIFT_S: f64 = 3600.0;
 
 /// Real time between a gateway's sends.
 const SEND_EVERY: Duration = Duration::from_millis(200);
@@ -163,7 +186,7 @@ pub fn run(args: DemoArgs) -> Result<(), CliError> {
         let (state, listener) = start(options, args.listen).await?;
         let address = listener.local_addr()?;
         println!(
-            "tunnelnav demo: open http://{address}/ in a browser. Four simulated machines, \
+            "tunnelnav demo: open http://{address}/ in a browser. Five simulated machines, \
              server clock ×{} (a 2-minute laser period every {:.0} s), data in {}. Ctrl-C stops.",
             args.rate,
             120.0 / args.rate,
@@ -284,7 +307,60 @@ fn readings(
             })?
             .map(|e| e.reading),
         ),
+        Kind::Vehicle => Box::new(VehicleShifts::new(gateway.seed, start_t)?),
     })
+}
+
+/// The demo vehicle's readings: simulated shifts back to back, each
+/// starting where the last one ended (time and heading).
+struct VehicleShifts {
+    seed: u64,
+    drive: VehicleDrive,
+    end_t: f64,
+    heading_deg: f64,
+}
+
+impl VehicleShifts {
+    fn shift(seed: u64, start_t: f64, heading_deg: f64) -> Result<VehicleDrive, String> {
+        VehicleDrive::new(VehicleScenario {
+            seed,
+            start_t,
+            duration_s: DEMO_SHIFT_S,
+            imu_rate_hz: DEMO_VEHICLE_IMU_HZ,
+            mag_rate_hz: DEMO_VEHICLE_MAG_HZ,
+            initial_heading_deg: heading_deg,
+            ..VehicleScenario::default()
+        })
+    }
+
+    fn new(seed: u64, start_t: f64) -> Result<VehicleShifts, String> {
+        let heading_deg = VehicleScenario::default().initial_heading_deg;
+        Ok(VehicleShifts {
+            seed,
+            drive: Self::shift(seed, start_t, heading_deg)?,
+            end_t: start_t,
+            heading_deg,
+        })
+    }
+}
+
+impl Iterator for VehicleShifts {
+    type Item = Reading;
+
+    fn next(&mut self) -> Option<Reading> {
+        loop {
+            if let Some(event) = self.drive.next() {
+                self.end_t = event.reading.t;
+                if let Some(truth) = event.truth {
+                    self.heading_deg = truth.heading_deg;
+                }
+                return Some(event.reading);
+            }
+            self.seed += 1;
+            let start_t = self.end_t + 1.0 / DEMO_VEHICLE_IMU_HZ;
+            self.drive = Self::shift(self.seed, start_t, self.heading_deg).ok()?;
+        }
+    }
 }
 
 /// One field gateway: sends the simulator's readings as the clock reaches

@@ -39,6 +39,9 @@ pub struct MachinePage {
     /// The `zupt` engine's detector and decision latency (about), if the
     /// machine runs it (plan, profile, distance, detector state).
     zupt: Option<ZuptView>,
+    /// The machine runs the `fuzzy` engine (compass, static degree, bias,
+    /// magnetometer calibration).
+    fuzzy: bool,
 }
 
 struct ZuptView {
@@ -99,6 +102,7 @@ pub async fn machine(State(state): State<SharedState>, Path(id): Path<String>) -
                     min_zv_s: pipeline.min_run_s,
                 }
             }),
+        fuzzy: machine.spec.engines.contains_key(&EngineKind::Fuzzy),
     }
     .into_response()
 }
@@ -127,6 +131,7 @@ const ASSETS: &[Asset] = &[
     asset!("fleet.js", "text/javascript; charset=utf-8"),
     asset!("attitude.js", "text/javascript; charset=utf-8"),
     asset!("zupt.js", "text/javascript; charset=utf-8"),
+    asset!("fuzzy.js", "text/javascript; charset=utf-8"),
     asset!(
         "vendor/uplot/uPlot.iife.min.js",
         "text/javascript; charset=utf-8"

@@ -174,6 +174,11 @@ pub struct VehicleDrive {
     sample: u64,
     next_mag: u64,
     queued: Option<Reading>,
+    /// Pulses started and not yet ended; the first not started; and, per
+    /// channel, the total change of the pulses that have ended.
+    active: Vec<usize>,
+    next_pulse: usize,
+    settled: [f64; 6],
 }
 
 fn normal(rng: &mut ChaCha8Rng) -> f64 {
@@ -349,6 +354,9 @@ impl VehicleDrive {
             sample: 0,
             next_mag: 0,
             queued: None,
+            active: Vec::new(),
+            next_pulse: 0,
+            settled: [0.0; 6],
         })
     }
 
@@ -362,17 +370,40 @@ impl VehicleDrive {
         self.hard_iron_ut
     }
 
+    /// Moves the pulses that have started by `s` into the active set and
+    /// the ones that have ended out of it, into the settled totals. `s`
+    /// only grows.
+    fn advance_to(&mut self, s: f64) {
+        while let Some(p) = self.pulses.get(self.next_pulse)
+            && p.start <= s
+        {
+            self.active.push(self.next_pulse);
+            self.next_pulse += 1;
+        }
+        let (pulses, settled) = (&self.pulses, &mut self.settled);
+        self.active.retain(|&i| {
+            let p = &pulses[i];
+            let ended = s > p.start + p.duration;
+            if ended {
+                settled[p.channel as usize] += p.integral(p.start + p.duration);
+            }
+            !ended
+        });
+    }
+
+    /// The kinematic state at `s`, once [`VehicleDrive::advance_to`] `s`.
     fn state(&self, s: f64) -> State {
-        let mut speed = 0.0;
+        let settled = |c: Channel| self.settled[c as usize];
+        let mut speed = settled(Channel::Speed);
         let mut speed_rate = 0.0;
-        let mut heading = rad(self.scenario.initial_heading_deg);
+        let mut heading = rad(self.scenario.initial_heading_deg) + settled(Channel::Heading);
         let mut heading_rate = 0.0;
-        let (mut grade, mut grade_rate) = (0.0, 0.0);
-        let (mut bank, mut bank_rate) = (0.0, 0.0);
-        let (mut bump_pitch, mut bump_pitch_rate) = (0.0, 0.0);
-        let (mut bump_roll, mut bump_roll_rate) = (0.0, 0.0);
+        let (mut grade, mut grade_rate) = (settled(Channel::Grade), 0.0);
+        let (mut bank, mut bank_rate) = (settled(Channel::Bank), 0.0);
+        let (mut bump_pitch, mut bump_pitch_rate) = (settled(Channel::BumpPitch), 0.0);
+        let (mut bump_roll, mut bump_roll_rate) = (settled(Channel::BumpRoll), 0.0);
         let mut active = false;
-        for p in self.pulses.iter().take_while(|p| p.start <= s) {
+        for p in self.active.iter().map(|&i| &self.pulses[i]) {
             let value = p.integral(s);
             let rate = p.rate(s);
             let running = s <= p.start + p.duration;
@@ -450,6 +481,7 @@ impl VehicleDrive {
         let dt = 1.0 / self.scenario.imu_rate_hz;
         let s = self.sample as f64 * dt;
         self.sample += 1;
+        self.advance_to(s);
         let st = self.state(s);
         let attitude: UnitQuaternion<f64> = attitude_from_euler(st.roll, st.pitch, st.heading);
         // Body rates from Euler rates (Z-Y-X).
@@ -537,10 +569,11 @@ impl Iterator for VehicleDrive {
         }
         let mag_s = self.next_mag as f64 / self.scenario.mag_rate_hz;
         let event = self.imu_event();
-        // A magnetometer reading at the same instant follows the IMU one.
+        // A magnetometer reading follows the IMU one of its instant (or the
+        // first after it, when the rates do not divide): it is taken then.
         if mag_s <= s + 1e-9 {
             self.next_mag += 1;
-            self.queued = Some(self.mag_reading(mag_s));
+            self.queued = Some(self.mag_reading(s));
         }
         Some(event)
     }
