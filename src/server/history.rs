@@ -270,16 +270,39 @@ pub async fn readings(
         .into_response())
 }
 
-/// `GET /api/v1/machines/{machine}/model`.
+/// `?engine=` of the model endpoint.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelQuery {
+    engine: Option<String>,
+}
+
+/// `GET /api/v1/machines/{machine}/model[?engine=]`: the `attitude`
+/// engine's learned pitch-error model, or with `engine=fuzzy` (or on a
+/// machine without `attitude`) the `fuzzy` engine's magnetometer
+/// calibration.
 pub async fn model(
     State(state): State<SharedState>,
     Path(machine): Path<String>,
+    params: Result<Query<ModelQuery>, QueryRejection>,
 ) -> Result<Response, ApiError> {
     let machine = state.machine(&machine)?;
+    let params = query(params)?;
     let mut models = machine.models().await?;
-    let mut model = models.remove(&EngineKind::Attitude).ok_or_else(|| {
+    let engine = match params.engine.as_deref() {
+        Some(name) => name
+            .parse()
+            .map_err(|e: crate::fusion::UnknownEngine| ApiError::BadRequest(e.to_string()))?,
+        None if models.contains_key(&EngineKind::Attitude) => EngineKind::Attitude,
+        None => models
+            .keys()
+            .next()
+            .copied()
+            .unwrap_or(EngineKind::Attitude),
+    };
+    let mut model = models.remove(&engine).ok_or_else(|| {
         ApiError::NotFound(format!(
-            "machine `{}` has no `attitude` engine, so no learned model",
+            "machine `{}` has no `{engine}` engine with a model (attitude: the learned pitch error; fuzzy: the magnetometer calibration)",
             machine.spec.id
         ))
     })?;
