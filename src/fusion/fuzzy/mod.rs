@@ -75,7 +75,7 @@ pub const PARAMS: &[ParamSpec] = &[
         0.0,
         100.0,
         "m/s²",
-        "|mean ‖f‖ − g| below this is fully `low`",
+        "deviation of the window's mean ‖f‖ from g below this is fully `low`",
     ),
     real(
         "accel_dev_moving_mps2",
@@ -83,7 +83,7 @@ pub const PARAMS: &[ParamSpec] = &[
         0.0,
         100.0,
         "m/s²",
-        "|mean ‖f‖ − g| above this is fully `high`",
+        "deviation of the window's mean ‖f‖ from g above this is fully `high`",
     ),
     real(
         "accel_activity_still_mps2",

@@ -384,6 +384,34 @@ mod tests {
     }
 
     #[test]
+    fn the_discretisation_moves_the_static_degree_only_slightly() {
+        // 201 points (the default) against 20 001 over the inputs' span:
+        // the centroid moves by less than 10⁻⁴ (README: discretisation).
+        let coarse = motion_expert(&config()).unwrap();
+        let fine = motion_expert(&MotionConfig {
+            resolution: 20_001,
+            ..config()
+        })
+        .unwrap();
+        let mut worst = 0.0_f64;
+        for i in 0..=30 {
+            for j in 0..=30 {
+                let signals = MotionSignals {
+                    accel_dev_mps2: 0.01 * f64::from(i),
+                    accel_activity_mps2: 0.008 * f64::from(j),
+                    gyro_activity_rad_per_s: 0.001 * f64::from((i + j) % 31),
+                };
+                let a = static_degree(&coarse, &signals, &mut Scratch::default()).unwrap();
+                let b = static_degree(&fine, &signals, &mut Scratch::default()).unwrap();
+                worst = worst.max((a - b).abs());
+            }
+        }
+        eprintln!("largest difference: {worst}");
+        assert!(worst < 1e-4, "{worst}");
+        assert!(worst > 0.0, "the discretisation should show");
+    }
+
+    #[test]
     fn window_sums_match_a_direct_computation() {
         let mut window = MotionWindow::new(7);
         let mut all = Vec::new();
