@@ -203,8 +203,40 @@ const tn = (function () {
     return typeof v === 'number' && isFinite(v);
   }
 
+  // A uPlot drawClear hook shading the spans where `on(point)` holds, over
+  // the time-sorted `points()` (zero velocity, static).
+  function shadeSpans(points, on) {
+    return (u) => {
+      const ctx = u.ctx;
+      ctx.save();
+      ctx.fillStyle = css('--still');
+      const top = u.bbox.top, height = u.bbox.height;
+      let from = null, previous = null;
+      const flush = (to) => {
+        const x0 = Math.max(u.bbox.left, u.valToPos(from, 'x', true));
+        const x1 = Math.min(u.bbox.left + u.bbox.width, u.valToPos(to, 'x', true));
+        if (x1 > x0) ctx.fillRect(x0, top, Math.max(1, x1 - x0), height);
+      };
+      for (const p of points()) {
+        if (on(p) && from === null) from = p.t;
+        if (!on(p) && from !== null) { flush(p.t); from = null; }
+        previous = p;
+      }
+      if (from !== null && previous) flush(previous.t);
+      ctx.restore();
+    };
+  }
+
+  // A uPlot line series; uPlot takes an explicit `undefined` as a value,
+  // so scale and dash are only set when given in `extra`.
+  function line(label, color, unit, digits, extra) {
+    return Object.assign({ label, stroke: color, width: 1.5, spanGaps: true, points: { show: false },
+      value: (u, v) => (v == null ? '—' : `${v.toFixed(digits)} ${unit}`) }, extra || {});
+  }
+
   return {
     clock, fixed, mmPerM, duration, timeOfDay, json, ndjson, setText, css,
     showConnection, follow, showSensors, pollStatus, windowButtons, axis, num,
+    shadeSpans, line,
   };
 })();

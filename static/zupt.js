@@ -11,7 +11,7 @@
   const MACHINE = root.dataset.machine;
   const API = `/api/v1/machines/${encodeURIComponent(MACHINE)}`;
   const $ = (id) => document.getElementById(id);
-  const { fixed, setText, num, axis } = tn;
+  const { fixed, setText, num, axis, line } = tn;
 
   const HISTORY_POINTS = 1500, TRACK_POINTS = 2000, BACKFILL_POINTS = 5000;
   const CHART_HEIGHT = 240, SIGMA_HEIGHT = 160;
@@ -177,35 +177,10 @@
 
   // ---- charts -------------------------------------------------------------
   // Shades the zero-velocity spans of the held points.
-  function shadeStill(u) {
-    const ctx = u.ctx;
-    ctx.save();
-    ctx.fillStyle = tn.css('--still');
-    const top = u.bbox.top, height = u.bbox.height;
-    let from = null, previous = null;
-    const flush = (to) => {
-      const x0 = Math.max(u.bbox.left, u.valToPos(from, 'x', true));
-      const x1 = Math.min(u.bbox.left + u.bbox.width, u.valToPos(to, 'x', true));
-      if (x1 > x0) ctx.fillRect(x0, top, Math.max(1, x1 - x0), height);
-    };
-    for (const p of [...state.points.values()].sort((a, b) => a.t - b.t)) {
-      if (p.zv && from === null) from = p.t;
-      if (!p.zv && from !== null) { flush(p.t); from = null; }
-      previous = p;
-    }
-    if (from !== null && previous) flush(previous.t);
-    ctx.restore();
-  }
+  const shadeStill = tn.shadeSpans(() => [...state.points.values()].sort((a, b) => a.t - b.t), (p) => p.zv);
 
   function timeRange(u, lo, hi) {
     return [windowStart(), Math.max(tn.clock.now(), hi || 0)];
-  }
-
-  // A line series; uPlot takes an explicit `undefined` as a value, so
-  // scale and dash are only set when given.
-  function line(label, color, unit, digits, extra) {
-    return Object.assign({ label, stroke: color, width: 1.5, spanGaps: true, points: { show: false },
-      value: (u, v) => (v == null ? '—' : `${v.toFixed(digits)} ${unit}`) }, extra || {});
   }
 
   function createCharts() {

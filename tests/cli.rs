@@ -157,6 +157,21 @@ fn bad_arguments_are_refused_with_a_clear_message() {
         ),
         (&["simulate", "tbm", "--hours", "0"], "hours must be > 0"),
         (
+            &["simulate", "vehicle", "--minutes", "2"],
+            "duration must be 300 s–24 h",
+        ),
+        (
+            &[
+                "replay",
+                "--engine",
+                "fuzzy",
+                "--param",
+                "gyro_activity_still_dps=5",
+                "-",
+            ],
+            "gyro_activity_moving_dps (1) must be above gyro_activity_still_dps (5)",
+        ),
+        (
             &["eval", "attitude", "--hours", "2", "--learning-h", "3"],
             "shorter than the 2 h drive",
         ),
@@ -195,6 +210,26 @@ fn eval_prints_the_table_with_every_method() {
         "dropout 1 max",
     ] {
         assert!(table.contains(method), "{table}");
+    }
+}
+
+#[test]
+fn eval_fuzzy_prints_the_engine_and_its_baselines() {
+    let out = tunnelnav()
+        .args(["eval", "fuzzy", "--minutes", "6"])
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let table = String::from_utf8(out.stdout).unwrap();
+    for row in [
+        "fuzzy engine",
+        "gyro only",
+        "accelerometer only",
+        "raw compass",
+        "motion status",
+        "calibrated (planar)",
+    ] {
+        assert!(table.contains(row), "{table}");
     }
 }
 

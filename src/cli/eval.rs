@@ -74,46 +74,32 @@ pub fn run(target: EvalTarget) -> Result<(), CliError> {
                 crate::fusion::fuzzy::PARAMS,
                 args.params.iter().map(String::as_str),
             )?;
-            for seed in args.drive.seed..args.drive.seed.saturating_add(args.seeds.max(1)) {
+            each_seed(args.drive.seed, args.seeds, args.json, |seed| {
                 let mut scenario = args.drive.scenario();
                 scenario.seed = seed;
                 let evaluation = fuzzy::evaluate(&fuzzy::FuzzyEvalConfig {
                     scenario,
                     params: params.clone(),
                 })?;
-                if args.json {
-                    println!(
-                        "{}",
-                        serde_json::to_string(&evaluation).map_err(std::io::Error::other)?
-                    );
-                } else {
-                    print!("{}", fuzzy::render_table(&evaluation));
-                }
-            }
-            Ok(())
+                let table = fuzzy::render_table(&evaluation);
+                Ok((serde_json::to_value(&evaluation), table))
+            })
         }
         EvalTarget::Zupt(args) => {
             let params = Params::from_assignments(
                 crate::fusion::zupt::PARAMS,
                 args.params.iter().map(String::as_str),
             )?;
-            for seed in args.drive.seed..args.drive.seed.saturating_add(args.seeds.max(1)) {
+            each_seed(args.drive.seed, args.seeds, args.json, |seed| {
                 let mut scenario = args.drive.scenario();
                 scenario.seed = seed;
                 let evaluation = zupt::evaluate(&zupt::ZuptEvalConfig {
                     scenario,
                     params: params.clone(),
                 })?;
-                if args.json {
-                    println!(
-                        "{}",
-                        serde_json::to_string(&evaluation).map_err(std::io::Error::other)?
-                    );
-                } else {
-                    print!("{}", zupt::render_table(&evaluation));
-                }
-            }
-            Ok(())
+                let table = zupt::render_table(&evaluation);
+                Ok((serde_json::to_value(&evaluation), table))
+            })
         }
         EvalTarget::Attitude(args) => {
             let mut scenario = args.drive.scenario();
@@ -140,4 +126,23 @@ pub fn run(target: EvalTarget) -> Result<(), CliError> {
             Ok(())
         }
     }
+}
+
+/// Runs an evaluation for `seeds` seeds from `first`, printing each as a
+/// JSON line or its table.
+fn each_seed(
+    first: u64,
+    seeds: u64,
+    json: bool,
+    mut evaluate: impl FnMut(u64) -> Result<(serde_json::Result<serde_json::Value>, String), CliError>,
+) -> Result<(), CliError> {
+    for seed in first..first.saturating_add(seeds.max(1)) {
+        let (value, table) = evaluate(seed)?;
+        if json {
+            println!("{}", value.map_err(std::io::Error::other)?);
+        } else {
+            print!("{table}");
+        }
+    }
+    Ok(())
 }
