@@ -439,21 +439,16 @@ impl FuzzyEngine {
             .map(|(_, heading)| heading)
     }
 
-    /// The newest magnetometer reading young enough at `t`.
-    fn fresh_field(&self, t: f64) -> Option<V3> {
-        self.magnetometer
-            .filter(|(mag_t, _)| (t - mag_t).abs() <= self.config.max_mag_age_s)
-            .map(|(_, field)| field)
-    }
-
-    /// True heading (rad) from the compass at `t` for this tilt: calibrated
-    /// if the calibration exists, raw if `raw_allowed`.
-    fn compass_heading(&self, t: f64, roll: f64, pitch: f64, raw_allowed: bool) -> Option<f64> {
-        let field = self.fresh_field(t)?;
+    /// True heading (rad) at `t` from the newest magnetometer reading, for
+    /// this tilt, calibrated if the calibration exists and raw if not: the
+    /// best there is at alignment.
+    fn any_compass_heading(&self, t: f64, roll: f64, pitch: f64) -> Option<f64> {
+        let (_, field) = self
+            .magnetometer
+            .filter(|(mag_t, _)| (t - mag_t).abs() <= self.config.max_mag_age_s)?;
         let corrected = match self.calibration.correction() {
             Some(c) => c.apply(&field),
-            None if raw_allowed => field,
-            None => return None,
+            None => field,
         };
         Some(magnetic_heading(&corrected, roll, pitch) + self.config.declination_rad)
     }
@@ -525,7 +520,7 @@ impl FuzzyEngine {
             return;
         }
         let (roll, pitch) = tilt_from_accel(&self.window.mean_force());
-        let yaw = self.compass_heading(t, roll, pitch, true).unwrap_or(0.0);
+        let yaw = self.any_compass_heading(t, roll, pitch).unwrap_or(0.0);
         self.solution = Some(Solution {
             attitude: attitude_from_euler(roll, pitch, yaw),
             gyro_bias_rad_per_s: self.window.mean_rate(),
@@ -591,7 +586,7 @@ impl FuzzyEngine {
             Some(s) => (s.attitude, s.gyro_bias_rad_per_s, true),
             None => {
                 let (roll, pitch) = tilt_from_accel(&self.window.mean_force());
-                let yaw = self.compass_heading(t, roll, pitch, true).unwrap_or(0.0);
+                let yaw = self.any_compass_heading(t, roll, pitch).unwrap_or(0.0);
                 (attitude_from_euler(roll, pitch, yaw), V3::zeros(), false)
             }
         };
