@@ -18,6 +18,7 @@
 //! - [`server`]: axum routes, shared state, errors, live stream, metrics.
 //! - [`cli`]: one file per subcommand; `main.rs` only parses and dispatches.
 
+pub mod auth;
 pub mod cli;
 pub mod config;
 pub mod eval;

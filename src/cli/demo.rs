@@ -156,6 +156,10 @@ pub struct DemoArgs {
     /// Stop after this many real seconds (default: until Ctrl-C).
     #[arg(long)]
     pub seconds: Option<f64>,
+    /// Serve the demo on an address other than loopback without access
+    /// tokens (its simulated gateways send none).
+    #[arg(long)]
+    pub allow_no_auth: bool,
 }
 
 pub fn run(args: DemoArgs) -> Result<(), CliError> {
@@ -183,7 +187,7 @@ pub fn run(args: DemoArgs) -> Result<(), CliError> {
             limits: Limits::default(),
             clock,
         };
-        let (state, listener) = start(options, args.listen).await?;
+        let (state, listener) = start(options, args.listen, args.allow_no_auth).await?;
         let address = listener.local_addr()?;
         println!(
             "tunnelnav demo: open http://{address}/ in a browser. Five simulated machines, \

@@ -7,6 +7,7 @@ pub mod params;
 pub mod replay;
 pub mod serve;
 pub mod simulate;
+pub mod token;
 
 use clap::{Parser, Subcommand};
 
@@ -36,6 +37,9 @@ pub enum Command {
     Load(load::LoadArgs),
     /// The server with simulated machines and gateways at an accelerated clock.
     Demo(demo::DemoArgs),
+    /// Access tokens: create, list, revoke.
+    #[command(subcommand)]
+    Token(token::TokenCommand),
 }
 
 /// Why a command failed.
@@ -66,6 +70,10 @@ pub enum CliError {
     Server(#[from] crate::server::ServerError),
     #[error(transparent)]
     Store(#[from] crate::store::StoreError),
+    #[error(transparent)]
+    Token(#[from] crate::auth::TokenError),
+    #[error("{0}")]
+    Refused(String),
 }
 
 /// Runs a parsed command line.
@@ -78,5 +86,6 @@ pub fn run(cli: Cli) -> Result<(), CliError> {
         Command::Serve(args) => serve::run(args),
         Command::Load(args) => load::run(args),
         Command::Demo(args) => demo::run(args),
+        Command::Token(command) => token::run(command),
     }
 }

@@ -20,6 +20,10 @@ pub struct ServeArgs {
     /// TOML file declaring machines (see README).
     #[arg(long)]
     pub config: Option<PathBuf>,
+    /// Serve with no access tokens on an address other than loopback:
+    /// anyone who can reach the port may read, post and declare machines.
+    #[arg(long)]
+    pub allow_no_auth: bool,
 }
 
 pub fn run(args: ServeArgs) -> Result<(), CliError> {
@@ -38,7 +42,7 @@ pub fn run(args: ServeArgs) -> Result<(), CliError> {
             limits: Limits::default(),
             clock: Clock::system(),
         };
-        let (state, listener) = start(options, args.listen).await?;
+        let (state, listener) = start(options, args.listen, args.allow_no_auth).await?;
         server::run(listener, state, shutdown_signal()).await?;
         tracing::info!("stopped");
         Ok(())
@@ -48,13 +52,42 @@ pub fn run(args: ServeArgs) -> Result<(), CliError> {
 /// Opens the store, restores the machines, binds `listen` and prints
 /// `listening on http://ADDR` as the first line on stdout (for scripts and
 /// tests that pass port 0). Shared by `serve` and `demo`.
+///
+/// Beyond loopback a server needs access tokens: without any it refuses
+/// to start unless `allow_no_auth` (and then says so loudly); with
+/// `allow_no_auth` off it keeps demanding a token even if every token is
+/// later revoked.
 pub async fn start(
     options: ServerOptions,
     listen: SocketAddr,
+    allow_no_auth: bool,
 ) -> Result<(SharedState, tokio::net::TcpListener), CliError> {
     server::metrics::install();
     let data_dir = options.data_dir.clone();
+    if !listen.ip().is_loopback() {
+        let conn = crate::store::Store::connect(&data_dir)?;
+        let tokens = crate::auth::active(&conn)?;
+        if tokens.is_empty() && !allow_no_auth {
+            return Err(CliError::Refused(format!(
+                "refusing to serve on {listen} without access tokens: anyone who can reach \
+                 the port could read, post readings and declare machines. Create tokens \
+                 (`tunnelnav token create --data-dir {} --scope admin`, one `--scope ingest \
+                 --machine ID` per gateway), serve on 127.0.0.1 behind a reverse proxy, or pass \
+                 --allow-no-auth to serve openly anyway",
+                data_dir.display()
+            )));
+        }
+        if tokens.is_empty() {
+            tracing::warn!(%listen, "SERVING WITHOUT AUTHENTICATION beyond loopback (--allow-no-auth): anyone who can reach the port may read, post readings and declare machines");
+            eprintln!(
+                "WARNING: serving on {listen} without access tokens (--allow-no-auth): anyone who can reach the port may read, post readings and declare machines"
+            );
+        }
+    }
     let state = AppState::start(options).await?;
+    if !listen.ip().is_loopback() && !allow_no_auth {
+        state.gate.insist();
+    }
     let listener = tokio::net::TcpListener::bind(listen)
         .await
         .map_err(|source| CliError::File {

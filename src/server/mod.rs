@@ -1,6 +1,7 @@
 //! The HTTP server: routes, shared state, start-up and shutdown. Handlers
 //! only translate: extract, ask the store or a machine's task, map errors.
 
+pub mod auth;
 mod clock;
 mod error;
 mod history;
@@ -96,6 +97,8 @@ pub struct AppState {
     pub clock: Clock,
     /// Turns true when the server stops: live sockets close.
     shutdown: watch::Sender<bool>,
+    /// Access tokens in force.
+    pub gate: auth::Gate,
 }
 
 pub type SharedState = Arc<AppState>;
@@ -151,6 +154,7 @@ impl AppState {
             limits: options.limits,
             clock: options.clock,
             shutdown: watch::channel(false).0,
+            gate: auth::Gate::default(),
         }))
     }
 
@@ -255,8 +259,14 @@ pub fn router(state: SharedState) -> Router {
             get(history::estimates),
         )
         .route("/api/v1/machines/{machine}/model", get(history::model))
+        .route("/login", get(auth::login_page).post(auth::login))
+        .route("/logout", axum::routing::post(auth::logout))
         .fallback(not_found)
         .method_not_allowed_fallback(method_not_allowed)
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            auth::require,
+        ))
         .layer(DefaultBodyLimit::max(limit))
         .layer(TraceLayer::new_for_http())
         .with_state(state)

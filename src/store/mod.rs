@@ -217,6 +217,22 @@ impl Store {
         })
     }
 
+    /// A plain connection to the database in `data_dir` (created and
+    /// migrated if need be), for commands that run beside a server, such
+    /// as `tunnelnav token`: WAL lets them share the file.
+    pub fn connect(data_dir: &Path) -> Result<Connection, StoreError> {
+        std::fs::create_dir_all(data_dir).map_err(|source| StoreError::DataDir {
+            path: data_dir.display().to_string(),
+            source,
+        })?;
+        let mut conn = Connection::open(data_dir.join(DB_FILE))?;
+        conn.pragma_update(None, "journal_mode", "WAL")?;
+        conn.pragma_update(None, "synchronous", "FULL")?;
+        conn.busy_timeout(std::time::Duration::from_secs(5))?;
+        schema::migrate(&mut conn)?;
+        Ok(conn)
+    }
+
     /// The database file.
     pub fn path(&self) -> &Path {
         &self.path

@@ -64,6 +64,18 @@ const MIGRATIONS: &[&str] = &[
         state TEXT NOT NULL
     );
     ",
+    // 2: access tokens, stored as SHA-256 hashes (never the token itself).
+    "
+    CREATE TABLE tokens (
+        id INTEGER PRIMARY KEY,
+        name TEXT NOT NULL,
+        scope TEXT NOT NULL CHECK (scope IN ('ingest', 'read', 'admin')),
+        machine TEXT,
+        hash TEXT NOT NULL UNIQUE,
+        created_t REAL NOT NULL,
+        revoked_t REAL
+    );
+    ",
 ];
 
 /// The schema version this build writes.

@@ -1,0 +1,282 @@
+//! Access tokens: what a token may do, how tokens are made, stored and
+//! checked. Plain logic and SQL on a connection; the HTTP side is
+//! `server::auth`.
+//!
+//! A token is `tnv_` followed by 64 hex digits (256 random bits from the
+//! operating system's generator). Only its SHA-256 is stored; the token
+//! itself is printed once, when created. Scopes:
+//! - `ingest` for one named machine: post its readings, use its ingest
+//!   WebSocket (a field gateway);
+//! - `read`: the dashboard, history, exports, live sockets, metrics;
+//! - `admin`: everything, including declaring machines.
+
+use rusqlite::{Connection, OptionalExtension, params};
+use serde::Serialize;
+use sha2::{Digest, Sha256};
+
+/// What a token may do.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Scope {
+    Ingest,
+    Read,
+    Admin,
+}
+
+impl Scope {
+    /// The stored and command-line name.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Scope::Ingest => "ingest",
+            Scope::Read => "read",
+            Scope::Admin => "admin",
+        }
+    }
+
+    /// Parses a name.
+    pub fn from_name(name: &str) -> Option<Scope> {
+        [Scope::Ingest, Scope::Read, Scope::Admin]
+            .into_iter()
+            .find(|s| s.as_str() == name)
+    }
+}
+
+/// What a request needs.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Need {
+    /// Nothing: liveness, static assets, the login page.
+    Nothing,
+    /// Reading anything.
+    Read,
+    /// Sending readings of this machine.
+    Ingest(String),
+    /// Declaring machines.
+    Admin,
+}
+
+/// A stored token (without its hash).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Token {
+    pub id: i64,
+    pub name: String,
+    pub scope: Scope,
+    /// The machine an `ingest` token is for.
+    pub machine: Option<String>,
+    pub created_t: f64,
+    pub revoked_t: Option<f64>,
+}
+
+impl Token {
+    /// Whether this token grants `need`.
+    pub fn allows(&self, need: &Need) -> bool {
+        match (self.scope, need) {
+            (_, Need::Nothing) | (Scope::Admin, _) => true,
+            (Scope::Read, Need::Read) => true,
+            (Scope::Ingest, Need::Ingest(machine)) => self.machine.as_deref() == Some(machine),
+            _ => false,
+        }
+    }
+}
+
+/// What a request to `method path` needs (paths as routed by the server).
+pub fn need(method: &axum::http::Method, path: &str) -> Need {
+    let segments: Vec<&str> = path.trim_matches('/').split('/').collect();
+    match segments.as_slice() {
+        ["healthz"] | ["login"] | ["logout"] => Need::Nothing,
+        ["static", ..] => Need::Nothing,
+        ["api", "v1", "machines", machine] if method == axum::http::Method::PUT => Need::Admin,
+        ["api", "v1", "machines", machine, "readings"] if method == axum::http::Method::POST => {
+            Need::Ingest((*machine).to_string())
+        }
+        ["api", "v1", "machines", machine, "ingest"] => Need::Ingest((*machine).to_string()),
+        _ if method == axum::http::Method::GET || method == axum::http::Method::HEAD => Need::Read,
+        // Anything else that changes state (and unknown routes) needs admin.
+        _ => Need::Admin,
+    }
+}
+
+/// A new token and the hash to store.
+pub fn generate() -> (String, String) {
+    let bytes: [u8; 32] = rand::random();
+    let token = format!("tnv_{}", hex::encode(bytes));
+    let hash = hash(&token);
+    (token, hash)
+}
+
+/// The stored form of a token.
+pub fn hash(token: &str) -> String {
+    hex::encode(Sha256::digest(token.as_bytes()))
+}
+
+/// Why a token command failed.
+#[derive(Debug, thiserror::Error)]
+pub enum TokenError {
+    #[error("an `ingest` token needs --machine (the machine its gateway feeds)")]
+    MachineMissing,
+    #[error("only `ingest` tokens are for one machine; `{}` tokens are not", .0.as_str())]
+    MachineNotAllowed(Scope),
+    #[error("machine id `{0}` is not valid (letters, digits, _ and -, at most 64)")]
+    MachineId(String),
+    #[error("no token with id {0}")]
+    NoSuchToken(i64),
+    #[error(transparent)]
+    Sql(#[from] rusqlite::Error),
+}
+
+/// Stores a new token; returns its id and the token text (shown once).
+pub fn create(
+    conn: &Connection,
+    name: &str,
+    scope: Scope,
+    machine: Option<&str>,
+    now_t: f64,
+) -> Result<(i64, String), TokenError> {
+    match (scope, machine) {
+        (Scope::Ingest, None) => return Err(TokenError::MachineMissing),
+        (Scope::Read | Scope::Admin, Some(_)) => return Err(TokenError::MachineNotAllowed(scope)),
+        (_, Some(m)) if !crate::config::valid_machine_id(m) => {
+            return Err(TokenError::MachineId(m.to_string()));
+        }
+        _ => {}
+    }
+    let (token, hash) = generate();
+    conn.execute(
+        "INSERT INTO tokens (name, scope, machine, hash, created_t) VALUES (?1, ?2, ?3, ?4, ?5)",
+        params![name, scope.as_str(), machine, hash, now_t],
+    )?;
+    Ok((conn.last_insert_rowid(), token))
+}
+
+fn row_to_token(row: &rusqlite::Row<'_>) -> rusqlite::Result<Token> {
+    let scope: String = row.get(2)?;
+    Ok(Token {
+        id: row.get(0)?,
+        name: row.get(1)?,
+        // The table's CHECK constraint admits only the three names.
+        scope: Scope::from_name(&scope).unwrap_or(Scope::Read),
+        machine: row.get(3)?,
+        created_t: row.get(4)?,
+        revoked_t: row.get(5)?,
+    })
+}
+
+/// Every token, revoked ones included, oldest first.
+pub fn list(conn: &Connection) -> Result<Vec<Token>, TokenError> {
+    let mut stmt = conn
+        .prepare("SELECT id, name, scope, machine, created_t, revoked_t FROM tokens ORDER BY id")?;
+    let tokens = stmt
+        .query_map([], row_to_token)?
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(tokens)
+}
+
+/// The tokens in force, with their hashes.
+pub fn active(conn: &Connection) -> Result<Vec<(String, Token)>, TokenError> {
+    let mut stmt = conn.prepare_cached(
+        "SELECT id, name, scope, machine, created_t, revoked_t, hash FROM tokens WHERE revoked_t IS NULL",
+    )?;
+    let tokens = stmt
+        .query_map([], |row| Ok((row.get::<_, String>(6)?, row_to_token(row)?)))?
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(tokens)
+}
+
+/// Revokes a token (at once for new requests; the server rereads within 2 s).
+pub fn revoke(conn: &Connection, id: i64, now_t: f64) -> Result<Token, TokenError> {
+    conn.execute(
+        "UPDATE tokens SET revoked_t = ?2 WHERE id = ?1 AND revoked_t IS NULL",
+        params![id, now_t],
+    )?;
+    conn.query_row(
+        "SELECT id, name, scope, machine, created_t, revoked_t FROM tokens WHERE id = ?1",
+        [id],
+        row_to_token,
+    )
+    .optional()?
+    .ok_or(TokenError::NoSuchToken(id))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use axum::http::Method;
+
+    #[test]
+    fn requests_need_what_their_route_does() {
+        assert_eq!(need(&Method::GET, "/healthz"), Need::Nothing);
+        assert_eq!(need(&Method::GET, "/static/app.css"), Need::Nothing);
+        assert_eq!(need(&Method::GET, "/"), Need::Read);
+        assert_eq!(need(&Method::GET, "/machines/tbm-1"), Need::Read);
+        assert_eq!(need(&Method::GET, "/metrics"), Need::Read);
+        assert_eq!(
+            need(&Method::GET, "/api/v1/machines/tbm-1/live"),
+            Need::Read
+        );
+        assert_eq!(need(&Method::PUT, "/api/v1/machines/tbm-1"), Need::Admin);
+        assert_eq!(
+            need(&Method::POST, "/api/v1/machines/tbm-1/readings"),
+            Need::Ingest("tbm-1".into())
+        );
+        assert_eq!(
+            need(&Method::GET, "/api/v1/machines/tbm-1/ingest"),
+            Need::Ingest("tbm-1".into())
+        );
+        assert_eq!(need(&Method::DELETE, "/api/v1/machines/tbm-1"), Need::Admin);
+        assert_eq!(need(&Method::POST, "/somewhere"), Need::Admin);
+    }
+
+    #[test]
+    fn scopes_grant_what_they_say() {
+        let token = |scope, machine: Option<&str>| Token {
+            id: 1,
+            name: "t".into(),
+            scope,
+            machine: machine.map(str::to_string),
+            created_t: 0.0,
+            revoked_t: None,
+        };
+        let gateway = token(Scope::Ingest, Some("tbm-1"));
+        assert!(gateway.allows(&Need::Ingest("tbm-1".into())));
+        assert!(!gateway.allows(&Need::Ingest("tbm-2".into())));
+        assert!(!gateway.allows(&Need::Read));
+        assert!(!gateway.allows(&Need::Admin));
+        let reader = token(Scope::Read, None);
+        assert!(reader.allows(&Need::Read));
+        assert!(!reader.allows(&Need::Ingest("tbm-1".into())));
+        assert!(!reader.allows(&Need::Admin));
+        let admin = token(Scope::Admin, None);
+        for need in [Need::Read, Need::Admin, Need::Ingest("x".into())] {
+            assert!(admin.allows(&need));
+        }
+    }
+
+    #[test]
+    fn tokens_are_stored_hashed_and_revoked() {
+        let mut conn = Connection::open_in_memory().unwrap();
+        crate::store::schema::migrate(&mut conn).unwrap();
+        let (id, token) = create(&conn, "gw", Scope::Ingest, Some("tbm-1"), 1.0).unwrap();
+        assert!(token.starts_with("tnv_") && token.len() == 68);
+        let stored: String = conn
+            .query_row("SELECT hash FROM tokens WHERE id = ?1", [id], |r| r.get(0))
+            .unwrap();
+        assert_eq!(stored, hash(&token));
+        assert!(!stored.contains(&token[4..]));
+        assert_eq!(active(&conn).unwrap().len(), 1);
+        assert!(matches!(
+            create(&conn, "x", Scope::Ingest, None, 1.0),
+            Err(TokenError::MachineMissing)
+        ));
+        assert!(matches!(
+            create(&conn, "x", Scope::Read, Some("tbm-1"), 1.0),
+            Err(TokenError::MachineNotAllowed(Scope::Read))
+        ));
+        let revoked = revoke(&conn, id, 2.0).unwrap();
+        assert_eq!(revoked.revoked_t, Some(2.0));
+        assert!(active(&conn).unwrap().is_empty());
+        assert_eq!(list(&conn).unwrap().len(), 1);
+        assert!(matches!(
+            revoke(&conn, 99, 2.0),
+            Err(TokenError::NoSuchToken(99))
+        ));
+    }
+}

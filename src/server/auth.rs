@@ -1,0 +1,226 @@
+//! Access control at the HTTP edge: every request's token (an
+//! `Authorization: Bearer` header, or the dashboard's `tunnelnav_token`
+//! cookie set by `POST /login`) is checked against what its route needs
+//! (`crate::auth::need`). Missing or unknown token: 401; a token without
+//! the scope or machine: 403; both with a JSON body. A page request
+//! without a token is sent to the login page instead.
+//!
+//! Enforcement starts with the first token: a server with no tokens is
+//! open, which `serve` allows only on a loopback address unless told
+//! otherwise ([`Gate::insist`]). Tokens are reread from the store at most
+//! every 2 s, so `tunnelnav token create|revoke` takes effect within that.
+
+use std::collections::HashMap;
+use std::sync::RwLock;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use axum::Form;
+use axum::extract::{Request, State};
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::middleware::Next;
+use axum::response::{Html, IntoResponse, Redirect, Response};
+use serde::Deserialize;
+
+use super::SharedState;
+use super::error::ApiError;
+use crate::auth::{self, Need, Token};
+use crate::store::Store;
+
+/// The dashboard's cookie.
+pub const COOKIE: &str = "tunnelnav_token";
+/// How long the token list is trusted before it is read again.
+const REFRESH: Duration = Duration::from_secs(2);
+
+/// The server's view of the tokens in force.
+pub struct Gate {
+    tokens: RwLock<Option<(Instant, HashMap<String, Token>)>>,
+    /// Enforce even with no tokens (non-loopback without the override).
+    insist: AtomicBool,
+}
+
+impl Default for Gate {
+    fn default() -> Self {
+        Gate {
+            tokens: RwLock::new(None),
+            insist: AtomicBool::new(false),
+        }
+    }
+}
+
+impl Gate {
+    /// Demands a token even while none exist (nobody gets in until one is
+    /// created): for a server reachable beyond this host.
+    pub fn insist(&self) {
+        self.insist.store(true, Ordering::Relaxed);
+    }
+
+    /// The tokens in force (hash → token), reread when stale.
+    fn current(&self, store: &Store) -> Result<HashMap<String, Token>, ApiError> {
+        if let Ok(guard) = self.tokens.read()
+            && let Some((read_at, tokens)) = guard.as_ref()
+            && read_at.elapsed() < REFRESH
+        {
+            return Ok(tokens.clone());
+        }
+        let tokens: HashMap<String, Token> = store
+            .read(|conn| {
+                auth::active(conn).map_err(|e| crate::store::StoreError::Corrupt(e.to_string()))
+            })?
+            .into_iter()
+            .collect();
+        if let Ok(mut guard) = self.tokens.write() {
+            *guard = Some((Instant::now(), tokens.clone()));
+        }
+        Ok(tokens)
+    }
+
+    /// Whether `presented` (a token text, if any) may do `need`.
+    fn check(&self, store: &Store, presented: Option<&str>, need: &Need) -> Result<(), ApiError> {
+        if *need == Need::Nothing {
+            return Ok(());
+        }
+        let tokens = self.current(store)?;
+        if tokens.is_empty() && !self.insist.load(Ordering::Relaxed) {
+            return Ok(());
+        }
+        let Some(presented) = presented else {
+            return Err(ApiError::Unauthorized(
+                "a token is required: send `Authorization: Bearer <token>`".into(),
+            ));
+        };
+        let Some(token) = tokens.get(&auth::hash(presented)) else {
+            return Err(ApiError::Unauthorized(
+                "the token is not valid (unknown or revoked)".into(),
+            ));
+        };
+        if token.allows(need) {
+            return Ok(());
+        }
+        Err(ApiError::Forbidden(match need {
+            Need::Ingest(machine) => format!(
+                "token `{}` ({}) may not send readings of machine `{machine}`",
+                token.name,
+                describe(token)
+            ),
+            Need::Admin => format!(
+                "token `{}` ({}) may not change the configuration: admin scope needed",
+                token.name,
+                describe(token)
+            ),
+            _ => format!(
+                "token `{}` ({}) may not read: read scope needed",
+                token.name,
+                describe(token)
+            ),
+        }))
+    }
+}
+
+fn describe(token: &Token) -> String {
+    match &token.machine {
+        Some(machine) => format!("{} for `{machine}`", token.scope.as_str()),
+        None => token.scope.as_str().to_string(),
+    }
+}
+
+/// The token a request carries: the bearer header, else the cookie.
+fn presented(headers: &HeaderMap) -> Option<String> {
+    if let Some(value) = headers.get(header::AUTHORIZATION)
+        && let Ok(text) = value.to_str()
+        && let Some(token) = text.strip_prefix("Bearer ")
+    {
+        return Some(token.trim().to_string());
+    }
+    headers
+        .get_all(header::COOKIE)
+        .iter()
+        .filter_map(|v| v.to_str().ok())
+        .flat_map(|v| v.split(';'))
+        .filter_map(|pair| pair.trim().split_once('='))
+        .find(|(name, _)| *name == COOKIE)
+        .map(|(_, value)| value.to_string())
+}
+
+/// True for a browser asking for a page (not the API).
+fn wants_page(request: &Request) -> bool {
+    !request.uri().path().starts_with("/api/")
+        && request
+            .headers()
+            .get(header::ACCEPT)
+            .and_then(|v| v.to_str().ok())
+            .is_some_and(|accept| accept.contains("text/html"))
+}
+
+/// The middleware: checks every request against its route's need.
+pub async fn require(State(state): State<SharedState>, request: Request, next: Next) -> Response {
+    let need = auth::need(request.method(), request.uri().path());
+    let token = presented(request.headers());
+    match state.gate.check(&state.store, token.as_deref(), &need) {
+        Ok(()) => next.run(request).await,
+        Err(ApiError::Unauthorized(_)) if wants_page(&request) => {
+            Redirect::to("/login").into_response()
+        }
+        Err(e) => {
+            let mut response = e.into_response();
+            if response.status() == StatusCode::UNAUTHORIZED {
+                response.headers_mut().insert(
+                    header::WWW_AUTHENTICATE,
+                    HeaderValue::from_static("Bearer realm=\"tunnelnav\""),
+                );
+            }
+            response
+        }
+    }
+}
+
+/// `GET /login`: a form that posts a token (never in a URL).
+pub async fn login_page() -> Html<&'static str> {
+    Html(LOGIN_PAGE)
+}
+
+const LOGIN_PAGE: &str = r#"<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><title>tunnelnav · sign in</title>
+<link rel="stylesheet" href="/static/app.css"></head>
+<body><main class="login"><h1>tunnelnav</h1>
+<form method="post" action="/login">
+<label for="token">Access token (read or admin)</label>
+<input id="token" name="token" type="password" autocomplete="current-password" required>
+<button type="submit">Sign in</button>
+</form>
+<p class="note">Tokens come from <code>tunnelnav token create</code>. The token is kept in a cookie for this site only; it never appears in a URL.</p>
+</main></body></html>"#;
+
+#[derive(Debug, Deserialize)]
+pub struct LoginForm {
+    token: String,
+}
+
+/// `POST /login`: checks the token can read, then keeps it in an
+/// HttpOnly, SameSite=Strict cookie and goes to the fleet page.
+pub async fn login(State(state): State<SharedState>, Form(form): Form<LoginForm>) -> Response {
+    let token = form.token.trim();
+    if let Err(e) = state.gate.check(&state.store, Some(token), &Need::Read) {
+        return e.into_response();
+    }
+    let cookie = format!("{COOKIE}={token}; Path=/; HttpOnly; SameSite=Strict");
+    match HeaderValue::from_str(&cookie) {
+        Ok(value) => {
+            let mut response = Redirect::to("/").into_response();
+            response.headers_mut().insert(header::SET_COOKIE, value);
+            response
+        }
+        Err(_) => ApiError::BadRequest("the token has characters a cookie cannot hold".into())
+            .into_response(),
+    }
+}
+
+/// `POST /logout`: forgets the cookie.
+pub async fn logout() -> Response {
+    let mut response = Redirect::to("/login").into_response();
+    response.headers_mut().insert(
+        header::SET_COOKIE,
+        HeaderValue::from_static("tunnelnav_token=; Path=/; HttpOnly; SameSite=Strict; Max-Age=0"),
+    );
+    response
+}
