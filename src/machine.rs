@@ -32,8 +32,6 @@ pub const REORDER_MAX_LEN: usize = 100_000;
 pub const SNAPSHOT_EVERY_READINGS: u64 = 20_000;
 /// Estimates a slow live client may fall behind by before it gets a `gap`.
 pub const LIVE_BUFFER: usize = 4096;
-/// Ingest requests queued per machine.
-const COMMAND_QUEUE: usize = 256;
 /// Estimates written per store request while re-feeding after a restart.
 const REFEED_CHUNK: usize = 10_000;
 
@@ -50,6 +48,8 @@ pub enum MachineError {
     StoredReading(String),
     #[error("machine `{0}` has stopped")]
     Stopped(String),
+    #[error("machine `{machine}` is busy: {queued} requests are waiting for it")]
+    Busy { machine: String, queued: usize },
 }
 
 /// An estimate as the machine emits it: attributed, serialised once.
@@ -226,13 +226,20 @@ pub struct MachineHandle {
 }
 
 impl MachineHandle {
-    /// Feeds readings; resolves once they are committed.
+    /// Feeds readings; resolves once they are committed. When the
+    /// machine's queue is full (the store or the engines cannot keep up)
+    /// it answers [`MachineError::Busy`] at once instead of waiting.
     pub async fn ingest(&self, readings: Vec<Reading>) -> Result<WriteOutcome, MachineError> {
         let (reply, answer) = oneshot::channel();
         self.commands
-            .send(Command::Ingest { readings, reply })
-            .await
-            .map_err(|_| self.stopped())?;
+            .try_send(Command::Ingest { readings, reply })
+            .map_err(|e| match e {
+                mpsc::error::TrySendError::Full(_) => MachineError::Busy {
+                    machine: self.spec.id.clone(),
+                    queued: self.commands.max_capacity(),
+                },
+                mpsc::error::TrySendError::Closed(_) => self.stopped(),
+            })?;
         Ok(answer.await.map_err(|_| self.stopped())??)
     }
 
@@ -364,8 +371,9 @@ pub fn spawn(
     db_id: i64,
     core: MachineCore,
     current: MachineStatus,
+    queue_len: usize,
 ) -> MachineHandle {
-    let (commands, queue) = mpsc::channel(COMMAND_QUEUE);
+    let (commands, queue) = mpsc::channel(queue_len.max(1));
     let (live, _) = broadcast::channel(LIVE_BUFFER);
     let (status_tx, status) = watch::channel(Arc::new(current.clone()));
     let spec = Arc::new(spec);

@@ -43,6 +43,8 @@ pub enum ApiError {
     #[error("internal error")]
     Internal(String),
     #[error("{0}")]
+    Timeout(String),
+    #[error("{0}")]
     Unauthorized(String),
     #[error("{0}")]
     Forbidden(String),
@@ -61,6 +63,9 @@ impl From<StoreError> for ApiError {
     fn from(e: StoreError) -> Self {
         match e {
             StoreError::Closed => ApiError::Unavailable("the store is shutting down".into()),
+            e if e.is_transient() => ApiError::Unavailable(format!(
+                "the store cannot write now ({e}); nothing of this request was stored, retry"
+            )),
             other => ApiError::Internal(other.to_string()),
         }
     }
@@ -73,6 +78,7 @@ impl From<MachineError> for ApiError {
                 "machine `{machine}` is restarting or the server is shutting down; retry"
             )),
             MachineError::Store(e) => e.into(),
+            busy @ MachineError::Busy { .. } => ApiError::Unavailable(format!("{busy}; retry")),
             other => ApiError::Internal(other.to_string()),
         }
     }
@@ -89,6 +95,7 @@ impl ApiError {
             ApiError::TooLarge(_) => StatusCode::PAYLOAD_TOO_LARGE,
             ApiError::Unavailable(_) => StatusCode::SERVICE_UNAVAILABLE,
             ApiError::Internal(_) => StatusCode::INTERNAL_SERVER_ERROR,
+            ApiError::Timeout(_) => StatusCode::REQUEST_TIMEOUT,
             ApiError::Unauthorized(_) => StatusCode::UNAUTHORIZED,
             ApiError::Forbidden(_) => StatusCode::FORBIDDEN,
         }
@@ -115,6 +122,14 @@ impl IntoResponse for ApiError {
             // Details go to the log, not to the client.
             tracing::error!(%detail, "internal error");
         }
-        (self.status(), Json(self.body())).into_response()
+        let status = self.status();
+        let mut response = (status, Json(self.body())).into_response();
+        if status == StatusCode::SERVICE_UNAVAILABLE {
+            response.headers_mut().insert(
+                axum::http::header::RETRY_AFTER,
+                axum::http::HeaderValue::from_static("1"),
+            );
+        }
+        response
     }
 }

@@ -33,6 +33,13 @@ pub async fn websocket(
 ) -> Result<Response, ApiError> {
     let machine = state.machine(&machine)?;
     let upgrade = upgrade.map_err(ApiError::from)?;
+    let most = state.limits.max_live_clients_per_machine;
+    if machine.live_clients() >= most {
+        return Err(ApiError::Unavailable(format!(
+            "machine `{}` already has {most} live clients, the most allowed",
+            machine.spec.id
+        )));
+    }
     let shutdown = state.shutdown_signal();
     let (ping_every, clock) = (state.limits.live_ping_interval, state.clock);
     Ok(upgrade.on_upgrade(move |socket| serve_live(socket, machine, ping_every, clock, shutdown)))

@@ -46,6 +46,14 @@ pub struct Limits {
     pub live_ping_interval: std::time::Duration,
     /// How far ahead of the server clock a reading's time may be.
     pub max_future_s: f64,
+    /// Ingest requests waiting for one machine; beyond, 503 with
+    /// `Retry-After` instead of buffering.
+    pub machine_queue: usize,
+    /// Live sockets per machine (503 beyond).
+    pub max_live_clients_per_machine: usize,
+    /// Longest a request may take to be answered (408 beyond); streamed
+    /// bodies and open WebSockets are not cut.
+    pub request_timeout: std::time::Duration,
 }
 
 impl Default for Limits {
@@ -57,6 +65,9 @@ impl Default for Limits {
             max_points_limit: 100_000,
             live_ping_interval: std::time::Duration::from_secs(10),
             max_future_s: 600.0,
+            machine_queue: 64,
+            max_live_clients_per_machine: 100,
+            request_timeout: std::time::Duration::from_secs(30),
         }
     }
 }
@@ -144,7 +155,14 @@ impl AppState {
             };
             machines.insert(
                 id,
-                Arc::new(machine::spawn(store.clone(), spec, db_id, core, status)),
+                Arc::new(machine::spawn(
+                    store.clone(),
+                    spec,
+                    db_id,
+                    core,
+                    status,
+                    options.limits.machine_queue,
+                )),
             );
         }
         Ok(Arc::new(AppState {
@@ -202,6 +220,7 @@ impl AppState {
             db_id,
             core,
             status,
+            self.limits.machine_queue,
         ));
         if let Ok(mut machines) = self.machines.write() {
             machines.insert(spec.id, handle);
@@ -267,9 +286,33 @@ pub fn router(state: SharedState) -> Router {
             state.clone(),
             auth::require,
         ))
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            answer_in_time,
+        ))
         .layer(DefaultBodyLimit::max(limit))
         .layer(TraceLayer::new_for_http())
         .with_state(state)
+}
+
+/// Answers 408 when a request is not answered within the limit (a slow
+/// upload, a stuck store); a streamed body or an open WebSocket, once
+/// answered, is not cut.
+async fn answer_in_time(
+    axum::extract::State(state): axum::extract::State<SharedState>,
+    request: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> axum::response::Response {
+    use axum::response::IntoResponse;
+    let limit = state.limits.request_timeout;
+    match tokio::time::timeout(limit, next.run(request)).await {
+        Ok(response) => response,
+        Err(_) => ApiError::Timeout(format!(
+            "the request was not answered within {} s; if it was a post, retry it (duplicates are stored once)",
+            limit.as_secs_f64()
+        ))
+        .into_response(),
+    }
 }
 
 async fn method_not_allowed(method: axum::http::Method) -> ApiError {

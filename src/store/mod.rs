@@ -52,6 +52,26 @@ pub enum StoreError {
     Corrupt(String),
 }
 
+impl StoreError {
+    /// A failure that may pass: the database busy or locked by another
+    /// process, the disk full, an I/O error. The server answers 503 for
+    /// these and the client retries.
+    pub fn is_transient(&self) -> bool {
+        use rusqlite::ErrorCode;
+        match self {
+            StoreError::Sqlite(rusqlite::Error::SqliteFailure(e, _)) => matches!(
+                e.code,
+                ErrorCode::DatabaseBusy
+                    | ErrorCode::DatabaseLocked
+                    | ErrorCode::DiskFull
+                    | ErrorCode::SystemIoFailure
+                    | ErrorCode::CannotOpen
+            ),
+            _ => false,
+        }
+    }
+}
+
 /// A reading to store: its time, sensor and data.
 #[derive(Debug, Clone)]
 pub struct ReadingRow {

@@ -1,0 +1,199 @@
+//! Back-pressure and a busy database: while another process holds the
+//! database's write lock, ingest answers 503 with `Retry-After` (the
+//! machine's queue full, or the store unable to commit) instead of
+//! buffering; once the lock goes, gateways that retry get everything in,
+//! each reading stored exactly once, nothing acknowledged lost, and the
+//! engines carry on. Also: live clients per machine are capped, and a
+//! request not answered in time gets a JSON 408.
+
+mod common;
+
+use std::collections::BTreeMap;
+use std::time::Duration;
+
+use common::{TestServer, declare_machine, exported_readings, send_ndjson};
+use tunnelnav::server::Limits;
+
+const MACHINE: &str = "tbm-busy";
+
+fn reading(i: usize) -> String {
+    format!(
+        r#"{{"t": {}, "sensor": "inclinometer", "pitch_deg": {:.4}, "roll_deg": 1.0}}"#,
+        1_772_431_200 + i,
+        0.5 + (i as f64) * 1e-4
+    )
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_busy_database_gets_503_and_loses_nothing_acknowledged() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start_with(
+        dir.path(),
+        Limits {
+            machine_queue: 4,
+            ..Limits::default()
+        },
+    )
+    .await;
+    let client = reqwest::Client::new();
+    let base = server.url("");
+    declare_machine(
+        &client,
+        &base,
+        MACHINE,
+        r#"{"name": "TBM", "engines": {"attitude": {}}}"#,
+    )
+    .await;
+
+    // Another process takes the write lock for 7 s (longer than the
+    // store's 5 s busy timeout).
+    let db = dir.path().join("tunnelnav.sqlite3");
+    let (locked_tx, locked_rx) = std::sync::mpsc::channel();
+    let holder = std::thread::spawn(move || {
+        let conn = rusqlite::Connection::open(db).unwrap();
+        conn.execute_batch("BEGIN IMMEDIATE").unwrap();
+        locked_tx.send(()).unwrap();
+        std::thread::sleep(Duration::from_secs(7));
+        conn.execute_batch("COMMIT").unwrap();
+    });
+    locked_rx.recv().unwrap();
+
+    // 100 gateway requests of 10 readings each, all at once.
+    let batches: Vec<Vec<String>> = (0..100)
+        .map(|b| (0..10).map(|i| reading(b * 10 + i)).collect())
+        .collect();
+    let mut outcome: BTreeMap<usize, u16> = BTreeMap::new();
+    let mut pending: Vec<usize> = (0..batches.len()).collect();
+    let mut rounds = 0;
+    let mut saw_503 = 0;
+    while !pending.is_empty() {
+        rounds += 1;
+        assert!(
+            rounds < 60,
+            "still refused after {rounds} rounds: {pending:?}"
+        );
+        let answers = futures_util::future::join_all(pending.iter().map(|&b| {
+            let (client, base, lines) = (client.clone(), base.clone(), batches[b].clone());
+            async move {
+                let response = send_ndjson(&client, &base, MACHINE, &lines).await.unwrap();
+                let status = response.status().as_u16();
+                let retry = response
+                    .headers()
+                    .get("retry-after")
+                    .map(|v| v.to_str().unwrap().to_string());
+                let body: serde_json::Value =
+                    serde_json::from_slice(&response.bytes().await.unwrap()).unwrap();
+                (b, status, retry, body)
+            }
+        }))
+        .await;
+        pending.clear();
+        for (b, status, retry, body) in answers {
+            match status {
+                200 => {
+                    assert_eq!(
+                        body["accepted"].as_u64().unwrap() + body["duplicates"].as_u64().unwrap(),
+                        10,
+                        "{body}"
+                    );
+                    outcome.insert(b, status);
+                }
+                503 => {
+                    saw_503 += 1;
+                    assert_eq!(retry.as_deref(), Some("1"), "{body}");
+                    assert!(body["error"].is_string(), "{body}");
+                    pending.push(b);
+                }
+                other => panic!("batch {b}: {other} {body}"),
+            }
+        }
+        if !pending.is_empty() {
+            tokio::time::sleep(Duration::from_millis(500)).await;
+        }
+    }
+    holder.join().unwrap();
+    assert!(saw_503 > 0, "the busy database was never reported");
+
+    // Every reading once, and the engines fused them all.
+    let stored = exported_readings(&client, &base, MACHINE).await;
+    assert_eq!(stored.len(), 1000, "{} readings stored", stored.len());
+    let mut times: Vec<f64> = stored
+        .iter()
+        .map(|l| {
+            serde_json::from_str::<serde_json::Value>(l).unwrap()["t"]
+                .as_f64()
+                .unwrap()
+        })
+        .collect();
+    times.sort_by(f64::total_cmp);
+    times.dedup();
+    assert_eq!(times.len(), 1000);
+    // The engines carry on: later readings are fused. (The retried
+    // batches came back in any order; with no reorder window a reading
+    // older than one already fused is stored but not fused, and counted.)
+    let later: Vec<String> = (1000..1010).map(reading).collect();
+    common::post_ndjson(&client, &base, MACHINE, &later).await;
+    let estimates = common::all_estimates(&client, &base, MACHINE).await;
+    let status: serde_json::Value = serde_json::from_slice(
+        &client
+            .get(format!("{base}/api/v1/machines/{MACHINE}"))
+            .send()
+            .await
+            .unwrap()
+            .bytes()
+            .await
+            .unwrap(),
+    )
+    .unwrap();
+    let late = status["late_readings"].as_u64().unwrap() as usize;
+    assert_eq!(
+        estimates.len() + late,
+        1010,
+        "{} estimates, {late} late",
+        estimates.len()
+    );
+    let last_t = estimates.last().unwrap()["t"].as_f64().unwrap();
+    assert_eq!(last_t, (1_772_431_200 + 1009) as f64);
+    eprintln!("503 answers: {saw_503}, rounds: {rounds}");
+    server.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn live_clients_are_capped_per_machine() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start_with(
+        dir.path(),
+        Limits {
+            max_live_clients_per_machine: 2,
+            ..Limits::default()
+        },
+    )
+    .await;
+    let client = reqwest::Client::new();
+    let base = server.url("");
+    declare_machine(
+        &client,
+        &base,
+        MACHINE,
+        r#"{"name": "TBM", "engines": {"attitude": {}}}"#,
+    )
+    .await;
+    let url = server.ws_url(&format!("/api/v1/machines/{MACHINE}/live"));
+    let first = tokio_tungstenite::connect_async(url.as_str())
+        .await
+        .unwrap();
+    let second = tokio_tungstenite::connect_async(url.as_str())
+        .await
+        .unwrap();
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    match tokio_tungstenite::connect_async(url.as_str()).await {
+        Err(tokio_tungstenite::tungstenite::Error::Http(response)) => {
+            assert_eq!(response.status(), 503);
+            let body = String::from_utf8(response.body().clone().unwrap_or_default()).unwrap();
+            assert!(body.contains("live clients"), "{body}");
+        }
+        other => panic!("a third live client was let in: {other:?}"),
+    }
+    drop((first, second));
+    server.stop().await;
+}
