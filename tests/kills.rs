@@ -1,0 +1,166 @@
+//! The real binary killed with SIGKILL 25 times at random moments while
+//! four gateways post concurrently, restarted each time on the same data
+//! dir. Each gateway resends what was not acknowledged (as a real one
+//! does). At the end: every acknowledged reading is stored exactly once,
+//! and each machine's stored estimates are exactly what `replay` makes of
+//! its stored readings, so the engines were restored after every kill as
+//! if the server had never stopped.
+
+mod common;
+
+use std::collections::BTreeSet;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::Duration;
+
+use common::{ServerProcess, drive, exported_readings, put_machine, replay_engine, send_ndjson};
+
+const KILLS: usize = 25;
+const MACHINES: [&str; 4] = ["k0", "k1", "k2", "k3"];
+
+/// The key of a reading line: its time and sensor.
+fn key(line: &str) -> (u64, String) {
+    let v: serde_json::Value = serde_json::from_str(line).unwrap();
+    (
+        v["t"].as_f64().unwrap().to_bits(),
+        v["sensor"].as_str().unwrap().to_string(),
+    )
+}
+
+/// Every stored estimate of a machine, fetched in windows of 20 000 s so
+/// that none is downsampled.
+async fn estimates_in_windows(
+    client: &reqwest::Client,
+    base: &str,
+    machine: &str,
+) -> Vec<serde_json::Value> {
+    let mut all = Vec::new();
+    let mut from = 1_772_431_200.0_f64 - 10.0;
+    loop {
+        let to = from + 20_000.0;
+        let response = client
+            .get(format!(
+                "{base}/api/v1/machines/{machine}/estimates?from={from}&to={to}&max_points=100000"
+            ))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(response.status(), 200);
+        let body: serde_json::Value =
+            serde_json::from_slice(&response.bytes().await.unwrap()).unwrap();
+        assert_eq!(body["downsampled"], false);
+        let page = body["estimates"].as_array().unwrap();
+        // `to` is inclusive: drop an estimate at the boundary seen twice.
+        for e in page {
+            if all
+                .last()
+                .is_none_or(|l: &serde_json::Value| l["t"].as_f64() < e["t"].as_f64())
+            {
+                all.push(e.clone());
+            }
+        }
+        if page.is_empty() && from > 1_772_431_200.0 + 48.0 * 3600.0 {
+            return all;
+        }
+        from = to;
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn twenty_five_sigkills_under_load_lose_nothing_and_change_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let client = reqwest::Client::new();
+    let lines = Arc::new(drive(48.0, 21, vec![]));
+    // How far each gateway's acknowledged readings reach (in its lines).
+    let acknowledged: Arc<Vec<AtomicUsize>> =
+        Arc::new(MACHINES.iter().map(|_| AtomicUsize::new(0)).collect());
+    // A fixed pseudo-random sequence of kill moments (200–700 ms).
+    let mut state = 0x9e37_79b9_7f4a_7c15_u64;
+    let mut next_delay = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        200 + state % 500
+    };
+
+    let mut kills = 0;
+    for cycle in 0..=KILLS {
+        let server = ServerProcess::start(dir.path());
+        let base = server.url("");
+        if cycle == 0 {
+            for machine in MACHINES {
+                put_machine(&client, &base, machine).await;
+            }
+        }
+        if cycle == KILLS {
+            // The last start: check everything.
+            let mut total = 0;
+            for (g, machine) in MACHINES.into_iter().enumerate() {
+                let reach = acknowledged[g].load(Ordering::SeqCst);
+                let stored = exported_readings(&client, &base, machine).await;
+                let keys: BTreeSet<_> = stored.iter().map(|l| key(l)).collect();
+                assert_eq!(
+                    keys.len(),
+                    stored.len(),
+                    "{machine}: a reading stored twice"
+                );
+                for line in &lines[..reach] {
+                    assert!(
+                        keys.contains(&key(line)),
+                        "{machine}: acknowledged {line} lost"
+                    );
+                }
+                // Nothing beyond what was sent (at most one unacknowledged chunk).
+                assert!(stored.len() >= reach && stored.len() <= reach + 400);
+                total += reach;
+                let served = estimates_in_windows(&client, &base, machine).await;
+                let replayed = replay_engine(machine, "attitude", &[], &stored);
+                assert_eq!(served.len(), replayed.len(), "{machine}");
+                for (i, (s, r)) in served.iter().zip(&replayed).enumerate() {
+                    assert_eq!(s, r, "{machine}: estimate {i}");
+                }
+            }
+            eprintln!(
+                "{kills} SIGKILLs under load; {total} acknowledged readings all present once; estimates equal replay"
+            );
+            server.kill();
+            break;
+        }
+
+        let mut gateways = Vec::new();
+        for (g, machine) in MACHINES.into_iter().enumerate() {
+            let (client, base) = (client.clone(), base.clone());
+            let (lines, acknowledged) = (lines.clone(), acknowledged.clone());
+            gateways.push(tokio::spawn(async move {
+                let chunk_len = 50 + 97 * g;
+                loop {
+                    let from = acknowledged[g].load(Ordering::SeqCst);
+                    if from >= lines.len() {
+                        return;
+                    }
+                    let chunk = &lines[from..(from + chunk_len).min(lines.len())];
+                    let complete = match send_ndjson(&client, &base, machine, chunk).await {
+                        Ok(r) if r.status() == 200 => r.bytes().await.is_ok(),
+                        _ => false,
+                    };
+                    if !complete {
+                        return; // the server is gone: resend next time
+                    }
+                    acknowledged[g].store(from + chunk.len(), Ordering::SeqCst);
+                    // A gateway's pace (and the drive outlasts the kills).
+                    tokio::time::sleep(Duration::from_millis(10)).await;
+                }
+            }));
+        }
+        tokio::time::sleep(Duration::from_millis(next_delay())).await;
+        server.kill();
+        kills += 1;
+        for gateway in gateways {
+            gateway.await.unwrap();
+        }
+    }
+    assert_eq!(kills, KILLS);
+    let reached: usize = acknowledged.iter().map(|a| a.load(Ordering::SeqCst)).sum();
+    assert!(reached > 4 * 20_000, "the load ran: {reached} readings");
+    assert!(reached < 4 * lines.len(), "the kills came before the end");
+}
