@@ -1,5 +1,6 @@
 //! The command line: one file per subcommand, each with a `run`.
 
+pub mod backup;
 pub mod demo;
 pub mod eval;
 pub mod load;
@@ -37,6 +38,8 @@ pub enum Command {
     Load(load::LoadArgs),
     /// The server with simulated machines and gateways at an accelerated clock.
     Demo(demo::DemoArgs),
+    /// An online copy of the database, while the server runs.
+    Backup(backup::BackupArgs),
     /// Access tokens: create, list, revoke.
     #[command(subcommand)]
     Token(token::TokenCommand),
@@ -87,5 +90,6 @@ pub fn run(cli: Cli) -> Result<(), CliError> {
         Command::Load(args) => load::run(args),
         Command::Demo(args) => demo::run(args),
         Command::Token(command) => token::run(command),
+        Command::Backup(args) => backup::run(args),
     }
 }
