@@ -24,6 +24,29 @@ pub struct ServeArgs {
     /// anyone who can reach the port may read, post and declare machines.
     #[arg(long)]
     pub allow_no_auth: bool,
+    /// Delete raw readings older than this many days (default: keep all).
+    /// Readings the latest engine snapshot does not cover yet are kept.
+    #[arg(long, value_name = "DAYS")]
+    pub keep_readings_days: Option<f64>,
+    /// Thin estimates older than this many days to one a minute (default:
+    /// keep all); the per-bucket extremes stay.
+    #[arg(long, value_name = "DAYS")]
+    pub keep_estimates_days: Option<f64>,
+    /// Seconds between retention passes.
+    #[arg(long, default_value_t = 3600.0, value_name = "SECONDS")]
+    pub retention_every_s: f64,
+}
+
+impl ServeArgs {
+    /// The retention policy these arguments ask for.
+    fn retention(&self) -> crate::store::retention::Retention {
+        let days = |d: Option<f64>| d.map(|d| d * 86_400.0);
+        crate::store::retention::Retention {
+            keep_readings_s: days(self.keep_readings_days),
+            full_estimates_s: days(self.keep_estimates_days),
+            every_s: self.retention_every_s,
+        }
+    }
 }
 
 pub fn run(args: ServeArgs) -> Result<(), CliError> {
@@ -41,6 +64,7 @@ pub fn run(args: ServeArgs) -> Result<(), CliError> {
             machines,
             limits: Limits::default(),
             clock: Clock::system(),
+            retention: args.retention(),
         };
         let (state, listener) = start(options, args.listen, args.allow_no_auth).await?;
         server::run(listener, state, shutdown_signal()).await?;

@@ -82,6 +82,8 @@ pub struct ServerOptions {
     pub limits: Limits,
     /// The clock for ages and the future check ([`Clock::system`] but in the demo).
     pub clock: Clock,
+    /// What history to keep.
+    pub retention: crate::store::retention::Retention,
 }
 
 /// Why the server could not start.
@@ -164,6 +166,13 @@ impl AppState {
                     options.limits.machine_queue,
                 )),
             );
+        }
+        if !options.retention.keeps_everything() {
+            tokio::spawn(apply_retention(
+                options.data_dir.clone(),
+                options.retention,
+                options.clock,
+            ));
         }
         Ok(Arc::new(AppState {
             store,
@@ -293,6 +302,35 @@ pub fn router(state: SharedState) -> Router {
         .layer(DefaultBodyLimit::max(limit))
         .layer(TraceLayer::new_for_http())
         .with_state(state)
+}
+
+/// Applies the retention policy now and every `every_s`, on its own
+/// connection in short transactions (see `store::retention`).
+async fn apply_retention(
+    data_dir: PathBuf,
+    policy: crate::store::retention::Retention,
+    clock: Clock,
+) {
+    let every = std::time::Duration::from_secs_f64(policy.every_s.max(1.0));
+    let mut tick = tokio::time::interval(every);
+    loop {
+        tick.tick().await;
+        let (data_dir, now_t) = (data_dir.clone(), clock.now_s());
+        let pass = tokio::task::spawn_blocking(move || {
+            let conn = Store::connect(&data_dir)?;
+            crate::store::retention::prune(&conn, now_t, &policy, 5000)
+        })
+        .await;
+        match pass {
+            Ok(Ok(pruned)) => tracing::info!(
+                readings = pruned.readings,
+                estimates = pruned.estimates,
+                "retention pass"
+            ),
+            Ok(Err(e)) => tracing::warn!(error = %e, "retention pass failed; next time again"),
+            Err(e) => tracing::error!(error = %e, "retention pass panicked"),
+        }
+    }
 }
 
 /// Answers 408 when a request is not answered within the limit (a slow

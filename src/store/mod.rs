@@ -11,6 +11,7 @@
 
 pub mod codec;
 pub mod queries;
+pub mod retention;
 pub mod schema;
 
 pub use queries::{BUCKET_WIDTHS_S, EstimatesPage, Extremes};

@@ -32,6 +32,7 @@ impl TestServer {
             machines: Vec::new(),
             limits,
             clock: Clock::system(),
+            retention: tunnelnav::store::retention::Retention::default(),
         })
         .await
         .expect("server starts");
@@ -78,9 +79,15 @@ pub struct ServerProcess {
 
 impl ServerProcess {
     pub fn start(data_dir: &Path) -> ServerProcess {
+        Self::start_with_args(data_dir, &[])
+    }
+
+    /// `serve` with more arguments.
+    pub fn start_with_args(data_dir: &Path, args: &[&str]) -> ServerProcess {
         let mut child = Command::new(env!("CARGO_BIN_EXE_tunnelnav"))
             .args(["serve", "--listen", "127.0.0.1:0", "--data-dir"])
             .arg(data_dir)
+            .args(args)
             .env("RUST_LOG", "warn")
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())

@@ -1,0 +1,204 @@
+//! Retention: raw readings kept for a number of days, estimates at full
+//! rate for a number of days and then thinned to one a minute (the
+//! per-bucket extremes stay, so history over old ranges still shows every
+//! spike).
+//!
+//! Runs on its own connection beside the writer, in short transactions of
+//! at most `batch` rows, so ingest waits for a few milliseconds at a time.
+//! A reading is deleted only if its machine's latest snapshot already
+//! covers it: restart re-feeds the readings after the snapshot, and those
+//! are never pruned. A gateway resending a pruned reading gets it stored
+//! again, as a late reading (stored, not fused).
+
+use rusqlite::{Connection, params};
+
+use super::StoreError;
+use crate::fusion::EngineKind;
+
+/// What to keep, and how often the server applies it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Retention {
+    /// Raw readings older than this (s, against reading time) are deleted.
+    pub keep_readings_s: Option<f64>,
+    /// Estimates older than this (s) are thinned to one per minute.
+    pub full_estimates_s: Option<f64>,
+    /// Seconds between passes.
+    pub every_s: f64,
+}
+
+impl Default for Retention {
+    /// Keep everything; a pass an hour once a policy is set.
+    fn default() -> Self {
+        Retention {
+            keep_readings_s: None,
+            full_estimates_s: None,
+            every_s: 3600.0,
+        }
+    }
+}
+
+impl Retention {
+    /// True when the policy deletes nothing.
+    pub fn keeps_everything(&self) -> bool {
+        self.keep_readings_s.is_none() && self.full_estimates_s.is_none()
+    }
+}
+
+/// What a pass deleted.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Pruned {
+    pub readings: u64,
+    pub estimates: u64,
+}
+
+/// Width of the windows estimates are thinned in, s.
+const THIN_WINDOW_S: f64 = 600.0;
+/// One estimate kept per this many seconds.
+const THIN_TO_S: f64 = 60.0;
+
+/// One pass of the policy at `now_t`.
+pub fn prune(
+    conn: &Connection,
+    now_t: f64,
+    policy: &Retention,
+    batch: usize,
+) -> Result<Pruned, StoreError> {
+    let mut pruned = Pruned::default();
+    if let Some(keep_s) = policy.keep_readings_s {
+        let cut = now_t - keep_s;
+        loop {
+            let deleted = conn.execute(
+                "DELETE FROM readings WHERE id IN (
+                     SELECT r.id FROM readings r JOIN snapshots s ON s.machine_id = r.machine_id
+                     WHERE r.t < ?1 AND r.id <= s.last_reading_id LIMIT ?2)",
+                params![cut, batch as i64],
+            )?;
+            pruned.readings += deleted as u64;
+            if deleted < batch {
+                break;
+            }
+        }
+    }
+    if let Some(full_s) = policy.full_estimates_s {
+        let cut = now_t - full_s;
+        let machines: Vec<i64> = conn
+            .prepare("SELECT id FROM machines")?
+            .query_map([], |row| row.get(0))?
+            .collect::<Result<_, _>>()?;
+        for machine in machines {
+            for engine in EngineKind::ALL {
+                pruned.estimates += thin(conn, machine, engine.as_str(), cut)?;
+            }
+        }
+    }
+    Ok(pruned)
+}
+
+/// Thins one machine's estimates of one engine before `cut`, window by
+/// window, each in its own transaction.
+fn thin(conn: &Connection, machine: i64, engine: &str, cut: f64) -> Result<u64, StoreError> {
+    let oldest: Option<f64> = conn.query_row(
+        "SELECT MIN(t) FROM estimates WHERE machine_id = ?1 AND engine = ?2",
+        params![machine, engine],
+        |row| row.get(0),
+    )?;
+    let Some(oldest) = oldest else {
+        return Ok(0);
+    };
+    let mut deleted = 0;
+    let mut from = (oldest / THIN_WINDOW_S).floor() * THIN_WINDOW_S;
+    while from < cut {
+        let to = (from + THIN_WINDOW_S).min(cut);
+        deleted += conn.execute(
+            "DELETE FROM estimates WHERE machine_id = ?1 AND engine = ?2 AND t >= ?3 AND t < ?4
+               AND t NOT IN (
+                 SELECT MIN(t) FROM estimates
+                 WHERE machine_id = ?1 AND engine = ?2 AND t >= ?3 AND t < ?4
+                 GROUP BY CAST(t / ?5 AS INTEGER))",
+            params![machine, engine, from, to, THIN_TO_S],
+        )? as u64;
+        from = to;
+    }
+    Ok(deleted)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn database() -> Connection {
+        let mut conn = Connection::open_in_memory().unwrap();
+        super::super::schema::migrate(&mut conn).unwrap();
+        conn.execute(
+            "INSERT INTO machines (id, machine, spec) VALUES (1, 'm', '{}')",
+            [],
+        )
+        .unwrap();
+        // Three hours of 1 Hz readings and estimates from t = 0.
+        for i in 0..10_800 {
+            let t = f64::from(i);
+            conn.execute(
+                "INSERT INTO readings (id, machine_id, t, sensor, body) VALUES (?1, 1, ?2, 1, x'00')",
+                params![i + 1, t],
+            )
+            .unwrap();
+            conn.execute(
+                "INSERT INTO estimates (machine_id, engine, t, extreme_a, extreme_b, body) VALUES (1, 'attitude', ?1, 0, 0, x'00')",
+                [t],
+            )
+            .unwrap();
+        }
+        conn
+    }
+
+    #[test]
+    fn readings_go_only_where_the_snapshot_covers_them() {
+        let conn = database();
+        // The snapshot covers the first hour only.
+        conn.execute(
+            "INSERT INTO snapshots (machine_id, last_reading_id, state) VALUES (1, 3600, '{}')",
+            [],
+        )
+        .unwrap();
+        let policy = Retention {
+            keep_readings_s: Some(3600.0),
+            ..Retention::default()
+        };
+        // At t = 3 h, keep 1 h: readings before 2 h may go, but only those
+        // the snapshot covers (the first hour).
+        let pruned = prune(&conn, 10_800.0, &policy, 1000).unwrap();
+        assert_eq!(pruned.readings, 3600);
+        let oldest: f64 = conn
+            .query_row("SELECT MIN(t) FROM readings", [], |r| r.get(0))
+            .unwrap();
+        assert_eq!(oldest, 3600.0);
+        // Once the snapshot moves on, the second hour goes too.
+        conn.execute("UPDATE snapshots SET last_reading_id = 10800", [])
+            .unwrap();
+        assert_eq!(
+            prune(&conn, 10_800.0, &policy, 1000).unwrap().readings,
+            3600
+        );
+        assert_eq!(prune(&conn, 10_800.0, &policy, 1000).unwrap().readings, 0);
+    }
+
+    #[test]
+    fn old_estimates_are_thinned_to_one_a_minute() {
+        let conn = database();
+        let policy = Retention {
+            full_estimates_s: Some(3600.0),
+            ..Retention::default()
+        };
+        let pruned = prune(&conn, 10_800.0, &policy, 1000).unwrap();
+        // Before 2 h: 120 minutes, one estimate each; after: all 3600.
+        assert_eq!(pruned.estimates, 7200 - 120);
+        let count = |sql: &str| -> i64 { conn.query_row(sql, [], |r| r.get(0)).unwrap() };
+        assert_eq!(count("SELECT COUNT(*) FROM estimates WHERE t < 7200"), 120);
+        assert_eq!(
+            count("SELECT COUNT(*) FROM estimates WHERE t >= 7200"),
+            3600
+        );
+        // A second pass changes nothing.
+        assert_eq!(prune(&conn, 10_800.0, &policy, 1000).unwrap().estimates, 0);
+    }
+}
