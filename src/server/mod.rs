@@ -25,7 +25,7 @@ use tower_http::trace::TraceLayer;
 
 pub use clock::{Clock, wall_clock_s};
 pub use error::{ApiError, Rejected};
-pub use ingest::{ParsedBatch, parse_batch};
+pub use ingest::{BatchRules, ParsedBatch, parse_batch};
 
 use crate::config::MachineSpec;
 use crate::machine::{self, MachineCore, MachineError, MachineHandle};
