@@ -197,3 +197,64 @@ async fn live_clients_are_capped_per_machine() {
     drop((first, second));
     server.stop().await;
 }
+
+/// A full disk (the database capped at 1 MB): ingest answers 503 with
+/// `Retry-After` and a clear error, everything acknowledged stays; with
+/// room again (a larger cap after a restart) the gateway's resends all go
+/// in, and the estimates are exactly what `replay` makes of the readings.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_full_disk_gets_503_and_recovers_when_space_returns() {
+    let dir = tempfile::tempdir().unwrap();
+    let client = reqwest::Client::new();
+    let lines = common::drive(6.0, 9, vec![]);
+    let server = common::ServerProcess::start_with_args(dir.path(), &["--max-database-mb", "1"]);
+    let base = server.url("");
+    common::put_machine(&client, &base, "full").await;
+    let mut acknowledged = 0;
+    let mut full = None;
+    for chunk in lines.chunks(500) {
+        let response = send_ndjson(&client, &base, "full", chunk).await.unwrap();
+        match response.status().as_u16() {
+            200 => acknowledged += chunk.len(),
+            503 => {
+                assert_eq!(response.headers()["retry-after"], "1");
+                full = Some(response.text().await.unwrap());
+                break;
+            }
+            other => panic!("{other}: {}", response.text().await.unwrap()),
+        }
+    }
+    let full = full.expect("the capped database filled up");
+    assert!(full.contains("full"), "{full}");
+    assert!(acknowledged > 1000, "{acknowledged} readings went in first");
+    // Still full: the same answer, nothing changes, the server is healthy.
+    let again = send_ndjson(
+        &client,
+        &base,
+        "full",
+        &lines[acknowledged..acknowledged + 500],
+    )
+    .await
+    .unwrap();
+    assert_eq!(again.status(), 503);
+    let health = client.get(server.url("/healthz")).send().await.unwrap();
+    assert_eq!(health.status(), 200);
+    assert_eq!(server.terminate().code(), Some(0));
+
+    // Space returns.
+    let server = common::ServerProcess::start_with_args(dir.path(), &["--max-database-mb", "100"]);
+    let base = server.url("");
+    for chunk in lines[acknowledged..].chunks(2000) {
+        common::post_ndjson(&client, &base, "full", chunk).await;
+    }
+    let stored = exported_readings(&client, &base, "full").await;
+    assert_eq!(stored, lines, "every reading once, in order");
+    let served = common::all_estimates(&client, &base, "full").await;
+    let replayed = common::replay_engine("full", "attitude", &[], &lines);
+    assert_eq!(served, replayed);
+    eprintln!(
+        "full after {acknowledged} readings; all {} in after space returned",
+        lines.len()
+    );
+    server.terminate();
+}

@@ -32,6 +32,11 @@ pub struct ServeArgs {
     /// keep all); the per-bucket extremes stay.
     #[arg(long, value_name = "DAYS")]
     pub keep_estimates_days: Option<f64>,
+    /// Cap the database file at this many megabytes: beyond, ingest
+    /// answers 503 as on a full disk until retention or a larger cap makes
+    /// room.
+    #[arg(long, value_name = "MB")]
+    pub max_database_mb: Option<f64>,
     /// Seconds between retention passes.
     #[arg(long, default_value_t = 3600.0, value_name = "SECONDS")]
     pub retention_every_s: f64,
@@ -62,7 +67,10 @@ pub fn run(args: ServeArgs) -> Result<(), CliError> {
         let options = ServerOptions {
             data_dir: args.data_dir.clone(),
             machines,
-            limits: Limits::default(),
+            limits: Limits {
+                max_database_bytes: args.max_database_mb.map(|mb| (mb * 1e6) as u64),
+                ..Limits::default()
+            },
             clock: Clock::system(),
             retention: args.retention(),
         };

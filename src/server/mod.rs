@@ -54,6 +54,9 @@ pub struct Limits {
     /// Longest a request may take to be answered (408 beyond); streamed
     /// bodies and open WebSockets are not cut.
     pub request_timeout: std::time::Duration,
+    /// Cap on the database file (a small card on a site computer): beyond
+    /// it ingest answers 503 as on a full disk. `None`: the disk's size.
+    pub max_database_bytes: Option<u64>,
 }
 
 impl Default for Limits {
@@ -68,6 +71,7 @@ impl Default for Limits {
             machine_queue: 64,
             max_live_clients_per_machine: 100,
             request_timeout: std::time::Duration::from_secs(30),
+            max_database_bytes: None,
         }
     }
 }
@@ -120,7 +124,7 @@ impl AppState {
     /// Opens the store, applies the configured machines, restores every
     /// machine from its snapshot and starts their tasks.
     pub async fn start(options: ServerOptions) -> Result<SharedState, ServerError> {
-        let store = Store::open(&options.data_dir)?;
+        let store = Store::open_capped(&options.data_dir, options.limits.max_database_bytes)?;
         let stored = {
             let store = store.clone();
             tokio::task::spawn_blocking(move || store.machines())

@@ -185,6 +185,13 @@ impl Store {
     /// Opens (creating and migrating) the database in `data_dir` and starts
     /// the writer thread.
     pub fn open(data_dir: &Path) -> Result<Store, StoreError> {
+        Store::open_capped(data_dir, None)
+    }
+
+    /// [`Store::open`] with the database file capped at `max_bytes`: beyond
+    /// it writes fail as on a full disk (`SQLITE_FULL`), and the server
+    /// answers 503 until space is made (retention, a larger cap).
+    pub fn open_capped(data_dir: &Path, max_bytes: Option<u64>) -> Result<Store, StoreError> {
         std::fs::create_dir_all(data_dir).map_err(|source| StoreError::DataDir {
             path: data_dir.display().to_string(),
             source,
@@ -206,6 +213,11 @@ impl Store {
         // Multi-row inserts of every length up to ROWS_PER_INSERT stay prepared.
         conn.set_prepared_statement_cache_capacity(2 * ROWS_PER_INSERT + 32);
         schema::migrate(&mut conn)?;
+        if let Some(max_bytes) = max_bytes {
+            let page_bytes: i64 = conn.query_row("PRAGMA page_size", [], |row| row.get(0))?;
+            let pages = (max_bytes as i64 / page_bytes.max(1)).max(1);
+            conn.query_row(&format!("PRAGMA max_page_count = {pages}"), [], |_| Ok(()))?;
+        }
         let checkpointer = Connection::open(&path)?;
         checkpointer.busy_timeout(std::time::Duration::from_secs(5))?;
         // The writer holds `alive`; the checkpointer stops when it ends.
