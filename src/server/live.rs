@@ -42,7 +42,11 @@ pub async fn websocket(
     }
     let shutdown = state.shutdown_signal();
     let (ping_every, clock) = (state.limits.live_ping_interval, state.clock);
-    Ok(upgrade.on_upgrade(move |socket| serve_live(socket, machine, ping_every, clock, shutdown)))
+    let guard = state.live_socket();
+    Ok(upgrade.on_upgrade(move |socket| async move {
+        serve_live(socket, machine, ping_every, clock, shutdown).await;
+        drop(guard);
+    }))
 }
 
 fn text(value: serde_json::Value) -> Message {

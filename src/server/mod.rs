@@ -116,6 +116,18 @@ pub struct AppState {
     shutdown: watch::Sender<bool>,
     /// Access tokens in force.
     pub gate: auth::Gate,
+    /// Live sockets open now: shutdown waits (a little) for their close
+    /// frames to go out.
+    live_sockets: Arc<std::sync::atomic::AtomicUsize>,
+}
+
+/// Counts an open live socket while it lives.
+pub struct LiveSocketGuard(Arc<std::sync::atomic::AtomicUsize>);
+
+impl Drop for LiveSocketGuard {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, std::sync::atomic::Ordering::SeqCst);
+    }
 }
 
 pub type SharedState = Arc<AppState>;
@@ -186,7 +198,15 @@ impl AppState {
             clock: options.clock,
             shutdown: watch::channel(false).0,
             gate: auth::Gate::default(),
+            live_sockets: Arc::default(),
         }))
+    }
+
+    /// Counts a live socket until the guard drops.
+    pub fn live_socket(&self) -> LiveSocketGuard {
+        self.live_sockets
+            .fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+        LiveSocketGuard(self.live_sockets.clone())
     }
 
     /// A running machine.
@@ -384,5 +404,13 @@ pub async fn run(
         })
         .await?;
     state.stop().await;
+    // Upgraded sockets outlive the HTTP server: give their close frames up
+    // to 3 s to go out (a client that reads nothing gets none).
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(3);
+    while state.live_sockets.load(std::sync::atomic::Ordering::SeqCst) > 0
+        && std::time::Instant::now() < deadline
+    {
+        tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+    }
     Ok(())
 }
