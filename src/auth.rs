@@ -82,7 +82,7 @@ impl Token {
 pub fn need(method: &axum::http::Method, path: &str) -> Need {
     let segments: Vec<&str> = path.trim_matches('/').split('/').collect();
     match segments.as_slice() {
-        ["healthz"] | ["login"] | ["logout"] => Need::Nothing,
+        ["healthz"] | ["login"] | ["logout"] | ["favicon.ico"] => Need::Nothing,
         ["static", ..] => Need::Nothing,
         ["api", "v1", "machines", machine] if method == axum::http::Method::PUT => Need::Admin,
         ["api", "v1", "machines", machine, "readings"] if method == axum::http::Method::POST => {

@@ -650,3 +650,85 @@ async fn fuzzy_page_shows_compass_motion_and_calibration() {
     browser.close().await.ok();
     server.stop().await;
 }
+
+/// With tokens in force the dashboard signs in through the login form
+/// (the token goes in a POST body and an HttpOnly cookie, never a URL):
+/// the fleet page, a machine page and its live socket then work.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_dashboard_signs_in_when_tokens_are_required() {
+    let Some((driver_program, chromium)) = browser_programs() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let (admin, reader) = {
+        let conn = tunnelnav::store::Store::connect(dir.path()).unwrap();
+        let admin =
+            tunnelnav::auth::create(&conn, "admin", tunnelnav::auth::Scope::Admin, None, 0.0)
+                .unwrap()
+                .1;
+        let reader = tunnelnav::auth::create(
+            &conn,
+            "control room",
+            tunnelnav::auth::Scope::Read,
+            None,
+            0.0,
+        )
+        .unwrap()
+        .1;
+        (admin, reader)
+    };
+    let server = common::TestServer::start(dir.path()).await;
+    let client = reqwest::Client::new();
+    let base = server.url("");
+    let declared = client
+        .put(format!("{base}/api/v1/machines/tbm-auth"))
+        .bearer_auth(&admin)
+        .body(r#"{"name": "TBM behind a login", "engines": {"attitude": {}}}"#)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(declared.status(), 201);
+
+    let driver = Driver::start(&driver_program);
+    let browser = connect(&driver, chromium.as_deref()).await;
+    browser.goto(&format!("{base}/")).await.expect("page loads");
+    wait_for(
+        &browser,
+        "the login form",
+        "return location.pathname === '/login' && !!document.getElementById('token');",
+        10,
+    )
+    .await;
+    js(
+        &browser,
+        &format!(
+            "document.getElementById('token').value = '{reader}'; \
+             document.querySelector('form').submit(); return true;"
+        ),
+    )
+    .await;
+    wait_for(
+        &browser,
+        "the fleet page with the machine's card",
+        "return location.pathname === '/' \
+           && !!document.querySelector('[data-machine=\"tbm-auth\"]');",
+        10,
+    )
+    .await;
+    let url = js(&browser, "return location.href;").await;
+    assert!(!url.as_str().unwrap().contains("tnv_"), "{url}");
+    browser
+        .goto(&format!("{base}/machines/tbm-auth"))
+        .await
+        .expect("machine page loads");
+    wait_for(
+        &browser,
+        "the live socket",
+        "return document.getElementById('conn-state').dataset.state === 'live';",
+        10,
+    )
+    .await;
+    assert_clean_console(&browser).await;
+    browser.close().await.ok();
+    server.stop().await;
+}

@@ -258,3 +258,56 @@ async fn a_full_disk_gets_503_and_recovers_when_space_returns() {
     );
     server.terminate();
 }
+
+/// A request that is not answered in time (here: a body that never
+/// finishes arriving) gets a JSON 408, and the server carries on.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stalled_request_gets_408_in_time() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start_with(
+        dir.path(),
+        Limits {
+            request_timeout: Duration::from_millis(500),
+            ..Limits::default()
+        },
+    )
+    .await;
+    let client = reqwest::Client::new();
+    let base = server.url("");
+    declare_machine(
+        &client,
+        &base,
+        MACHINE,
+        r#"{"name": "TBM", "engines": {"attitude": {}}}"#,
+    )
+    .await;
+    let mut stream = tokio::net::TcpStream::connect(server.address)
+        .await
+        .unwrap();
+    let head = format!(
+        "POST /api/v1/machines/{MACHINE}/readings HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: 1000\r\n\r\n{{\"t\": 17"
+    );
+    stream.write_all(head.as_bytes()).await.unwrap();
+    let started = std::time::Instant::now();
+    let mut answer = Vec::new();
+    let mut buffer = [0u8; 4096];
+    while !String::from_utf8_lossy(&answer).contains("}") {
+        let n = tokio::time::timeout(Duration::from_secs(5), stream.read(&mut buffer))
+            .await
+            .expect("answered in time")
+            .unwrap();
+        if n == 0 {
+            break;
+        }
+        answer.extend_from_slice(&buffer[..n]);
+    }
+    let answer = String::from_utf8_lossy(&answer);
+    assert!(answer.starts_with("HTTP/1.1 408"), "{answer}");
+    assert!(answer.contains("not answered within 0.5 s"), "{answer}");
+    assert!(started.elapsed() < Duration::from_secs(3));
+    // Others are served meanwhile and after.
+    let health = client.get(format!("{base}/healthz")).send().await.unwrap();
+    assert_eq!(health.status(), 200);
+    server.stop().await;
+}

@@ -84,6 +84,7 @@ async fn twenty_five_sigkills_under_load_lose_nothing_and_change_nothing() {
     };
 
     let mut kills = 0;
+    let mut load_ms = 0;
     for cycle in 0..=KILLS {
         let server = ServerProcess::start(dir.path());
         let base = server.url("");
@@ -121,7 +122,10 @@ async fn twenty_five_sigkills_under_load_lose_nothing_and_change_nothing() {
                 }
             }
             eprintln!(
-                "{kills} SIGKILLs under load; {total} acknowledged readings all present once; estimates equal replay"
+                "{kills} SIGKILLs under load; {total} acknowledged readings all present once \
+                 ({:.0} readings/s acknowledged over {:.1} s of load between kills); estimates equal replay",
+                total as f64 / (load_ms as f64 / 1000.0),
+                load_ms as f64 / 1000.0
             );
             server.kill();
             break;
@@ -152,7 +156,9 @@ async fn twenty_five_sigkills_under_load_lose_nothing_and_change_nothing() {
                 }
             }));
         }
-        tokio::time::sleep(Duration::from_millis(next_delay())).await;
+        let delay = next_delay();
+        tokio::time::sleep(Duration::from_millis(delay)).await;
+        load_ms += delay;
         server.kill();
         kills += 1;
         for gateway in gateways {

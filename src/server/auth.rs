@@ -181,6 +181,7 @@ pub async fn login_page() -> Html<&'static str> {
 
 const LOGIN_PAGE: &str = r#"<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>tunnelnav · sign in</title>
+<link rel="icon" href="/static/favicon.svg" type="image/svg+xml">
 <link rel="stylesheet" href="/static/app.css"></head>
 <body><main class="login"><h1>tunnelnav</h1>
 <form method="post" action="/login">
