@@ -330,6 +330,26 @@ async fn the_dashboard_signs_in_with_a_cookie_not_a_url() {
     server.terminate();
 }
 
+/// `serve` with `args`, started: the child and its first stdout line.
+fn serve(args: &[&str], dir: &Path, stderr: Stdio) -> (std::process::Child, String) {
+    let mut child = tunnelnav()
+        .arg("serve")
+        .args(args)
+        .arg("--data-dir")
+        .arg(dir)
+        .stdout(Stdio::piped())
+        .stderr(stderr)
+        .spawn()
+        .unwrap();
+    let mut first = String::new();
+    std::io::BufRead::read_line(
+        &mut std::io::BufReader::new(child.stdout.take().unwrap()),
+        &mut first,
+    )
+    .unwrap();
+    (child, first)
+}
+
 #[test]
 fn beyond_loopback_a_server_without_tokens_refuses_to_start() {
     let dir = tempfile::tempdir().unwrap();
@@ -348,25 +368,11 @@ fn beyond_loopback_a_server_without_tokens_refuses_to_start() {
     assert!(stderr.contains("--allow-no-auth"), "{stderr}");
 
     // With the override it starts, and says so.
-    let mut child = tunnelnav()
-        .args([
-            "serve",
-            "--listen",
-            "0.0.0.0:0",
-            "--allow-no-auth",
-            "--data-dir",
-        ])
-        .arg(dir.path())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut first = String::new();
-    std::io::BufRead::read_line(
-        &mut std::io::BufReader::new(child.stdout.take().unwrap()),
-        &mut first,
-    )
-    .unwrap();
+    let (mut child, first) = serve(
+        &["--listen", "0.0.0.0:0", "--allow-no-auth"],
+        dir.path(),
+        Stdio::piped(),
+    );
     assert!(first.starts_with("listening on http://0.0.0.0:"), "{first}");
     child.kill().unwrap();
     let out = child.wait_with_output().unwrap();
@@ -378,19 +384,7 @@ fn beyond_loopback_a_server_without_tokens_refuses_to_start() {
 
     // With a token it starts without the override.
     create(dir.path(), &["--scope", "admin"]);
-    let mut child = tunnelnav()
-        .args(["serve", "--listen", "0.0.0.0:0", "--data-dir"])
-        .arg(dir.path())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut first = String::new();
-    std::io::BufRead::read_line(
-        &mut std::io::BufReader::new(child.stdout.take().unwrap()),
-        &mut first,
-    )
-    .unwrap();
+    let (mut child, first) = serve(&["--listen", "0.0.0.0:0"], dir.path(), Stdio::null());
     assert!(first.starts_with("listening on"), "{first}");
     child.kill().unwrap();
     child.wait().unwrap();

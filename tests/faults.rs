@@ -16,6 +16,24 @@ use tunnelnav::server::Limits;
 
 const MACHINE: &str = "tbm-busy";
 
+/// A test server with these limits and the attitude machine declared.
+async fn server_with(
+    dir: &std::path::Path,
+    limits: Limits,
+) -> (TestServer, reqwest::Client, String) {
+    let server = TestServer::start_with(dir, limits).await;
+    let client = reqwest::Client::new();
+    let base = server.url("");
+    declare_machine(
+        &client,
+        &base,
+        MACHINE,
+        r#"{"name": "TBM", "engines": {"attitude": {}}}"#,
+    )
+    .await;
+    (server, client, base)
+}
+
 fn reading(i: usize) -> String {
     format!(
         r#"{{"t": {}, "sensor": "inclinometer", "pitch_deg": {:.4}, "roll_deg": 1.0}}"#,
@@ -27,21 +45,12 @@ fn reading(i: usize) -> String {
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn a_busy_database_gets_503_and_loses_nothing_acknowledged() {
     let dir = tempfile::tempdir().unwrap();
-    let server = TestServer::start_with(
+    let (server, client, base) = server_with(
         dir.path(),
         Limits {
             machine_queue: 4,
             ..Limits::default()
         },
-    )
-    .await;
-    let client = reqwest::Client::new();
-    let base = server.url("");
-    declare_machine(
-        &client,
-        &base,
-        MACHINE,
-        r#"{"name": "TBM", "engines": {"attitude": {}}}"#,
     )
     .await;
 
@@ -134,17 +143,8 @@ async fn a_busy_database_gets_503_and_loses_nothing_acknowledged() {
     let later: Vec<String> = (1000..1010).map(reading).collect();
     common::post_ndjson(&client, &base, MACHINE, &later).await;
     let estimates = common::all_estimates(&client, &base, MACHINE).await;
-    let status: serde_json::Value = serde_json::from_slice(
-        &client
-            .get(format!("{base}/api/v1/machines/{MACHINE}"))
-            .send()
-            .await
-            .unwrap()
-            .bytes()
-            .await
-            .unwrap(),
-    )
-    .unwrap();
+    let status: serde_json::Value =
+        common::get_json(&client, &base, &format!("/api/v1/machines/{MACHINE}")).await;
     let late = status["late_readings"].as_u64().unwrap() as usize;
     assert_eq!(
         estimates.len() + late,
@@ -161,21 +161,12 @@ async fn a_busy_database_gets_503_and_loses_nothing_acknowledged() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn live_clients_are_capped_per_machine() {
     let dir = tempfile::tempdir().unwrap();
-    let server = TestServer::start_with(
+    let (server, _, _) = server_with(
         dir.path(),
         Limits {
             max_live_clients_per_machine: 2,
             ..Limits::default()
         },
-    )
-    .await;
-    let client = reqwest::Client::new();
-    let base = server.url("");
-    declare_machine(
-        &client,
-        &base,
-        MACHINE,
-        r#"{"name": "TBM", "engines": {"attitude": {}}}"#,
     )
     .await;
     let url = server.ws_url(&format!("/api/v1/machines/{MACHINE}/live"));
@@ -265,21 +256,12 @@ async fn a_full_disk_gets_503_and_recovers_when_space_returns() {
 async fn a_stalled_request_gets_408_in_time() {
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
     let dir = tempfile::tempdir().unwrap();
-    let server = TestServer::start_with(
+    let (server, client, base) = server_with(
         dir.path(),
         Limits {
             request_timeout: Duration::from_millis(500),
             ..Limits::default()
         },
-    )
-    .await;
-    let client = reqwest::Client::new();
-    let base = server.url("");
-    declare_machine(
-        &client,
-        &base,
-        MACHINE,
-        r#"{"name": "TBM", "engines": {"attitude": {}}}"#,
     )
     .await;
     let mut stream = tokio::net::TcpStream::connect(server.address)

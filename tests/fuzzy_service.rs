@@ -50,17 +50,8 @@ async fn served_estimates_match_replay_across_a_restart() {
     let base = server.url("");
     post_all(&client, &base, second).await;
     let served = all_estimates(&client, &base, MACHINE).await;
-    let model: serde_json::Value = serde_json::from_slice(
-        &client
-            .get(format!("{base}/api/v1/machines/{MACHINE}/model"))
-            .send()
-            .await
-            .unwrap()
-            .bytes()
-            .await
-            .unwrap(),
-    )
-    .unwrap();
+    let model: serde_json::Value =
+        common::get_json(&client, &base, &format!("/api/v1/machines/{MACHINE}/model")).await;
     for (query, status) in [
         ("engine=zupt", 404),
         ("engine=nope", 400),

@@ -54,17 +54,7 @@ async fn old_history_is_pruned_and_the_engines_still_restore() {
     let base = server.url("");
     let ack = post_ndjson(&client, &base, "r1", &lines[25_000..25_100]).await;
     assert_eq!(ack["accepted"], 100, "{ack}");
-    let history: serde_json::Value = serde_json::from_slice(
-        &client
-            .get(format!("{base}/api/v1/machines/r1"))
-            .send()
-            .await
-            .unwrap()
-            .bytes()
-            .await
-            .unwrap(),
-    )
-    .unwrap();
+    let history: serde_json::Value = common::get_json(&client, &base, "/api/v1/machines/r1").await;
     assert_eq!(history["late_readings"], 0, "{history}");
     let newest_inclinometer = lines[25_000..25_100]
         .iter()

@@ -52,17 +52,8 @@ async fn served_estimates_match_replay_across_a_restart() {
     let base = server.url("");
     declare(&client, &base).await;
     post_all(&client, &base, first).await;
-    let status: Value = serde_json::from_slice(
-        &client
-            .get(format!("{base}/api/v1/machines/{MACHINE}"))
-            .send()
-            .await
-            .unwrap()
-            .bytes()
-            .await
-            .unwrap(),
-    )
-    .unwrap();
+    let status: Value =
+        common::get_json(&client, &base, &format!("/api/v1/machines/{MACHINE}")).await;
     assert_eq!(status["latest"]["zupt"]["engine"], "zupt", "{status}");
     server.stop().await;
 

@@ -282,3 +282,10 @@ pub fn replay_engine(
         .map(|l| serde_json::from_str(l).unwrap())
         .collect()
 }
+
+/// `GET base + path` answered 200 with JSON: the value.
+pub async fn get_json(client: &reqwest::Client, base: &str, path: &str) -> serde_json::Value {
+    let response = client.get(format!("{base}{path}")).send().await.unwrap();
+    assert_eq!(response.status(), 200, "{path}");
+    serde_json::from_slice(&response.bytes().await.unwrap()).unwrap()
+}
