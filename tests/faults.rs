@@ -54,15 +54,17 @@ async fn a_busy_database_gets_503_and_loses_nothing_acknowledged() {
     )
     .await;
 
-    // Another process takes the write lock for 7 s (longer than the
-    // store's 5 s busy timeout).
+    // Another process takes the write lock for 12 s: longer than two of
+    // the store's 5 s busy waits, so the group commit fails and so does at
+    // least the first request retried alone (503 for certain, not only
+    // when the machine's queue happens to fill).
     let db = dir.path().join("tunnelnav.sqlite3");
     let (locked_tx, locked_rx) = std::sync::mpsc::channel();
     let holder = std::thread::spawn(move || {
         let conn = rusqlite::Connection::open(db).unwrap();
         conn.execute_batch("BEGIN IMMEDIATE").unwrap();
         locked_tx.send(()).unwrap();
-        std::thread::sleep(Duration::from_secs(7));
+        std::thread::sleep(Duration::from_secs(12));
         conn.execute_batch("COMMIT").unwrap();
     });
     locked_rx.recv().unwrap();
