@@ -203,6 +203,51 @@ const tn = (function () {
     return typeof v === 'number' && isFinite(v);
   }
 
+  // The live socket of one engine's part of a machine page, with backfill
+  // from the history API after a reconnect or a `gap` event. `page` holds
+  // `state` (connection, lastLiveT, backfilled), `add(estimate, thin)`,
+  // `redraw()` and `windowStart()`. Returns the `follow` handle.
+  function followEngine(api, engine, page, backfillPoints) {
+    const { state } = page;
+    const setConnection = (connection, detail) => {
+      state.connection = connection;
+      showConnection(document.getElementById('conn-state'), connection, detail);
+    };
+    async function backfill(fromT, why) {
+      setConnection('backfilling');
+      try {
+        const history = await json(`${api}/estimates?engine=${engine}&from=${fromT}&max_points=${backfillPoints}`);
+        for (const e of history.estimates) page.add(e, false);
+        state.backfilled += history.estimates.length;
+        setConnection('backfilled', `${why}: ${history.estimates.length} estimates backfilled`);
+        setTimeout(() => { if (state.connection === 'backfilled') setConnection('live'); }, 15000);
+        page.redraw();
+      } catch (e) {
+        console.error('backfill:', e.message);
+        setConnection('live');
+      }
+    }
+    return follow(api, {
+      hello(m, isReconnect) {
+        const resumeFrom = state.lastLiveT;
+        if (m.latest && m.latest[engine]) page.add(m.latest[engine], false);
+        if (isReconnect && resumeFrom !== null) backfill(resumeFrom, 'reconnected');
+        else setConnection('live');
+        page.redraw();
+      },
+      gap(m) {
+        backfill(num(m.from_t) ? m.from_t : page.windowStart(), `fell behind (${m.missed} missed)`);
+      },
+      estimate(m) {
+        if (m.engine !== engine) return;
+        page.add(m, true);
+        state.lastLiveT = Math.max(state.lastLiveT || 0, m.t);
+        page.redraw();
+      },
+      closed() { setConnection('reconnecting'); },
+    });
+  }
+
   // A uPlot drawClear hook shading the spans where `on(point)` holds, over
   // the time-sorted `points()` (zero velocity, static).
   function shadeSpans(points, on) {
@@ -237,6 +282,6 @@ const tn = (function () {
   return {
     clock, fixed, mmPerM, duration, timeOfDay, json, ndjson, setText, css,
     showConnection, follow, showSensors, pollStatus, windowButtons, axis, num,
-    shadeSpans, line,
+    shadeSpans, line, followEngine,
   };
 })();

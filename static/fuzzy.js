@@ -33,11 +33,6 @@
   const charts = {};
   window.tunnelnavFuzzy = { state, charts };
 
-  function setConnection(connection, detail) {
-    state.connection = connection;
-    tn.showConnection($('conn-state'), connection, detail);
-  }
-
   function windowStart() {
     return tn.clock.now() - state.windowS;
   }
@@ -82,21 +77,6 @@
     } catch (e) {
       console.error('history:', e.message);
       setText($('fuzzy-history-note'), `history could not be loaded: ${e.message}`);
-    }
-  }
-
-  async function backfill(fromT, why) {
-    setConnection('backfilling');
-    try {
-      const history = await tn.json(`${API}/estimates?engine=fuzzy&from=${fromT}&max_points=${BACKFILL_POINTS}`);
-      for (const e of history.estimates) addEstimate(e, false);
-      state.backfilled += history.estimates.length;
-      setConnection('backfilled', `${why}: ${history.estimates.length} estimates backfilled`);
-      setTimeout(() => { if (state.connection === 'backfilled') setConnection('live'); }, 15000);
-      redraw();
-    } catch (e) {
-      console.error('backfill:', e.message);
-      setConnection('live');
     }
   }
 
@@ -258,25 +238,7 @@
 
   // ---- live ---------------------------------------------------------------
   function connect() {
-    const live = tn.follow(API, {
-      hello(m, isReconnect) {
-        const resumeFrom = state.lastLiveT;
-        if (m.latest && m.latest.fuzzy) addEstimate(m.latest.fuzzy, false);
-        if (isReconnect && resumeFrom !== null) backfill(resumeFrom, 'reconnected');
-        else setConnection('live');
-        redraw();
-      },
-      gap(m) {
-        backfill(num(m.from_t) ? m.from_t : windowStart(), `fell behind (${m.missed} missed)`);
-      },
-      estimate(m) {
-        if (m.engine !== 'fuzzy') return;
-        addEstimate(m, true);
-        state.lastLiveT = Math.max(state.lastLiveT || 0, m.t);
-        redraw();
-      },
-      closed() { setConnection('reconnecting'); },
-    });
+    const live = tn.followEngine(API, 'fuzzy', { state, add: addEstimate, redraw, windowStart }, BACKFILL_POINTS);
     Object.defineProperty(window.tunnelnavFuzzy, 'socket', { get: () => live.socket });
   }
 

@@ -31,11 +31,6 @@
   const charts = {};
   window.tunnelnavZupt = { state, charts };
 
-  function setConnection(connection, detail) {
-    state.connection = connection;
-    tn.showConnection($('conn-state'), connection, detail);
-  }
-
   function windowStart() {
     return tn.clock.now() - state.windowS;
   }
@@ -101,21 +96,6 @@
       drawXY();
     } catch (e) {
       console.error('track:', e.message);
-    }
-  }
-
-  async function backfill(fromT, why) {
-    setConnection('backfilling');
-    try {
-      const history = await tn.json(`${API}/estimates?engine=zupt&from=${fromT}&max_points=${BACKFILL_POINTS}`);
-      for (const e of history.estimates) addEstimate(e, false);
-      state.backfilled += history.estimates.length;
-      setConnection('backfilled', `${why}: ${history.estimates.length} estimates backfilled`);
-      setTimeout(() => { if (state.connection === 'backfilled') setConnection('live'); }, 15000);
-      redraw();
-    } catch (e) {
-      console.error('backfill:', e.message);
-      setConnection('live');
     }
   }
 
@@ -306,25 +286,7 @@
 
   // ---- live ---------------------------------------------------------------
   function connect() {
-    const live = tn.follow(API, {
-      hello(m, isReconnect) {
-        const resumeFrom = state.lastLiveT;
-        if (m.latest && m.latest.zupt) addEstimate(m.latest.zupt, false);
-        if (isReconnect && resumeFrom !== null) backfill(resumeFrom, 'reconnected');
-        else setConnection('live');
-        redraw();
-      },
-      gap(m) {
-        backfill(num(m.from_t) ? m.from_t : windowStart(), `fell behind (${m.missed} missed)`);
-      },
-      estimate(m) {
-        if (m.engine !== 'zupt') return;
-        addEstimate(m, true);
-        state.lastLiveT = Math.max(state.lastLiveT || 0, m.t);
-        redraw();
-      },
-      closed() { setConnection('reconnecting'); },
-    });
+    const live = tn.followEngine(API, 'zupt', { state, add: addEstimate, redraw, windowStart }, BACKFILL_POINTS);
     Object.defineProperty(window.tunnelnavZupt, 'socket', { get: () => live.socket });
   }
 
