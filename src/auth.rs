@@ -84,7 +84,7 @@ pub fn need(method: &axum::http::Method, path: &str) -> Need {
     match segments.as_slice() {
         ["healthz"] | ["login"] | ["logout"] | ["favicon.ico"] => Need::Nothing,
         ["static", ..] => Need::Nothing,
-        ["api", "v1", "machines", machine] if method == axum::http::Method::PUT => Need::Admin,
+        ["api", "v1", "machines", _] if method == axum::http::Method::PUT => Need::Admin,
         ["api", "v1", "machines", machine, "readings"] if method == axum::http::Method::POST => {
             Need::Ingest((*machine).to_string())
         }

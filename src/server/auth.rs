@@ -11,8 +11,8 @@
 //! every 2 s, so `tunnelnav token create|revoke` takes effect within that.
 
 use std::collections::HashMap;
-use std::sync::RwLock;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, RwLock};
 use std::time::{Duration, Instant};
 
 use axum::Form;
@@ -32,9 +32,12 @@ pub const COOKIE: &str = "tunnelnav_token";
 /// How long the token list is trusted before it is read again.
 const REFRESH: Duration = Duration::from_secs(2);
 
+/// Tokens in force by hash, shared by the requests that check them.
+type Tokens = Arc<HashMap<String, Token>>;
+
 /// The server's view of the tokens in force.
 pub struct Gate {
-    tokens: RwLock<Option<(Instant, HashMap<String, Token>)>>,
+    tokens: RwLock<Option<(Instant, Tokens)>>,
     /// Enforce even with no tokens (non-loopback without the override).
     insist: AtomicBool,
 }
@@ -56,19 +59,25 @@ impl Gate {
     }
 
     /// The tokens in force (hash → token), reread when stale.
-    fn current(&self, store: &Store) -> Result<HashMap<String, Token>, ApiError> {
+    fn current(&self, store: &Store) -> Result<Tokens, ApiError> {
         if let Ok(guard) = self.tokens.read()
             && let Some((read_at, tokens)) = guard.as_ref()
             && read_at.elapsed() < REFRESH
         {
             return Ok(tokens.clone());
         }
-        let tokens: HashMap<String, Token> = store
-            .read(|conn| {
-                auth::active(conn).map_err(|e| crate::store::StoreError::Corrupt(e.to_string()))
-            })?
-            .into_iter()
-            .collect();
+        let tokens: Tokens = Arc::new(
+            store
+                .read(|conn| {
+                    auth::active(conn).map_err(|e| match e {
+                        // A busy database stays a (transient) SQLite error.
+                        auth::TokenError::Sql(e) => crate::store::StoreError::Sqlite(e),
+                        other => crate::store::StoreError::Corrupt(other.to_string()),
+                    })
+                })?
+                .into_iter()
+                .collect(),
+        );
         if let Ok(mut guard) = self.tokens.write() {
             *guard = Some((Instant::now(), tokens.clone()));
         }
