@@ -207,9 +207,63 @@ fn eval_prints_the_table_with_every_method() {
         "laser zero-order hold",
         "raw inclinometer",
         "constant-offset inclinometer",
+        "kf3 (textbook 3-state filter)",
+        "oracle (kf3, true error removed)",
         "dropout 1 max",
     ] {
         assert!(table.contains(method), "{table}");
+    }
+}
+
+#[test]
+fn envelope_drives_are_simulated_and_summarised() {
+    let out = tunnelnav()
+        .args(["simulate", "tbm", "--envelope", "--seed", "4"])
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let draw: serde_json::Value =
+        serde_json::from_slice(out.stderr.split(|&b| b == b'\n').next().unwrap()).unwrap();
+    assert_eq!(draw["seed"], 4);
+    let lines = String::from_utf8(out.stdout).unwrap();
+    let expected = 12.0 * 3600.0 / draw["incl_period_s"].as_f64().unwrap();
+    let readings = lines.lines().count() as f64;
+    assert!(
+        readings > expected && readings < 1.2 * expected,
+        "{readings}"
+    );
+    let out = tunnelnav()
+        .args(["simulate", "tbm", "--envelope", "--hours", "3"])
+        .output()
+        .unwrap();
+    assert_eq!(
+        out.status.code(),
+        Some(2),
+        "--hours conflicts with --envelope"
+    );
+
+    let out = tunnelnav()
+        .args([
+            "eval",
+            "attitude",
+            "--envelope",
+            "--seed",
+            "3",
+            "--seeds",
+            "2",
+        ])
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let table = String::from_utf8(out.stdout).unwrap();
+    for line in [
+        "attitude evaluation: envelope seed 3",
+        "attitude evaluation: envelope seed 4",
+        "attitude over the envelope: 2 drives (envelope seeds 3–4)",
+        "engine ÷ oracle, pitch RMSE: median",
+        "kf3 ÷ engine, pitch RMSE: median",
+    ] {
+        assert!(table.contains(line), "{line}: {table}");
     }
 }
 

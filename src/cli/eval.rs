@@ -4,11 +4,16 @@ use clap::{Args, Subcommand};
 
 use super::CliError;
 use super::simulate::{DriveArgs, PipeJackArgs, VehicleDriveArgs};
-use crate::eval::attitude::{AttitudeEvalConfig, evaluate, render_table};
+use crate::eval::attitude::{
+    AttitudeEvalConfig, Drive, KF3_NOISE, ORACLE_NOISE, evaluate, evaluate_all, render_summary,
+    render_table, summarise,
+};
+use crate::eval::kf3::Kf3Noise;
 use crate::eval::{fuzzy, zupt};
 use crate::fusion::Params;
 use crate::fusion::attitude::PARAMS;
 use crate::sim::tbm::Dropout;
+use crate::sim::tbm_envelope::EnvelopeDrive;
 
 #[derive(Debug, Subcommand)]
 pub enum EvalTarget {
@@ -56,15 +61,43 @@ pub struct AttitudeArgs {
     /// The drive; without --dropout, one of 45 min at 7 h.
     #[command(flatten)]
     pub drive: DriveArgs,
+    /// Drives drawn from the whole envelope (`simulate tbm --envelope`)
+    /// instead of the fixed scenario: --seeds of them from --seed on,
+    /// summarised as median and worst beside every baseline.
+    #[arg(long, conflicts_with_all = ["hours", "incl_period_s", "laser_period_s", "dropouts"])]
+    pub envelope: bool,
+    /// How many envelope drives (with --envelope).
+    #[arg(long, default_value_t = 40, requires = "envelope")]
+    pub seeds: u64,
     /// Hours of learning before scoring starts.
     #[arg(long, default_value_t = 1.0)]
     pub learning_h: f64,
     /// An engine parameter as name=value (repeatable).
     #[arg(long = "param", value_name = "NAME=VALUE")]
     pub params: Vec<String>,
+    /// Process noise of the kf3 baseline, deg²/s³ and deg²/s.
+    #[arg(long, value_name = "Q_RATE:Q_BIAS", value_parser = parse_noise)]
+    pub kf3_noise: Option<Kf3Noise>,
+    /// Process noise of the oracle, deg²/s³ and deg²/s.
+    #[arg(long, value_name = "Q_RATE:Q_BIAS", value_parser = parse_noise)]
+    pub oracle_noise: Option<Kf3Noise>,
     /// Print the scores as JSON instead of a table.
     #[arg(long)]
     pub json: bool,
+}
+
+fn parse_noise(text: &str) -> Result<Kf3Noise, String> {
+    let (a, b) = text
+        .split_once(':')
+        .ok_or_else(|| format!("`{text}`: expected Q_RATE:Q_BIAS, e.g. 1e-9:1e-7"))?;
+    let number = |s: &str| match s.trim().parse::<f64>() {
+        Ok(x) if x.is_finite() && x >= 0.0 => Ok(x),
+        _ => Err(format!("`{s}` is not a number ≥ 0")),
+    };
+    Ok(Kf3Noise {
+        q_rate: number(a)?,
+        q_bias: number(b)?,
+    })
 }
 
 pub fn run(target: EvalTarget) -> Result<(), CliError> {
@@ -102,6 +135,37 @@ pub fn run(target: EvalTarget) -> Result<(), CliError> {
             })
         }
         EvalTarget::Attitude(args) => {
+            let params = Params::from_assignments(PARAMS, args.params.iter().map(String::as_str))?;
+            let configure = |drive: Drive| AttitudeEvalConfig {
+                learning_h: args.learning_h,
+                params: params.clone(),
+                kf3_noise: args.kf3_noise.unwrap_or(KF3_NOISE),
+                oracle_noise: args.oracle_noise.unwrap_or(ORACLE_NOISE),
+                ..AttitudeEvalConfig::on(drive)
+            };
+            if args.envelope {
+                let first = args.drive.seed;
+                let configs: Vec<AttitudeEvalConfig> = (first
+                    ..first.saturating_add(args.seeds.max(1)))
+                    .map(|seed| configure(Drive::Envelope(Box::new(EnvelopeDrive::draw(seed)))))
+                    .collect();
+                let threads = std::thread::available_parallelism().map_or(1, usize::from);
+                let evaluations = evaluate_all(&configs, threads)?;
+                let summary = summarise(&evaluations);
+                if args.json {
+                    let value = serde_json::json!({"summary": summary, "drives": evaluations});
+                    println!(
+                        "{}",
+                        serde_json::to_string_pretty(&value).map_err(std::io::Error::other)?
+                    );
+                } else {
+                    for e in &evaluations {
+                        print!("{}", render_table(e));
+                    }
+                    print!("{}", render_summary(&summary, first));
+                }
+                return Ok(());
+            }
             let mut scenario = args.drive.scenario();
             if scenario.dropouts.is_empty() {
                 scenario.dropouts.push(Dropout {
@@ -109,12 +173,7 @@ pub fn run(target: EvalTarget) -> Result<(), CliError> {
                     minutes: 45.0,
                 });
             }
-            let config = AttitudeEvalConfig {
-                scenario,
-                learning_h: args.learning_h,
-                params: Params::from_assignments(PARAMS, args.params.iter().map(String::as_str))?,
-            };
-            let evaluation = evaluate(&config)?;
+            let evaluation = evaluate(&configure(Drive::Fixed(scenario)))?;
             if args.json {
                 println!(
                     "{}",

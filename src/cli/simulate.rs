@@ -9,7 +9,8 @@ use clap::{Args, Subcommand};
 use super::CliError;
 use crate::fusion::SensorKind;
 use crate::sim::pipejack::{Case, IMU_RATE_HZ, PipeJackDrive, PipeJackScenario};
-use crate::sim::tbm::{DEFAULT_START_T, Dropout, TbmDrive, TbmScenario};
+use crate::sim::tbm::{DEFAULT_START_T, Dropout, TbmDrive, TbmEvent, TbmScenario};
+use crate::sim::tbm_envelope::EnvelopeDrive;
 use crate::sim::vehicle::{VehicleDrive, VehicleScenario};
 
 #[derive(Debug, Subcommand)]
@@ -202,6 +203,11 @@ impl DriveArgs {
 pub struct TbmArgs {
     #[command(flatten)]
     pub drive: DriveArgs,
+    /// Draw the machine, its sensors and the drive at random from the
+    /// envelope the attitude engine must hold over (seeded by --seed; the
+    /// draw goes to stderr as JSON). See `src/sim/tbm_envelope.rs`.
+    #[arg(long, conflicts_with_all = ["hours", "incl_period_s", "laser_period_s", "dropouts"])]
+    pub envelope: bool,
     /// Write the truth (one NDJSON line per inclinometer reading) to this file.
     #[arg(long, value_name = "FILE")]
     pub truth: Option<PathBuf>,
@@ -267,8 +273,18 @@ fn run_pipe_jacking(args: &PipeJackingArgs) -> Result<(), CliError> {
 }
 
 fn run_tbm(args: &TbmArgs) -> Result<(), CliError> {
-    let drive = TbmDrive::new(args.drive.scenario()).map_err(CliError::Scenario)?;
     let truth = create_truth(&args.truth)?;
+    let drive: Box<dyn Iterator<Item = TbmEvent>> = if args.envelope {
+        let mut draw = EnvelopeDrive::draw(args.drive.seed);
+        draw.start_t = args.drive.start_t;
+        eprintln!(
+            "{}",
+            serde_json::to_string(&draw).map_err(io::Error::other)?
+        );
+        Box::new(draw.events())
+    } else {
+        Box::new(TbmDrive::new(args.drive.scenario()).map_err(CliError::Scenario)?)
+    };
     // The truth is written per inclinometer reading.
     write_events(
         drive.map(|e| {

@@ -1,52 +1,176 @@
 //! `eval attitude`: runs the `attitude` engine and its baselines over a
-//! simulated TBM drive and scores each against the truth.
+//! simulated TBM drive and scores each against the truth; over many drives
+//! drawn from the envelope, it reports the median and the worst.
 //!
 //! Methods scored, all on the same readings:
 //! - the engine as configured (ANFIS correction by default);
 //! - the engine with `correction=offset` and with `correction=none`
-//!   (ablations: what the ANFIS adds);
+//!   (ablations: what the error model adds);
+//! - `kf3`, the textbook 3-state filter ([`super::kf3`]) on the raw
+//!   inclinometer and the laser, given the simulator's true measurement
+//!   noise;
+//! - `oracle`: the same filter fed the inclinometer corrected by the
+//!   simulator's *true* error (roll and temperature): what perfect learning
+//!   of the error would reach on that drive;
 //! - laser zero-order hold: the latest laser sample, as a driver reading the
 //!   laser alone sees it;
 //! - raw inclinometer;
-//! - constant-offset inclinometer: the inclinometer through the same Kalman
-//!   filter, plus the mean laser − inclinometer difference over the learning
-//!   period, frozen after it (an installation calibration).
+//! - constant-offset inclinometer: the inclinometer through the `kf3`
+//!   filter without the laser, plus the mean laser − inclinometer
+//!   difference over the learning period, frozen after it (an installation
+//!   calibration).
 //!
-//! Scores count only after the learning period. "At laser instants" is the
-//! one-step prediction made just before each laser sample, compared with the
-//! truth at the time it predicts. "Through a dropout" is from the dropout's
-//! start until two laser periods after it ends, to include the recovery.
-//! The step excess (how much more an output moves between two readings than
-//! the truth does) is taken over the two laser periods after the laser
-//! returns, and over the two before the dropout as the ordinary reference.
+//! Scores count only after the learning period. "pred" is each one-step
+//! prediction (made at one inclinometer reading for the next) against the
+//! truth at the next reading; "pred@laser" only those made just before a
+//! laser sample. "In a dropout" is from the dropout's start until two laser
+//! periods after it ends, to include the recovery. The step excess (how
+//! much more an output moves between two readings than the truth does) is
+//! taken over the two laser periods after the laser returns, and over the
+//! two before the dropout as the ordinary reference.
 
-use crate::fusion::attitude::kalman::ScalarKalman;
-use crate::fusion::attitude::{AttitudeConfig, AttitudeEngine, PARAMS};
+use serde::Serialize;
+
+use super::ErrorStats;
+use super::kf3::{Kf3, Kf3Noise};
+use crate::fusion::attitude::{AttitudeEngine, PARAMS};
 use crate::fusion::{
     AttitudeEstimate, Engine, EngineOutput, ParamError, ParamValue, Params, SensorData,
 };
-use crate::sim::tbm::{TbmDrive, TbmScenario};
+use crate::sim::tbm::{Dropout, Phase, TbmDrive, TbmEvent, TbmScenario, TbmTruth};
+use crate::sim::tbm_envelope::EnvelopeDrive;
 
-use super::ErrorStats;
-use serde::Serialize;
+/// A simulated drive to score on: the paper's fixed scenario or one drawn
+/// from the envelope.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum Drive {
+    Fixed(TbmScenario),
+    Envelope(Box<EnvelopeDrive>),
+}
+
+/// The fixed scenario's inclinometer noise (white and coloured together)
+/// while excavating and standing, and its laser noise: see `sim::tbm`.
+const FIXED_INCL_NOISE_DEG: (f64, f64) = (0.005_385_164_807_134_504, 0.001);
+const FIXED_LASER_NOISE_DEG: f64 = 0.002;
+
+impl Drive {
+    fn seed(&self) -> u64 {
+        match self {
+            Drive::Fixed(s) => s.seed,
+            Drive::Envelope(d) => d.seed,
+        }
+    }
+
+    fn start_t(&self) -> f64 {
+        match self {
+            Drive::Fixed(s) => s.start_t,
+            Drive::Envelope(d) => d.start_t,
+        }
+    }
+
+    fn hours(&self) -> f64 {
+        match self {
+            Drive::Fixed(s) => s.hours,
+            Drive::Envelope(d) => d.hours,
+        }
+    }
+
+    fn incl_period_s(&self) -> f64 {
+        match self {
+            Drive::Fixed(s) => s.incl_period_s,
+            Drive::Envelope(d) => d.incl_period_s,
+        }
+    }
+
+    fn laser_period_s(&self) -> f64 {
+        match self {
+            Drive::Fixed(s) => s.laser_period_s,
+            Drive::Envelope(d) => d.laser_period_s,
+        }
+    }
+
+    /// The laser dropouts, in drive order.
+    pub fn dropouts(&self) -> &[Dropout] {
+        match self {
+            Drive::Fixed(s) => &s.dropouts,
+            Drive::Envelope(d) => &d.dropouts,
+        }
+    }
+
+    /// True per-reading inclinometer noise in `phase`, degrees.
+    fn incl_noise_deg(&self, phase: Phase) -> f64 {
+        match (self, phase) {
+            (Drive::Fixed(_), Phase::Excavating) => FIXED_INCL_NOISE_DEG.0,
+            (Drive::Fixed(_), Phase::RingBuilding) => FIXED_INCL_NOISE_DEG.1,
+            (Drive::Envelope(d), phase) => d.incl_noise_deg(phase),
+        }
+    }
+
+    fn laser_noise_deg(&self) -> f64 {
+        match self {
+            Drive::Fixed(_) => FIXED_LASER_NOISE_DEG,
+            Drive::Envelope(d) => d.laser_noise_deg,
+        }
+    }
+
+    fn events(&self) -> Result<Box<dyn Iterator<Item = TbmEvent>>, EvalError> {
+        Ok(match self {
+            Drive::Fixed(s) => Box::new(TbmDrive::new(s.clone()).map_err(EvalError::Scenario)?),
+            Drive::Envelope(d) => Box::new(d.events()),
+        })
+    }
+
+    /// True for an envelope drive in the issue's easy corner (noise ≤
+    /// 0.03°, inclinometer period ≤ 5 s, laser period ≤ 120 s).
+    pub fn is_easy(&self) -> bool {
+        match self {
+            Drive::Fixed(_) => false,
+            Drive::Envelope(d) => d.is_easy(),
+        }
+    }
+}
+
+/// Process noise of the `kf3` baseline: the pair with the lowest median
+/// pitch RMSE over envelope drives 1–40 on a grid of 10^k (k integer)
+/// for each (`eval attitude --envelope --seeds 40 --kf3-noise Q_RATE:Q_BIAS`).
+pub const KF3_NOISE: Kf3Noise = Kf3Noise {
+    q_rate: 1e-10,
+    q_bias: 1e-5,
+};
+/// Process noise of the `oracle`, chosen the same way for it.
+pub const ORACLE_NOISE: Kf3Noise = Kf3Noise {
+    q_rate: 1e-11,
+    q_bias: 1e-10,
+};
 
 /// What to evaluate.
 #[derive(Debug, Clone)]
 pub struct AttitudeEvalConfig {
-    pub scenario: TbmScenario,
+    pub drive: Drive,
     /// Hours at the start that are not scored.
     pub learning_h: f64,
     /// Parameters of the engine under test (its ablations change `correction`).
     pub params: Params,
+    /// Process noise of the `kf3` baseline and of the `oracle`.
+    pub kf3_noise: Kf3Noise,
+    pub oracle_noise: Kf3Noise,
 }
 
 impl AttitudeEvalConfig {
-    /// The default drive with the engine's default parameters.
+    /// The fixed-scenario drive with the engine's default parameters.
     pub fn new(scenario: TbmScenario) -> AttitudeEvalConfig {
+        AttitudeEvalConfig::on(Drive::Fixed(scenario))
+    }
+
+    /// `drive` with the engine's default parameters.
+    pub fn on(drive: Drive) -> AttitudeEvalConfig {
         AttitudeEvalConfig {
-            scenario,
+            drive,
             learning_h: 1.0,
             params: Params::defaults(PARAMS),
+            kf3_noise: KF3_NOISE,
+            oracle_noise: ORACLE_NOISE,
         }
     }
 }
@@ -57,9 +181,11 @@ pub struct MethodScores {
     pub method: String,
     pub pitch: ErrorStats,
     pub roll: ErrorStats,
+    /// One-step prediction error of pitch, every reading.
+    pub pitch_pred: ErrorStats,
     /// One-step prediction error of pitch at laser instants.
     pub pitch_pred_at_laser: ErrorStats,
-    /// Pitch error through each dropout, in scenario order.
+    /// Pitch error through each dropout, in drive order.
     pub pitch_in_dropout: Vec<ErrorStats>,
     /// Largest step between consecutive pitch outputs beyond the true step,
     /// within two laser periods after each dropout ends.
@@ -69,10 +195,20 @@ pub struct MethodScores {
     pub steady_step_excess_deg: Vec<f64>,
 }
 
+impl MethodScores {
+    /// Largest pitch error in any dropout (0 without dropouts).
+    pub fn dropout_max(&self) -> f64 {
+        self.pitch_in_dropout
+            .iter()
+            .map(|d| d.max_abs)
+            .fold(0.0, f64::max)
+    }
+}
+
 /// The scores of every method on one drive.
 #[derive(Debug, Clone, Serialize)]
 pub struct AttitudeEvaluation {
-    pub scenario: TbmScenario,
+    pub drive: Drive,
     pub learning_h: f64,
     pub methods: Vec<MethodScores>,
 }
@@ -88,7 +224,7 @@ impl AttitudeEvaluation {
         &self.methods[0]
     }
 
-    /// The baselines (not the engine or its ablations).
+    /// The simple baselines (not the engine, its ablations, `kf3` or the oracle).
     pub fn baselines(&self) -> impl Iterator<Item = &MethodScores> {
         self.methods
             .iter()
@@ -100,18 +236,30 @@ impl AttitudeEvaluation {
 pub const ENGINE: &str = "tunnelnav attitude";
 pub const ENGINE_OFFSET: &str = "  ablation: correction=offset";
 pub const ENGINE_NONE: &str = "  ablation: correction=none";
+pub const KF3: &str = "kf3 (textbook 3-state filter)";
+pub const ORACLE: &str = "oracle (kf3, true error removed)";
 pub const LASER_HOLD: &str = "laser zero-order hold";
 pub const RAW_INCLINOMETER: &str = "raw inclinometer";
 pub const CONSTANT_OFFSET: &str = "constant-offset inclinometer";
 const BASELINES: [&str; 3] = [LASER_HOLD, RAW_INCLINOMETER, CONSTANT_OFFSET];
+const METHODS: [&str; 8] = [
+    ENGINE,
+    ENGINE_OFFSET,
+    ENGINE_NONE,
+    KF3,
+    ORACLE,
+    LASER_HOLD,
+    RAW_INCLINOMETER,
+    CONSTANT_OFFSET,
+];
 
 /// One method's running output and score.
 struct Scorer {
     scores: MethodScores,
-    /// The pitch the latest output predicts for the next step.
+    /// The pitch the latest output predicts for the next reading.
     prediction: Option<f64>,
-    /// A prediction made before a laser instant, waiting for the next truth.
-    pending_check: Option<f64>,
+    /// Set when a laser sample arrived since the latest output.
+    laser_since: bool,
     previous_pitch: Option<f64>,
 }
 
@@ -122,13 +270,14 @@ impl Scorer {
                 method: method.to_string(),
                 pitch: ErrorStats::default(),
                 roll: ErrorStats::default(),
+                pitch_pred: ErrorStats::default(),
                 pitch_pred_at_laser: ErrorStats::default(),
                 pitch_in_dropout: vec![ErrorStats::default(); dropouts],
                 return_step_excess_deg: vec![0.0; dropouts],
                 steady_step_excess_deg: vec![0.0; dropouts],
             },
             prediction: None,
-            pending_check: None,
+            laser_since: false,
             previous_pitch: None,
         }
     }
@@ -143,23 +292,47 @@ struct Windows {
     recovery_s: f64,
 }
 
-/// The constant-offset baseline: filtered inclinometer plus a frozen offset.
-struct ConstantOffset {
-    pitch: ScalarKalman,
-    roll: ScalarKalman,
+/// A pair of `kf3` filters (pitch and roll) and the time of their last reading.
+struct Kf3Pair {
+    pitch: Kf3,
+    roll: Kf3,
     last_t: Option<f64>,
-    sums: (f64, f64, u32),
-    calibrated_until_t: f64,
+    period_s: f64,
 }
 
-impl ConstantOffset {
-    fn offsets(&self) -> (f64, f64) {
-        let (p, r, n) = self.sums;
-        if n == 0 {
-            (0.0, 0.0)
-        } else {
-            (p / n as f64, r / n as f64)
+/// The roll filters' process noise: roll moves up to 0.5 °/min and the
+/// inclinometer's roll offset is a constant.
+const KF3_ROLL_NOISE: Kf3Noise = Kf3Noise {
+    q_rate: 1e-7,
+    q_bias: 1e-12,
+};
+
+impl Kf3Pair {
+    fn new(noise: Kf3Noise) -> Kf3Pair {
+        Kf3Pair {
+            pitch: Kf3::new(noise),
+            roll: Kf3::new(KF3_ROLL_NOISE),
+            last_t: None,
+            period_s: 0.0,
         }
+    }
+
+    fn inclinometer(&mut self, t: f64, pitch: f64, roll: f64, r: f64) -> ((f64, f64), f64) {
+        if let Some(last) = self.last_t {
+            self.period_s = t - last;
+        }
+        self.last_t = Some(t);
+        self.pitch.inclinometer(t, pitch, r);
+        self.roll.inclinometer(t, roll, r);
+        (
+            (self.pitch.angle(), self.roll.angle()),
+            self.pitch.predict_angle(self.period_s),
+        )
+    }
+
+    fn laser(&mut self, t: f64, pitch: f64, roll: f64, r: f64) {
+        self.pitch.laser(t, pitch, r);
+        self.roll.laser(t, roll, r);
     }
 }
 
@@ -169,17 +342,18 @@ fn attitude(output: &EngineOutput) -> Option<&AttitudeEstimate> {
 
 /// Simulates the drive and scores every method.
 pub fn evaluate(config: &AttitudeEvalConfig) -> Result<AttitudeEvaluation, EvalError> {
-    let scenario = &config.scenario;
+    let drive = &config.drive;
     if !(config.learning_h.is_finite()
         && config.learning_h >= 0.0
-        && config.learning_h < scenario.hours)
+        && config.learning_h < drive.hours())
     {
         return Err(EvalError::Scenario(format!(
             "learning period {} h must be ≥ 0 and shorter than the {} h drive",
-            config.learning_h, scenario.hours
+            config.learning_h,
+            drive.hours()
         )));
     }
-    let drive = TbmDrive::new(scenario.clone()).map_err(EvalError::Scenario)?;
+    let events = drive.events()?;
     let with_correction = |word: &str| {
         let correction = ("correction".to_string(), ParamValue::Text(word.into()));
         config
@@ -192,45 +366,37 @@ pub fn evaluate(config: &AttitudeEvalConfig) -> Result<AttitudeEvaluation, EvalE
         with_correction("offset")?,
         with_correction("none")?,
     ];
-    let engine_config = AttitudeConfig::from_params(&config.params)?;
-    let names = [
-        ENGINE,
-        ENGINE_OFFSET,
-        ENGINE_NONE,
-        LASER_HOLD,
-        RAW_INCLINOMETER,
-        CONSTANT_OFFSET,
-    ];
-    let mut scorers: Vec<Scorer> = names
+    let mut scorers: Vec<Scorer> = METHODS
         .iter()
-        .map(|n| Scorer::new(n, scenario.dropouts.len()))
+        .map(|n| Scorer::new(n, drive.dropouts().len()))
         .collect();
-    let recovery_s = 2.0 * scenario.laser_period_s;
+    let recovery_s = 2.0 * drive.laser_period_s();
+    let start_t = drive.start_t();
     let windows = Windows {
-        scored_from_t: scenario.start_t + config.learning_h * 3600.0,
-        dropouts: scenario
-            .dropouts
+        scored_from_t: start_t + config.learning_h * 3600.0,
+        dropouts: drive
+            .dropouts()
             .iter()
             .map(|d| {
-                let start = scenario.start_t + d.start_h * 3600.0;
+                let start = start_t + d.start_h * 3600.0;
                 let end = start + d.minutes * 60.0;
                 (start, end, end + recovery_s)
             })
             .collect(),
         recovery_s,
     };
-    let mut offset = ConstantOffset {
-        pitch: ScalarKalman::default(),
-        roll: ScalarKalman::default(),
-        last_t: None,
-        sums: (0.0, 0.0, 0),
-        calibrated_until_t: windows.scored_from_t,
-    };
+    let mut kf3 = Kf3Pair::new(config.kf3_noise);
+    let mut oracle = Kf3Pair::new(config.oracle_noise);
+    // The constant-offset baseline: kf3 without the laser, plus offsets
+    // (sum of laser − filtered inclinometer, count) frozen after learning.
+    let mut inclinometer_only = Kf3Pair::new(config.kf3_noise);
+    let mut offset_sums = (0.0, 0.0, 0u32);
+    let r_laser = drive.laser_noise_deg().powi(2);
     let mut laser_hold: Option<(f64, f64)> = None;
     let mut outputs = Vec::new();
     let mut previous_truth_pitch: Option<f64> = None;
 
-    for event in drive {
+    for event in events {
         let reading = &event.reading;
         let truth = event.truth;
         match reading.data {
@@ -242,22 +408,22 @@ pub fn evaluate(config: &AttitudeEvalConfig) -> Result<AttitudeEvaluation, EvalE
                 for engine in &mut engines {
                     engine.feed(reading, &mut outputs);
                 }
+                kf3.laser(reading.t, pitch_deg, roll_deg, r_laser);
+                oracle.laser(reading.t, pitch_deg, roll_deg, r_laser);
                 laser_hold = Some((pitch_deg, roll_deg));
-                if reading.t < offset.calibrated_until_t
-                    && let Some(last_t) = offset.last_t
-                    && reading.t - last_t <= 2.0 * scenario.incl_period_s
+                if reading.t < windows.scored_from_t
+                    && let Some(last_t) = inclinometer_only.last_t
+                    && reading.t - last_t <= 2.0 * drive.incl_period_s()
                 {
-                    let (p, r, n) = offset.sums;
-                    offset.sums = (
-                        p + pitch_deg - offset.pitch.x.to_degrees(),
-                        r + roll_deg - offset.roll.x.to_degrees(),
+                    let (p, r, n) = offset_sums;
+                    offset_sums = (
+                        p + pitch_deg - inclinometer_only.pitch.angle(),
+                        r + roll_deg - inclinometer_only.roll.angle(),
                         n + 1,
                     );
                 }
-                if reading.t >= windows.scored_from_t {
-                    for s in &mut scorers {
-                        s.pending_check = s.prediction;
-                    }
+                for s in &mut scorers {
+                    s.laser_since = true;
                 }
             }
             SensorData::Inclinometer {
@@ -269,33 +435,32 @@ pub fn evaluate(config: &AttitudeEvalConfig) -> Result<AttitudeEvaluation, EvalE
                 for engine in &mut engines {
                     engine.feed(reading, &mut outputs);
                 }
-                let dt_s = offset.last_t.map_or(0.0, |last| reading.t - last);
-                offset.last_t = Some(reading.t);
-                let noise = engine_config.noise;
-                offset.pitch.step(
-                    pitch_deg.to_radians(),
-                    noise.q_pitch_per_s * dt_s,
-                    noise.r_incl,
-                );
-                offset.roll.step(
-                    roll_deg.to_radians(),
-                    noise.q_roll_per_s * dt_s,
-                    noise.r_incl,
-                );
-                let (dp, dr) = offset.offsets();
+                let r_incl = drive.incl_noise_deg(truth.phase).powi(2);
+                let t = reading.t;
                 let mut values: Vec<((f64, f64), f64)> = outputs
                     .iter()
                     .filter_map(attitude)
                     .map(|a| ((a.pitch_deg, a.roll_deg), a.pitch_pred_deg))
                     .collect();
+                values.push(kf3.inclinometer(t, pitch_deg, roll_deg, r_incl));
+                let ((oracle_pitch, _), oracle_pred) = oracle.inclinometer(
+                    t,
+                    pitch_deg + truth.incl_pitch_error_deg,
+                    roll_deg,
+                    r_incl,
+                );
+                // Oracle roll: the kf3 roll (its offset is learned alike).
+                let kf3_roll = kf3.roll.angle();
+                values.push(((oracle_pitch, kf3_roll), oracle_pred));
                 let hold = laser_hold.unwrap_or((pitch_deg, roll_deg));
                 values.push((hold, hold.0));
                 values.push(((pitch_deg, roll_deg), pitch_deg));
-                let filtered = (
-                    offset.pitch.x.to_degrees() + dp,
-                    offset.roll.x.to_degrees() + dr,
-                );
-                values.push((filtered, filtered.0));
+                let ((p, r), pred) = inclinometer_only.inclinometer(t, pitch_deg, roll_deg, r_incl);
+                let (dp, dr) = match offset_sums {
+                    (_, _, 0) => (0.0, 0.0),
+                    (sp, sr, n) => (sp / n as f64, sr / n as f64),
+                };
+                values.push(((p + dp, r + dr), pred + dp));
                 for (scorer, (current, prediction)) in scorers.iter_mut().zip(values) {
                     score(
                         scorer,
@@ -312,7 +477,7 @@ pub fn evaluate(config: &AttitudeEvalConfig) -> Result<AttitudeEvaluation, EvalE
         }
     }
     Ok(AttitudeEvaluation {
-        scenario: scenario.clone(),
+        drive: drive.clone(),
         learning_h: config.learning_h,
         methods: scorers.into_iter().map(|s| s.scores).collect(),
     })
@@ -322,21 +487,23 @@ fn score(
     scorer: &mut Scorer,
     current: (f64, f64),
     prediction: f64,
-    truth: &crate::sim::tbm::TbmTruth,
+    truth: &TbmTruth,
     previous_truth_pitch: Option<f64>,
     windows: &Windows,
 ) {
     let t = truth.t;
-    if let Some(predicted) = scorer.pending_check.take() {
-        scorer
-            .scores
-            .pitch_pred_at_laser
-            .add(predicted - truth.pitch_deg);
-    }
     if t >= windows.scored_from_t {
+        if let Some(predicted) = scorer.prediction {
+            let error = predicted - truth.pitch_deg;
+            scorer.scores.pitch_pred.add(error);
+            if scorer.laser_since {
+                scorer.scores.pitch_pred_at_laser.add(error);
+            }
+        }
         scorer.scores.pitch.add(current.0 - truth.pitch_deg);
         scorer.scores.roll.add(current.1 - truth.roll_deg);
     }
+    scorer.laser_since = false;
     for (i, &(start, end, recovery_end)) in windows.dropouts.iter().enumerate() {
         if t >= start && t < recovery_end {
             scorer.scores.pitch_in_dropout[i].add(current.0 - truth.pitch_deg);
@@ -370,20 +537,24 @@ pub enum EvalError {
 /// The evaluation as a table like the paper's, degrees throughout.
 pub fn render_table(e: &AttitudeEvaluation) -> String {
     use std::fmt::Write;
-    let s = &e.scenario;
+    let d = &e.drive;
     let mut out = String::new();
-    let dropouts: Vec<String> = s
-        .dropouts
+    let dropouts: Vec<String> = d
+        .dropouts()
         .iter()
-        .map(|d| format!("{:.2} h for {:.0} min", d.start_h, d.minutes))
+        .map(|x| format!("{:.2} h for {:.0} min", x.start_h, x.minutes))
         .collect();
+    let kind = match d {
+        Drive::Fixed(_) => "seed",
+        Drive::Envelope(_) => "envelope seed",
+    };
     let _ = writeln!(
         out,
-        "attitude evaluation: seed {}, {:.1} h drive, inclinometer every {} s, laser every {} s, scored after {:.1} h of learning; dropouts: {}",
-        s.seed,
-        s.hours,
-        s.incl_period_s,
-        s.laser_period_s,
+        "attitude evaluation: {kind} {}, {:.1} h drive, inclinometer every {:.3} s, laser every {:.1} s, scored after {:.1} h of learning; dropouts: {}",
+        d.seed(),
+        d.hours(),
+        d.incl_period_s(),
+        d.laser_period_s(),
         e.learning_h,
         if dropouts.is_empty() {
             "none".to_string()
@@ -392,32 +563,321 @@ pub fn render_table(e: &AttitudeEvaluation) -> String {
         }
     );
     let mut header = format!(
-        "{:<32} {:>11} {:>10} {:>10} {:>9} {:>14}",
+        "{:<34} {:>10} {:>9} {:>9} {:>8} {:>9} {:>10}",
         "method (errors in degrees)",
         "pitch RMSE",
         "pitch max",
         "roll RMSE",
         "roll max",
-        "pred@laser RMS"
+        "pred RMSE",
+        "pred@laser"
     );
-    for i in 0..s.dropouts.len() {
+    for i in 0..d.dropouts().len() {
         let _ = write!(header, " {:>13}", format!("dropout {} max", i + 1));
     }
     let _ = writeln!(out, "{header}");
     for m in &e.methods {
         let mut line = format!(
-            "{:<32} {:>11.4} {:>10.4} {:>10.4} {:>9.4} {:>14.4}",
+            "{:<34} {:>10.4} {:>9.4} {:>9.4} {:>8.4} {:>9.4} {:>10.4}",
             m.method,
             m.pitch.rmse(),
             m.pitch.max_abs,
             m.roll.rmse(),
             m.roll.max_abs,
+            m.pitch_pred.rmse(),
             m.pitch_pred_at_laser.rmse()
         );
-        for d in &m.pitch_in_dropout {
-            let _ = write!(line, " {:>13.4}", d.max_abs);
+        for x in &m.pitch_in_dropout {
+            let _ = write!(line, " {:>13.4}", x.max_abs);
         }
         let _ = writeln!(out, "{line}");
     }
     out
+}
+
+/// Evaluates `configs` on up to `threads` threads; results in input order.
+pub fn evaluate_all(
+    configs: &[AttitudeEvalConfig],
+    threads: usize,
+) -> Result<Vec<AttitudeEvaluation>, EvalError> {
+    use std::sync::Mutex;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    let next = AtomicUsize::new(0);
+    let results: Mutex<Vec<Option<Result<AttitudeEvaluation, EvalError>>>> =
+        Mutex::new((0..configs.len()).map(|_| None).collect());
+    std::thread::scope(|scope| {
+        for _ in 0..threads.clamp(1, configs.len().max(1)) {
+            scope.spawn(|| {
+                loop {
+                    let i = next.fetch_add(1, Ordering::Relaxed);
+                    let Some(config) = configs.get(i) else {
+                        break;
+                    };
+                    let result = evaluate(config);
+                    if let Ok(mut slots) = results.lock() {
+                        slots[i] = Some(result);
+                    }
+                }
+            });
+        }
+    });
+    results
+        .into_inner()
+        .unwrap_or_default()
+        .into_iter()
+        .map(|r| r.unwrap_or_else(|| Err(EvalError::Scenario("evaluation did not run".into()))))
+        .collect()
+}
+
+/// Median and worst of one metric over drives.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Spread {
+    pub median: f64,
+    pub worst: f64,
+}
+
+impl Spread {
+    /// Median and largest of `values` (both 0 when empty).
+    pub fn of(values: &[f64]) -> Spread {
+        Spread::with_worst(values, f64::max)
+    }
+
+    /// Median and the smallest of `values`: for ratios where small is bad.
+    pub fn of_lowest(values: &[f64]) -> Spread {
+        Spread::with_worst(values, f64::min)
+    }
+
+    fn with_worst(values: &[f64], pick: fn(f64, f64) -> f64) -> Spread {
+        if values.is_empty() {
+            return Spread {
+                median: 0.0,
+                worst: 0.0,
+            };
+        }
+        let mut sorted = values.to_vec();
+        sorted.sort_by(f64::total_cmp);
+        let n = sorted.len();
+        let median = if n % 2 == 1 {
+            sorted[n / 2]
+        } else {
+            0.5 * (sorted[n / 2 - 1] + sorted[n / 2])
+        };
+        let worst = sorted[1..].iter().fold(sorted[0], |a, &b| pick(a, b));
+        Spread { median, worst }
+    }
+}
+
+/// One method's metrics over the drives.
+#[derive(Debug, Clone, Serialize)]
+pub struct MethodSpread {
+    pub method: String,
+    pub pitch_rmse_deg: Spread,
+    pub pitch_max_deg: Spread,
+    pub roll_rmse_deg: Spread,
+    pub pred_rmse_deg: Spread,
+    pub dropout_max_deg: Spread,
+}
+
+/// The engine against the yardsticks over the drives, with the issue's bars.
+#[derive(Debug, Clone, Serialize)]
+pub struct EnvelopeSummary {
+    pub drives: usize,
+    pub methods: Vec<MethodSpread>,
+    /// Engine ÷ oracle pitch RMSE per drive (bar: median ≤ 1.5, worst ≤ 2).
+    pub rmse_over_oracle: Spread,
+    /// Engine ÷ oracle largest dropout error (bar: median ≤ 2).
+    pub dropout_over_oracle: Spread,
+    /// kf3 ÷ engine pitch RMSE (bar: median ≥ 1.5, never below 1).
+    pub kf3_over_engine: Spread,
+    /// Drives where the engine's pitch RMSE is above kf3's.
+    pub worse_than_kf3: Vec<u64>,
+    /// The easy drives: their number and the engine's worst figures.
+    pub easy_drives: usize,
+    pub easy_pitch_rmse_worst_deg: f64,
+    pub easy_dropout_max_worst_deg: f64,
+    pub easy_pred_rmse_worst_deg: f64,
+}
+
+impl EnvelopeSummary {
+    /// The bars of issue 16 that fail, each as a sentence (empty: all met).
+    pub fn failures(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        let r = self.rmse_over_oracle;
+        if r.median > 1.5 || r.worst > 2.0 {
+            out.push(format!(
+                "pitch RMSE over the oracle's: median {:.2} (bar 1.5), worst {:.2} (bar 2)",
+                r.median, r.worst
+            ));
+        }
+        if self.dropout_over_oracle.median > 2.0 {
+            out.push(format!(
+                "dropout max over the oracle's: median {:.2} (bar 2)",
+                self.dropout_over_oracle.median
+            ));
+        }
+        if self.kf3_over_engine.median < 1.5 {
+            out.push(format!(
+                "kf3 over engine pitch RMSE: median {:.2} (bar 1.5)",
+                self.kf3_over_engine.median
+            ));
+        }
+        if !self.worse_than_kf3.is_empty() {
+            out.push(format!(
+                "worse than kf3 on drives {:?}",
+                self.worse_than_kf3
+            ));
+        }
+        if self.easy_pitch_rmse_worst_deg > 0.010 {
+            out.push(format!(
+                "easy drives: pitch RMSE {:.4}° (bar 0.010°)",
+                self.easy_pitch_rmse_worst_deg
+            ));
+        }
+        if self.easy_dropout_max_worst_deg > 0.03 {
+            out.push(format!(
+                "easy drives: dropout max {:.4}° (bar 0.03°)",
+                self.easy_dropout_max_worst_deg
+            ));
+        }
+        if self.easy_pred_rmse_worst_deg > 0.012 {
+            out.push(format!(
+                "easy drives: prediction RMSE {:.4}° (bar 0.012°)",
+                self.easy_pred_rmse_worst_deg
+            ));
+        }
+        out
+    }
+}
+
+/// Summarises evaluations of the same methods over several drives.
+pub fn summarise(evaluations: &[AttitudeEvaluation]) -> EnvelopeSummary {
+    let per = |name: &str, metric: fn(&MethodScores) -> f64| -> Vec<f64> {
+        evaluations
+            .iter()
+            .filter_map(|e| e.method(name).map(metric))
+            .collect()
+    };
+    let methods = METHODS
+        .iter()
+        .map(|&name| MethodSpread {
+            method: name.to_string(),
+            pitch_rmse_deg: Spread::of(&per(name, |m| m.pitch.rmse())),
+            pitch_max_deg: Spread::of(&per(name, |m| m.pitch.max_abs)),
+            roll_rmse_deg: Spread::of(&per(name, |m| m.roll.rmse())),
+            pred_rmse_deg: Spread::of(&per(name, |m| m.pitch_pred.rmse())),
+            dropout_max_deg: Spread::of(&per(name, MethodScores::dropout_max)),
+        })
+        .collect();
+    let ratio = |a: &str, b: &str, metric: fn(&MethodScores) -> f64| -> Vec<f64> {
+        evaluations
+            .iter()
+            .filter_map(|e| {
+                let (x, y) = (e.method(a)?, e.method(b)?);
+                Some(metric(x) / metric(y).max(1e-12))
+            })
+            .collect()
+    };
+    let rmse = |m: &MethodScores| m.pitch.rmse();
+    let easy: Vec<&AttitudeEvaluation> = evaluations.iter().filter(|e| e.drive.is_easy()).collect();
+    let easy_worst = |metric: fn(&MethodScores) -> f64| {
+        easy.iter().map(|e| metric(e.engine())).fold(0.0, f64::max)
+    };
+    EnvelopeSummary {
+        drives: evaluations.len(),
+        methods,
+        rmse_over_oracle: Spread::of(&ratio(ENGINE, ORACLE, rmse)),
+        dropout_over_oracle: Spread::of(&ratio(ENGINE, ORACLE, MethodScores::dropout_max)),
+        kf3_over_engine: Spread::of_lowest(&ratio(KF3, ENGINE, rmse)),
+        worse_than_kf3: evaluations
+            .iter()
+            .filter(|e| e.method(KF3).is_some_and(|k| rmse(e.engine()) > rmse(k)))
+            .map(|e| e.drive.seed())
+            .collect(),
+        easy_drives: easy.len(),
+        easy_pitch_rmse_worst_deg: easy_worst(rmse),
+        easy_dropout_max_worst_deg: easy_worst(MethodScores::dropout_max),
+        easy_pred_rmse_worst_deg: easy_worst(|m| m.pitch_pred.rmse()),
+    }
+}
+
+/// The summary as a table: median / worst per metric and method, then the
+/// ratios the bars are set on.
+pub fn render_summary(s: &EnvelopeSummary, first_seed: u64) -> String {
+    use std::fmt::Write;
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "attitude over the envelope: {} drives (envelope seeds {}–{}), scored after 1 h; degrees, median / worst",
+        s.drives,
+        first_seed,
+        first_seed + s.drives as u64 - 1
+    );
+    let _ = writeln!(
+        out,
+        "{:<34} {:>15} {:>15} {:>15} {:>15} {:>15}",
+        "method", "pitch RMSE", "pitch max", "roll RMSE", "pred RMSE", "dropout max"
+    );
+    let cell = |x: Spread| format!("{:.4} / {:.4}", x.median, x.worst);
+    for m in &s.methods {
+        let _ = writeln!(
+            out,
+            "{:<34} {:>15} {:>15} {:>15} {:>15} {:>15}",
+            m.method,
+            cell(m.pitch_rmse_deg),
+            cell(m.pitch_max_deg),
+            cell(m.roll_rmse_deg),
+            cell(m.pred_rmse_deg),
+            cell(m.dropout_max_deg)
+        );
+    }
+    let _ = writeln!(
+        out,
+        "engine ÷ oracle, pitch RMSE: median {:.2}, worst {:.2} (bars 1.5, 2); dropout max: median {:.2}, worst {:.2} (bar: median 2)",
+        s.rmse_over_oracle.median,
+        s.rmse_over_oracle.worst,
+        s.dropout_over_oracle.median,
+        s.dropout_over_oracle.worst
+    );
+    let _ = writeln!(
+        out,
+        "kf3 ÷ engine, pitch RMSE: median {:.2}, lowest {:.2} (bars 1.5, 1); engine worse than kf3 on {} drive(s){}",
+        s.kf3_over_engine.median,
+        s.kf3_over_engine.worst,
+        s.worse_than_kf3.len(),
+        if s.worse_than_kf3.is_empty() {
+            String::new()
+        } else {
+            format!(": seeds {:?}", s.worse_than_kf3)
+        }
+    );
+    let _ = writeln!(
+        out,
+        "easy drives (noise ≤ 0.03°, inclinometer ≤ 5 s, laser ≤ 120 s): {}; worst pitch RMSE {:.4} (bar 0.010), dropout max {:.4} (bar 0.03), pred RMSE {:.4} (bar 0.012)",
+        s.easy_drives,
+        s.easy_pitch_rmse_worst_deg,
+        s.easy_dropout_max_worst_deg,
+        s.easy_pred_rmse_worst_deg
+    );
+    let failures = s.failures();
+    if failures.is_empty() {
+        let _ = writeln!(out, "every bar met");
+    } else {
+        for f in failures {
+            let _ = writeln!(out, "bar not met: {f}");
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn spreads_by_hand() {
+        let s = Spread::of(&[3.0, 1.0, 2.0, 10.0]);
+        assert_eq!((s.median, s.worst), (2.5, 10.0));
+        let s = Spread::of_lowest(&[3.0, 1.0, 2.0]);
+        assert_eq!((s.median, s.worst), (2.0, 1.0));
+    }
 }

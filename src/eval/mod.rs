@@ -2,6 +2,7 @@
 
 pub mod attitude;
 pub mod fuzzy;
+pub mod kf3;
 pub mod zupt;
 
 use serde::Serialize;

@@ -3,4 +3,5 @@
 
 pub mod pipejack;
 pub mod tbm;
+pub mod tbm_envelope;
 pub mod vehicle;
