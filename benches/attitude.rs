@@ -79,6 +79,7 @@ fn training_cost(c: &mut Criterion) {
             t: i as f64 * 60.0,
             roll_rad: roll_deg.to_radians(),
             error_rad: (0.3 + 0.05 * roll_deg - 0.008 * roll_deg * roll_deg).to_radians(),
+            temp_c: Some(18.0 + 3.0 * (i as f64 * 0.013).sin()),
             seq: 0,
         }
     };

@@ -64,6 +64,14 @@ pub enum SnapshotError {
     Params(#[from] ParamError),
     #[error("snapshot state is inconsistent: {0}")]
     Invalid(String),
+    #[error(
+        "snapshot of the {engine} engine has state version {found}, this release reads {expected}"
+    )]
+    Outdated {
+        engine: EngineKind,
+        found: u64,
+        expected: u64,
+    },
 }
 
 impl SnapshotError {

@@ -1,5 +1,14 @@
-//! The single-input Takagi–Sugeno ANFIS that models the inclinometer's pitch
-//! error as a function of roll (He et al. 2021, Sec. 3.2, Eq. 20–25).
+//! The Takagi–Sugeno ANFIS that models the inclinometer's pitch error as a
+//! function of roll (He et al. 2021, Sec. 3.2, Eq. 20–25), with a
+//! temperature term fitted jointly with the consequents:
+//!
+//! ê(β, T) = Σ ρ̄_i(β) (p_i0 + p_i1 β) + c_T (T − T_ref)      (Eq. 24 + c_T)
+//!
+//! The temperature enters linearly and alike in every rule (a datasheet's
+//! temperature coefficient): a second fuzzy input would multiply the rules
+//! for a term that is, for an inclinometer, a straight line. T_ref is the
+//! training set's weighted mean temperature; without temperatures (or with
+//! less than [`MIN_TEMP_SPREAD_C`] of spread) c_T stays 0.
 //!
 //! Training is the standard hybrid rule on a bounded, recency-weighted set of
 //! (roll, pitch error) pairs: weighted least squares for the linear
@@ -19,7 +28,20 @@ use serde::{Deserialize, Serialize};
 
 /// Most memberships a model may have (the engine's parameter range).
 pub const MAX_MEMBERSHIPS: usize = 9;
-const MAX_PARAMS: usize = 2 * MAX_MEMBERSHIPS;
+/// Two consequents per rule and the temperature coefficient.
+const MAX_PARAMS: usize = 2 * MAX_MEMBERSHIPS + 1;
+/// The memberships are spread afresh over the seen roll once its span has
+/// grown by this factor since they were last spread.
+const RESPREAD_GROWTH: f64 = 1.25;
+/// Ridge on the temperature coefficient, °C²: where the roll and the
+/// temperature moved together in the training pairs, their effects cannot
+/// be told apart, and the roll (the documented cause) keeps the error
+/// unless the temperature has varied on its own by more than about √ of
+/// this. It keeps the roll's slope right for extrapolation.
+const TEMP_RIDGE_C2: f64 = 0.25;
+/// Weighted spread of the training temperatures, °C, below which the
+/// temperature coefficient is not fitted (it would be noise).
+pub const MIN_TEMP_SPREAD_C: f64 = 0.3;
 
 /// One training pair from a laser instant (Eq. 16).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -30,6 +52,9 @@ pub struct TrainingSample {
     pub roll_rad: f64,
     /// Pitch error e_a = α_L − α_I at that instant.
     pub error_rad: f64,
+    /// Inclinometer temperature at that instant, if it sends one.
+    #[serde(default)]
+    pub temp_c: Option<f64>,
     /// Arrival number, assigned by [`Anfis::add_sample`]; ages are counted in it.
     #[serde(default)]
     pub seq: u64,
@@ -93,15 +118,23 @@ pub struct Anfis {
     rules: Vec<Rule>,
     /// Recency-weighted mean error: the output before the rules exist.
     mean_error_rad: f64,
-    /// Recency-weighted straight line error = a + b·roll through the
-    /// training set: the prior each rule's consequent is shrunk towards.
-    global_line: [f64; 2],
+    /// Recency-weighted plane error = a + b·roll + c·(T − T_ref) through
+    /// the training set: the prior each rule's consequent is shrunk towards.
+    global_line: [f64; 3],
+    /// c_T, rad of error per °C, and T_ref, °C.
+    temp_coefficient: f64,
+    temp_ref_c: f64,
+    /// True when the training set's temperatures spread enough for c_T.
+    temp_fitted: bool,
     /// Roll range of the training set when last trained, for the
     /// extrapolation guard (kept: `output` runs on every reading).
     roll_lo_rad: f64,
     roll_hi_rad: f64,
     /// Current gradient step length on centres and widths (adapted).
     step_rad: f64,
+    /// The roll span the memberships were last spread over.
+    #[serde(default)]
+    spread_span_rad: f64,
     /// RMS residual of the model over the training set.
     fit_rmse_rad: f64,
     /// Times the model has been trained.
@@ -159,10 +192,14 @@ impl Anfis {
             samples: VecDeque::with_capacity(config.window),
             rules: Vec::new(),
             mean_error_rad: 0.0,
-            global_line: [0.0, 0.0],
+            global_line: [0.0, 0.0, 0.0],
+            temp_coefficient: 0.0,
+            temp_ref_c: 20.0,
+            temp_fitted: false,
             roll_lo_rad: 0.0,
             roll_hi_rad: 0.0,
             step_rad: 0.0,
+            spread_span_rad: 0.0,
             fit_rmse_rad: 0.0,
             version: 0,
             cache: FiringCache::default(),
@@ -195,12 +232,13 @@ impl Anfis {
                 config.window
             ));
         }
-        if self
-            .samples
-            .iter()
-            .any(|s| !(s.roll_rad.is_finite() && s.error_rad.is_finite()))
+        if self.samples.iter().any(|s| {
+            !(s.roll_rad.is_finite()
+                && s.error_rad.is_finite()
+                && s.temp_c.is_none_or(f64::is_finite))
+        }) || !(self.temp_coefficient.is_finite() && self.temp_ref_c.is_finite())
         {
-            return Err("a training pair is not finite".to_string());
+            return Err("a training pair or the temperature term is not finite".to_string());
         }
         self.config = config;
         self.cache = FiringCache::default();
@@ -247,16 +285,32 @@ impl Anfis {
         self.mean_error_rad
     }
 
-    /// The modelled pitch error ê_a = f(β) (Eq. 17).
-    pub fn output(&self, roll_rad: f64) -> f64 {
+    /// The temperature coefficient c_T (rad/°C) and T_ref (°C); c_T is 0
+    /// until the training temperatures spread.
+    pub fn temperature_term(&self) -> (f64, f64) {
+        (self.temp_coefficient, self.temp_ref_c)
+    }
+
+    /// The modelled pitch error ê_a = f(β, T) (Eq. 17 with the temperature
+    /// term). Without a temperature the term is taken at T_ref.
+    pub fn output(&self, roll_rad: f64, temp_c: Option<f64>) -> f64 {
+        let temp = self.temp_coefficient * self.temp_offset(temp_c);
         if self.rules.is_empty() {
-            return self.mean_error_rad;
+            return self.mean_error_rad + temp;
         }
         let x = self.guard(roll_rad);
         let mut firing = [0.0; MAX_MEMBERSHIPS];
         let firing = &mut firing[..self.rules.len()];
         fire_into(&self.rules, x, firing);
-        blend(&self.rules, firing, x)
+        blend(&self.rules, firing, x) + temp
+    }
+
+    /// T − T_ref, 0 without a temperature (or while c_T is not fitted).
+    fn temp_offset(&self, temp_c: Option<f64>) -> f64 {
+        match temp_c {
+            Some(t) if self.temp_fitted => t - self.temp_ref_c,
+            _ => 0.0,
+        }
     }
 
     /// Holds the input within the trained range widened by the guard.
@@ -368,15 +422,22 @@ impl Anfis {
         let (lo, hi) = self.roll_range_rad();
         self.roll_lo_rad = lo;
         self.roll_hi_rad = hi;
-        self.global_line = self.fit_line(&weights);
+        self.set_temperature_reference(&weights);
+        self.global_line = self.fit_plane(&weights);
         self.version += 1;
         if self.samples.len() < self.config.min_samples {
+            self.temp_coefficient = 0.0;
             self.fit_rmse_rad = self.rmse_of_constant();
             return;
         }
-        if self.rules.is_empty() {
+        // Memberships spread over the roll seen, again whenever the roll
+        // has gone well beyond where they were spread: gradient steps on
+        // the premises move them only slowly.
+        if self.rules.is_empty() || self.span_rad() > RESPREAD_GROWTH * self.spread_span_rad {
             self.rules = self.initial_rules();
+            self.spread_span_rad = self.span_rad();
             self.step_rad = 0.1 * self.span_rad();
+            self.cache = FiringCache::default();
         }
         let mut firings = match self.cache.0.take() {
             Some(cached)
@@ -387,9 +448,10 @@ impl Anfis {
             _ => self.firings(&self.rules),
         };
         let mut cost = match self.fit_consequents(&self.rules, &firings, &weights) {
-            Some((rules, cost)) => {
-                self.rules = rules;
-                cost
+            Some(fit) => {
+                self.rules = fit.rules;
+                self.temp_coefficient = fit.temp_coefficient;
+                fit.cost
             }
             None => return,
         };
@@ -398,6 +460,33 @@ impl Anfis {
         }
         self.fit_rmse_rad = self.rmse(&firings);
         self.cache = FiringCache(Some(firings));
+    }
+
+    /// T_ref = the weighted mean temperature of the pairs that have one;
+    /// the temperature term is fitted only if they spread enough.
+    fn set_temperature_reference(&mut self, weights: &[f64]) {
+        let (mut sw, mut st) = (0.0, 0.0);
+        for (s, &w) in self.samples.iter().zip(weights) {
+            if let Some(t) = s.temp_c {
+                sw += w;
+                st += w * t;
+            }
+        }
+        if sw <= 0.0 {
+            self.temp_fitted = false;
+            return;
+        }
+        let mean = st / sw;
+        let spread = (self
+            .samples
+            .iter()
+            .zip(weights)
+            .filter_map(|(s, &w)| s.temp_c.map(|t| w * (t - mean) * (t - mean)))
+            .sum::<f64>()
+            / sw)
+            .sqrt();
+        self.temp_ref_c = mean;
+        self.temp_fitted = spread >= MIN_TEMP_SPREAD_C && std::env::var("NO_TEMP").is_err();
     }
 
     fn span_rad(&self) -> f64 {
@@ -425,17 +514,18 @@ impl Anfis {
             .collect()
     }
 
-    /// Weighted least squares for the consequents given the premises
-    /// (forward half of the hybrid rule). Returns the rules with new
-    /// consequents and the cost ½ Σ w r² (Eq. 25 summed over the set).
+    /// Weighted least squares for the consequents and c_T given the
+    /// premises (forward half of the hybrid rule), with the cost ½ Σ w r²
+    /// (Eq. 25 summed over the set).
     fn fit_consequents(
         &self,
         premises: &[Rule],
         firings: &Firings,
         weights: &[f64],
-    ) -> Option<(Vec<Rule>, f64)> {
+    ) -> Option<Fit> {
         let m = premises.len();
-        let n_params = 2 * m;
+        let temp_column = self.temp_fitted;
+        let n_params = 2 * m + usize::from(temp_column);
         // Normal equations accumulated in a fixed array (upper triangle):
         // this loop is the training's hot spot.
         let mut normal = [[0.0_f64; MAX_PARAMS]; MAX_PARAMS];
@@ -449,6 +539,9 @@ impl Anfis {
                 row[2 * i] = firing[i];
                 row[2 * i + 1] = firing[i] * s.roll_rad;
             }
+            if temp_column {
+                row[2 * m] = self.temp_offset(s.temp_c);
+            }
             for a in 0..n_params {
                 let wa = w * row[a];
                 rhs[a] += wa * s.error_rad;
@@ -461,15 +554,20 @@ impl Anfis {
         }
         // Kept before the ridge is added: the cost below is of the data alone.
         let (data_normal, data_rhs) = (normal, rhs);
-        // Ridge towards the global line, the slope measured across the span.
+        // Ridge towards the global plane, the slope measured across the
+        // span; the temperature coefficient is pulled towards 0 as by
+        // TEMP_RIDGE_C2 of extra temperature spread at the reference.
         let lambda = self.config.ridge * total_w;
         let span = self.span_rad();
-        let [a, b] = self.global_line;
+        let [a, b, _] = self.global_line;
         for i in 0..m {
             normal[2 * i][2 * i] += lambda;
             rhs[2 * i] += lambda * a;
             normal[2 * i + 1][2 * i + 1] += lambda * span * span;
             rhs[2 * i + 1] += lambda * span * span * b;
+        }
+        if temp_column {
+            normal[2 * m][2 * m] += TEMP_RIDGE_C2 * total_w;
         }
         let normal = DMatrix::from_fn(n_params, n_params, |r, c| {
             if r <= c { normal[r][c] } else { normal[c][r] }
@@ -500,32 +598,61 @@ impl Anfis {
         }
         let linear: f64 = (0..n_params).map(|a| p[a] * data_rhs[a]).sum();
         let cost = (0.5 * (weighted_sq - 2.0 * linear + quadratic)).max(0.0);
-        Some((rules, cost))
+        Some(Fit {
+            rules,
+            temp_coefficient: if temp_column { p[2 * m] } else { 0.0 },
+            cost,
+        })
     }
 
-    /// Weighted least-squares line through the training set; flat at the
-    /// mean error when the roll has not varied enough to give a slope.
-    fn fit_line(&self, weights: &[f64]) -> [f64; 2] {
-        let (mut sw, mut sx, mut sy) = (0.0, 0.0, 0.0);
+    /// Weighted least-squares plane error = a + b·roll + c·(T − T_ref)
+    /// through the training set; the roll slope is 0 when the roll has not
+    /// varied enough to give one, c is 0 without temperature spread.
+    fn fit_plane(&self, weights: &[f64]) -> [f64; 3] {
+        // Centred sums: x = roll, u = T − T_ref, y = error.
+        let (mut sw, mut sx, mut su, mut sy) = (0.0, 0.0, 0.0, 0.0);
         for (s, &w) in self.samples.iter().zip(weights) {
             sw += w;
             sx += w * s.roll_rad;
+            su += w * self.temp_offset(s.temp_c);
             sy += w * s.error_rad;
         }
-        let (mx, my) = (sx / sw, sy / sw);
-        let (mut sxx, mut sxy) = (0.0, 0.0);
+        let (mx, mu, my) = (sx / sw, su / sw, sy / sw);
+        let (mut sxx, mut sxu, mut suu, mut sxy, mut suy) = (0.0, 0.0, 0.0, 0.0, 0.0);
         for (s, &w) in self.samples.iter().zip(weights) {
             let dx = s.roll_rad - mx;
+            let du = self.temp_offset(s.temp_c) - mu;
+            let dy = s.error_rad - my;
             sxx += w * dx * dx;
-            sxy += w * dx * (s.error_rad - my);
+            sxu += w * dx * du;
+            suu += w * du * du;
+            sxy += w * dx * dy;
+            suy += w * du * dy;
         }
         // Below a tenth of the minimum span of roll spread, a slope is noise.
         let min_spread = 0.1 * self.config.min_span_rad;
-        if sxx <= sw * min_spread * min_spread {
-            return [my, 0.0];
-        }
-        let b = sxy / sxx;
-        [my - b * mx, b]
+        let roll_ok = sxx > sw * min_spread * min_spread;
+        let temp_ok = self.temp_fitted && suu > 0.0;
+        // The temperature coefficient carries the same ridge as in
+        // `fit_consequents`: only temperature spread the roll does not
+        // share can give it.
+        let suu = suu + TEMP_RIDGE_C2 * sw;
+        let (b, c) = match (roll_ok, temp_ok) {
+            (true, true) => {
+                let det = sxx * suu - sxu * sxu;
+                ((sxy * suu - suy * sxu) / det, (suy * sxx - sxy * sxu) / det)
+            }
+            (true, false) => (sxy / sxx, 0.0),
+            (false, true) => (0.0, suy / suu),
+            (false, false) => (0.0, 0.0),
+        };
+        [my - b * mx - c * mu, b, c]
+    }
+
+    /// What the rules must explain for a sample: its error less the
+    /// temperature term.
+    fn rule_target(&self, s: &TrainingSample) -> f64 {
+        s.error_rad - self.temp_coefficient * self.temp_offset(s.temp_c)
     }
 
     /// The cost summed directly over the samples: the reference that the
@@ -537,7 +664,7 @@ impl Anfis {
             .zip(weights)
             .enumerate()
             .map(|(j, (s, w))| {
-                let r = blend(rules, firings.row(j), s.roll_rad) - s.error_rad;
+                let r = blend(rules, firings.row(j), s.roll_rad) - self.rule_target(s);
                 0.5 * w * r * r // Eq. 25 per sample, recency-weighted
             })
             .sum()
@@ -555,7 +682,7 @@ impl Anfis {
             let x = s.roll_rad;
             let firing = firings.row(j);
             let value = blend(&self.rules, firing, x);
-            let r = value - s.error_rad; // ∂E/∂ê for E of Eq. 25
+            let r = value - self.rule_target(s); // ∂E/∂ê for E of Eq. 25
             for (i, rule) in self.rules.iter().enumerate() {
                 let d = x - rule.centre_rad;
                 let sigma2 = rule.width_rad * rule.width_rad;
@@ -591,10 +718,11 @@ impl Anfis {
             .collect();
         let trial_firings = self.firings(&trial);
         match self.fit_consequents(&trial, &trial_firings, weights) {
-            Some((rules, trial_cost)) if trial_cost < cost => {
-                self.rules = rules;
+            Some(fit) if fit.cost < cost => {
+                self.rules = fit.rules;
+                self.temp_coefficient = fit.temp_coefficient;
                 self.step_rad = (self.step_rad * 1.2).min(span);
-                (trial_firings, trial_cost)
+                (trial_firings, fit.cost)
             }
             _ => {
                 self.step_rad = (self.step_rad * 0.5).max(1e-6 * span);
@@ -609,7 +737,9 @@ impl Anfis {
             .samples
             .iter()
             .enumerate()
-            .map(|(j, s)| (blend(&self.rules, firings.row(j), s.roll_rad) - s.error_rad).powi(2))
+            .map(|(j, s)| {
+                (blend(&self.rules, firings.row(j), s.roll_rad) - self.rule_target(s)).powi(2)
+            })
             .sum();
         (sse / n).sqrt()
     }
@@ -623,6 +753,13 @@ impl Anfis {
             .sum();
         (sse / n).sqrt()
     }
+}
+
+/// Consequents and temperature coefficient fitted for given premises.
+struct Fit {
+    rules: Vec<Rule>,
+    temp_coefficient: f64,
+    cost: f64,
 }
 
 /// Eq. 20–22 for one input: the normalised firing strengths ρ̄ into `out`.
@@ -700,11 +837,11 @@ mod tests {
         let mu1 = (-1.0_f64).exp();
         let mu2 = (-0.25_f64).exp();
         let expected = (mu1 - mu2) / (mu1 + mu2); // y₁ = 1, y₂ = −1
-        assert!((model.output(0.0) - expected).abs() < 1e-15);
+        assert!((model.output(0.0, None) - expected).abs() < 1e-15);
         // x = 2: μ₁ = e^{−9}, μ₂ = e^{−1/4}; y₁ = 2, y₂ = 3.
         let mu1 = (-9.0_f64).exp();
         let expected = (mu1 * 2.0 + mu2 * 3.0) / (mu1 + mu2);
-        assert!((model.output(2.0) - expected).abs() < 1e-15);
+        assert!((model.output(2.0, None) - expected).abs() < 1e-15);
     }
 
     #[test]
@@ -714,9 +851,9 @@ mod tests {
         model.roll_lo_rad = -1.0;
         model.roll_hi_rad = 1.0;
         // Held at the edge of the guarded range, not extrapolated to 1000.
-        let edge = model.output(1.0 + model.config.extrapolation_rad);
-        assert_eq!(model.output(1000.0), edge);
-        assert!(model.output(-1000.0).is_finite());
+        let edge = model.output(1.0 + model.config.extrapolation_rad, None);
+        assert_eq!(model.output(1000.0, None), edge);
+        assert!(model.output(-1000.0, None).is_finite());
     }
 
     #[test]
@@ -727,13 +864,14 @@ mod tests {
                 t: i as f64,
                 roll_rad: i as f64,
                 error_rad: e,
+                temp_c: None,
                 seq: 0,
             });
         }
         model.train();
         assert!(model.rules().is_empty());
         // Half-life 1e9 samples: the two weights differ by ~7e-10.
-        assert!((model.output(5.0) - 0.2).abs() < 1e-9);
+        assert!((model.output(5.0, None) - 0.2).abs() < 1e-9);
     }
 
     /// A smooth, clearly nonlinear error curve over roll −2°..4°, in degrees.
@@ -754,6 +892,7 @@ mod tests {
                 t: i as f64,
                 roll_rad: rad(roll_deg),
                 error_rad: rad(curve_deg(roll_deg)),
+                temp_c: None,
                 seq: 0,
             });
         }
@@ -763,7 +902,7 @@ mod tests {
         let grid: Vec<f64> = (0..=600).map(|i| -2.0 + 6.0 * i as f64 / 600.0).collect();
         let sse: f64 = grid
             .iter()
-            .map(|&r| (deg(model.output(rad(r))) - curve_deg(r)).powi(2))
+            .map(|&r| (deg(model.output(rad(r), None)) - curve_deg(r)).powi(2))
             .sum();
         let rmse_deg = (sse / grid.len() as f64).sqrt();
         assert!(rmse_deg <= 0.002, "ANFIS fit RMSE {rmse_deg}° > 0.002°");
@@ -788,6 +927,7 @@ mod tests {
                 t: i as f64,
                 roll_rad: rad(roll_deg),
                 error_rad: rad(curve_deg(roll_deg)),
+                temp_c: None,
                 seq: 0,
             });
         }
@@ -815,13 +955,15 @@ mod tests {
                 t: i as f64,
                 roll_rad: rad(roll_deg),
                 error_rad: rad(curve_deg(roll_deg) + 0.003 * ((i * 7) % 5) as f64),
+                temp_c: None,
                 seq: 0,
             });
         }
         model.train();
         let w = model.weights();
         let firings = model.firings(&model.rules);
-        let (rules, cost) = model.fit_consequents(&model.rules, &firings, &w).unwrap();
+        let fit = model.fit_consequents(&model.rules, &firings, &w).unwrap();
+        let (rules, cost) = (fit.rules, fit.cost);
         let direct = model.cost(&rules, &firings, &w);
         assert!(
             (cost - direct).abs() <= 1e-9 * direct.max(1e-30),
@@ -840,6 +982,7 @@ mod tests {
                 t: 0.0,
                 roll_rad: rad(roll_deg),
                 error_rad: 0.0,
+                temp_c: None,
                 seq: 0,
             })
         };
@@ -859,6 +1002,57 @@ mod tests {
     }
 
     #[test]
+    fn the_temperature_term_is_fitted_jointly_with_the_rules() {
+        // e = curve(β) + 0.004 °/°C (T − 15), roll and temperature both
+        // moving (not together): the fit recovers the coefficient and the
+        // output follows the temperature at a fixed roll.
+        let mut model = Anfis::new(config());
+        for i in 0..300 {
+            let roll_deg = -2.0 + 6.0 * ((i * 37) % 300) as f64 / 300.0;
+            let temp_c = 10.0 + 10.0 * ((i * 53) % 300) as f64 / 300.0;
+            model.add_sample(TrainingSample {
+                t: i as f64,
+                roll_rad: rad(roll_deg),
+                error_rad: rad(curve_deg(roll_deg) + 0.004 * (temp_c - 15.0)),
+                temp_c: Some(temp_c),
+                seq: 0,
+            });
+        }
+        for _ in 0..300 {
+            model.train();
+        }
+        let (c_t, _) = model.temperature_term();
+        assert!((deg(c_t) - 0.004).abs() < 2e-4, "c_T {} °/°C", deg(c_t));
+        let at = |t: f64| deg(model.output(rad(1.0), Some(t)));
+        let swing = at(20.0) - at(10.0);
+        assert!((swing - 0.04).abs() < 2e-3, "{swing}");
+        assert!((at(15.0) - curve_deg(1.0)).abs() < 3e-3, "{}", at(15.0));
+        // Without a temperature the term is taken at T_ref.
+        let (_, t_ref) = model.temperature_term();
+        assert_eq!(
+            model.output(rad(1.0), None),
+            model.output(rad(1.0), Some(t_ref))
+        );
+    }
+
+    #[test]
+    fn a_constant_temperature_fits_no_coefficient() {
+        let mut model = Anfis::new(config());
+        for i in 0..50 {
+            let roll_deg = -2.0 + 0.1 * i as f64;
+            model.add_sample(TrainingSample {
+                t: i as f64,
+                roll_rad: rad(roll_deg),
+                error_rad: rad(curve_deg(roll_deg)),
+                temp_c: Some(18.0 + 0.01 * (i % 3) as f64),
+                seq: 0,
+            });
+        }
+        model.train();
+        assert_eq!(model.temperature_term().0, 0.0);
+    }
+
+    #[test]
     fn window_is_bounded() {
         let mut model = Anfis::new(AnfisConfig {
             window: 20,
@@ -869,6 +1063,7 @@ mod tests {
                 t: i as f64,
                 roll_rad: 0.0,
                 error_rad: 0.0,
+                temp_c: None,
                 seq: 0,
             });
         }

@@ -1,38 +1,98 @@
-//! Dual-rate fusion of the slow laser and the fast inclinometer (He et al.
-//! 2021, Sec. 2.2 and 3.1): the held laser sample and its age (Eq. 14–15),
-//! dropout detection, the fusion of Eq. 10/11/19, the one-step prediction of
-//! Eq. 12/13, and the pairing of laser instants with the inclinometer for
-//! the pitch error of Eq. 16.
+//! Dual-rate bookkeeping of the slow laser and the fast inclinometer (He
+//! et al. 2021, Sec. 2.2 and 3.1): the held laser sample and its age
+//! (Eq. 14–15), dropout detection, the blend of Eq. 10/11/19, and the
+//! inclinometer history a laser sample is paired with for the pitch error
+//! of Eq. 16.
 //!
 //! The paper assumes the laser arrives every m inclinometer periods. Real
-//! readings arrive on their own clocks, so the laser is held with its time
-//! and its period is observed rather than assumed (NOTES.md).
+//! readings arrive on their own clocks, so both sensors' periods are
+//! observed rather than assumed (NOTES.md).
 
 use std::collections::VecDeque;
 
 use serde::{Deserialize, Serialize};
 
-use super::kalman::ScalarKalman;
-
-/// Intervals remembered for the laser period estimate.
+/// Intervals remembered for a period estimate.
 const PERIOD_INTERVALS: usize = 5;
 /// A laser sample within this long of the held one is a re-send of it, not
 /// a new measurement: no laser targeting system samples faster.
 pub const LASER_REPEAT_S: f64 = 1.0;
 
-/// The held, filtered laser attitude and the laser's timing.
+/// A sensor's usual period: the median of its recent intervals.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Period {
+    intervals_s: VecDeque<f64>,
+    /// Assumed until an interval has been observed.
+    nominal_s: f64,
+    /// The median of `intervals_s`, kept with them (read on every reading).
+    #[serde(skip)]
+    median_s: Option<f64>,
+}
+
+/// The cached median is derived data: equal intervals are equal periods.
+impl PartialEq for Period {
+    fn eq(&self, other: &Self) -> bool {
+        self.intervals_s == other.intervals_s && self.nominal_s == other.nominal_s
+    }
+}
+
+impl Period {
+    /// No interval seen yet; `nominal_s` until one is.
+    pub fn new(nominal_s: f64) -> Period {
+        Period {
+            intervals_s: VecDeque::with_capacity(PERIOD_INTERVALS),
+            nominal_s,
+            median_s: None,
+        }
+    }
+
+    /// Records one interval.
+    pub fn add(&mut self, interval_s: f64) {
+        if self.intervals_s.len() == PERIOD_INTERVALS {
+            self.intervals_s.pop_front();
+        }
+        self.intervals_s.push_back(interval_s);
+        self.median_s = Some(self.median());
+    }
+
+    /// Sets the period assumed until one is observed (after a restore).
+    pub fn set_nominal(&mut self, nominal_s: f64) {
+        self.nominal_s = nominal_s;
+    }
+
+    /// The median of the recent intervals, or the nominal period. The
+    /// median ignores the one long interval that spans a dropout.
+    pub fn get(&self) -> f64 {
+        match self.median_s {
+            Some(median) => median,
+            // Not yet computed after a restore: compute it.
+            None if !self.intervals_s.is_empty() => self.median(),
+            None => self.nominal_s,
+        }
+    }
+
+    fn median(&self) -> f64 {
+        let mut sorted = [0.0; PERIOD_INTERVALS];
+        let n = self.intervals_s.len();
+        for (slot, &x) in sorted.iter_mut().zip(&self.intervals_s) {
+            *slot = x;
+        }
+        let sorted = &mut sorted[..n];
+        sorted.sort_by(f64::total_cmp);
+        if n % 2 == 1 {
+            sorted[n / 2]
+        } else {
+            0.5 * (sorted[n / 2 - 1] + sorted[n / 2])
+        }
+    }
+}
+
+/// The held laser sample (Eq. 15: held until the next) and the laser's timing.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct LaserHold {
-    /// Filtered laser pitch α_L_f.
-    pub pitch: ScalarKalman,
-    /// Filtered laser roll β_L_f.
-    pub roll: ScalarKalman,
-    /// Time of the newest accepted laser sample.
-    pub last_t: Option<f64>,
-    /// Recent intervals between samples, newest last.
-    intervals_s: VecDeque<f64>,
-    /// Period assumed until an interval has been observed.
-    nominal_period_s: f64,
+    /// The newest accepted sample: time, pitch, roll (radians).
+    pub last: Option<(f64, f64, f64)>,
+    period: Period,
 }
 
 /// Why a laser sample was not taken.
@@ -48,68 +108,39 @@ impl LaserHold {
     /// Nothing held yet; `nominal_period_s` is used until the period is observed.
     pub fn new(nominal_period_s: f64) -> LaserHold {
         LaserHold {
-            pitch: ScalarKalman::default(),
-            roll: ScalarKalman::default(),
-            last_t: None,
-            intervals_s: VecDeque::with_capacity(PERIOD_INTERVALS),
-            nominal_period_s,
+            last: None,
+            period: Period::new(nominal_period_s),
         }
     }
 
     /// Sets the period assumed until one is observed (after a restore).
     pub fn set_nominal_period(&mut self, nominal_period_s: f64) {
-        self.nominal_period_s = nominal_period_s;
+        self.period.set_nominal(nominal_period_s);
     }
 
-    /// Filters and holds a new laser sample (Eq. 1–7 on each laser angle,
-    /// then Eq. 15: the value is held until the next sample).
-    pub fn accept(
-        &mut self,
-        t: f64,
-        pitch_rad: f64,
-        roll_rad: f64,
-        noise: &FilterNoise,
-    ) -> Result<(), LaserRefusal> {
-        let dt_s = match self.last_t {
-            Some(last) if t < last => return Err(LaserRefusal::Stale),
-            Some(last) if t - last < LASER_REPEAT_S => return Err(LaserRefusal::Duplicate),
-            Some(last) => t - last,
-            None => 0.0,
-        };
-        if self.last_t.is_some() {
-            if self.intervals_s.len() == PERIOD_INTERVALS {
-                self.intervals_s.pop_front();
+    /// Holds a new laser sample (Eq. 14–15).
+    pub fn accept(&mut self, t: f64, pitch_rad: f64, roll_rad: f64) -> Result<(), LaserRefusal> {
+        if let Some((last, _, _)) = self.last {
+            if t < last {
+                return Err(LaserRefusal::Stale);
             }
-            self.intervals_s.push_back(dt_s);
+            if t - last < LASER_REPEAT_S {
+                return Err(LaserRefusal::Duplicate);
+            }
+            self.period.add(t - last);
         }
-        self.pitch
-            .step(pitch_rad, noise.q_pitch_per_s * dt_s, noise.r_laser);
-        self.roll
-            .step(roll_rad, noise.q_roll_per_s * dt_s, noise.r_laser);
-        self.last_t = Some(t);
+        self.last = Some((t, pitch_rad, roll_rad));
         Ok(())
     }
 
-    /// The laser's usual period: the median of the recent intervals, or the
-    /// nominal period before any interval is known. The median ignores the
-    /// one long interval that spans a dropout.
+    /// The laser's usual period.
     pub fn period_s(&self) -> f64 {
-        if self.intervals_s.is_empty() {
-            return self.nominal_period_s;
-        }
-        let mut sorted: Vec<f64> = self.intervals_s.iter().copied().collect();
-        sorted.sort_by(f64::total_cmp);
-        let n = sorted.len();
-        if n % 2 == 1 {
-            sorted[n / 2]
-        } else {
-            0.5 * (sorted[n / 2 - 1] + sorted[n / 2])
-        }
+        self.period.get()
     }
 
     /// Age of the held sample at `t` (0 if the sample is newer than `t`).
     pub fn age_s(&self, t: f64) -> Option<f64> {
-        self.last_t.map(|last| (t - last).max(0.0))
+        self.last.map(|(last, _, _)| (t - last).max(0.0))
     }
 
     /// True while the laser is usable at `t`: a sample is held and it is no
@@ -120,38 +151,25 @@ impl LaserHold {
     }
 }
 
-/// Process and measurement noise of the filters, in rad² (per second for Q).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct FilterNoise {
-    pub q_pitch_per_s: f64,
-    pub q_roll_per_s: f64,
-    pub r_laser: f64,
-    pub r_incl: f64,
-}
-
 /// Eq. 10, 11 and 19: `gain` · laser + (1 − `gain`) · inclinometer.
 pub fn fuse(gain: f64, laser: f64, inclinometer: f64) -> f64 {
     gain * laser + (1.0 - gain) * inclinometer
 }
 
-/// Eq. 12/13: α̂(k+1) = α(k) + k_p (α(k) − α(k−1)).
-pub fn predict_one_step(current: f64, previous: f64, k_p: f64) -> f64 {
-    current + k_p * (current - previous)
-}
-
-/// One filtered inclinometer attitude, remembered for pairing.
+/// One inclinometer reading, remembered for pairing.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct InclPoint {
     pub t: f64,
-    /// Filtered, uncorrected inclinometer pitch α_I_f.
+    /// The inclinometer pitch as read, α_I.
     pub pitch_rad: f64,
-    /// Filtered inclinometer roll β_I_f (before the offset correction).
+    /// The filtered roll, offset-corrected (the laser's frame).
     pub roll_rad: f64,
+    pub temp_c: Option<f64>,
 }
 
-/// A short history of the filtered inclinometer, so a laser sample can be
-/// paired with the inclinometer at its own instant (Eq. 16) even when the
-/// two arrive out of step.
+/// A short history of the inclinometer, so a laser sample can be paired
+/// with the inclinometer around its own instant (Eq. 16) even when the two
+/// arrive out of step.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct InclHistory {
     points: VecDeque<InclPoint>,
@@ -188,75 +206,84 @@ impl InclHistory {
         self.points.back().map(|p| p.t)
     }
 
-    /// The inclinometer at `t`, interpolated linearly between the two points
-    /// around it, provided they are at most `max_gap_s` apart. `None` when `t`
-    /// is outside the history or falls in a gap.
-    pub fn at(&self, t: f64, max_gap_s: f64) -> Option<InclPoint> {
-        let after = self.points.partition_point(|p| p.t < t);
-        let next = self.points.get(after)?;
-        if next.t == t {
-            return Some(*next);
-        }
-        let prev = self.points.get(after.checked_sub(1)?)?;
-        let gap = next.t - prev.t;
-        if gap > max_gap_s {
-            return None;
-        }
-        let f = (t - prev.t) / gap;
-        Some(InclPoint {
-            t,
-            pitch_rad: prev.pitch_rad + f * (next.pitch_rad - prev.pitch_rad),
-            roll_rad: prev.roll_rad + f * (next.roll_rad - prev.roll_rad),
-        })
+    /// The points within `half_width_s` of `t`.
+    pub fn around(&self, t: f64, half_width_s: f64) -> impl Iterator<Item = &InclPoint> {
+        let first = self.points.partition_point(|p| p.t < t - half_width_s);
+        self.points
+            .range(first..)
+            .take_while(move |p| p.t <= t + half_width_s)
     }
+
+    /// The point nearest to `t`.
+    pub fn nearest(&self, t: f64) -> Option<&InclPoint> {
+        let after = self.points.partition_point(|p| p.t < t);
+        let next = self.points.get(after);
+        let prev = after.checked_sub(1).and_then(|i| self.points.get(i));
+        match (prev, next) {
+            (Some(a), Some(b)) => Some(if t - a.t <= b.t - t { a } else { b }),
+            (a, b) => a.or(b),
+        }
+    }
+}
+
+/// The value at `t` of the least-squares line through `(t_i, y_i)`; needs
+/// a point on each side of `t` (an interpolation, never an extrapolation).
+pub fn local_line(t: f64, points: impl Iterator<Item = (f64, f64)>) -> Option<f64> {
+    let (mut n, mut st, mut sy, mut stt, mut sty) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    let (mut before, mut after) = (false, false);
+    for (ti, yi) in points {
+        let u = ti - t;
+        before |= u <= 0.0;
+        after |= u >= 0.0;
+        n += 1.0;
+        st += u;
+        sy += yi;
+        stt += u * u;
+        sty += u * yi;
+    }
+    if !(before && after) || n < 1.0 {
+        return None;
+    }
+    let var = stt - st * st / n;
+    if var <= 0.0 {
+        return Some(sy / n);
+    }
+    let slope = (sty - st * sy / n) / var;
+    // Evaluated at u = 0.
+    Some(sy / n - slope * st / n)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    const NOISE: FilterNoise = FilterNoise {
-        q_pitch_per_s: 1e-6,
-        q_roll_per_s: 1e-6,
-        r_laser: 1e-6,
-        r_incl: 1e-4,
-    };
-
     #[test]
-    fn fusion_and_prediction_equations() {
+    fn fusion_equation() {
         // Eq. 19 with k_f1 = 0.02: 0.02·1.0 + 0.98·2.0 = 1.98.
         assert!((fuse(0.02, 1.0, 2.0) - 1.98).abs() < 1e-15);
         assert_eq!(fuse(0.0, 1.0, 2.0), 2.0);
-        // Eq. 12 with k_p = 1: 0.5 + (0.5 − 0.4) = 0.6.
-        assert!((predict_one_step(0.5, 0.4, 1.0) - 0.6).abs() < 1e-15);
-        assert!((predict_one_step(0.5, 0.4, 2.0) - 0.7).abs() < 1e-15);
     }
 
     #[test]
     fn laser_period_and_dropout() {
         let mut laser = LaserHold::new(120.0);
         assert!(!laser.is_ok(0.0, 2.5));
-        laser.accept(1000.0, 0.0, 0.0, &NOISE).unwrap();
+        laser.accept(1000.0, 0.0, 0.0).unwrap();
         assert_eq!(laser.period_s(), 120.0);
         for i in 1..=4 {
-            laser
-                .accept(1000.0 + 60.0 * i as f64, 0.0, 0.0, &NOISE)
-                .unwrap();
+            laser.accept(1000.0 + 60.0 * i as f64, 0.0, 0.0).unwrap();
         }
         assert_eq!(laser.period_s(), 60.0);
         assert!(laser.is_ok(1240.0 + 150.0, 2.5));
         assert!(!laser.is_ok(1240.0 + 151.0, 2.5));
         // One long interval (a dropout) does not move the median period.
-        laser.accept(1240.0 + 2700.0, 0.0, 0.0, &NOISE).unwrap();
+        laser.accept(1240.0 + 2700.0, 0.0, 0.0).unwrap();
         assert_eq!(laser.period_s(), 60.0);
         assert_eq!(
-            laser.accept(1240.0 + 2700.0, 0.0, 0.0, &NOISE),
+            laser.accept(1240.0 + 2700.0, 0.0, 0.0),
             Err(LaserRefusal::Duplicate)
         );
-        assert_eq!(
-            laser.accept(1000.0, 0.0, 0.0, &NOISE),
-            Err(LaserRefusal::Stale)
-        );
+        assert_eq!(laser.accept(1000.0, 0.0, 0.0), Err(LaserRefusal::Stale));
     }
 
     #[test]
@@ -266,9 +293,9 @@ mod tests {
         let mut laser = LaserHold::new(120.0);
         for i in 0..6 {
             let t = 1000.0 + 60.0 * i as f64;
-            laser.accept(t, 0.0, 0.0, &NOISE).unwrap();
+            laser.accept(t, 0.0, 0.0).unwrap();
             assert_eq!(
-                laser.accept(t + 0.005, 0.0, 0.0, &NOISE),
+                laser.accept(t + 0.005, 0.0, 0.0),
                 Err(LaserRefusal::Duplicate)
             );
         }
@@ -277,30 +304,53 @@ mod tests {
         // a stop is noticed after 2.5 periods, not 2.5 × 120 s.
         let mut fast = LaserHold::new(120.0);
         for i in 0..6 {
-            fast.accept(2000.0 + 10.0 * i as f64, 0.0, 0.0, &NOISE)
-                .unwrap();
+            fast.accept(2000.0 + 10.0 * i as f64, 0.0, 0.0).unwrap();
         }
         assert_eq!(fast.period_s(), 10.0);
         assert!(fast.is_ok(2050.0 + 25.0, 2.5));
         assert!(!fast.is_ok(2050.0 + 26.0, 2.5));
     }
 
-    #[test]
-    fn history_interpolates_within_gaps_only() {
-        let mut h = InclHistory::new(4);
-        for (t, p) in [(10.0, 1.0), (11.0, 2.0), (20.0, 3.0)] {
-            h.push(InclPoint {
-                t,
-                pitch_rad: p,
-                roll_rad: -p,
-            });
+    fn point(t: f64, pitch_rad: f64) -> InclPoint {
+        InclPoint {
+            t,
+            pitch_rad,
+            roll_rad: -pitch_rad,
+            temp_c: None,
         }
-        let mid = h.at(10.25, 5.0).unwrap();
-        assert!((mid.pitch_rad - 1.25).abs() < 1e-15);
-        assert!((mid.roll_rad + 1.25).abs() < 1e-15);
-        assert_eq!(h.at(11.0, 5.0).unwrap().pitch_rad, 2.0);
-        assert!(h.at(15.0, 5.0).is_none()); // inside a 9 s gap
-        assert!(h.at(9.0, 5.0).is_none());
-        assert!(h.at(21.0, 5.0).is_none());
+    }
+
+    #[test]
+    fn history_windows_and_nearest() {
+        let mut h = InclHistory::new(4);
+        for (t, p) in [
+            (10.0, 1.0),
+            (11.0, 2.0),
+            (20.0, 3.0),
+            (21.0, 4.0),
+            (22.0, 5.0),
+        ] {
+            h.push(point(t, p));
+        }
+        // Capacity 4: the point at 10 s is gone.
+        let ts: Vec<f64> = h.around(15.0, 6.0).map(|p| p.t).collect();
+        assert_eq!(ts, vec![11.0, 20.0, 21.0]);
+        assert_eq!(h.nearest(14.0).unwrap().t, 11.0);
+        assert_eq!(h.nearest(16.0).unwrap().t, 20.0);
+        assert_eq!(h.nearest(99.0).unwrap().t, 22.0);
+        assert_eq!(h.newest_t(), Some(22.0));
+    }
+
+    #[test]
+    fn local_line_by_hand() {
+        // y = 2 + 0.5 (t − 10) sampled at 8, 9, 11, 13: the line through
+        // them is exact, its value at 10 is 2.
+        let pts = [8.0, 9.0, 11.0, 13.0].map(|t| (t, 2.0 + 0.5 * (t - 10.0)));
+        assert!((local_line(10.0, pts.into_iter()).unwrap() - 2.0).abs() < 1e-12);
+        // Noise of ±1 at t = 9 and 11 averages out at 10.
+        let pts = [(9.0, 3.0), (11.0, 1.0)];
+        assert!((local_line(10.0, pts.into_iter()).unwrap() - 2.0).abs() < 1e-12);
+        // All points on one side: no extrapolation.
+        assert!(local_line(10.0, [(11.0, 1.0), (12.0, 1.0)].into_iter()).is_none());
     }
 }

@@ -1,0 +1,658 @@
+//! Self-tuning: the filter's measurement and process noise estimated from
+//! the readings themselves, so that nobody on site tunes Q and R.
+//!
+//! **Motion phase.** Cutting shakes the inclinometer, ring building does
+//! not. Each reading's white noise is seen in the residual of a straight
+//! line through the two readings before it: for readings r = Δt_k/Δt_{k−1}
+//! apart, e = z_k − z_{k−1} − r (z_{k−1} − z_{k−2}) has variance
+//! (1 + (1 + r)² + r²) σ² (σ² alone: 6σ² at equal spacing)             (N1)
+//! which, averaged over pitch and roll and smoothed over
+//! [`LEVEL_READINGS`] readings, is the *level*. The 10th and 90th
+//! percentiles of ln(level) are tracked (stochastic approximation,
+//! q ← q + η (p − 1[x ≤ q])); the phase is `vibrating` above their
+//! midpoint and `quiet` below (with a hysteresis of a tenth of their
+//! distance). Nothing tells the engine which phase the machine is in.
+//!
+//! **Inclinometer noise R (per phase).** Coloured vibration (time constants
+//! of seconds) makes consecutive readings alike, and a filter that took
+//! them for independent would trust their average too much. So R is
+//! measured where the filter uses it, on means over blocks of
+//! [`BLOCK_S`] seconds: for three consecutive blocks of one phase with n₁,
+//! n₂, n₃ readings and means ȳ, D = ȳ₁ − 2ȳ₂ + ȳ₃ (the Hadamard
+//! difference, blind to a constant and a trend) has
+//! E[D²] = R (1/n₁ + 4/n₂ + 1/n₃)                                      (N2)
+//! for noise white at that scale, so R̂ = D² / (1/n₁ + 4/n₂ + 1/n₃) is the
+//! effective per-reading variance: σ² for white noise, more for coloured.
+//!
+//! **Process noise Q.** The same differences over blocks of 2, 4, 8 and 16
+//! base blocks (60 s … 8 min), less the noise part (N2 with each block's
+//! R), measure how the inclinometer's signal s = θ + b moves. For block
+//! means at spacing S a random walk of intensity q_w gives E[D²] = q_w S,
+//! and a random walk of the rate (white acceleration, q_a) gives
+//! E[D²] = 0.55 q_a S³ (the Hadamard variance of an integrated random
+//! walk: ∫Γ² with Γ the kernel of D on x'' = w)                        (N3)
+//! fitted by weighted non-negative least squares over the four scales.
+//!
+//! **Bias walk and laser noise.** At each laser sample, δ = y_L − ŝ (the
+//! laser less the filter's prediction of what the inclinometer reads) is
+//! the bias b with the laser's noise and the prediction's error; for two
+//! samples Δt apart
+//! E[(δ₂ − δ₁)²] = q_b Δt + 2 (σ_L² + P_ss)                            (N4)
+//! so a line through (Δt, (Δδ)²) over lags of one to three samples gives
+//! q_b (slope) and σ_L² (intercept, less the filter's own P_ss).
+//!
+//! Until an estimate has data behind it, its prior (the engine's
+//! parameter) is used. Every sum is bounded and forgets slowly
+//! ([`MEMORY`] samples), so a machine whose vibration or dynamics change
+//! over a drive is followed.
+
+use std::collections::VecDeque;
+
+use serde::{Deserialize, Serialize};
+
+/// The phase level is smoothed over this long (at least 4 readings).
+pub const LEVEL_S: f64 = 60.0;
+/// Readings before the phase is classified.
+const LEVEL_READINGS: f64 = 16.0;
+/// The phase centres follow their cluster over this long.
+const CENTRE_MEMORY_S: f64 = 1800.0;
+/// Samples after which running means forget (weight 1/MEMORY).
+pub const MEMORY: f64 = 40.0;
+/// The inclinometer's second differences are taken at these lags, in
+/// readings, as far as [`MAX_LAG_S`].
+const LAGS: [usize; 6] = [1, 2, 4, 8, 16, 32];
+pub const MAX_LAG_S: f64 = 120.0;
+/// The variogram's sums forget over this many differences per lag.
+const VARIOGRAM_MEMORY: f64 = 2000.0;
+/// Time constants tried for the coloured part of the noise, s (0: none):
+/// vibration of seconds. Slower "noise" is indistinguishable from motion
+/// over the lags, and is treated as motion.
+const COLOUR_TAUS_S: [f64; 6] = [0.0, 0.5, 1.0, 2.0, 4.0, 8.0];
+/// A coloured fit must leave this much less residual than the white one to
+/// be preferred (it has one more parameter).
+const COLOUR_GAIN: f64 = 0.8;
+/// Colour below this share of the white variance is a trace, not colour.
+const COLOUR_TRACE: f64 = 0.2;
+/// The most readings a filter is taken to average (for the colour's share).
+const MAX_AVERAGED: f64 = 1000.0;
+/// Laser second differences are taken at a lag of at least this long.
+pub const CURVATURE_LAG_S: f64 = 240.0;
+/// Laser samples kept for them.
+const CURVATURE_SAMPLES: usize = 24;
+/// Estimates are used once they rest on this many differences.
+const MIN_SAMPLES: f64 = 4.0;
+
+/// What the machine is doing, as the inclinometer's vibration shows it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Phase {
+    /// Standing (ring building): the lower noise level.
+    Quiet,
+    /// Excavating: the higher noise level.
+    Vibrating,
+}
+
+impl Phase {
+    /// 0 for quiet, 1 for vibrating: the index of per-phase arrays.
+    pub fn index(self) -> usize {
+        match self {
+            Phase::Quiet => 0,
+            Phase::Vibrating => 1,
+        }
+    }
+}
+
+/// A running mean that averages its first samples equally and then
+/// forgets with weight 1/[`MEMORY`].
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct RunningMean {
+    pub mean: f64,
+    pub count: f64,
+}
+
+impl RunningMean {
+    pub fn add(&mut self, x: f64) {
+        self.count += 1.0;
+        self.mean += (x - self.mean) / self.count.min(MEMORY);
+    }
+}
+
+/// E[ln χ²₁] = ψ(½) + ln 2: the mean log of a squared standard normal.
+const MEAN_LOG_CHI2_1: f64 = -1.270_362_845_461_478;
+
+/// A robust running estimate of a variance from squared zero-mean normal
+/// samples x = D²/w: exp(mean ln x − E[ln χ²₁]). A jump (a retrain, a
+/// knock) moves one log by a bounded amount instead of dominating a mean
+/// of squares.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct LogVariance(RunningMean);
+
+impl LogVariance {
+    pub fn add(&mut self, square: f64) {
+        self.0.add((square + 1e-300).ln());
+    }
+
+    /// The variance, once `min_count` samples are in.
+    pub fn get(&self, min_count: f64) -> Option<f64> {
+        (self.0.count >= min_count).then(|| (self.0.mean - MEAN_LOG_CHI2_1).exp())
+    }
+
+    pub fn count(&self) -> f64 {
+        self.0.count
+    }
+}
+
+/// Classifies readings into motion phases from their white-noise level (N1).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PhaseDetector {
+    /// The two readings before the newest: (t, pitch, roll).
+    previous: VecDeque<(f64, f64, f64)>,
+    /// Smoothed per-reading white-noise variance.
+    level: f64,
+    readings: f64,
+    /// ln(level) of the quiet and of the vibrating cluster, and the
+    /// readings each has taken.
+    centres: [f64; 2],
+    counts: [f64; 2],
+    phase: Phase,
+}
+
+impl Default for PhaseDetector {
+    fn default() -> Self {
+        PhaseDetector {
+            previous: VecDeque::with_capacity(2),
+            level: 0.0,
+            readings: 0.0,
+            centres: [0.0; 2],
+            counts: [0.0; 2],
+            phase: Phase::Vibrating,
+        }
+    }
+}
+
+impl PhaseDetector {
+    /// Takes a reading (radians) and returns the phase it belongs to.
+    pub fn observe(&mut self, t: f64, pitch: f64, roll: f64) -> Phase {
+        if let (Some(&(t0, p0, r0)), Some(&(t1, p1, r1))) =
+            (self.previous.front(), self.previous.get(1))
+            && t1 > t0
+            && t > t1
+        {
+            let r = (t - t1) / (t1 - t0);
+            let factor = 1.0 + (1.0 + r) * (1.0 + r) + r * r;
+            let e_pitch = pitch - p1 - r * (p1 - p0);
+            let e_roll = roll - r1 - r * (r1 - r0);
+            let sample = (e_pitch * e_pitch + e_roll * e_roll) / (2.0 * factor);
+            self.readings += 1.0;
+            let forget = ((t - t1) / LEVEL_S).min(0.25);
+            self.level += (sample - self.level) * (1.0 / self.readings).max(forget);
+            if self.readings >= LEVEL_READINGS {
+                self.classify(t - t1);
+            }
+        }
+        if self.previous.len() == 2 {
+            self.previous.pop_front();
+        }
+        self.previous.push_back((t, pitch, roll));
+        self.phase
+    }
+
+    /// Two-means on ln(level): the reading joins the nearer centre (with a
+    /// hysteresis of a tenth of their distance), which moves towards it.
+    fn classify(&mut self, dt_s: f64) {
+        let x = (self.level + 1e-300).ln();
+        if self.counts == [0.0; 2] {
+            // Half a nat either side: the first phase's own spread parts
+            // them, and the other phase, when it comes, pulls one away.
+            self.centres = [x - 0.5, x + 0.5];
+        }
+        let [quiet, vibrating] = self.centres;
+        let margin = 0.1 * (vibrating - quiet).abs();
+        let (d_quiet, d_vibrating) = ((x - quiet).abs(), (x - vibrating).abs());
+        self.phase = match self.phase {
+            Phase::Vibrating if d_quiet + margin < d_vibrating => Phase::Quiet,
+            Phase::Quiet if d_vibrating + margin < d_quiet => Phase::Vibrating,
+            same => same,
+        };
+        let k = self.phase.index();
+        self.counts[k] += 1.0;
+        let weight = (1.0 / self.counts[k]).max(dt_s / CENTRE_MEMORY_S);
+        self.centres[k] += weight * (x - self.centres[k]);
+        if self.centres[0] > self.centres[1] {
+            self.centres.swap(0, 1);
+            self.counts.swap(0, 1);
+            self.phase = match self.phase {
+                Phase::Quiet => Phase::Vibrating,
+                Phase::Vibrating => Phase::Quiet,
+            };
+        }
+    }
+
+    /// The current phase.
+    pub fn phase(&self) -> Phase {
+        self.phase
+    }
+
+    /// The smoothed white-noise variance of one reading (rad²), if known.
+    pub fn level(&self) -> Option<f64> {
+        (self.readings >= 3.0).then_some(self.level)
+    }
+}
+
+/// The inclinometer's noise and the fast part of the machine's motion from
+/// the variogram of second differences at several lags (N2).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Variogram {
+    /// Recent readings: (t, z, phase).
+    recent: VecDeque<(f64, f64, Phase)>,
+    /// Per lag: E[D²] and the lag h, s.
+    d2: Vec<RunningMean>,
+    lag_s: Vec<RunningMean>,
+    /// E[D₁²]/6 (the one-lag white estimate) per phase.
+    one_lag: [RunningMean; 2],
+}
+
+impl Default for Variogram {
+    fn default() -> Self {
+        Variogram {
+            recent: VecDeque::with_capacity(2 * LAGS[LAGS.len() - 1] + 1),
+            d2: vec![RunningMean::default(); LAGS.len()],
+            lag_s: vec![RunningMean::default(); LAGS.len()],
+            one_lag: [RunningMean::default(); 2],
+        }
+    }
+}
+
+/// What the variogram says (N2): the per-reading noise variances of its
+/// white and coloured parts, the colour's time constant, and the random
+/// walk q_w (rad²/s) of the signal.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct NoiseFit {
+    pub white: f64,
+    pub coloured: f64,
+    pub tau_s: f64,
+    pub q_w: f64,
+    /// E[D₁²]/6 over all phases: what the one-lag estimates are relative to.
+    pub one_lag: f64,
+}
+
+impl NoiseFit {
+    /// The variance per reading that a filter averaging about `n` readings
+    /// `period_s` apart must take: white plus coloured, the coloured part
+    /// grown by the AR(1) sum for the mean of n readings (N2b):
+    /// (1 + ρ)/(1 − ρ) − 2ρ (1 − ρⁿ) / (n (1 − ρ)²), ρ = e^{−period/τ}.
+    pub fn effective(&self, n: f64, period_s: f64) -> f64 {
+        if self.tau_s <= 0.0 || self.coloured <= 0.0 {
+            return self.white + self.coloured;
+        }
+        let rho = (-period_s / self.tau_s).exp();
+        let n = n.max(1.0);
+        let growth = (1.0 + rho) / (1.0 - rho) - 2.0 * rho * (1.0 - rho.powf(n)) / (n * (1.0 - rho).powi(2));
+        self.white + self.coloured * growth.max(1.0)
+    }
+
+    /// About how many readings a filter with this noise and motion (and
+    /// the rate random walk `q_a`) averages: 1/K for the steady gain K of
+    /// a random walk, √(R / (q_w Δ)), or of a rate random walk,
+    /// (R / (q_a Δ³))^¼, whichever is fewer.
+    pub fn readings_averaged(&self, q_a: f64, period_s: f64) -> f64 {
+        let r = self.white + self.coloured;
+        let walk = if self.q_w > 0.0 {
+            (r / (self.q_w * period_s)).sqrt()
+        } else {
+            f64::INFINITY
+        };
+        let rate = if q_a > 0.0 {
+            (r / (q_a * period_s.powi(3))).powf(0.25)
+        } else {
+            f64::INFINITY
+        };
+        walk.min(rate).clamp(1.0, MAX_AVERAGED)
+    }
+}
+
+impl Variogram {
+    /// Takes one reading `z` (radians) of `phase`.
+    pub fn observe(&mut self, t: f64, z: f64, phase: Phase) {
+        let longest = 2 * LAGS[LAGS.len() - 1] + 1;
+        if self.recent.len() == longest {
+            self.recent.pop_front();
+        }
+        self.recent.push_back((t, z, phase));
+        let n = self.recent.len();
+        for (i, &k) in LAGS.iter().enumerate() {
+            if n < 2 * k + 1 {
+                break;
+            }
+            let (t0, z0, _) = self.recent[n - 1 - 2 * k];
+            let (t1, z1, p1) = self.recent[n - 1 - k];
+            let (h1, h2) = (t1 - t0, t - t1);
+            // Evenly spaced triples only (a gap is not a lag).
+            if h1 <= 0.0 || (h2 - h1).abs() > 0.2 * h1 || h1 > MAX_LAG_S {
+                continue;
+            }
+            let d = z - 2.0 * z1 + z0;
+            let memory = VARIOGRAM_MEMORY;
+            let add = |m: &mut RunningMean, x: f64| {
+                m.count += 1.0;
+                m.mean += (x - m.mean) / m.count.min(memory);
+            };
+            add(&mut self.d2[i], d * d);
+            add(&mut self.lag_s[i], 0.5 * (h1 + h2));
+            if i == 0 && p1 == phase {
+                add(&mut self.one_lag[phase.index()], d * d / 6.0);
+            }
+        }
+    }
+
+    /// (lag s, E[D²]) per lag (inspection).
+    pub fn lags(&self) -> Vec<(f64, f64)> {
+        self.lag_s.iter().zip(&self.d2).map(|(h, d)| (h.mean, d.mean)).collect()
+    }
+
+    /// The one-lag estimate of the per-reading noise in `phase`.
+    pub fn one_lag(&self, phase: Phase) -> Option<f64> {
+        let m = self.one_lag[phase.index()];
+        (m.count >= MIN_SAMPLES).then_some(m.mean)
+    }
+
+    /// N2 fitted: E[D_k²] = 6σ_w² + σ_c² (6 − 8ρ^k + 2ρ^{2k}) + 2 q_w h_k
+    /// + (2/3) q_a h_k³ with ρ^k = e^{−h_k/τ}, for each τ of
+    /// [`COLOUR_TAUS_S`] by weighted non-negative least squares (weights
+    /// count / E[D²]²), the best τ kept. `q_a` comes from elsewhere (the
+    /// laser): these lags are too short to see the machine's slow turns.
+    pub fn fit(&self, q_a: f64) -> Option<NoiseFit> {
+        let rows: Vec<(f64, f64, f64, f64)> = self
+            .d2
+            .iter()
+            .zip(&self.lag_s)
+            .filter(|(d2, _)| d2.count >= MIN_SAMPLES)
+            .map(|(d2, h)| {
+                let y = d2.mean - 2.0 / 3.0 * q_a * h.mean.powi(3);
+                let w = d2.count.min(VARIOGRAM_MEMORY) / (d2.mean * d2.mean).max(1e-300);
+                (h.mean, y, w, d2.mean)
+            })
+            .collect();
+        let one = self.d2[0];
+        if rows.len() < 3 || one.count < MIN_SAMPLES || one.mean <= 0.0 {
+            return None;
+        }
+        let mut best: Option<(f64, NoiseFit)> = None;
+        for &tau in &COLOUR_TAUS_S {
+            // Columns: white, coloured, random walk; without colour the
+            // walk moves into the second column.
+            let columns = |h: f64| {
+                if tau > 0.0 {
+                    let rho = (-h / tau).exp();
+                    [6.0, 6.0 - 8.0 * rho + 2.0 * rho * rho, 2.0 * h]
+                } else {
+                    [6.0, 2.0 * h, 0.0]
+                }
+            };
+            let system: Vec<([f64; 3], f64, f64)> =
+                rows.iter().map(|&(h, y, w, _)| (columns(h), y, w)).collect();
+            let unknowns = if tau > 0.0 { 3 } else { 2 };
+            let (c, residual) = nonnegative_least_squares(&system, unknowns);
+            let (white, coloured, q_w) = if tau > 0.0 {
+                (c[0], c[1], c[2])
+            } else {
+                (c[0], 0.0, c[1])
+            };
+            let fit = NoiseFit {
+                white,
+                coloured,
+                tau_s: tau,
+                q_w,
+                one_lag: one.mean / 6.0,
+            };
+            // The white fit (first) stands unless colour clearly does better
+            // and is more than a trace.
+            let trace = coloured < COLOUR_TRACE * white;
+            if tau > 0.0 && trace {
+                continue;
+            }
+            let score = if tau > 0.0 { residual / COLOUR_GAIN } else { residual };
+            if best.is_none_or(|(r, _)| score < r) {
+                best = Some((score, fit));
+            }
+        }
+        best.map(|(_, fit)| fit)
+    }
+}
+
+/// Weighted least squares y ≈ Σ x_j c_j with every c_j ≥ 0 over the first
+/// `unknowns` columns: each subset of the columns is solved and the best
+/// fit with no negative coefficient kept. Returns the coefficients and the
+/// weighted residual.
+fn nonnegative_least_squares(rows: &[([f64; 3], f64, f64)], unknowns: usize) -> ([f64; 3], f64) {
+    let mut best = ([0.0; 3], f64::INFINITY);
+    for mask in 1..(1u32 << unknowns) {
+        let cols: Vec<usize> = (0..unknowns).filter(|j| mask & (1 << j) != 0).collect();
+        let k = cols.len();
+        let mut a = nalgebra::DMatrix::<f64>::zeros(k, k);
+        let mut b = nalgebra::DVector::<f64>::zeros(k);
+        for (x, y, w) in rows {
+            for (i, &ci) in cols.iter().enumerate() {
+                b[i] += w * x[ci] * y;
+                for (j, &cj) in cols.iter().enumerate() {
+                    a[(i, j)] += w * x[ci] * x[cj];
+                }
+            }
+        }
+        let Some(solution) = a.cholesky().map(|c| c.solve(&b)) else {
+            continue;
+        };
+        if solution.iter().any(|c| !(c.is_finite() && *c >= 0.0)) {
+            continue;
+        }
+        let mut c = [0.0; 3];
+        for (i, &ci) in cols.iter().enumerate() {
+            c[ci] = solution[i];
+        }
+        let residual: f64 = rows
+            .iter()
+            .map(|(x, y, w)| w * (y - (0..3).map(|j| x[j] * c[j]).sum::<f64>()).powi(2))
+            .sum();
+        if residual < best.1 {
+            best = (c, residual);
+        }
+    }
+    best
+}
+
+/// How the machine's attitude moves, from the laser's own samples (N3):
+/// second differences at a lag of at least [`CURVATURE_LAG_S`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LaserCurvature {
+    /// Recent samples: (t, pitch, roll).
+    samples: VecDeque<(f64, f64, f64)>,
+    /// E[D²] of pitch and roll, and the lag h they were taken at.
+    pitch: LogVariance,
+    roll: LogVariance,
+    lag_s: RunningMean,
+}
+
+impl Default for LaserCurvature {
+    fn default() -> Self {
+        LaserCurvature {
+            samples: VecDeque::with_capacity(CURVATURE_SAMPLES),
+            pitch: LogVariance::default(),
+            roll: LogVariance::default(),
+            lag_s: RunningMean::default(),
+        }
+    }
+}
+
+impl LaserCurvature {
+    /// Takes a laser sample (radians); `period_s` is the laser's usual period.
+    pub fn observe(&mut self, t: f64, pitch: f64, roll: f64, period_s: f64) {
+        if self.samples.len() == CURVATURE_SAMPLES {
+            self.samples.pop_front();
+        }
+        self.samples.push_back((t, pitch, roll));
+        let lag = (CURVATURE_LAG_S / period_s).ceil().max(1.0) * period_s;
+        // The samples nearest to t − h and t − 2h, if they are near enough
+        // (a lost sample or a dropout leaves no triple).
+        let near = |target: f64| {
+            self.samples
+                .iter()
+                .min_by(|a, b| (a.0 - target).abs().total_cmp(&(b.0 - target).abs()))
+                .copied()
+                .filter(|s| (s.0 - target).abs() <= 0.1 * lag)
+        };
+        if let (Some(mid), Some(first)) = (near(t - lag), near(t - 2.0 * lag)) {
+            let (h1, h2) = (mid.0 - first.0, t - mid.0);
+            if h1 > 0.0 && h2 > 0.0 {
+                let r = h2 / h1;
+                let d_pitch = pitch - mid.1 - r * (mid.1 - first.1);
+                let d_roll = roll - mid.2 - r * (mid.2 - first.2);
+                self.pitch.add(d_pitch * d_pitch);
+                self.roll.add(d_roll * d_roll);
+                self.lag_s.add(0.5 * (h1 + h2));
+            }
+        }
+    }
+
+    /// The rate random-walk intensities (q_a) of pitch and roll, given the
+    /// laser's noise variance: E[D²] = (2/3) q_a h³ + 6 σ_L² for samples h
+    /// apart (the second difference of an integrated random walk).
+    pub fn rate_noise(&self, laser_var: f64) -> Option<(f64, f64)> {
+        let (pitch, roll) = (self.pitch.get(MIN_SAMPLES)?, self.roll.get(MIN_SAMPLES)?);
+        let h3 = self.lag_s.mean.powi(3);
+        let q = |e: f64| ((e - 6.0 * laser_var) / (2.0 / 3.0 * h3)).max(0.0);
+        Some((q(pitch), q(roll)))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+    use rand_distr::StandardNormal;
+
+    #[test]
+    fn running_mean_by_hand() {
+        let mut m = RunningMean::default();
+        for x in [1.0, 2.0, 3.0] {
+            m.add(x);
+        }
+        assert!((m.mean - 2.0).abs() < 1e-15);
+        for _ in 0..1000 {
+            m.add(10.0);
+        }
+        assert!((m.mean - 10.0).abs() < 1e-9);
+    }
+
+    /// White noise of σ on a slow ramp: R is σ², no colour, no walk.
+    #[test]
+    fn white_noise_is_white() {
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let mut v = Variogram::default();
+        let sigma = 0.01_f64;
+        for k in 0..50_000 {
+            let t = k as f64;
+            let n: f64 = rng.sample(StandardNormal);
+            v.observe(t, 1e-5 * t + sigma * n, Phase::Vibrating);
+        }
+        let fit = v.fit(0.0).unwrap();
+        let r = fit.effective(100.0, 1.0);
+        assert!((r / (sigma * sigma) - 1.0).abs() < 0.1, "{fit:?}");
+        assert!(fit.q_w < 1e-3 * sigma * sigma, "{fit:?}");
+        let one = v.one_lag(Phase::Vibrating).unwrap();
+        assert!((one / (sigma * sigma) - 1.0).abs() < 0.1);
+        assert!(v.one_lag(Phase::Quiet).is_none());
+    }
+
+    /// Half the variance AR(1) with τ = 4 s, read every 0.5 s: the filter
+    /// must take σ² (½ + ½ (1 + ρ)/(1 − ρ)), ρ = e^{−1/8}: 8.5 σ².
+    #[test]
+    fn coloured_noise_gives_its_effective_variance() {
+        let mut rng = ChaCha8Rng::seed_from_u64(2);
+        let mut v = Variogram::default();
+        let (sigma, dt, tau) = (0.01_f64, 0.5_f64, 4.0_f64);
+        let rho = (-dt / tau).exp();
+        let mut x = 0.0;
+        for k in 0..400_000 {
+            let n: [f64; 2] = [rng.sample(StandardNormal), rng.sample(StandardNormal)];
+            x = rho * x + sigma * (0.5 * (1.0 - rho * rho)).sqrt() * n[0];
+            v.observe(k as f64 * dt, x + sigma * 0.5_f64.sqrt() * n[1], Phase::Vibrating);
+        }
+        let fit = v.fit(0.0).unwrap();
+        let effective = 0.5 + 0.5 * (1.0 + rho) / (1.0 - rho);
+        let got = fit.effective(1000.0, dt) / (sigma * sigma);
+        assert!((got / effective - 1.0).abs() < 0.25, "{got} vs {effective}: {fit:?}");
+        // Over 8 readings (one time constant) the colour counts for less.
+        assert!(fit.effective(8.0, dt) < 0.7 * fit.effective(1000.0, dt));
+        assert!(fit.q_w < 1e-3 * sigma * sigma, "{fit:?}");
+    }
+
+    /// White noise on a random walk of known intensity (a shield rocking):
+    /// the walk is found and the noise is not taken for it.
+    #[test]
+    fn a_random_walk_under_white_noise() {
+        let mut rng = ChaCha8Rng::seed_from_u64(6);
+        let mut v = Variogram::default();
+        let (sigma, q_w) = (0.005_f64, 1e-5_f64);
+        let mut walk = 0.0;
+        for k in 0..100_000 {
+            let n: [f64; 2] = [rng.sample(StandardNormal), rng.sample(StandardNormal)];
+            walk += q_w.sqrt() * n[0];
+            v.observe(k as f64, walk + sigma * n[1], Phase::Vibrating);
+        }
+        let fit = v.fit(0.0).unwrap();
+        assert!((fit.q_w / q_w - 1.0).abs() < 0.2, "{fit:?}");
+        assert!((fit.white / (sigma * sigma) - 1.0).abs() < 0.3, "{fit:?}");
+    }
+
+    /// A pitch whose rate is a random walk of known intensity, seen by a
+    /// laser every 60 s with 0.003° of noise: the curvature finds q_a
+    /// within a factor of two.
+    #[test]
+    fn laser_curvature_of_an_integrated_random_walk() {
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let mut curvature = LaserCurvature::default();
+        let (q_a, sigma) = (1e-14_f64, 0.003_f64.to_radians());
+        let (mut angle, mut rate) = (0.0, 0.0);
+        for k in 0..20_000 {
+            for _ in 0..60 {
+                let w: f64 = rng.sample(StandardNormal);
+                rate += q_a.sqrt() * w;
+                angle += rate;
+            }
+            let n: [f64; 2] = [rng.sample(StandardNormal), rng.sample(StandardNormal)];
+            curvature.observe(60.0 * k as f64, angle + sigma * n[0], sigma * n[1], 60.0);
+        }
+        let (fitted, roll) = curvature.rate_noise(sigma * sigma).unwrap();
+        assert!(
+            fitted > 0.5 * q_a && fitted < 2.0 * q_a,
+            "{fitted:e} vs {q_a:e}"
+        );
+        // The roll stood still: nothing beyond the laser's noise.
+        assert!(roll < 0.1 * q_a, "{roll:e}");
+    }
+
+    #[test]
+    fn two_noise_levels_are_two_phases() {
+        let mut rng = ChaCha8Rng::seed_from_u64(4);
+        let mut detector = PhaseDetector::default();
+        let mut right = 0;
+        let total = 40_000;
+        for k in 0..total {
+            // 50 min vibrating at 0.03, 25 min quiet at 0.008, repeated.
+            let vibrating = (k % 4500) < 3000;
+            let sigma = if vibrating { 0.03 } else { 0.008 };
+            let n: [f64; 2] = [rng.sample(StandardNormal), rng.sample(StandardNormal)];
+            let phase = detector.observe(k as f64, sigma * n[0], 1.0 + sigma * n[1]);
+            let truth = if vibrating {
+                Phase::Vibrating
+            } else {
+                Phase::Quiet
+            };
+            if phase == truth {
+                right += 1;
+            }
+        }
+        assert!(right as f64 > 0.97 * total as f64, "{right}");
+    }
+}
