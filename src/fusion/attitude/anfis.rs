@@ -30,6 +30,9 @@ use serde::{Deserialize, Serialize};
 pub const MAX_MEMBERSHIPS: usize = 9;
 /// Two consequents per rule and the temperature coefficient.
 const MAX_PARAMS: usize = 2 * MAX_MEMBERSHIPS + 1;
+/// Firing strengths below this add nothing a double can hold next to the
+/// others (e^{−36}: six widths from a centre).
+const NEGLIGIBLE_FIRING: f64 = 2.3e-16;
 /// The memberships are spread afresh over the seen roll once its span has
 /// grown by this factor since they were last spread.
 const RESPREAD_GROWTH: f64 = 1.25;
@@ -137,6 +140,8 @@ pub struct Anfis {
     spread_span_rad: f64,
     /// RMS residual of the model over the training set.
     fit_rmse_rad: f64,
+    /// Generalised cross-validation score of the last training.
+    gcv: f64,
     /// Times the model has been trained.
     version: u64,
     #[serde(skip)]
@@ -201,6 +206,7 @@ impl Anfis {
             step_rad: 0.0,
             spread_span_rad: 0.0,
             fit_rmse_rad: 0.0,
+            gcv: f64::MAX,
             version: 0,
             cache: FiringCache::default(),
         }
@@ -447,19 +453,37 @@ impl Anfis {
             }
             _ => self.firings(&self.rules),
         };
-        let mut cost = match self.fit_consequents(&self.rules, &firings, &weights) {
+        let (mut cost, mut dof) = match self.fit_consequents(&self.rules, &firings, &weights) {
             Some(fit) => {
                 self.rules = fit.rules;
                 self.temp_coefficient = fit.temp_coefficient;
-                fit.cost
+                (fit.cost, fit.dof)
             }
             None => return,
         };
         for _ in 0..self.config.epochs {
-            (firings, cost) = self.premise_step(firings, &weights, cost);
+            (firings, cost, dof) = self.premise_step(firings, &weights, cost, dof);
         }
         self.fit_rmse_rad = self.rmse(&firings);
+        // Generalised cross-validation (Golub, Heath & Wahba 1979): the
+        // weighted mean squared residual over (1 − df/n)², with df the
+        // consequents' degrees of freedom plus the two premise parameters
+        // of every rule, and n the weights' effective count.
+        let total_w: f64 = weights.iter().sum();
+        let n_eff = total_w * total_w / weights.iter().map(|w| w * w).sum::<f64>();
+        let df = dof + 2.0 * self.rules.len() as f64;
+        self.gcv = if df < n_eff {
+            (2.0 * cost / total_w) / (1.0 - df / n_eff).powi(2)
+        } else {
+            f64::MAX
+        };
         self.cache = FiringCache(Some(firings));
+    }
+
+    /// The generalised cross-validation score of the last training
+    /// (`f64::MAX` before the rules exist): lower generalises better.
+    pub fn gcv(&self) -> f64 {
+        self.gcv
     }
 
     /// T_ref = the weighted mean temperature of the pairs that have one;
@@ -486,7 +510,7 @@ impl Anfis {
             / sw)
             .sqrt();
         self.temp_ref_c = mean;
-        self.temp_fitted = spread >= MIN_TEMP_SPREAD_C && std::env::var("NO_TEMP").is_err();
+        self.temp_fitted = spread >= MIN_TEMP_SPREAD_C;
     }
 
     fn span_rad(&self) -> f64 {
@@ -533,19 +557,32 @@ impl Anfis {
         let mut row = [0.0_f64; MAX_PARAMS];
         let mut total_w = 0.0;
         let mut weighted_sq = 0.0;
+        // Only the rules a sample fires noticeably enter its products: far
+        // from a centre a Gaussian is nothing, and a sample fires a few
+        // neighbouring rules, so the cost grows with the rules, not their square.
+        let mut live = [0usize; MAX_PARAMS];
         for (j, (s, &w)) in self.samples.iter().zip(weights).enumerate() {
             let firing = firings.row(j);
+            let mut n_live = 0;
             for i in 0..m {
-                row[2 * i] = firing[i];
-                row[2 * i + 1] = firing[i] * s.roll_rad;
+                if firing[i] > NEGLIGIBLE_FIRING {
+                    row[2 * i] = firing[i];
+                    row[2 * i + 1] = firing[i] * s.roll_rad;
+                    live[n_live] = 2 * i;
+                    live[n_live + 1] = 2 * i + 1;
+                    n_live += 2;
+                }
             }
             if temp_column {
                 row[2 * m] = self.temp_offset(s.temp_c);
+                live[n_live] = 2 * m;
+                n_live += 1;
             }
-            for a in 0..n_params {
+            let live = &live[..n_live];
+            for (k, &a) in live.iter().enumerate() {
                 let wa = w * row[a];
                 rhs[a] += wa * s.error_rad;
-                for b in a..n_params {
+                for &b in &live[k..] {
                     normal[a][b] += wa * row[b];
                 }
             }
@@ -573,10 +610,20 @@ impl Anfis {
             if r <= c { normal[r][c] } else { normal[c][r] }
         });
         let rhs = DVector::from_column_slice(&rhs[..n_params]);
-        let solution = normal.cholesky()?.solve(&rhs);
+        let cholesky = normal.cholesky()?;
+        let solution = cholesky.solve(&rhs);
         if solution.iter().any(|x| !x.is_finite()) {
             return None;
         }
+        // Degrees of freedom of the ridge fit: trace((N + Λ)⁻¹ N).
+        let data = DMatrix::from_fn(n_params, n_params, |r, c| {
+            if r <= c {
+                data_normal[r][c]
+            } else {
+                data_normal[c][r]
+            }
+        });
+        let dof = cholesky.solve(&data).trace();
         let rules: Vec<Rule> = premises
             .iter()
             .enumerate()
@@ -602,6 +649,7 @@ impl Anfis {
             rules,
             temp_coefficient: if temp_column { p[2 * m] } else { 0.0 },
             cost,
+            dof,
         })
     }
 
@@ -674,7 +722,13 @@ impl Anfis {
     /// widths with the consequents held, kept only if the cost (with
     /// consequents refitted) drops; the step length grows after a success
     /// and halves after a failure.
-    fn premise_step(&mut self, firings: Firings, weights: &[f64], cost: f64) -> (Firings, f64) {
+    fn premise_step(
+        &mut self,
+        firings: Firings,
+        weights: &[f64],
+        cost: f64,
+        dof: f64,
+    ) -> (Firings, f64, f64) {
         let m = self.rules.len();
         let mut grad_c = vec![0.0; m];
         let mut grad_s = vec![0.0; m];
@@ -700,7 +754,7 @@ impl Anfis {
             .sum::<f64>()
             .sqrt();
         if !(norm > 0.0 && norm.is_finite()) {
-            return (firings, cost);
+            return (firings, cost, dof);
         }
         let span = self.span_rad();
         let (lo, hi) = (self.roll_lo_rad - 0.5 * span, self.roll_hi_rad + 0.5 * span);
@@ -722,11 +776,11 @@ impl Anfis {
                 self.rules = fit.rules;
                 self.temp_coefficient = fit.temp_coefficient;
                 self.step_rad = (self.step_rad * 1.2).min(span);
-                (trial_firings, fit.cost)
+                (trial_firings, fit.cost, fit.dof)
             }
             _ => {
                 self.step_rad = (self.step_rad * 0.5).max(1e-6 * span);
-                (firings, cost)
+                (firings, cost, dof)
             }
         }
     }
@@ -760,6 +814,8 @@ struct Fit {
     rules: Vec<Rule>,
     temp_coefficient: f64,
     cost: f64,
+    /// Degrees of freedom the consequents used.
+    dof: f64,
 }
 
 /// Eq. 20–22 for one input: the normalised firing strengths ρ̄ into `out`.

@@ -287,7 +287,8 @@ impl NoiseFit {
         }
         let rho = (-period_s / self.tau_s).exp();
         let n = n.max(1.0);
-        let growth = (1.0 + rho) / (1.0 - rho) - 2.0 * rho * (1.0 - rho.powf(n)) / (n * (1.0 - rho).powi(2));
+        let growth =
+            (1.0 + rho) / (1.0 - rho) - 2.0 * rho * (1.0 - rho.powf(n)) / (n * (1.0 - rho).powi(2));
         self.white + self.coloured * growth.max(1.0)
     }
 
@@ -347,7 +348,11 @@ impl Variogram {
 
     /// (lag s, E[D²]) per lag (inspection).
     pub fn lags(&self) -> Vec<(f64, f64)> {
-        self.lag_s.iter().zip(&self.d2).map(|(h, d)| (h.mean, d.mean)).collect()
+        self.lag_s
+            .iter()
+            .zip(&self.d2)
+            .map(|(h, d)| (h.mean, d.mean))
+            .collect()
     }
 
     /// The one-lag estimate of the per-reading noise in `phase`.
@@ -389,8 +394,10 @@ impl Variogram {
                     [6.0, 2.0 * h, 0.0]
                 }
             };
-            let system: Vec<([f64; 3], f64, f64)> =
-                rows.iter().map(|&(h, y, w, _)| (columns(h), y, w)).collect();
+            let system: Vec<([f64; 3], f64, f64)> = rows
+                .iter()
+                .map(|&(h, y, w, _)| (columns(h), y, w))
+                .collect();
             let unknowns = if tau > 0.0 { 3 } else { 2 };
             let (c, residual) = nonnegative_least_squares(&system, unknowns);
             let (white, coloured, q_w) = if tau > 0.0 {
@@ -411,7 +418,11 @@ impl Variogram {
             if tau > 0.0 && trace {
                 continue;
             }
-            let score = if tau > 0.0 { residual / COLOUR_GAIN } else { residual };
+            let score = if tau > 0.0 {
+                residual / COLOUR_GAIN
+            } else {
+                residual
+            };
             if best.is_none_or(|(r, _)| score < r) {
                 best = Some((score, fit));
             }
@@ -576,12 +587,19 @@ mod tests {
         for k in 0..400_000 {
             let n: [f64; 2] = [rng.sample(StandardNormal), rng.sample(StandardNormal)];
             x = rho * x + sigma * (0.5 * (1.0 - rho * rho)).sqrt() * n[0];
-            v.observe(k as f64 * dt, x + sigma * 0.5_f64.sqrt() * n[1], Phase::Vibrating);
+            v.observe(
+                k as f64 * dt,
+                x + sigma * 0.5_f64.sqrt() * n[1],
+                Phase::Vibrating,
+            );
         }
         let fit = v.fit(0.0).unwrap();
         let effective = 0.5 + 0.5 * (1.0 + rho) / (1.0 - rho);
         let got = fit.effective(1000.0, dt) / (sigma * sigma);
-        assert!((got / effective - 1.0).abs() < 0.25, "{got} vs {effective}: {fit:?}");
+        assert!(
+            (got / effective - 1.0).abs() < 0.25,
+            "{got} vs {effective}: {fit:?}"
+        );
         // Over 8 readings (one time constant) the colour counts for less.
         assert!(fit.effective(8.0, dt) < 0.7 * fit.effective(1000.0, dt));
         assert!(fit.q_w < 1e-3 * sigma * sigma, "{fit:?}");
