@@ -107,7 +107,7 @@ impl MachineDeclaration {
                 engine,
                 source,
             };
-            let params = Params::resolve(engine.specs(), overrides).map_err(params_error)?;
+            let params = engine.params(overrides).map_err(params_error)?;
             // Creating the engine runs its cross-parameter checks.
             engine.create(params.clone()).map_err(params_error)?;
             engines.insert(engine, params);
@@ -122,6 +122,22 @@ impl MachineDeclaration {
 }
 
 impl MachineSpec {
+    /// A machine stored by an earlier release made current: retired
+    /// parameters dropped, new ones at their defaults (see
+    /// [`Params::upgraded`]).
+    pub fn upgraded(mut self) -> Result<MachineSpec, ConfigError> {
+        for (kind, params) in self.engines.iter_mut() {
+            *params = params
+                .upgraded(kind.specs(), kind.retired())
+                .map_err(|source| ConfigError::Params {
+                    machine: self.id.clone(),
+                    engine: *kind,
+                    source,
+                })?;
+        }
+        Ok(self)
+    }
+
     /// The declaration that reproduces this machine, with every parameter
     /// spelled out (what `GET` shows).
     pub fn declaration(&self) -> MachineDeclaration {

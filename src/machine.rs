@@ -324,7 +324,23 @@ pub fn stored_status(
 pub fn recover(store: &Store, spec: &MachineSpec, db_id: i64) -> Result<MachineCore, MachineError> {
     let snapshot = store.snapshot(db_id)?;
     let (mut core, after_id) = match &snapshot {
-        Some(s) => (MachineCore::restore(spec, &s.state)?, s.last_reading_id),
+        Some(s) => match MachineCore::restore(spec, &s.state) {
+            Ok(core) => (core, s.last_reading_id),
+            // An engine whose state this release no longer reads starts
+            // afresh from every stored reading: slower once, nothing lost.
+            Err(SnapshotError::Outdated {
+                engine,
+                found,
+                expected,
+            }) => {
+                tracing::warn!(
+                    machine = %spec.id, %engine, found, expected,
+                    "snapshot from an earlier release: rebuilding the engines from the stored readings"
+                );
+                (MachineCore::new(spec)?, 0)
+            }
+            Err(e) => return Err(e.into()),
+        },
         None => (MachineCore::new(spec)?, 0),
     };
     let mut estimates = Vec::new();

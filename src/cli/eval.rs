@@ -10,8 +10,7 @@ use crate::eval::attitude::{
 };
 use crate::eval::kf3::Kf3Noise;
 use crate::eval::{fuzzy, zupt};
-use crate::fusion::Params;
-use crate::fusion::attitude::PARAMS;
+use crate::fusion::{EngineKind, Params};
 use crate::sim::tbm::Dropout;
 use crate::sim::tbm_envelope::EnvelopeDrive;
 
@@ -135,7 +134,8 @@ pub fn run(target: EvalTarget) -> Result<(), CliError> {
             })
         }
         EvalTarget::Attitude(args) => {
-            let params = Params::from_assignments(PARAMS, args.params.iter().map(String::as_str))?;
+            let params = EngineKind::Attitude
+                .params_from_assignments(args.params.iter().map(String::as_str))?;
             let configure = |drive: Drive| AttitudeEvalConfig {
                 learning_h: args.learning_h,
                 params: params.clone(),

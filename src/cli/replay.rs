@@ -8,7 +8,7 @@ use std::time::Instant;
 use clap::Args;
 
 use super::CliError;
-use crate::fusion::{EngineKind, Params};
+use crate::fusion::EngineKind;
 use crate::replay::{ReplayOptions, replay};
 
 #[derive(Debug, Args)]
@@ -31,7 +31,7 @@ pub struct ReplayArgs {
 
 pub fn run(args: ReplayArgs) -> Result<(), CliError> {
     let kind: EngineKind = args.engine.parse()?;
-    let params = Params::from_assignments(kind.specs(), args.params.iter().map(String::as_str))?;
+    let params = kind.params_from_assignments(args.params.iter().map(String::as_str))?;
     let mut engine = kind.create(params)?;
     let options = ReplayOptions {
         machine: args.machine,

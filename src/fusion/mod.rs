@@ -16,7 +16,7 @@ pub use estimate::{
     AttitudeEstimate, EngineOutput, Estimate, EstimateRef, EstimateValues, FuzzyEstimate, Motion,
     ZuptEstimate,
 };
-pub use params::{ParamError, ParamKind, ParamSpec, ParamValue, Params};
+pub use params::{ParamError, ParamKind, ParamSpec, ParamValue, Params, Retired};
 pub use reading::{Reading, ReadingError, SensorData, SensorKind, parse_reading};
 
 use serde::{Deserialize, Serialize};
@@ -121,6 +121,42 @@ impl EngineKind {
             EngineKind::Zupt => zupt::PARAMS,
             EngineKind::Fuzzy => fuzzy::PARAMS,
         }
+    }
+
+    /// Parameters earlier releases had: stored machines that name them
+    /// still load, new declarations that do are refused with the reason.
+    pub fn retired(self) -> &'static [Retired] {
+        match self {
+            EngineKind::Attitude => attitude::RETIRED,
+            EngineKind::Zupt | EngineKind::Fuzzy => &[],
+        }
+    }
+
+    /// Defaults with `overrides` on top; a retired name is refused with the
+    /// reason it was retired.
+    pub fn params(
+        self,
+        overrides: impl IntoIterator<Item = (String, ParamValue)>,
+    ) -> Result<Params, ParamError> {
+        let overrides: Vec<(String, ParamValue)> = overrides.into_iter().collect();
+        for (name, _) in &overrides {
+            params::check_retired(self.retired(), name)?;
+        }
+        Params::resolve(self.specs(), overrides)
+    }
+
+    /// Like [`EngineKind::params`], from `name=value` words.
+    pub fn params_from_assignments<'a>(
+        self,
+        assignments: impl IntoIterator<Item = &'a str>,
+    ) -> Result<Params, ParamError> {
+        let assignments: Vec<&str> = assignments.into_iter().collect();
+        for a in &assignments {
+            if let Some((name, _)) = a.split_once('=') {
+                params::check_retired(self.retired(), name.trim())?;
+            }
+        }
+        Params::from_assignments(self.specs(), assignments)
     }
 
     /// The sensors the engine consumes.

@@ -212,8 +212,28 @@ pub enum ParamError {
     },
     #[error("parameters do not fit together: {0}")]
     Inconsistent(String),
+    #[error("parameter `{name}` was retired: {reason}")]
+    Retired { name: String, reason: String },
     #[error("malformed parameter `{0}`: expected name=value")]
     Malformed(String),
+}
+
+/// A parameter an earlier release had and this one does not, with why.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Retired {
+    pub name: &'static str,
+    pub reason: &'static str,
+}
+
+/// Refuses `name` if it is retired, saying why.
+pub fn check_retired(retired: &[Retired], name: &str) -> Result<(), ParamError> {
+    match retired.iter().find(|r| r.name == name) {
+        Some(r) => Err(ParamError::Retired {
+            name: r.name.to_string(),
+            reason: r.reason.to_string(),
+        }),
+        None => Ok(()),
+    }
 }
 
 /// A complete, validated set of parameter values for one engine.
@@ -246,6 +266,19 @@ impl Params {
             params.values.insert(name, value);
         }
         Ok(params)
+    }
+
+    /// Values stored by an earlier release made current: retired names
+    /// are dropped, new parameters take their defaults, the rest is
+    /// checked as always.
+    pub fn upgraded(&self, specs: &[ParamSpec], retired: &[Retired]) -> Result<Params, ParamError> {
+        Params::resolve(
+            specs,
+            self.values
+                .iter()
+                .filter(|(name, _)| check_retired(retired, name).is_ok())
+                .map(|(k, v)| (k.clone(), v.clone())),
+        )
     }
 
     /// The same values checked again against `specs` (a restored

@@ -333,7 +333,9 @@ impl Store {
         self.readers.with(f)
     }
 
-    /// Every stored machine.
+    /// Every stored machine, its parameters made current (a machine
+    /// declared by an earlier release loads with its retired parameters
+    /// dropped and new ones at their defaults).
     pub fn machines(&self) -> Result<Vec<StoredMachine>, StoreError> {
         self.read(|conn| {
             let mut stmt = conn.prepare_cached("SELECT id, spec FROM machines ORDER BY machine")?;
@@ -343,7 +345,10 @@ impl Store {
             let mut machines = Vec::new();
             for row in rows {
                 let (db_id, spec) = row?;
-                let spec = serde_json::from_str(&spec)
+                let spec: MachineSpec = serde_json::from_str(&spec)
+                    .map_err(|e| StoreError::Corrupt(format!("machine {db_id} spec: {e}")))?;
+                let spec = spec
+                    .upgraded()
                     .map_err(|e| StoreError::Corrupt(format!("machine {db_id} spec: {e}")))?;
                 machines.push(StoredMachine { db_id, spec });
             }

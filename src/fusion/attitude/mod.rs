@@ -50,7 +50,7 @@ use self::kalman::{H_INCLINOMETER, H_LASER, ProcessNoise, TiltFilter};
 use self::noise::{LaserCurvature, NoiseFit, Phase, PhaseDetector, Variogram};
 use super::angles::{deg, rad, rad2};
 use super::estimate::{AttitudeEstimate, EngineOutput, EstimateValues};
-use super::params::{ParamError, ParamSpec, Params, choice, integer, real};
+use super::params::{ParamError, ParamSpec, Params, Retired, choice, integer, real};
 use super::reading::{Reading, SensorData};
 use super::{Engine, EngineKind, SnapshotError};
 
@@ -71,14 +71,17 @@ const PRIOR_PITCH_BIAS_DEG: f64 = 0.5;
 const PRIOR_ROLL_OFFSET_DEG: f64 = 0.3;
 const PRIOR_PITCH_RATE_DEG_PER_S: f64 = 1e-3;
 const PRIOR_ROLL_RATE_DEG_PER_S: f64 = 1e-2;
-/// The noise is re-estimated this often (and at every laser sample).
-const RETUNE_EVERY_S: f64 = 10.0;
+/// The noise is re-estimated this often: it changes over minutes, and each
+/// fit costs microseconds.
+const RETUNE_EVERY_S: f64 = 30.0;
 /// Without a surprise, the model is retrained after this long of laser
 /// samples (each training costs tens of microseconds; a pair every 30 s
 /// need not each pay it).
 const TRAIN_EVERY_S: f64 = 300.0;
 /// The pairing window is this many times the filter's averaging length.
 const PAIR_WINDOW_AVERAGES: f64 = 4.0;
+/// The candidate models not in use are trained every this many trainings.
+const CANDIDATES_EVERY: u64 = 4;
 /// Another candidate model takes over when its cross-validation score is
 /// below this share of the current one's.
 const GCV_SWITCH: f64 = 0.95;
@@ -328,15 +331,15 @@ pub const PARAMS: &[ParamSpec] = &[
 /// Parameters of earlier releases that no longer exist: a stored machine
 /// that has them loads without them; a new declaration that names one is
 /// refused with the reason.
-pub const RETIRED: &[(&str, &str)] = &[
-    (
-        "correction_slew_deg_per_s",
-        "a retrain now moves the filter's bias with the correction, so no slew limit is needed",
-    ),
-    (
-        "roll_offset_gain",
-        "the roll offset is now a state of the roll filter",
-    ),
+pub const RETIRED: &[Retired] = &[
+    Retired {
+        name: "correction_slew_deg_per_s",
+        reason: "a retrain now moves the filter's bias with the correction, so a true change is not slowed and no slew limit is needed",
+    },
+    Retired {
+        name: "roll_offset_gain",
+        reason: "the inclinometer's roll offset is now a state of the roll filter, learned from every laser sample",
+    },
 ];
 
 /// Which pitch error model corrects the inclinometer.
@@ -659,6 +662,8 @@ pub struct AttitudeEngine {
     last_laser_roll: Option<(f64, f64)>,
     /// Training pairs added since the model was last trained.
     pairs_untrained: u32,
+    /// Trainings so far.
+    trainings: u64,
     /// When the noise was last re-estimated.
     retuned_t: Option<f64>,
     newest: Option<Newest>,
@@ -768,6 +773,7 @@ impl AttitudeEngine {
             noise: TunedNoise::from_priors(&config.priors),
             last_laser_roll: None,
             pairs_untrained: 0,
+            trainings: 0,
             retuned_t: None,
             newest: None,
             stats: AttitudeStats::default(),
@@ -794,7 +800,7 @@ impl AttitudeEngine {
             });
         }
         let mut engine: AttitudeEngine = SnapshotError::parse(EngineKind::Attitude, snapshot)?;
-        let params = engine.params.revalidated(PARAMS)?;
+        let params = engine.params.upgraded(PARAMS, RETIRED)?;
         engine.config = AttitudeConfig::from_params(&params)?;
         engine.params = params;
         // What the parameters shape is rebuilt from them, not trusted.
@@ -1016,7 +1022,6 @@ impl AttitudeEngine {
         self.tuning
             .curvature
             .observe(t, pitch, roll, self.laser.period_s());
-        self.retune();
         self.pending_laser.push((t, pitch, roll));
         if self.pending_laser.len() > MAX_PENDING_LASER {
             self.pending_laser.remove(0);
@@ -1116,8 +1121,14 @@ impl AttitudeEngine {
         // and temperature, so the estimate does not jump at a retrain.
         let now = self.newest.map(|n| (n.roll_rad, n.temp_c));
         let before = now.map(|(r, tc)| self.correction_at(r, tc));
-        for model in &mut self.models {
-            model.train();
+        // The model in use trains every time, the other candidates every
+        // [`CANDIDATES_EVERY`]th time (warm, they stay close in between).
+        self.trainings += 1;
+        let all = self.trainings % CANDIDATES_EVERY == 0 || young;
+        for (i, model) in self.models.iter_mut().enumerate() {
+            if all || i == self.chosen {
+                model.train();
+            }
         }
         // The candidate generalised cross-validation prefers takes over,
         // by a clear margin (no flapping between near equals).

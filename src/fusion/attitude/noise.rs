@@ -81,6 +81,9 @@ pub const CURVATURE_LAG_S: f64 = 240.0;
 const CURVATURE_SAMPLES: usize = 24;
 /// Estimates are used once they rest on this many differences.
 const MIN_SAMPLES: f64 = 4.0;
+/// A lag enters the variogram's fit once it has this many differences (a
+/// colour's time constant from a few dozen is a guess).
+const MIN_VARIOGRAM_SAMPLES: f64 = 100.0;
 
 /// What the machine is doing, as the inclinometer's vibration shows it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -361,17 +364,18 @@ impl Variogram {
         (m.count >= MIN_SAMPLES).then_some(m.mean)
     }
 
-    /// N2 fitted: E[D_k²] = 6σ_w² + σ_c² (6 − 8ρ^k + 2ρ^{2k}) + 2 q_w h_k
+    /// N2 fitted, E[D_k²] = 6σ_w² + σ_c² (6 − 8ρ^k + 2ρ^{2k}) + 2 q_w h_k
     /// + (2/3) q_a h_k³ with ρ^k = e^{−h_k/τ}, for each τ of
-    /// [`COLOUR_TAUS_S`] by weighted non-negative least squares (weights
-    /// count / E[D²]²), the best τ kept. `q_a` comes from elsewhere (the
-    /// laser): these lags are too short to see the machine's slow turns.
+    /// [`COLOUR_TAUS_S`] by weighted non-negative least squares (weights:
+    /// count over E[D²] squared), the best τ kept. `q_a` comes from
+    /// elsewhere (the laser): these lags are too short to see the machine's
+    /// slow turns.
     pub fn fit(&self, q_a: f64) -> Option<NoiseFit> {
         let rows: Vec<(f64, f64, f64, f64)> = self
             .d2
             .iter()
             .zip(&self.lag_s)
-            .filter(|(d2, _)| d2.count >= MIN_SAMPLES)
+            .filter(|(d2, _)| d2.count >= MIN_VARIOGRAM_SAMPLES)
             .map(|(d2, h)| {
                 let y = d2.mean - 2.0 / 3.0 * q_a * h.mean.powi(3);
                 let w = d2.count.min(VARIOGRAM_MEMORY) / (d2.mean * d2.mean).max(1e-300);
@@ -436,39 +440,84 @@ impl Variogram {
 /// fit with no negative coefficient kept. Returns the coefficients and the
 /// weighted residual.
 fn nonnegative_least_squares(rows: &[([f64; 3], f64, f64)], unknowns: usize) -> ([f64; 3], f64) {
-    let mut best = ([0.0; 3], f64::INFINITY);
-    for mask in 1..(1u32 << unknowns) {
-        let cols: Vec<usize> = (0..unknowns).filter(|j| mask & (1 << j) != 0).collect();
-        let k = cols.len();
-        let mut a = nalgebra::DMatrix::<f64>::zeros(k, k);
-        let mut b = nalgebra::DVector::<f64>::zeros(k);
-        for (x, y, w) in rows {
-            for (i, &ci) in cols.iter().enumerate() {
-                b[i] += w * x[ci] * y;
-                for (j, &cj) in cols.iter().enumerate() {
-                    a[(i, j)] += w * x[ci] * x[cj];
-                }
+    // The normal equations once: A = Σ w x xᵀ, b = Σ w x y, and Σ w y².
+    let (mut a, mut b, mut yy) = ([[0.0; 3]; 3], [0.0; 3], 0.0);
+    for (x, y, w) in rows {
+        for i in 0..3 {
+            b[i] += w * x[i] * y;
+            for j in 0..3 {
+                a[i][j] += w * x[i] * x[j];
             }
         }
-        let Some(solution) = a.cholesky().map(|c| c.solve(&b)) else {
+        yy += w * y * y;
+    }
+    let mut best = ([0.0; 3], f64::INFINITY);
+    for mask in 1..(1u32 << unknowns) {
+        let mut cols = [0usize; 3];
+        let mut k = 0;
+        for j in 0..unknowns {
+            if mask & (1 << j) != 0 {
+                cols[k] = j;
+                k += 1;
+            }
+        }
+        let mut m = [[0.0; 4]; 3];
+        for r in 0..k {
+            for c in 0..k {
+                m[r][c] = a[cols[r]][cols[c]];
+            }
+            m[r][3] = b[cols[r]];
+        }
+        let Some(solution) = solve_small(&mut m, k) else {
             continue;
         };
-        if solution.iter().any(|c| !(c.is_finite() && *c >= 0.0)) {
+        if solution[..k].iter().any(|c| !(c.is_finite() && *c >= 0.0)) {
             continue;
         }
         let mut c = [0.0; 3];
-        for (i, &ci) in cols.iter().enumerate() {
-            c[ci] = solution[i];
+        for r in 0..k {
+            c[cols[r]] = solution[r];
         }
-        let residual: f64 = rows
-            .iter()
-            .map(|(x, y, w)| w * (y - (0..3).map(|j| x[j] * c[j]).sum::<f64>()).powi(2))
-            .sum();
+        // Σ w (y − xᵀc)² = Σ w y² − 2 cᵀb + cᵀ A c
+        let mut residual = yy;
+        for i in 0..3 {
+            residual -= 2.0 * c[i] * b[i];
+            for j in 0..3 {
+                residual += c[i] * a[i][j] * c[j];
+            }
+        }
         if residual < best.1 {
             best = (c, residual);
         }
     }
     best
+}
+
+/// Gaussian elimination with partial pivoting on the first `k` rows of the
+/// augmented matrix `m` (k ≤ 3); `None` if it is singular.
+fn solve_small(m: &mut [[f64; 4]; 3], k: usize) -> Option<[f64; 3]> {
+    for col in 0..k {
+        let pivot = (col..k).max_by(|&x, &y| m[x][col].abs().total_cmp(&m[y][col].abs()))?;
+        if m[pivot][col].abs() <= 1e-300 {
+            return None;
+        }
+        m.swap(col, pivot);
+        for row in col + 1..k {
+            let f = m[row][col] / m[col][col];
+            for c in col..4 {
+                m[row][c] -= f * m[col][c];
+            }
+        }
+    }
+    let mut x = [0.0; 3];
+    for row in (0..k).rev() {
+        let mut v = m[row][3];
+        for c in row + 1..k {
+            v -= m[row][c] * x[c];
+        }
+        x[row] = v / m[row][row];
+    }
+    Some(x)
 }
 
 /// How the machine's attitude moves, from the laser's own samples (N3):
