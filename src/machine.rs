@@ -432,13 +432,28 @@ struct Actor {
 impl Actor {
     async fn run(mut self, mut queue: mpsc::Receiver<Command>) {
         while let Some(command) = queue.recv().await {
+            let mut stale = None;
             if self.write_failed.swap(false, Ordering::SeqCst) {
-                self.rebuild().await;
+                stale = self.rebuild().await;
             }
             match command {
+                // Engines that have fused readings the store does not hold
+                // must not fuse more: a retry of the lost request would
+                // look to them like a duplicate. Until a rebuild succeeds,
+                // ingest answers as the store did.
+                Command::Ingest { reply, .. } if stale.is_some() => {
+                    let why = stale.unwrap_or_default();
+                    let _ = reply.send(Err(StoreError::Unrebuilt(why)));
+                }
                 Command::Ingest { readings, reply } => self.ingest(readings, reply).await,
                 Command::Models { reply } => {
                     let _ = reply.send(self.core.models());
+                }
+                // Engines ahead of the store are not snapshotted: the next
+                // start rebuilds from what the store holds.
+                Command::Stop { reply } if stale.is_some() => {
+                    let _ = reply.send(());
+                    return;
                 }
                 Command::Stop { reply } => {
                     let (done, committed) = oneshot::channel();
@@ -464,19 +479,26 @@ impl Actor {
     /// readings after it. Writes queued before the failure was noticed may
     /// still commit estimates computed from the lost readings; the readings
     /// themselves are what the store holds.
-    async fn rebuild(&mut self) {
+    /// `None` when the engines match the store again, else why not.
+    async fn rebuild(&mut self) -> Option<String> {
         let (store, spec, db_id) = (self.store.clone(), self.spec.clone(), self.db_id);
         match tokio::task::spawn_blocking(move || recover(&store, &spec, db_id)).await {
             Ok(Ok(core)) => {
                 self.core = core;
                 self.since_snapshot = 0;
                 tracing::warn!(machine = %self.spec.id, "engines rebuilt from the store after a failed write");
+                None
             }
             Ok(Err(e)) => {
                 tracing::error!(machine = %self.spec.id, error = %e, "rebuild failed; retrying on the next request");
                 self.write_failed.store(true, Ordering::SeqCst);
+                Some(e.to_string())
             }
-            Err(e) => tracing::error!(machine = %self.spec.id, error = %e, "rebuild panicked"),
+            Err(e) => {
+                tracing::error!(machine = %self.spec.id, error = %e, "rebuild panicked");
+                self.write_failed.store(true, Ordering::SeqCst);
+                Some(e.to_string())
+            }
         }
     }
 

@@ -175,6 +175,17 @@ fn bad_arguments_are_refused_with_a_clear_message() {
             &["eval", "attitude", "--hours", "2", "--learning-h", "3"],
             "shorter than the 2 h drive",
         ),
+        (
+            &[
+                "replay",
+                "--engine",
+                "attitude",
+                "--param",
+                "correction_slew_deg_per_s=0.001",
+                "-",
+            ],
+            "parameter `correction_slew_deg_per_s` was retired: a retrain now moves",
+        ),
     ];
     for (args, message) in cases {
         let out = tunnelnav().args(*args).output().unwrap();

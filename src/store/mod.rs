@@ -51,6 +51,8 @@ pub enum StoreError {
     Closed,
     #[error("stored data is corrupt: {0}")]
     Corrupt(String),
+    #[error("the machine's engines could not be rebuilt after a failed write ({0})")]
+    Unrebuilt(String),
 }
 
 impl StoreError {
@@ -68,6 +70,7 @@ impl StoreError {
                     | ErrorCode::SystemIoFailure
                     | ErrorCode::CannotOpen
             ),
+            StoreError::Unrebuilt(_) => true,
             _ => false,
         }
     }

@@ -1,0 +1,118 @@
+//! A database written by the release before issue 16 (the fixture: one
+//! attitude machine, declared with a since-retired parameter, 0.3 h of a
+//! simulated drive, its estimates and a snapshot of the old engine state)
+//! opens in this one: the machine loads with its retired parameters
+//! dropped and its new ones at their defaults, the engines are rebuilt
+//! from the stored readings (the old snapshot is of another state version),
+//! nothing stored is lost, and from then on the machine runs exactly as
+//! `replay` of all its readings does.
+
+mod common;
+
+use common::{
+    ServerProcess, all_estimates, exported_readings, get_json, post_ndjson, replay_engine,
+};
+use serde_json::Value;
+use tunnelnav::sim::tbm::{TbmDrive, TbmScenario};
+
+/// The fixture's drive continued: `simulate tbm --laser-period-s 30 --seed 5`.
+fn drive(hours: f64) -> Vec<String> {
+    TbmDrive::new(TbmScenario {
+        seed: 5,
+        hours,
+        laser_period_s: 30.0,
+        ..TbmScenario::default()
+    })
+    .unwrap()
+    .map(|event| event.reading.to_json())
+    .collect()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_database_from_the_previous_release_opens_and_continues() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::copy(
+        concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/tests/fixtures/attitude-before-issue-16.sqlite3"
+        ),
+        dir.path().join("tunnelnav.sqlite3"),
+    )
+    .unwrap();
+    let client = reqwest::Client::new();
+    let server = ServerProcess::start(dir.path());
+    let base = server.url("");
+
+    // The declaration: retired parameters gone, new ones at their
+    // defaults, the rest as declared then.
+    let machine = get_json(&client, &base, "/api/v1/machines/tbm-old").await;
+    let params = machine["config"]["engines"]["attitude"]
+        .as_object()
+        .unwrap()
+        .clone();
+    assert!(!params.contains_key("correction_slew_deg_per_s"));
+    assert!(!params.contains_key("roll_offset_gain"));
+    assert_eq!(params["noise"], "adaptive");
+    assert_eq!(params["anfis_select"], "gcv");
+    assert_eq!(params["fusion_gain_pitch"], 0.02);
+
+    // Nothing stored is lost: every reading, every estimate.
+    let old_lines = drive(0.3);
+    assert_eq!(old_lines.len(), 1114);
+    assert_eq!(
+        exported_readings(&client, &base, "tbm-old").await.len(),
+        1114
+    );
+    let old_estimates = all_estimates(&client, &base, "tbm-old").await;
+    assert_eq!(old_estimates.len(), 1080);
+
+    // The drive continues; what the rebuilt engine makes of it is what a
+    // replay of every reading with the machine's parameters makes.
+    let lines = drive(0.6);
+    assert_eq!(lines[..1114], old_lines[..]);
+    for chunk in lines[1114..].chunks(500) {
+        post_ndjson(&client, &base, "tbm-old", chunk).await;
+    }
+    let served = all_estimates(&client, &base, "tbm-old").await;
+    let assignments: Vec<String> = params
+        .iter()
+        .map(|(name, value)| match value {
+            Value::String(word) => format!("{name}={word}"),
+            other => format!("{name}={other}"),
+        })
+        .collect();
+    let assignments: Vec<&str> = assignments.iter().map(String::as_str).collect();
+    let replayed = replay_engine("tbm-old", "attitude", &assignments, &lines);
+    let new_t = old_estimates.last().unwrap()["t"].as_f64().unwrap();
+    let served_new: Vec<&Value> = served
+        .iter()
+        .filter(|e| e["t"].as_f64().unwrap() > new_t)
+        .collect();
+    let replayed_new: Vec<&Value> = replayed
+        .iter()
+        .filter(|e| e["t"].as_f64().unwrap() > new_t)
+        .collect();
+    assert!(served_new.len() > 1000, "{}", served_new.len());
+    assert_eq!(served_new, replayed_new);
+
+    // The model now reports the self-tuned noise.
+    let model = get_json(&client, &base, "/api/v1/machines/tbm-old/model").await;
+    assert_eq!(model["noise"]["mode"], "adaptive");
+    assert!(model["noise"]["incl_pitch_vibrating_deg"].as_f64().unwrap() > 0.0);
+
+    // A declaration naming a retired parameter is refused, saying why.
+    let response = client
+        .put(format!("{base}/api/v1/machines/tbm-new"))
+        .body(r#"{"name": "new", "engines": {"attitude": {"roll_offset_gain": 0.1}}}"#)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(response.status(), 400);
+    let body: Value = serde_json::from_slice(&response.bytes().await.unwrap()).unwrap();
+    let error = body["error"].as_str().unwrap();
+    assert!(
+        error.contains("roll_offset_gain") && error.contains("retired"),
+        "{error}"
+    );
+    server.kill();
+}
