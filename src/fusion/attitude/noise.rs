@@ -364,12 +364,12 @@ impl Variogram {
         (m.count >= MIN_SAMPLES).then_some(m.mean)
     }
 
-    /// N2 fitted, E[D_k²] = 6σ_w² + σ_c² (6 − 8ρ^k + 2ρ^{2k}) + 2 q_w h_k
-    /// + (2/3) q_a h_k³ with ρ^k = e^{−h_k/τ}, for each τ of
-    /// [`COLOUR_TAUS_S`] by weighted non-negative least squares (weights:
-    /// count over E[D²] squared), the best τ kept. `q_a` comes from
-    /// elsewhere (the laser): these lags are too short to see the machine's
-    /// slow turns.
+    /// N2 fitted for each τ of [`COLOUR_TAUS_S`] by weighted non-negative
+    /// least squares (weights: count over E[D²] squared), the best τ
+    /// kept: E[D_k²] = 6σ_w² + σ_c² (6 − 8ρ^k + 2ρ^{2k}) + 2 q_w h_k +
+    /// (2/3) q_a h_k³ with ρ^k = e^{−h_k/τ}. `q_a` comes from elsewhere
+    /// (the laser): these lags are too short to see the machine's slow
+    /// turns.
     pub fn fit(&self, q_a: f64) -> Option<NoiseFit> {
         let rows: Vec<(f64, f64, f64, f64)> = self
             .d2
