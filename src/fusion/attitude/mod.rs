@@ -1124,7 +1124,7 @@ impl AttitudeEngine {
         // The model in use trains every time, the other candidates every
         // [`CANDIDATES_EVERY`]th time (warm, they stay close in between).
         self.trainings += 1;
-        let all = self.trainings % CANDIDATES_EVERY == 0 || young;
+        let all = self.trainings.is_multiple_of(CANDIDATES_EVERY) || young;
         for (i, model) in self.models.iter_mut().enumerate() {
             if all || i == self.chosen {
                 model.train();

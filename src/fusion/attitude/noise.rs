@@ -502,10 +502,11 @@ fn solve_small(m: &mut [[f64; 4]; 3], k: usize) -> Option<[f64; 3]> {
             return None;
         }
         m.swap(col, pivot);
-        for row in col + 1..k {
-            let f = m[row][col] / m[col][col];
-            for c in col..4 {
-                m[row][c] -= f * m[col][c];
+        let pivot_row = m[col];
+        for row in m.iter_mut().take(k).skip(col + 1) {
+            let f = row[col] / pivot_row[col];
+            for (value, above) in row.iter_mut().zip(pivot_row).skip(col) {
+                *value -= f * above;
             }
         }
     }
