@@ -201,9 +201,35 @@
       badge.className = 'badge ok';
     }
     const offset = num(model.roll_offset_deg) ? ` · roll offset ${model.roll_offset_deg.toFixed(3)}°` : '';
+    const temp = num(model.temp_coefficient_deg_per_c) && model.temp_coefficient_deg_per_c !== 0
+      ? ` · ${(model.temp_coefficient_deg_per_c * 1000).toFixed(2)} m°/°C about ${model.temp_reference_c.toFixed(1)} °C`
+      : ' · no temperature term';
     setText($('anfis-note'),
       `fit RMSE ${fixed(model.fit_rmse_deg, 4)}° · ${samples.length} training samples · ` +
-      `${memberships.length} memberships · trained ${model.version || 0} times · correction ${model.correction}${offset}`);
+      `${memberships.length} memberships · trained ${model.version || 0} times · correction ${model.correction}${temp}${offset}`);
+    drawNoise(model);
+  }
+
+  // The noise the filters run with: measured from the readings
+  // (noise=adaptive) or the parameters (noise=fixed).
+  function drawNoise(model) {
+    const n = model.noise;
+    if (!n) return;
+    const phase = $('noise-phase');
+    setText(phase, n.phase === 'vibrating' ? 'vibrating (cutting)' : 'quiet (standing)');
+    phase.className = 'badge ok';
+    const sd = (x) => `${fixed(x, 4)}°`;
+    setText($('noise-pitch'), `${sd(n.incl_pitch_vibrating_deg)} cutting · ${sd(n.incl_pitch_quiet_deg)} standing`);
+    setText($('noise-roll'), `${sd(n.incl_roll_vibrating_deg)} cutting · ${sd(n.incl_roll_quiet_deg)} standing`);
+    setText($('noise-colour'), num(n.colour_tau_s) && n.colour_tau_s > 0 ? `time constant ${n.colour_tau_s} s` : 'white');
+    setText($('noise-motion'),
+      `walk ${n.q_pitch_deg2_per_s.toExponential(1)} °²/s · rate walk ${n.q_pitch_rate_deg2_per_s3.toExponential(1)} °²/s³`);
+    setText($('noise-bias'), num(model.pitch_bias_deg)
+      ? `${model.pitch_bias_deg.toFixed(4)} ± ${fixed(model.pitch_bias_sigma_deg, 4)}°` : '—');
+    setText($('noise-laser'), sd(n.laser_deg));
+    setText($('noise-note'), n.mode === 'adaptive'
+      ? 'measured from the readings; the engine parameters are only priors'
+      : 'fixed by the engine parameters (noise=fixed)');
   }
 
   function createCharts() {
@@ -447,6 +473,8 @@
     setInterval(scheduleRedraw, 1000); // the window slides even when nothing arrives
     await loadHistory();
     fetchModel();
+    // The noise is re-estimated between trainings: refetch now and then.
+    setInterval(fetchModel, 60000);
     connect();
   }
 

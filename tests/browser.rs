@@ -326,6 +326,17 @@ async fn machine_page_shows_live_attitude_dropout_and_model() {
         20,
     )
     .await;
+    // The self-tuned noise is shown beside the model.
+    wait_for(
+        &browser,
+        "the self-tuned noise",
+        "return /^0\\.\\d{4}° cutting · 0\\.\\d{4}° standing$/.test( \
+             document.getElementById('noise-pitch').textContent) \
+           && /measured from the readings/.test(document.getElementById('noise-note').textContent) \
+           && /(vibrating|quiet)/.test(document.getElementById('noise-phase').textContent);",
+        10,
+    )
+    .await;
     let live_points = js(
         &browser,
         "return window.tunnelnav.charts.pitch.data[1].filter(v => v !== null).length;",

@@ -660,6 +660,8 @@ pub struct AttitudeEngine {
     noise: TunedNoise,
     /// Time and filtered roll at the previous laser sample.
     last_laser_roll: Option<(f64, f64)>,
+    /// Normalised laser innovations ν²/S, averaged over the last few.
+    laser_nis: noise::RecentMean,
     /// Training pairs added since the model was last trained.
     pairs_untrained: u32,
     /// Trainings so far.
@@ -772,6 +774,7 @@ impl AttitudeEngine {
             tuning: SelfTuning::new(),
             noise: TunedNoise::from_priors(&config.priors),
             last_laser_roll: None,
+            laser_nis: noise::RecentMean::default(),
             pairs_untrained: 0,
             trainings: 0,
             retuned_t: None,
@@ -1007,11 +1010,17 @@ impl AttitudeEngine {
                 f.inflate_bias(noise.bias.per_s * (t - t0).abs() + noise.bias.per_roll2 * dr * dr);
             }
             let (h, r) = laser_row(f, t, &noise.pitch, noise.r_laser);
-            // A laser sample further off than the filter allows is what the
-            // bias allowance missed: the excess goes to the bias's variance
-            // (innovation-based adaptation of Q_b, one sample at a time).
+            // Laser samples further off than the filter allows, on average
+            // over the last few, show what the bias allowance missed: the
+            // excess goes to the bias's variance (innovation-based
+            // covariance matching of Q_b, Mehra 1972).
             let innovation = f.innovation(h, pitch, r);
-            f.inflate_bias((innovation.value.powi(2) - innovation.variance).max(0.0));
+            let nis = innovation.value.powi(2) / innovation.variance;
+            self.laser_nis.add(nis);
+            let excess = self.laser_nis.mean - 1.0;
+            if excess > 0.0 {
+                f.inflate_bias(excess * innovation.variance);
+            }
             f.update(h, pitch, r);
         }
         self.last_laser_roll = roll_now.map(|r| (t, r));

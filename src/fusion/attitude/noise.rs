@@ -58,6 +58,8 @@ const LEVEL_READINGS: f64 = 16.0;
 const CENTRE_MEMORY_S: f64 = 1800.0;
 /// Samples after which running means forget (weight 1/MEMORY).
 pub const MEMORY: f64 = 40.0;
+/// Samples a [`RecentMean`] averages over.
+pub const RECENT: f64 = 8.0;
 /// The inclinometer's second differences are taken at these lags, in
 /// readings, as far as [`MAX_LAG_S`].
 const LAGS: [usize; 6] = [1, 2, 4, 8, 16, 32];
@@ -142,6 +144,21 @@ impl LogVariance {
 
     pub fn count(&self) -> f64 {
         self.0.count
+    }
+}
+
+/// A mean over about the last [`RECENT`] samples (equal weights until
+/// then, then forgetting).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct RecentMean {
+    pub mean: f64,
+    pub count: f64,
+}
+
+impl RecentMean {
+    pub fn add(&mut self, x: f64) {
+        self.count += 1.0;
+        self.mean += (x - self.mean) / self.count.min(RECENT);
     }
 }
 
