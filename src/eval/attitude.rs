@@ -55,7 +55,8 @@ const FIXED_INCL_NOISE_DEG: (f64, f64) = (0.005_385_164_807_134_504, 0.001);
 const FIXED_LASER_NOISE_DEG: f64 = 0.002;
 
 impl Drive {
-    fn seed(&self) -> u64 {
+    /// The drive's seed.
+    pub fn seed(&self) -> u64 {
         match self {
             Drive::Fixed(s) => s.seed,
             Drive::Envelope(d) => d.seed,
