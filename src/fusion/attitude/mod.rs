@@ -20,7 +20,11 @@
 //!    (Eq. 12/13 with the filter's rate in place of a difference of two
 //!    noisy outputs).
 //!
-//! Per laser reading: both filters take it (Eq. 5–7 with H = [1, 0, 0]);
+//! Per laser reading: the pitch bias's variance first grows by what time
+//! and the roll's travel since the previous sample allow (q_b Δt + q_β Δβ²,
+//! priors) and by the excess of the recent normalised laser innovations
+//! ν²/S over 1 (covariance matching: what the allowance missed); then both
+//! filters take it (Eq. 5–7 with H = [1, 0, 0]);
 //! once the inclinometer has passed its instant by the pairing window, the
 //! inclinometer around it gives a training pair (Eq. 16) and the model is
 //! retrained, warm. A retrain moves the correction under the filter; the
@@ -854,21 +858,6 @@ impl AttitudeEngine {
         &self.config
     }
 
-    /// The pitch variogram (inspection).
-    pub fn pitch_variogram(&self) -> &Variogram {
-        &self.tuning.pitch
-    }
-
-    /// The pitch filter (for inspection).
-    pub fn pitch_filter(&self) -> Option<&TiltFilter> {
-        self.pitch.as_ref()
-    }
-
-    /// The noise the filters run with now.
-    pub fn noise(&self) -> &TunedNoise {
-        &self.noise
-    }
-
     /// The pitch error ê_a the engine would apply at `roll_rad` and `temp_c`.
     fn correction_at(&self, roll_rad: f64, temp_c: Option<f64>) -> f64 {
         match self.config.correction {
@@ -1039,7 +1028,6 @@ impl AttitudeEngine {
         self.pair_pending();
     }
 
-    /// Half-width of the inclinometer window a laser sample is paired over.
     /// The half-width of the inclinometer window a laser sample is paired
     /// over: [`PAIR_WINDOW_AVERAGES`] times as long as the filter averages
     /// (short where the shield moves fast against the noise, long where the

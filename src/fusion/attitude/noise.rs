@@ -1,50 +1,48 @@
-//! Self-tuning: the filter's measurement and process noise estimated from
-//! the readings themselves, so that nobody on site tunes Q and R.
+//! Self-tuning: the filters' measurement and process noise estimated from
+//! the readings themselves, so that nobody on site tunes Q and R. Every
+//! estimate falls back to its prior (the engine's parameter) until it has
+//! data behind it, and forgets slowly, so a machine whose vibration or
+//! motion changes over a drive is followed.
 //!
-//! **Motion phase.** Cutting shakes the inclinometer, ring building does
-//! not. Each reading's white noise is seen in the residual of a straight
+//! **Motion phase (N1).** Cutting shakes the inclinometer, ring building
+//! does not. Each reading's white noise shows in the residual of a straight
 //! line through the two readings before it: for readings r = Δt_k/Δt_{k−1}
 //! apart, e = z_k − z_{k−1} − r (z_{k−1} − z_{k−2}) has variance
-//! (1 + (1 + r)² + r²) σ² (σ² alone: 6σ² at equal spacing)             (N1)
-//! which, averaged over pitch and roll and smoothed over
-//! [`LEVEL_READINGS`] readings, is the *level*. The 10th and 90th
-//! percentiles of ln(level) are tracked (stochastic approximation,
-//! q ← q + η (p − 1[x ≤ q])); the phase is `vibrating` above their
-//! midpoint and `quiet` below (with a hysteresis of a tenth of their
-//! distance). Nothing tells the engine which phase the machine is in.
+//! (1 + (1 + r)² + r²) σ² (6σ² at equal spacing)                       (N1)
+//! which, averaged over pitch and roll and smoothed over [`LEVEL_S`], is
+//! the *level*. Two centres on ln(level) (two-means, each following its
+//! cluster over [`CENTRE_MEMORY_S`]) split it: a reading is `vibrating`
+//! nearer the upper one and `quiet` nearer the lower, with a hysteresis of
+//! a tenth of their distance. Nothing tells the engine which phase it is.
 //!
-//! **Inclinometer noise R (per phase).** Coloured vibration (time constants
-//! of seconds) makes consecutive readings alike, and a filter that took
-//! them for independent would trust their average too much. So R is
-//! measured where the filter uses it, on means over blocks of
-//! [`BLOCK_S`] seconds: for three consecutive blocks of one phase with n₁,
-//! n₂, n₃ readings and means ȳ, D = ȳ₁ − 2ȳ₂ + ȳ₃ (the Hadamard
-//! difference, blind to a constant and a trend) has
-//! E[D²] = R (1/n₁ + 4/n₂ + 1/n₃)                                      (N2)
-//! for noise white at that scale, so R̂ = D² / (1/n₁ + 4/n₂ + 1/n₃) is the
-//! effective per-reading variance: σ² for white noise, more for coloured.
+//! **Inclinometer noise and fast motion (N2).** Second differences of one
+//! axis at lags of k = 1, 2, 4 … 32 readings (h_k apart, up to
+//! [`MAX_LAG_S`]), D_k = z(t) − 2 z(t − h_k) + z(t − 2h_k), have
+//! E[D_k²] = 6σ_w² + σ_c² (6 − 8ρ^k + 2ρ^{2k}) + 2 q_w h_k + ⅔ q_a h_k³   (N2)
+//! for white noise σ_w², coloured (AR(1), ρ = e^{−Δ/τ}) noise σ_c², a
+//! random walk q_w of the signal and a random walk q_a of its rate. With
+//! q_a from the laser (N3), N2 is fitted by weighted non-negative least
+//! squares for each τ of [`COLOUR_TAUS_S`]; colour is kept only if it
+//! clearly fits better and is more than a trace. Per phase the result is
+//! scaled by that phase's one-lag level E[D₁²]/6.
 //!
-//! **Process noise Q.** The same differences over blocks of 2, 4, 8 and 16
-//! base blocks (60 s … 8 min), less the noise part (N2 with each block's
-//! R), measure how the inclinometer's signal s = θ + b moves. For block
-//! means at spacing S a random walk of intensity q_w gives E[D²] = q_w S,
-//! and a random walk of the rate (white acceleration, q_a) gives
-//! E[D²] = 0.55 q_a S³ (the Hadamard variance of an integrated random
-//! walk: ∫Γ² with Γ the kernel of D on x'' = w)                        (N3)
-//! fitted by weighted non-negative least squares over the four scales.
+//! **What the filter must assume (N2b).** A filter averaging n readings
+//! sees coloured noise n-fold less reduced than white: the variance per
+//! reading it must take is σ_w² + σ_c² g(n) with the AR(1) mean-of-n factor
+//! g(n) = (1 + ρ)/(1 − ρ) − 2ρ (1 − ρⁿ) / (n (1 − ρ)²)                  (N2b)
+//! and n ≈ min(√(R/(q_w Δ)), (R/(q_a Δ³))^¼), the inverse steady gain.
 //!
-//! **Bias walk and laser noise.** At each laser sample, δ = y_L − ŝ (the
-//! laser less the filter's prediction of what the inclinometer reads) is
-//! the bias b with the laser's noise and the prediction's error; for two
-//! samples Δt apart
-//! E[(δ₂ − δ₁)²] = q_b Δt + 2 (σ_L² + P_ss)                            (N4)
-//! so a line through (Δt, (Δδ)²) over lags of one to three samples gives
-//! q_b (slope) and σ_L² (intercept, less the filter's own P_ss).
+//! **The machine's slow motion (N3).** The inclinometer's lags are too
+//! short to see the shield turn; the laser's are long enough. Laser second
+//! differences at a lag h ≥ [`CURVATURE_LAG_S`] have
+//! E[D²] = ⅔ q_a h³ + 6 σ_L²                                            (N3)
+//! which gives q_a for pitch and roll. σ_L² is the engine's prior
+//! `r_laser_deg2`: a few laser samples per hour cannot part it from q_a.
 //!
-//! Until an estimate has data behind it, its prior (the engine's
-//! parameter) is used. Every sum is bounded and forgets slowly
-//! ([`MEMORY`] samples), so a machine whose vibration or dynamics change
-//! over a drive is followed.
+//! The inclinometer bias's process noise is not estimated here: the engine
+//! grows the bias's variance at each laser sample by the excess of the
+//! normalised innovations over their expectation ([`RecentMean`] of ν²/S,
+//! covariance matching).
 
 use std::collections::VecDeque;
 
@@ -364,15 +362,6 @@ impl Variogram {
                 add(&mut self.one_lag[phase.index()], d * d / 6.0);
             }
         }
-    }
-
-    /// (lag s, E[D²]) per lag (inspection).
-    pub fn lags(&self) -> Vec<(f64, f64)> {
-        self.lag_s
-            .iter()
-            .zip(&self.d2)
-            .map(|(h, d)| (h.mean, d.mean))
-            .collect()
     }
 
     /// The one-lag estimate of the per-reading noise in `phase`.
