@@ -403,8 +403,8 @@ impl Anfis {
             .iter()
             .map(|s| {
                 let age = (newest - s.seq) as f64;
-                0.5_f64
-                    .powf(age / self.config.half_life)
+                (-age / self.config.half_life)
+                    .exp2()
                     .max(self.config.min_weight)
             })
             .collect()

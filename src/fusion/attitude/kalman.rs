@@ -147,13 +147,14 @@ impl TiltFilter {
         if !(s > 0.0 && s.is_finite()) {
             return Innovation { value, variance: s };
         }
+        let inv_s = 1.0 / s;
         for (x, phi) in self.x.iter_mut().zip(ph) {
-            *x += phi / s * value; // Eq. 6 with K = P Hᵀ / S (Eq. 5)
+            *x += phi * inv_s * value; // Eq. 6 with K = P Hᵀ / S (Eq. 5)
         }
         // Eq. 7 (corrected): P − K H P = P − P Hᵀ H P / S, kept symmetric.
         for i in 0..3 {
             for j in i..3 {
-                let v = self.p[i][j] - ph[i] * ph[j] / s;
+                let v = self.p[i][j] - ph[i] * ph[j] * inv_s;
                 self.p[i][j] = v;
                 self.p[j][i] = v;
             }

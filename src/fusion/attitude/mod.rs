@@ -77,7 +77,7 @@ const PRIOR_PITCH_RATE_DEG_PER_S: f64 = 1e-3;
 const PRIOR_ROLL_RATE_DEG_PER_S: f64 = 1e-2;
 /// The noise is re-estimated this often: it changes over minutes, and each
 /// fit costs microseconds.
-const RETUNE_EVERY_S: f64 = 30.0;
+const RETUNE_EVERY_S: f64 = 120.0;
 /// Without a surprise, the model is retrained after this long of laser
 /// samples (each training costs tens of microseconds; a pair every 30 s
 /// need not each pay it).
@@ -1049,6 +1049,9 @@ impl AttitudeEngine {
         let Some(newest) = self.history.newest_t() else {
             return;
         };
+        if self.pending_laser.is_empty() {
+            return;
+        }
         let window = self.pair_window_s();
         while let Some(&(t, pitch, _)) = self.pending_laser.first() {
             if t + window > newest {

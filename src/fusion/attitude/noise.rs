@@ -61,6 +61,8 @@ pub const RECENT: f64 = 8.0;
 /// The inclinometer's second differences are taken at these lags, in
 /// readings, as far as [`MAX_LAG_S`].
 const LAGS: [usize; 6] = [1, 2, 4, 8, 16, 32];
+/// Readings in the longest lag's triple.
+const LONGEST_TRIPLE: usize = 2 * LAGS[LAGS.len() - 1] + 1;
 pub const MAX_LAG_S: f64 = 120.0;
 /// The variogram's sums forget over this many differences per lag.
 const VARIOGRAM_MEMORY: f64 = 2000.0;
@@ -261,8 +263,10 @@ impl PhaseDetector {
 /// the variogram of second differences at several lags (N2).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Variogram {
-    /// Recent readings: (t, z, phase).
-    recent: VecDeque<(f64, f64, Phase)>,
+    /// Recent readings: (t, z, phase), the newest last. Up to twice the
+    /// longest triple is kept and the older half dropped at once, so the
+    /// per-reading lookups index a plain slice.
+    recent: Vec<(f64, f64, Phase)>,
     /// Per lag: E[D²] and the lag h, s.
     d2: Vec<RunningMean>,
     lag_s: Vec<RunningMean>,
@@ -273,7 +277,7 @@ pub struct Variogram {
 impl Default for Variogram {
     fn default() -> Self {
         Variogram {
-            recent: VecDeque::with_capacity(2 * LAGS[LAGS.len() - 1] + 1),
+            recent: Vec::with_capacity(2 * LONGEST_TRIPLE),
             d2: vec![RunningMean::default(); LAGS.len()],
             lag_s: vec![RunningMean::default(); LAGS.len()],
             one_lag: [RunningMean::default(); 2],
@@ -333,18 +337,18 @@ impl NoiseFit {
 impl Variogram {
     /// Takes one reading `z` (radians) of `phase`.
     pub fn observe(&mut self, t: f64, z: f64, phase: Phase) {
-        let longest = 2 * LAGS[LAGS.len() - 1] + 1;
-        if self.recent.len() == longest {
-            self.recent.pop_front();
+        if self.recent.len() >= 2 * LONGEST_TRIPLE {
+            self.recent.drain(..self.recent.len() + 1 - LONGEST_TRIPLE);
         }
-        self.recent.push_back((t, z, phase));
-        let n = self.recent.len();
+        self.recent.push((t, z, phase));
+        let recent = &self.recent[..];
+        let n = recent.len();
         for (i, &k) in LAGS.iter().enumerate() {
             if n < 2 * k + 1 {
                 break;
             }
-            let (t0, z0, _) = self.recent[n - 1 - 2 * k];
-            let (t1, z1, p1) = self.recent[n - 1 - k];
+            let (t0, z0, _) = recent[n - 1 - 2 * k];
+            let (t1, z1, p1) = recent[n - 1 - k];
             let (h1, h2) = (t1 - t0, t - t1);
             // Evenly spaced triples only (a gap is not a lag).
             if h1 <= 0.0 || (h2 - h1).abs() > 0.2 * h1 || h1 > MAX_LAG_S {
