@@ -6,6 +6,10 @@
 //! from the stored readings (the old snapshot is of another state version),
 //! nothing stored is lost, and from then on the machine runs exactly as
 //! `replay` of all its readings does.
+//!
+//! The same for a `zupt` machine written by the release before issue 17
+//! (its stored estimates lack `yaw_sigma_deg`; its snapshot has no state
+//! version).
 
 mod common;
 
@@ -13,6 +17,7 @@ use common::{
     ServerProcess, all_estimates, exported_readings, get_json, post_ndjson, replay_engine,
 };
 use serde_json::Value;
+use tunnelnav::sim::pipejack::{PipeJackDrive, PipeJackScenario};
 use tunnelnav::sim::tbm::{TbmDrive, TbmScenario};
 
 /// The fixture's drive continued: `simulate tbm --laser-period-s 30 --seed 5`.
@@ -113,6 +118,94 @@ async fn a_database_from_the_previous_release_opens_and_continues() {
     assert!(
         error.contains("roll_offset_gain") && error.contains("retired"),
         "{error}"
+    );
+    server.kill();
+}
+
+/// The zupt fixture's drive: `simulate pipe-jacking --seed 7`, of which
+/// the first 4000 lines were posted to the old release.
+fn pipe_jacking_drive(lines: usize) -> Vec<String> {
+    PipeJackDrive::new(PipeJackScenario {
+        seed: 7,
+        ..PipeJackScenario::default()
+    })
+    .unwrap()
+    .take(lines)
+    .map(|event| event.reading.to_json())
+    .collect()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_zupt_database_from_before_issue_17_opens_and_continues() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::copy(
+        concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/tests/fixtures/zupt-before-issue-17.sqlite3"
+        ),
+        dir.path().join("tunnelnav.sqlite3"),
+    )
+    .unwrap();
+    let client = reqwest::Client::new();
+    let server = ServerProcess::start(dir.path());
+    let base = server.url("");
+
+    let machine = get_json(&client, &base, "/api/v1/machines/jack-old").await;
+    let params = machine["config"]["engines"]["zupt"]
+        .as_object()
+        .unwrap()
+        .clone();
+    // New parameters at their defaults, the declared ones as declared.
+    assert_eq!(params["detector_signals"], "integrated");
+    assert_eq!(params["zaru"], true);
+    assert_eq!(params["initial_yaw_deg"], 30.0);
+
+    // Every stored reading and estimate; the old estimates decode, with
+    // no heading σ.
+    let old_lines = pipe_jacking_drive(4000);
+    assert_eq!(
+        exported_readings(&client, &base, "jack-old").await.len(),
+        4000
+    );
+    let old_estimates = all_estimates(&client, &base, "jack-old").await;
+    assert_eq!(old_estimates.len(), 3822);
+    assert!(old_estimates.iter().all(|e| e["yaw_sigma_deg"].is_null()));
+
+    // The drive continues as a replay of every reading does.
+    let lines = pipe_jacking_drive(9000);
+    assert_eq!(lines[..4000], old_lines[..]);
+    for chunk in lines[4000..].chunks(1000) {
+        post_ndjson(&client, &base, "jack-old", chunk).await;
+    }
+    let served = all_estimates(&client, &base, "jack-old").await;
+    let assignments: Vec<String> = params
+        .iter()
+        .map(|(name, value)| match value {
+            Value::String(word) => format!("{name}={word}"),
+            other => format!("{name}={other}"),
+        })
+        .collect();
+    let assignments: Vec<&str> = assignments.iter().map(String::as_str).collect();
+    let replayed = replay_engine("jack-old", "zupt", &assignments, &lines);
+    let new_t = old_estimates.last().unwrap()["t"].as_f64().unwrap();
+    let after = |estimates: &[Value]| -> Vec<Value> {
+        estimates
+            .iter()
+            .filter(|e| e["t"].as_f64().unwrap() > new_t)
+            .cloned()
+            .collect()
+    };
+    let (served_new, replayed_new) = (after(&served), after(&replayed));
+    // The server keeps the last few seconds waiting for their decisions;
+    // replay decides them at the end of its input.
+    assert!(served_new.len() > 4000, "{}", served_new.len());
+    assert!(replayed_new.len() >= served_new.len());
+    assert_eq!(served_new[..], replayed_new[..served_new.len()]);
+    assert!(
+        served_new.last().unwrap()["yaw_sigma_deg"]
+            .as_f64()
+            .unwrap()
+            > 0.0
     );
     server.kill();
 }

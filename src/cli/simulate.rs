@@ -8,7 +8,9 @@ use clap::{Args, Subcommand};
 
 use super::CliError;
 use crate::fusion::SensorKind;
-use crate::sim::pipejack::{Case, IMU_RATE_HZ, PipeJackDrive, PipeJackScenario};
+use crate::sim::pipejack::{
+    Case, IMU_RATE_HZ, Machinery, MachineryPattern, PipeJackDrive, PipeJackScenario,
+};
 use crate::sim::tbm::{DEFAULT_START_T, Dropout, TbmDrive, TbmEvent, TbmScenario};
 use crate::sim::tbm_envelope::EnvelopeDrive;
 use crate::sim::vehicle::{VehicleDrive, VehicleScenario};
@@ -106,6 +108,17 @@ pub struct PipeJackArgs {
     /// IMU rate, Hz.
     #[arg(long, default_value_t = IMU_RATE_HZ)]
     pub imu_rate_hz: f64,
+    /// Running machinery (a power pack shaking the machine while it
+    /// stands): off, always, or cycling on and off every 1–5 min. Default:
+    /// always in the field case, off on the trolley.
+    #[arg(long, value_enum)]
+    pub machinery: Option<MachineryPattern>,
+    /// The machinery's vibration amplitude range, mg.
+    #[arg(long, value_name = "MIN:MAX", value_parser = parse_range, default_value = "2:5")]
+    pub machinery_mg: (f64, f64),
+    /// The machinery's frequency band, Hz.
+    #[arg(long, value_name = "MIN:MAX", value_parser = parse_range, default_value = "20:60")]
+    pub machinery_hz: (f64, f64),
     /// Length of a field drive, hours.
     #[arg(long, default_value_t = 2.0)]
     pub field_hours: f64,
@@ -117,12 +130,12 @@ pub struct PipeJackArgs {
     pub start_t: f64,
 }
 
-/// `MIN:MAX` or one number, in seconds.
+/// `MIN:MAX` or one number.
 fn parse_range(text: &str) -> Result<(f64, f64), String> {
     let number = |s: &str| {
         s.trim()
             .parse::<f64>()
-            .map_err(|_| format!("`{s}` is not a number of seconds"))
+            .map_err(|_| format!("`{s}` is not a number"))
     };
     let (min, max) = match text.split_once(':') {
         Some((a, b)) => (number(a)?, number(b)?),
@@ -148,6 +161,11 @@ impl PipeJackArgs {
             rest_s: self.rest_s,
             imu_rate_hz: self.imu_rate_hz,
             field_duration_s: self.field_hours * 3600.0,
+            machinery: Some(Machinery {
+                pattern: self.machinery.unwrap_or(self.case.machinery_pattern()),
+                amplitude_mg: self.machinery_mg,
+                band_hz: self.machinery_hz,
+            }),
             ..PipeJackScenario::default()
         }
     }

@@ -54,6 +54,8 @@ pub struct DetectorScores {
     pub within_3_sigma: [f64; 3],
     /// Seconds declared still while the machine moved.
     pub false_zv_s: f64,
+    /// |heading error| at the end of the drive, degrees.
+    pub heading_error_deg: f64,
     /// Rests of 120 s or more, and how many of them had any zero velocity.
     pub long_rests: usize,
     pub long_rests_found: usize,
@@ -235,6 +237,9 @@ pub fn score(
     } else {
         1.25 * precision * recall / (0.25 * precision + recall)
     };
+    let heading_error_deg = last.map_or(f64::NAN, |(truth, estimate)| {
+        ((estimate.yaw_deg - truth.yaw_deg + 540.0).rem_euclid(360.0) - 180.0).abs()
+    });
     let (distance_error_m, position_error_m, travelled) = match last {
         Some((truth, estimate)) => {
             let position_error = (0..3)
@@ -270,6 +275,7 @@ pub fn score(
         position_error_pct: pct(position_error_m),
         within_3_sigma: within.map(|w| ratio(w, scored)),
         false_zv_s: fp as f64 * period_s,
+        heading_error_deg,
         long_rests: long.len(),
         long_rests_found: long.iter().filter(|&&i| found[i]).count(),
     }
@@ -292,7 +298,7 @@ pub fn render_table(e: &ZuptEvaluation) -> String {
     );
     let _ = writeln!(
         out,
-        "{:<10} {:>9} {:>8} {:>7} {:>12} {:>8} {:>12} {:>8} {:>10} {:>12} {:>11}",
+        "{:<10} {:>9} {:>8} {:>7} {:>12} {:>8} {:>12} {:>8} {:>10} {:>9} {:>12} {:>11}",
         "detector",
         "precision",
         "recall",
@@ -302,13 +308,14 @@ pub fn render_table(e: &ZuptEvaluation) -> String {
         "position m",
         "pos %",
         "false ZV s",
+        "heading °",
         "rests≥2min",
         "≤3σ N/E/D %"
     );
     for d in &e.detectors {
         let _ = writeln!(
             out,
-            "{:<10} {:>8.2}% {:>7.2}% {:>6.2}% {:>12.3} {:>7.2}% {:>12.3} {:>7.2}% {:>10.1} {:>12} {:>11}",
+            "{:<10} {:>8.2}% {:>7.2}% {:>6.2}% {:>12.3} {:>7.2}% {:>12.3} {:>7.2}% {:>10.1} {:>9.3} {:>12} {:>11}",
             d.detector,
             100.0 * d.precision,
             100.0 * d.recall,
@@ -318,6 +325,7 @@ pub fn render_table(e: &ZuptEvaluation) -> String {
             d.position_error_m,
             d.position_error_pct,
             d.false_zv_s,
+            d.heading_error_deg,
             format!("{}/{}", d.long_rests_found, d.long_rests),
             format!(
                 "{:.0}/{:.0}/{:.0}",

@@ -63,6 +63,9 @@ pub struct ZuptEstimate {
     pub are_ratio: f64,
     pub shoe_ratio: f64,
     pub mag_ratio: f64,
+    /// 1σ of the heading from the filter's covariance, degrees; `null`
+    /// before alignment (and in estimates stored before it was reported).
+    pub yaw_sigma_deg: Option<f64>,
 }
 
 /// The `fuzzy` engine's decision of the motion status.
@@ -299,6 +302,7 @@ impl EstimateWriter {
                     out.push(b',');
                     self.number(out, key, value);
                 }
+                self.optional(out, "yaw_sigma_deg", z.yaw_sigma_deg);
             }
             EstimateValues::Fuzzy(f) => {
                 out.extend_from_slice(b",\"engine\":\"fuzzy\",\"motion\":\"");
@@ -450,6 +454,7 @@ mod tests {
                     are_ratio: 0.5,
                     shoe_ratio: if i == 9 { f64::INFINITY } else { 1.5 },
                     mag_ratio: 1e-9,
+                    yaw_sigma_deg: Some(0.012),
                 }),
             };
             let mut ours = Vec::new();

@@ -27,6 +27,17 @@
 //! quantity is analytic, so the IMU readings are exact derivatives of the
 //! true trajectory.
 //!
+//! Running machinery (`machinery`): a hydraulic power pack, slurry pumps
+//! or a motor that keeps running while the machine stands shakes it with a
+//! steady vibration: two tones in `band_hz` (20–60 Hz by default) whose
+//! accelerations total `amplitude_mg` (2–5 mg, drawn per drive), mostly
+//! vertical, with an angular jitter of 0.002–0.01 °/s. `always`: the whole
+//! drive (the field case's default); `cycling`: on and off for 1–5 min at a
+//! time, independent of the pushes. Like the shaking it is analytic (the
+//! readings stay exact derivatives of the truth) and it does not move the
+//! machine: the truth's zero velocity is the advance's. Tones above half
+//! the IMU rate alias, as they would in an IMU without an anti-alias filter.
+//!
 //! Sensors (the paper's Table 1 FOG IMU):
 //! - IMU at 100 Hz (`imu_rate_hz`): gyro bias 0.5 °/h (1σ per axis) plus a 0.05 °/h/√h
 //!   random walk, angle random walk 0.05 °/√h; accelerometer bias 1 mg (1σ
@@ -64,6 +75,49 @@ pub enum Case {
     Field,
 }
 
+impl Case {
+    /// When machinery runs unless told: in the field always, on the trolley never.
+    pub fn machinery_pattern(self) -> MachineryPattern {
+        match self {
+            Case::Field => MachineryPattern::Always,
+            Case::Trolley | Case::Varied => MachineryPattern::Off,
+        }
+    }
+}
+
+/// When the machinery runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum MachineryPattern {
+    /// Never: the machine is silent while it stands.
+    Off,
+    /// The whole drive, pushes and rests.
+    Always,
+    /// On and off for 1–5 min at a time, whatever the machine does.
+    Cycling,
+}
+
+/// Running machinery: see the module documentation.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Machinery {
+    pub pattern: MachineryPattern,
+    /// Range the drive's total vibration amplitude is drawn from, mg.
+    pub amplitude_mg: (f64, f64),
+    /// Range the tones' frequencies are drawn from, Hz.
+    pub band_hz: (f64, f64),
+}
+
+impl Machinery {
+    /// A power pack of 2–5 mg at 20–60 Hz running as `pattern` says.
+    pub fn power_pack(pattern: MachineryPattern) -> Machinery {
+        Machinery {
+            pattern,
+            amplitude_mg: (2.0, 5.0),
+            band_hz: (20.0, 60.0),
+        }
+    }
+}
+
 /// What to simulate.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PipeJackScenario {
@@ -89,9 +143,18 @@ pub struct PipeJackScenario {
     /// drive continued after a stop starts where the last one ended).
     pub start_height_m: f64,
     pub start_odometer_m: f64,
+    /// Running machinery; `None` takes the case's (field: a power pack
+    /// running always; trolley and varied: off).
+    pub machinery: Option<Machinery>,
 }
 
 impl PipeJackScenario {
+    /// The machinery that runs in this drive.
+    pub fn machinery(&self) -> Machinery {
+        self.machinery
+            .unwrap_or(Machinery::power_pack(self.case.machinery_pattern()))
+    }
+
     /// Push durations (min, max), s.
     pub fn push_range_s(&self) -> (f64, f64) {
         self.push_s.unwrap_or(match self.case {
@@ -131,6 +194,7 @@ impl Default for PipeJackScenario {
             field_duration_s: 7200.0,
             start_height_m: 12.0,
             start_odometer_m: 0.0,
+            machinery: None,
         }
     }
 }
@@ -308,12 +372,94 @@ struct Shaking {
     yaw: Tones,
 }
 
+/// The running machinery's vibration: tones (linear along the NED axes,
+/// angular on roll, pitch, yaw) and when it runs (`None`: never).
+#[derive(Debug, Clone, PartialEq)]
+struct Vibration {
+    linear: [Tones; 3],
+    angular: [Tones; 3],
+    /// On-windows, in order; empty with `always`.
+    on: Vec<Window>,
+    pattern: MachineryPattern,
+}
+
+impl Vibration {
+    fn new(machinery: &Machinery, end_s: f64, rng: &mut ChaCha8Rng) -> Result<Vibration, String> {
+        let (lo, hi) = machinery.amplitude_mg;
+        let (f_lo, f_hi) = machinery.band_hz;
+        if !(lo >= 0.0 && hi >= lo && hi <= 1000.0) {
+            return Err("machinery amplitude must be 0 to 1000 mg, min ≤ max".into());
+        }
+        if !(f_lo >= 0.1 && f_hi >= f_lo && f_hi <= 1000.0) {
+            return Err("machinery band must be 0.1 to 1000 Hz, min ≤ max".into());
+        }
+        let mut draw = |(a, b): (f64, f64)| if b > a { rng.random_range(a..b) } else { a };
+        let amplitude = draw((lo, hi)) * 1e-3 * 9.806_65;
+        let jitter = rad(draw((0.002, 0.01)));
+        let band = (f_lo, f_hi.max(f_lo * 1.000_001));
+        // Mostly vertical: the pack sits on the machine's floor.
+        let linear = [0.4, 0.5, 1.0].map(|share| Tones::random(rng, 2, band, share * amplitude, 2));
+        let angular = [1.0, 0.7, 0.5].map(|share| Tones::random(rng, 2, band, share * jitter, 1));
+        let mut on = Vec::new();
+        if machinery.pattern == MachineryPattern::Cycling {
+            let mut t = rng.random_range(0.0..120.0);
+            while t < end_s {
+                let length = rng.random_range(60.0..300.0);
+                on.push(Window {
+                    start: t,
+                    end: t + length,
+                    rise_s: 2.0,
+                    fall_s: 2.0,
+                });
+                t += length + rng.random_range(60.0..300.0);
+            }
+        }
+        Ok(Vibration {
+            linear,
+            angular,
+            on,
+            pattern: machinery.pattern,
+        })
+    }
+
+    /// The envelope at `s` (value and two derivatives).
+    fn envelope(&self, s: f64) -> [f64; 3] {
+        match self.pattern {
+            MachineryPattern::Off => [0.0; 3],
+            MachineryPattern::Always => [1.0, 0.0, 0.0],
+            MachineryPattern::Cycling => self
+                .on
+                .iter()
+                .find(|w| s > w.start && s < w.end)
+                .map_or([0.0; 3], |w| w.at(s)),
+        }
+    }
+
+    /// Adds the vibration at `s` to the motion.
+    fn shake(&self, s: f64, k: &mut Kinematics) {
+        let envelope = self.envelope(s);
+        if envelope == [0.0; 3] {
+            return;
+        }
+        for axis in 0..3 {
+            let [x, v, a] = product(envelope, self.linear[axis].at(s));
+            k.position_m[axis] += x;
+            k.velocity_mps[axis] += v;
+            k.accel_mps2[axis] += a;
+            let [angle, rate, _] = product(envelope, self.angular[axis].at(s));
+            k.angles[axis] += angle;
+            k.rates[axis] += rate;
+        }
+    }
+}
+
 /// The drive: schedule, shaking and sensor errors, generated from the seed.
 #[derive(Debug, Clone)]
 pub struct PipeJackDrive {
     scenario: PipeJackScenario,
     pushes: Vec<Push>,
     shaking: Shaking,
+    vibration: Vibration,
     end_t: f64,
     site: Site,
     heading_rad: f64,
@@ -385,6 +531,14 @@ impl PipeJackDrive {
                 yaw: Tones::random(&mut rng, 3, band(2.0, 12.0), rad(0.06), 1),
             },
         };
+        // Its own stream: switching the machinery leaves the rest alike.
+        let mut vibration_rng = ChaCha8Rng::seed_from_u64(scenario.seed);
+        vibration_rng.set_stream(3);
+        let vibration = Vibration::new(
+            &scenario.machinery(),
+            last + final_rest_s,
+            &mut vibration_rng,
+        )?;
         let mut imu_rng = ChaCha8Rng::seed_from_u64(scenario.seed);
         imu_rng.set_stream(1);
         let mut aid_rng = ChaCha8Rng::seed_from_u64(scenario.seed);
@@ -404,6 +558,7 @@ impl PipeJackDrive {
             scenario,
             pushes,
             shaking,
+            vibration,
             gyro_bias_rad_per_s,
             accel_bias_mps2,
             imu_rng,
@@ -448,6 +603,13 @@ impl PipeJackDrive {
     /// acceleration (NED), attitude angles and their rates, distance, and
     /// whether the machine stands still.
     fn truth_at(&mut self, s: f64) -> Kinematics {
+        let mut k = self.motion_at(s);
+        self.vibration.shake(s, &mut k);
+        k
+    }
+
+    /// The motion without the machinery's vibration.
+    fn motion_at(&mut self, s: f64) -> Kinematics {
         while self.push + 1 < self.pushes.len() && s >= self.pushes[self.push].shake.end {
             self.push += 1;
         }

@@ -102,6 +102,49 @@ pub fn encode_values(values: &EstimateValues) -> Vec<u8> {
     encoded.expect("engine estimates are plain structs postcard can encode")
 }
 
+/// A `zupt` estimate as releases before the heading σ stored it.
+#[derive(serde::Deserialize)]
+struct ZuptEstimateV1 {
+    zv: bool,
+    position_m: [f64; 3],
+    distance_m: f64,
+    velocity_mps: [f64; 3],
+    pitch_deg: f64,
+    roll_deg: f64,
+    yaw_deg: f64,
+    aligned: bool,
+    position_sigma_m: [f64; 3],
+    height_m: Option<f64>,
+    odometer_m: Option<f64>,
+    mv_ratio: f64,
+    are_ratio: f64,
+    shoe_ratio: f64,
+    mag_ratio: f64,
+}
+
+impl From<ZuptEstimateV1> for ZuptEstimate {
+    fn from(v: ZuptEstimateV1) -> ZuptEstimate {
+        ZuptEstimate {
+            zv: v.zv,
+            position_m: v.position_m,
+            distance_m: v.distance_m,
+            velocity_mps: v.velocity_mps,
+            pitch_deg: v.pitch_deg,
+            roll_deg: v.roll_deg,
+            yaw_deg: v.yaw_deg,
+            aligned: v.aligned,
+            position_sigma_m: v.position_sigma_m,
+            height_m: v.height_m,
+            odometer_m: v.odometer_m,
+            mv_ratio: v.mv_ratio,
+            are_ratio: v.are_ratio,
+            shoe_ratio: v.shoe_ratio,
+            mag_ratio: v.mag_ratio,
+            yaw_sigma_deg: None,
+        }
+    }
+}
+
 /// The values `bytes` hold, for an estimate of `engine`.
 pub fn decode_values(engine: EngineKind, bytes: &[u8]) -> Result<EstimateValues, StoreError> {
     let corrupt =
@@ -110,7 +153,9 @@ pub fn decode_values(engine: EngineKind, bytes: &[u8]) -> Result<EstimateValues,
         EngineKind::Attitude => postcard::from_bytes::<AttitudeEstimate>(bytes)
             .map(EstimateValues::Attitude)
             .map_err(corrupt),
+        // Estimates stored before `yaw_sigma_deg` lack it (one field less).
         EngineKind::Zupt => postcard::from_bytes::<ZuptEstimate>(bytes)
+            .or_else(|_| postcard::from_bytes::<ZuptEstimateV1>(bytes).map(ZuptEstimate::from))
             .map(EstimateValues::Zupt)
             .map_err(corrupt),
         EngineKind::Fuzzy => postcard::from_bytes::<FuzzyEstimate>(bytes)

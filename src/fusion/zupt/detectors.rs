@@ -11,6 +11,28 @@
 //! Each test is a plain function over a slice (the reference, used in the
 //! tests); [`WindowSums`] gives the same four values in O(1) per sample
 //! from running sums, which is what the engine runs.
+//!
+//! **Integrated signals** ([`Signals::Integrated`], the default). Running
+//! machinery shakes a standing machine with a steady vibration of a few mg
+//! at tens of Hz: zero-mean, so the velocity it causes is a fraction of a
+//! millimetre per second, yet MV and ARE see its acceleration and rate at
+//! full strength. Tested on what the window integrates to instead, a
+//! steady tone of frequency f counts 3/(W sin²(π f Δt)) times what it
+//! counts in the raw forms (Δt the sample period): a twentieth at 30 Hz, a
+//! twelfth at 20 Hz with W = 100 at 100 Hz. Motion, which changes velocity
+//! and angle over the window, counts in full:
+//! - MVᵥ = 12 Σₖ ‖Vₖ − V̄‖² / (σa² W²), Vₖ = Σ_{j≤k} (y_a,j − ȳ_a), the
+//!   velocity change within the window over Δt (de-meaned, so gravity and
+//!   the accelerometer bias drop out);
+//! - AREθ = 6 Σₖ ‖Θₖ − Θ̄‖² / (σg² W²), Θₖ = Σ_{j≤k} (y_ω,j − ω_ieᵇ), the
+//!   angle turned within the window over Δt (not de-meaned in rate: a
+//!   steady turn is motion);
+//! - SHOEᵥ = MVᵥ + AREθ; MAG stays as it is.
+//!
+//! Their normalisers make white noise of σa and σg score 3 at rest, as MV
+//! and ARE do: the de-meaned sum V is a discrete Brownian bridge, with
+//! E Σₖ ‖Vₖ − V̄‖² = 3σa²(W² − 1)/12 ≈ 3σa²W²/12; Θ is a random walk, with
+//! 3σg²(W² − 1)/6. Both are computed from the held window in O(W).
 
 use std::collections::VecDeque;
 
@@ -27,6 +49,69 @@ pub struct Statistics {
     pub mag: f64,
     /// ȳ_a, m/s² (used to level the platform at alignment).
     pub mean_accel_mps2: V3,
+}
+
+/// What the statistics are computed on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Signals {
+    /// The samples themselves: the paper's MV, ARE, SHOE, MAG.
+    Raw,
+    /// What the window integrates them to (module doc): steady vibration
+    /// at rest hardly counts.
+    Integrated,
+}
+
+impl Signals {
+    /// The `detector_signals` parameter value.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Signals::Raw => "raw",
+            Signals::Integrated => "integrated",
+        }
+    }
+
+    /// Parses a `detector_signals` parameter value.
+    pub fn from_name(name: &str) -> Option<Signals> {
+        match name {
+            "raw" => Some(Signals::Raw),
+            "integrated" => Some(Signals::Integrated),
+            _ => None,
+        }
+    }
+}
+
+/// MVᵥ over a window (module doc).
+pub fn mv_integrated(accel: &[V3], noise: &DetectorNoise) -> f64 {
+    let m = mean(accel);
+    let mut running = V3::zeros();
+    let sums: Vec<V3> = accel
+        .iter()
+        .map(|a| {
+            running += a - m;
+            running
+        })
+        .collect();
+    let centre = mean(&sums);
+    let spread: f64 = sums.iter().map(|v| (v - centre).norm_squared()).sum();
+    let w = accel.len() as f64;
+    12.0 * spread / (noise.sigma_accel_mps2.powi(2) * w * w)
+}
+
+/// AREθ over a window (module doc).
+pub fn are_integrated(gyro: &[V3], earth_rate_b: &V3, noise: &DetectorNoise) -> f64 {
+    let mut running = V3::zeros();
+    let sums: Vec<V3> = gyro
+        .iter()
+        .map(|g| {
+            running += g - earth_rate_b;
+            running
+        })
+        .collect();
+    let centre = mean(&sums);
+    let spread: f64 = sums.iter().map(|v| (v - centre).norm_squared()).sum();
+    let w = gyro.len() as f64;
+    6.0 * spread / (noise.sigma_gyro_rad_per_s.powi(2) * w * w)
 }
 
 /// Noise levels that normalise the statistics and the gravity they test
@@ -178,8 +263,49 @@ impl WindowSums {
         self.pushes_since_refresh = 0;
     }
 
-    /// The statistics of the held samples; `None` when there are none.
-    pub fn statistics(&self, earth_rate_b: &V3, noise: &DetectorNoise) -> Option<Statistics> {
+    /// The statistics of the held samples on `signals`; `None` when there
+    /// are none.
+    pub fn statistics(
+        &self,
+        earth_rate_b: &V3,
+        noise: &DetectorNoise,
+        signals: Signals,
+    ) -> Option<Statistics> {
+        let mut statistics = self.raw_statistics(earth_rate_b, noise)?;
+        if signals == Signals::Integrated {
+            let (mv, are) = self.integrated(earth_rate_b, noise, &statistics.mean_accel_mps2);
+            statistics.mv = mv;
+            statistics.are = are;
+            statistics.shoe = mv + are;
+        }
+        Some(statistics)
+    }
+
+    /// MVᵥ and AREθ of the held samples, one pass: the running sums V, Θ
+    /// and their first and second moments.
+    fn integrated(&self, earth_rate_b: &V3, noise: &DetectorNoise, mean_accel: &V3) -> (f64, f64) {
+        let (mut v, mut theta) = (V3::zeros(), V3::zeros());
+        let (mut sum_v, mut sum_theta) = (V3::zeros(), V3::zeros());
+        let (mut sq_v, mut sq_theta) = (0.0, 0.0);
+        for (accel, gyro) in &self.samples {
+            v += accel - mean_accel;
+            theta += gyro - earth_rate_b;
+            sum_v += v;
+            sum_theta += theta;
+            sq_v += v.norm_squared();
+            sq_theta += theta.norm_squared();
+        }
+        let w = self.samples.len() as f64;
+        let spread_v = (sq_v - sum_v.norm_squared() / w).max(0.0);
+        let spread_theta = (sq_theta - sum_theta.norm_squared() / w).max(0.0);
+        (
+            12.0 * spread_v / (noise.sigma_accel_mps2.powi(2) * w * w),
+            6.0 * spread_theta / (noise.sigma_gyro_rad_per_s.powi(2) * w * w),
+        )
+    }
+
+    /// The paper's statistics of the held samples.
+    fn raw_statistics(&self, earth_rate_b: &V3, noise: &DetectorNoise) -> Option<Statistics> {
         if self.samples.is_empty() {
             return None;
         }
@@ -292,7 +418,7 @@ mod tests {
             let window = &all[all.len().saturating_sub(25)..];
             let a: Vec<V3> = window.iter().map(|s| s.0).collect();
             let w: Vec<V3> = window.iter().map(|s| s.1).collect();
-            let s = sums.statistics(&earth, &NOISE).unwrap();
+            let s = sums.statistics(&earth, &NOISE, Signals::Raw).unwrap();
             assert!(close(s.mv, mv(&a, &NOISE)) || (s.mv - mv(&a, &NOISE)).abs() < 1e-4);
             assert!(close(s.are, are(&w, &earth, &NOISE)));
             let reference = shoe(&a, &w, &earth, &NOISE);
@@ -303,5 +429,91 @@ mod tests {
         // The trailing edge can also be moved by hand (end of a stream).
         sums.pop_oldest();
         assert_eq!(sums.len(), 24);
+    }
+
+    #[test]
+    fn integrated_statistics_by_hand() {
+        // Accelerations +d, −d, +d, −d about the mean along x: the running
+        // sums V are d, 0, d, 0 (mean d/2), Σ(V − V̄)² = 4·(d/2)² = d²;
+        // MVᵥ = 12 d² / (σ² · 16) = 0.75 at d = σ.
+        let g = V3::new(0.0, 0.0, -9.8);
+        let d = V3::new(NOISE.sigma_accel_mps2, 0.0, 0.0);
+        let accel = [g + d, g - d, g + d, g - d];
+        assert!(close(mv_integrated(&accel, &NOISE), 0.75));
+        // A steady turn at r about z: Θ = r, 2r, 3r, 4r (mean 2.5r),
+        // Σ(Θ − Θ̄)² = 5r²; AREθ = 6·5r²/(σ²·16) = 1.875 at r = σ.
+        let earth = V3::new(1e-5, 0.0, 2e-5);
+        let r = V3::new(0.0, 0.0, NOISE.sigma_gyro_rad_per_s);
+        let gyro = [earth + r; 4];
+        assert!(close(are_integrated(&gyro, &earth, &NOISE), 1.875));
+        // The same turn in the raw ARE: 1 per sample.
+        assert!(close(are(&gyro, &earth, &NOISE), 1.0));
+    }
+
+    #[test]
+    fn steady_vibration_hardly_counts_once_integrated() {
+        // 5 mg at 30 Hz vertically, sampled at 100 Hz, W = 100, no noise,
+        // σ = 0.005 m/s²: raw MV = (A²/2)/σ² = 48. The running sum of the
+        // tone has amplitude A/(2 sin(π·0.3)), so MVᵥ = 12/W · A²/(8
+        // sin²(0.3π)) / σ² = 3/(W sin²(0.3π)) × raw = 0.0458 × raw.
+        let noise = DetectorNoise {
+            sigma_accel_mps2: 0.005,
+            ..NOISE
+        };
+        let amplitude = 5e-3 * 9.80665;
+        let omega = std::f64::consts::TAU * 30.0;
+        let accel: Vec<V3> = (0..100)
+            .map(|k| V3::new(0.0, 0.0, -9.8 + amplitude * (omega * k as f64 * 0.01).sin()))
+            .collect();
+        let raw = mv(&accel, &noise);
+        let integrated = mv_integrated(&accel, &noise);
+        assert!(
+            (raw - (amplitude * amplitude / 2.0) / 0.005_f64.powi(2)).abs() < 1.0,
+            "{raw}"
+        );
+        let expected = 3.0 / (100.0 * (0.3 * std::f64::consts::PI).sin().powi(2)) * raw;
+        assert!(
+            (integrated - expected).abs() < 0.05 * expected,
+            "{integrated} vs {expected}"
+        );
+        assert!(integrated < 3.0);
+        // Streaming gives the same.
+        let mut sums = WindowSums::new(100);
+        for a in &accel {
+            sums.push(*a, V3::zeros());
+        }
+        let s = sums
+            .statistics(&V3::zeros(), &noise, Signals::Integrated)
+            .unwrap();
+        assert!((s.mv - integrated).abs() < 1e-9 * (1.0 + integrated));
+        assert!((s.shoe - s.mv - s.are).abs() < 1e-12);
+    }
+
+    #[test]
+    fn integrated_white_noise_scores_about_three() {
+        // Uniform noise of variance σ² on every axis (σ = 0.01 / 0.001):
+        // the normalisers make the mean of both statistics ≈ 3.
+        let mut state = 0x2545_f491_4f6c_dd1d_u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            // Uniform on ±√3: variance 1.
+            ((state >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 2.0 * 3f64.sqrt()
+        };
+        let (mut sum_mv, mut sum_are, windows) = (0.0, 0.0, 2000);
+        for _ in 0..windows {
+            let accel: Vec<V3> = (0..100)
+                .map(|_| V3::new(next(), next(), next()) * 0.01 + V3::new(0.0, 0.0, -9.8))
+                .collect();
+            let gyro: Vec<V3> = (0..100)
+                .map(|_| V3::new(next(), next(), next()) * 0.001)
+                .collect();
+            sum_mv += mv_integrated(&accel, &NOISE);
+            sum_are += are_integrated(&gyro, &V3::zeros(), &NOISE);
+        }
+        let (mean_mv, mean_are) = (sum_mv / windows as f64, sum_are / windows as f64);
+        assert!((mean_mv - 3.0).abs() < 0.15, "{mean_mv}");
+        assert!((mean_are - 3.0).abs() < 0.15, "{mean_are}");
     }
 }

@@ -193,6 +193,20 @@ pub fn zupt_matrix() -> SMatrix<f64, 3, N> {
     h
 }
 
+/// H of a zero-angular-rate update (ZARU): at rest the bias-corrected
+/// gyro reads the Earth's rotation, ω̃ − b̂_g = Cᵀω_ie + δb_g + noise, and
+/// with C ≈ (I + [φ×])Ĉ the innovation ω̃ − b̂_g − Ĉᵀω_ie =
+/// Ĉᵀ[ω_ie×]φ + δb_g: every gyro bias, the vertical one (heading drift)
+/// included, is seen at every rest.
+pub fn zaru_matrix(c_bn: &Matrix3<f64>, earth_rate_n: &V3) -> SMatrix<f64, 3, N> {
+    let mut h = SMatrix::<f64, 3, N>::zeros();
+    h.fixed_view_mut::<3, 3>(0, ATT)
+        .copy_from(&(c_bn.transpose() * skew(earth_rate_n)));
+    h.fixed_view_mut::<3, 3>(0, GYRO_BIAS)
+        .copy_from(&Matrix3::identity());
+    h
+}
+
 /// H of a height update: ĥ − h = −δp_D.
 pub fn height_matrix() -> SMatrix<f64, 1, N> {
     let mut h = SMatrix::<f64, 1, N>::zeros();

@@ -33,17 +33,17 @@ use std::collections::VecDeque;
 use nalgebra::{SMatrix, SVector, UnitQuaternion};
 use serde::{Deserialize, Serialize};
 
-use self::detectors::{DetectorNoise, Statistics};
+use self::detectors::{DetectorNoise, Signals, Statistics};
 use self::eskf::{
     ACCEL_BIAS, ATT, Dynamics, ErrorStateFilter, GYRO_BIAS, POS, ProcessNoise, VEL,
-    body_velocity_matrix, height_matrix, zupt_matrix,
+    body_velocity_matrix, height_matrix, zaru_matrix, zupt_matrix,
 };
 use self::strapdown::{
     Increment, NavState, Site, V3, attitude_from_euler, earth_rate_n, level, normal_gravity_mps2,
     radii_m,
 };
 use self::zero_velocity::{
-    Decision, DetectorKind, PipelineConfig, Thresholds, ZeroVelocityPipeline,
+    Adaptation, Decision, DetectorKind, PipelineConfig, Thresholds, ZeroVelocityPipeline,
 };
 use super::angles::{deg, rad};
 use super::estimate::{EngineOutput, EstimateValues, ZuptEstimate};
@@ -51,6 +51,11 @@ use super::params::{ParamError, ParamSpec, Params, choice, flag, integer, real};
 use super::reading::{Reading, SensorData};
 use super::{Engine, EngineKind, SnapshotError};
 
+/// Version of the engine's snapshot. A snapshot of another version is
+/// refused as [`SnapshotError::Outdated`]; the machine is then rebuilt from
+/// its stored readings. 2: integrated detector signals, learned rest
+/// levels, zero-angular-rate updates.
+pub const STATE_VERSION: u32 = 2;
 /// Standard gravity, for µg and mg parameters.
 const STANDARD_GRAVITY_MPS2: f64 = 9.806_65;
 /// Level or odometer readings kept waiting for the navigation time.
@@ -101,6 +106,12 @@ pub const PARAMS: &[ParamSpec] = &[
         &["tczvd", "mv", "are", "shoe", "mag", "none"],
         "zero-velocity test: MV ∧ ARE ∧ SHOE, one test alone, or none (pure INS)",
     ),
+    choice(
+        "detector_signals",
+        "integrated",
+        &["integrated", "raw"],
+        "what MV, ARE and SHOE test: the velocity and angle each window integrates to (steady machinery vibration hardly counts), or the raw samples (the paper)",
+    ),
     integer(
         "window_samples",
         100,
@@ -122,6 +133,35 @@ pub const PARAMS: &[ParamSpec] = &[
         60.0,
         "s",
         "shortest zero-velocity run kept",
+    ),
+    flag(
+        "threshold_adapt",
+        true,
+        "thresholds follow each statistic's learned rest level (a machine whose pumps run while it stands has a higher floor); false: fixed γ",
+    ),
+    real(
+        "rest_level_factor",
+        4.0,
+        1.0,
+        1000.0,
+        "",
+        "κ: a test's threshold is at least κ × its statistic's learned rest level (the level a twentieth of the samples fall below)",
+    ),
+    real(
+        "threshold_max_factor",
+        5.0,
+        1.0,
+        1000.0,
+        "",
+        "m: a learned threshold is at most m × its configured γ, so motion that never stops cannot become the rest level",
+    ),
+    real(
+        "rest_level_rise_s",
+        180.0,
+        1.0,
+        86_400.0,
+        "s",
+        "τ: while every sample is above it the rest level rises by e in this long (it falls twenty times as fast)",
     ),
     real(
         "sigma_accel_mps2",
@@ -181,11 +221,11 @@ pub const PARAMS: &[ParamSpec] = &[
     ),
     real(
         "gyro_bias_sigma_deg_per_h",
-        0.5,
+        2.0,
         0.0,
         1.0e5,
         "deg/h",
-        "initial uncertainty of each gyro bias",
+        "initial uncertainty of each gyro bias (run-to-run, wider than the datasheet's bias stability: a prior too tight makes the rest updates turn the heading instead of learning the bias)",
     ),
     real(
         "gyro_bias_rw_deg_per_h_per_sqrt_h",
@@ -234,6 +274,19 @@ pub const PARAMS: &[ParamSpec] = &[
         10.0,
         "m/s",
         "noise of the zero-velocity pseudo-measurement",
+    ),
+    flag(
+        "zaru",
+        true,
+        "zero-angular-rate update at every rest: the gyros read the Earth's rotation there, so their biases (heading drift) are estimated",
+    ),
+    real(
+        "zaru_sigma_deg_per_h",
+        0.05,
+        0.0,
+        100_000.0,
+        "deg/h",
+        "rotation a standing machine may still have (settling), added to the gyro noise of each rest's mean rate",
     ),
     real(
         "level_sigma_m",
@@ -286,6 +339,9 @@ pub struct ZuptConfig {
     pub accel_bias_sigma_mps2: f64,
     pub filter_period_s: f64,
     pub zupt_sigma_mps: f64,
+    /// Zero-angular-rate updates at rest, and the settling rate allowed, rad/s.
+    pub zaru: bool,
+    pub zaru_sigma_rad_per_s: f64,
     pub level_sigma_m: f64,
     pub aid_gate_sigma: f64,
     pub odometer_aiding: bool,
@@ -324,6 +380,19 @@ impl ZuptConfig {
                     sigma_gyro_rad_per_s: rad(p.real("sigma_gyro_dps")?),
                     gravity_mps2: normal_gravity_mps2(site.lat_rad, site.height_m),
                 },
+                signals: {
+                    let name = p.choice("detector_signals")?;
+                    Signals::from_name(name).ok_or_else(|| ParamError::Invalid {
+                        name: "detector_signals".into(),
+                        value: name.into(),
+                        expected: "integrated or raw".into(),
+                    })?
+                },
+                adaptation: p.flag("threshold_adapt")?.then_some(Adaptation {
+                    rest_level_factor: p.real("rest_level_factor")?,
+                    max_factor: p.real("threshold_max_factor")?,
+                    rise_s: p.real("rest_level_rise_s")?,
+                }),
                 window_samples: p.integer("window_samples")? as usize,
                 median_samples: p.integer("median_samples")? as usize,
                 min_run_s: p.real("min_zv_s")?,
@@ -345,6 +414,8 @@ impl ZuptConfig {
             accel_bias_sigma_mps2: p.real("accel_bias_sigma_mg")? * 1e-3 * STANDARD_GRAVITY_MPS2,
             filter_period_s: p.real("filter_period_s")?,
             zupt_sigma_mps: p.real("zupt_sigma_mps")?,
+            zaru: p.flag("zaru")?,
+            zaru_sigma_rad_per_s: rad_per_s_from_deg_per_h(p.real("zaru_sigma_deg_per_h")?),
             level_sigma_m: p.real("level_sigma_m")?,
             aid_gate_sigma: p.real("aid_gate_sigma")?,
             odometer_aiding: p.flag("odometer_aiding")?,
@@ -371,6 +442,9 @@ pub struct ZuptStats {
     /// Gaps longer than `max_imu_gap_s`.
     pub imu_gaps: u64,
     pub zupt_updates: u64,
+    /// Zero-angular-rate updates.
+    #[serde(default)]
+    pub zaru_updates: u64,
     pub height_updates: u64,
     /// Heights refused by the gate.
     pub heights_refused: u64,
@@ -396,9 +470,12 @@ struct Navigation {
     /// The previous IMU reading (the input is averaged over each interval);
     /// `None` right after alignment or a gap.
     previous: Option<ImuSample>,
-    /// Time and ∫fⁿ dt since the last filter epoch.
+    /// Time, ∫fⁿ dt and ∫(ω̃ − b̂_g) dt since the last filter epoch, and
+    /// whether every reading in it was decided zero velocity.
     interval_s: f64,
     force_integral: V3,
+    rate_integral: V3,
+    interval_still: bool,
     /// Along-track distance: displacement projected on the body's x axis.
     distance_m: f64,
     /// Height of the start point, set by the first level reading.
@@ -411,6 +488,8 @@ struct Navigation {
 /// The `zupt` engine; see the module documentation.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ZuptEngine {
+    /// [`STATE_VERSION`] when the snapshot was taken.
+    state_version: u32,
     params: Params,
     #[serde(skip_serializing, default = "placeholder_config")]
     config: ZuptConfig,
@@ -440,6 +519,7 @@ impl ZuptEngine {
     pub fn new(params: Params) -> Result<ZuptEngine, ParamError> {
         let config = ZuptConfig::from_params(&params)?;
         Ok(ZuptEngine {
+            state_version: STATE_VERSION,
             params,
             config,
             pipeline: ZeroVelocityPipeline::new(config.pipeline),
@@ -459,7 +539,19 @@ impl ZuptEngine {
     }
 
     /// Continues from a snapshot taken by [`Engine::snapshot`].
+    /// A snapshot of another [`STATE_VERSION`] is refused as outdated.
     pub fn restore(snapshot: serde_json::Value) -> Result<ZuptEngine, SnapshotError> {
+        let found = snapshot
+            .get("state_version")
+            .and_then(serde_json::Value::as_u64)
+            .unwrap_or(1);
+        if found != u64::from(STATE_VERSION) {
+            return Err(SnapshotError::Outdated {
+                engine: EngineKind::Zupt,
+                found,
+                expected: u64::from(STATE_VERSION),
+            });
+        }
         let mut engine: ZuptEngine = SnapshotError::parse(EngineKind::Zupt, snapshot)?;
         let params = engine.params.revalidated(PARAMS)?;
         engine.config = ZuptConfig::from_params(&params)?;
@@ -634,6 +726,8 @@ impl ZuptEngine {
             nav.distance_m += along_track(&nav.state, &(nav.state.position_m - before));
             nav.interval_s += dt_s;
             nav.force_integral += force_n * dt_s;
+            nav.rate_integral += increment.gyro_rad_per_s * dt_s;
+            nav.interval_still &= decision.zv;
         }
         nav.previous = Some(sample);
         if nav.interval_s >= config.filter_period_s {
@@ -652,6 +746,7 @@ impl ZuptEngine {
         let (roll, pitch, yaw) = nav.state.euler();
         let position = nav.state.position_m;
         let sigma = nav.filter.sigma(POS);
+        let yaw_sigma_deg = deg(nav.filter.sigma(ATT).z);
         let velocity = nav.state.velocity_mps;
         EngineOutput {
             t: sample.t,
@@ -664,6 +759,7 @@ impl ZuptEngine {
                 (roll, pitch, yaw),
                 [sigma.x, sigma.y, sigma.z],
                 nav.height_datum_m.map(|datum| datum - position.z),
+                Some(yaw_sigma_deg),
             )),
         }
     }
@@ -682,6 +778,7 @@ impl ZuptEngine {
                 (roll, pitch, self.config.initial_yaw_rad),
                 [0.0; 3],
                 None,
+                None,
             )),
         }
     }
@@ -697,9 +794,10 @@ impl ZuptEngine {
         (roll, pitch, yaw): (f64, f64, f64),
         position_sigma_m: [f64; 3],
         height_m: Option<f64>,
+        yaw_sigma_deg: Option<f64>,
     ) -> ZuptEstimate {
         let s = &decision.statistics;
-        let g = &self.config.pipeline.thresholds;
+        let g = &decision.thresholds;
         let ratio = |t: f64, gamma: f64| {
             if gamma > 0.0 {
                 t / gamma
@@ -723,6 +821,7 @@ impl ZuptEngine {
             are_ratio: ratio(s.are, g.are),
             shoe_ratio: ratio(s.shoe, g.shoe),
             mag_ratio: ratio(s.mag, g.mag),
+            yaw_sigma_deg,
         }
     }
 
@@ -758,6 +857,8 @@ impl ZuptEngine {
             previous: Some(sample),
             interval_s: 0.0,
             force_integral: V3::zeros(),
+            rate_integral: V3::zeros(),
+            interval_still: true,
             distance_m: 0.0,
             height_datum_m: None,
             pending_height_m: None,
@@ -799,8 +900,13 @@ impl Navigation {
             gravity_gradient: 2.0 * normal_gravity_mps2(lat, height) / radius,
         };
         self.filter.propagate(&dynamics, self.interval_s);
+        let mean_rate = self.rate_integral / self.interval_s;
+        let interval_s = self.interval_s;
+        let interval_still = self.interval_still;
         self.interval_s = 0.0;
         self.force_integral = V3::zeros();
+        self.rate_integral = V3::zeros();
+        self.interval_still = true;
 
         // The gate is on the squared Mahalanobis distance.
         let gate = (config.aid_gate_sigma > 0.0).then(|| config.aid_gate_sigma.powi(2));
@@ -810,6 +916,20 @@ impl Navigation {
                 .filter
                 .update(&zupt_matrix(), &self.state.velocity_mps, &r, None);
             self.apply(result, stats, |s| s.zupt_updates += 1);
+        }
+        if zv && interval_still && config.zaru {
+            // The mean rate over the interval: the gyro noise averages to
+            // ARW²/T per axis.
+            let c_bn = self.state.attitude.to_rotation_matrix().into_inner();
+            let earth = dynamics.earth_rate_n;
+            let innovation = mean_rate - c_bn.transpose() * earth;
+            let variance = config.process_noise.gyro_arw.powi(2) / interval_s
+                + config.zaru_sigma_rad_per_s.powi(2);
+            let r = SMatrix::<f64, 3, 3>::identity() * variance;
+            let result = self
+                .filter
+                .update(&zaru_matrix(&c_bn, &earth), &innovation, &r, None);
+            self.apply(result, stats, |s| s.zaru_updates += 1);
         }
         if let Some(measured_m) = self.pending_height_m.take() {
             match self.height_datum_m {
@@ -1044,6 +1164,26 @@ mod tests {
         assert!(matches!(
             ZuptEngine::restore(snapshot),
             Err(SnapshotError::Invalid(_))
+        ));
+    }
+
+    #[test]
+    fn a_snapshot_from_before_the_state_version_is_outdated() {
+        let mut engine = ZuptEngine::with_defaults();
+        let mut out = Vec::new();
+        for r in still_readings(5.0, 0.0) {
+            engine.feed(&r, &mut out);
+        }
+        let mut old = engine.snapshot();
+        assert!(ZuptEngine::restore(old.clone()).is_ok());
+        old.as_object_mut().unwrap().remove("state_version");
+        assert!(matches!(
+            ZuptEngine::restore(old),
+            Err(SnapshotError::Outdated {
+                found: 1,
+                expected: 2,
+                ..
+            })
         ));
     }
 }

@@ -12,6 +12,18 @@
 //! - a zero-velocity run is confirmed once it has lasted `min_run_s`;
 //!   until then its samples wait (a moving decision is passed on at once).
 //!
+//! **Thresholds relative to a learned rest level** ([`RestLevel`]). A
+//! machine whose pumps run while it stands has a higher floor than a silent
+//! one, and no γ fits both. Each statistic's low quantile is tracked online
+//! (the level only a twentieth of the samples fall below: a machine rests
+//! more than that), and the test uses γ_eff = min(max(γ, κ·level), m·γ):
+//! at least the configured γ, κ (`rest_level_factor`) times the learned
+//! rest level, at most m (`threshold_max_factor`) times γ, so a machine
+//! that never stops cannot teach the test to call its motion rest. The
+//! level is a stochastic quantile tracker on ln T: d ln L/dt = (p −
+//! 1[T < L]) / (p·τ), rising by e in τ (`rest_level_rise_s`) while every
+//! sample is above it and falling twenty times as fast.
+//!
 //! At the start of a stream (and after a gap, which starts a new one) the
 //! windows are truncated to the samples that exist, not shifted; at its
 //! end [`ZeroVelocityPipeline::flush`] decides the waiting samples the same
@@ -22,7 +34,7 @@ use std::collections::VecDeque;
 
 use serde::{Deserialize, Serialize};
 
-use super::detectors::{DetectorNoise, Statistics, WindowSums};
+use super::detectors::{DetectorNoise, Signals, Statistics, WindowSums};
 use super::strapdown::V3;
 
 /// Which test decides zero velocity.
@@ -75,12 +87,94 @@ pub struct Thresholds {
     pub mag: f64,
 }
 
+impl Thresholds {
+    fn as_array(&self) -> [f64; 4] {
+        [self.mv, self.are, self.shoe, self.mag]
+    }
+}
+
+/// How the thresholds follow the learned rest level (module doc).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Adaptation {
+    /// κ: γ_eff ≥ κ × the rest level.
+    pub rest_level_factor: f64,
+    /// m: γ_eff ≤ m × γ.
+    pub max_factor: f64,
+    /// τ: the rest level rises by e in this long while every sample is above it, s.
+    pub rise_s: f64,
+}
+
+/// The share of samples the rest level is the quantile of.
+const REST_QUANTILE: f64 = 0.05;
+
+/// Each statistic's learned rest level (module doc).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct RestLevel {
+    /// L for MV, ARE, SHOE, MAG.
+    level: [f64; 4],
+    /// The newest sample's time, s.
+    t: Option<f64>,
+}
+
+impl RestLevel {
+    /// Levels at which γ_eff = γ.
+    fn new(thresholds: &Thresholds, adaptation: &Adaptation) -> RestLevel {
+        let [mv, are, shoe, mag] = thresholds.as_array();
+        RestLevel {
+            level: [mv, are, shoe, mag].map(|g| g / adaptation.rest_level_factor),
+            t: None,
+        }
+    }
+
+    /// Takes one sample's statistics at time `t`.
+    fn observe(&mut self, t: f64, statistics: &Statistics, adaptation: &Adaptation) {
+        let dt = self.t.map_or(0.0, |last| (t - last).clamp(0.0, 1.0));
+        self.t = Some(t);
+        if dt <= 0.0 {
+            return;
+        }
+        let values = [
+            statistics.mv,
+            statistics.are,
+            statistics.shoe,
+            statistics.mag,
+        ];
+        let rate = dt / (REST_QUANTILE * adaptation.rise_s);
+        for (level, value) in self.level.iter_mut().zip(values) {
+            let below = if value < *level { 1.0 } else { 0.0 };
+            *level *= ((REST_QUANTILE - below) * rate).exp();
+            // Kept where a float can follow it back.
+            *level = level.clamp(1e-9, 1e12);
+        }
+    }
+
+    /// γ_eff for each test.
+    pub fn thresholds(&self, base: &Thresholds, adaptation: &Adaptation) -> Thresholds {
+        let [mv, are, shoe, mag] = base.as_array();
+        let adapt = |gamma: f64, level: f64| {
+            (adaptation.rest_level_factor * level)
+                .max(gamma)
+                .min(adaptation.max_factor * gamma)
+        };
+        Thresholds {
+            mv: adapt(mv, self.level[0]),
+            are: adapt(are, self.level[1]),
+            shoe: adapt(shoe, self.level[2]),
+            mag: adapt(mag, self.level[3]),
+        }
+    }
+}
+
 /// Everything the pipeline needs to decide.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct PipelineConfig {
     pub detector: DetectorKind,
     pub thresholds: Thresholds,
     pub noise: DetectorNoise,
+    /// The samples or what the window integrates them to.
+    pub signals: Signals,
+    /// Thresholds that follow the learned rest level; `None`: fixed γ.
+    pub adaptation: Option<Adaptation>,
     /// W, samples.
     pub window_samples: usize,
     /// L, samples (1 turns the median filter off).
@@ -90,9 +184,9 @@ pub struct PipelineConfig {
 }
 
 impl PipelineConfig {
-    /// The selected test on one window's statistics (before the median).
-    pub fn is_still(&self, s: &Statistics) -> bool {
-        let g = &self.thresholds;
+    /// The selected test on one window's statistics (before the median),
+    /// with thresholds `g`.
+    pub fn is_still(&self, s: &Statistics, g: &Thresholds) -> bool {
         match self.detector {
             DetectorKind::Tczvd => s.mv < g.mv && s.are < g.are && s.shoe < g.shoe,
             DetectorKind::Mv => s.mv < g.mv,
@@ -122,6 +216,8 @@ pub struct Decision {
     /// The test alone on this sample's window.
     pub still: bool,
     pub statistics: Statistics,
+    /// The thresholds the test used (γ_eff).
+    pub thresholds: Thresholds,
 }
 
 /// A sample on its way through the pipeline.
@@ -130,6 +226,7 @@ struct Waiting<T> {
     t: f64,
     payload: T,
     statistics: Statistics,
+    thresholds: Thresholds,
     still: bool,
 }
 
@@ -139,6 +236,9 @@ struct Waiting<T> {
 pub struct ZeroVelocityPipeline<T> {
     config: PipelineConfig,
     sums: WindowSums,
+    /// The learned rest level, if the thresholds adapt (kept across
+    /// streams: the machine is the same).
+    rest_level: Option<RestLevel>,
     /// Samples pushed in this stream.
     pushed: u64,
     /// Samples not yet tested (waiting for their window's future).
@@ -165,6 +265,9 @@ impl<T> ZeroVelocityPipeline<T> {
         ZeroVelocityPipeline {
             config,
             sums: WindowSums::new(config.window_samples),
+            rest_level: config
+                .adaptation
+                .map(|adaptation| RestLevel::new(&config.thresholds, &adaptation)),
             pushed: 0,
             untested: VecDeque::new(),
             unfiltered: VecDeque::new(),
@@ -205,6 +308,7 @@ impl<T> ZeroVelocityPipeline<T> {
             t,
             payload,
             statistics: Statistics::default(),
+            thresholds: self.config.thresholds,
             still: false,
         });
         // The window now ends at the newest sample: it is centred on the
@@ -246,10 +350,17 @@ impl<T> ZeroVelocityPipeline<T> {
         let Some(mut sample) = self.untested.pop_front() else {
             return;
         };
-        if let Some(statistics) = self.sums.statistics(earth_rate_b, &self.config.noise) {
+        if let Some(statistics) =
+            self.sums
+                .statistics(earth_rate_b, &self.config.noise, self.config.signals)
+        {
             sample.statistics = statistics;
         }
-        sample.still = self.config.is_still(&sample.statistics);
+        if let (Some(adaptation), Some(level)) = (&self.config.adaptation, &mut self.rest_level) {
+            level.observe(sample.t, &sample.statistics, adaptation);
+            sample.thresholds = level.thresholds(&self.config.thresholds, adaptation);
+        }
+        sample.still = self.config.is_still(&sample.statistics, &sample.thresholds);
         self.tested += 1;
         self.median_window.push_back(sample.still);
         self.median_still += usize::from(sample.still);
@@ -313,6 +424,7 @@ fn decided<T>(sample: Waiting<T>, zv: bool) -> (T, Decision) {
             zv,
             still: sample.still,
             statistics: sample.statistics,
+            thresholds: sample.thresholds,
         },
     )
 }
@@ -335,6 +447,8 @@ mod tests {
                 sigma_gyro_rad_per_s: 0.001,
                 gravity_mps2: 9.8,
             },
+            signals: Signals::Raw,
+            adaptation: None,
             window_samples: window,
             median_samples: median,
             min_run_s,
@@ -427,5 +541,46 @@ mod tests {
         c.detector = DetectorKind::None;
         let out = run(c, 300, |_| false);
         assert!(out.iter().all(|(_, d)| !d.zv && !d.still));
+    }
+
+    #[test]
+    fn the_rest_level_lifts_the_thresholds_within_bounds() {
+        let adaptation = Adaptation {
+            rest_level_factor: 4.0,
+            max_factor: 5.0,
+            rise_s: 100.0,
+        };
+        let base = config(10, 1, 0.0).thresholds; // γ = 5
+        let mut level = RestLevel::new(&base, &adaptation);
+        assert_eq!(level.thresholds(&base, &adaptation), base);
+        let at = |mv: f64| Statistics {
+            mv,
+            are: 1.0,
+            shoe: 1.0,
+            mag: 1.0,
+            mean_accel_mps2: V3::zeros(),
+        };
+        // Every sample above: the level rises by e per 100 s. From 5/4,
+        // 100 s later it is 1.25·e = 3.4, the threshold 13.6.
+        for k in 0..=10_000 {
+            level.observe(k as f64 * 0.01, &at(50.0), &adaptation);
+        }
+        let lifted = level.thresholds(&base, &adaptation);
+        assert!(
+            (lifted.mv - 4.0 * 1.25 * 1f64.exp()).abs() < 0.05,
+            "{lifted:?}"
+        );
+        // A statistic always below its level pulls it down (never below γ).
+        assert_eq!(lifted.are, 5.0);
+        // Never above m·γ, however long.
+        for k in 10_001..200_000 {
+            level.observe(k as f64 * 0.01, &at(50.0), &adaptation);
+        }
+        assert_eq!(level.thresholds(&base, &adaptation).mv, 25.0);
+        // Quiet again: it falls twenty times as fast as it rose.
+        for k in 200_000..205_000 {
+            level.observe(k as f64 * 0.01, &at(1.0), &adaptation);
+        }
+        assert_eq!(level.thresholds(&base, &adaptation).mv, 5.0);
     }
 }
