@@ -108,6 +108,7 @@
     setText($('z-speed'), fixed(p.speed, 1));
     setText($('z-odometer'), fixed(e.odometer_m, 3));
     setText($('z-yaw'), fixed(e.yaw_deg, 2));
+    setText($('z-yaw-sigma'), fixed(e.yaw_sigma_deg, 3));
     setText($('z-pitch'), fixed(e.pitch_deg, 3));
     setText($('z-pitch-mm'), fixed(tn.mmPerM(e.pitch_deg), 2));
     setText($('z-roll'), fixed(e.roll_deg, 3));

@@ -519,7 +519,8 @@ async fn zupt_page_shows_the_drive_and_the_detector() {
                && z.charts.distance.data[0].length > 200 \
                && z.charts.sigma.data[1].some(v => v > 0) \
                && z.state.track.length > 20 \
-               && /^\\d+\\.\\d+$/.test(document.getElementById('ratio-mv').textContent);"
+               && /^\\d+(\\.\\d+)?$/.test(document.getElementById('ratio-mv').textContent) \
+               && /^\\d+\\.\\d+$/.test(document.getElementById('z-yaw-sigma').textContent);"
         ),
         20,
     )
