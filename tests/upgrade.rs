@@ -20,6 +20,18 @@ use serde_json::Value;
 use tunnelnav::sim::pipejack::{PipeJackDrive, PipeJackScenario};
 use tunnelnav::sim::tbm::{TbmDrive, TbmScenario};
 
+/// A server on a copy of the database `fixture` (in tests/fixtures); the
+/// directory lives as long as the first value.
+fn serve_fixture(fixture: &str) -> (tempfile::TempDir, ServerProcess) {
+    let dir = tempfile::tempdir().unwrap();
+    let source = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures")
+        .join(fixture);
+    std::fs::copy(source, dir.path().join("tunnelnav.sqlite3")).unwrap();
+    let server = ServerProcess::start(dir.path());
+    (dir, server)
+}
+
 /// The fixture's drive continued: `simulate tbm --laser-period-s 30 --seed 5`.
 fn drive(hours: f64) -> Vec<String> {
     TbmDrive::new(TbmScenario {
@@ -35,17 +47,8 @@ fn drive(hours: f64) -> Vec<String> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_database_from_the_previous_release_opens_and_continues() {
-    let dir = tempfile::tempdir().unwrap();
-    std::fs::copy(
-        concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/tests/fixtures/attitude-before-issue-16.sqlite3"
-        ),
-        dir.path().join("tunnelnav.sqlite3"),
-    )
-    .unwrap();
+    let (_dir, server) = serve_fixture("attitude-before-issue-16.sqlite3");
     let client = reqwest::Client::new();
-    let server = ServerProcess::start(dir.path());
     let base = server.url("");
 
     // The declaration: retired parameters gone, new ones at their
@@ -137,17 +140,8 @@ fn pipe_jacking_drive(lines: usize) -> Vec<String> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_zupt_database_from_before_issue_17_opens_and_continues() {
-    let dir = tempfile::tempdir().unwrap();
-    std::fs::copy(
-        concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/tests/fixtures/zupt-before-issue-17.sqlite3"
-        ),
-        dir.path().join("tunnelnav.sqlite3"),
-    )
-    .unwrap();
+    let (_dir, server) = serve_fixture("zupt-before-issue-17.sqlite3");
     let client = reqwest::Client::new();
-    let server = ServerProcess::start(dir.path());
     let base = server.url("");
 
     let machine = get_json(&client, &base, "/api/v1/machines/jack-old").await;

@@ -56,6 +56,15 @@ pub struct DetectorScores {
     pub false_zv_s: f64,
     /// |heading error| at the end of the drive, degrees.
     pub heading_error_deg: f64,
+    /// Over every point of the smoothed pushes: how many, and the RMS of
+    /// the along-track error within the push (the distance since the
+    /// push's first point, against the truth's) of the live estimates at
+    /// the same instants and of the smoothed track, m. Both start from the
+    /// same point and end at the same one; the error carried in from
+    /// earlier pushes is left out.
+    pub track_points: usize,
+    pub live_track_rms_m: f64,
+    pub smoothed_track_rms_m: f64,
     /// Rests of 120 s or more, and how many of them had any zero velocity.
     pub long_rests: usize,
     pub long_rests_found: usize,
@@ -229,6 +238,8 @@ pub fn score(
         }
         last = Some((truth, estimate));
     }
+    let (track_points, live_track_rms_m, smoothed_track_rms_m) =
+        track_errors(outputs, truths, start_t, period_s);
     let ratio = |a: u64, b: u64| if b == 0 { 0.0 } else { a as f64 / b as f64 };
     let precision = ratio(tp, tp + fp);
     let recall = ratio(tp, tp + fn_);
@@ -276,9 +287,58 @@ pub fn score(
         within_3_sigma: within.map(|w| ratio(w, scored)),
         false_zv_s: fp as f64 * period_s,
         heading_error_deg,
+        track_points,
+        live_track_rms_m,
+        smoothed_track_rms_m,
         long_rests: long.len(),
         long_rests_found: long.iter().filter(|&&i| found[i]).count(),
     }
+}
+
+/// The along-track errors within each smoothed push at its points:
+/// (points, live RMS, smoothed RMS), m. Truths and live estimates are
+/// found by the IMU sample index of the point's time.
+fn track_errors(
+    outputs: &[EngineOutput],
+    truths: &[PipeJackTruth],
+    start_t: f64,
+    period_s: f64,
+) -> (usize, f64, f64) {
+    let index = |t: f64| ((t - start_t) / period_s).round() as usize;
+    let mut live = vec![None; truths.len()];
+    for output in outputs {
+        if let Some(estimate) = output.values.as_zupt()
+            && let Some(slot) = live.get_mut(index(output.t))
+        {
+            *slot = Some(estimate.distance_m);
+        }
+    }
+    let (mut n, mut live_sq, mut smoothed_sq) = (0usize, 0.0, 0.0);
+    for output in outputs {
+        let Some(points) = output.values.as_zupt().and_then(|e| e.smoothed_push.as_ref()) else {
+            continue;
+        };
+        let at = |point: &crate::fusion::estimate::TrackPoint| {
+            let i = index(point.t);
+            match (truths.get(i), live.get(i)) {
+                (Some(truth), Some(Some(live_m))) => {
+                    Some((truth.distance_m, *live_m, point.distance_m))
+                }
+                _ => None,
+            }
+        };
+        let Some((truth_0, live_0, smoothed_0)) = points.first().and_then(at) else {
+            continue;
+        };
+        for (truth, live_m, smoothed_m) in points.iter().filter_map(at) {
+            let travelled = truth - truth_0;
+            n += 1;
+            live_sq += (live_m - live_0 - travelled).powi(2);
+            smoothed_sq += (smoothed_m - smoothed_0 - travelled).powi(2);
+        }
+    }
+    let rms = |sum: f64| if n == 0 { f64::NAN } else { (sum / n as f64).sqrt() };
+    (n, rms(live_sq), rms(smoothed_sq))
 }
 
 /// The evaluation as a table like the paper's.
@@ -298,7 +358,7 @@ pub fn render_table(e: &ZuptEvaluation) -> String {
     );
     let _ = writeln!(
         out,
-        "{:<10} {:>9} {:>8} {:>7} {:>12} {:>8} {:>12} {:>8} {:>10} {:>9} {:>12} {:>11}",
+        "{:<10} {:>9} {:>8} {:>7} {:>12} {:>8} {:>12} {:>8} {:>10} {:>9} {:>12} {:>11} {:>17}",
         "detector",
         "precision",
         "recall",
@@ -310,12 +370,13 @@ pub fn render_table(e: &ZuptEvaluation) -> String {
         "false ZV s",
         "heading °",
         "rests≥2min",
-        "≤3σ N/E/D %"
+        "≤3σ N/E/D %",
+        "track m live/RTS"
     );
     for d in &e.detectors {
         let _ = writeln!(
             out,
-            "{:<10} {:>8.2}% {:>7.2}% {:>6.2}% {:>12.3} {:>7.2}% {:>12.3} {:>7.2}% {:>10.1} {:>9.3} {:>12} {:>11}",
+            "{:<10} {:>8.2}% {:>7.2}% {:>6.2}% {:>12.3} {:>7.2}% {:>12.3} {:>7.2}% {:>10.1} {:>9.3} {:>12} {:>11} {:>17}",
             d.detector,
             100.0 * d.precision,
             100.0 * d.recall,
@@ -333,6 +394,11 @@ pub fn render_table(e: &ZuptEvaluation) -> String {
                 100.0 * d.within_3_sigma[1],
                 100.0 * d.within_3_sigma[2]
             ),
+            if d.track_points > 0 {
+                format!("{:.4}/{:.4}", d.live_track_rms_m, d.smoothed_track_rms_m)
+            } else {
+                "–".to_string()
+            },
         );
     }
     out

@@ -66,6 +66,23 @@ pub struct ZuptEstimate {
     /// 1σ of the heading from the filter's covariance, degrees; `null`
     /// before alignment (and in estimates stored before it was reported).
     pub yaw_sigma_deg: Option<f64>,
+    /// On the estimate at which a push ends (the first epoch decided still
+    /// after it): the push's track smoothed over both of its still ends,
+    /// from the last still epoch before it, about one point a second;
+    /// `null` on every other estimate.
+    pub smoothed_push: Option<Vec<TrackPoint>>,
+}
+
+/// A point of a smoothed track.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TrackPoint {
+    pub t: f64,
+    /// North, east, down of the start point.
+    pub position_m: [f64; 3],
+    /// Along-track distance.
+    pub distance_m: f64,
+    /// 1σ of the smoothed position.
+    pub position_sigma_m: [f64; 3],
 }
 
 /// The `fuzzy` engine's decision of the motion status.
@@ -303,6 +320,26 @@ impl EstimateWriter {
                     self.number(out, key, value);
                 }
                 self.optional(out, "yaw_sigma_deg", z.yaw_sigma_deg);
+                out.extend_from_slice(b",\"smoothed_push\":");
+                match &z.smoothed_push {
+                    None => out.extend_from_slice(b"null"),
+                    Some(points) => {
+                        out.push(b'[');
+                        for (i, point) in points.iter().enumerate() {
+                            if i > 0 {
+                                out.push(b',');
+                            }
+                            out.push(b'{');
+                            self.number(out, "t", point.t);
+                            self.triple(out, "position_m", &point.position_m);
+                            out.push(b',');
+                            self.number(out, "distance_m", point.distance_m);
+                            self.triple(out, "position_sigma_m", &point.position_sigma_m);
+                            out.push(b'}');
+                        }
+                        out.push(b']');
+                    }
+                }
             }
             EstimateValues::Fuzzy(f) => {
                 out.extend_from_slice(b",\"engine\":\"fuzzy\",\"motion\":\"");
@@ -455,6 +492,20 @@ mod tests {
                     shoe_ratio: if i == 9 { f64::INFINITY } else { 1.5 },
                     mag_ratio: 1e-9,
                     yaw_sigma_deg: Some(0.012),
+                    smoothed_push: Some(vec![
+                        TrackPoint {
+                            t: 1.5,
+                            position_m: [1.0, -2.5e-7, 3.0],
+                            distance_m: 0.25,
+                            position_sigma_m: [0.001, 0.002, 1e-9],
+                        },
+                        TrackPoint {
+                            t: 2.5,
+                            position_m: [1.5, -2.0, 3.5],
+                            distance_m: 0.75,
+                            position_sigma_m: [0.003, 0.004, 0.0],
+                        },
+                    ]),
                 }),
             };
             let mut ours = Vec::new();

@@ -75,6 +75,28 @@ pub enum SnapshotError {
 }
 
 impl SnapshotError {
+    /// Refuses a snapshot whose `state_version` (1 when absent: before
+    /// versions existed) is not `expected`, as outdated.
+    pub fn check_version(
+        engine: EngineKind,
+        snapshot: &serde_json::Value,
+        expected: u32,
+    ) -> Result<(), SnapshotError> {
+        let found = snapshot
+            .get("state_version")
+            .and_then(serde_json::Value::as_u64)
+            .unwrap_or(1);
+        if found == u64::from(expected) {
+            Ok(())
+        } else {
+            Err(SnapshotError::Outdated {
+                engine,
+                found,
+                expected: u64::from(expected),
+            })
+        }
+    }
+
     /// An engine's state deserialised from its snapshot.
     pub fn parse<T: serde::de::DeserializeOwned>(
         engine: EngineKind,

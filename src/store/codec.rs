@@ -102,7 +102,8 @@ pub fn encode_values(values: &EstimateValues) -> Vec<u8> {
     encoded.expect("engine estimates are plain structs postcard can encode")
 }
 
-/// A `zupt` estimate as releases before the heading σ stored it.
+/// A `zupt` estimate as releases before the heading σ and the smoothed
+/// push stored it.
 #[derive(serde::Deserialize)]
 struct ZuptEstimateV1 {
     zv: bool,
@@ -141,6 +142,7 @@ impl From<ZuptEstimateV1> for ZuptEstimate {
             shoe_ratio: v.shoe_ratio,
             mag_ratio: v.mag_ratio,
             yaw_sigma_deg: None,
+            smoothed_push: None,
         }
     }
 }
@@ -153,7 +155,7 @@ pub fn decode_values(engine: EngineKind, bytes: &[u8]) -> Result<EstimateValues,
         EngineKind::Attitude => postcard::from_bytes::<AttitudeEstimate>(bytes)
             .map(EstimateValues::Attitude)
             .map_err(corrupt),
-        // Estimates stored before `yaw_sigma_deg` lack it (one field less).
+        // Estimates stored before `yaw_sigma_deg` and `smoothed_push` lack them.
         EngineKind::Zupt => postcard::from_bytes::<ZuptEstimate>(bytes)
             .or_else(|_| postcard::from_bytes::<ZuptEstimateV1>(bytes).map(ZuptEstimate::from))
             .map(EstimateValues::Zupt)

@@ -795,17 +795,7 @@ impl AttitudeEngine {
     /// Continues from a snapshot taken by [`Engine::snapshot`]. A snapshot
     /// of another [`STATE_VERSION`] is refused as outdated.
     pub fn restore(snapshot: serde_json::Value) -> Result<AttitudeEngine, SnapshotError> {
-        let found = snapshot
-            .get("state_version")
-            .and_then(serde_json::Value::as_u64)
-            .unwrap_or(1);
-        if found != u64::from(STATE_VERSION) {
-            return Err(SnapshotError::Outdated {
-                engine: EngineKind::Attitude,
-                found,
-                expected: u64::from(STATE_VERSION),
-            });
-        }
+        SnapshotError::check_version(EngineKind::Attitude, &snapshot, STATE_VERSION)?;
         let mut engine: AttitudeEngine = SnapshotError::parse(EngineKind::Attitude, snapshot)?;
         let params = engine.params.upgraded(PARAMS, RETIRED)?;
         engine.config = AttitudeConfig::from_params(&params)?;

@@ -81,37 +81,32 @@ impl Signals {
     }
 }
 
-/// MVᵥ over a window (module doc).
-pub fn mv_integrated(accel: &[V3], noise: &DetectorNoise) -> f64 {
-    let m = mean(accel);
+/// Σₖ ‖Sₖ − S̄‖² for the running sums Sₖ = Σ_{j≤k} xⱼ.
+fn running_sum_spread(xs: impl Iterator<Item = V3>) -> f64 {
     let mut running = V3::zeros();
-    let sums: Vec<V3> = accel
-        .iter()
-        .map(|a| {
-            running += a - m;
+    let sums: Vec<V3> = xs
+        .map(|x| {
+            running += x;
             running
         })
         .collect();
     let centre = mean(&sums);
-    let spread: f64 = sums.iter().map(|v| (v - centre).norm_squared()).sum();
+    sums.iter().map(|v| (v - centre).norm_squared()).sum()
+}
+
+/// MVᵥ over a window (module doc).
+pub fn mv_integrated(accel: &[V3], noise: &DetectorNoise) -> f64 {
+    let m = mean(accel);
     let w = accel.len() as f64;
-    12.0 * spread / (noise.sigma_accel_mps2.powi(2) * w * w)
+    12.0 * running_sum_spread(accel.iter().map(|a| a - m))
+        / (noise.sigma_accel_mps2.powi(2) * w * w)
 }
 
 /// AREθ over a window (module doc).
 pub fn are_integrated(gyro: &[V3], earth_rate_b: &V3, noise: &DetectorNoise) -> f64 {
-    let mut running = V3::zeros();
-    let sums: Vec<V3> = gyro
-        .iter()
-        .map(|g| {
-            running += g - earth_rate_b;
-            running
-        })
-        .collect();
-    let centre = mean(&sums);
-    let spread: f64 = sums.iter().map(|v| (v - centre).norm_squared()).sum();
     let w = gyro.len() as f64;
-    6.0 * spread / (noise.sigma_gyro_rad_per_s.powi(2) * w * w)
+    6.0 * running_sum_spread(gyro.iter().map(|g| g - earth_rate_b))
+        / (noise.sigma_gyro_rad_per_s.powi(2) * w * w)
 }
 
 /// Noise levels that normalise the statistics and the gravity they test

@@ -110,7 +110,8 @@ impl ErrorStateFilter {
     /// Propagates the covariance over `dt_s`: Φ = I + F·dt + (F·dt)²/2,
     /// P = Φ·P·Φᵀ + Q_d with Q_d by the trapezoidal rule,
     /// ½(Φ·Q·Φᵀ + Q)·dt.
-    pub fn propagate(&mut self, d: &Dynamics, dt_s: f64) {
+    /// Propagates over `dt_s`; returns the transition Φ used.
+    pub fn propagate(&mut self, d: &Dynamics, dt_s: f64) -> Covariance {
         let f_dt = Self::system_matrix(d) * dt_s;
         let phi = Covariance::identity() + f_dt + f_dt * f_dt * 0.5;
         let n = &self.noise;
@@ -124,6 +125,7 @@ impl ErrorStateFilter {
         let q_d = (phi * q * phi.transpose() + q) * (0.5 * dt_s);
         self.p = phi * self.p * phi.transpose() + q_d;
         self.symmetrise();
+        phi
     }
 
     /// Adds process noise for a span with no inertial data (a gap): the

@@ -25,6 +25,7 @@
 
 pub mod detectors;
 pub mod eskf;
+pub mod smoother;
 pub mod strapdown;
 pub mod zero_velocity;
 
@@ -38,6 +39,7 @@ use self::eskf::{
     ACCEL_BIAS, ATT, Dynamics, ErrorStateFilter, GYRO_BIAS, POS, ProcessNoise, VEL,
     body_velocity_matrix, height_matrix, zaru_matrix, zupt_matrix,
 };
+use self::smoother::{Point, PushRecord};
 use self::strapdown::{
     Increment, NavState, Site, V3, attitude_from_euler, earth_rate_n, level, normal_gravity_mps2,
     radii_m,
@@ -46,7 +48,7 @@ use self::zero_velocity::{
     Adaptation, Decision, DetectorKind, PipelineConfig, Thresholds, ZeroVelocityPipeline,
 };
 use super::angles::{deg, rad};
-use super::estimate::{EngineOutput, EstimateValues, ZuptEstimate};
+use super::estimate::{EngineOutput, EstimateValues, TrackPoint, ZuptEstimate};
 use super::params::{ParamError, ParamSpec, Params, choice, flag, integer, real};
 use super::reading::{Reading, SensorData};
 use super::{Engine, EngineKind, SnapshotError};
@@ -288,6 +290,19 @@ pub const PARAMS: &[ParamSpec] = &[
         "deg/h",
         "rotation a standing machine may still have (settling), added to the gyro noise of each rest's mean rate",
     ),
+    flag(
+        "smooth_pushes",
+        true,
+        "smooth each completed push over both of its still ends (Rauch–Tung–Striebel) and publish its track as `smoothed_push`",
+    ),
+    real(
+        "smooth_max_push_s",
+        300.0,
+        1.0,
+        7200.0,
+        "s",
+        "longer pushes are not smoothed (the record of a push, kept in the engine's snapshot, grows by about 5 kB a second)",
+    ),
     real(
         "level_sigma_m",
         0.002,
@@ -342,6 +357,9 @@ pub struct ZuptConfig {
     /// Zero-angular-rate updates at rest, and the settling rate allowed, rad/s.
     pub zaru: bool,
     pub zaru_sigma_rad_per_s: f64,
+    /// Smoothing of completed pushes, and the longest push smoothed, s.
+    pub smooth_pushes: bool,
+    pub smooth_max_push_s: f64,
     pub level_sigma_m: f64,
     pub aid_gate_sigma: f64,
     pub odometer_aiding: bool,
@@ -416,6 +434,8 @@ impl ZuptConfig {
             zupt_sigma_mps: p.real("zupt_sigma_mps")?,
             zaru: p.flag("zaru")?,
             zaru_sigma_rad_per_s: rad_per_s_from_deg_per_h(p.real("zaru_sigma_deg_per_h")?),
+            smooth_pushes: p.flag("smooth_pushes")?,
+            smooth_max_push_s: p.real("smooth_max_push_s")?,
             level_sigma_m: p.real("level_sigma_m")?,
             aid_gate_sigma: p.real("aid_gate_sigma")?,
             odometer_aiding: p.flag("odometer_aiding")?,
@@ -445,6 +465,11 @@ pub struct ZuptStats {
     /// Zero-angular-rate updates.
     #[serde(default)]
     pub zaru_updates: u64,
+    /// Pushes smoothed, and pushes too long to smooth.
+    #[serde(default)]
+    pub pushes_smoothed: u64,
+    #[serde(default)]
+    pub pushes_too_long: u64,
     pub height_updates: u64,
     /// Heights refused by the gate.
     pub heights_refused: u64,
@@ -478,6 +503,11 @@ struct Navigation {
     interval_still: bool,
     /// Along-track distance: displacement projected on the body's x axis.
     distance_m: f64,
+    /// The push in progress, from the last still epoch (smoothing on);
+    /// `None` after one too long to smooth, until the next still epoch.
+    push: Option<PushRecord>,
+    /// A push just smoothed, for the next estimate.
+    smoothed: Option<Vec<TrackPoint>>,
     /// Height of the start point, set by the first level reading.
     height_datum_m: Option<f64>,
     /// The newest height not yet used, and odometer speed not yet used.
@@ -541,17 +571,7 @@ impl ZuptEngine {
     /// Continues from a snapshot taken by [`Engine::snapshot`].
     /// A snapshot of another [`STATE_VERSION`] is refused as outdated.
     pub fn restore(snapshot: serde_json::Value) -> Result<ZuptEngine, SnapshotError> {
-        let found = snapshot
-            .get("state_version")
-            .and_then(serde_json::Value::as_u64)
-            .unwrap_or(1);
-        if found != u64::from(STATE_VERSION) {
-            return Err(SnapshotError::Outdated {
-                engine: EngineKind::Zupt,
-                found,
-                expected: u64::from(STATE_VERSION),
-            });
-        }
+        SnapshotError::check_version(EngineKind::Zupt, &snapshot, STATE_VERSION)?;
         let mut engine: ZuptEngine = SnapshotError::parse(EngineKind::Zupt, snapshot)?;
         let params = engine.params.revalidated(PARAMS)?;
         engine.config = ZuptConfig::from_params(&params)?;
@@ -623,6 +643,8 @@ impl ZuptEngine {
                     let gap_s = sample.t - newest;
                     nav.filter.inflate(gap_s);
                     nav.previous = None;
+                    // A push across a gap is not smoothed.
+                    nav.push = None;
                 }
             }
         }
@@ -740,6 +762,7 @@ impl ZuptEngine {
                 self.stats.navigation_resets += 1;
             }
         }
+        let smoothed_push = self.navigation.as_mut().and_then(|n| n.smoothed.take());
         let Some(nav) = self.navigation.as_ref() else {
             return self.unaligned_estimate(sample.t, &decision);
         };
@@ -760,6 +783,7 @@ impl ZuptEngine {
                 [sigma.x, sigma.y, sigma.z],
                 nav.height_datum_m.map(|datum| datum - position.z),
                 Some(yaw_sigma_deg),
+                smoothed_push,
             )),
         }
     }
@@ -779,6 +803,7 @@ impl ZuptEngine {
                 [0.0; 3],
                 None,
                 None,
+                None,
             )),
         }
     }
@@ -795,6 +820,7 @@ impl ZuptEngine {
         position_sigma_m: [f64; 3],
         height_m: Option<f64>,
         yaw_sigma_deg: Option<f64>,
+        smoothed_push: Option<Vec<TrackPoint>>,
     ) -> ZuptEstimate {
         let s = &decision.statistics;
         let g = &decision.thresholds;
@@ -822,6 +848,7 @@ impl ZuptEngine {
             shoe_ratio: ratio(s.shoe, g.shoe),
             mag_ratio: ratio(s.mag, g.mag),
             yaw_sigma_deg,
+            smoothed_push,
         }
     }
 
@@ -860,6 +887,8 @@ impl ZuptEngine {
             rate_integral: V3::zeros(),
             interval_still: true,
             distance_m: 0.0,
+            push: None,
+            smoothed: None,
             height_datum_m: None,
             pending_height_m: None,
             pending_odometer_speed_mps: None,
@@ -899,7 +928,10 @@ impl Navigation {
                 .transport_rate_n(&self.state.position_m, &self.state.velocity_mps),
             gravity_gradient: 2.0 * normal_gravity_mps2(lat, height) / radius,
         };
-        self.filter.propagate(&dynamics, self.interval_s);
+        let phi = self.filter.propagate(&dynamics, self.interval_s);
+        if let Some(push) = &mut self.push {
+            push.propagated(&phi, &self.filter.p);
+        }
         let mean_rate = self.rate_integral / self.interval_s;
         let interval_s = self.interval_s;
         let interval_still = self.interval_still;
@@ -962,6 +994,45 @@ impl Navigation {
                 self.apply(result, stats, |s| s.odometer_updates += 1);
             }
         }
+        if config.smooth_pushes {
+            self.record_push(config, zv && interval_still, stats);
+        }
+    }
+
+    /// Keeps the epoch just made in the push record; at the first still
+    /// epoch after a push, smooths it (see [`smoother`]).
+    fn record_push(&mut self, config: &ZuptConfig, still: bool, stats: &mut ZuptStats) {
+        let Some(t) = self.previous.map(|s| s.t) else {
+            return;
+        };
+        let point = Point {
+            t,
+            position_m: self.state.position_m,
+            distance_m: self.distance_m,
+            forward: self.state.attitude * V3::x(),
+            p_post: self.filter.p,
+        };
+        if still {
+            if let Some(mut push) = self.push.take()
+                && push.has_moved()
+            {
+                push.end_epoch(point.clone(), true);
+                match push.smooth() {
+                    Some(track) => {
+                        self.smoothed = Some(track);
+                        stats.pushes_smoothed += 1;
+                    }
+                    None => stats.updates_failed += 1,
+                }
+            }
+            self.push = Some(PushRecord::anchored(point));
+        } else if let Some(push) = &mut self.push {
+            push.end_epoch(point, false);
+            if push.span_s() > config.smooth_max_push_s {
+                self.push = None;
+                stats.pushes_too_long += 1;
+            }
+        }
     }
 
     /// Closed-loop feedback of an estimated error state.
@@ -976,6 +1047,9 @@ impl Navigation {
             return;
         };
         count(stats);
+        if let Some(push) = &mut self.push {
+            push.fed_back(&dx);
+        }
         let block = |at: usize| V3::new(dx[at], dx[at + 1], dx[at + 2]);
         let position_correction = -block(POS);
         self.distance_m += along_track(&self.state, &position_correction);
