@@ -315,7 +315,11 @@ fn track_errors(
     }
     let (mut n, mut live_sq, mut smoothed_sq) = (0usize, 0.0, 0.0);
     for output in outputs {
-        let Some(points) = output.values.as_zupt().and_then(|e| e.smoothed_push.as_ref()) else {
+        let Some(points) = output
+            .values
+            .as_zupt()
+            .and_then(|e| e.smoothed_push.as_ref())
+        else {
             continue;
         };
         let at = |point: &crate::fusion::estimate::TrackPoint| {
@@ -337,7 +341,13 @@ fn track_errors(
             smoothed_sq += (smoothed_m - smoothed_0 - travelled).powi(2);
         }
     }
-    let rms = |sum: f64| if n == 0 { f64::NAN } else { (sum / n as f64).sqrt() };
+    let rms = |sum: f64| {
+        if n == 0 {
+            f64::NAN
+        } else {
+            (sum / n as f64).sqrt()
+        }
+    };
     (n, rms(live_sq), rms(smoothed_sq))
 }
 

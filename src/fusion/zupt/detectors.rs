@@ -24,15 +24,19 @@
 //! - MVᵥ = 12 Σₖ ‖Vₖ − V̄‖² / (σa² W²), Vₖ = Σ_{j≤k} (y_a,j − ȳ_a), the
 //!   velocity change within the window over Δt (de-meaned, so gravity and
 //!   the accelerometer bias drop out);
-//! - AREθ = 6 Σₖ ‖Θₖ − Θ̄‖² / (σg² W²), Θₖ = Σ_{j≤k} (y_ω,j − ω_ieᵇ), the
-//!   angle turned within the window over Δt (not de-meaned in rate: a
-//!   steady turn is motion);
+//! - AREθ = 12 Σₖ ‖Θₖ − Θ̄‖² / (σg² W²) + ‖ȳ_ω − ω_ieᵇ‖²/σg², Θₖ =
+//!   Σ_{j≤k} (y_ω,j − ȳ_ω), the angle the window's rate fluctuations turn
+//!   it through over Δt, plus the mean rate as the raw ARE counts it (the
+//!   raw Σ‖y_ω − ω_ieᵇ‖² splits into the two): a steady turn counts as in
+//!   ARE, and a steady error in the Earth rate subtracted (a heading not
+//!   yet known) no more than there, where integrating it would make it
+//!   count W/2 times as much;
 //! - SHOEᵥ = MVᵥ + AREθ; MAG stays as it is.
 //!
 //! Their normalisers make white noise of σa and σg score 3 at rest, as MV
-//! and ARE do: the de-meaned sum V is a discrete Brownian bridge, with
-//! E Σₖ ‖Vₖ − V̄‖² = 3σa²(W² − 1)/12 ≈ 3σa²W²/12; Θ is a random walk, with
-//! 3σg²(W² − 1)/6. Both are computed from the held window in O(W).
+//! and ARE do: the de-meaned sums V and Θ are discrete Brownian bridges,
+//! with E Σₖ ‖Vₖ − V̄‖² = 3σa²(W² − 1)/12 ≈ 3σa²W²/12 (the mean-rate term
+//! adds 3/W). Both are computed from the held window in O(W).
 
 use std::collections::VecDeque;
 
@@ -104,9 +108,11 @@ pub fn mv_integrated(accel: &[V3], noise: &DetectorNoise) -> f64 {
 
 /// AREθ over a window (module doc).
 pub fn are_integrated(gyro: &[V3], earth_rate_b: &V3, noise: &DetectorNoise) -> f64 {
+    let m = mean(gyro);
     let w = gyro.len() as f64;
-    6.0 * running_sum_spread(gyro.iter().map(|g| g - earth_rate_b))
-        / (noise.sigma_gyro_rad_per_s.powi(2) * w * w)
+    let var_g = noise.sigma_gyro_rad_per_s.powi(2);
+    12.0 * running_sum_spread(gyro.iter().map(|g| g - m)) / (var_g * w * w)
+        + (m - earth_rate_b).norm_squared() / var_g
 }
 
 /// Noise levels that normalise the statistics and the gravity they test
@@ -279,23 +285,26 @@ impl WindowSums {
     /// MVᵥ and AREθ of the held samples, one pass: the running sums V, Θ
     /// and their first and second moments.
     fn integrated(&self, earth_rate_b: &V3, noise: &DetectorNoise, mean_accel: &V3) -> (f64, f64) {
+        let w = self.samples.len() as f64;
+        let mean_gyro = self.sum_gyro / w;
         let (mut v, mut theta) = (V3::zeros(), V3::zeros());
         let (mut sum_v, mut sum_theta) = (V3::zeros(), V3::zeros());
         let (mut sq_v, mut sq_theta) = (0.0, 0.0);
         for (accel, gyro) in &self.samples {
             v += accel - mean_accel;
-            theta += gyro - earth_rate_b;
+            theta += gyro - mean_gyro;
             sum_v += v;
             sum_theta += theta;
             sq_v += v.norm_squared();
             sq_theta += theta.norm_squared();
         }
-        let w = self.samples.len() as f64;
         let spread_v = (sq_v - sum_v.norm_squared() / w).max(0.0);
         let spread_theta = (sq_theta - sum_theta.norm_squared() / w).max(0.0);
+        let var_g = noise.sigma_gyro_rad_per_s.powi(2);
         (
             12.0 * spread_v / (noise.sigma_accel_mps2.powi(2) * w * w),
-            6.0 * spread_theta / (noise.sigma_gyro_rad_per_s.powi(2) * w * w),
+            12.0 * spread_theta / (var_g * w * w)
+                + (mean_gyro - earth_rate_b).norm_squared() / var_g,
         )
     }
 
@@ -420,6 +429,14 @@ mod tests {
             assert!((s.shoe - reference).abs() < 1e-6 * (1.0 + reference), "{k}");
             let reference = mag(&a, &NOISE);
             assert!((s.mag - reference).abs() < 1e-6 * (1.0 + reference), "{k}");
+            let i = sums
+                .statistics(&earth, &NOISE, Signals::Integrated)
+                .unwrap();
+            let reference = mv_integrated(&a, &NOISE);
+            assert!((i.mv - reference).abs() < 1e-6 * (1.0 + reference), "{k}");
+            let reference = are_integrated(&w, &earth, &NOISE);
+            assert!((i.are - reference).abs() < 1e-6 * (1.0 + reference), "{k}");
+            assert_eq!(i.shoe, i.mv + i.are);
         }
         // The trailing edge can also be moved by hand (end of a stream).
         sums.pop_oldest();
@@ -435,14 +452,17 @@ mod tests {
         let d = V3::new(NOISE.sigma_accel_mps2, 0.0, 0.0);
         let accel = [g + d, g - d, g + d, g - d];
         assert!(close(mv_integrated(&accel, &NOISE), 0.75));
-        // A steady turn at r about z: Θ = r, 2r, 3r, 4r (mean 2.5r),
-        // Σ(Θ − Θ̄)² = 5r²; AREθ = 6·5r²/(σ²·16) = 1.875 at r = σ.
+        // A steady turn at r = σ about z: no fluctuation, the mean rate
+        // counts r²/σ² = 1, as in the raw ARE.
         let earth = V3::new(1e-5, 0.0, 2e-5);
         let r = V3::new(0.0, 0.0, NOISE.sigma_gyro_rad_per_s);
         let gyro = [earth + r; 4];
-        assert!(close(are_integrated(&gyro, &earth, &NOISE), 1.875));
-        // The same turn in the raw ARE: 1 per sample.
+        assert!(close(are_integrated(&gyro, &earth, &NOISE), 1.0));
         assert!(close(are(&gyro, &earth, &NOISE), 1.0));
+        // Rates +σ, −σ, +σ, −σ about the Earth's: Θ = σ, 0, σ, 0, spread
+        // σ², AREθ = 12σ²/(σ²·16) = 0.75, the mean term 0.
+        let gyro = [earth + r, earth - r, earth + r, earth - r];
+        assert!(close(are_integrated(&gyro, &earth, &NOISE), 0.75));
     }
 
     #[test]

@@ -1260,4 +1260,55 @@ mod tests {
             })
         ));
     }
+
+    #[test]
+    fn a_snapshot_in_the_middle_of_a_push_continues_exactly_and_smooths_it() {
+        // The trolley run's first 75 s: a rest, a push from 30 s, its rest.
+        let readings: Vec<Reading> = crate::sim::pipejack::PipeJackDrive::new(
+            crate::sim::pipejack::PipeJackScenario::default(),
+        )
+        .unwrap()
+        .map(|e| e.reading)
+        .take_while(|r| r.t < crate::sim::tbm::DEFAULT_START_T + 75.0)
+        .collect();
+        let mut whole = ZuptEngine::with_defaults();
+        let mut expected = Vec::new();
+        for r in &readings {
+            whole.feed(r, &mut expected);
+        }
+        let smoothed: Vec<&Vec<TrackPoint>> = expected
+            .iter()
+            .filter_map(|o| o.values.as_zupt()?.smoothed_push.as_ref())
+            .collect();
+        assert_eq!(smoothed.len(), 1, "one push, smoothed once");
+        let track = smoothed[0];
+        assert!(track.len() > 25, "{}", track.len());
+        assert!(track.windows(2).all(|w| w[0].t < w[1].t));
+        // Cut during the push (45 s in): the record travels in the snapshot.
+        let cut = readings
+            .iter()
+            .position(|r| r.t >= crate::sim::tbm::DEFAULT_START_T + 45.0)
+            .unwrap();
+        let mut first = ZuptEngine::with_defaults();
+        let mut got = Vec::new();
+        for r in &readings[..cut] {
+            first.feed(r, &mut got);
+        }
+        assert!(
+            first
+                .navigation
+                .as_ref()
+                .unwrap()
+                .push
+                .as_ref()
+                .unwrap()
+                .has_moved()
+        );
+        let text = serde_json::to_string(&first.snapshot()).unwrap();
+        let mut second = ZuptEngine::restore(serde_json::from_str(&text).unwrap()).unwrap();
+        for r in &readings[cut..] {
+            second.feed(r, &mut got);
+        }
+        assert_eq!(got, expected);
+    }
 }

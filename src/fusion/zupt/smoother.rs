@@ -86,9 +86,7 @@ impl PushRecord {
 
     /// The time span recorded so far, s.
     pub fn span_s(&self) -> f64 {
-        self.steps
-            .last()
-            .map_or(0.0, |s| s.point.t - self.anchor.t)
+        self.steps.last().map_or(0.0, |s| s.point.t - self.anchor.t)
     }
 
     /// An epoch's propagation: its Φ and the covariance before its updates.
@@ -211,7 +209,10 @@ mod tests {
             let share = k as f64 / n as f64;
             // The filter's positions were 0 until the end; the smoother
             // moves point k to −0.2·k/n (p̂ˢ = p̂ − δp, δp = 0.2·k/n).
-            assert!((point.position_m[0] + 0.2 * share).abs() < 1e-9, "{k}: {point:?}");
+            assert!(
+                (point.position_m[0] + 0.2 * share).abs() < 1e-9,
+                "{k}: {point:?}"
+            );
             let variance = q * (k * (n - k)) as f64 / n as f64;
             assert!(
                 (point.position_sigma_m[0].powi(2) - variance).abs() < 1e-9,
