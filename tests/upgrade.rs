@@ -32,6 +32,33 @@ fn serve_fixture(fixture: &str) -> (tempfile::TempDir, ServerProcess) {
     (dir, server)
 }
 
+/// `replay` of `lines` by `engine` with the parameters a machine
+/// declares (as its `config.engines.<engine>` object).
+fn replay_with_params(
+    machine: &str,
+    engine: &str,
+    params: &serde_json::Map<String, Value>,
+    lines: &[String],
+) -> Vec<Value> {
+    let assignments: Vec<String> = params
+        .iter()
+        .map(|(name, value)| match value {
+            Value::String(word) => format!("{name}={word}"),
+            other => format!("{name}={other}"),
+        })
+        .collect();
+    let assignments: Vec<&str> = assignments.iter().map(String::as_str).collect();
+    replay_engine(machine, engine, &assignments, lines)
+}
+
+/// The estimates after time `t`.
+fn after(estimates: &[Value], t: f64) -> Vec<&Value> {
+    estimates
+        .iter()
+        .filter(|e| e["t"].as_f64().unwrap() > t)
+        .collect()
+}
+
 /// The fixture's drive continued: `simulate tbm --laser-period-s 30 --seed 5`.
 fn drive(hours: f64) -> Vec<String> {
     TbmDrive::new(TbmScenario {
@@ -82,24 +109,9 @@ async fn a_database_from_the_previous_release_opens_and_continues() {
         post_ndjson(&client, &base, "tbm-old", chunk).await;
     }
     let served = all_estimates(&client, &base, "tbm-old").await;
-    let assignments: Vec<String> = params
-        .iter()
-        .map(|(name, value)| match value {
-            Value::String(word) => format!("{name}={word}"),
-            other => format!("{name}={other}"),
-        })
-        .collect();
-    let assignments: Vec<&str> = assignments.iter().map(String::as_str).collect();
-    let replayed = replay_engine("tbm-old", "attitude", &assignments, &lines);
+    let replayed = replay_with_params("tbm-old", "attitude", &params, &lines);
     let new_t = old_estimates.last().unwrap()["t"].as_f64().unwrap();
-    let served_new: Vec<&Value> = served
-        .iter()
-        .filter(|e| e["t"].as_f64().unwrap() > new_t)
-        .collect();
-    let replayed_new: Vec<&Value> = replayed
-        .iter()
-        .filter(|e| e["t"].as_f64().unwrap() > new_t)
-        .collect();
+    let (served_new, replayed_new) = (after(&served, new_t), after(&replayed, new_t));
     assert!(served_new.len() > 1000, "{}", served_new.len());
     assert_eq!(served_new, replayed_new);
 
@@ -172,24 +184,9 @@ async fn a_zupt_database_from_before_issue_17_opens_and_continues() {
         post_ndjson(&client, &base, "jack-old", chunk).await;
     }
     let served = all_estimates(&client, &base, "jack-old").await;
-    let assignments: Vec<String> = params
-        .iter()
-        .map(|(name, value)| match value {
-            Value::String(word) => format!("{name}={word}"),
-            other => format!("{name}={other}"),
-        })
-        .collect();
-    let assignments: Vec<&str> = assignments.iter().map(String::as_str).collect();
-    let replayed = replay_engine("jack-old", "zupt", &assignments, &lines);
+    let replayed = replay_with_params("jack-old", "zupt", &params, &lines);
     let new_t = old_estimates.last().unwrap()["t"].as_f64().unwrap();
-    let after = |estimates: &[Value]| -> Vec<Value> {
-        estimates
-            .iter()
-            .filter(|e| e["t"].as_f64().unwrap() > new_t)
-            .cloned()
-            .collect()
-    };
-    let (served_new, replayed_new) = (after(&served), after(&replayed));
+    let (served_new, replayed_new) = (after(&served, new_t), after(&replayed, new_t));
     // The server keeps the last few seconds waiting for their decisions;
     // replay decides them at the end of its input.
     assert!(served_new.len() > 4000, "{}", served_new.len());

@@ -347,6 +347,17 @@ mod tests {
         gravity_mps2: 9.8,
     };
 
+    /// Uniform on [−0.5, 0.5) from a seeded xorshift (independent of
+    /// the code under test).
+    fn centred_uniform(mut state: u64) -> impl FnMut() -> f64 {
+        move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        }
+    }
+
     fn close(a: f64, b: f64) -> bool {
         (a - b).abs() <= 1e-9 * (1.0 + a.abs().max(b.abs()))
     }
@@ -403,13 +414,7 @@ mod tests {
 
     #[test]
     fn running_sums_match_the_slice_functions() {
-        let mut state = 0x9e37_79b9_7f4a_7c15_u64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        let mut next = centred_uniform(0x9e37_79b9_7f4a_7c15);
         let earth = V3::new(6e-5, 0.0, -3e-5);
         let mut sums = WindowSums::new(25);
         let mut all: Vec<(V3, V3)> = Vec::new();
@@ -508,14 +513,9 @@ mod tests {
     fn integrated_white_noise_scores_about_three() {
         // Uniform noise of variance σ² on every axis (σ = 0.01 / 0.001):
         // the normalisers make the mean of both statistics ≈ 3.
-        let mut state = 0x2545_f491_4f6c_dd1d_u64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            // Uniform on ±√3: variance 1.
-            ((state >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 2.0 * 3f64.sqrt()
-        };
+        // Uniform on ±√3: variance 1.
+        let mut uniform = centred_uniform(0x2545_f491_4f6c_dd1d);
+        let mut next = move || uniform() * 2.0 * 3f64.sqrt();
         let (mut sum_mv, mut sum_are, windows) = (0.0, 0.0, 2000);
         for _ in 0..windows {
             let accel: Vec<V3> = (0..100)
