@@ -506,8 +506,6 @@ struct Navigation {
     /// The push in progress, from the last still epoch (smoothing on);
     /// `None` after one too long to smooth, until the next still epoch.
     push: Option<PushRecord>,
-    /// A push just smoothed, for the next estimate.
-    smoothed: Option<Vec<TrackPoint>>,
     /// Height of the start point, set by the first level reading.
     height_datum_m: Option<f64>,
     /// The newest height not yet used, and odometer speed not yet used.
@@ -752,8 +750,9 @@ impl ZuptEngine {
             nav.interval_still &= decision.zv;
         }
         nav.previous = Some(sample);
+        let mut smoothed_push = None;
         if nav.interval_s >= config.filter_period_s {
-            nav.epoch(&config, decision.zv, &mut self.stats);
+            smoothed_push = nav.epoch(&config, decision.zv, &mut self.stats);
             // Readings within range but absurd for long enough (a broken
             // sensor) can run the solution off to infinity: start again at
             // the next still window rather than report garbage.
@@ -762,7 +761,6 @@ impl ZuptEngine {
                 self.stats.navigation_resets += 1;
             }
         }
-        let smoothed_push = self.navigation.as_mut().and_then(|n| n.smoothed.take());
         let Some(nav) = self.navigation.as_ref() else {
             return self.unaligned_estimate(sample.t, &decision);
         };
@@ -888,7 +886,6 @@ impl ZuptEngine {
             interval_still: true,
             distance_m: 0.0,
             push: None,
-            smoothed: None,
             height_datum_m: None,
             pending_height_m: None,
             pending_odometer_speed_mps: None,
@@ -913,8 +910,14 @@ impl Navigation {
     }
 
     /// A filter epoch: propagate the covariance, make the updates that are
-    /// due, feed the errors back.
-    fn epoch(&mut self, config: &ZuptConfig, zv: bool, stats: &mut ZuptStats) {
+    /// due, feed the errors back. Returns the track of a push it ends,
+    /// smoothed.
+    fn epoch(
+        &mut self,
+        config: &ZuptConfig,
+        zv: bool,
+        stats: &mut ZuptStats,
+    ) -> Option<Vec<TrackPoint>> {
         let site = &config.site;
         let (lat, height) = site.at(&self.state.position_m);
         let (meridian, transverse) = radii_m(lat);
@@ -995,16 +998,21 @@ impl Navigation {
             }
         }
         if config.smooth_pushes {
-            self.record_push(config, zv && interval_still, stats);
+            self.record_push(config, zv && interval_still, stats)
+        } else {
+            None
         }
     }
 
     /// Keeps the epoch just made in the push record; at the first still
-    /// epoch after a push, smooths it (see [`smoother`]).
-    fn record_push(&mut self, config: &ZuptConfig, still: bool, stats: &mut ZuptStats) {
-        let Some(t) = self.previous.map(|s| s.t) else {
-            return;
-        };
+    /// epoch after a push, smooths it (see [`smoother`]) and returns its track.
+    fn record_push(
+        &mut self,
+        config: &ZuptConfig,
+        still: bool,
+        stats: &mut ZuptStats,
+    ) -> Option<Vec<TrackPoint>> {
+        let t = self.previous?.t;
         let point = Point {
             t,
             position_m: self.state.position_m,
@@ -1012,16 +1020,15 @@ impl Navigation {
             forward: self.state.attitude * V3::x(),
             p_post: self.filter.p,
         };
+        let mut track = None;
         if still {
             if let Some(mut push) = self.push.take()
                 && push.has_moved()
             {
                 push.end_epoch(point.clone(), true);
-                match push.smooth() {
-                    Some(track) => {
-                        self.smoothed = Some(track);
-                        stats.pushes_smoothed += 1;
-                    }
+                track = push.smooth();
+                match track {
+                    Some(_) => stats.pushes_smoothed += 1,
                     None => stats.updates_failed += 1,
                 }
             }
@@ -1033,6 +1040,7 @@ impl Navigation {
                 stats.pushes_too_long += 1;
             }
         }
+        track
     }
 
     /// Closed-loop feedback of an estimated error state.

@@ -119,9 +119,10 @@ pub struct RestLevel {
 impl RestLevel {
     /// Levels at which γ_eff = γ.
     fn new(thresholds: &Thresholds, adaptation: &Adaptation) -> RestLevel {
-        let [mv, are, shoe, mag] = thresholds.as_array();
         RestLevel {
-            level: [mv, are, shoe, mag].map(|g| g / adaptation.rest_level_factor),
+            level: thresholds
+                .as_array()
+                .map(|g| g / adaptation.rest_level_factor),
             t: None,
         }
     }
