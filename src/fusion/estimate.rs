@@ -132,6 +132,12 @@ pub struct FuzzyEstimate {
     pub accel_dev_mps2: f64,
     pub accel_activity_mps2: f64,
     pub gyro_activity_dps: f64,
+    /// One-sigma uncertainty of `gyro_bias_dps` per axis; `null` before
+    /// alignment.
+    pub gyro_bias_sigma_dps: Option<[f64; 3]>,
+    /// True while the magnetometer field departs from the site's in
+    /// magnitude or dip (a magnet, steel nearby): the compass is not used.
+    pub mag_disturbed: bool,
 }
 
 /// The engine-specific part of an estimate, tagged by `engine`.
@@ -370,6 +376,11 @@ impl EstimateWriter {
                     out.push(b',');
                     self.number(out, key, value);
                 }
+                match &f.gyro_bias_sigma_dps {
+                    Some(sigma) => self.triple(out, "gyro_bias_sigma_dps", sigma),
+                    None => out.extend_from_slice(b",\"gyro_bias_sigma_dps\":null"),
+                }
+                self.flag(out, "mag_disturbed", f.mag_disturbed);
             }
         }
         out.extend_from_slice(b"}\n");
@@ -551,6 +562,8 @@ mod tests {
                     accel_dev_mps2: x.abs() * 1e-3,
                     accel_activity_mps2: if i == 7 { f64::NAN } else { 0.02 },
                     gyro_activity_dps: 1e-7 * f64::from(i),
+                    gyro_bias_sigma_dps: (i % 6 != 0).then_some([x * 1e-4, 0.002, 1e-9]),
+                    mag_disturbed: i % 7 == 3,
                 }),
             };
             let mut ours = Vec::new();

@@ -150,7 +150,8 @@ impl EngineKind {
     pub fn retired(self) -> &'static [Retired] {
         match self {
             EngineKind::Attitude => attitude::RETIRED,
-            EngineKind::Zupt | EngineKind::Fuzzy => &[],
+            EngineKind::Fuzzy => fuzzy::RETIRED,
+            EngineKind::Zupt => &[],
         }
     }
 

@@ -147,6 +147,49 @@ impl From<ZuptEstimateV1> for ZuptEstimate {
     }
 }
 
+/// A `fuzzy` estimate as releases before the gyro bias σ and the
+/// disturbance flag stored it.
+#[derive(serde::Deserialize)]
+struct FuzzyEstimateV1 {
+    motion: crate::fusion::Motion,
+    static_degree: f64,
+    pitch_deg: f64,
+    roll_deg: f64,
+    heading_deg: f64,
+    gyro_bias_dps: [f64; 3],
+    aligned: bool,
+    mag_calibration: crate::fusion::fuzzy::magcal::CalibrationState,
+    mag_coverage_deg: f64,
+    mag_fit_rms: Option<f64>,
+    mag_heading_deg: Option<f64>,
+    accel_dev_mps2: f64,
+    accel_activity_mps2: f64,
+    gyro_activity_dps: f64,
+}
+
+impl From<FuzzyEstimateV1> for FuzzyEstimate {
+    fn from(v: FuzzyEstimateV1) -> FuzzyEstimate {
+        FuzzyEstimate {
+            motion: v.motion,
+            static_degree: v.static_degree,
+            pitch_deg: v.pitch_deg,
+            roll_deg: v.roll_deg,
+            heading_deg: v.heading_deg,
+            gyro_bias_dps: v.gyro_bias_dps,
+            aligned: v.aligned,
+            mag_calibration: v.mag_calibration,
+            mag_coverage_deg: v.mag_coverage_deg,
+            mag_fit_rms: v.mag_fit_rms,
+            mag_heading_deg: v.mag_heading_deg,
+            accel_dev_mps2: v.accel_dev_mps2,
+            accel_activity_mps2: v.accel_activity_mps2,
+            gyro_activity_dps: v.gyro_activity_dps,
+            gyro_bias_sigma_dps: None,
+            mag_disturbed: false,
+        }
+    }
+}
+
 /// The values `bytes` hold, for an estimate of `engine`.
 pub fn decode_values(engine: EngineKind, bytes: &[u8]) -> Result<EstimateValues, StoreError> {
     let corrupt =
@@ -160,7 +203,9 @@ pub fn decode_values(engine: EngineKind, bytes: &[u8]) -> Result<EstimateValues,
             .or_else(|_| postcard::from_bytes::<ZuptEstimateV1>(bytes).map(ZuptEstimate::from))
             .map(EstimateValues::Zupt)
             .map_err(corrupt),
+        // Estimates stored before `gyro_bias_sigma_dps` and `mag_disturbed` lack them.
         EngineKind::Fuzzy => postcard::from_bytes::<FuzzyEstimate>(bytes)
+            .or_else(|_| postcard::from_bytes::<FuzzyEstimateV1>(bytes).map(FuzzyEstimate::from))
             .map(EstimateValues::Fuzzy)
             .map_err(corrupt),
     }

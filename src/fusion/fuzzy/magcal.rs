@@ -30,8 +30,25 @@
 //! most 0.1° more tilted, so a vehicle that later drives on grades keeps
 //! the most level samples it has seen.
 //!
-//! A fit whose residual RMS (relative radius) exceeds 10 % is refused and
-//! the previous calibration kept.
+//! A candidate fit is accepted only if it passes every gate (issue 18:
+//! a still sensor once "covered" 360° of noise and fitted a sphere to it):
+//! - **coverage measured honestly**: a sample is binned only when it lies
+//!   at least `MIN_RADIUS_UT` from the centre, so the noise of a still
+//!   sensor around the middle of its own extremes covers nothing;
+//! - **plausible field**: the corrected field's mean magnitude (horizontal
+//!   for a planar fit) lies in the range of the Earth's field;
+//! - **directions really spread**: the corrected directions span at least
+//!   90° (360° less the widest gap between their azimuths in the body x–y
+//!   plane for a planar fit; about each of the three principal axes of
+//!   their second moment for a full one), so a fit over a narrow arc,
+//!   band or cap of directions is refused, however dense;
+//! - **residual**: RMS of the relative radius error over the fitted
+//!   samples ≤ 10 %;
+//! - **held-back samples**: every `HOLDOUT_EVERY`-th reading is kept out of
+//!   the fit in a ring of the newest `HOLDOUT_SAMPLES`; the candidate's
+//!   relative radius spread on them must not exceed that of the current
+//!   correction (the raw field before the first fit): a new calibration is
+//!   never worse than the previous one on recent data.
 
 use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, Vector2};
 use serde::{Deserialize, Serialize};
@@ -49,6 +66,25 @@ const MAX_FIT_RMS: f64 = 0.1;
 const LEVEL_SLACK_RAD: f64 = 0.001_745;
 /// Samples kept for the fit.
 const MAX_SAMPLES: usize = 512;
+/// A sample nearer the binning centre than this says nothing of a
+/// direction (the noise of a still sensor around the middle of its own
+/// extremes), µT: ten times a MEMS magnetometer's noise, a third of the
+/// weakest horizontal Earth's field at tunnelling latitudes.
+const MIN_RADIUS_UT: f64 = 5.0;
+/// The Earth's field is 22–67 µT everywhere; a fit whose corrected field
+/// is far outside that (a tiny sphere around noise, a huge one from a
+/// degenerate quadric) is refused. The horizontal part can be small near
+/// the magnetic poles, hence the lower bound.
+const PLAUSIBLE_FIELD_UT: (f64, f64) = (5.0, 150.0);
+/// Field directions a fit must span, degrees (module documentation).
+const MIN_SPAN_DEG: f64 = 90.0;
+/// Every this many readings one is held back from the fit to check it.
+const HOLDOUT_EVERY: u64 = 4;
+/// Held-back readings kept (the newest).
+const HOLDOUT_SAMPLES: usize = 128;
+/// A candidate is accepted if its held-back spread is at most this much
+/// above the current correction's (noise alone can tip an equal pair).
+const HOLDOUT_SLACK: f64 = 1.02;
 
 /// How far the calibration has come.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -107,6 +143,15 @@ pub struct MagCalibration {
     binned_centre: V3,
     /// Samples binned since the last fit.
     since_fit: u32,
+    /// Readings held back from the fit to check candidates, newest last.
+    #[serde(default)]
+    holdout: std::collections::VecDeque<Sample>,
+    /// Readings offered, for choosing the held-back ones.
+    #[serde(default)]
+    offered: u64,
+    /// Candidate fits refused by a gate.
+    #[serde(default)]
+    refused: u64,
 }
 
 impl MagCalibration {
@@ -133,7 +178,15 @@ impl MagCalibration {
             correction: None,
             binned_centre: V3::zeros(),
             since_fit: 0,
+            holdout: std::collections::VecDeque::new(),
+            offered: 0,
+            refused: 0,
         }
+    }
+
+    /// Candidate fits refused by a gate (module documentation).
+    pub fn refused_fits(&self) -> u64 {
+        self.refused
     }
 
     /// The state reached.
@@ -182,6 +235,20 @@ impl MagCalibration {
     /// changed.
     pub fn add(&mut self, field_ut: V3, tilt_rad: f64) -> bool {
         if !field_ut.iter().all(|x| x.is_finite()) {
+            return false;
+        }
+        self.offered += 1;
+        if self.offered.is_multiple_of(HOLDOUT_EVERY) {
+            let tilt_rad = tilt_rad.abs();
+            self.holdout.push_back(Sample {
+                field_ut,
+                bin: 0,
+                level: tilt_rad <= self.level_tolerance_rad,
+                tilt_rad,
+            });
+            if self.holdout.len() > HOLDOUT_SAMPLES {
+                self.holdout.pop_front();
+            }
             return false;
         }
         self.min_ut = Some(self.min_ut.map_or(field_ut, |m| m.inf(&field_ut)));
@@ -239,7 +306,7 @@ impl MagCalibration {
     fn bin_of(&self, field_ut: &V3) -> Option<usize> {
         let d = field_ut - self.binned_centre;
         let norm = d.norm();
-        if norm <= 0.0 {
+        if norm < MIN_RADIUS_UT {
             return None;
         }
         let azimuth = d.y.atan2(d.x).rem_euclid(std::f64::consts::TAU);
@@ -272,15 +339,128 @@ impl MagCalibration {
         } else {
             return false;
         };
-        match fit {
-            Some(correction) if correction.fit_rms <= MAX_FIT_RMS => {
+        let planar = state == CalibrationState::Planar;
+        let accepted = fit.filter(|candidate| {
+            let fitted: Vec<V3> = self
+                .samples
+                .iter()
+                .filter(|s| s.level || !planar)
+                .map(|s| s.field_ut)
+                .collect();
+            candidate.fit_rms <= MAX_FIT_RMS
+                && plausible_field(candidate, &fitted, planar)
+                && direction_span_deg(candidate, &fitted, planar) >= MIN_SPAN_DEG
+                && self.beats_current_on_holdout(candidate, planar)
+        });
+        match accepted {
+            Some(correction) => {
                 self.correction = Some(correction);
                 self.state = state;
                 true
             }
-            _ => false,
+            None => {
+                self.refused += 1;
+                false
+            }
         }
     }
+
+    /// The held-back check of the module documentation; true when there
+    /// is nothing held back to judge by.
+    fn beats_current_on_holdout(&self, candidate: &Correction, planar: bool) -> bool {
+        let held: Vec<V3> = self
+            .holdout
+            .iter()
+            .filter(|s| s.level || !planar)
+            .map(|s| s.field_ut)
+            .collect();
+        if held.len() < 8 {
+            return true;
+        }
+        let spread = |c: Option<&Correction>| {
+            radius_rms(&held, |m| {
+                let v = c.map_or(*m, |c| c.apply(m));
+                if planar { v.xy().norm() } else { v.norm() }
+            })
+        };
+        spread(Some(candidate)) <= HOLDOUT_SLACK * spread(self.correction.as_ref())
+    }
+}
+
+/// True when the corrected field's mean magnitude (horizontal if planar)
+/// is one the Earth can have.
+fn plausible_field(c: &Correction, samples: &[V3], planar: bool) -> bool {
+    if samples.is_empty() {
+        return false;
+    }
+    let mean = samples
+        .iter()
+        .map(|m| {
+            let v = c.apply(m);
+            if planar { v.xy().norm() } else { v.norm() }
+        })
+        .sum::<f64>()
+        / samples.len() as f64;
+    (PLAUSIBLE_FIELD_UT.0..=PLAUSIBLE_FIELD_UT.1).contains(&mean)
+}
+
+/// The angle the corrected field directions span, degrees: in the body
+/// x–y plane if planar (360° less the widest azimuth gap); for a full
+/// fit the least such span about the three principal axes of the
+/// directions' second moment, so a narrow band or cap of directions,
+/// however densely sampled, spans little.
+pub fn direction_span_deg(c: &Correction, samples: &[V3], planar: bool) -> f64 {
+    let directions: Vec<V3> = samples
+        .iter()
+        .filter_map(|m| {
+            let mut v = c.apply(m);
+            if planar {
+                v.z = 0.0;
+            }
+            nalgebra::Unit::try_new(v, 1e-12).map(|u| u.into_inner())
+        })
+        .collect();
+    if directions.is_empty() {
+        return 0.0;
+    }
+    if planar {
+        return azimuth_span_deg(directions.iter().map(|u| (u.x, u.y)));
+    }
+    let moment = directions
+        .iter()
+        .fold(Matrix3::zeros(), |m, u| m + u * u.transpose());
+    let axes = nalgebra::SymmetricEigen::new(moment).eigenvectors;
+    (0..3)
+        .map(|k| {
+            let axis: V3 = axes.column(k).into_owned();
+            let e1 = axis
+                .cross(&if axis.x.abs() < 0.9 { V3::x() } else { V3::y() })
+                .normalize();
+            let e2 = axis.cross(&e1);
+            // Directions nearly along the axis have no azimuth about it.
+            azimuth_span_deg(
+                directions
+                    .iter()
+                    .filter(|u| u.dot(&axis).abs() < 0.95)
+                    .map(|u| (u.dot(&e1), u.dot(&e2))),
+            )
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
+/// 360° less the widest gap between the azimuths of 2-D vectors, degrees.
+fn azimuth_span_deg(vectors: impl Iterator<Item = (f64, f64)>) -> f64 {
+    let mut azimuths: Vec<f64> = vectors.map(|(x, y)| y.atan2(x).to_degrees()).collect();
+    if azimuths.len() < 2 {
+        return 0.0;
+    }
+    azimuths.sort_by(f64::total_cmp);
+    let wrap = azimuths[0] + 360.0 - azimuths[azimuths.len() - 1];
+    let widest = azimuths
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .fold(wrap, f64::max);
+    360.0 - widest
 }
 
 /// A kept reading: the raw field, its direction bin, and whether it was
@@ -540,6 +720,47 @@ mod tests {
                 error.to_degrees()
             );
         }
+    }
+
+    #[test]
+    fn a_fit_over_less_than_90_degrees_of_directions_is_refused() {
+        let (a, b) = distortion();
+        let earth = V3::new(20.0, 1.0, 44.0);
+        // Coverage asked of the bins: only 10°, so the gates must refuse.
+        let mut calibration = MagCalibration::new(10.0, 1.1, 0.03, 5);
+        for i in 0..2000 {
+            // A slow swing over 80° of heading, back and forth.
+            let yaw = (40.0 * (f64::from(i) * 0.01).sin()).to_radians();
+            let attitude = UnitQuaternion::from_euler_angles(0.0, 0.0, yaw);
+            calibration.add(a * (attitude.inverse() * earth) + b, 0.0);
+        }
+        assert_eq!(calibration.state(), CalibrationState::Collecting);
+        assert!(calibration.refused_fits() > 0);
+        // The same swing over 120° passes the direction gate.
+        let mut wide = MagCalibration::new(10.0, 1.1, 0.03, 5);
+        for i in 0..2000 {
+            let yaw = (60.0 * (f64::from(i) * 0.01).sin()).to_radians();
+            let attitude = UnitQuaternion::from_euler_angles(0.0, 0.0, yaw);
+            wide.add(a * (attitude.inverse() * earth) + b, 0.0);
+        }
+        assert_eq!(wide.state(), CalibrationState::Planar);
+    }
+
+    #[test]
+    fn a_still_sensor_covers_nothing_whatever_its_noise() {
+        let mut calibration = MagCalibration::new(300.0, 1.0, 0.03, 10);
+        let mut x = 0.3_f64;
+        for _ in 0..5000 {
+            let mut noise = || {
+                x = (x * 997.0 + 0.123_456_7).fract();
+                2.0 * (x - 0.5)
+            };
+            // ±1 µT of noise on each axis (a noisy MEMS magnetometer).
+            let field = V3::new(20.0 + noise(), 1.0 + noise(), 44.0 + noise());
+            calibration.add(field, 0.0);
+        }
+        assert_eq!(calibration.coverage_deg(), 0.0);
+        assert_eq!(calibration.state(), CalibrationState::Collecting);
     }
 
     #[test]

@@ -5,54 +5,84 @@
 //!
 //! Per IMU reading:
 //! 1. the reading enters a short trailing window ([`motion::MotionWindow`]);
-//!    its three signals go through the Mamdani rule base
-//!    ([`motion::motion_expert`], [`mamdani`]) to a static degree s ∈ [0, 1];
-//!    `motion` is `static` when s ≥ `static_threshold`;
+//!    the window's spreads teach the sensors' noise floor
+//!    ([`noise_floor`]); the expert's three signals, each divided by its
+//!    floor, go through the Mamdani rule base ([`motion::motion_expert`],
+//!    [`mamdani`]) to a static degree s ∈ [0, 1]; `motion` is `static`
+//!    when s ≥ `static_threshold`. No threshold is in sensor units;
 //! 2. the attitude quaternion integrates the bias-compensated gyro
-//!    ([`orientation::integrate`]), always;
-//! 3. it is then pulled towards the static references in proportion to s:
-//!    roll/pitch towards the accelerometer tilt of the window (gain
-//!    s·dt/`tilt_time_constant_s`), heading towards the calibrated,
-//!    tilt-compensated compass (gain s·dt/`heading_time_constant_s`). At
-//!    s = 0 this is pure gyro integration, at s = 1 a first-order lag onto
-//!    the static references: the attitude is continuous whatever s does;
-//! 4. where s exceeds `static_threshold`, the gyro bias and the static
-//!    norm of the specific force are re-estimated (first-order lags with
-//!    gain w·dt/τ, w rising from 0 at the threshold to 1 at s = 1).
+//!    ([`orientation::integrate`]), always; the bias's variance grows as
+//!    a random walk ([`gyro_bias`]);
+//! 3. roll and pitch are corrected towards the accelerometer over the
+//!    older half of the window ([`tilt`]): with gain s·dt/`tilt_time_constant_s`
+//!    while static, and while moving with gain
+//!    (1 − s)·w·dt/`tilt_moving_time_constant_s`, w the gate that refuses
+//!    a force that is not gravity; heading is pulled towards the
+//!    calibrated, tilt-compensated compass likewise (gains
+//!    s·dt/`heading_time_constant_s` and (1 − s)·dt/`heading_moving_time_constant_s`)
+//!    unless the field is disturbed ([`disturbance`]);
+//! 4. where s exceeds `static_threshold`, the reading updates the gyro
+//!    bias's Kalman filter with weight (s − threshold)/(1 − threshold),
+//!    and the accelerometer's static norm follows it.
 //!
-//! The first full window that is quiet (specific-force spread and rate
-//! spread under their `still` breakpoints) aligns the engine: tilt from
-//! its mean force, gyro bias from its mean rate, heading from the
-//! compass. Magnetometer readings feed the calibration
-//! ([`magcal::MagCalibration`]); the newest is used for heading while it
-//! is younger than `max_mag_age_s`. Until the calibration exists, heading
-//! is the uncalibrated compass at alignment carried on by the gyros.
+//! The first full window that is quiet against the floor (and plausible
+//! for a sensor at rest) aligns the engine: tilt from its mean force,
+//! gyro bias from its mean rate, heading from the compass. Magnetometer
+//! readings feed the calibration ([`magcal::MagCalibration`]); the newest
+//! is used for heading while it is younger than `max_mag_age_s`. Until the
+//! calibration exists, heading is the uncalibrated compass at alignment
+//! carried on by the gyros.
 //!
 //! The Earth's rotation (≤ 0.0042 °/s) is below a MEMS gyro's noise and is
 //! absorbed into the estimated bias while static.
 
+pub mod disturbance;
+pub mod gyro_bias;
 pub mod magcal;
 pub mod mamdani;
 pub mod motion;
+pub mod noise_floor;
 pub mod orientation;
+pub mod tilt;
 
 use nalgebra::UnitQuaternion;
 use serde::{Deserialize, Serialize};
 
-use self::magcal::MagCalibration;
+use self::disturbance::{DisturbanceDetector, Tolerances};
+use self::gyro_bias::GyroBias;
+use self::magcal::{CalibrationState, MagCalibration};
 use self::mamdani::{Mamdani, Scratch};
 use self::motion::{Breakpoints, MotionConfig, MotionSignals, MotionWindow};
-use self::orientation::{integrate, magnetic_heading, pull_heading, pull_tilt, tilt_from_accel};
+use self::noise_floor::NoiseFloor;
+use self::orientation::{integrate, magnetic_heading, pull_heading, tilt_from_accel};
+use self::tilt::TiltWindow;
 use super::angles::{deg, rad};
 use super::estimate::{EngineOutput, EstimateValues, FuzzyEstimate, Motion};
-use super::params::{ParamError, ParamSpec, Params, integer, real};
+use super::params::{ParamError, ParamSpec, Params, Retired, integer, real};
 use super::reading::{Reading, SensorData};
 use super::zupt::strapdown::{V3, attitude_from_euler};
 use super::{Engine, EngineKind, SnapshotError};
 
-/// The `fuzzy` engine's parameters. Breakpoints suit a vehicle-mounted
-/// MEMS IMU at 100 Hz (noise ~0.02 m/s² and ~0.05 °/s per sample) whose
-/// motion shakes it (README: how to tune).
+/// Version of the engine's snapshot; a snapshot of another is outdated
+/// and the server rebuilds the engine from the stored readings.
+pub const STATE_VERSION: u32 = 2;
+
+/// Plausibility caps for alignment, whatever the floor says: a MEMS
+/// sensor at rest shows less spread and less mean rate than this (a
+/// sensor that moved from its first reading on has a high "floor" too).
+const ALIGN_MAX_ACCEL_SPREAD_MPS2: f64 = 0.5;
+const ALIGN_MAX_RATE_SPREAD_RAD_PER_S: f64 = 0.035; // 2 °/s
+const ALIGN_MAX_MEAN_RATE_RAD_PER_S: f64 = 0.087; // 5 °/s: no MEMS bias is larger
+const ALIGN_MAX_GRAVITY_ERROR_MPS2: f64 = 1.0;
+/// Time constant of the static ‖f‖ learnt while static, s: it changes
+/// only with temperature.
+const GRAVITY_TIME_CONSTANT_S: f64 = 5.0;
+/// The smallest floor used as a divisor (far below any sensor's noise).
+const MIN_FLOOR: f64 = 1e-9;
+
+/// The `fuzzy` engine's parameters. No threshold is in sensor units: the
+/// expert's breakpoints are multiples of the noise floor learnt at rest
+/// (README: how to tune).
 pub const PARAMS: &[ParamSpec] = &[
     real(
         "declination_deg",
@@ -67,55 +97,63 @@ pub const PARAMS: &[ParamSpec] = &[
         50,
         2,
         10_000,
-        "IMU readings in the motion expert's trailing window",
+        "IMU readings in the motion expert's trailing window (about half a second)",
     ),
     real(
-        "accel_dev_still_mps2",
-        0.05,
-        0.0,
-        100.0,
-        "m/s²",
-        "deviation of the window's mean ‖f‖ from g below this is fully `low`",
-    ),
-    real(
-        "accel_dev_moving_mps2",
-        0.3,
-        0.0,
-        100.0,
-        "m/s²",
-        "deviation of the window's mean ‖f‖ from g above this is fully `high`",
-    ),
-    real(
-        "accel_activity_still_mps2",
-        0.06,
-        0.0,
-        100.0,
-        "m/s²",
-        "specific-force spread below this is fully `low`",
-    ),
-    real(
-        "accel_activity_moving_mps2",
-        0.2,
-        0.0,
-        100.0,
-        "m/s²",
-        "specific-force spread above this is fully `high`",
-    ),
-    real(
-        "gyro_activity_still_dps",
-        0.25,
+        "accel_dev_still_factor",
+        1.5,
         0.0,
         1000.0,
-        "deg/s",
-        "bias-compensated rate RMS below this is fully `low`",
+        "× floor",
+        "|mean ‖f‖ − g| below this many accelerometer floors is fully `low`",
     ),
     real(
-        "gyro_activity_moving_dps",
+        "accel_dev_moving_factor",
+        8.0,
+        0.0,
+        1000.0,
+        "× floor",
+        "|mean ‖f‖ − g| above this many accelerometer floors is fully `high`",
+    ),
+    real(
+        "accel_activity_still_factor",
+        1.8,
+        0.0,
+        1000.0,
+        "× floor",
+        "specific-force spread below this many accelerometer floors is fully `low`",
+    ),
+    real(
+        "accel_activity_moving_factor",
+        6.0,
+        0.0,
+        1000.0,
+        "× floor",
+        "specific-force spread above this many accelerometer floors is fully `high`",
+    ),
+    real(
+        "gyro_activity_still_factor",
+        3.0,
+        0.0,
+        1000.0,
+        "× floor",
+        "bias-compensated rate RMS below this many gyro floors is fully `low`",
+    ),
+    real(
+        "gyro_activity_moving_factor",
+        12.0,
+        0.0,
+        1000.0,
+        "× floor",
+        "bias-compensated rate RMS above this many gyro floors is fully `high`",
+    ),
+    real(
+        "noise_floor_rise_s",
+        300.0,
         1.0,
-        0.0,
-        1000.0,
-        "deg/s",
-        "bias-compensated rate RMS above this is fully `high`",
+        1.0e6,
+        "s",
+        "the learnt noise floors rise e-fold in this time of louder windows (and fall 99× faster)",
     ),
     integer(
         "defuzzification_points",
@@ -141,6 +179,22 @@ pub const PARAMS: &[ParamSpec] = &[
         "time constant of the pull towards the accelerometer tilt when fully static",
     ),
     real(
+        "tilt_moving_time_constant_s",
+        30.0,
+        0.001,
+        1.0e6,
+        "s",
+        "time constant of the gated pull towards the accelerometer tilt while moving",
+    ),
+    real(
+        "tilt_gate_deg",
+        0.5,
+        0.0,
+        90.0,
+        "deg",
+        "while moving, the accelerometer counts fully when it disagrees with the gyro tilt by less than this (g·sin), not at all beyond twice it",
+    ),
+    real(
         "heading_time_constant_s",
         2.0,
         0.001,
@@ -149,12 +203,36 @@ pub const PARAMS: &[ParamSpec] = &[
         "time constant of the pull towards the compass heading when fully static",
     ),
     real(
-        "bias_time_constant_s",
-        5.0,
+        "heading_moving_time_constant_s",
+        30.0,
         0.001,
         1.0e6,
         "s",
-        "time constant of the gyro-bias (and static g) re-estimation when fully static",
+        "time constant of the pull towards the compass heading while moving",
+    ),
+    real(
+        "heading_gate_deg",
+        4.0,
+        0.0,
+        180.0,
+        "deg",
+        "a compass heading further than this from the gyro-carried one is not used (a disturbance the field's magnitude and dip do not show)",
+    ),
+    real(
+        "heading_gate_s",
+        60.0,
+        0.0,
+        1.0e6,
+        "s",
+        "a compass that disagrees beyond the gate for this long is believed again (the heading was wrong, not the compass)",
+    ),
+    real(
+        "gyro_bias_walk_dps_per_sqrt_s",
+        0.002,
+        0.0,
+        10.0,
+        "deg/s/√s",
+        "random walk of the gyro bias between stops (its variance grows by the square of this per second)",
     ),
     real(
         "mag_min_coverage_deg",
@@ -170,7 +248,7 @@ pub const PARAMS: &[ParamSpec] = &[
         -89.0,
         89.0,
         "deg",
-        "inclination of the Earth's field at the site, down positive (sizes the vertical of a planar calibration)",
+        "inclination of the Earth's field at the site, down positive (sizes the vertical of a planar calibration; first dip reference)",
     ),
     real(
         "mag_level_tolerance_deg",
@@ -186,6 +264,22 @@ pub const PARAMS: &[ParamSpec] = &[
         1,
         1_000_000,
         "refit the calibration every this many magnetometer readings",
+    ),
+    real(
+        "mag_disturbance_magnitude",
+        0.06,
+        0.0,
+        10.0,
+        "",
+        "a calibrated field whose magnitude departs from the site's by more than this fraction is disturbed",
+    ),
+    real(
+        "mag_disturbance_dip_deg",
+        4.0,
+        0.0,
+        90.0,
+        "deg",
+        "a calibrated field whose dip departs from the site's by more than this is disturbed",
     ),
     real(
         "max_mag_age_s",
@@ -205,20 +299,63 @@ pub const PARAMS: &[ParamSpec] = &[
     ),
 ];
 
+/// Parameters of earlier releases: a stored machine that has them loads
+/// without them; a new declaration that names one is refused saying why.
+pub const RETIRED: &[Retired] = &[
+    Retired {
+        name: "accel_dev_still_mps2",
+        reason: "thresholds are now multiples of the noise floor learnt at rest: use accel_dev_still_factor",
+    },
+    Retired {
+        name: "accel_dev_moving_mps2",
+        reason: "thresholds are now multiples of the noise floor learnt at rest: use accel_dev_moving_factor",
+    },
+    Retired {
+        name: "accel_activity_still_mps2",
+        reason: "thresholds are now multiples of the noise floor learnt at rest: use accel_activity_still_factor",
+    },
+    Retired {
+        name: "accel_activity_moving_mps2",
+        reason: "thresholds are now multiples of the noise floor learnt at rest: use accel_activity_moving_factor",
+    },
+    Retired {
+        name: "gyro_activity_still_dps",
+        reason: "thresholds are now multiples of the noise floor learnt at rest: use gyro_activity_still_factor",
+    },
+    Retired {
+        name: "gyro_activity_moving_dps",
+        reason: "thresholds are now multiples of the noise floor learnt at rest: use gyro_activity_moving_factor",
+    },
+    Retired {
+        name: "bias_time_constant_s",
+        reason: "the gyro bias is now a Kalman filter of a random walk: use gyro_bias_walk_dps_per_sqrt_s",
+    },
+];
+
 /// The engine's parameters in working units (SI, radians).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct FuzzyConfig {
     pub declination_rad: f64,
     pub window_samples: usize,
+    /// Breakpoints as multiples of the noise floors.
     pub motion: MotionConfig,
+    pub floor_rise_s: f64,
     pub static_threshold: f64,
     pub tilt_time_constant_s: f64,
+    pub tilt_moving_time_constant_s: f64,
+    /// g·sin(`tilt_gate_deg`) for g = 9.81 m/s², m/s².
+    pub tilt_gate_mps2: f64,
     pub heading_time_constant_s: f64,
-    pub bias_time_constant_s: f64,
+    pub heading_moving_time_constant_s: f64,
+    pub heading_gate_rad: f64,
+    pub heading_gate_s: f64,
+    /// q of the bias random walk, rad²/s³.
+    pub bias_walk_density: f64,
     pub mag_min_coverage_deg: f64,
     pub mag_inclination_rad: f64,
     pub mag_level_tolerance_rad: f64,
     pub mag_refit_every: u32,
+    pub mag_disturbance: Tolerances,
     pub max_mag_age_s: f64,
     pub max_imu_gap_s: f64,
 }
@@ -243,31 +380,42 @@ fn breakpoints(
 impl FuzzyConfig {
     /// Converts validated parameters; degrees become radians here.
     pub fn from_params(p: &Params) -> Result<FuzzyConfig, ParamError> {
-        let gyro = breakpoints(p, "gyro_activity_still_dps", "gyro_activity_moving_dps")?;
+        let walk = rad(p.real("gyro_bias_walk_dps_per_sqrt_s")?);
         Ok(FuzzyConfig {
             declination_rad: rad(p.real("declination_deg")?),
             window_samples: p.integer("window_samples")? as usize,
             motion: MotionConfig {
-                accel_dev_mps2: breakpoints(p, "accel_dev_still_mps2", "accel_dev_moving_mps2")?,
-                accel_activity_mps2: breakpoints(
+                accel_dev: breakpoints(p, "accel_dev_still_factor", "accel_dev_moving_factor")?,
+                accel_activity: breakpoints(
                     p,
-                    "accel_activity_still_mps2",
-                    "accel_activity_moving_mps2",
+                    "accel_activity_still_factor",
+                    "accel_activity_moving_factor",
                 )?,
-                gyro_activity_rad_per_s: Breakpoints {
-                    still: rad(gyro.still),
-                    moving: rad(gyro.moving),
-                },
+                gyro_activity: breakpoints(
+                    p,
+                    "gyro_activity_still_factor",
+                    "gyro_activity_moving_factor",
+                )?,
                 resolution: p.integer("defuzzification_points")? as usize,
             },
+            floor_rise_s: p.real("noise_floor_rise_s")?,
             static_threshold: p.real("static_threshold")?,
             tilt_time_constant_s: p.real("tilt_time_constant_s")?,
+            tilt_moving_time_constant_s: p.real("tilt_moving_time_constant_s")?,
+            tilt_gate_mps2: 9.81 * rad(p.real("tilt_gate_deg")?).sin(),
             heading_time_constant_s: p.real("heading_time_constant_s")?,
-            bias_time_constant_s: p.real("bias_time_constant_s")?,
+            heading_moving_time_constant_s: p.real("heading_moving_time_constant_s")?,
+            heading_gate_rad: rad(p.real("heading_gate_deg")?),
+            heading_gate_s: p.real("heading_gate_s")?,
+            bias_walk_density: walk * walk,
             mag_min_coverage_deg: p.real("mag_min_coverage_deg")?,
             mag_inclination_rad: rad(p.real("mag_inclination_deg")?),
             mag_level_tolerance_rad: rad(p.real("mag_level_tolerance_deg")?),
             mag_refit_every: p.integer("mag_refit_every")? as u32,
+            mag_disturbance: Tolerances {
+                magnitude: p.real("mag_disturbance_magnitude")?,
+                dip_rad: rad(p.real("mag_disturbance_dip_deg")?),
+            },
             max_mag_age_s: p.real("max_mag_age_s")?,
             max_imu_gap_s: p.real("max_imu_gap_s")?,
         })
@@ -285,42 +433,52 @@ pub struct FuzzyStats {
     pub mag_used: u64,
     /// Calibration fits accepted.
     pub mag_fits: u64,
+    /// Magnetometer readings found disturbed (not used).
+    pub mag_disturbed: u64,
     /// Times the attitude became non-finite and alignment started again.
     pub resets: u64,
 }
 
 /// The attitude solution once aligned.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 struct Solution {
     attitude: UnitQuaternion<f64>,
-    gyro_bias_rad_per_s: V3,
+    gyro_bias: GyroBias,
     /// ‖f‖ at rest as this accelerometer reads it, m/s².
     static_gravity_mps2: f64,
     /// The previous bias-compensated rate (trapezoidal integration).
     previous_rate_rad_per_s: Option<V3>,
+    /// Measured and predicted forces over the window.
+    tilt_window: TiltWindow,
 }
 
 /// The `fuzzy` engine; see the module documentation.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct FuzzyEngine {
+    /// [`STATE_VERSION`] when the snapshot was taken.
+    state_version: u32,
     params: Params,
     #[serde(skip_serializing, default = "placeholder_config")]
     config: FuzzyConfig,
     #[serde(skip_serializing, default = "placeholder_expert")]
     expert: Mamdani,
     window: MotionWindow,
+    floor: NoiseFloor,
     newest_imu_t: Option<f64>,
     solution: Option<Solution>,
     calibration: MagCalibration,
+    disturbance: DisturbanceDetector,
     /// The newest magnetometer reading: time and raw field, µT.
     magnetometer: Option<(f64, V3)>,
     /// True heading (rad) from the newest magnetometer reading, calibrated
     /// and tilt-compensated with the tilt at its time; `None` before the
-    /// calibration.
+    /// calibration and while the field is disturbed.
     compass: Option<(f64, f64)>,
     stats: FuzzyStats,
     /// Set by the first calibration: take the heading from the compass.
     reheading: bool,
+    /// Since when the compass has disagreed with the heading beyond the gate.
+    compass_gated_since: Option<f64>,
     #[serde(skip)]
     scratch: Scratch,
 }
@@ -341,10 +499,12 @@ impl FuzzyEngine {
         let expert = motion::motion_expert(&config.motion)
             .map_err(|e| ParamError::Inconsistent(format!("motion rule base: {e}")))?;
         Ok(FuzzyEngine {
+            state_version: STATE_VERSION,
             params,
             config,
             expert,
             window: MotionWindow::new(config.window_samples),
+            floor: NoiseFloor::default(),
             newest_imu_t: None,
             solution: None,
             calibration: MagCalibration::new(
@@ -353,10 +513,12 @@ impl FuzzyEngine {
                 config.mag_level_tolerance_rad,
                 config.mag_refit_every,
             ),
+            disturbance: DisturbanceDetector::new(config.mag_inclination_rad),
             magnetometer: None,
             compass: None,
             stats: FuzzyStats::default(),
             reheading: false,
+            compass_gated_since: None,
             scratch: Scratch::default(),
         })
     }
@@ -366,10 +528,12 @@ impl FuzzyEngine {
         FuzzyEngine::new(Params::defaults(PARAMS)).expect("default parameters are valid")
     }
 
-    /// Continues from a snapshot taken by [`Engine::snapshot`].
+    /// Continues from a snapshot taken by [`Engine::snapshot`]. A snapshot
+    /// of another [`STATE_VERSION`] is refused as outdated.
     pub fn restore(snapshot: serde_json::Value) -> Result<FuzzyEngine, SnapshotError> {
+        SnapshotError::check_version(EngineKind::Fuzzy, &snapshot, STATE_VERSION)?;
         let engine: FuzzyEngine = SnapshotError::parse(EngineKind::Fuzzy, snapshot)?;
-        let params = engine.params.revalidated(PARAMS)?;
+        let params = engine.params.upgraded(PARAMS, RETIRED)?;
         let mut fresh = FuzzyEngine::new(params)?;
         if engine.window.capacity() != fresh.config.window_samples {
             return Err(SnapshotError::Invalid(
@@ -377,13 +541,16 @@ impl FuzzyEngine {
             ));
         }
         fresh.window = engine.window;
+        fresh.floor = engine.floor;
         fresh.newest_imu_t = engine.newest_imu_t;
         fresh.solution = engine.solution;
         fresh.calibration = engine.calibration;
+        fresh.disturbance = engine.disturbance;
         fresh.magnetometer = engine.magnetometer;
         fresh.compass = engine.compass;
         fresh.stats = engine.stats;
         fresh.reheading = engine.reheading;
+        fresh.compass_gated_since = engine.compass_gated_since;
         Ok(fresh)
     }
 
@@ -402,33 +569,63 @@ impl FuzzyEngine {
         &self.calibration
     }
 
-    fn feed_magnetometer(&mut self, t: f64, field_ut: V3) {
-        self.stats.mag_used += 1;
-        let (roll, pitch) = match &self.solution {
+    /// The learnt noise floors: accelerometer spread (m/s²) and gyro
+    /// spread (rad/s) at rest, once seen.
+    pub fn noise_floors(&self) -> (Option<f64>, Option<f64>) {
+        (self.floor.accel.level(), self.floor.gyro.level())
+    }
+
+    /// Roll and pitch (rad) as best known now.
+    fn current_tilt(&self) -> (f64, f64) {
+        match &self.solution {
             Some(s) => {
                 let (roll, pitch, _) = s.attitude.euler_angles();
                 (roll, pitch)
             }
             None => tilt_from_accel(&self.window.mean_force()),
-        };
-        let was_calibrated = self.calibration.correction().is_some();
-        if self.calibration.add(field_ut, roll.abs().max(pitch.abs())) {
-            self.stats.mag_fits += 1;
-            // The heading so far rests on the raw compass at alignment:
-            // the first calibration replaces it at the next IMU reading.
-            if !was_calibrated {
-                self.reheading = true;
+        }
+    }
+
+    fn feed_magnetometer(&mut self, t: f64, field_ut: V3) {
+        self.stats.mag_used += 1;
+        let (roll, pitch) = self.current_tilt();
+        // A disturbed reading neither steers nor calibrates.
+        let disturbed = self.calibration.correction().is_some_and(|c| {
+            let level = attitude_from_euler(roll, pitch, 0.0) * c.apply(&field_ut);
+            self.disturbance.observe(
+                t,
+                &level,
+                self.calibration.state() == CalibrationState::Planar,
+                &self.config.mag_disturbance,
+            )
+        });
+        if disturbed {
+            self.stats.mag_disturbed += 1;
+        } else {
+            let was_calibrated = self.calibration.correction().is_some();
+            if self.calibration.add(field_ut, roll.abs().max(pitch.abs())) {
+                self.stats.mag_fits += 1;
+                // The heading so far rests on the raw compass at alignment:
+                // the first calibration replaces it at the next IMU reading.
+                if !was_calibrated {
+                    self.reheading = true;
+                }
+                self.disturbance = DisturbanceDetector::new(self.config.mag_inclination_rad);
             }
         }
         if self.magnetometer.is_none_or(|(newest, _)| t >= newest) {
             self.magnetometer = Some((t, field_ut));
-            self.compass = self.calibration.correction().map(|c| {
-                (
-                    t,
-                    magnetic_heading(&c.apply(&field_ut), roll, pitch)
-                        + self.config.declination_rad,
-                )
-            });
+            self.compass = if disturbed {
+                None
+            } else {
+                self.calibration.correction().map(|c| {
+                    (
+                        t,
+                        magnetic_heading(&c.apply(&field_ut), roll, pitch)
+                            + self.config.declination_rad,
+                    )
+                })
+            };
         }
     }
 
@@ -453,6 +650,28 @@ impl FuzzyEngine {
         Some(magnetic_heading(&corrected, roll, pitch) + self.config.declination_rad)
     }
 
+    /// The expert's inputs as multiples of the floors (the floor of a
+    /// signal not yet seen is the signal itself: ratio 1).
+    fn relative_signals(&self, signals: &MotionSignals) -> MotionSignals {
+        let accel = self
+            .floor
+            .accel
+            .level()
+            .unwrap_or(signals.accel_activity_mps2)
+            .max(MIN_FLOOR);
+        let gyro = self
+            .floor
+            .gyro
+            .level()
+            .unwrap_or(self.window.rate_spread())
+            .max(MIN_FLOOR);
+        MotionSignals {
+            accel_dev_mps2: signals.accel_dev_mps2 / accel,
+            accel_activity_mps2: signals.accel_activity_mps2 / accel,
+            gyro_activity_rad_per_s: signals.gyro_activity_rad_per_s / gyro,
+        }
+    }
+
     fn feed_imu(&mut self, t: f64, force: V3, rate: V3, out: &mut Vec<EngineOutput>) {
         let dt_s = match self.newest_imu_t {
             Some(newest) if t <= newest => {
@@ -472,60 +691,95 @@ impl FuzzyEngine {
             self.window.clear();
             if let Some(solution) = &mut self.solution {
                 solution.previous_rate_rad_per_s = None;
+                solution.tilt_window.clear();
             }
         }
         self.window.push(force, rate);
+        if self.window.is_full() {
+            let spread = self
+                .window
+                .signals(self.window.mean_force_norm(), &V3::zeros());
+            let rise = self.config.floor_rise_s;
+            self.floor
+                .accel
+                .observe(t, spread.accel_activity_mps2, rise);
+            self.floor.gyro.observe(t, self.window.rate_spread(), rise);
+        }
 
         if self.solution.is_none() {
             self.try_align(t);
         }
         let (bias, gravity) = match &self.solution {
-            Some(s) => (s.gyro_bias_rad_per_s, s.static_gravity_mps2),
+            Some(s) => (s.gyro_bias.bias_rad_per_s, s.static_gravity_mps2),
             None => (V3::zeros(), self.window.mean_force_norm()),
         };
         let signals = self.window.signals(gravity, &bias);
+        let relative = self.relative_signals(&signals);
         let static_degree =
-            motion::static_degree(&self.expert, &signals, &mut self.scratch).unwrap_or(0.0);
+            motion::static_degree(&self.expert, &relative, &mut self.scratch).unwrap_or(0.0);
 
-        if continuous && let Some(solution) = self.solution {
-            let updated = self.advance(solution, t, dt_s, force, rate, static_degree);
+        if continuous && let Some(solution) = self.solution.take() {
+            let updated = self.advance(solution, dt_s, force, rate, static_degree);
+            let mut updated = updated;
+            self.steer_heading(&mut updated, t, dt_s, static_degree);
             let finite = updated.attitude.coords.iter().all(|x| x.is_finite())
-                && updated.gyro_bias_rad_per_s.iter().all(|x| x.is_finite());
+                && updated
+                    .gyro_bias
+                    .bias_rad_per_s
+                    .iter()
+                    .all(|x| x.is_finite())
+                && updated.gyro_bias.variance.iter().all(|x| x.is_finite());
             if finite {
                 self.solution = Some(updated);
-                if self.fresh_compass(t).is_some() {
-                    self.reheading = false;
-                }
             } else {
                 self.stats.resets += 1;
-                self.solution = None;
                 self.window.clear();
             }
         }
         out.push(self.estimate(t, static_degree, &signals));
     }
 
-    /// Aligns on a quiet full window.
+    /// Aligns on a quiet, plausible full window.
     fn try_align(&mut self, t: f64) {
-        let m = &self.config.motion;
         if !self.window.is_full() {
             return;
         }
-        let signals = self
+        let m = &self.config.motion;
+        let spread = self
             .window
-            .signals(self.window.mean_force_norm(), &V3::zeros());
-        if signals.accel_activity_mps2 >= m.accel_activity_mps2.still
-            || self.window.rate_spread() >= m.gyro_activity_rad_per_s.still
-        {
+            .signals(self.window.mean_force_norm(), &V3::zeros())
+            .accel_activity_mps2;
+        let rate_spread = self.window.rate_spread();
+        let mean_rate = self.window.mean_rate();
+        let (Some(accel_floor), Some(gyro_floor)) =
+            (self.floor.accel.level(), self.floor.gyro.level())
+        else {
+            return;
+        };
+        let quiet = spread <= m.accel_activity.still * accel_floor
+            && rate_spread <= m.gyro_activity.still * gyro_floor;
+        let plausible = spread <= ALIGN_MAX_ACCEL_SPREAD_MPS2
+            && rate_spread <= ALIGN_MAX_RATE_SPREAD_RAD_PER_S
+            && mean_rate.norm() <= ALIGN_MAX_MEAN_RATE_RAD_PER_S
+            && (self.window.mean_force_norm() - 9.81).abs() <= ALIGN_MAX_GRAVITY_ERROR_MPS2;
+        if !(quiet && plausible) {
             return;
         }
         let (roll, pitch) = tilt_from_accel(&self.window.mean_force());
         let yaw = self.any_compass_heading(t, roll, pitch).unwrap_or(0.0);
+        // This window is quiet: the floors are at most its spreads.
+        self.floor.accel.lower_to(spread);
+        self.floor.gyro.lower_to(rate_spread);
+        // The mean of the window's rates, each with the per-axis noise
+        // variance (spread²/3): variance spread²/(3N).
+        let n = self.window.len() as f64;
+        let bias_variance = (rate_spread * rate_spread / 3.0 / n).max(MIN_FLOOR * MIN_FLOOR);
         self.solution = Some(Solution {
             attitude: attitude_from_euler(roll, pitch, yaw),
-            gyro_bias_rad_per_s: self.window.mean_rate(),
+            gyro_bias: GyroBias::new(mean_rate, bias_variance),
             static_gravity_mps2: self.window.mean_force_norm(),
             previous_rate_rad_per_s: None,
+            tilt_window: TiltWindow::new(self.config.window_samples),
         });
     }
 
@@ -533,14 +787,14 @@ impl FuzzyEngine {
     fn advance(
         &self,
         mut solution: Solution,
-        t: f64,
         dt_s: f64,
         force: V3,
         rate: V3,
         static_degree: f64,
     ) -> Solution {
         let c = &self.config;
-        let compensated = rate - solution.gyro_bias_rad_per_s;
+        solution.gyro_bias.predict(dt_s, c.bias_walk_density);
+        let compensated = rate - solution.gyro_bias.bias_rad_per_s;
         let mean_rate = match solution.previous_rate_rad_per_s {
             Some(previous) => (previous + compensated) * 0.5,
             None => compensated,
@@ -548,24 +802,17 @@ impl FuzzyEngine {
         solution.attitude = integrate(&solution.attitude, &mean_rate, dt_s);
         solution.previous_rate_rad_per_s = Some(compensated);
 
-        if static_degree > 0.0 {
-            let (roll, pitch) = tilt_from_accel(&self.window.mean_force());
-            solution.attitude = pull_tilt(
-                &solution.attitude,
-                roll,
-                pitch,
-                static_degree * dt_s / c.tilt_time_constant_s,
-            );
-        }
-        if (static_degree > 0.0 || self.reheading)
-            && let Some(heading) = self.fresh_compass(t)
+        let predicted =
+            solution.attitude.inverse() * V3::new(0.0, 0.0, -solution.static_gravity_mps2);
+        solution.tilt_window.push(force, predicted);
+        if solution.tilt_window.is_full()
+            && let Some((measured, predicted)) = solution.tilt_window.older_means()
         {
-            let gain = if self.reheading {
-                1.0
-            } else {
-                static_degree * dt_s / c.heading_time_constant_s
-            };
-            solution.attitude = pull_heading(&solution.attitude, heading, gain);
+            let residual = (measured - predicted).norm();
+            let moving_weight = tilt::moving_weight(residual, c.tilt_gate_mps2);
+            let gain = static_degree * dt_s / c.tilt_time_constant_s
+                + (1.0 - static_degree) * moving_weight * dt_s / c.tilt_moving_time_constant_s;
+            solution.attitude = tilt::correct(&solution.attitude, &measured, &predicted, gain);
         }
 
         if static_degree > c.static_threshold {
@@ -574,20 +821,63 @@ impl FuzzyEngine {
             } else {
                 1.0
             };
-            let gain = (weight * dt_s / c.bias_time_constant_s).min(1.0);
-            solution.gyro_bias_rad_per_s += (rate - solution.gyro_bias_rad_per_s) * gain;
+            let gyro_floor = self.floor.gyro.level().unwrap_or(0.0);
+            // Per-axis noise variance: the floor is a norm over three axes.
+            let noise_variance = (gyro_floor * gyro_floor / 3.0).max(MIN_FLOOR * MIN_FLOOR);
+            solution.gyro_bias.update(&rate, noise_variance, weight);
+            let gain = (weight * dt_s / GRAVITY_TIME_CONSTANT_S).min(1.0);
             solution.static_gravity_mps2 += (force.norm() - solution.static_gravity_mps2) * gain;
         }
         solution
     }
 
+    /// Pulls the heading towards a fresh, undisturbed compass whose
+    /// heading is within the gate of the gyro-carried one (or has been
+    /// outside it for `heading_gate_s`); the first calibration takes the
+    /// compass whole.
+    fn steer_heading(&mut self, solution: &mut Solution, t: f64, dt_s: f64, static_degree: f64) {
+        let c = &self.config;
+        let Some(heading) = self.fresh_compass(t) else {
+            return;
+        };
+        let gain = if self.reheading {
+            self.reheading = false;
+            self.compass_gated_since = None;
+            1.0
+        } else {
+            let (_, _, yaw) = solution.attitude.euler_angles();
+            let innovation = orientation::angle_difference(heading, yaw).abs();
+            if innovation > c.heading_gate_rad {
+                let since = *self.compass_gated_since.get_or_insert(t);
+                if t - since < c.heading_gate_s {
+                    return;
+                }
+            } else {
+                self.compass_gated_since = None;
+            }
+            static_degree * dt_s / c.heading_time_constant_s
+                + (1.0 - static_degree) * dt_s / c.heading_moving_time_constant_s
+        };
+        solution.attitude = pull_heading(&solution.attitude, heading, gain);
+    }
+
     fn estimate(&self, t: f64, static_degree: f64, signals: &MotionSignals) -> EngineOutput {
-        let (attitude, bias, aligned) = match &self.solution {
-            Some(s) => (s.attitude, s.gyro_bias_rad_per_s, true),
+        let (attitude, bias, sigma, aligned) = match &self.solution {
+            Some(s) => (
+                s.attitude,
+                s.gyro_bias.bias_rad_per_s,
+                Some(s.gyro_bias.sigma_rad_per_s()),
+                true,
+            ),
             None => {
                 let (roll, pitch) = tilt_from_accel(&self.window.mean_force());
                 let yaw = self.any_compass_heading(t, roll, pitch).unwrap_or(0.0);
-                (attitude_from_euler(roll, pitch, yaw), V3::zeros(), false)
+                (
+                    attitude_from_euler(roll, pitch, yaw),
+                    V3::zeros(),
+                    None,
+                    false,
+                )
             }
         };
         let (roll, pitch, yaw) = attitude.euler_angles();
@@ -613,6 +903,8 @@ impl FuzzyEngine {
                 accel_dev_mps2: signals.accel_dev_mps2,
                 accel_activity_mps2: signals.accel_activity_mps2,
                 gyro_activity_dps: deg(signals.gyro_activity_rad_per_s),
+                gyro_bias_sigma_dps: sigma.map(|s| [deg(s.x), deg(s.y), deg(s.z)]),
+                mag_disturbed: self.disturbance.disturbed() || self.compass_gated_since.is_some(),
             }),
         }
     }
@@ -650,6 +942,7 @@ impl Engine for FuzzyEngine {
 
     fn model(&self) -> Option<serde_json::Value> {
         let correction = self.calibration.correction();
+        let (accel_floor, gyro_floor) = self.noise_floors();
         Some(serde_json::json!({
             "engine": "fuzzy",
             "mag_calibration": self.calibration.state(),
@@ -659,6 +952,9 @@ impl Engine for FuzzyEngine {
                 [0, 1, 2].map(|i| [c.soft_iron[(i, 0)], c.soft_iron[(i, 1)], c.soft_iron[(i, 2)]])
             }),
             "fit_rms": correction.map(|c| c.fit_rms),
+            "mag_fits_refused": self.calibration.refused_fits(),
+            "accel_noise_floor_mps2": accel_floor,
+            "gyro_noise_floor_dps": gyro_floor.map(deg),
             "stats": self.stats,
         }))
     }
@@ -790,14 +1086,194 @@ mod tests {
         assert_eq!(got, expected);
     }
 
+    /// A noisy hand-held-grade sensor (0.1 m/s² and 0.5 °/s per axis at
+    /// rest, 1 °/s of bias): waved about for 5 s, then put down tilted.
+    fn noisy_readings(rest_s: f64, seed: u64) -> (Vec<Reading>, UnitQuaternion<f64>) {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, StandardNormal};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let mut noise = |sigma: f64| {
+            let n: f64 = StandardNormal.sample(&mut rng);
+            sigma * n
+        };
+        let bias = V3::new(1.0, -0.7, 0.4);
+        let mut attitude = attitude_from_euler(0.0, 0.0, rad(10.0));
+        let mut readings = Vec::new();
+        let t0 = 1.7e9;
+        let moving_s = 5.0;
+        let n = ((moving_s + rest_s) * 100.0) as usize;
+        for i in 0..n {
+            let t = t0 + i as f64 * 0.01;
+            let tau = t - t0;
+            // Waving: rates of tens of °/s about every axis, ending in a
+            // rest attitude with roll 12°, pitch −7°.
+            let rate_dps = if tau < moving_s {
+                let w = std::f64::consts::TAU / moving_s;
+                V3::new(
+                    40.0 * (w * tau).sin(),
+                    25.0 * (2.0 * w * tau).sin(),
+                    60.0 * (w * tau).sin(),
+                ) + V3::new(12.0, -7.0, 0.0) / moving_s * (1.0 - (w * tau).cos())
+            } else {
+                V3::zeros()
+            };
+            attitude *= UnitQuaternion::from_scaled_axis(rate_dps.map(rad) * 0.01);
+            // A hand shakes the sensor with up to 2 m/s² while waving it.
+            let shake = if tau < moving_s {
+                V3::new(2.0 * (31.0 * tau).sin(), 1.5 * (17.0 * tau).cos(), 0.0)
+            } else {
+                V3::zeros()
+            };
+            let force = attitude.inverse() * V3::new(0.0, 0.0, -G) + shake;
+            let force = force + V3::new(noise(0.1), noise(0.1), noise(0.1));
+            let rate = rate_dps + bias + V3::new(noise(0.5), noise(0.5), noise(0.5));
+            readings.push(imu(t, force, rate));
+        }
+        (readings, attitude)
+    }
+
+    #[test]
+    fn a_noisy_sensor_aligns_within_two_seconds_of_its_first_still_spell() {
+        for seed in 1..=5 {
+            let (readings, _) = noisy_readings(10.0, seed);
+            let rest_t = 1.7e9 + 5.0;
+            let mut engine = FuzzyEngine::with_defaults();
+            let mut out = Vec::new();
+            for r in &readings {
+                engine.feed(r, &mut out);
+            }
+            let first = out
+                .iter()
+                .find(|o| fuzzy(o).aligned)
+                .map(|o| o.t - rest_t)
+                .expect("aligns");
+            assert!(
+                (0.0..=2.0).contains(&first),
+                "seed {seed}: aligned {first} s after the rest began"
+            );
+            // Still and levelled at the end, the bias learnt.
+            let last = fuzzy(out.last().unwrap());
+            assert_eq!(last.motion, Motion::Static, "seed {seed}");
+            assert!(last.gyro_bias_sigma_dps.is_some_and(|s| s[0] < 0.05));
+            assert!((last.gyro_bias_dps[0] - 1.0).abs() < 0.05, "{last:?}");
+            let (accel_floor, gyro_floor) = engine.noise_floors();
+            // Spreads at rest: √3·0.1 m/s² and √3·0.5 °/s, the floor a
+            // little below.
+            let accel_floor = accel_floor.unwrap();
+            let gyro_floor_dps = deg(gyro_floor.unwrap());
+            assert!((0.13..0.18).contains(&accel_floor), "{accel_floor}");
+            assert!((0.65..0.9).contains(&gyro_floor_dps), "{gyro_floor_dps}");
+        }
+    }
+
+    #[test]
+    fn tilt_at_rest_is_right_after_waving_a_noisy_sensor() {
+        let (readings, truth) = noisy_readings(20.0, 9);
+        let mut engine = FuzzyEngine::with_defaults();
+        let mut out = Vec::new();
+        for r in &readings {
+            engine.feed(r, &mut out);
+        }
+        let last = fuzzy(out.last().unwrap());
+        let (roll, pitch, _) = truth.euler_angles();
+
+        // The accelerometer's 0.1 m/s² averages out over the 4 s pull; what
+        // is left is the lag of that pull behind the gyro bias error (about
+        // 0.5°/s/√2000 = 0.011 °/s per axis after 20 s, times 4 s: 0.05°).
+        assert!(
+            (last.roll_deg - deg(roll)).abs() < 0.25,
+            "{last:?} {}",
+            deg(roll)
+        );
+        assert!(
+            (last.pitch_deg - deg(pitch)).abs() < 0.25,
+            "{last:?} {}",
+            deg(pitch)
+        );
+    }
+
+    /// Level turns (a calibration circle at 20 °/s) then a still spell,
+    /// with a body-fixed hard iron; `extra` adds a field (a magnet) from
+    /// `magnet_from` for `magnet_s` seconds.
+    fn turn_then_magnet(magnet_from_s: f64, magnet_s: f64, extra_ut: V3) -> Vec<EngineOutput> {
+        let earth = V3::new(25.0, 0.0, 43.3);
+        let hard_iron = V3::new(12.0, -8.0, 3.0);
+        let mut engine =
+            FuzzyEngine::new(Params::from_assignments(PARAMS, ["mag_inclination_deg=60"]).unwrap())
+                .unwrap();
+        let mut out = Vec::new();
+        let mut yaw = 0.3_f64;
+        let t0 = 1.7e9;
+        for i in 0..(120 * 100) {
+            let tau = f64::from(i) * 0.01;
+            let t = t0 + tau;
+            // Still 3 s, then 40 s of turning, then still.
+            let rate = if (3.0..43.0).contains(&tau) {
+                rad(20.0)
+            } else {
+                0.0
+            };
+            yaw += rate * 0.01;
+            let attitude = attitude_from_euler(0.0, 0.0, yaw);
+            let force = attitude.inverse() * V3::new(0.0, 0.0, -G);
+            engine.feed(&imu(t, force, V3::new(0.0, 0.0, deg(rate))), &mut out);
+            if i % 10 == 0 {
+                let mut field = attitude.inverse() * earth + hard_iron;
+                if (magnet_from_s..magnet_from_s + magnet_s).contains(&tau) {
+                    field += extra_ut;
+                }
+                engine.feed(&mag(t, field), &mut out);
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn a_magnet_near_the_sensor_for_30_s_barely_moves_the_heading() {
+        let clean = turn_then_magnet(1e9, 0.0, V3::zeros());
+        for extra in [
+            V3::new(150.0, -80.0, 40.0),
+            V3::new(0.0, 12.0, 0.0),
+            V3::new(-6.0, 0.0, 9.0),
+        ] {
+            let disturbed = turn_then_magnet(60.0, 30.0, extra);
+            let mut worst = 0.0_f64;
+            for (a, b) in clean.iter().zip(&disturbed) {
+                let (a, b) = (fuzzy(a), fuzzy(b));
+                let d = orientation::angle_difference(rad(a.heading_deg), rad(b.heading_deg));
+                worst = worst.max(deg(d).abs());
+            }
+            assert!(worst < 5.0, "{extra:?}: heading moved {worst}°");
+            let during = fuzzy(&disturbed[80 * 100]);
+            assert!(during.mag_disturbed, "{extra:?}: {during:?}");
+            let after = fuzzy(disturbed.last().unwrap());
+            assert!(!after.mag_disturbed);
+        }
+        assert_ne!(
+            fuzzy(clean.last().unwrap()).mag_calibration,
+            magcal::CalibrationState::Collecting
+        );
+    }
+
+    #[test]
+    fn a_snapshot_from_before_the_state_version_is_outdated() {
+        let mut snapshot = FuzzyEngine::with_defaults().snapshot();
+        snapshot.as_object_mut().unwrap().remove("state_version");
+        let err = FuzzyEngine::restore(snapshot).expect_err("outdated");
+        assert!(
+            matches!(err, SnapshotError::Outdated { found: 1, .. }),
+            "{err}"
+        );
+    }
+
     #[test]
     fn breakpoints_out_of_order_are_refused() {
-        let params = Params::from_assignments(PARAMS, ["gyro_activity_still_dps=2"]);
+        let params = Params::from_assignments(PARAMS, ["gyro_activity_still_factor=20"]);
         let err = params
             .and_then(FuzzyEngine::new)
             .expect_err("still above moving is refused");
         assert!(
-            err.to_string().contains("gyro_activity_moving_dps"),
+            err.to_string().contains("gyro_activity_moving_factor"),
             "{err}"
         );
     }

@@ -2,7 +2,9 @@
 //! IMU readings, fuzzified and combined by a Mamdani rule base into a
 //! degree of "static" in [0, 1].
 //!
-//! Inputs (each with terms `low`, `medium`, `high`):
+//! Inputs (each with terms `low`, `medium`, `high`; the engine divides
+//! each by its sensor's learnt noise floor before inference, so the
+//! breakpoints are multiples of the floor):
 //! - `accel_dev`: |mean ‖f‖ − g_ref|, the window's specific-force norm
 //!   against the norm learnt while static (sustained acceleration, braking);
 //! - `accel_activity`: √(mean ‖fᵢ − f̄‖²), the window's specific-force
@@ -37,12 +39,13 @@ pub struct Breakpoints {
     pub moving: f64,
 }
 
-/// The three inputs' breakpoints, in their working units (m/s², rad/s).
+/// The three inputs' breakpoints, as multiples of the noise floors the
+/// engine learns (the inputs are divided by them before inference).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct MotionConfig {
-    pub accel_dev_mps2: Breakpoints,
-    pub accel_activity_mps2: Breakpoints,
-    pub gyro_activity_rad_per_s: Breakpoints,
+    pub accel_dev: Breakpoints,
+    pub accel_activity: Breakpoints,
+    pub gyro_activity: Breakpoints,
     /// Output discretisation (points over [−0.5, 1.5], ends included).
     pub resolution: usize,
 }
@@ -87,9 +90,9 @@ fn three_terms(name: &str, b: Breakpoints) -> Variable {
 /// The rule base of the module documentation as a [`Mamdani`] system.
 pub fn motion_expert(config: &MotionConfig) -> Result<Mamdani, FuzzyError> {
     let inputs = vec![
-        three_terms("accel_dev", config.accel_dev_mps2),
-        three_terms("accel_activity", config.accel_activity_mps2),
-        three_terms("gyro_activity", config.gyro_activity_rad_per_s),
+        three_terms("accel_dev", config.accel_dev),
+        three_terms("accel_activity", config.accel_activity),
+        three_terms("gyro_activity", config.gyro_activity),
     ];
     let output = Variable::new(
         "static_degree",
@@ -317,15 +320,15 @@ mod tests {
 
     fn config() -> MotionConfig {
         MotionConfig {
-            accel_dev_mps2: Breakpoints {
+            accel_dev: Breakpoints {
                 still: 0.05,
                 moving: 0.25,
             },
-            accel_activity_mps2: Breakpoints {
+            accel_activity: Breakpoints {
                 still: 0.05,
                 moving: 0.2,
             },
-            gyro_activity_rad_per_s: Breakpoints {
+            gyro_activity: Breakpoints {
                 still: 0.005,
                 moving: 0.03,
             },

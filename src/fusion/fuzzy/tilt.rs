@@ -1,0 +1,202 @@
+//! The accelerometer as a tilt reference that does not pull while the
+//! vehicle accelerates (README: "The fuzzy engine", tilt while moving).
+//!
+//! For each IMU reading the engine keeps the specific force f measured and
+//! the force f̂ = Cᵀ(0, 0, −g₀) its gyro-propagated attitude C predicts at
+//! rest (g₀: the static norm this accelerometer reads). Over the **older
+//! half** of the motion window the two means F̄ and F̂ are compared:
+//! - the comparison is over the same readings, so a slow rotation within
+//!   the window does not smear the reference (the plain mean of f would);
+//! - it is delayed by half a window: the expert's decision covers the whole
+//!   window, so when it says "static", the older half has been static for
+//!   at least half a window since: an acceleration that has just begun is
+//!   in the newer half and not yet in the reference;
+//! - the residual ρ = ‖F̄ − F̂‖ is what is not gravity (plus the tilt
+//!   error, 0.17 m/s² per degree): while moving, the reference is used
+//!   only when ρ is within `gate_mps2` (full weight) to 2·`gate_mps2`
+//!   (none), so a vehicle accelerating, braking or cornering keeps its
+//!   gyro-propagated tilt, and the static spells correct what that gate
+//!   rejects.
+//!
+//! The correction turns the attitude about the body axis u = F̄ × F̂ by a
+//! fraction of the angle between them: Cᵀ then predicts a force turned
+//! towards the measured one; u is perpendicular to gravity, so heading
+//! is unchanged to first order.
+
+use std::collections::VecDeque;
+
+use nalgebra::{Unit, UnitQuaternion};
+use serde::{Deserialize, Serialize};
+
+use crate::fusion::zupt::strapdown::V3;
+
+/// Measured and predicted forces over the motion window, with the sums of
+/// the older half kept in O(1) per reading.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TiltWindow {
+    capacity: usize,
+    /// (measured f, predicted f̂), oldest first.
+    pairs: VecDeque<(V3, V3)>,
+    /// Sums over the older ⌈capacity/2⌉ pairs once full (all pairs until then).
+    older_measured: V3,
+    older_predicted: V3,
+    older_len: usize,
+    pushes_since_refresh: usize,
+}
+
+impl TiltWindow {
+    /// An empty window of `capacity` readings (at least 2).
+    pub fn new(capacity: usize) -> TiltWindow {
+        TiltWindow {
+            capacity: capacity.max(2),
+            pairs: VecDeque::with_capacity(capacity.max(2)),
+            older_measured: V3::zeros(),
+            older_predicted: V3::zeros(),
+            older_len: 0,
+            pushes_since_refresh: 0,
+        }
+    }
+
+    /// Forgets every reading.
+    pub fn clear(&mut self) {
+        *self = TiltWindow::new(self.capacity);
+    }
+
+    fn older_capacity(&self) -> usize {
+        self.capacity.div_ceil(2)
+    }
+
+    /// Adds a reading's measured and predicted specific force, m/s².
+    pub fn push(&mut self, measured: V3, predicted: V3) {
+        if self.pairs.len() == self.capacity
+            && let Some((f, p)) = self.pairs.pop_front()
+        {
+            self.older_measured -= f;
+            self.older_predicted -= p;
+            self.older_len -= 1;
+        }
+        self.pairs.push_back((measured, predicted));
+        // The older half takes readings until it is full; then the reading
+        // that crosses from the newer half into it.
+        let older = self.older_capacity();
+        if self.older_len < older {
+            let index = self.older_len;
+            if let Some(&(f, p)) = self.pairs.get(index) {
+                self.older_measured += f;
+                self.older_predicted += p;
+                self.older_len += 1;
+            }
+        }
+        self.pushes_since_refresh += 1;
+        if self.pushes_since_refresh >= self.capacity {
+            self.refresh();
+        }
+    }
+
+    fn refresh(&mut self) {
+        self.pushes_since_refresh = 0;
+        self.older_len = self.pairs.len().min(self.older_capacity());
+        self.older_measured = V3::zeros();
+        self.older_predicted = V3::zeros();
+        for (f, p) in self.pairs.iter().take(self.older_len) {
+            self.older_measured += f;
+            self.older_predicted += p;
+        }
+    }
+
+    /// True once the window is full.
+    pub fn is_full(&self) -> bool {
+        self.pairs.len() == self.capacity
+    }
+
+    /// Means of the measured and predicted force over the older half.
+    pub fn older_means(&self) -> Option<(V3, V3)> {
+        (self.older_len > 0).then(|| {
+            let n = self.older_len as f64;
+            (self.older_measured / n, self.older_predicted / n)
+        })
+    }
+}
+
+/// Weight of the reference while moving for a residual ρ: 1 up to
+/// `gate_mps2`, falling linearly to 0 at twice that.
+pub fn moving_weight(residual_mps2: f64, gate_mps2: f64) -> f64 {
+    if gate_mps2 <= 0.0 {
+        return 0.0;
+    }
+    (2.0 - residual_mps2 / gate_mps2).clamp(0.0, 1.0)
+}
+
+/// Turns `attitude` a fraction `gain` ∈ [0, 1] of the way from predicting
+/// `predicted` to predicting `measured` (both body-frame forces).
+pub fn correct(
+    attitude: &UnitQuaternion<f64>,
+    measured: &V3,
+    predicted: &V3,
+    gain: f64,
+) -> UnitQuaternion<f64> {
+    let axis = measured.cross(predicted);
+    let Some(axis) = Unit::try_new(axis, 1e-12) else {
+        return *attitude;
+    };
+    let angle = measured.angle(predicted) * gain.clamp(0.0, 1.0);
+    attitude * UnitQuaternion::from_axis_angle(&axis, angle)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fusion::zupt::strapdown::attitude_from_euler;
+
+    #[test]
+    fn the_older_half_is_the_oldest_readings_held() {
+        let mut window = TiltWindow::new(5);
+        for i in 0..23 {
+            let x = f64::from(i);
+            window.push(V3::new(x, 0.0, 0.0), V3::new(0.0, 2.0 * x, 0.0));
+        }
+        // Held: 18..=22; older half (3 of 5): 18, 19, 20.
+        let (measured, predicted) = window.older_means().unwrap();
+        assert!((measured.x - 19.0).abs() < 1e-12);
+        assert!((predicted.y - 38.0).abs() < 1e-12);
+        // Before it is full the older half fills first.
+        let mut young = TiltWindow::new(6);
+        young.push(V3::new(1.0, 0.0, 0.0), V3::zeros());
+        young.push(V3::new(3.0, 0.0, 0.0), V3::zeros());
+        assert!((young.older_means().unwrap().0.x - 2.0).abs() < 1e-12);
+        for _ in 0..2 {
+            young.push(V3::new(100.0, 0.0, 0.0), V3::zeros());
+        }
+        // Three older of six: 1, 3, 100.
+        assert!((young.older_means().unwrap().0.x - 104.0 / 3.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_full_correction_makes_the_prediction_the_measurement_and_keeps_heading() {
+        let g = 9.81;
+        let truth = attitude_from_euler(0.03, -0.02, 1.2);
+        let estimate = attitude_from_euler(0.0, 0.0, 1.2);
+        let down = V3::new(0.0, 0.0, -g);
+        let measured = truth.inverse() * down;
+        let predicted = estimate.inverse() * down;
+        let corrected = correct(&estimate, &measured, &predicted, 1.0);
+        assert!(((corrected.inverse() * down) - measured).norm() < 1e-9);
+        let (roll, pitch, yaw) = corrected.euler_angles();
+        assert!((roll - 0.03).abs() < 1e-9 && (pitch + 0.02).abs() < 1e-9);
+        // First order: yaw moves by far less than the tilt corrected.
+        assert!((yaw - 1.2).abs() < 1e-3, "{yaw}");
+        // Half the gain, half the angle.
+        let half = correct(&estimate, &measured, &predicted, 0.5);
+        let left = (half.inverse() * down).angle(&measured);
+        assert!((left - 0.5 * measured.angle(&predicted)).abs() < 1e-9);
+    }
+
+    #[test]
+    fn the_moving_weight_falls_from_one_to_zero_over_the_gate() {
+        assert_eq!(moving_weight(0.1, 0.2), 1.0);
+        assert_eq!(moving_weight(0.2, 0.2), 1.0);
+        assert!((moving_weight(0.3, 0.2) - 0.5).abs() < 1e-12);
+        assert_eq!(moving_weight(0.5, 0.2), 0.0);
+        assert_eq!(moving_weight(0.1, 0.0), 0.0);
+    }
+}
