@@ -10,6 +10,10 @@
 //! The same for a `zupt` machine written by the release before issue 17
 //! (its stored estimates lack `yaw_sigma_deg`; its snapshot has no state
 //! version).
+//!
+//! And a `fuzzy` machine written by the release before issue 18 (its
+//! thresholds were in sensor units, since retired; its estimates lack the
+//! bias σ and the disturbance flag; its snapshot has no state version).
 
 mod common;
 
@@ -194,6 +198,79 @@ async fn a_zupt_database_from_before_issue_17_opens_and_continues() {
     assert_eq!(served_new[..], replayed_new[..served_new.len()]);
     assert!(
         served_new.last().unwrap()["yaw_sigma_deg"]
+            .as_f64()
+            .unwrap()
+            > 0.0
+    );
+    server.kill();
+}
+
+/// The fuzzy fixture's drive: `simulate vehicle --seed 4 --minutes 5`, of
+/// which the first 6000 lines were posted to the release before issue 18
+/// for a machine declaring `declination_deg = 2.5` and the since-retired
+/// `accel_activity_still_mps2 = 0.07`.
+fn vehicle_drive(lines: usize) -> Vec<String> {
+    use tunnelnav::sim::vehicle::{VehicleDrive, VehicleScenario};
+    VehicleDrive::new(VehicleScenario {
+        seed: 4,
+        duration_s: 300.0,
+        ..VehicleScenario::default()
+    })
+    .unwrap()
+    .take(lines)
+    .map(|event| event.reading.to_json())
+    .collect()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_fuzzy_database_from_before_issue_18_opens_and_continues() {
+    let (_dir, server) = serve_fixture("fuzzy-before-issue-18.sqlite3");
+    let client = reqwest::Client::new();
+    let base = server.url("");
+
+    let machine = get_json(&client, &base, "/api/v1/machines/van-old").await;
+    let params = machine["config"]["engines"]["fuzzy"]
+        .as_object()
+        .unwrap()
+        .clone();
+    // The retired thresholds are gone, their factors at their defaults.
+    assert!(
+        params.get("accel_activity_still_mps2").is_none(),
+        "{params:?}"
+    );
+    assert!(params.get("bias_time_constant_s").is_none());
+    assert_eq!(params["accel_activity_still_factor"], 1.8);
+    assert_eq!(params["declination_deg"], 2.5);
+
+    // Every stored reading and estimate; the old estimates decode without
+    // the bias σ.
+    let old_lines = vehicle_drive(6000);
+    assert_eq!(
+        exported_readings(&client, &base, "van-old").await.len(),
+        6000
+    );
+    let old_estimates = all_estimates(&client, &base, "van-old").await;
+    assert_eq!(old_estimates.len(), 5454);
+    assert!(
+        old_estimates
+            .iter()
+            .all(|e| e["gyro_bias_sigma_dps"].is_null() && e["mag_disturbed"] == false)
+    );
+
+    // The drive continues as a replay of every reading does.
+    let lines = vehicle_drive(20_000);
+    assert_eq!(lines[..6000], old_lines[..]);
+    for chunk in lines[6000..].chunks(2000) {
+        post_ndjson(&client, &base, "van-old", chunk).await;
+    }
+    let served = all_estimates(&client, &base, "van-old").await;
+    let replayed = replay_with_params("van-old", "fuzzy", &params, &lines);
+    let new_t = old_estimates.last().unwrap()["t"].as_f64().unwrap();
+    let (served_new, replayed_new) = (after(&served, new_t), after(&replayed, new_t));
+    assert!(served_new.len() > 12_000, "{}", served_new.len());
+    assert_eq!(served_new, replayed_new);
+    assert!(
+        served_new.last().unwrap()["gyro_bias_sigma_dps"][2]
             .as_f64()
             .unwrap()
             > 0.0
