@@ -715,8 +715,9 @@ impl FuzzyEngine {
         };
         let signals = self.window.signals(gravity, &bias);
         let relative = self.relative_signals(&signals);
-        let static_degree =
-            motion::static_degree(&self.expert, &relative, &mut self.scratch).unwrap_or(0.0);
+        let static_degree = motion::decided_by_breakpoints(&self.config.motion, &relative)
+            .or_else(|| motion::static_degree(&self.expert, &relative, &mut self.scratch))
+            .unwrap_or(0.0);
 
         if continuous && let Some(solution) = self.solution.take() {
             let updated = self.advance(solution, dt_s, force, rate, static_degree);

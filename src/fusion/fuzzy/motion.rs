@@ -157,6 +157,26 @@ pub struct MotionSignals {
     pub gyro_activity_rad_per_s: f64,
 }
 
+/// The static degree where it is decided by the breakpoints alone: 1
+/// when every input is fully `low` (rule 1 alone fires, fully), 0 when
+/// one is fully `high` (rule 2 alone fires); `None` in between, where the
+/// expert must infer. Most readings are one or the other, so the engine
+/// spares the centroid there.
+pub fn decided_by_breakpoints(config: &MotionConfig, signals: &MotionSignals) -> Option<f64> {
+    let inputs = [
+        (signals.accel_dev_mps2, config.accel_dev),
+        (signals.accel_activity_mps2, config.accel_activity),
+        (signals.gyro_activity_rad_per_s, config.gyro_activity),
+    ];
+    if inputs.iter().any(|(x, b)| *x >= b.moving) {
+        Some(0.0)
+    } else if inputs.iter().all(|(x, b)| *x <= b.still) {
+        Some(1.0)
+    } else {
+        None
+    }
+}
+
 /// Runs the expert; `None` only if no rule fires (cannot happen with the
 /// built-in rule base, whose three rules cover every input).
 pub fn static_degree(
@@ -367,6 +387,30 @@ mod tests {
             ..still
         };
         assert!((degree(midway) - 0.5).abs() < 1e-9);
+    }
+
+    #[test]
+    fn the_breakpoint_shortcut_agrees_with_the_expert() {
+        let expert = motion_expert(&config()).unwrap();
+        let mut decided = 0;
+        for i in 0..=40 {
+            for j in 0..=40 {
+                let signals = MotionSignals {
+                    accel_dev_mps2: 0.01 * f64::from(i),
+                    accel_activity_mps2: 0.006 * f64::from(j),
+                    gyro_activity_rad_per_s: 0.001 * f64::from((i * j) % 41),
+                };
+                let inferred = static_degree(&expert, &signals, &mut Scratch::default()).unwrap();
+                if let Some(s) = decided_by_breakpoints(&config(), &signals) {
+                    decided += 1;
+                    assert!(
+                        (s - inferred).abs() < 1e-9,
+                        "{signals:?}: {s} vs {inferred}"
+                    );
+                }
+            }
+        }
+        assert!(decided > 400, "{decided}");
     }
 
     #[test]
