@@ -93,6 +93,9 @@
     setText($('f-time'), tn.timeOfDay(e.t));
     const bias = e.gyro_bias_dps || [];
     ['x', 'y', 'z'].forEach((axisName, i) => setText($(`f-bias-${axisName}`), fixed(bias[i], 4)));
+    const sigma = e.gyro_bias_sigma_dps;
+    setText($('f-bias-sigma'), sigma ? fixed(Math.max(...sigma), 4) : '—');
+    $('f-disturbed').hidden = !e.mag_disturbed;
     setText($('f-accel-dev'), fixed(e.accel_dev_mps2, 3));
     setText($('f-accel-activity'), fixed(e.accel_activity_mps2, 3));
     setText($('f-gyro-activity'), fixed(e.gyro_activity_dps, 2));

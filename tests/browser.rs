@@ -637,7 +637,8 @@ async fn fuzzy_page_shows_compass_motion_and_calibration() {
            && f.charts.bias.data[1].length > 200 \
            && f.charts.attitude.data[3].some(v => v > 0) \
            && painted > 500 \
-           && /^-?\\d+\\.\\d{4}$/.test(document.getElementById('f-bias-z').textContent);",
+           && /^-?\\d+\\.\\d{4}$/.test(document.getElementById('f-bias-z').textContent) \
+           && /^\\d+\\.\\d{4}$/.test(document.getElementById('f-bias-sigma').textContent);",
         20,
     )
     .await;
