@@ -34,9 +34,9 @@
 //! - total error: the whole angle of q_e, 2 acos |w|, after (and, `raw`,
 //!   before) the same offset removal.
 //!
-//! Each trial gives RMSEs; pooled figures are the RMS of the trials'
-//! RMSEs (BROAD averages per-trial RMSEs; with trials of similar length
-//! the two differ little).
+//! Each trial gives RMSEs; pooled figures are their mean over trials
+//! (BROAD's averaging, and the independent evaluation's) and their RMS
+//! over trials.
 //!
 //! # Estimators
 //! - the `fuzzy` engine, fed each sample's magnetometer reading and then
@@ -45,7 +45,11 @@
 //! - gyro only: the gyros integrated (q ← q ⊗ exp(ω̄ dt), ω̄ the mean of
 //!   the step's two samples) from the true attitude at the first sample
 //!   with truth, raw and with the mean rate of the initial rest (before the
-//!   first movement sample) subtracted.
+//!   first movement sample) subtracted;
+//! - accelerometer + compass per sample, no memory: tilt from the specific
+//!   force, heading from the raw (uncalibrated: BROAD's field is already
+//!   calibrated) magnetometer levelled with that tilt. What a static
+//!   solution gives while the sensor moves.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -53,6 +57,7 @@ use std::path::{Path, PathBuf};
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
+use super::ErrorStats;
 use crate::fusion::angles::{deg, rad};
 use crate::fusion::fuzzy::FuzzyEngine;
 use crate::fusion::{
@@ -543,6 +548,18 @@ pub fn integrate_rate(
     attitude * UnitQuaternion::from_scaled_axis(rate_rad_per_s * dt_s)
 }
 
+/// Attitude from one sample's specific force and field alone (body-to-NED,
+/// yaw from the field's north): roll = atan2(−f_y, −f_z), pitch =
+/// atan2(f_x, √(f_y² + f_z²)), yaw = atan2(−h_y, h_x) with h the field
+/// turned level by that roll and pitch.
+pub fn accel_compass_attitude(force_mps2: &V3, field_ut: &V3) -> UnitQuaternion<f64> {
+    let f = force_mps2;
+    let roll = (-f.y).atan2(-f.z);
+    let pitch = f.x.atan2(f.y.hypot(f.z));
+    let level = UnitQuaternion::from_euler_angles(roll, pitch, 0.0) * field_ut;
+    UnitQuaternion::from_euler_angles(roll, pitch, (-level.y).atan2(level.x))
+}
+
 /// Gyro-only integration from a first attitude, with a fixed bias removed.
 #[derive(Debug, Clone)]
 struct GyroOnly {
@@ -580,6 +597,9 @@ pub struct EngineDiagnostics {
     pub aligned_share: f64,
     /// Seconds to the first magnetometer calibration, and the state at the end.
     pub calibrated_after_s: Option<f64>,
+    /// Azimuth coverage and fit residual reported when it first calibrated.
+    pub coverage_at_calibration_deg: Option<f64>,
+    pub fit_rms_at_calibration: Option<f64>,
     pub final_calibration: String,
     /// Magnetometer calibrations that changed the state's kind (planar ↔
     /// ellipsoid ↔ collecting), a sign of refits on changing data.
@@ -592,6 +612,13 @@ pub struct EngineDiagnostics {
     pub moving: ExpertInputs,
     /// Largest |engine gyro bias − initial-rest mean rate| at the end, °/s.
     pub final_bias_error_dps: f64,
+    /// Heading RMSE, degrees, over the scored samples with the truth's
+    /// |pitch| < 60°: of the engine's own compass (`mag_heading_deg`:
+    /// its calibration and its tilt), and of the raw field levelled with
+    /// the true tilt (the field's own disturbance). Against the reference
+    /// as it is (already aligned to magnetic north), no offset removed.
+    pub engine_compass_rmse_deg: Option<f64>,
+    pub raw_compass_true_tilt_rmse_deg: Option<f64>,
 }
 
 /// Mean motion-expert inputs and the share of `static` calls.
@@ -638,6 +665,7 @@ impl ExpertSums {
 pub const ENGINE: &str = "fuzzy engine";
 pub const GYRO_RAW: &str = "gyro only, raw";
 pub const GYRO_REST_BIAS: &str = "gyro only, rest bias";
+pub const ACCEL_COMPASS: &str = "accel + compass";
 
 /// One trial's scores.
 #[derive(Debug, Clone, Serialize)]
@@ -660,7 +688,10 @@ pub struct TrialEvaluation {
 pub struct GroupSummary {
     pub group: String,
     pub trials: usize,
-    pub errors: BTreeMap<String, OrientationErrors>,
+    /// Mean over the trials of each RMSE (BROAD's averaging).
+    pub mean: BTreeMap<String, OrientationErrors>,
+    /// RMS over the trials of each RMSE.
+    pub rms: BTreeMap<String, OrientationErrors>,
 }
 
 /// The whole evaluation of a directory of recordings.
@@ -687,7 +718,7 @@ pub fn evaluate_recording(
         let samples = load_csv(&info.file)?;
         trials.push(evaluate_trial(info, &samples, params)?);
     }
-    let methods: Vec<String> = [ENGINE, GYRO_RAW, GYRO_REST_BIAS]
+    let methods: Vec<String> = [ENGINE, GYRO_RAW, GYRO_REST_BIAS, ACCEL_COMPASS]
         .iter()
         .map(|s| s.to_string())
         .collect();
@@ -734,10 +765,12 @@ pub fn evaluate_trial(
     let mut engine_errors = ErrorSeries::default();
     let mut gyro_raw = (GyroOnly::new(V3::zeros()), ErrorSeries::default());
     let mut gyro_rest = (GyroOnly::new(rest_bias), ErrorSeries::default());
+    let mut accel_compass = ErrorSeries::default();
     let mut diagnostics = EngineDiagnostics::default();
     let (mut rest_sums, mut moving_sums) = (ExpertSums::default(), ExpertSums::default());
     let mut aligned_scored = 0u64;
     let mut last_calibration = None;
+    let (mut engine_compass, mut raw_compass) = (ErrorStats::default(), ErrorStats::default());
     let mut last: Option<FuzzyEstimate> = None;
     let t0 = samples.first().map_or(0.0, |s| s.t_s);
 
@@ -754,8 +787,10 @@ pub fn evaluate_trial(
             diagnostics.aligned_after_s.get_or_insert(since_start);
         }
         let calibration = estimate.mag_calibration.as_str();
-        if calibration != "collecting" {
-            diagnostics.calibrated_after_s.get_or_insert(since_start);
+        if calibration != "collecting" && diagnostics.calibrated_after_s.is_none() {
+            diagnostics.calibrated_after_s = Some(since_start);
+            diagnostics.coverage_at_calibration_deg = Some(estimate.mag_coverage_deg);
+            diagnostics.fit_rms_at_calibration = estimate.mag_fit_rms;
         }
         if last_calibration.is_some_and(|c| c != calibration) {
             diagnostics.calibration_changes += 1;
@@ -768,8 +803,20 @@ pub fn evaluate_trial(
             && let Some(truth) = sample.truth
         {
             moving_sums.add(&estimate);
+            let (roll, pitch, yaw) = truth.euler_angles();
+            if pitch.abs() < rad(60.0) {
+                if let Some(h) = estimate.mag_heading_deg {
+                    engine_compass.add(deg(wrap(rad(h) - yaw)));
+                }
+                let level = UnitQuaternion::from_euler_angles(roll, pitch, 0.0) * sample.field_ut;
+                raw_compass.add(deg(wrap((-level.y).atan2(level.x) - yaw)));
+            }
             aligned_scored += u64::from(estimate.aligned);
             engine_errors.add(&estimated_attitude(&estimate), &truth);
+            accel_compass.add(
+                &accel_compass_attitude(&sample.accel_mps2, &sample.field_ut),
+                &truth,
+            );
             for (series, attitude) in [&mut gyro_raw.1, &mut gyro_rest.1].into_iter().zip(gyro) {
                 if let Some(q) = attitude {
                     series.add(&q, &truth);
@@ -783,6 +830,9 @@ pub fn evaluate_trial(
     diagnostics.aligned_share = aligned_scored as f64 / scored.max(1) as f64;
     diagnostics.rest = rest_sums.mean();
     diagnostics.moving = moving_sums.mean();
+    let rmse = |e: ErrorStats| (e.count > 0).then(|| e.rmse());
+    diagnostics.engine_compass_rmse_deg = rmse(engine_compass);
+    diagnostics.raw_compass_true_tilt_rmse_deg = rmse(raw_compass);
     if let Some(e) = &last {
         diagnostics.final_calibration = e.mag_calibration.as_str().to_string();
         diagnostics.final_mag_coverage_deg = e.mag_coverage_deg;
@@ -795,6 +845,7 @@ pub fn evaluate_trial(
     errors.insert(ENGINE.to_string(), engine_errors.summary());
     errors.insert(GYRO_RAW.to_string(), gyro_raw.1.summary());
     errors.insert(GYRO_REST_BIAS.to_string(), gyro_rest.1.summary());
+    errors.insert(ACCEL_COMPASS.to_string(), accel_compass.summary());
     Ok(TrialEvaluation {
         name: info.name.clone(),
         group: trial_group(&info.name).to_string(),
@@ -831,7 +882,8 @@ pub fn estimated_attitude(e: &FuzzyEstimate) -> UnitQuaternion<f64> {
     UnitQuaternion::from_euler_angles(rad(e.roll_deg), rad(e.pitch_deg), rad(e.heading_deg))
 }
 
-/// RMS over trials of each estimator's RMSEs, for all trials and per group.
+/// Mean and RMS over trials of each estimator's RMSEs, for all trials and
+/// per group.
 fn summarise(trials: &[TrialEvaluation], methods: &[String]) -> Vec<GroupSummary> {
     let mut names: Vec<String> = vec!["all".to_string()];
     for t in trials {
@@ -846,33 +898,41 @@ fn summarise(trials: &[TrialEvaluation], methods: &[String]) -> Vec<GroupSummary
                 .iter()
                 .filter(|t| group == "all" || t.group == group)
                 .collect();
-            let errors = methods
-                .iter()
-                .map(|m| {
-                    let per_trial: Vec<OrientationErrors> = members
-                        .iter()
-                        .filter_map(|t| t.errors.get(m).copied())
-                        .collect();
-                    (m.clone(), pool(&per_trial))
-                })
-                .collect();
+            let (mut mean, mut rms) = (BTreeMap::new(), BTreeMap::new());
+            for m in methods {
+                let per_trial: Vec<OrientationErrors> = members
+                    .iter()
+                    .filter_map(|t| t.errors.get(m).copied())
+                    .collect();
+                mean.insert(m.clone(), pool(&per_trial, Pooling::Mean));
+                rms.insert(m.clone(), pool(&per_trial, Pooling::Rms));
+            }
             GroupSummary {
                 group,
                 trials: members.len(),
-                errors,
+                mean,
+                rms,
             }
         })
         .collect()
 }
 
-/// RMS over trials of each figure (trials without a figure left out).
-pub fn pool(trials: &[OrientationErrors]) -> OrientationErrors {
+/// How per-trial RMSEs are pooled.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Pooling {
+    Mean,
+    Rms,
+}
+
+/// Each figure pooled over trials (trials without a figure left out).
+pub fn pool(trials: &[OrientationErrors], how: Pooling) -> OrientationErrors {
     let rms = |f: fn(&OrientationErrors) -> f64| {
         let values: Vec<f64> = trials.iter().map(f).filter(|x| x.is_finite()).collect();
-        if values.is_empty() {
-            f64::NAN
-        } else {
-            (values.iter().map(|x| x * x).sum::<f64>() / values.len() as f64).sqrt()
+        let n = values.len() as f64;
+        match how {
+            _ if values.is_empty() => f64::NAN,
+            Pooling::Mean => values.iter().sum::<f64>() / n,
+            Pooling::Rms => (values.iter().map(|x| x * x).sum::<f64>() / n).sqrt(),
         }
     };
     OrientationErrors {
@@ -903,8 +963,9 @@ pub fn render_table(e: &RecordingEvaluation) -> String {
         param("mag_inclination_deg"),
     ));
     text.push_str(
-        "RMSE over the movement phases, degrees (pooled: RMS over trials); heading and total \
-         after removing each trial's mean heading offset, raw: without\n",
+        "RMSE over the movement phases, degrees, pooled as BROAD does (mean over trials; \
+         last column: RMS over trials); heading and total after removing each trial's mean \
+         heading offset, raw: without\n",
     );
     let cell = |x: f64| {
         if x.is_finite() {
@@ -914,24 +975,26 @@ pub fn render_table(e: &RecordingEvaluation) -> String {
         }
     };
     text.push_str(&format!(
-        "{:<24} {:<24} {:>8} {:>8} {:>8} {:>8} {:>8}\n",
-        "group (trials)", "estimator", "tilt", "heading", "total", "head.raw", "tot.raw"
+        "{:<24} {:<24} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}\n",
+        "group (trials)", "estimator", "tilt", "heading", "total", "head.raw", "tot.raw", "rms tot"
     ));
     for g in &e.groups {
         for (k, m) in e.methods.iter().enumerate() {
-            let Some(r) = g.errors.get(m) else { continue };
+            let Some(r) = g.mean.get(m) else { continue };
+            let rms_total = g.rms.get(m).map_or(f64::NAN, |r| r.total_deg);
             let label = if k == 0 {
                 format!("{} ({})", g.group, g.trials)
             } else {
                 String::new()
             };
             text.push_str(&format!(
-                "{label:<24} {m:<24} {} {} {} {} {}\n",
+                "{label:<24} {m:<24} {} {} {} {} {} {}\n",
                 cell(r.tilt_deg),
                 cell(r.heading_deg),
                 cell(r.total_deg),
                 cell(r.heading_raw_deg),
                 cell(r.total_raw_deg),
+                cell(rms_total),
             ));
         }
     }
@@ -941,12 +1004,12 @@ pub fn render_table(e: &RecordingEvaluation) -> String {
         text.push_str(&format!(" {:>8}", abbreviate(m)));
     }
     text.push_str(&format!(
-        " {:>6} {:>15} {:>7} {:>11} {:>6} {:>17} {:>17}\n",
+        " {:>6} {:>15} {:>7} {:>17} {:>13} {:>17} {:>17}\n",
         "tilt",
         "heading(offset)",
         "aligned",
-        "calibrated",
-        "cover",
+        "calibrated(cover)",
+        "compass e/raw",
         "rest act/gyr/st",
         "moving act/gyr/st"
     ));
@@ -962,7 +1025,7 @@ pub fn render_table(e: &RecordingEvaluation) -> String {
         let ours = t.errors.get(ENGINE).copied().unwrap_or_default();
         let seconds = |s: Option<f64>| s.map_or("never".to_string(), |s| format!("{s:.1} s"));
         text.push_str(&format!(
-            " {:6.2} {:>15} {:>7} {:>11} {:6.0} {:>17} {:>17}\n",
+            " {:6.2} {:>15} {:>7} {:>17} {:>13} {:>17} {:>17}\n",
             ours.tilt_deg,
             format!(
                 "{:.2} ({:+.1})",
@@ -971,11 +1034,16 @@ pub fn render_table(e: &RecordingEvaluation) -> String {
             ),
             seconds(d.aligned_after_s),
             format!(
-                "{} {}",
+                "{} {} ({:.0})",
                 short_state(&d.final_calibration),
-                seconds(d.calibrated_after_s)
+                seconds(d.calibrated_after_s),
+                d.coverage_at_calibration_deg.unwrap_or(f64::NAN)
             ),
-            d.final_mag_coverage_deg,
+            format!(
+                "{:.0}/{:.0}",
+                d.engine_compass_rmse_deg.unwrap_or(f64::NAN),
+                d.raw_compass_true_tilt_rmse_deg.unwrap_or(f64::NAN)
+            ),
             expert(&d.rest),
             expert(&d.moving),
         ));
@@ -988,6 +1056,7 @@ fn abbreviate(method: &str) -> String {
         ENGINE => "engine".into(),
         GYRO_RAW => "gyro raw".into(),
         GYRO_REST_BIAS => "gyro bias".into(),
+        ACCEL_COMPASS => "acc+mag".into(),
         other => other.chars().take(8).collect(),
     }
 }
@@ -1056,6 +1125,14 @@ mod tests {
         assert!((q * force - V3::new(0.0, 0.0, -9.81)).norm() < 1e-9);
         let field_ned = q * body_from_sensor(&field_sensor);
         assert!((field_ned - V3::new(18.0, 0.5, 42.0)).norm() < 1e-9);
+    }
+
+    #[test]
+    fn accelerometer_and_compass_recover_an_attitude() {
+        let q = UnitQuaternion::from_euler_angles(-0.4, 0.9, -2.5);
+        let force = q.inverse() * V3::new(0.0, 0.0, -9.81);
+        let field = q.inverse() * V3::new(18.0, 0.0, 42.0);
+        assert!(accel_compass_attitude(&force, &field).angle_to(&q) < 1e-9);
     }
 
     #[test]
