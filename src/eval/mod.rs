@@ -1,6 +1,7 @@
 //! Scoring engines against simulated truth and against recorded trials
 //! with optical truth (`recording`).
 
+pub mod ahrs;
 pub mod attitude;
 pub mod fuzzy;
 pub mod kf3;
