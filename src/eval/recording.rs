@@ -49,7 +49,13 @@
 //! - accelerometer + compass per sample, no memory: tilt from the specific
 //!   force, heading from the raw (uncalibrated: BROAD's field is already
 //!   calibrated) magnetometer levelled with that tilt. What a static
-//!   solution gives while the sensor moves.
+//!   solution gives while the sensor moves;
+//! - Madgwick's MARG filter ([`crate::eval::ahrs::Madgwick`]) started, as
+//!   BROAD starts it, from the first sample's accelerometer and
+//!   magnetometer, over a grid of β ([`MADGWICK_BETAS`]): reported at the
+//!   common default β = 0.041 rad/s and at the β with the lowest mean raw
+//!   total error over the trials (BROAD's criterion for its "TAGP"; tuned
+//!   with the truth: a bound, not a setting a user could know).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -58,6 +64,7 @@ use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
 use super::ErrorStats;
+use super::ahrs::{Madgwick, initial_attitude};
 use crate::fusion::angles::{deg, rad};
 use crate::fusion::fuzzy::FuzzyEngine;
 use crate::fusion::{
@@ -661,11 +668,20 @@ impl ExpertSums {
     }
 }
 
+/// Madgwick's β tried, rad/s; the common default first.
+pub const MADGWICK_BETAS: [f64; 12] = [
+    0.041, 0.005, 0.01, 0.02, 0.03, 0.06, 0.08, 0.1, 0.12, 0.15, 0.2, 0.3,
+];
+/// The β commonly used as a default, rad/s.
+pub const MADGWICK_DEFAULT_BETA: f64 = 0.041;
+
 /// The estimators compared, in table order.
 pub const ENGINE: &str = "fuzzy engine";
 pub const GYRO_RAW: &str = "gyro only, raw";
 pub const GYRO_REST_BIAS: &str = "gyro only, rest bias";
 pub const ACCEL_COMPASS: &str = "accel + compass";
+pub const MADGWICK_DEFAULT: &str = "Madgwick β=0.041";
+pub const MADGWICK_TUNED: &str = "Madgwick, tuned with truth";
 
 /// One trial's scores.
 #[derive(Debug, Clone, Serialize)]
@@ -680,6 +696,8 @@ pub struct TrialEvaluation {
     pub scored: u64,
     /// Errors per estimator (names as in [`RecordingEvaluation::methods`]).
     pub errors: BTreeMap<String, OrientationErrors>,
+    /// Madgwick's errors for each β of [`MADGWICK_BETAS`].
+    pub madgwick_grid: Vec<(f64, OrientationErrors)>,
     pub engine: EngineDiagnostics,
 }
 
@@ -701,6 +719,8 @@ pub struct RecordingEvaluation {
     pub params: Params,
     /// Estimator names in table order.
     pub methods: Vec<String>,
+    /// The β of the "tuned with truth" Madgwick row: lowest mean raw total error.
+    pub madgwick_tuned_beta: f64,
     pub trials: Vec<TrialEvaluation>,
     /// "all" first, then each group in the order trials name them.
     pub groups: Vec<GroupSummary>,
@@ -718,18 +738,58 @@ pub fn evaluate_recording(
         let samples = load_csv(&info.file)?;
         trials.push(evaluate_trial(info, &samples, params)?);
     }
-    let methods: Vec<String> = [ENGINE, GYRO_RAW, GYRO_REST_BIAS, ACCEL_COMPASS]
-        .iter()
-        .map(|s| s.to_string())
-        .collect();
+    let madgwick_tuned_beta = best_beta(&trials);
+    for t in &mut trials {
+        let pick = |beta: f64| {
+            t.madgwick_grid
+                .iter()
+                .find(|(b, _)| *b == beta)
+                .map(|(_, e)| *e)
+        };
+        if let (Some(default), Some(tuned)) =
+            (pick(MADGWICK_DEFAULT_BETA), pick(madgwick_tuned_beta))
+        {
+            t.errors.insert(MADGWICK_DEFAULT.to_string(), default);
+            t.errors.insert(MADGWICK_TUNED.to_string(), tuned);
+        }
+    }
+    let methods: Vec<String> = [
+        ENGINE,
+        GYRO_RAW,
+        GYRO_REST_BIAS,
+        ACCEL_COMPASS,
+        MADGWICK_DEFAULT,
+        MADGWICK_TUNED,
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
     let groups = summarise(&trials, &methods);
     Ok(RecordingEvaluation {
         dir: dir.to_path_buf(),
         params: params.clone(),
         methods,
+        madgwick_tuned_beta,
         trials,
         groups,
     })
+}
+
+/// The β of [`MADGWICK_BETAS`] with the lowest mean raw total error over
+/// trials (BROAD's choice of its common parameters).
+fn best_beta(trials: &[TrialEvaluation]) -> f64 {
+    let mean_total = |beta: f64| {
+        let totals: Vec<f64> = trials
+            .iter()
+            .flat_map(|t| t.madgwick_grid.iter().filter(|(b, _)| *b == beta))
+            .map(|(_, e)| e.total_raw_deg)
+            .collect();
+        totals.iter().sum::<f64>() / totals.len().max(1) as f64
+    };
+    MADGWICK_BETAS
+        .into_iter()
+        .min_by(|a, b| mean_total(*a).total_cmp(&mean_total(*b)))
+        .unwrap_or(MADGWICK_DEFAULT_BETA)
 }
 
 /// Scores one trial's samples.
@@ -766,6 +826,11 @@ pub fn evaluate_trial(
     let mut gyro_raw = (GyroOnly::new(V3::zeros()), ErrorSeries::default());
     let mut gyro_rest = (GyroOnly::new(rest_bias), ErrorSeries::default());
     let mut accel_compass = ErrorSeries::default();
+    let mut madgwick: Vec<(f64, Option<Madgwick>, ErrorSeries)> = MADGWICK_BETAS
+        .iter()
+        .map(|b| (*b, None, ErrorSeries::default()))
+        .collect();
+    let mut previous_t = None;
     let mut diagnostics = EngineDiagnostics::default();
     let (mut rest_sums, mut moving_sums) = (ExpertSums::default(), ExpertSums::default());
     let mut aligned_scored = 0u64;
@@ -781,6 +846,21 @@ pub fn evaluate_trial(
         }
         let estimate = out.iter().rev().find_map(|o| o.values.as_fuzzy()).cloned();
         let gyro = [gyro_raw.0.step(sample), gyro_rest.0.step(sample)];
+        for (beta, filter, _) in &mut madgwick {
+            match (filter.as_mut(), previous_t) {
+                (Some(f), Some(t)) => f.update(
+                    &sample.gyro_rad_per_s,
+                    &sample.accel_mps2,
+                    Some(&sample.field_ut),
+                    sample.t_s - t,
+                ),
+                _ => {
+                    let start = initial_attitude(&sample.accel_mps2, Some(&sample.field_ut));
+                    *filter = Some(Madgwick::new(*beta, start));
+                }
+            }
+        }
+        previous_t = Some(sample.t_s);
         let Some(estimate) = estimate else { continue };
         let since_start = sample.t_s - t0;
         if estimate.aligned {
@@ -817,6 +897,11 @@ pub fn evaluate_trial(
                 &accel_compass_attitude(&sample.accel_mps2, &sample.field_ut),
                 &truth,
             );
+            for (_, filter, series) in &mut madgwick {
+                if let Some(f) = filter {
+                    series.add(&f.attitude(), &truth);
+                }
+            }
             for (series, attitude) in [&mut gyro_raw.1, &mut gyro_rest.1].into_iter().zip(gyro) {
                 if let Some(q) = attitude {
                     series.add(&q, &truth);
@@ -855,6 +940,10 @@ pub fn evaluate_trial(
         duration_s: samples.last().map_or(0.0, |s| s.t_s) - t0,
         scored,
         errors,
+        madgwick_grid: madgwick
+            .iter()
+            .map(|(beta, _, series)| (*beta, series.summary()))
+            .collect(),
         engine: diagnostics,
     })
 }
@@ -956,11 +1045,12 @@ pub fn render_table(e: &RecordingEvaluation) -> String {
             .map_or("?".to_string(), |v| v.to_string())
     };
     text.push_str(&format!(
-        "{} trials in {}; engine window_samples={}, mag_inclination_deg={}\n",
+        "{} trials in {}; engine window_samples={}, mag_inclination_deg={}; Madgwick tuned with truth: β={}\n",
         e.trials.len(),
         e.dir.display(),
         param("window_samples"),
         param("mag_inclination_deg"),
+        e.madgwick_tuned_beta,
     ));
     text.push_str(
         "RMSE over the movement phases, degrees, pooled as BROAD does (mean over trials; \
@@ -975,7 +1065,7 @@ pub fn render_table(e: &RecordingEvaluation) -> String {
         }
     };
     text.push_str(&format!(
-        "{:<24} {:<24} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}\n",
+        "{:<24} {:<27} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}\n",
         "group (trials)", "estimator", "tilt", "heading", "total", "head.raw", "tot.raw", "rms tot"
     ));
     for g in &e.groups {
@@ -988,7 +1078,7 @@ pub fn render_table(e: &RecordingEvaluation) -> String {
                 String::new()
             };
             text.push_str(&format!(
-                "{label:<24} {m:<24} {} {} {} {} {} {}\n",
+                "{label:<24} {m:<27} {} {} {} {} {} {}\n",
                 cell(r.tilt_deg),
                 cell(r.heading_deg),
                 cell(r.total_deg),
@@ -1057,6 +1147,8 @@ fn abbreviate(method: &str) -> String {
         GYRO_RAW => "gyro raw".into(),
         GYRO_REST_BIAS => "gyro bias".into(),
         ACCEL_COMPASS => "acc+mag".into(),
+        MADGWICK_DEFAULT => "mw 0.041".into(),
+        MADGWICK_TUNED => "mw tuned".into(),
         other => other.chars().take(8).collect(),
     }
 }
