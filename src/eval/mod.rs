@@ -1,8 +1,11 @@
-//! Scoring engines against simulated truth.
+//! Scoring engines against simulated truth and against recorded trials
+//! with optical truth (`recording`).
 
+pub mod ahrs;
 pub mod attitude;
 pub mod fuzzy;
 pub mod kf3;
+pub mod recording;
 pub mod zupt;
 
 use serde::Serialize;
