@@ -17,6 +17,7 @@
   const CHART_HEIGHT = 220, SMALL_HEIGHT = 160;
   const CALIBRATION_TEXT = {
     collecting: 'collecting directions: turn the vehicle through a full circle',
+    raw: 'the raw field is consistent in every direction seen: used as it is (factory-calibrated)',
     planar: 'calibrated in the horizontal plane (hard and soft iron)',
     ellipsoid: 'calibrated in 3-D (hard and soft iron)',
   };

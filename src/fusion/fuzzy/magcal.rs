@@ -46,9 +46,15 @@
 //!   samples ≤ 10 %;
 //! - **held-back samples**: every `HOLDOUT_EVERY`-th reading is kept out of
 //!   the fit in a ring of the newest `HOLDOUT_SAMPLES`; the candidate's
-//!   relative radius spread on them must not exceed that of the current
-//!   correction (the raw field before the first fit): a new calibration is
-//!   never worse than the previous one on recent data.
+//!   relative radius spread on them must be at most `IMPROVEMENT` of the
+//!   current correction's (the raw field's before the first fit): a new
+//!   calibration is never worse than the previous one on recent data, and
+//!   a refit that only fits the noise differently changes nothing.
+//!
+//! When no candidate beats the raw field and the raw field itself passes
+//! the gates with a spread of at most `MAX_RAW_RMS`, the raw field is the
+//! calibration (`raw`: a factory-calibrated magnetometer is used as it is
+//! rather than refitted to its own noise).
 
 use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, Vector2};
 use serde::{Deserialize, Serialize};
@@ -82,9 +88,14 @@ const MIN_SPAN_DEG: f64 = 90.0;
 const HOLDOUT_EVERY: u64 = 4;
 /// Held-back readings kept (the newest).
 const HOLDOUT_SAMPLES: usize = 128;
-/// A candidate is accepted if its held-back spread is at most this much
-/// above the current correction's (noise alone can tip an equal pair).
-const HOLDOUT_SLACK: f64 = 1.02;
+/// A candidate replaces the current correction (the raw field before the
+/// first) only if its held-back spread is at most this fraction of the
+/// current one's: a refit that merely fits the noise differently changes
+/// nothing.
+const IMPROVEMENT: f64 = 0.7;
+/// The raw field is taken as calibrated when no fit improves on it and
+/// its relative radius spread is at most this (3 %).
+const MAX_RAW_RMS: f64 = 0.03;
 
 /// How far the calibration has come.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -96,6 +107,9 @@ pub enum CalibrationState {
     Planar,
     /// Full 3-D hard and soft iron.
     Ellipsoid,
+    /// No fit improves on the raw field, which is consistent over the
+    /// directions seen (a factory-calibrated magnetometer): used as it is.
+    Raw,
 }
 
 impl CalibrationState {
@@ -105,6 +119,7 @@ impl CalibrationState {
             CalibrationState::Collecting => "collecting",
             CalibrationState::Planar => "planar",
             CalibrationState::Ellipsoid => "ellipsoid",
+            CalibrationState::Raw => "raw",
         }
     }
 }
@@ -340,50 +355,64 @@ impl MagCalibration {
             return false;
         };
         let planar = state == CalibrationState::Planar;
+        let fitted: Vec<V3> = self
+            .samples
+            .iter()
+            .filter(|s| s.level || !planar)
+            .map(|s| s.field_ut)
+            .collect();
+        let passes_gates = |c: &Correction| {
+            c.fit_rms <= MAX_FIT_RMS
+                && plausible_field(c, &fitted, planar)
+                && direction_span_deg(c, &fitted, planar) >= MIN_SPAN_DEG
+        };
+        let current = self.holdout_spread(self.correction.as_ref(), planar);
         let accepted = fit.filter(|candidate| {
-            let fitted: Vec<V3> = self
-                .samples
-                .iter()
-                .filter(|s| s.level || !planar)
-                .map(|s| s.field_ut)
-                .collect();
-            candidate.fit_rms <= MAX_FIT_RMS
-                && plausible_field(candidate, &fitted, planar)
-                && direction_span_deg(candidate, &fitted, planar) >= MIN_SPAN_DEG
-                && self.beats_current_on_holdout(candidate, planar)
+            passes_gates(candidate)
+                && match (self.holdout_spread(Some(candidate), planar), current) {
+                    (Some(new), Some(old)) => new <= IMPROVEMENT * old,
+                    _ => true,
+                }
         });
-        match accepted {
-            Some(correction) => {
-                self.correction = Some(correction);
-                self.state = state;
-                true
-            }
-            None => {
-                self.refused += 1;
-                false
+        if let Some(correction) = accepted {
+            self.correction = Some(correction);
+            self.state = state;
+            return true;
+        }
+        self.refused += 1;
+        // No fit beats the raw field clearly: if the raw field is already
+        // consistent over directions that span enough, it is the
+        // calibration (a factory-calibrated magnetometer).
+        if self.correction.is_none() {
+            let raw = Correction {
+                hard_iron_ut: V3::zeros(),
+                soft_iron: Matrix3::identity(),
+                fit_rms: radius_rms(&fitted, |m| if planar { m.xy().norm() } else { m.norm() }),
+            };
+            if passes_gates(&raw) && raw.fit_rms <= MAX_RAW_RMS {
+                self.correction = Some(raw);
+                self.state = CalibrationState::Raw;
+                return true;
             }
         }
+        false
     }
 
-    /// The held-back check of the module documentation; true when there
-    /// is nothing held back to judge by.
-    fn beats_current_on_holdout(&self, candidate: &Correction, planar: bool) -> bool {
+    /// The relative radius spread of the held-back readings through a
+    /// correction (`None`: the raw field); `None` when too few are held.
+    fn holdout_spread(&self, correction: Option<&Correction>, planar: bool) -> Option<f64> {
         let held: Vec<V3> = self
             .holdout
             .iter()
             .filter(|s| s.level || !planar)
             .map(|s| s.field_ut)
             .collect();
-        if held.len() < 8 {
-            return true;
-        }
-        let spread = |c: Option<&Correction>| {
+        (held.len() >= 8).then(|| {
             radius_rms(&held, |m| {
-                let v = c.map_or(*m, |c| c.apply(m));
+                let v = correction.map_or(*m, |c| c.apply(m));
                 if planar { v.xy().norm() } else { v.norm() }
             })
-        };
-        spread(Some(candidate)) <= HOLDOUT_SLACK * spread(self.correction.as_ref())
+        })
     }
 }
 

@@ -479,6 +479,9 @@ pub struct FuzzyEngine {
     reheading: bool,
     /// Since when the compass has disagreed with the heading beyond the gate.
     compass_gated_since: Option<f64>,
+    /// The newest static degree (the dip check allows for the tilt error
+    /// of a moving sensor).
+    static_degree: f64,
     #[serde(skip)]
     scratch: Scratch,
 }
@@ -519,6 +522,7 @@ impl FuzzyEngine {
             stats: FuzzyStats::default(),
             reheading: false,
             compass_gated_since: None,
+            static_degree: 0.0,
             scratch: Scratch::default(),
         })
     }
@@ -551,6 +555,7 @@ impl FuzzyEngine {
         fresh.stats = engine.stats;
         fresh.reheading = engine.reheading;
         fresh.compass_gated_since = engine.compass_gated_since;
+        fresh.static_degree = engine.static_degree;
         Ok(fresh)
     }
 
@@ -590,13 +595,19 @@ impl FuzzyEngine {
         self.stats.mag_used += 1;
         let (roll, pitch) = self.current_tilt();
         // A disturbed reading neither steers nor calibrates.
+        // Moving, the tilt (and so the dip) is less sure: up to three times
+        // the dip tolerance.
+        let tolerances = Tolerances {
+            dip_rad: self.config.mag_disturbance.dip_rad * (3.0 - 2.0 * self.static_degree),
+            ..self.config.mag_disturbance
+        };
         let disturbed = self.calibration.correction().is_some_and(|c| {
             let level = attitude_from_euler(roll, pitch, 0.0) * c.apply(&field_ut);
             self.disturbance.observe(
                 t,
                 &level,
                 self.calibration.state() == CalibrationState::Planar,
-                &self.config.mag_disturbance,
+                &tolerances,
             )
         });
         if disturbed {
@@ -719,6 +730,7 @@ impl FuzzyEngine {
             .or_else(|| motion::static_degree(&self.expert, &relative, &mut self.scratch))
             .unwrap_or(0.0);
 
+        self.static_degree = static_degree;
         if continuous && let Some(solution) = self.solution.take() {
             let updated = self.advance(solution, dt_s, force, rate, static_degree);
             let mut updated = updated;
