@@ -1,5 +1,6 @@
 //! Scoring engines against simulated truth.
 
+pub mod ahrs;
 pub mod attitude;
 pub mod fuzzy;
 pub mod kf3;
