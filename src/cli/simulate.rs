@@ -13,7 +13,9 @@ use crate::sim::pipejack::{
 };
 use crate::sim::tbm::{DEFAULT_START_T, Dropout, TbmDrive, TbmEvent, TbmScenario};
 use crate::sim::tbm_envelope::EnvelopeDrive;
-use crate::sim::vehicle::{VehicleDrive, VehicleScenario};
+use crate::sim::vehicle::{
+    DriveProfile, ImuErrors, MagnetDisturbance, VehicleDrive, VehicleScenario,
+};
 
 #[derive(Debug, Subcommand)]
 pub enum Scenario {
@@ -55,11 +57,93 @@ pub struct VehicleDriveArgs {
     /// Unix seconds of the first reading.
     #[arg(long, default_value_t = DEFAULT_START_T)]
     pub start_t: f64,
+    /// The harder drive all at once: --profile hard and a hand-held grade
+    /// MEMS IMU (gyro bias 1 °/s, drift up to 0.1 °/s per minute, noise
+    /// 0.5 °/s and 0.1 m/s², vibration 0.5 m/s² + 0.1 per m/s rolling,
+    /// 0.2 m/s² idling). The flags below override single values.
+    #[arg(long)]
+    pub hard: bool,
+    /// gentle: the default drive; hard: accelerations to 3 m/s², turns at
+    /// 30–60 °/s, creeping legs, idling stops (manoeuvres only).
+    /// Default: hard with --hard, else gentle.
+    #[arg(long, value_enum)]
+    pub profile: Option<DriveProfile>,
+    /// Gyro turn-on bias, °/s (1σ per axis; default 0.3).
+    #[arg(long, value_parser = non_negative)]
+    pub gyro_bias_dps: Option<f64>,
+    /// Largest slope of the drifting gyro bias, °/s per minute (per axis,
+    /// a new slope every 1–3 min; default 0).
+    #[arg(long, value_parser = non_negative)]
+    pub bias_drift_dps_per_min: Option<f64>,
+    /// Gyro white noise per sample, °/s (default 0.05).
+    #[arg(long, value_parser = non_negative)]
+    pub gyro_noise_dps: Option<f64>,
+    /// Accelerometer white noise per sample, m/s² (default 0.02).
+    #[arg(long, value_parser = non_negative)]
+    pub accel_noise_mps2: Option<f64>,
+    /// Accelerometer bias, m/s² (1σ per axis; default 0.02).
+    #[arg(long, value_parser = non_negative)]
+    pub accel_bias_mps2: Option<f64>,
+    /// Vibration rolling at walking pace and faster, m/s² (default 0.3).
+    #[arg(long, value_parser = non_negative)]
+    pub vibration_mps2: Option<f64>,
+    /// Extra vibration per m/s of speed, m/s² (default 0).
+    #[arg(long, value_parser = non_negative)]
+    pub vibration_growth_per_mps: Option<f64>,
+    /// Vibration standing with the engine idling, m/s² (default 0.01).
+    #[arg(long, value_parser = non_negative)]
+    pub idle_vibration_mps2: Option<f64>,
+    /// A magnet near the sensor from this many seconds after the start
+    /// (with --magnet-for-s and --magnet-ut).
+    #[arg(long, value_parser = non_negative, requires_all = ["magnet_for_s", "magnet_ut"])]
+    pub magnet_at_s: Option<f64>,
+    /// How long the magnet stays, s.
+    #[arg(long, value_parser = non_negative, requires = "magnet_at_s")]
+    pub magnet_for_s: Option<f64>,
+    /// The magnet's field at the sensor, µT, fixed in the body frame.
+    #[arg(long, value_parser = non_negative, requires = "magnet_at_s")]
+    pub magnet_ut: Option<f64>,
+}
+
+/// A finite number ≥ 0.
+fn non_negative(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(x) if x.is_finite() && x >= 0.0 => Ok(x),
+        _ => Err(format!("`{text}` is not a number ≥ 0")),
+    }
 }
 
 impl VehicleDriveArgs {
     /// The scenario these arguments describe.
     pub fn scenario(&self) -> VehicleScenario {
+        let preset = if self.hard {
+            VehicleScenario::hard()
+        } else {
+            VehicleScenario::default()
+        };
+        let i = preset.imu;
+        let imu = ImuErrors {
+            gyro_bias_dps: self.gyro_bias_dps.unwrap_or(i.gyro_bias_dps),
+            bias_drift_dps_per_min: self
+                .bias_drift_dps_per_min
+                .unwrap_or(i.bias_drift_dps_per_min),
+            gyro_noise_dps: self.gyro_noise_dps.unwrap_or(i.gyro_noise_dps),
+            accel_bias_mps2: self.accel_bias_mps2.unwrap_or(i.accel_bias_mps2),
+            accel_noise_mps2: self.accel_noise_mps2.unwrap_or(i.accel_noise_mps2),
+            vibration_mps2: self.vibration_mps2.unwrap_or(i.vibration_mps2),
+            vibration_growth_per_mps: self
+                .vibration_growth_per_mps
+                .unwrap_or(i.vibration_growth_per_mps),
+            idle_vibration_mps2: self.idle_vibration_mps2.unwrap_or(i.idle_vibration_mps2),
+        };
+        let magnet = match (self.magnet_at_s, self.magnet_for_s, self.magnet_ut) {
+            (Some(at_s), Some(for_s), Some(field_ut)) => Some(MagnetDisturbance {
+                at_s,
+                for_s,
+                field_ut,
+            }),
+            _ => None,
+        };
         VehicleScenario {
             seed: self.seed,
             start_t: self.start_t,
@@ -70,6 +154,9 @@ impl VehicleDriveArgs {
             field_ut: self.field_ut,
             inclination_deg: self.inclination_deg,
             declination_deg: self.declination_deg,
+            profile: self.profile.unwrap_or(preset.profile),
+            imu,
+            magnet,
         }
     }
 }

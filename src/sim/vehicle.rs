@@ -24,6 +24,30 @@
 //!   `declination_deg`) through soft iron (I + symmetric, diagonal 8 %,
 //!   off-diagonal 4 %, 1σ) and hard iron (15 µT in x and y, 5 µT in z,
 //!   1σ), white noise 0.3 µT.
+//!
+//! Harder drives (all off by default, so the default drive is unchanged
+//! reading for reading):
+//! - [`DriveProfile::Hard`] manoeuvres: legs at 2–7 m/s, or (three in ten)
+//!   creeping at walking pace (0.5–1.5 m/s); accelerations and brakings
+//!   peaking at 1.5–3 m/s²; one to three tight turns per leg of 45–180° at
+//!   a peak rate of 30–60 °/s (capped at a 4 m/s² lateral acceleration);
+//!   grade within ±8°, bank within ±3°; bumps of 1–3° every 2–8 s; idling
+//!   stops of 5–60 s. The parking and the calibration turn are as gentle.
+//! - [`ImuErrors`]: the gyro bias (1σ per axis), a bias drift that keeps
+//!   changing (per axis, piecewise linear: a new slope drawn uniformly in
+//!   ±`bias_drift_dps_per_min` every 60–180 s, so the bias differs from one
+//!   stop to the next), white noise of both sensors, the accelerometer
+//!   bias, the rolling vibration (reached at walking pace, growing by
+//!   `vibration_growth_per_mps` per m/s above nothing) and the vibration
+//!   standing with the engine idling. [`ImuErrors::hard`] is a hand-held
+//!   grade MEMS: bias 1 °/s, drift up to 0.1 °/s per minute, noise
+//!   0.5 °/s and 0.1 m/s², accelerometer bias 0.05 m/s², vibration
+//!   0.5 m/s² + 0.1 m/s² per m/s rolling and 0.2 m/s² idling.
+//!   [`VehicleScenario::hard`] is both at once (`--hard`).
+//! - [`MagnetDisturbance`]: a magnet near the sensor, a field fixed in the
+//!   body frame (along [`MAGNET_DIRECTION`]) added to the magnetometer's
+//!   readings over [at, at + for] seconds from the start; the truth marks
+//!   its IMU readings (`magnet_near`).
 
 use nalgebra::{Matrix3, UnitQuaternion};
 use rand::{Rng, SeedableRng};
@@ -42,6 +66,105 @@ const GRAVITY_MPS2: f64 = 9.806_65;
 /// Rolling speed at which the wobble and vibration are fully developed.
 const FULL_SHAKE_SPEED_MPS: f64 = 0.5;
 
+/// How the vehicle is driven (see the module doc).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum DriveProfile {
+    /// The default drive: 2–6 m/s, turns of 30–120° over 6–15 s.
+    #[default]
+    Gentle,
+    /// Hard accelerations, tight turns, creeping legs, idling stops.
+    Hard,
+}
+
+/// The IMU's errors. The default is the module doc's MEMS IMU.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct ImuErrors {
+    /// Gyro turn-on bias, °/s (1σ per axis).
+    pub gyro_bias_dps: f64,
+    /// Largest slope of the drifting gyro bias, °/s per minute (0: none).
+    pub bias_drift_dps_per_min: f64,
+    /// Gyro white noise per sample, °/s (1σ).
+    pub gyro_noise_dps: f64,
+    /// Accelerometer bias, m/s² (1σ per axis).
+    pub accel_bias_mps2: f64,
+    /// Accelerometer white noise per sample, m/s² (1σ).
+    pub accel_noise_mps2: f64,
+    /// Vibration while rolling at walking pace and faster, m/s² (1σ).
+    pub vibration_mps2: f64,
+    /// Extra vibration per m/s of speed, m/s² (1σ).
+    pub vibration_growth_per_mps: f64,
+    /// Vibration standing with the engine idling, m/s² (1σ).
+    pub idle_vibration_mps2: f64,
+}
+
+impl Default for ImuErrors {
+    fn default() -> Self {
+        ImuErrors {
+            gyro_bias_dps: 0.3,
+            bias_drift_dps_per_min: 0.0,
+            gyro_noise_dps: 0.05,
+            accel_bias_mps2: 0.02,
+            accel_noise_mps2: 0.02,
+            vibration_mps2: 0.3,
+            vibration_growth_per_mps: 0.0,
+            idle_vibration_mps2: 0.01,
+        }
+    }
+}
+
+impl ImuErrors {
+    /// A hand-held grade MEMS IMU on a rough machine (module doc).
+    pub fn hard() -> ImuErrors {
+        ImuErrors {
+            gyro_bias_dps: 1.0,
+            bias_drift_dps_per_min: 0.1,
+            gyro_noise_dps: 0.5,
+            accel_bias_mps2: 0.05,
+            accel_noise_mps2: 0.1,
+            vibration_mps2: 0.5,
+            vibration_growth_per_mps: 0.1,
+            idle_vibration_mps2: 0.2,
+        }
+    }
+
+    fn is_valid(&self) -> bool {
+        [
+            self.gyro_bias_dps,
+            self.bias_drift_dps_per_min,
+            self.gyro_noise_dps,
+            self.accel_bias_mps2,
+            self.accel_noise_mps2,
+            self.vibration_mps2,
+            self.vibration_growth_per_mps,
+            self.idle_vibration_mps2,
+        ]
+        .iter()
+        .all(|x| x.is_finite() && *x >= 0.0)
+    }
+}
+
+/// The body-frame direction of a [`MagnetDisturbance`]'s field: from the
+/// front, right and below (a unit vector).
+pub const MAGNET_DIRECTION: [f64; 3] = [0.6, 0.64, 0.48];
+
+/// A magnet brought near the sensor: `field_ut` along [`MAGNET_DIRECTION`]
+/// in the body frame over [`at_s`, `at_s + for_s`] from the start.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct MagnetDisturbance {
+    pub at_s: f64,
+    pub for_s: f64,
+    pub field_ut: f64,
+}
+
+impl MagnetDisturbance {
+    /// True while the magnet is near, `s` seconds from the start.
+    pub fn is_near(&self, s: f64) -> bool {
+        s >= self.at_s && s <= self.at_s + self.for_s
+    }
+}
+
 /// What to simulate.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct VehicleScenario {
@@ -58,6 +181,15 @@ pub struct VehicleScenario {
     pub field_ut: f64,
     pub inclination_deg: f64,
     pub declination_deg: f64,
+    /// How the vehicle is driven.
+    #[serde(default)]
+    pub profile: DriveProfile,
+    /// The IMU's errors.
+    #[serde(default)]
+    pub imu: ImuErrors,
+    /// A magnet near the sensor for a while.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub magnet: Option<MagnetDisturbance>,
 }
 
 impl Default for VehicleScenario {
@@ -72,6 +204,20 @@ impl Default for VehicleScenario {
             field_ut: 50.0,
             inclination_deg: 60.0,
             declination_deg: 2.5,
+            profile: DriveProfile::Gentle,
+            imu: ImuErrors::default(),
+            magnet: None,
+        }
+    }
+}
+
+impl VehicleScenario {
+    /// The harder drive: [`DriveProfile::Hard`] with [`ImuErrors::hard`].
+    pub fn hard() -> VehicleScenario {
+        VehicleScenario {
+            profile: DriveProfile::Hard,
+            imu: ImuErrors::hard(),
+            ..VehicleScenario::default()
         }
     }
 }
@@ -89,6 +235,9 @@ pub struct VehicleTruth {
     pub heading_deg: f64,
     /// The gyro bias at this instant.
     pub gyro_bias_dps: [f64; 3],
+    /// True while a magnet disturbs the magnetometer.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub magnet_near: bool,
 }
 
 /// One simulated reading, and the truth if it is an IMU reading.
@@ -167,6 +316,7 @@ pub struct VehicleDrive {
     gyro_bias0: V3,
     gyro_warmup: V3,
     gyro_walk: V3,
+    drift: BiasDrift,
     accel_bias: V3,
     vibration: V3,
     imu_rng: ChaCha8Rng,
@@ -189,9 +339,71 @@ fn normal3(rng: &mut ChaCha8Rng, sigma: f64) -> V3 {
     V3::new(normal(rng), normal(rng), normal(rng)) * sigma
 }
 
+/// The drifting part of the gyro bias: per axis piecewise linear, a new
+/// slope (uniform within ±the scenario's drift rate) every 60–180 s, from
+/// its own generator (so the rest of the drive does not depend on it).
+struct BiasDrift {
+    rng: ChaCha8Rng,
+    /// Largest slope, rad/s per s.
+    max_slope: f64,
+    /// The drift at `since`, the slopes from then, and when they change.
+    offset: V3,
+    slope: V3,
+    since: f64,
+    next_change: f64,
+}
+
+impl BiasDrift {
+    fn new(seed: u64, dps_per_min: f64) -> BiasDrift {
+        let mut drift = BiasDrift {
+            rng: ChaCha8Rng::seed_from_u64(seed.wrapping_mul(41).wrapping_add(13)),
+            max_slope: rad(dps_per_min) / 60.0,
+            offset: V3::zeros(),
+            slope: V3::zeros(),
+            since: 0.0,
+            next_change: 0.0,
+        };
+        if drift.max_slope > 0.0 {
+            drift.redraw();
+        }
+        drift
+    }
+
+    fn redraw(&mut self) {
+        let m = self.max_slope;
+        self.slope = V3::new(
+            self.rng.random_range(-m..=m),
+            self.rng.random_range(-m..=m),
+            self.rng.random_range(-m..=m),
+        );
+        self.next_change = self.since + self.rng.random_range(60.0..180.0);
+    }
+
+    /// The drift at `s` (which only grows), rad/s.
+    fn at(&mut self, s: f64) -> V3 {
+        if self.max_slope == 0.0 {
+            return V3::zeros();
+        }
+        while s >= self.next_change {
+            self.offset += self.slope * (self.next_change - self.since);
+            self.since = self.next_change;
+            self.redraw();
+        }
+        self.offset + self.slope * (s - self.since)
+    }
+}
+
 /// The drive's manoeuvres.
 fn plan(scenario: &VehicleScenario, rng: &mut ChaCha8Rng) -> Vec<Pulse> {
-    let mut pulses = Vec::new();
+    match scenario.profile {
+        DriveProfile::Gentle => plan_gentle(scenario, rng),
+        DriveProfile::Hard => plan_hard(scenario, rng),
+    }
+}
+
+/// The parking and the calibration turn that start every drive; returns
+/// when the legs may start.
+fn plan_start(pulses: &mut Vec<Pulse>, rng: &mut ChaCha8Rng) -> f64 {
     let mut push = |channel, start, duration, change| {
         pulses.push(Pulse {
             channel,
@@ -207,7 +419,94 @@ fn plan(scenario: &VehicleScenario, rng: &mut ChaCha8Rng) -> Vec<Pulse> {
     push(Channel::Heading, t + 4.0, 80.0, rad(380.0) * direction);
     t += 84.0;
     push(Channel::Speed, t, 4.0, -1.0);
-    t += 4.0 + 20.0;
+    t + 4.0 + 20.0
+}
+
+/// A sign drawn at random.
+fn sign(rng: &mut ChaCha8Rng) -> f64 {
+    if rng.random_bool(0.5) { 1.0 } else { -1.0 }
+}
+
+/// The hard profile's manoeuvres (module doc).
+fn plan_hard(scenario: &VehicleScenario, rng: &mut ChaCha8Rng) -> Vec<Pulse> {
+    /// Largest centripetal acceleration a turn may reach, m/s².
+    const MAX_LATERAL_MPS2: f64 = 4.0;
+    let mut pulses = Vec::new();
+    let mut t = plan_start(&mut pulses, rng);
+    let mut push = |channel, start, duration, change| {
+        pulses.push(Pulse {
+            channel,
+            start,
+            duration,
+            change,
+        })
+    };
+    let (mut grade, mut bank) = (0.0_f64, 0.0_f64);
+    let end = scenario.duration_s - 60.0;
+    loop {
+        let creep = rng.random_bool(0.3);
+        let speed = if creep {
+            rng.random_range(0.5..1.5)
+        } else {
+            rng.random_range(2.0..7.0)
+        };
+        // A raised-cosine change of Δv over T peaks at 2Δv/T.
+        let accelerate = 2.0 * speed / rng.random_range(1.5..3.0);
+        let cruise = rng.random_range(20.0..90.0);
+        let brake = 2.0 * speed / rng.random_range(1.5..3.0);
+        if t + accelerate + cruise + brake > end {
+            break;
+        }
+        push(Channel::Speed, t, accelerate, speed);
+        let (cruise_start, cruise_end) = (t + accelerate, t + accelerate + cruise);
+        let mut turn_t = cruise_start + rng.random_range(2.0..8.0);
+        for _ in 0..rng.random_range(1..4) {
+            let angle = rad(rng.random_range(45.0..180.0));
+            let peak = rad(rng.random_range(30.0..60.0)).min(MAX_LATERAL_MPS2 / speed);
+            let duration = 2.0 * angle / peak;
+            if turn_t + duration > cruise_end {
+                break;
+            }
+            push(Channel::Heading, turn_t, duration, angle * sign(rng));
+            turn_t += duration + rng.random_range(2.0..10.0);
+        }
+        let duration = rng.random_range(4.0_f64..10.0).min(cruise);
+        let target = rad(rng.random_range(-8.0..8.0));
+        push(Channel::Grade, cruise_start, duration, target - grade);
+        grade = target;
+        let target = rad(rng.random_range(-3.0..3.0));
+        push(Channel::Bank, cruise_start + 1.0, duration, target - bank);
+        bank = target;
+        let mut bump_t = cruise_start + rng.random_range(2.0..8.0);
+        while bump_t + 1.0 < cruise_end {
+            let channel = if rng.random_bool(0.5) {
+                Channel::BumpPitch
+            } else {
+                Channel::BumpRoll
+            };
+            let size = rad(rng.random_range(1.0..3.0)) * sign(rng);
+            push(channel, bump_t, rng.random_range(0.3..0.8), size);
+            bump_t += rng.random_range(2.0..8.0);
+        }
+        push(Channel::Speed, cruise_end, brake, -speed);
+        t = cruise_end + brake + rng.random_range(5.0..60.0);
+    }
+    pulses.sort_by(|a, b| a.start.total_cmp(&b.start));
+    pulses
+}
+
+/// The default drive's manoeuvres.
+fn plan_gentle(scenario: &VehicleScenario, rng: &mut ChaCha8Rng) -> Vec<Pulse> {
+    let mut pulses = Vec::new();
+    let mut t = plan_start(&mut pulses, rng);
+    let mut push = |channel, start, duration, change| {
+        pulses.push(Pulse {
+            channel,
+            start,
+            duration,
+            change,
+        })
+    };
     let (mut grade, mut bank) = (0.0_f64, 0.0_f64);
     let end = scenario.duration_s - 60.0;
     loop {
@@ -301,6 +600,21 @@ impl VehicleDrive {
         {
             return Err("duration must be 300 s–24 h, IMU rate 20–1000 Hz, magnetometer rate up to the IMU's, field positive, inclination within ±90°".into());
         }
+        if !scenario.imu.is_valid() {
+            return Err("the IMU's error levels must be finite and not negative".into());
+        }
+        if let Some(m) = scenario.magnet
+            && !(m.at_s.is_finite()
+                && m.at_s >= 0.0
+                && m.for_s.is_finite()
+                && m.for_s > 0.0
+                && m.field_ut.is_finite()
+                && m.field_ut >= 0.0)
+        {
+            return Err(
+                "the magnet needs a start ≥ 0 s, a duration > 0 s and a field ≥ 0 µT".into(),
+            );
+        }
         let mut rng = ChaCha8Rng::seed_from_u64(scenario.seed);
         let pulses = plan(&scenario, &mut rng);
         let pitch_tones = tones(&mut rng);
@@ -331,9 +645,11 @@ impl VehicleDrive {
             15.0 * normal(&mut rng),
             5.0 * normal(&mut rng),
         );
-        let gyro_bias0 = normal3(&mut rng, rad(0.3));
+        let imu = scenario.imu;
+        let gyro_bias0 = normal3(&mut rng, rad(imu.gyro_bias_dps));
         let gyro_warmup = normal3(&mut rng, rad(0.05));
-        let accel_bias = normal3(&mut rng, 0.02);
+        let accel_bias = normal3(&mut rng, imu.accel_bias_mps2);
+        let drift = BiasDrift::new(scenario.seed, imu.bias_drift_dps_per_min);
         let imu_rng = ChaCha8Rng::seed_from_u64(scenario.seed.wrapping_mul(31).wrapping_add(7));
         let mag_rng = ChaCha8Rng::seed_from_u64(scenario.seed.wrapping_mul(37).wrapping_add(11));
         Ok(VehicleDrive {
@@ -347,6 +663,7 @@ impl VehicleDrive {
             gyro_bias0,
             gyro_warmup,
             gyro_walk: V3::zeros(),
+            drift,
             accel_bias,
             vibration: V3::zeros(),
             imu_rng,
@@ -472,9 +789,12 @@ impl VehicleDrive {
         }
     }
 
-    /// Gyro bias at `s` seconds (without the random walk).
-    fn gyro_bias(&self, s: f64) -> V3 {
-        self.gyro_bias0 + self.gyro_warmup * (1.0 - (-s / 400.0).exp()) + self.gyro_walk
+    /// Gyro bias at `s` seconds (`s` only grows).
+    fn gyro_bias(&mut self, s: f64) -> V3 {
+        self.gyro_bias0
+            + self.gyro_warmup * (1.0 - (-s / 400.0).exp())
+            + self.gyro_walk
+            + self.drift.at(s)
     }
 
     fn imu_event(&mut self) -> VehicleEvent {
@@ -504,19 +824,23 @@ impl VehicleDrive {
         let accel_n = tangent * st.speed_rate + tangent_rate * st.speed;
         let force_true = attitude.inverse() * (accel_n - V3::new(0.0, 0.0, GRAVITY_MPS2));
 
+        let imu = self.scenario.imu;
+        let (idle, rolling) = (imu.idle_vibration_mps2, imu.vibration_mps2);
         let shake = if st.speed < FULL_SHAKE_SPEED_MPS {
-            0.01 + 0.29 * st.speed / FULL_SHAKE_SPEED_MPS
+            idle + (rolling - idle) * st.speed / FULL_SHAKE_SPEED_MPS
         } else {
-            0.3
-        };
+            rolling
+        } + imu.vibration_growth_per_mps * st.speed;
         let rho = 0.7_f64;
         let innovation = normal3(&mut self.imu_rng, shake * (1.0 - rho * rho).sqrt());
         self.vibration = self.vibration * rho + innovation;
         self.gyro_walk += normal3(&mut self.imu_rng, rad(3e-4) * dt.sqrt());
         let bias = self.gyro_bias(s);
-        let gyro = rate_b + bias + normal3(&mut self.imu_rng, rad(0.05));
-        let accel =
-            force_true + self.accel_bias + self.vibration + normal3(&mut self.imu_rng, 0.02);
+        let gyro = rate_b + bias + normal3(&mut self.imu_rng, rad(imu.gyro_noise_dps));
+        let accel = force_true
+            + self.accel_bias
+            + self.vibration
+            + normal3(&mut self.imu_rng, imu.accel_noise_mps2);
         let t = self.scenario.start_t + s;
         VehicleEvent {
             reading: Reading {
@@ -534,6 +858,7 @@ impl VehicleDrive {
                 roll_deg: deg(st.roll),
                 heading_deg: deg(st.heading).rem_euclid(360.0),
                 gyro_bias_dps: [deg(bias.x), deg(bias.y), deg(bias.z)],
+                magnet_near: self.scenario.magnet.is_some_and(|m| m.is_near(s)),
             }),
         }
     }
@@ -542,7 +867,12 @@ impl VehicleDrive {
         let st = self.state(s);
         let attitude = attitude_from_euler(st.roll, st.pitch, st.heading);
         let body = attitude.inverse() * self.earth_field_n;
-        let field = self.soft_iron * body + self.hard_iron_ut + normal3(&mut self.mag_rng, 0.3);
+        let mut field = self.soft_iron * body + self.hard_iron_ut + normal3(&mut self.mag_rng, 0.3);
+        if let Some(m) = self.scenario.magnet
+            && m.is_near(s)
+        {
+            field += V3::from(MAGNET_DIRECTION) * m.field_ut;
+        }
         Reading {
             t: self.scenario.start_t + s,
             data: SensorData::Magnetometer {
@@ -624,7 +954,31 @@ mod tests {
     fn the_gyros_integrate_to_the_true_attitude() {
         // The readings minus the true bias, integrated, follow the truth
         // to within what the white noise random-walks to.
-        let mut drive = VehicleDrive::new(VehicleScenario::default()).unwrap();
+        let worst = gyro_integration_error(VehicleScenario::default());
+        assert!(worst < 0.5, "{worst}");
+    }
+
+    #[test]
+    fn the_hard_drives_gyros_integrate_to_the_true_attitude() {
+        // Tight turns and big bumps, the drifting bias taken out with the
+        // truth's, the white noise (0.5 °/s would random-walk to about a
+        // degree) left out.
+        let scenario = VehicleScenario {
+            imu: ImuErrors {
+                gyro_noise_dps: 0.0,
+                ..ImuErrors::hard()
+            },
+            ..VehicleScenario::hard()
+        };
+        let worst = gyro_integration_error(scenario);
+        assert!(worst < 0.1, "{worst}");
+    }
+
+    /// The largest angle, degrees, between the truth and the gyros minus
+    /// the true bias integrated over the first 10 minutes.
+    fn gyro_integration_error(scenario: VehicleScenario) -> f64 {
+        let dt = 1.0 / scenario.imu_rate_hz;
+        let mut drive = VehicleDrive::new(scenario).unwrap();
         let mut attitude: Option<UnitQuaternion<f64>> = None;
         let mut previous: Option<V3> = None;
         let mut worst = 0.0_f64;
@@ -643,7 +997,7 @@ mod tests {
                 )
             });
             if let Some(p) = previous {
-                *q *= UnitQuaternion::from_scaled_axis((p + rate) * 0.005);
+                *q *= UnitQuaternion::from_scaled_axis((p + rate) * (0.5 * dt));
             }
             previous = Some(rate);
             let truth_q = attitude_from_euler(
@@ -656,7 +1010,120 @@ mod tests {
                 break;
             }
         }
-        assert!(worst < 0.5, "{worst}");
+        worst
+    }
+
+    #[test]
+    fn the_hard_drive_accelerates_turns_creeps_and_idles() {
+        let scenario = VehicleScenario::hard();
+        let dt = 1.0 / scenario.imu_rate_hz;
+        let truths: Vec<VehicleTruth> = VehicleDrive::new(scenario)
+            .unwrap()
+            .filter_map(|e| e.truth)
+            .collect();
+        let mut max_accel = 0.0_f64;
+        let mut max_turn = 0.0_f64;
+        for w in truths.windows(2) {
+            max_accel = max_accel.max((w[1].speed_mps - w[0].speed_mps).abs() / dt);
+            let turn = (w[1].heading_deg - w[0].heading_deg + 180.0).rem_euclid(360.0) - 180.0;
+            max_turn = max_turn.max(turn.abs() / dt);
+        }
+        assert!((2.5..=3.01).contains(&max_accel), "{max_accel}");
+        assert!((30.0..=60.5).contains(&max_turn), "{max_turn}");
+        // Legs between stops (after the calibration turn): their top speeds.
+        let mut legs = Vec::new();
+        let mut top = 0.0_f64;
+        for t in truths.iter().filter(|t| t.t - DEFAULT_START_T > 140.0) {
+            if t.moving {
+                top = top.max(t.speed_mps);
+            } else if top > 0.0 {
+                legs.push(top);
+                top = 0.0;
+            }
+        }
+        assert!(legs.len() >= 8, "{legs:?}");
+        assert!(legs.iter().any(|&v| v < 1.5), "no creeping leg: {legs:?}");
+        assert!(legs.iter().any(|&v| v > 4.0), "{legs:?}");
+    }
+
+    #[test]
+    fn the_bias_drift_is_piecewise_linear_within_its_rate() {
+        let mut drift = BiasDrift::new(5, 0.1);
+        let max_slope = rad(0.1) / 60.0;
+        let mut previous = drift.at(0.0);
+        assert_eq!(previous, V3::zeros());
+        let mut slopes = Vec::new();
+        for k in 1..=1200 {
+            let now = drift.at(f64::from(k));
+            let slope = now - previous;
+            assert!(slope.amax() <= max_slope * (1.0 + 1e-9), "{k}");
+            slopes.push(slope.x);
+            previous = now;
+        }
+        // A new slope every 1–3 minutes, 6 to 20 over 20 minutes; each
+        // shows twice in the one-second steps (the step across it blends).
+        let changes = slopes
+            .windows(2)
+            .filter(|w| (w[1] - w[0]).abs() > 1e-12)
+            .count();
+        assert!((12..=40).contains(&changes), "{changes}");
+        // None without a drift rate.
+        assert_eq!(BiasDrift::new(5, 0.0).at(500.0), V3::zeros());
+    }
+
+    #[test]
+    fn a_magnet_adds_its_field_in_the_body_frame_while_near() {
+        let magnet = MagnetDisturbance {
+            at_s: 300.0,
+            for_s: 60.0,
+            field_ut: 200.0,
+        };
+        let plain = VehicleDrive::new(VehicleScenario::default()).unwrap();
+        let disturbed = VehicleDrive::new(VehicleScenario {
+            magnet: Some(magnet),
+            ..VehicleScenario::default()
+        })
+        .unwrap();
+        let (mut near, mut near_truths) = (0, 0);
+        for (a, b) in plain.zip(disturbed) {
+            let s = a.reading.t - DEFAULT_START_T;
+            if let Some(truth) = b.truth {
+                assert_eq!(truth.magnet_near, magnet.is_near(s));
+                near_truths += usize::from(truth.magnet_near);
+            }
+            match (&a.reading.data, &b.reading.data) {
+                (
+                    SensorData::Magnetometer { field_ut: x },
+                    SensorData::Magnetometer { field_ut: y },
+                ) => {
+                    let extra = V3::from(*y) - V3::from(*x);
+                    if magnet.is_near(s) {
+                        near += 1;
+                        let expected = V3::from(MAGNET_DIRECTION) * 200.0;
+                        assert!((extra - expected).norm() < 1e-9, "{s}");
+                    } else {
+                        assert_eq!(extra, V3::zeros(), "{s}");
+                    }
+                }
+                _ => assert_eq!(a.reading, b.reading),
+            }
+        }
+        assert_eq!(near, 601);
+        assert_eq!(near_truths, 6001);
+        assert!((V3::from(MAGNET_DIRECTION).norm() - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_scenario_without_the_new_fields_reads_as_the_default_drive() {
+        let mut value = serde_json::to_value(VehicleScenario::default()).unwrap();
+        for key in ["profile", "imu", "magnet"] {
+            value.as_object_mut().unwrap().remove(key);
+        }
+        let scenario: VehicleScenario = serde_json::from_value(value).unwrap();
+        assert_eq!(scenario, VehicleScenario::default());
+        let hard: VehicleScenario =
+            serde_json::from_value(serde_json::to_value(VehicleScenario::hard()).unwrap()).unwrap();
+        assert_eq!(hard, VehicleScenario::hard());
     }
 
     #[test]
