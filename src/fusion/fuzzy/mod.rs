@@ -117,7 +117,7 @@ pub const PARAMS: &[ParamSpec] = &[
     ),
     real(
         "accel_activity_still_factor",
-        1.8,
+        2.0,
         0.0,
         1000.0,
         "× floor",
@@ -125,7 +125,7 @@ pub const PARAMS: &[ParamSpec] = &[
     ),
     real(
         "accel_activity_moving_factor",
-        6.0,
+        10.0,
         0.0,
         1000.0,
         "× floor",
@@ -133,7 +133,7 @@ pub const PARAMS: &[ParamSpec] = &[
     ),
     real(
         "gyro_activity_still_factor",
-        3.0,
+        2.0,
         0.0,
         1000.0,
         "× floor",
@@ -141,7 +141,7 @@ pub const PARAMS: &[ParamSpec] = &[
     ),
     real(
         "gyro_activity_moving_factor",
-        12.0,
+        5.0,
         0.0,
         1000.0,
         "× floor",
@@ -164,7 +164,7 @@ pub const PARAMS: &[ParamSpec] = &[
     ),
     real(
         "static_threshold",
-        0.5,
+        0.55,
         0.0,
         1.0,
         "",
@@ -180,7 +180,7 @@ pub const PARAMS: &[ParamSpec] = &[
     ),
     real(
         "tilt_moving_time_constant_s",
-        30.0,
+        10.0,
         0.001,
         1.0e6,
         "s",
@@ -188,7 +188,7 @@ pub const PARAMS: &[ParamSpec] = &[
     ),
     real(
         "tilt_gate_deg",
-        0.5,
+        3.0,
         0.0,
         90.0,
         "deg",
@@ -228,7 +228,7 @@ pub const PARAMS: &[ParamSpec] = &[
     ),
     real(
         "gyro_bias_walk_dps_per_sqrt_s",
-        0.002,
+        0.01,
         0.0,
         10.0,
         "deg/s/√s",
@@ -823,17 +823,14 @@ impl FuzzyEngine {
         {
             let residual = (measured - predicted).norm();
             let moving_weight = tilt::moving_weight(residual, c.tilt_gate_mps2);
-            let gain = static_degree * dt_s / c.tilt_time_constant_s
-                + (1.0 - static_degree) * moving_weight * dt_s / c.tilt_moving_time_constant_s;
+            let still = self.stillness(static_degree);
+            let gain = still * dt_s / c.tilt_time_constant_s
+                + (1.0 - still) * moving_weight * dt_s / c.tilt_moving_time_constant_s;
             solution.attitude = tilt::correct(&solution.attitude, &measured, &predicted, gain);
         }
 
-        if static_degree > c.static_threshold {
-            let weight = if c.static_threshold < 1.0 {
-                (static_degree - c.static_threshold) / (1.0 - c.static_threshold)
-            } else {
-                1.0
-            };
+        let weight = self.stillness(static_degree);
+        if weight > 0.0 {
             let gyro_floor = self.floor.gyro.level().unwrap_or(0.0);
             // Per-axis noise variance: the floor is a norm over three axes.
             let noise_variance = (gyro_floor * gyro_floor / 3.0).max(MIN_FLOOR * MIN_FLOOR);
@@ -842,6 +839,21 @@ impl FuzzyEngine {
             solution.static_gravity_mps2 += (force.norm() - solution.static_gravity_mps2) * gain;
         }
         solution
+    }
+
+    /// How static a reading counts for the references and the bias: 0 up
+    /// to `static_threshold` (the `uncertain` rule alone gives 0.5, below
+    /// it: what the expert is unsure of is treated as motion), rising to 1
+    /// at a static degree of 1.
+    fn stillness(&self, static_degree: f64) -> f64 {
+        let threshold = self.config.static_threshold;
+        if threshold < 1.0 {
+            ((static_degree - threshold) / (1.0 - threshold)).clamp(0.0, 1.0)
+        } else if static_degree >= 1.0 {
+            1.0
+        } else {
+            0.0
+        }
     }
 
     /// Pulls the heading towards a fresh, undisturbed compass whose
@@ -868,8 +880,9 @@ impl FuzzyEngine {
             } else {
                 self.compass_gated_since = None;
             }
-            static_degree * dt_s / c.heading_time_constant_s
-                + (1.0 - static_degree) * dt_s / c.heading_moving_time_constant_s
+            let still = self.stillness(static_degree);
+            still * dt_s / c.heading_time_constant_s
+                + (1.0 - still) * dt_s / c.heading_moving_time_constant_s
         };
         solution.attitude = pull_heading(&solution.attitude, heading, gain);
     }
