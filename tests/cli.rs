@@ -288,11 +288,44 @@ fn eval_fuzzy_prints_the_engine_and_its_baselines() {
         "gyro only",
         "accelerometer only",
         "raw compass",
+        "Madgwick β=",
+        "Mahony",
         "motion status",
         "calibrated (planar)",
     ] {
         assert!(table.contains(row), "{table}");
     }
+}
+
+#[test]
+fn eval_fuzzy_over_seeds_prints_a_summary() {
+    let out = tunnelnav()
+        .args(["eval", "fuzzy", "--minutes", "5", "--seeds", "2", "--hard"])
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let table = String::from_utf8(out.stdout).unwrap();
+    for line in [
+        "vehicle drive, seed 1",
+        "vehicle drive, seed 2",
+        "summary over 2 drives (seeds 1–2), median / worst",
+        "baseline ÷ engine RMSE",
+        "Madgwick β (rad/s) chosen per drive with the truth",
+    ] {
+        assert!(table.contains(line), "{line}: {table}");
+    }
+    let out = tunnelnav()
+        .args(["eval", "fuzzy", "--minutes", "5", "--seeds", "2", "--json"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8(out.stdout).unwrap();
+    let lines: Vec<serde_json::Value> = text
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(lines.len(), 3);
+    assert_eq!(lines[2]["summary"]["drives"], 2);
+    assert!(lines[0]["madgwick_tuned"]["pitch_deg"].is_number());
 }
 
 #[test]

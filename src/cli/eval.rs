@@ -21,7 +21,8 @@ pub enum EvalTarget {
     /// The FOG INS with each zero-velocity detector on a simulated pipe-jacking drive.
     Zupt(ZuptArgs),
     /// The MEMS + magnetometer fuzzy expert on a simulated vehicle drive,
-    /// against gyro-only, accelerometer-only and raw-compass solutions.
+    /// against gyro-only, accelerometer-only and raw-compass solutions and
+    /// the Madgwick (β tuned with the truth) and Mahony filters.
     Fuzzy(FuzzyArgs),
 }
 
@@ -29,13 +30,15 @@ pub enum EvalTarget {
 pub struct FuzzyArgs {
     #[command(flatten)]
     pub drive: VehicleDriveArgs,
-    /// Seeds to run from --seed on (each a separate drive; a table each).
+    /// Seeds to run from --seed on (each a separate drive; a table each,
+    /// then, for more than one, the median and worst over them).
     #[arg(long, default_value_t = 1)]
     pub seeds: u64,
     /// An engine parameter as name=value (repeatable).
     #[arg(long = "param", value_name = "NAME=VALUE")]
     pub params: Vec<String>,
-    /// Print the scores as JSON instead of a table.
+    /// Print the scores as JSON instead of a table: a line per seed, then
+    /// (for more than one) a line {"summary": ...}.
     #[arg(long)]
     pub json: bool,
 }
@@ -106,6 +109,7 @@ pub fn run(target: EvalTarget) -> Result<(), CliError> {
                 crate::fusion::fuzzy::PARAMS,
                 args.params.iter().map(String::as_str),
             )?;
+            let mut evaluations = Vec::new();
             each_seed(args.drive.seed, args.seeds, args.json, |seed| {
                 let mut scenario = args.drive.scenario();
                 scenario.seed = seed;
@@ -114,8 +118,23 @@ pub fn run(target: EvalTarget) -> Result<(), CliError> {
                     params: params.clone(),
                 })?;
                 let table = fuzzy::render_table(&evaluation);
-                Ok((serde_json::to_value(&evaluation), table))
-            })
+                let value = serde_json::to_value(&evaluation);
+                evaluations.push(evaluation);
+                Ok((value, table))
+            })?;
+            if evaluations.len() > 1 {
+                let summary = fuzzy::summarise(&evaluations);
+                if args.json {
+                    let value = serde_json::json!({ "summary": summary });
+                    println!(
+                        "{}",
+                        serde_json::to_string(&value).map_err(std::io::Error::other)?
+                    );
+                } else {
+                    print!("{}", fuzzy::render_summary(&summary));
+                }
+            }
+            Ok(())
         }
         EvalTarget::Zupt(args) => {
             let params = Params::from_assignments(

@@ -399,3 +399,71 @@ fn run_tbm(args: &TbmArgs) -> Result<(), CliError> {
         truth,
     )
 }
+
+#[cfg(test)]
+mod tests {
+    use clap::Parser;
+
+    use super::*;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        drive: VehicleDriveArgs,
+    }
+
+    fn scenario(args: &[&str]) -> VehicleScenario {
+        Cli::try_parse_from(std::iter::once("test").chain(args.iter().copied()))
+            .unwrap()
+            .drive
+            .scenario()
+    }
+
+    #[test]
+    fn no_flags_give_the_default_drive() {
+        assert_eq!(scenario(&[]), VehicleScenario::default());
+    }
+
+    #[test]
+    fn hard_sets_everything_and_single_flags_override() {
+        assert_eq!(scenario(&["--hard"]), VehicleScenario::hard());
+        let s = scenario(&[
+            "--hard",
+            "--gyro-noise-dps",
+            "0.2",
+            "--profile",
+            "gentle",
+            "--magnet-at-s",
+            "10",
+            "--magnet-for-s",
+            "5",
+            "--magnet-ut",
+            "150",
+        ]);
+        assert_eq!(s.profile, DriveProfile::Gentle);
+        assert_eq!(
+            s.imu,
+            ImuErrors {
+                gyro_noise_dps: 0.2,
+                ..ImuErrors::hard()
+            }
+        );
+        assert_eq!(
+            s.magnet,
+            Some(MagnetDisturbance {
+                at_s: 10.0,
+                for_s: 5.0,
+                field_ut: 150.0
+            })
+        );
+        let s = scenario(&["--profile", "hard", "--idle-vibration-mps2", "0.3"]);
+        assert_eq!(s.profile, DriveProfile::Hard);
+        assert_eq!(s.imu.idle_vibration_mps2, 0.3);
+        assert_eq!(s.imu.gyro_noise_dps, ImuErrors::default().gyro_noise_dps);
+        // A magnet needs all three, and levels are not negative.
+        let parse =
+            |args: &[&str]| Cli::try_parse_from(std::iter::once("t").chain(args.iter().copied()));
+        assert!(parse(&["--magnet-at-s", "10"]).is_err());
+        assert!(parse(&["--accel-noise-mps2", "-0.1"]).is_err());
+    }
+}
