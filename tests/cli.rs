@@ -166,10 +166,21 @@ fn bad_arguments_are_refused_with_a_clear_message() {
                 "--engine",
                 "fuzzy",
                 "--param",
-                "gyro_activity_still_dps=5",
+                "gyro_activity_still_factor=5",
                 "-",
             ],
-            "gyro_activity_moving_dps (1) must be above gyro_activity_still_dps (5)",
+            "gyro_activity_moving_factor (4) must be above gyro_activity_still_factor (5)",
+        ),
+        (
+            &[
+                "replay",
+                "--engine",
+                "fuzzy",
+                "--param",
+                "gyro_activity_still_dps=0.3",
+                "-",
+            ],
+            "parameter `gyro_activity_still_dps` was retired: thresholds are now multiples of the noise floor",
         ),
         (
             &["eval", "attitude", "--hours", "2", "--learning-h", "3"],
@@ -384,4 +395,25 @@ fn replay_restores_order_and_drops_duplicates() {
         "{summary}"
     );
     std::fs::remove_dir_all(dir).ok();
+}
+
+#[test]
+fn eval_recording_scores_the_committed_broad_excerpt() {
+    let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/broad");
+    let output = tunnelnav()
+        .args(["eval", "recording", "--dir", dir, "--json"])
+        .output()
+        .unwrap();
+    assert!(output.status.success(), "{output:?}");
+    let evaluation: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
+    let trials = evaluation["trials"].as_array().unwrap();
+    assert_eq!(trials.len(), 1, "{evaluation}");
+    // A missing directory is an error naming it.
+    let missing = tunnelnav()
+        .args(["eval", "recording", "--dir", "/nonexistent/broad"])
+        .output()
+        .unwrap();
+    assert!(!missing.status.success());
+    let stderr = String::from_utf8_lossy(&missing.stderr);
+    assert!(stderr.contains("/nonexistent/broad"), "{stderr}");
 }

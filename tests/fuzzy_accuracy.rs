@@ -60,7 +60,13 @@ fn vehicle_drives_clear_the_bars() {
             best.heading_deg >= 3.0 * e.engine.heading_deg,
             "seed {seed}: {e:?}"
         );
-        assert!(e.final_bias_error_dps < 0.02, "seed {seed}: {e:?}");
+        // The bias is a random walk in a Kalman filter (issue 18): at rest
+        // its steady state trades noise (σ about 0.005 °/s per axis on this
+        // IMU) for following a bias that drifts between stops; the largest
+        // error over the 30 000 readings of 5 minutes, driving included, is
+        // 0.025–0.031 °/s on these seeds (the previous exponential mean:
+        // 0.006–0.016, but blind to a bias that warms between stops).
+        assert!(e.final_bias_error_dps < 0.04, "seed {seed}: {e:?}");
     }
     let first = |f: fn(&FuzzyEvaluation) -> f64| rms(drives.iter().map(f));
     for (angle, early, late) in [

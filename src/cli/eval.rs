@@ -24,6 +24,25 @@ pub enum EvalTarget {
     /// against gyro-only, accelerometer-only and raw-compass solutions and
     /// the Madgwick (β tuned with the truth) and Mahony filters.
     Fuzzy(FuzzyArgs),
+    /// The fuzzy engine on recorded trials (BROAD-style CSVs made by
+    /// tools/broad_to_csv.py) with optical truth, against gyro-only,
+    /// accelerometer + compass and Madgwick.
+    Recording(RecordingArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct RecordingArgs {
+    /// Directory of trial CSVs and their manifest.json.
+    #[arg(long)]
+    pub dir: std::path::PathBuf,
+    /// An engine parameter as name=value (repeatable), on top of what the
+    /// README tells an installer (window of half a second at the
+    /// recording's rate, the site's inclination).
+    #[arg(long = "param", value_name = "NAME=VALUE")]
+    pub params: Vec<String>,
+    /// Print the scores as JSON instead of a table.
+    #[arg(long)]
+    pub json: bool,
 }
 
 #[derive(Debug, Args)]
@@ -133,6 +152,23 @@ pub fn run(target: EvalTarget) -> Result<(), CliError> {
                 } else {
                     print!("{}", fuzzy::render_summary(&summary));
                 }
+            }
+            Ok(())
+        }
+        EvalTarget::Recording(args) => {
+            use crate::eval::recording;
+            let rate_hz = recording::recording_rate_hz(&args.dir)?;
+            let words: Vec<&str> = args.params.iter().map(String::as_str).collect();
+            let params = recording::installer_params(rate_hz, &words)?;
+            let evaluation = recording::evaluate_recording(&args.dir, &params)?;
+            if args.json {
+                println!(
+                    "{}",
+                    serde_json::to_string(&evaluation)
+                        .map_err(|e| CliError::Scenario(format!("JSON: {e}")))?
+                );
+            } else {
+                print!("{}", recording::render_table(&evaluation));
             }
             Ok(())
         }

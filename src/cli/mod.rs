@@ -65,6 +65,8 @@ pub enum CliError {
     EvalZupt(#[from] crate::eval::zupt::ZuptEvalError),
     #[error(transparent)]
     EvalFuzzy(#[from] crate::eval::fuzzy::FuzzyEvalError),
+    #[error(transparent)]
+    EvalRecording(#[from] crate::eval::recording::RecordingError),
     #[error("{0}")]
     Scenario(String),
     #[error(transparent)]

@@ -119,7 +119,7 @@ pub struct FuzzyEstimate {
     /// False until a still window has levelled the platform and fixed the
     /// first gyro bias (tunnelnav extension, as are the fields below).
     pub aligned: bool,
-    /// Magnetometer calibration: `collecting`, `planar` or `ellipsoid`.
+    /// Magnetometer calibration: `collecting`, `planar`, `ellipsoid` or `raw`.
     pub mag_calibration: crate::fusion::fuzzy::magcal::CalibrationState,
     /// Azimuth of the field seen so far, degrees (of 360).
     pub mag_coverage_deg: f64,

@@ -13,16 +13,18 @@
 //! 2. the attitude quaternion integrates the bias-compensated gyro
 //!    ([`orientation::integrate`]), always; the bias's variance grows as
 //!    a random walk ([`gyro_bias`]);
-//! 3. roll and pitch are corrected towards the accelerometer over the
-//!    older half of the window ([`tilt`]): with gain s·dt/`tilt_time_constant_s`
-//!    while static, and while moving with gain
-//!    (1 − s)·w·dt/`tilt_moving_time_constant_s`, w the gate that refuses
-//!    a force that is not gravity; heading is pulled towards the
-//!    calibrated, tilt-compensated compass likewise (gains
-//!    s·dt/`heading_time_constant_s` and (1 − s)·dt/`heading_moving_time_constant_s`)
-//!    unless the field is disturbed ([`disturbance`]);
-//! 4. where s exceeds `static_threshold`, the reading updates the gyro
-//!    bias's Kalman filter with weight (s − threshold)/(1 − threshold),
+//! 3. with the stillness σ = (s − `static_threshold`)/(1 − `static_threshold`)
+//!    clamped to [0, 1] (the `uncertain` rule alone, s = 0.5, is motion),
+//!    roll and pitch are corrected towards the accelerometer over the
+//!    older half of the window ([`tilt`]) with gain
+//!    σ·dt/`tilt_time_constant_s` + (1 − σ)·w·dt/`tilt_moving_time_constant_s`,
+//!    w the gate that refuses a force that is not gravity; heading is
+//!    pulled towards the calibrated, tilt-compensated compass likewise
+//!    (time constants `heading_time_constant_s` and
+//!    `heading_moving_time_constant_s`) unless the field is disturbed
+//!    ([`disturbance`]) or the compass disagrees with the gyro heading
+//!    beyond `heading_gate_deg`;
+//! 4. the reading updates the gyro bias's Kalman filter with weight σ,
 //!    and the accelerometer's static norm follows it.
 //!
 //! The first full window that is quiet against the floor (and plausible
@@ -133,7 +135,7 @@ pub const PARAMS: &[ParamSpec] = &[
     ),
     real(
         "gyro_activity_still_factor",
-        2.0,
+        1.6,
         0.0,
         1000.0,
         "× floor",
@@ -141,7 +143,7 @@ pub const PARAMS: &[ParamSpec] = &[
     ),
     real(
         "gyro_activity_moving_factor",
-        5.0,
+        4.0,
         0.0,
         1000.0,
         "× floor",
@@ -228,7 +230,7 @@ pub const PARAMS: &[ParamSpec] = &[
     ),
     real(
         "gyro_bias_walk_dps_per_sqrt_s",
-        0.01,
+        0.005,
         0.0,
         10.0,
         "deg/s/√s",
