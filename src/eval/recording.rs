@@ -546,14 +546,9 @@ fn wrap(angle: f64) -> f64 {
     a - std::f64::consts::PI
 }
 
-/// `attitude` turned by the body rate `rate_rad_per_s` held over `dt_s`.
-pub fn integrate_rate(
-    attitude: &UnitQuaternion<f64>,
-    rate_rad_per_s: &V3,
-    dt_s: f64,
-) -> UnitQuaternion<f64> {
-    attitude * UnitQuaternion::from_scaled_axis(rate_rad_per_s * dt_s)
-}
+/// `attitude` turned by the body rate `rate_rad_per_s` held over `dt_s`
+/// (the engine's own integration step: this is a baseline of it).
+pub use crate::fusion::fuzzy::orientation::integrate as integrate_rate;
 
 /// Attitude from one sample's specific force and field alone (body-to-NED,
 /// yaw from the field's north): roll = atan2(−f_y, −f_z), pitch =
