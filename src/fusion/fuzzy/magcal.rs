@@ -45,7 +45,8 @@
 //! - **residual**: RMS of the relative radius error over the fitted
 //!   samples ≤ 10 %;
 //! - **held-back samples**: every `HOLDOUT_EVERY`-th reading is kept out of
-//!   the fit in a ring of the newest `HOLDOUT_SAMPLES`; the candidate's
+//!   the fit, the newest per direction bin (at most `HOLDOUT_SAMPLES`);
+//!   they must span 90° through the candidate, and the candidate's
 //!   relative radius spread on them must be at most `IMPROVEMENT` of the
 //!   current correction's (the raw field's before the first fit): a new
 //!   calibration is never worse than the previous one on recent data, and
@@ -254,15 +255,21 @@ impl MagCalibration {
         }
         self.offered += 1;
         if self.offered.is_multiple_of(HOLDOUT_EVERY) {
-            let tilt_rad = tilt_rad.abs();
-            self.holdout.push_back(Sample {
-                field_ut,
-                bin: 0,
-                level: tilt_rad <= self.level_tolerance_rad,
-                tilt_rad,
-            });
-            if self.holdout.len() > HOLDOUT_SAMPLES {
-                self.holdout.pop_front();
+            // Held back one per direction bin (the newest), so the ring
+            // spans the directions seen rather than the last seconds.
+            if let Some(bin) = self.bin_of(&field_ut) {
+                let tilt_rad = tilt_rad.abs();
+                let level = tilt_rad <= self.level_tolerance_rad;
+                self.holdout.retain(|s| s.bin != bin || s.level != level);
+                self.holdout.push_back(Sample {
+                    field_ut,
+                    bin,
+                    level,
+                    tilt_rad,
+                });
+                if self.holdout.len() > HOLDOUT_SAMPLES {
+                    self.holdout.pop_front();
+                }
             }
             return false;
         }
@@ -278,6 +285,11 @@ impl MagCalibration {
             for i in 0..self.samples.len() {
                 if let Some(bin) = self.bin_of(&self.samples[i].field_ut) {
                     self.samples[i].bin = bin;
+                }
+            }
+            for i in 0..self.holdout.len() {
+                if let Some(bin) = self.bin_of(&self.holdout[i].field_ut) {
+                    self.holdout[i].bin = bin;
                 }
             }
         }
@@ -367,11 +379,14 @@ impl MagCalibration {
                 && direction_span_deg(c, &fitted, planar) >= MIN_SPAN_DEG
         };
         let current = self.holdout_spread(self.correction.as_ref(), planar);
+        // A candidate is judged on held-back readings that span enough
+        // directions through it; without them it waits.
         let accepted = fit.filter(|candidate| {
             passes_gates(candidate)
+                && self.holdout_spans(candidate, planar)
                 && match (self.holdout_spread(Some(candidate), planar), current) {
                     (Some(new), Some(old)) => new <= IMPROVEMENT * old,
-                    _ => true,
+                    _ => false,
                 }
         });
         if let Some(correction) = accepted {
@@ -396,6 +411,17 @@ impl MagCalibration {
             }
         }
         false
+    }
+
+    /// True when the held-back readings span `MIN_SPAN_DEG` through `c`.
+    fn holdout_spans(&self, c: &Correction, planar: bool) -> bool {
+        let held: Vec<V3> = self
+            .holdout
+            .iter()
+            .filter(|s| s.level || !planar)
+            .map(|s| s.field_ut)
+            .collect();
+        direction_span_deg(c, &held, planar) >= MIN_SPAN_DEG
     }
 
     /// The relative radius spread of the held-back readings through a
