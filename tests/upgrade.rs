@@ -239,7 +239,15 @@ async fn a_fuzzy_database_from_before_issue_18_opens_and_continues() {
         "{params:?}"
     );
     assert!(params.get("bias_time_constant_s").is_none());
-    assert_eq!(params["accel_activity_still_factor"], 1.8);
+    let default = tunnelnav::fusion::fuzzy::PARAMS
+        .iter()
+        .find(|spec| spec.name == "accel_activity_still_factor")
+        .unwrap()
+        .default_value();
+    assert_eq!(
+        serde_json::to_value(default).unwrap(),
+        params["accel_activity_still_factor"]
+    );
     assert_eq!(params["declination_deg"], 2.5);
 
     // Every stored reading and estimate; the old estimates decode without

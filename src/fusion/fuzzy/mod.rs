@@ -79,6 +79,12 @@ const ALIGN_MAX_GRAVITY_ERROR_MPS2: f64 = 1.0;
 /// Time constant of the static ‖f‖ learnt while static, s: it changes
 /// only with temperature.
 const GRAVITY_TIME_CONSTANT_S: f64 = 5.0;
+/// The first calibration re-takes the heading at once; if its field turns
+/// out disturbed within this time, s, the fit was wrong and the turn is
+/// undone (the heading goes back to what it was, carried by the gyros).
+const REHEAD_WATCH_S: f64 = 3.0;
+/// ... a disturbance lasting this long, s (not one odd reading).
+const REHEAD_UNDO_AFTER_S: f64 = 0.15;
 /// The smallest floor used as a divisor (far below any sensor's noise).
 const MIN_FLOOR: f64 = 1e-9;
 
@@ -481,6 +487,9 @@ pub struct FuzzyEngine {
     reheading: bool,
     /// Since when the compass has disagreed with the heading beyond the gate.
     compass_gated_since: Option<f64>,
+    /// When the first calibration re-took the heading, and by how much it
+    /// turned it (undone if its field proves disturbed at once).
+    rehead_turn: Option<(f64, f64)>,
     /// The newest static degree (the dip check allows for the tilt error
     /// of a moving sensor).
     static_degree: f64,
@@ -524,6 +533,7 @@ impl FuzzyEngine {
             stats: FuzzyStats::default(),
             reheading: false,
             compass_gated_since: None,
+            rehead_turn: None,
             static_degree: 0.0,
             scratch: Scratch::default(),
         })
@@ -557,6 +567,7 @@ impl FuzzyEngine {
         fresh.stats = engine.stats;
         fresh.reheading = engine.reheading;
         fresh.compass_gated_since = engine.compass_gated_since;
+        fresh.rehead_turn = engine.rehead_turn;
         fresh.static_degree = engine.static_degree;
         Ok(fresh)
     }
@@ -612,8 +623,21 @@ impl FuzzyEngine {
                 &tolerances,
             )
         });
+        if self
+            .rehead_turn
+            .is_some_and(|(rehead_t, _)| t - rehead_t > REHEAD_WATCH_S)
+        {
+            self.rehead_turn = None;
+        }
         if disturbed {
             self.stats.mag_disturbed += 1;
+            if self.disturbance.disturbed_for_s(t) >= REHEAD_UNDO_AFTER_S
+                && let (Some((_, turn)), Some(solution)) =
+                    (self.rehead_turn.take(), &mut self.solution)
+            {
+                solution.attitude =
+                    UnitQuaternion::from_axis_angle(&V3::z_axis(), -turn) * solution.attitude;
+            }
         } else {
             let was_calibrated = self.calibration.correction().is_some();
             if self.calibration.add(field_ut, roll.abs().max(pitch.abs())) {
@@ -870,6 +894,8 @@ impl FuzzyEngine {
         let gain = if self.reheading {
             self.reheading = false;
             self.compass_gated_since = None;
+            let (_, _, yaw) = solution.attitude.euler_angles();
+            self.rehead_turn = Some((t, orientation::angle_difference(heading, yaw)));
             1.0
         } else {
             let (_, _, yaw) = solution.attitude.euler_angles();
