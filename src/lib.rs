@@ -7,8 +7,9 @@
 //!   per engine (`attitude`: He et al. 2021). No IO, no async, no clocks.
 //! - [`sim`]: seeded, pure scenario generators with known truth (`simulate`,
 //!   `eval`, tests, benchmarks).
-//! - [`eval`]: runs engines and baselines over simulated drives and scores
-//!   them against the truth.
+//! - [`eval`]: runs engines and baselines over simulated drives, and over
+//!   recorded trials with optical truth (BROAD), and scores them against
+//!   the truth.
 //! - [`replay`]: streams an NDJSON file of readings through an engine.
 //! - [`config`]: machine declarations (`PUT` bodies, the TOML config file).
 //! - [`store`]: the SQLite store; one writer thread with group commit,
