@@ -41,9 +41,6 @@ pub struct DisturbanceDetector {
     newest_t: Option<f64>,
     /// Since when the field has been disturbed.
     disturbed_since: Option<f64>,
-    /// Since when it has not been (the first reading after that).
-    #[serde(default)]
-    undisturbed_since: Option<f64>,
 }
 
 impl DisturbanceDetector {
@@ -54,19 +51,12 @@ impl DisturbanceDetector {
             dip_rad: inclination_rad,
             newest_t: None,
             disturbed_since: None,
-            undisturbed_since: None,
         }
     }
 
     /// How long the field has been disturbed at `t`, s (0 if it is not).
     pub fn disturbed_for_s(&self, t: f64) -> f64 {
         self.disturbed_since
-            .map_or(0.0, |since| (t - since).max(0.0))
-    }
-
-    /// How long the field has been undisturbed at `t`, s (0 if it is not).
-    pub fn undisturbed_for_s(&self, t: f64) -> f64 {
-        self.undisturbed_since
             .map_or(0.0, |since| (t - since).max(0.0))
     }
 
@@ -106,13 +96,11 @@ impl DisturbanceDetector {
                 return true;
             }
             self.magnitude_ut = Some(magnitude);
-            self.undisturbed_since = Some(t);
             return false;
         };
         let departs = (magnitude / reference - 1.0).abs() > tolerances.magnitude
             || (dip - self.dip_rad).abs() > tolerances.dip_rad;
         if departs {
-            self.undisturbed_since = None;
             let since = *self.disturbed_since.get_or_insert(t);
             if t - since <= RELEARN_AFTER_S {
                 return true;
@@ -121,11 +109,9 @@ impl DisturbanceDetector {
             self.magnitude_ut = Some(magnitude);
             self.dip_rad = dip;
             self.disturbed_since = None;
-            self.undisturbed_since = Some(t);
             return false;
         }
         self.disturbed_since = None;
-        self.undisturbed_since.get_or_insert(t);
         let gain = (dt_s / REFERENCE_TIME_CONSTANT_S).min(1.0);
         self.magnitude_ut = Some(reference + (magnitude - reference) * gain);
         self.dip_rad += (dip - self.dip_rad) * gain;

@@ -57,6 +57,8 @@
 //! calibration (`raw`: a factory-calibrated magnetometer is used as it is
 //! rather than refitted to its own noise).
 
+use std::collections::VecDeque;
+
 use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, Vector2};
 use serde::{Deserialize, Serialize};
 
@@ -149,7 +151,7 @@ pub struct MagCalibration {
     level_tolerance_rad: f64,
     refit_every: u32,
     /// Samples kept, oldest first, each with its (azimuth, elevation) bin.
-    samples: std::collections::VecDeque<Sample>,
+    samples: VecDeque<Sample>,
     /// Componentwise extremes of every sample, for the centre before a fit.
     min_ut: Option<V3>,
     max_ut: Option<V3>,
@@ -161,7 +163,7 @@ pub struct MagCalibration {
     since_fit: u32,
     /// Readings held back from the fit to check candidates, newest last.
     #[serde(default)]
-    holdout: std::collections::VecDeque<Sample>,
+    holdout: VecDeque<Sample>,
     /// Readings offered, for choosing the held-back ones.
     #[serde(default)]
     offered: u64,
@@ -187,14 +189,14 @@ impl MagCalibration {
             inclination_rad,
             level_tolerance_rad,
             refit_every: refit_every.max(1),
-            samples: std::collections::VecDeque::new(),
+            samples: VecDeque::new(),
             min_ut: None,
             max_ut: None,
             state: CalibrationState::Collecting,
             correction: None,
             binned_centre: V3::zeros(),
             since_fit: 0,
-            holdout: std::collections::VecDeque::new(),
+            holdout: VecDeque::new(),
             offered: 0,
             refused: 0,
         }
@@ -257,19 +259,11 @@ impl MagCalibration {
         if self.offered.is_multiple_of(HOLDOUT_EVERY) {
             // Held back one per direction bin (the newest), so the ring
             // spans the directions seen rather than the last seconds.
-            if let Some(bin) = self.bin_of(&field_ut) {
-                let tilt_rad = tilt_rad.abs();
-                let level = tilt_rad <= self.level_tolerance_rad;
-                self.holdout.retain(|s| s.bin != bin || s.level != level);
-                self.holdout.push_back(Sample {
-                    field_ut,
-                    bin,
-                    level,
-                    tilt_rad,
-                });
-                if self.holdout.len() > HOLDOUT_SAMPLES {
-                    self.holdout.pop_front();
-                }
+            if let Some(bin) = direction_bin(&self.binned_centre, &field_ut) {
+                let sample = Sample::new(field_ut, bin, tilt_rad, self.level_tolerance_rad);
+                self.holdout
+                    .retain(|s| s.bin != bin || s.level != sample.level);
+                push_newest(&mut self.holdout, sample, HOLDOUT_SAMPLES);
             }
             return false;
         }
@@ -282,22 +276,17 @@ impl MagCalibration {
             && (centre - self.binned_centre).norm() > 0.02 * (hi - lo).norm()
         {
             self.binned_centre = centre;
-            for i in 0..self.samples.len() {
-                if let Some(bin) = self.bin_of(&self.samples[i].field_ut) {
-                    self.samples[i].bin = bin;
-                }
-            }
-            for i in 0..self.holdout.len() {
-                if let Some(bin) = self.bin_of(&self.holdout[i].field_ut) {
-                    self.holdout[i].bin = bin;
+            for sample in self.samples.iter_mut().chain(self.holdout.iter_mut()) {
+                if let Some(bin) = direction_bin(&centre, &sample.field_ut) {
+                    sample.bin = bin;
                 }
             }
         }
-        let Some(bin) = self.bin_of(&field_ut) else {
+        let Some(bin) = direction_bin(&self.binned_centre, &field_ut) else {
             return false;
         };
-        let tilt_rad = tilt_rad.abs();
-        let level = tilt_rad <= self.level_tolerance_rad;
+        let sample = Sample::new(field_ut, bin, tilt_rad, self.level_tolerance_rad);
+        let (level, tilt_rad) = (sample.level, sample.tilt_rad);
         let same = |s: &Sample| s.bin == bin && s.level == level;
         if self.correction.is_some() {
             // A level sample gives way only to one about as level or more.
@@ -313,34 +302,12 @@ impl MagCalibration {
         } else if self.samples.back().is_some_and(same) {
             return false;
         }
-        self.samples.push_back(Sample {
-            field_ut,
-            bin,
-            level,
-            tilt_rad,
-        });
-        if self.samples.len() > MAX_SAMPLES {
-            self.samples.pop_front();
-        }
+        push_newest(&mut self.samples, sample, MAX_SAMPLES);
         self.since_fit += 1;
         if self.since_fit < self.refit_every && self.state != CalibrationState::Collecting {
             return false;
         }
         self.refit()
-    }
-
-    /// A sample's direction bin around the binning centre.
-    fn bin_of(&self, field_ut: &V3) -> Option<usize> {
-        let d = field_ut - self.binned_centre;
-        let norm = d.norm();
-        if norm < MIN_RADIUS_UT {
-            return None;
-        }
-        let azimuth = d.y.atan2(d.x).rem_euclid(std::f64::consts::TAU);
-        let elevation = (d.z / norm).clamp(-1.0, 1.0).asin() + std::f64::consts::FRAC_PI_2;
-        let a = ((azimuth / std::f64::consts::TAU) * AZIMUTH_BINS as f64) as usize;
-        let e = ((elevation / std::f64::consts::PI) * ELEVATION_BANDS as f64) as usize;
-        Some(e.min(ELEVATION_BANDS - 1) * AZIMUTH_BINS + a.min(AZIMUTH_BINS - 1))
     }
 
     /// Fits from the binned samples if they cover enough directions.
@@ -350,15 +317,10 @@ impl MagCalibration {
         let (state, fit) = if self.elevations_seen() >= MIN_ELEVATION_BANDS
             && self.azimuths_seen(false) as f64 * degrees_per_bin >= self.min_coverage_deg
         {
-            let samples: Vec<V3> = self.samples.iter().map(|s| s.field_ut).collect();
+            let samples = fields(&self.samples, false);
             (CalibrationState::Ellipsoid, fit_ellipsoid(&samples))
         } else if self.azimuths_seen(true) as f64 * degrees_per_bin >= self.min_coverage_deg {
-            let level: Vec<V3> = self
-                .samples
-                .iter()
-                .filter(|s| s.level)
-                .map(|s| s.field_ut)
-                .collect();
+            let level = fields(&self.samples, true);
             (
                 CalibrationState::Planar,
                 fit_planar(&level, self.inclination_rad),
@@ -367,24 +329,20 @@ impl MagCalibration {
             return false;
         };
         let planar = state == CalibrationState::Planar;
-        let fitted: Vec<V3> = self
-            .samples
-            .iter()
-            .filter(|s| s.level || !planar)
-            .map(|s| s.field_ut)
-            .collect();
+        let fitted = fields(&self.samples, planar);
+        let held = fields(&self.holdout, planar);
         let passes_gates = |c: &Correction| {
             c.fit_rms <= MAX_FIT_RMS
                 && plausible_field(c, &fitted, planar)
                 && direction_span_deg(c, &fitted, planar) >= MIN_SPAN_DEG
         };
-        let current = self.holdout_spread(self.correction.as_ref(), planar);
+        let current = held_spread(&held, self.correction.as_ref(), planar);
         // A candidate is judged on held-back readings that span enough
         // directions through it; without them it waits.
         let accepted = fit.filter(|candidate| {
             passes_gates(candidate)
-                && self.holdout_spans(candidate, planar)
-                && match (self.holdout_spread(Some(candidate), planar), current) {
+                && direction_span_deg(candidate, &held, planar) >= MIN_SPAN_DEG
+                && match (held_spread(&held, Some(candidate), planar), current) {
                     (Some(new), Some(old)) => new <= IMPROVEMENT * old,
                     _ => false,
                 }
@@ -402,7 +360,7 @@ impl MagCalibration {
             let raw = Correction {
                 hard_iron_ut: V3::zeros(),
                 soft_iron: Matrix3::identity(),
-                fit_rms: radius_rms(&fitted, |m| if planar { m.xy().norm() } else { m.norm() }),
+                fit_rms: radius_rms(&fitted, |m| magnitude(m, planar)),
             };
             if passes_gates(&raw) && raw.fit_rms <= MAX_RAW_RMS {
                 self.correction = Some(raw);
@@ -412,34 +370,57 @@ impl MagCalibration {
         }
         false
     }
+}
 
-    /// True when the held-back readings span `MIN_SPAN_DEG` through `c`.
-    fn holdout_spans(&self, c: &Correction, planar: bool) -> bool {
-        let held: Vec<V3> = self
-            .holdout
-            .iter()
-            .filter(|s| s.level || !planar)
-            .map(|s| s.field_ut)
-            .collect();
-        direction_span_deg(c, &held, planar) >= MIN_SPAN_DEG
+/// The raw fields a fit of this kind uses: the level samples' if planar.
+fn fields(samples: &VecDeque<Sample>, planar: bool) -> Vec<V3> {
+    samples
+        .iter()
+        .filter(|s| s.level || !planar)
+        .map(|s| s.field_ut)
+        .collect()
+}
+
+/// A field's magnitude as a fit of this kind sees it: horizontal if planar.
+fn magnitude(field_ut: &V3, planar: bool) -> f64 {
+    if planar {
+        field_ut.xy().norm()
+    } else {
+        field_ut.norm()
     }
+}
 
-    /// The relative radius spread of the held-back readings through a
-    /// correction (`None`: the raw field); `None` when too few are held.
-    fn holdout_spread(&self, correction: Option<&Correction>, planar: bool) -> Option<f64> {
-        let held: Vec<V3> = self
-            .holdout
-            .iter()
-            .filter(|s| s.level || !planar)
-            .map(|s| s.field_ut)
-            .collect();
-        (held.len() >= 8).then(|| {
-            radius_rms(&held, |m| {
-                let v = correction.map_or(*m, |c| c.apply(m));
-                if planar { v.xy().norm() } else { v.norm() }
-            })
+/// The relative radius spread of held-back readings through a correction
+/// (`None`: the raw field); `None` when too few are held to judge by.
+fn held_spread(held: &[V3], correction: Option<&Correction>, planar: bool) -> Option<f64> {
+    (held.len() >= 8).then(|| {
+        radius_rms(held, |m| {
+            magnitude(&correction.map_or(*m, |c| c.apply(m)), planar)
         })
+    })
+}
+
+/// Appends `sample`, dropping the oldest beyond `capacity`.
+fn push_newest(queue: &mut VecDeque<Sample>, sample: Sample, capacity: usize) {
+    queue.push_back(sample);
+    if queue.len() > capacity {
+        queue.pop_front();
     }
+}
+
+/// A field's direction bin around `centre`: 36 azimuths × 9 elevation
+/// bands; `None` within `MIN_RADIUS_UT` of it.
+fn direction_bin(centre: &V3, field_ut: &V3) -> Option<usize> {
+    let d = field_ut - centre;
+    let norm = d.norm();
+    if norm < MIN_RADIUS_UT {
+        return None;
+    }
+    let azimuth = d.y.atan2(d.x).rem_euclid(std::f64::consts::TAU);
+    let elevation = (d.z / norm).clamp(-1.0, 1.0).asin() + std::f64::consts::FRAC_PI_2;
+    let a = ((azimuth / std::f64::consts::TAU) * AZIMUTH_BINS as f64) as usize;
+    let e = ((elevation / std::f64::consts::PI) * ELEVATION_BANDS as f64) as usize;
+    Some(e.min(ELEVATION_BANDS - 1) * AZIMUTH_BINS + a.min(AZIMUTH_BINS - 1))
 }
 
 /// True when the corrected field's mean magnitude (horizontal if planar)
@@ -450,10 +431,7 @@ fn plausible_field(c: &Correction, samples: &[V3], planar: bool) -> bool {
     }
     let mean = samples
         .iter()
-        .map(|m| {
-            let v = c.apply(m);
-            if planar { v.xy().norm() } else { v.norm() }
-        })
+        .map(|m| magnitude(&c.apply(m), planar))
         .sum::<f64>()
         / samples.len() as f64;
     (PLAUSIBLE_FIELD_UT.0..=PLAUSIBLE_FIELD_UT.1).contains(&mean)
@@ -526,6 +504,20 @@ struct Sample {
     bin: usize,
     level: bool,
     tilt_rad: f64,
+}
+
+impl Sample {
+    /// A reading in direction bin `bin` taken at tilt `tilt_rad` (either
+    /// sign); level when within `level_tolerance_rad`.
+    fn new(field_ut: V3, bin: usize, tilt_rad: f64, level_tolerance_rad: f64) -> Sample {
+        let tilt_rad = tilt_rad.abs();
+        Sample {
+            field_ut,
+            bin,
+            level: tilt_rad <= level_tolerance_rad,
+            tilt_rad,
+        }
+    }
 }
 
 /// Centre and scale for conditioning: the samples' mean and RMS spread.
