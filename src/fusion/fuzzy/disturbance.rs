@@ -10,13 +10,17 @@
 //! - magnitude ‖m_c‖ (the horizontal h for a planar calibration, whose
 //!   vertical is sized from the site's inclination and says nothing).
 //!
-//! The references are learned from undisturbed readings (exponential
-//! means over `REFERENCE_TIME_CONSTANT_S`), the dip starting from the
-//! site's inclination; a reading is disturbed when the magnitude departs
-//! by more than `magnitude_tolerance` (relative) or the dip by more than
-//! `dip_tolerance_rad`. A disturbance that lasts (an attached magnet, a new
-//! steel structure) is the calibration's to absorb: after
-//! `RELEARN_AFTER_S` of it the references start again from the readings.
+//! The magnitude reference is the calibration's own field magnitude (the
+//! median over the readings it was fitted to, not one noisy reading), the
+//! dip's starts from the site's inclination; both then follow undisturbed
+//! readings (exponential means over `REFERENCE_TIME_CONSTANT_S`) and the
+//! dip's survives a refit. A reading is disturbed when the magnitude
+//! departs by more than `magnitude_tolerance` (relative) or the dip by more
+//! than `dip_tolerance_rad`. A disturbance ends only after `CALM_S` of
+//! undisturbed readings, so an odd reading inside it does not restart its
+//! clock. One that lasts (an attached magnet, a new steel structure) is the
+//! calibration's to absorb: after `RELEARN_AFTER_S` of it the references
+//! start again from the readings.
 
 use serde::{Deserialize, Serialize};
 
@@ -24,6 +28,8 @@ use serde::{Deserialize, Serialize};
 const REFERENCE_TIME_CONSTANT_S: f64 = 30.0;
 /// A disturbance longer than this is taken as the new field, s.
 const RELEARN_AFTER_S: f64 = 120.0;
+/// A disturbance is over after this long without a disturbed reading, s.
+const CALM_S: f64 = 2.0;
 
 /// The tolerances before a reading counts as disturbed.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -39,8 +45,12 @@ pub struct DisturbanceDetector {
     magnitude_ut: Option<f64>,
     dip_rad: f64,
     newest_t: Option<f64>,
-    /// Since when the field has been disturbed.
+    /// Since when the field has been disturbed (kept through `CALM_S`
+    /// of undisturbed readings).
     disturbed_since: Option<f64>,
+    /// The newest disturbed reading's time.
+    #[serde(default)]
+    last_disturbed_t: Option<f64>,
 }
 
 impl DisturbanceDetector {
@@ -51,7 +61,17 @@ impl DisturbanceDetector {
             dip_rad: inclination_rad,
             newest_t: None,
             disturbed_since: None,
+            last_disturbed_t: None,
         }
+    }
+
+    /// A new calibration: its field magnitude (µT, horizontal for a planar
+    /// one; `None` if unknown: the next reading's) becomes the reference,
+    /// the learned dip is kept and no disturbance is pending.
+    pub fn recalibrated(&mut self, magnitude_ut: Option<f64>) {
+        self.magnitude_ut = magnitude_ut.filter(|m| m.is_finite() && *m > 0.0);
+        self.disturbed_since = None;
+        self.last_disturbed_t = None;
     }
 
     /// How long the field has been disturbed at `t`, s (0 if it is not).
@@ -60,14 +80,21 @@ impl DisturbanceDetector {
             .map_or(0.0, |since| (t - since).max(0.0))
     }
 
-    /// True while the newest reading departs from the references.
+    /// True while a disturbance lasts (until `CALM_S` after its newest
+    /// disturbed reading).
     pub fn disturbed(&self) -> bool {
         self.disturbed_since.is_some()
     }
 
+    fn mark_disturbed(&mut self, t: f64) -> f64 {
+        self.last_disturbed_t = Some(t);
+        *self.disturbed_since.get_or_insert(t)
+    }
+
     /// Takes a calibrated, levelled field (x north-ish, y, z down; µT) at
     /// time `t`; `planar` when only the horizontal magnitude is
-    /// meaningful. Returns true if the reading is disturbed.
+    /// meaningful. Returns true while disturbed: the reading departs, or
+    /// the disturbance it follows has not been calm for `CALM_S`.
     pub fn observe(
         &mut self,
         t: f64,
@@ -89,19 +116,16 @@ impl DisturbanceDetector {
             .newest_t
             .map_or(0.0, |newest| (t - newest).clamp(0.0, 1.0));
         self.newest_t = Some(t);
-        let Some(reference) = self.magnitude_ut else {
-            // The first reading has no magnitude to compare with, but its
-            // dip must be the site's.
-            if (dip - self.dip_rad).abs() > tolerances.dip_rad {
-                return true;
+        let dip_departs = (dip - self.dip_rad).abs() > tolerances.dip_rad;
+        let departs = match self.magnitude_ut {
+            Some(reference) => {
+                dip_departs || (magnitude / reference - 1.0).abs() > tolerances.magnitude
             }
-            self.magnitude_ut = Some(magnitude);
-            return false;
+            // No magnitude to compare with, but the dip must be the site's.
+            None => dip_departs,
         };
-        let departs = (magnitude / reference - 1.0).abs() > tolerances.magnitude
-            || (dip - self.dip_rad).abs() > tolerances.dip_rad;
         if departs {
-            let since = *self.disturbed_since.get_or_insert(t);
+            let since = self.mark_disturbed(t);
             if t - since <= RELEARN_AFTER_S {
                 return true;
             }
@@ -109,13 +133,20 @@ impl DisturbanceDetector {
             self.magnitude_ut = Some(magnitude);
             self.dip_rad = dip;
             self.disturbed_since = None;
+            self.last_disturbed_t = None;
             return false;
         }
-        self.disturbed_since = None;
+        if self.last_disturbed_t.is_some_and(|last| t - last >= CALM_S) {
+            self.disturbed_since = None;
+            self.last_disturbed_t = None;
+        }
         let gain = (dt_s / REFERENCE_TIME_CONSTANT_S).min(1.0);
-        self.magnitude_ut = Some(reference + (magnitude - reference) * gain);
+        self.magnitude_ut = Some(match self.magnitude_ut {
+            Some(reference) => reference + (magnitude - reference) * gain,
+            None => magnitude,
+        });
         self.dip_rad += (dip - self.dip_rad) * gain;
-        false
+        self.disturbed()
     }
 }
 
@@ -152,14 +183,65 @@ mod tests {
             &TOLERANCES
         ));
         assert!(detector.disturbed());
-        // Gone again.
-        assert!(!detector.observe(60.1, &earth(0.0, Vector3::zeros()), false, &TOLERANCES));
+        // Gone again: still disturbed until CALM_S (2 s) have passed.
+        assert!(detector.observe(60.1, &earth(0.0, Vector3::zeros()), false, &TOLERANCES));
+        assert!(detector.observe(61.9, &earth(0.0, Vector3::zeros()), false, &TOLERANCES));
+        assert!(!detector.observe(62.2, &earth(0.0, Vector3::zeros()), false, &TOLERANCES));
         // A dip change of 6° at equal magnitude.
         let tilted = {
             let dip = 66.0_f64.to_radians();
             Vector3::new(50.0 * dip.cos(), 0.0, 50.0 * dip.sin())
         };
-        assert!(detector.observe(60.2, &tilted, false, &TOLERANCES));
+        assert!(detector.observe(62.3, &tilted, false, &TOLERANCES));
+    }
+
+    #[test]
+    fn the_calibration_sets_the_magnitude_and_the_first_reading_does_not() {
+        let mut detector = DisturbanceDetector::new(60.0_f64.to_radians());
+        // The calibration says 50 µT; a first reading 7 % strong departs.
+        detector.recalibrated(Some(50.0));
+        assert!(detector.observe(
+            0.0,
+            &(earth(0.0, Vector3::zeros()) * 1.07),
+            false,
+            &TOLERANCES
+        ));
+        // Without a calibrated magnitude the first reading is the reference.
+        let mut fresh = DisturbanceDetector::new(60.0_f64.to_radians());
+        assert!(!fresh.observe(
+            0.0,
+            &(earth(0.0, Vector3::zeros()) * 1.07),
+            false,
+            &TOLERANCES
+        ));
+        assert!(!fresh.observe(
+            0.1,
+            &(earth(1.0, Vector3::zeros()) * 1.07),
+            false,
+            &TOLERANCES
+        ));
+    }
+
+    #[test]
+    fn an_odd_calm_reading_does_not_restart_a_lasting_disturbance() {
+        let mut detector = DisturbanceDetector::new(60.0_f64.to_radians());
+        detector.recalibrated(Some(50.0));
+        let shifted = earth(0.0, Vector3::new(0.0, 0.0, 15.0));
+        let mut last = true;
+        for i in 0..=1300 {
+            let t = f64::from(i) * 0.1;
+            // Every 10 s one reading of the old field.
+            let field = if i % 100 == 50 {
+                earth(0.0, Vector3::zeros())
+            } else {
+                shifted
+            };
+            last = detector.observe(t, &field, false, &TOLERANCES);
+            if i < 1200 {
+                assert!(last, "{i}");
+            }
+        }
+        assert!(!last);
     }
 
     #[test]

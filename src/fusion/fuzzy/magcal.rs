@@ -217,6 +217,23 @@ impl MagCalibration {
         self.correction.as_ref()
     }
 
+    /// The calibrated field's magnitude (µT; horizontal for a planar
+    /// calibration): the median over the readings kept, `None` before a
+    /// calibration.
+    pub fn field_magnitude_ut(&self) -> Option<f64> {
+        let c = self.correction.as_ref()?;
+        let planar = self.state == CalibrationState::Planar;
+        let mut magnitudes: Vec<f64> = fields(&self.samples, planar)
+            .iter()
+            .map(|m| magnitude(&c.apply(m), planar))
+            .collect();
+        if magnitudes.is_empty() {
+            return None;
+        }
+        magnitudes.sort_by(f64::total_cmp);
+        Some(magnitudes[magnitudes.len() / 2])
+    }
+
     /// Degrees of azimuth seen (10° per occupied azimuth bin), level or not.
     pub fn coverage_deg(&self) -> f64 {
         self.azimuths_seen(false) as f64 * (360.0 / AZIMUTH_BINS as f64)

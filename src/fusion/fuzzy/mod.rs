@@ -18,12 +18,14 @@
 //!    roll and pitch are corrected towards the accelerometer over the
 //!    older half of the window ([`tilt`]) with gain
 //!    σ·dt/`tilt_time_constant_s` + (1 − σ)·w·dt/`tilt_moving_time_constant_s`,
-//!    w the gate that refuses a force that is not gravity; heading is
-//!    pulled towards the calibrated, tilt-compensated compass likewise
+//!    w the gate that refuses a force that is not gravity, but by at
+//!    least `tilt_turn_pull` of the angle the gyros turn while moving;
+//!    heading is pulled towards the tilt-compensated compass likewise
 //!    (time constants `heading_time_constant_s` and
-//!    `heading_moving_time_constant_s`) unless the field is disturbed
+//!    `heading_moving_time_constant_s`, faster while the heading's σ
+//!    exceeds the compass's) unless the field is disturbed
 //!    ([`disturbance`]) or the compass disagrees with the gyro heading
-//!    beyond `heading_gate_deg`;
+//!    beyond a gate of `heading_gate_deg` widened by that σ;
 //! 4. the reading updates the gyro bias's Kalman filter with weight σ,
 //!    and the accelerometer's static norm follows it.
 //!
@@ -33,7 +35,8 @@
 //! readings feed the calibration ([`magcal::MagCalibration`]); the newest
 //! is used for heading while it is younger than `max_mag_age_s`. Until the
 //! calibration exists, heading is the uncalibrated compass at alignment
-//! carried on by the gyros.
+//! carried on by the gyros, and held by the raw compass while the raw
+//! field keeps the magnitude and dip it had then.
 //!
 //! The Earth's rotation (≤ 0.0042 °/s) is below a MEMS gyro's noise and is
 //! absorbed into the estimated bias while static.
@@ -67,7 +70,8 @@ use super::{Engine, EngineKind, SnapshotError};
 
 /// Version of the engine's snapshot; a snapshot of another is outdated
 /// and the server rebuilds the engine from the stored readings.
-pub const STATE_VERSION: u32 = 2;
+/// 3: the tilt window holds world-frame forces (issue 18, second step).
+pub const STATE_VERSION: u32 = 3;
 
 /// Plausibility caps for alignment, whatever the floor says: a MEMS
 /// sensor at rest shows less spread and less mean rate than this (a
@@ -85,6 +89,8 @@ const GRAVITY_TIME_CONSTANT_S: f64 = 5.0;
 const REHEAD_WATCH_S: f64 = 3.0;
 /// ... a disturbance lasting this long, s (not one odd reading).
 const REHEAD_UNDO_AFTER_S: f64 = 0.15;
+/// How far the uncalibrated compass at alignment may be off (1σ), rad.
+const UNCALIBRATED_HEADING_SIGMA_RAD: f64 = 0.17;
 /// The smallest floor used as a divisor (far below any sensor's noise).
 const MIN_FLOOR: f64 = 1e-9;
 
@@ -201,6 +207,14 @@ pub const PARAMS: &[ParamSpec] = &[
         90.0,
         "deg",
         "while moving, the accelerometer counts fully when it disagrees with the gyro tilt by less than this (g·sin), not at all beyond twice it",
+    ),
+    real(
+        "tilt_turn_pull",
+        0.005,
+        0.0,
+        1.0,
+        "",
+        "while moving, the accelerometer turns the tilt by at least this fraction of the angle the gyros turn through (their scale and axis errors grow with it), whatever the gate",
     ),
     real(
         "heading_time_constant_s",
@@ -351,6 +365,8 @@ pub struct FuzzyConfig {
     pub static_threshold: f64,
     pub tilt_time_constant_s: f64,
     pub tilt_moving_time_constant_s: f64,
+    /// Fraction of the gyros' turn the tilt may always be pulled by while moving.
+    pub tilt_turn_pull: f64,
     /// g·sin(`tilt_gate_deg`) for g = 9.81 m/s², m/s².
     pub tilt_gate_mps2: f64,
     pub heading_time_constant_s: f64,
@@ -410,6 +426,7 @@ impl FuzzyConfig {
             static_threshold: p.real("static_threshold")?,
             tilt_time_constant_s: p.real("tilt_time_constant_s")?,
             tilt_moving_time_constant_s: p.real("tilt_moving_time_constant_s")?,
+            tilt_turn_pull: p.real("tilt_turn_pull")?,
             tilt_gate_mps2: 9.81 * rad(p.real("tilt_gate_deg")?).sin(),
             heading_time_constant_s: p.real("heading_time_constant_s")?,
             heading_moving_time_constant_s: p.real("heading_moving_time_constant_s")?,
@@ -456,8 +473,12 @@ struct Solution {
     static_gravity_mps2: f64,
     /// The previous bias-compensated rate (trapezoidal integration).
     previous_rate_rad_per_s: Option<V3>,
-    /// Measured and predicted forces over the window.
+    /// Measured and expected world-frame forces over the window.
     tilt_window: TiltWindow,
+    /// How far the heading may be off (1σ), rad: grows with the gyros'
+    /// bias σ and their turn, shrinks with each compass pull.
+    #[serde(default)]
+    heading_sigma_rad: f64,
 }
 
 /// The `fuzzy` engine; see the module documentation.
@@ -476,6 +497,11 @@ pub struct FuzzyEngine {
     solution: Option<Solution>,
     calibration: MagCalibration,
     disturbance: DisturbanceDetector,
+    /// Before a calibration: whether the raw field still has the magnitude
+    /// and dip it had when first seen aligned (a sensor that has not
+    /// turned, or needs no calibration), so its compass may hold the heading.
+    #[serde(default)]
+    raw_disturbance: Option<DisturbanceDetector>,
     /// The newest magnetometer reading: time and raw field, µT.
     magnetometer: Option<(f64, V3)>,
     /// True heading (rad) from the newest magnetometer reading, calibrated
@@ -528,6 +554,7 @@ impl FuzzyEngine {
                 config.mag_refit_every,
             ),
             disturbance: DisturbanceDetector::new(config.mag_inclination_rad),
+            raw_disturbance: None,
             magnetometer: None,
             compass: None,
             stats: FuzzyStats::default(),
@@ -562,6 +589,7 @@ impl FuzzyEngine {
         fresh.solution = engine.solution;
         fresh.calibration = engine.calibration;
         fresh.disturbance = engine.disturbance;
+        fresh.raw_disturbance = engine.raw_disturbance;
         fresh.magnetometer = engine.magnetometer;
         fresh.compass = engine.compass;
         fresh.stats = engine.stats;
@@ -623,6 +651,19 @@ impl FuzzyEngine {
                 &tolerances,
             )
         });
+        // Uncalibrated, the raw compass counts only while the field is as
+        // it was: it holds the heading taken from it at alignment.
+        let raw_usable = self.calibration.correction().is_none()
+            && self.solution.is_some()
+            && !self
+                .raw_disturbance
+                .get_or_insert_with(|| DisturbanceDetector::new(self.config.mag_inclination_rad))
+                .observe(
+                    t,
+                    &(attitude_from_euler(roll, pitch, 0.0) * field_ut),
+                    false,
+                    &tolerances,
+                );
         if self
             .rehead_turn
             .is_some_and(|(rehead_t, _)| t - rehead_t > REHEAD_WATCH_S)
@@ -647,22 +688,22 @@ impl FuzzyEngine {
                 if !was_calibrated {
                     self.reheading = true;
                 }
-                self.disturbance = DisturbanceDetector::new(self.config.mag_inclination_rad);
+                self.disturbance
+                    .recalibrated(self.calibration.field_magnitude_ut());
             }
         }
         if self.magnetometer.is_none_or(|(newest, _)| t >= newest) {
             self.magnetometer = Some((t, field_ut));
-            self.compass = if disturbed {
-                None
-            } else {
-                self.calibration.correction().map(|c| {
-                    (
-                        t,
-                        magnetic_heading(&c.apply(&field_ut), roll, pitch)
-                            + self.config.declination_rad,
-                    )
-                })
+            let corrected = match self.calibration.correction() {
+                Some(c) => Some(c.apply(&field_ut)),
+                None => raw_usable.then_some(field_ut),
             };
+            self.compass = corrected.filter(|_| !disturbed).map(|field| {
+                (
+                    t,
+                    magnetic_heading(&field, roll, pitch) + self.config.declination_rad,
+                )
+            });
         }
     }
 
@@ -805,7 +846,9 @@ impl FuzzyEngine {
             return;
         }
         let (roll, pitch) = tilt_from_accel(&self.window.mean_force());
-        let yaw = self.any_compass_heading(t, roll, pitch).unwrap_or(0.0);
+        let compass = self.any_compass_heading(t, roll, pitch);
+        let yaw_known = compass.is_some();
+        let yaw = compass.unwrap_or(0.0);
         // This window is quiet: the floors are at most its spreads.
         self.floor.accel.lower_to(spread);
         self.floor.gyro.lower_to(rate_spread);
@@ -819,6 +862,11 @@ impl FuzzyEngine {
             static_gravity_mps2: self.window.mean_force_norm(),
             previous_rate_rad_per_s: None,
             tilt_window: TiltWindow::new(self.config.window_samples),
+            heading_sigma_rad: if yaw_known {
+                UNCALIBRATED_HEADING_SIGMA_RAD
+            } else {
+                std::f64::consts::PI
+            },
         });
     }
 
@@ -840,10 +888,17 @@ impl FuzzyEngine {
         };
         solution.attitude = integrate(&solution.attitude, &mean_rate, dt_s);
         solution.previous_rate_rad_per_s = Some(compensated);
+        // Linear growth: the gyro errors are correlated over a turn.
+        solution.heading_sigma_rad = (solution.heading_sigma_rad
+            + (solution.gyro_bias.sigma_rad_per_s().norm() + c.tilt_turn_pull * mean_rate.norm())
+                * dt_s)
+            .min(std::f64::consts::PI);
 
-        let predicted =
-            solution.attitude.inverse() * V3::new(0.0, 0.0, -solution.static_gravity_mps2);
-        solution.tilt_window.push(force, predicted);
+        // World frame (tilt.rs): the body turns under the window.
+        let at_rest = V3::new(0.0, 0.0, -solution.static_gravity_mps2);
+        solution
+            .tilt_window
+            .push(solution.attitude * force, at_rest);
         if solution.tilt_window.is_full()
             && let Some((measured, predicted)) = solution.tilt_window.older_means()
         {
@@ -852,7 +907,14 @@ impl FuzzyEngine {
             let still = self.stillness(static_degree);
             let gain = still * dt_s / c.tilt_time_constant_s
                 + (1.0 - still) * moving_weight * dt_s / c.tilt_moving_time_constant_s;
-            solution.attitude = tilt::correct(&solution.attitude, &measured, &predicted, gain);
+            let turn_gain = tilt::turn_gain(
+                &measured,
+                &predicted,
+                c.tilt_turn_pull * mean_rate.norm() * dt_s,
+            );
+            let gain = gain.max((1.0 - still) * turn_gain);
+            solution.attitude =
+                tilt::correct_world(&solution.attitude, &measured, &predicted, gain);
         }
 
         let weight = self.stillness(static_degree);
@@ -891,6 +953,8 @@ impl FuzzyEngine {
         let Some(heading) = self.fresh_compass(t) else {
             return;
         };
+        // The compass's own σ: half the gate.
+        let compass_sigma = 0.5 * c.heading_gate_rad;
         let gain = if self.reheading {
             self.reheading = false;
             self.compass_gated_since = None;
@@ -900,7 +964,11 @@ impl FuzzyEngine {
         } else {
             let (_, _, yaw) = solution.attitude.euler_angles();
             let innovation = orientation::angle_difference(heading, yaw).abs();
-            if innovation > c.heading_gate_rad {
+            // Two σ of the innovation, at least the gate.
+            let gate = c
+                .heading_gate_rad
+                .max(2.0 * (solution.heading_sigma_rad.powi(2) + compass_sigma.powi(2)).sqrt());
+            if innovation > gate {
                 let since = *self.compass_gated_since.get_or_insert(t);
                 if t - since < c.heading_gate_s {
                     return;
@@ -909,9 +977,17 @@ impl FuzzyEngine {
                 self.compass_gated_since = None;
             }
             let still = self.stillness(static_degree);
-            still * dt_s / c.heading_time_constant_s
-                + (1.0 - still) * dt_s / c.heading_moving_time_constant_s
+            let gain = still * dt_s / c.heading_time_constant_s
+                + (1.0 - still) * dt_s / c.heading_moving_time_constant_s;
+            // A heading less sure than the compass is pulled harder.
+            let boost = (solution.heading_sigma_rad / compass_sigma)
+                .powi(2)
+                .max(1.0);
+            (gain * boost).min(1.0)
         };
+        solution.heading_sigma_rad = ((1.0 - gain).powi(2) * solution.heading_sigma_rad.powi(2)
+            + gain.powi(2) * compass_sigma.powi(2))
+        .sqrt();
         solution.attitude = pull_heading(&solution.attitude, heading, gain);
     }
 
@@ -1086,6 +1162,63 @@ mod tests {
             assert!((last.gyro_bias_dps[k] - b).abs() < 1e-9);
         }
         assert_eq!(last.mag_calibration, magcal::CalibrationState::Collecting);
+    }
+
+    /// Still for 10 s, then carried back and forth without turning for
+    /// 100 s while the z gyro's bias warms by 0.1 °/s; the field while
+    /// carried is the Earth's plus `extra_ut` (body frame).
+    fn carried_without_turning(extra_ut: V3) -> FuzzyEstimate {
+        let mut readings = still(10.0, V3::zeros());
+        let attitude = attitude_from_euler(rad(1.5), rad(-2.0), rad(40.0));
+        let gravity = attitude.inverse() * V3::new(0.0, 0.0, -G);
+        let field = attitude.inverse() * V3::new(20.0, 0.0, 44.0) + extra_ut;
+        let t0 = 1.7e9 + 10.0;
+        for i in 0..10_000 {
+            let t = t0 + f64::from(i) * 0.01;
+            let push = V3::new(
+                1.5 * (std::f64::consts::TAU * 0.5 * (t - t0)).sin(),
+                0.0,
+                0.0,
+            );
+            readings.push(imu(t, gravity + push, V3::new(0.0, 0.0, 0.1)));
+            if i % 10 == 0 {
+                readings.push(mag(t, field));
+            }
+        }
+        // The site's inclination: that of the field of `still`.
+        let site = Params::from_assignments(PARAMS, ["mag_inclination_deg=65.56"]).unwrap();
+        let mut engine = FuzzyEngine::new(site).unwrap();
+        let mut out = Vec::new();
+        for r in &readings {
+            engine.feed(r, &mut out);
+        }
+        fuzzy(out.last().unwrap()).clone()
+    }
+
+    #[test]
+    fn an_uncalibrated_compass_holds_the_heading_while_its_field_is_unchanged() {
+        // 0.1 °/s for 100 s would turn the heading 10°; the moving pull
+        // (30 s) holds it within 0.1 °/s × 30 s.
+        let held = carried_without_turning(V3::zeros());
+        assert_eq!(held.motion, Motion::Moving);
+        assert_eq!(held.mag_calibration, magcal::CalibrationState::Collecting);
+        assert!(
+            (held.heading_deg - 40.0).abs() < 3.5,
+            "{}",
+            held.heading_deg
+        );
+        assert!(held.mag_heading_deg.is_some());
+        // A steel mass (10 µT, 20 % of the horizontal field) changes the
+        // raw field's magnitude: its compass is not used (for less than the
+        // 120 s after which a lasting change is the new field), the gyro
+        // drifts.
+        let refused = carried_without_turning(V3::new(10.0, 0.0, 0.0));
+        assert!(refused.mag_heading_deg.is_none());
+        assert!(
+            (refused.heading_deg - 40.0).abs() > 8.0,
+            "{}",
+            refused.heading_deg
+        );
     }
 
     #[test]

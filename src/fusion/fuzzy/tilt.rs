@@ -1,12 +1,14 @@
 //! The accelerometer as a tilt reference that does not pull while the
 //! vehicle accelerates (README: "The fuzzy engine", tilt while moving).
 //!
-//! For each IMU reading the engine keeps the specific force f measured and
-//! the force f̂ = Cᵀ(0, 0, −g₀) its gyro-propagated attitude C predicts at
-//! rest (g₀: the static norm this accelerometer reads). Over the **older
-//! half** of the motion window the two means F̄ and F̂ are compared:
-//! - the comparison is over the same readings, so a slow rotation within
-//!   the window does not smear the reference (the plain mean of f would);
+//! For each IMU reading the engine keeps the specific force turned into
+//! the world frame, C f (C: its gyro-propagated body-to-world attitude),
+//! and the force at rest (0, 0, −g₀) (g₀: the static norm this
+//! accelerometer reads). Over the **older half** of the motion window the
+//! two means F̄ and F̂ are compared:
+//! - in the world frame, so the body may turn under the window: a
+//!   body-frame comparison from half a window ago, applied to today's body
+//!   axes, would turn the tilt the wrong way at hundreds of °/s;
 //! - it is delayed by half a window: the expert's decision covers the whole
 //!   window, so when it says "static", the older half has been static for
 //!   at least half a window since: an acceleration that has just begun is
@@ -16,12 +18,14 @@
 //!   only when ρ is within `gate_mps2` (full weight) to 2·`gate_mps2`
 //!   (none), so a vehicle accelerating, braking or cornering keeps its
 //!   gyro-propagated tilt, and the static spells correct what that gate
-//!   rejects.
+//!   rejects. Whatever the gate, the engine may turn the tilt by a small
+//!   fraction of the angle the gyros turned through ([`turn_gain`]): their
+//!   scale and axis errors grow with it, and a sensor that never rests
+//!   must not drift past the gate for good.
 //!
-//! The correction turns the attitude about the body axis u = F̄ × F̂ by a
-//! fraction of the angle between them: Cᵀ then predicts a force turned
-//! towards the measured one; u is perpendicular to gravity, so heading
-//! is unchanged to first order.
+//! The correction turns the attitude about the world axis u = F̄ × F̂ by a
+//! fraction of the angle between them ([`correct_world`]); u is
+//! horizontal, so heading is unchanged to first order.
 
 use std::collections::VecDeque;
 
@@ -127,20 +131,32 @@ pub fn moving_weight(residual_mps2: f64, gate_mps2: f64) -> f64 {
     (2.0 - residual_mps2 / gate_mps2).clamp(0.0, 1.0)
 }
 
-/// Turns `attitude` a fraction `gain` ∈ [0, 1] of the way from predicting
-/// `predicted` to predicting `measured` (both body-frame forces).
-pub fn correct(
+/// The gain that turns `measured` towards `expected` by at most
+/// `allowance_rad` (all the way if they are closer).
+pub fn turn_gain(measured: &V3, expected: &V3, allowance_rad: f64) -> f64 {
+    let angle = measured.angle(expected);
+    if angle > 1e-12 {
+        (allowance_rad / angle).clamp(0.0, 1.0)
+    } else {
+        0.0
+    }
+}
+
+/// Turns `attitude` (body → world) a fraction `gain` ∈ [0, 1] of the way
+/// from putting the world-frame force `measured` at `expected`: the turn is
+/// about the world axis `measured` × `expected`.
+pub fn correct_world(
     attitude: &UnitQuaternion<f64>,
     measured: &V3,
-    predicted: &V3,
+    expected: &V3,
     gain: f64,
 ) -> UnitQuaternion<f64> {
-    let axis = measured.cross(predicted);
+    let axis = measured.cross(expected);
     let Some(axis) = Unit::try_new(axis, 1e-12) else {
         return *attitude;
     };
-    let angle = measured.angle(predicted) * gain.clamp(0.0, 1.0);
-    attitude * UnitQuaternion::from_axis_angle(&axis, angle)
+    let angle = measured.angle(expected) * gain.clamp(0.0, 1.0);
+    UnitQuaternion::from_axis_angle(&axis, angle) * attitude
 }
 
 #[cfg(test)]
@@ -172,23 +188,29 @@ mod tests {
     }
 
     #[test]
-    fn a_full_correction_makes_the_prediction_the_measurement_and_keeps_heading() {
+    fn a_world_correction_levels_a_tilted_estimate_whatever_the_body_does() {
         let g = 9.81;
-        let truth = attitude_from_euler(0.03, -0.02, 1.2);
-        let estimate = attitude_from_euler(0.0, 0.0, 1.2);
-        let down = V3::new(0.0, 0.0, -g);
-        let measured = truth.inverse() * down;
-        let predicted = estimate.inverse() * down;
-        let corrected = correct(&estimate, &measured, &predicted, 1.0);
-        assert!(((corrected.inverse() * down) - measured).norm() < 1e-9);
-        let (roll, pitch, yaw) = corrected.euler_angles();
-        assert!((roll - 0.03).abs() < 1e-9 && (pitch + 0.02).abs() < 1e-9);
-        // First order: yaw moves by far less than the tilt corrected.
-        assert!((yaw - 1.2).abs() < 1e-3, "{yaw}");
-        // Half the gain, half the angle.
-        let half = correct(&estimate, &measured, &predicted, 0.5);
-        let left = (half.inverse() * down).angle(&measured);
-        assert!((left - 0.5 * measured.angle(&predicted)).abs() < 1e-9);
+        // The estimate is rolled 2° too far; the body points anywhere.
+        let truth = attitude_from_euler(0.3, -0.5, 2.0);
+        let estimate = UnitQuaternion::from_axis_angle(&V3::x_axis(), 0.035) * truth;
+        let force = truth.inverse() * V3::new(0.0, 0.0, -g);
+        let measured = estimate * force;
+        let expected = V3::new(0.0, 0.0, -g);
+        // World x axis, about which the error is: 2° error, all of it back.
+        let corrected = correct_world(&estimate, &measured, &expected, 1.0);
+        assert!(corrected.angle_to(&truth) < 1e-9);
+        // Half the gain, half the angle; the yaw moves by a fraction of the
+        // 1° turned (second order: the body is pitched 29°), where a turn
+        // about the vertical would move it 1° (0.017 rad).
+        let half = correct_world(&estimate, &measured, &expected, 0.5);
+        assert!(((half * force).angle(&expected) - 0.0175).abs() < 1e-9);
+        let (_, _, yaw) = half.euler_angles();
+        assert!((yaw - 2.0).abs() < 5e-3, "{yaw}");
+        // A turn of at most 0.5° of the 2°: a quarter of the way.
+        let gain = turn_gain(&measured, &expected, 0.5_f64.to_radians());
+        assert!((gain - 0.25).abs() < 1e-3, "{gain}");
+        assert_eq!(turn_gain(&measured, &expected, 1.0), 1.0);
+        assert_eq!(turn_gain(&expected, &expected, 1.0), 0.0);
     }
 
     #[test]
