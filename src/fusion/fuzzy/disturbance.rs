@@ -51,6 +51,9 @@ pub struct DisturbanceDetector {
     /// The newest disturbed reading's time.
     #[serde(default)]
     last_disturbed_t: Option<f64>,
+    /// Since when every reading has departed (none calm in between).
+    #[serde(default)]
+    departing_since: Option<f64>,
 }
 
 impl DisturbanceDetector {
@@ -62,6 +65,7 @@ impl DisturbanceDetector {
             newest_t: None,
             disturbed_since: None,
             last_disturbed_t: None,
+            departing_since: None,
         }
     }
 
@@ -72,11 +76,13 @@ impl DisturbanceDetector {
         self.magnitude_ut = magnitude_ut.filter(|m| m.is_finite() && *m > 0.0);
         self.disturbed_since = None;
         self.last_disturbed_t = None;
+        self.departing_since = None;
     }
 
-    /// How long the field has been disturbed at `t`, s (0 if it is not).
-    pub fn disturbed_for_s(&self, t: f64) -> f64 {
-        self.disturbed_since
+    /// How long every reading has departed from the references at `t`, s
+    /// (0 after a calm one): the disturbance itself, without its calm tail.
+    pub fn departing_for_s(&self, t: f64) -> f64 {
+        self.departing_since
             .map_or(0.0, |since| (t - since).max(0.0))
     }
 
@@ -88,6 +94,7 @@ impl DisturbanceDetector {
 
     fn mark_disturbed(&mut self, t: f64) -> f64 {
         self.last_disturbed_t = Some(t);
+        self.departing_since.get_or_insert(t);
         *self.disturbed_since.get_or_insert(t)
     }
 
@@ -134,8 +141,10 @@ impl DisturbanceDetector {
             self.dip_rad = dip;
             self.disturbed_since = None;
             self.last_disturbed_t = None;
+            self.departing_since = None;
             return false;
         }
+        self.departing_since = None;
         if self.last_disturbed_t.is_some_and(|last| t - last >= CALM_S) {
             self.disturbed_since = None;
             self.last_disturbed_t = None;

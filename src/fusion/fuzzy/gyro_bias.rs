@@ -16,6 +16,13 @@ use serde::{Deserialize, Serialize};
 
 use crate::fusion::zupt::strapdown::V3;
 
+/// A static spell shorter than this says too little about the bias, s.
+const MIN_SPELL_S: f64 = 3.0;
+/// The learnt density averages this many spells at most (then follows).
+const MAX_SPELLS_AVERAGED: u32 = 8;
+/// The learnt density is at least this fraction of the configured one.
+const MIN_DENSITY_FRACTION: f64 = 0.04;
+
 /// Bias, rad/s, and its variance per axis, rad²/s².
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct GyroBias {
@@ -58,9 +65,106 @@ impl GyroBias {
     }
 }
 
+/// The random walk's density learnt from the data: how far the bias moved
+/// between the ends of successive static spells, less what the filter's
+/// own variance explains, q̂ = mean over axes of ((Δb)² − P₁ − P₀)/Δt,
+/// averaged over the last spells. A sensor whose bias wanders more than
+/// configured (a MEMS gyro warming) gets a larger q̂, so its bias σ, and
+/// with it the tilt's and the heading's, grow faster while moving.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct WalkLearner {
+    /// Start of the current static spell.
+    spell_start_t: Option<f64>,
+    /// End time, bias and variance of the last long spell.
+    last_spell: Option<(f64, V3, V3)>,
+    density: Option<f64>,
+    spells: u32,
+}
+
+impl WalkLearner {
+    /// Takes each reading's time, whether it is static, and the bias
+    /// filter after it.
+    pub fn observe(&mut self, t: f64, still: bool, bias: &GyroBias) {
+        if still {
+            self.spell_start_t.get_or_insert(t);
+            // While the spell lasts its end is this reading.
+            return;
+        }
+        let Some(start) = self.spell_start_t.take() else {
+            return;
+        };
+        if t - start < MIN_SPELL_S {
+            return;
+        }
+        if let Some((t0, b0, p0)) = self.last_spell
+            && t > t0
+        {
+            let dt = t - t0;
+            let sample = (0..3)
+                .map(|k| ((bias.bias_rad_per_s[k] - b0[k]).powi(2) - bias.variance[k] - p0[k]) / dt)
+                .sum::<f64>()
+                / 3.0;
+            let sample = sample.max(0.0);
+            if sample.is_finite() {
+                self.spells = (self.spells + 1).min(MAX_SPELLS_AVERAGED);
+                let old = self.density.unwrap_or(sample);
+                self.density = Some(old + (sample - old) / f64::from(self.spells));
+            }
+        }
+        self.last_spell = Some((t, bias.bias_rad_per_s, bias.variance));
+    }
+
+    /// The density to predict with (rad²/s³): the learnt one once a pair of
+    /// spells has been seen, at least `MIN_DENSITY_FRACTION` of
+    /// `configured`; `configured` until then.
+    pub fn density(&self, configured: f64) -> f64 {
+        match self.density {
+            Some(d) => d.max(configured * MIN_DENSITY_FRACTION),
+            None => configured,
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn filter(bias: f64, variance: f64) -> GyroBias {
+        GyroBias {
+            bias_rad_per_s: V3::repeat(bias),
+            variance: V3::repeat(variance),
+        }
+    }
+
+    #[test]
+    fn the_walk_is_learnt_from_the_bias_moves_between_long_spells() {
+        let mut walk = WalkLearner::default();
+        assert_eq!(walk.density(2e-6), 2e-6);
+        // Spell 0–10 s ends with bias 0 (variance 1e-6 per axis).
+        walk.observe(0.0, true, &filter(0.0, 1e-6));
+        walk.observe(10.0, false, &filter(0.0, 1e-6));
+        // A 2 s spell is too short to say anything.
+        walk.observe(50.0, true, &filter(0.5, 1e-6));
+        walk.observe(52.0, false, &filter(0.5, 1e-6));
+        assert_eq!(walk.density(2e-6), 2e-6);
+        // Spell 100–110 s ends with bias 0.1: (0.01 − 2e-6)/100 per axis.
+        walk.observe(100.0, true, &filter(0.1, 1e-6));
+        walk.observe(110.0, false, &filter(0.1, 1e-6));
+        assert!((walk.density(2e-6) - 0.009_998 / 100.0).abs() < 1e-12);
+        // Then a bias that stays: the mean of 9.998e-5 and 0 (less the
+        // variances, clamped at 0), at least 4 % of the configured.
+        walk.observe(200.0, true, &filter(0.1, 1e-6));
+        walk.observe(210.0, false, &filter(0.1, 1e-6));
+        assert!((walk.density(2e-6) - 0.5 * 9.998e-5).abs() < 1e-12);
+        assert_eq!(
+            WalkLearner {
+                density: Some(0.0),
+                ..walk
+            }
+            .density(2e-6),
+            0.04 * 2e-6
+        );
+    }
 
     #[test]
     fn one_update_weighs_prior_and_reading_by_their_variances() {

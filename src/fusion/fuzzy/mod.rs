@@ -12,14 +12,17 @@
 //!    when s ≥ `static_threshold`. No threshold is in sensor units;
 //! 2. the attitude quaternion integrates the bias-compensated gyro
 //!    ([`orientation::integrate`]), always; the bias's variance grows as
-//!    a random walk ([`gyro_bias`]);
+//!    a random walk whose density is learnt from the bias changes
+//!    between static spells ([`gyro_bias`]);
 //! 3. with the stillness σ = (s − `static_threshold`)/(1 − `static_threshold`)
 //!    clamped to [0, 1] (the `uncertain` rule alone, s = 0.5, is motion),
 //!    roll and pitch are corrected towards the accelerometer over the
 //!    older half of the window ([`tilt`]) with gain
 //!    σ·dt/`tilt_time_constant_s` + (1 − σ)·w·dt/`tilt_moving_time_constant_s`,
-//!    w the gate that refuses a force that is not gravity, but by at
-//!    least `tilt_turn_pull` of the angle the gyros turn while moving;
+//!    w the gate that refuses a force that is not gravity (widened, and
+//!    the moving pull sped up, while the tilt's σ exceeds the
+//!    accelerometer's), but by at least `tilt_turn_pull` of the angle the
+//!    gyros turn while moving;
 //!    heading is pulled towards the tilt-compensated compass likewise
 //!    (time constants `heading_time_constant_s` and
 //!    `heading_moving_time_constant_s`, faster while the heading's σ
@@ -54,7 +57,7 @@ use nalgebra::UnitQuaternion;
 use serde::{Deserialize, Serialize};
 
 use self::disturbance::{DisturbanceDetector, Tolerances};
-use self::gyro_bias::GyroBias;
+use self::gyro_bias::{GyroBias, WalkLearner};
 use self::magcal::{CalibrationState, MagCalibration};
 use self::mamdani::{Mamdani, Scratch};
 use self::motion::{Breakpoints, MotionConfig, MotionSignals, MotionWindow};
@@ -91,6 +94,9 @@ const REHEAD_WATCH_S: f64 = 3.0;
 const REHEAD_UNDO_AFTER_S: f64 = 0.15;
 /// How far the uncalibrated compass at alignment may be off (1σ), rad.
 const UNCALIBRATED_HEADING_SIGMA_RAD: f64 = 0.17;
+/// A reading this still (stillness) is part of a static spell for
+/// learning the bias's random walk.
+const SPELL_STILLNESS: f64 = 0.9;
 /// The smallest floor used as a divisor (far below any sensor's noise).
 const MIN_FLOOR: f64 = 1e-9;
 
@@ -254,7 +260,7 @@ pub const PARAMS: &[ParamSpec] = &[
         0.0,
         10.0,
         "deg/s/√s",
-        "random walk of the gyro bias between stops (its variance grows by the square of this per second)",
+        "random walk of the gyro bias between stops (its variance grows by the square of this per second) until the engine has learnt it from the bias changes between two long stops",
     ),
     real(
         "mag_min_coverage_deg",
@@ -367,8 +373,8 @@ pub struct FuzzyConfig {
     pub tilt_moving_time_constant_s: f64,
     /// Fraction of the gyros' turn the tilt may always be pulled by while moving.
     pub tilt_turn_pull: f64,
-    /// g·sin(`tilt_gate_deg`) for g = 9.81 m/s², m/s².
-    pub tilt_gate_mps2: f64,
+    /// `tilt_gate_deg`, rad.
+    pub tilt_gate_rad: f64,
     pub heading_time_constant_s: f64,
     pub heading_moving_time_constant_s: f64,
     pub heading_gate_rad: f64,
@@ -427,7 +433,7 @@ impl FuzzyConfig {
             tilt_time_constant_s: p.real("tilt_time_constant_s")?,
             tilt_moving_time_constant_s: p.real("tilt_moving_time_constant_s")?,
             tilt_turn_pull: p.real("tilt_turn_pull")?,
-            tilt_gate_mps2: 9.81 * rad(p.real("tilt_gate_deg")?).sin(),
+            tilt_gate_rad: rad(p.real("tilt_gate_deg")?),
             heading_time_constant_s: p.real("heading_time_constant_s")?,
             heading_moving_time_constant_s: p.real("heading_moving_time_constant_s")?,
             heading_gate_rad: rad(p.real("heading_gate_deg")?),
@@ -479,6 +485,13 @@ struct Solution {
     /// bias σ and their turn, shrinks with each compass pull.
     #[serde(default)]
     heading_sigma_rad: f64,
+    /// How far roll and pitch may be off (1σ), rad: grows like the
+    /// heading's, shrinks with each accelerometer pull.
+    #[serde(default)]
+    tilt_sigma_rad: f64,
+    /// The bias's random walk as the data show it.
+    #[serde(default)]
+    bias_walk: WalkLearner,
 }
 
 /// The `fuzzy` engine; see the module documentation.
@@ -672,7 +685,7 @@ impl FuzzyEngine {
         }
         if disturbed {
             self.stats.mag_disturbed += 1;
-            if self.disturbance.disturbed_for_s(t) >= REHEAD_UNDO_AFTER_S
+            if self.disturbance.departing_for_s(t) >= REHEAD_UNDO_AFTER_S
                 && let (Some((_, turn)), Some(solution)) =
                     (self.rehead_turn.take(), &mut self.solution)
             {
@@ -799,7 +812,7 @@ impl FuzzyEngine {
 
         self.static_degree = static_degree;
         if continuous && let Some(solution) = self.solution.take() {
-            let updated = self.advance(solution, dt_s, force, rate, static_degree);
+            let updated = self.advance(solution, t, dt_s, force, rate, static_degree);
             let mut updated = updated;
             self.steer_heading(&mut updated, t, dt_s, static_degree);
             let finite = updated.attitude.coords.iter().all(|x| x.is_finite())
@@ -862,6 +875,8 @@ impl FuzzyEngine {
             static_gravity_mps2: self.window.mean_force_norm(),
             previous_rate_rad_per_s: None,
             tilt_window: TiltWindow::new(self.config.window_samples),
+            tilt_sigma_rad: 0.0,
+            bias_walk: WalkLearner::default(),
             heading_sigma_rad: if yaw_known {
                 UNCALIBRATED_HEADING_SIGMA_RAD
             } else {
@@ -874,13 +889,15 @@ impl FuzzyEngine {
     fn advance(
         &self,
         mut solution: Solution,
+        t: f64,
         dt_s: f64,
         force: V3,
         rate: V3,
         static_degree: f64,
     ) -> Solution {
         let c = &self.config;
-        solution.gyro_bias.predict(dt_s, c.bias_walk_density);
+        let walk_density = solution.bias_walk.density(c.bias_walk_density);
+        solution.gyro_bias.predict(dt_s, walk_density);
         let compensated = rate - solution.gyro_bias.bias_rad_per_s;
         let mean_rate = match solution.previous_rate_rad_per_s {
             Some(previous) => (previous + compensated) * 0.5,
@@ -889,10 +906,14 @@ impl FuzzyEngine {
         solution.attitude = integrate(&solution.attitude, &mean_rate, dt_s);
         solution.previous_rate_rad_per_s = Some(compensated);
         // Linear growth: the gyro errors are correlated over a turn.
-        solution.heading_sigma_rad = (solution.heading_sigma_rad
-            + (solution.gyro_bias.sigma_rad_per_s().norm() + c.tilt_turn_pull * mean_rate.norm())
-                * dt_s)
-            .min(std::f64::consts::PI);
+        let drift_rad = (solution.gyro_bias.sigma_rad_per_s().norm()
+            + c.tilt_turn_pull * mean_rate.norm())
+            * dt_s;
+        solution.heading_sigma_rad =
+            (solution.heading_sigma_rad + drift_rad).min(std::f64::consts::PI);
+        solution.tilt_sigma_rad = (solution.tilt_sigma_rad
+            + solution.gyro_bias.sigma_rad_per_s().norm() * dt_s)
+            .min(std::f64::consts::FRAC_PI_2);
 
         // World frame (tilt.rs): the body turns under the window.
         let at_rest = V3::new(0.0, 0.0, -solution.static_gravity_mps2);
@@ -903,16 +924,30 @@ impl FuzzyEngine {
             && let Some((measured, predicted)) = solution.tilt_window.older_means()
         {
             let residual = (measured - predicted).norm();
-            let moving_weight = tilt::moving_weight(residual, c.tilt_gate_mps2);
+            // The accelerometer's own σ while moving: half the gate. A
+            // tilt less sure than that widens the gate (two σ of the
+            // residual) and takes the accelerometer faster.
+            let accel_sigma = 0.5 * c.tilt_gate_rad;
+            let gate_rad = c
+                .tilt_gate_rad
+                .max(2.0 * (solution.tilt_sigma_rad.powi(2) + accel_sigma.powi(2)).sqrt());
+            let gate_mps2 =
+                solution.static_gravity_mps2 * gate_rad.min(std::f64::consts::FRAC_PI_2).sin();
+            let moving_weight = tilt::moving_weight(residual, gate_mps2);
+            let boost = (solution.tilt_sigma_rad / accel_sigma).powi(2).max(1.0);
             let still = self.stillness(static_degree);
             let gain = still * dt_s / c.tilt_time_constant_s
-                + (1.0 - still) * moving_weight * dt_s / c.tilt_moving_time_constant_s;
+                + ((1.0 - still) * moving_weight * dt_s / c.tilt_moving_time_constant_s * boost)
+                    .min(1.0);
             let turn_gain = tilt::turn_gain(
                 &measured,
                 &predicted,
                 c.tilt_turn_pull * mean_rate.norm() * dt_s,
             );
-            let gain = gain.max((1.0 - still) * turn_gain);
+            let gain = gain.max((1.0 - still) * turn_gain).min(1.0);
+            solution.tilt_sigma_rad = ((1.0 - gain).powi(2) * solution.tilt_sigma_rad.powi(2)
+                + gain.powi(2) * accel_sigma.powi(2))
+            .sqrt();
             solution.attitude =
                 tilt::correct_world(&solution.attitude, &measured, &predicted, gain);
         }
@@ -926,6 +961,9 @@ impl FuzzyEngine {
             let gain = (weight * dt_s / GRAVITY_TIME_CONSTANT_S).min(1.0);
             solution.static_gravity_mps2 += (force.norm() - solution.static_gravity_mps2) * gain;
         }
+        solution
+            .bias_walk
+            .observe(t, weight >= SPELL_STILLNESS, &solution.gyro_bias);
         solution
     }
 
