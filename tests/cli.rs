@@ -169,7 +169,7 @@ fn bad_arguments_are_refused_with_a_clear_message() {
                 "gyro_activity_still_factor=5",
                 "-",
             ],
-            "gyro_activity_moving_factor (4) must be above gyro_activity_still_factor (5)",
+            "gyro_activity_moving_factor (3) must be above gyro_activity_still_factor (5)",
         ),
         (
             &[

@@ -161,7 +161,7 @@ pub const PARAMS: &[ParamSpec] = &[
     ),
     real(
         "gyro_activity_moving_factor",
-        4.0,
+        3.0,
         0.0,
         1000.0,
         "× floor",
