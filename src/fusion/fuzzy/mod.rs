@@ -22,7 +22,7 @@
 //!    w the gate that refuses a force that is not gravity (widened, and
 //!    the moving pull sped up, while the tilt's σ exceeds the
 //!    accelerometer's), but by at least `tilt_turn_pull` of the angle the
-//!    gyros turn while moving;
+//!    gyros turn about a horizontal axis while moving;
 //!    heading is pulled towards the tilt-compensated compass likewise
 //!    (time constants `heading_time_constant_s` and
 //!    `heading_moving_time_constant_s`, faster while the heading's σ
@@ -220,7 +220,7 @@ pub const PARAMS: &[ParamSpec] = &[
         0.0,
         1.0,
         "",
-        "while moving, the accelerometer turns the tilt by at least this fraction of the angle the gyros turn through (their scale and axis errors grow with it), whatever the gate",
+        "while moving, the accelerometer turns the tilt by at least this fraction of the angle the gyros turn through about a horizontal axis (their scale and axis errors grow with it), whatever the gate",
     ),
     real(
         "heading_time_constant_s",
@@ -939,10 +939,13 @@ impl FuzzyEngine {
             let gain = still * dt_s / c.tilt_time_constant_s
                 + ((1.0 - still) * moving_weight * dt_s / c.tilt_moving_time_constant_s * boost)
                     .min(1.0);
+            // Only turns about a horizontal axis tilt the estimate (a
+            // scale error in a turn about the vertical is heading's).
+            let tilting_rate = (solution.attitude * mean_rate).xy().norm();
             let turn_gain = tilt::turn_gain(
                 &measured,
                 &predicted,
-                c.tilt_turn_pull * mean_rate.norm() * dt_s,
+                c.tilt_turn_pull * tilting_rate * dt_s,
             );
             let gain = gain.max((1.0 - still) * turn_gain).min(1.0);
             solution.tilt_sigma_rad = ((1.0 - gain).powi(2) * solution.tilt_sigma_rad.powi(2)
