@@ -89,6 +89,11 @@ const PLAUSIBLE_FIELD_UT: (f64, f64) = (5.0, 150.0);
 const MIN_SPAN_DEG: f64 = 90.0;
 /// Every this many readings one is held back from the fit to check it.
 const HOLDOUT_EVERY: u64 = 4;
+/// A reading whose corrected radius is off by less than this (relative)
+/// is never an outlier of a fit.
+const MIN_OUTLIER_RADIUS_ERROR: f64 = 0.03;
+/// Rounds of refitting without outliers.
+const OUTLIER_ROUNDS: usize = 3;
 /// Held-back readings kept (the newest).
 const HOLDOUT_SAMPLES: usize = 128;
 /// A candidate replaces the current correction (the raw field before the
@@ -335,12 +340,16 @@ impl MagCalibration {
             && self.azimuths_seen(false) as f64 * degrees_per_bin >= self.min_coverage_deg
         {
             let samples = fields(&self.samples, false);
-            (CalibrationState::Ellipsoid, fit_ellipsoid(&samples))
+            (
+                CalibrationState::Ellipsoid,
+                refit_without_outliers(&samples, false, fit_ellipsoid),
+            )
         } else if self.azimuths_seen(true) as f64 * degrees_per_bin >= self.min_coverage_deg {
             let level = fields(&self.samples, true);
+            let inclination = self.inclination_rad;
             (
                 CalibrationState::Planar,
-                fit_planar(&level, self.inclination_rad),
+                refit_without_outliers(&level, true, |s| fit_planar(s, inclination)),
             )
         } else {
             return false;
@@ -588,6 +597,46 @@ fn radius_rms(samples: &[V3], correct: impl Fn(&V3) -> f64) -> f64 {
     (radii.iter().map(|r| (r / mean - 1.0).powi(2)).sum::<f64>() / n).sqrt()
 }
 
+/// Fits, then fits again without the readings whose corrected radius is
+/// off by more than three times the fit's RMS (at least
+/// `MIN_OUTLIER_RADIUS_ERROR`), up to `OUTLIER_ROUNDS` times: readings
+/// taken next to a magnet or a steel mass must not bend the calibration
+/// of every other direction. At least half the readings are kept.
+fn refit_without_outliers(
+    samples: &[V3],
+    planar: bool,
+    fit: impl Fn(&[V3]) -> Option<Correction>,
+) -> Option<Correction> {
+    let mut current = fit(samples)?;
+    let mut kept = samples.len();
+    for _ in 0..OUTLIER_ROUNDS {
+        let radii: Vec<f64> = samples
+            .iter()
+            .map(|m| magnitude(&current.apply(m), planar))
+            .collect();
+        let mean = radii.iter().sum::<f64>() / radii.len().max(1) as f64;
+        if mean <= 0.0 {
+            break;
+        }
+        let limit = (3.0 * current.fit_rms).max(MIN_OUTLIER_RADIUS_ERROR);
+        let inliers: Vec<V3> = samples
+            .iter()
+            .zip(&radii)
+            .filter(|(_, r)| (*r / mean - 1.0).abs() <= limit)
+            .map(|(m, _)| *m)
+            .collect();
+        if inliers.len() == kept || inliers.len() < samples.len() / 2 {
+            break;
+        }
+        kept = inliers.len();
+        match fit(&inliers) {
+            Some(better) => current = better,
+            None => break,
+        }
+    }
+    Some(current)
+}
+
 /// Least-squares quadric fit; see the module documentation.
 pub fn fit_ellipsoid(samples: &[V3]) -> Option<Correction> {
     if samples.len() < 9 {
@@ -734,6 +783,37 @@ mod tests {
         for (body, raw) in &cases {
             assert!(direction_error_deg(c, body, raw) < 1e-4);
         }
+    }
+
+    #[test]
+    fn readings_next_to_a_magnet_do_not_bend_the_fit() {
+        let (a, b) = distortion();
+        let earth = V3::new(20.0, 1.0, 44.0);
+        let mut samples = Vec::new();
+        for i in 0..400 {
+            let t = f64::from(i);
+            let attitude = UnitQuaternion::from_euler_angles(
+                1.3 * (t * 0.11).sin(),
+                0.9 * (t * 0.07).cos(),
+                t * 0.5,
+            );
+            let mut raw = a * (attitude.inverse() * earth) + b;
+            // One reading in ten passes a magnet: 25 µT more along x.
+            if i % 10 == 0 {
+                raw.x += 25.0;
+            }
+            samples.push(raw);
+        }
+        let plain = fit_ellipsoid(&samples).unwrap();
+        let robust = refit_without_outliers(&samples, false, fit_ellipsoid).unwrap();
+        // The plain fit's centre is pulled by the magnet; without the
+        // outliers it is within a fraction of a µT (a reading the magnet
+        // moved along the sphere, radius within 3 %, cannot be told).
+        let plain_error = (plain.hard_iron_ut - b).norm();
+        let robust_error = (robust.hard_iron_ut - b).norm();
+        assert!(plain_error > 1.0, "{:?}", plain.hard_iron_ut);
+        assert!(robust_error < 0.3, "{:?}", robust.hard_iron_ut);
+        assert!(robust.fit_rms < 0.01, "{}", robust.fit_rms);
     }
 
     #[test]
