@@ -74,6 +74,10 @@ impl DisturbanceDetector {
     /// the learned dip is kept and no disturbance is pending.
     pub fn recalibrated(&mut self, magnitude_ut: Option<f64>) {
         self.magnitude_ut = magnitude_ut.filter(|m| m.is_finite() && *m > 0.0);
+        self.end_disturbance();
+    }
+
+    fn end_disturbance(&mut self) {
         self.disturbed_since = None;
         self.last_disturbed_t = None;
         self.departing_since = None;
@@ -139,15 +143,12 @@ impl DisturbanceDetector {
             // Lasting: the new field is the site's now.
             self.magnitude_ut = Some(magnitude);
             self.dip_rad = dip;
-            self.disturbed_since = None;
-            self.last_disturbed_t = None;
-            self.departing_since = None;
+            self.end_disturbance();
             return false;
         }
         self.departing_since = None;
         if self.last_disturbed_t.is_some_and(|last| t - last >= CALM_S) {
-            self.disturbed_since = None;
-            self.last_disturbed_t = None;
+            self.end_disturbance();
         }
         let gain = (dt_s / REFERENCE_TIME_CONSTANT_S).min(1.0);
         self.magnitude_ut = Some(match self.magnitude_ut {

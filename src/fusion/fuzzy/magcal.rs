@@ -586,15 +586,24 @@ fn sqrt_spd2(m: &Matrix2<f64>) -> Option<Matrix2<f64>> {
     Some(eigen.eigenvectors * Matrix2::from_diagonal(&root) * eigen.eigenvectors.transpose())
 }
 
+/// Each sample's corrected radius over the samples' mean, less one;
+/// `None` when the mean is not positive.
+fn relative_radius_errors(samples: &[V3], radius: impl Fn(&V3) -> f64) -> Option<Vec<f64>> {
+    let radii: Vec<f64> = samples.iter().map(radius).collect();
+    let mean = radii.iter().sum::<f64>() / radii.len().max(1) as f64;
+    if mean <= 0.0 {
+        return None;
+    }
+    Some(radii.iter().map(|r| r / mean - 1.0).collect())
+}
+
 /// RMS of ‖S(m − b)‖ / mean − 1 over the samples, on the chosen axes.
 fn radius_rms(samples: &[V3], correct: impl Fn(&V3) -> f64) -> f64 {
-    let radii: Vec<f64> = samples.iter().map(correct).collect();
-    let n = radii.len().max(1) as f64;
-    let mean = radii.iter().sum::<f64>() / n;
-    if mean <= 0.0 {
-        return f64::INFINITY;
+    let n = samples.len().max(1) as f64;
+    match relative_radius_errors(samples, correct) {
+        Some(errors) => (errors.iter().map(|e| e.powi(2)).sum::<f64>() / n).sqrt(),
+        None => f64::INFINITY,
     }
-    (radii.iter().map(|r| (r / mean - 1.0).powi(2)).sum::<f64>() / n).sqrt()
 }
 
 /// Fits, then fits again without the readings whose corrected radius is
@@ -610,19 +619,16 @@ fn refit_without_outliers(
     let mut current = fit(samples)?;
     let mut kept = samples.len();
     for _ in 0..OUTLIER_ROUNDS {
-        let radii: Vec<f64> = samples
-            .iter()
-            .map(|m| magnitude(&current.apply(m), planar))
-            .collect();
-        let mean = radii.iter().sum::<f64>() / radii.len().max(1) as f64;
-        if mean <= 0.0 {
+        let Some(errors) =
+            relative_radius_errors(samples, |m| magnitude(&current.apply(m), planar))
+        else {
             break;
-        }
+        };
         let limit = (3.0 * current.fit_rms).max(MIN_OUTLIER_RADIUS_ERROR);
         let inliers: Vec<V3> = samples
             .iter()
-            .zip(&radii)
-            .filter(|(_, r)| (*r / mean - 1.0).abs() <= limit)
+            .zip(&errors)
+            .filter(|(_, e)| e.abs() <= limit)
             .map(|(m, _)| *m)
             .collect();
         if inliers.len() == kept || inliers.len() < samples.len() / 2 {

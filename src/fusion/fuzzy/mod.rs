@@ -52,6 +52,7 @@ pub mod motion;
 pub mod noise_floor;
 pub mod orientation;
 pub mod tilt;
+pub mod uncertainty;
 
 use nalgebra::UnitQuaternion;
 use serde::{Deserialize, Serialize};
@@ -655,11 +656,11 @@ impl FuzzyEngine {
             dip_rad: self.config.mag_disturbance.dip_rad * (3.0 - 2.0 * self.static_degree),
             ..self.config.mag_disturbance
         };
+        let level = attitude_from_euler(roll, pitch, 0.0);
         let disturbed = self.calibration.correction().is_some_and(|c| {
-            let level = attitude_from_euler(roll, pitch, 0.0) * c.apply(&field_ut);
             self.disturbance.observe(
                 t,
-                &level,
+                &(level * c.apply(&field_ut)),
                 self.calibration.state() == CalibrationState::Planar,
                 &tolerances,
             )
@@ -671,12 +672,7 @@ impl FuzzyEngine {
             && !self
                 .raw_disturbance
                 .get_or_insert_with(|| DisturbanceDetector::new(self.config.mag_inclination_rad))
-                .observe(
-                    t,
-                    &(attitude_from_euler(roll, pitch, 0.0) * field_ut),
-                    false,
-                    &tolerances,
-                );
+                .observe(t, &(level * field_ut), false, &tolerances);
         if self
             .rehead_turn
             .is_some_and(|(rehead_t, _)| t - rehead_t > REHEAD_WATCH_S)
@@ -906,14 +902,12 @@ impl FuzzyEngine {
         solution.attitude = integrate(&solution.attitude, &mean_rate, dt_s);
         solution.previous_rate_rad_per_s = Some(compensated);
         // Linear growth: the gyro errors are correlated over a turn.
-        let drift_rad = (solution.gyro_bias.sigma_rad_per_s().norm()
-            + c.tilt_turn_pull * mean_rate.norm())
-            * dt_s;
+        let bias_sigma = solution.gyro_bias.sigma_rad_per_s().norm();
+        let drift_rad = (bias_sigma + c.tilt_turn_pull * mean_rate.norm()) * dt_s;
         solution.heading_sigma_rad =
             (solution.heading_sigma_rad + drift_rad).min(std::f64::consts::PI);
-        solution.tilt_sigma_rad = (solution.tilt_sigma_rad
-            + solution.gyro_bias.sigma_rad_per_s().norm() * dt_s)
-            .min(std::f64::consts::FRAC_PI_2);
+        solution.tilt_sigma_rad =
+            (solution.tilt_sigma_rad + bias_sigma * dt_s).min(std::f64::consts::FRAC_PI_2);
 
         // World frame (tilt.rs): the body turns under the window.
         let at_rest = V3::new(0.0, 0.0, -solution.static_gravity_mps2);
@@ -928,13 +922,12 @@ impl FuzzyEngine {
             // tilt less sure than that widens the gate (two σ of the
             // residual) and takes the accelerometer faster.
             let accel_sigma = 0.5 * c.tilt_gate_rad;
-            let gate_rad = c
-                .tilt_gate_rad
-                .max(2.0 * (solution.tilt_sigma_rad.powi(2) + accel_sigma.powi(2)).sqrt());
+            let gate_rad =
+                uncertainty::widened_gate(c.tilt_gate_rad, solution.tilt_sigma_rad, accel_sigma);
             let gate_mps2 =
                 solution.static_gravity_mps2 * gate_rad.min(std::f64::consts::FRAC_PI_2).sin();
             let moving_weight = tilt::moving_weight(residual, gate_mps2);
-            let boost = (solution.tilt_sigma_rad / accel_sigma).powi(2).max(1.0);
+            let boost = uncertainty::pull_boost(solution.tilt_sigma_rad, accel_sigma);
             let still = self.stillness(static_degree);
             let gain = still * dt_s / c.tilt_time_constant_s
                 + ((1.0 - still) * moving_weight * dt_s / c.tilt_moving_time_constant_s * boost)
@@ -948,9 +941,8 @@ impl FuzzyEngine {
                 c.tilt_turn_pull * tilting_rate * dt_s,
             );
             let gain = gain.max((1.0 - still) * turn_gain).min(1.0);
-            solution.tilt_sigma_rad = ((1.0 - gain).powi(2) * solution.tilt_sigma_rad.powi(2)
-                + gain.powi(2) * accel_sigma.powi(2))
-            .sqrt();
+            solution.tilt_sigma_rad =
+                uncertainty::sigma_after_pull(solution.tilt_sigma_rad, accel_sigma, gain);
             solution.attitude =
                 tilt::correct_world(&solution.attitude, &measured, &predicted, gain);
         }
@@ -1006,9 +998,11 @@ impl FuzzyEngine {
             let (_, _, yaw) = solution.attitude.euler_angles();
             let innovation = orientation::angle_difference(heading, yaw).abs();
             // Two σ of the innovation, at least the gate.
-            let gate = c
-                .heading_gate_rad
-                .max(2.0 * (solution.heading_sigma_rad.powi(2) + compass_sigma.powi(2)).sqrt());
+            let gate = uncertainty::widened_gate(
+                c.heading_gate_rad,
+                solution.heading_sigma_rad,
+                compass_sigma,
+            );
             if innovation > gate {
                 let since = *self.compass_gated_since.get_or_insert(t);
                 if t - since < c.heading_gate_s {
@@ -1021,14 +1015,10 @@ impl FuzzyEngine {
             let gain = still * dt_s / c.heading_time_constant_s
                 + (1.0 - still) * dt_s / c.heading_moving_time_constant_s;
             // A heading less sure than the compass is pulled harder.
-            let boost = (solution.heading_sigma_rad / compass_sigma)
-                .powi(2)
-                .max(1.0);
-            (gain * boost).min(1.0)
+            (gain * uncertainty::pull_boost(solution.heading_sigma_rad, compass_sigma)).min(1.0)
         };
-        solution.heading_sigma_rad = ((1.0 - gain).powi(2) * solution.heading_sigma_rad.powi(2)
-            + gain.powi(2) * compass_sigma.powi(2))
-        .sqrt();
+        solution.heading_sigma_rad =
+            uncertainty::sigma_after_pull(solution.heading_sigma_rad, compass_sigma, gain);
         solution.attitude = pull_heading(&solution.attitude, heading, gain);
     }
 

@@ -1,0 +1,44 @@
+//! The σ of an angle the engine carries on the gyros (tilt, heading)
+//! against the σ of the sensor that pulls it back (accelerometer, compass)
+//! (README: "The fuzzy engine", step 4). With σ the angle's own and σ_ref
+//! the sensor's:
+//! - the sensor is believed within max(gate, 2·√(σ² + σ_ref²)): two σ of
+//!   the innovation, never less than the configured gate;
+//! - its pull is multiplied by max(1, σ²/σ_ref²): an angle less sure than
+//!   the sensor takes it faster;
+//! - a pull by the fraction g leaves σ² ← (1 − g)²σ² + g²σ_ref² (the
+//!   variance of (1 − g)·angle + g·sensor).
+
+/// The innovation the sensor is believed within, rad.
+pub fn widened_gate(gate_rad: f64, sigma_rad: f64, reference_sigma_rad: f64) -> f64 {
+    gate_rad.max(2.0 * (sigma_rad.powi(2) + reference_sigma_rad.powi(2)).sqrt())
+}
+
+/// What the sensor's pull is multiplied by.
+pub fn pull_boost(sigma_rad: f64, reference_sigma_rad: f64) -> f64 {
+    (sigma_rad / reference_sigma_rad).powi(2).max(1.0)
+}
+
+/// The angle's σ after a pull by the fraction `gain` towards the sensor, rad.
+pub fn sigma_after_pull(sigma_rad: f64, reference_sigma_rad: f64, gain: f64) -> f64 {
+    ((1.0 - gain).powi(2) * sigma_rad.powi(2) + gain.powi(2) * reference_sigma_rad.powi(2)).sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_gate_widens_the_pull_speeds_up_and_the_sigma_shrinks() {
+        // σ = 3, σ_ref = 4: 2·√(9 + 16) = 10 beats a gate of 8, not one of 12.
+        assert_eq!(widened_gate(8.0, 3.0, 4.0), 10.0);
+        assert_eq!(widened_gate(12.0, 3.0, 4.0), 12.0);
+        // Surer than the sensor: no boost; twice as unsure: four times.
+        assert_eq!(pull_boost(3.0, 4.0), 1.0);
+        assert_eq!(pull_boost(8.0, 4.0), 4.0);
+        // g = 0.5: √(0.25·9 + 0.25·16) = 2.5; g = 1 leaves the sensor's σ.
+        assert_eq!(sigma_after_pull(3.0, 4.0, 0.5), 2.5);
+        assert_eq!(sigma_after_pull(3.0, 4.0, 1.0), 4.0);
+        assert_eq!(sigma_after_pull(3.0, 4.0, 0.0), 3.0);
+    }
+}
