@@ -285,3 +285,128 @@ async fn a_fuzzy_database_from_before_issue_18_opens_and_continues() {
     );
     server.kill();
 }
+
+/// The fixture of the release before issue 19: three machines, one per
+/// engine, each with its readings, estimates and a snapshot of its engine
+/// at the state version this release still runs:
+/// - `tbm-19` (attitude, `fusion_gain_pitch = 0.03`): `simulate tbm
+///   --hours 0.25 --laser-period-s 30 --seed 11`, all 930 lines;
+/// - `jack-19` (zupt, `initial_yaw_deg = 45`): `simulate pipe-jacking
+///   --seed 12`, the first 3000 lines;
+/// - `van-19` (fuzzy, `declination_deg = 2.5`): `simulate vehicle --seed 13
+///   --minutes 5`, the first 3000 lines.
+fn before_issue_19_drive(machine: &str, lines: usize) -> Vec<String> {
+    use tunnelnav::sim::vehicle::{VehicleDrive, VehicleScenario};
+    let json = |reading: &tunnelnav::fusion::Reading| reading.to_json();
+    match machine {
+        "tbm-19" => TbmDrive::new(TbmScenario {
+            seed: 11,
+            hours: 0.25 * lines as f64 / 930.0,
+            laser_period_s: 30.0,
+            ..TbmScenario::default()
+        })
+        .unwrap()
+        .map(|event| json(&event.reading))
+        .take(lines)
+        .collect(),
+        "jack-19" => PipeJackDrive::new(PipeJackScenario {
+            seed: 12,
+            ..PipeJackScenario::default()
+        })
+        .unwrap()
+        .take(lines)
+        .map(|event| json(&event.reading))
+        .collect(),
+        _ => VehicleDrive::new(VehicleScenario {
+            seed: 13,
+            duration_s: 300.0,
+            ..VehicleScenario::default()
+        })
+        .unwrap()
+        .take(lines)
+        .map(|event| json(&event.reading))
+        .collect(),
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_database_from_before_issue_19_opens_serves_and_continues() {
+    let (_dir, server) = serve_fixture("all-engines-before-issue-19.sqlite3");
+    let client = reqwest::Client::new();
+    let base = server.url("");
+
+    for (machine, engine, stored_estimates, more_lines) in [
+        ("tbm-19", "attitude", 900, 1800),
+        ("jack-19", "zupt", 2842, 6000),
+        ("van-19", "fuzzy", 2727, 6000),
+    ] {
+        let declared = get_json(&client, &base, &format!("/api/v1/machines/{machine}")).await;
+        let params = declared["config"]["engines"][engine]
+            .as_object()
+            .unwrap_or_else(|| panic!("{machine}: {declared}"))
+            .clone();
+        let old_lines =
+            before_issue_19_drive(machine, if machine == "tbm-19" { 930 } else { 3000 });
+        // Readings of one instant are exported in the store's order.
+        let mut exported = exported_readings(&client, &base, machine).await;
+        let mut sorted_old = old_lines.clone();
+        exported.sort();
+        sorted_old.sort();
+        assert_eq!(exported, sorted_old, "{machine}");
+
+        // Its history: every stored estimate decodes, each equal to what
+        // this release's replay makes of the same readings, and the
+        // downsampled view answers.
+        let old_estimates = all_estimates(&client, &base, machine).await;
+        assert_eq!(old_estimates.len(), stored_estimates, "{machine}");
+        let replayed_old = replay_with_params(machine, engine, &params, &old_lines);
+        assert_eq!(
+            old_estimates[..],
+            replayed_old[..old_estimates.len()],
+            "{machine}"
+        );
+        let downsampled = get_json(
+            &client,
+            &base,
+            &format!("/api/v1/machines/{machine}/estimates?max_points=50"),
+        )
+        .await;
+        assert_eq!(downsampled["downsampled"], true, "{machine}");
+        assert!(!downsampled["estimates"].as_array().unwrap().is_empty());
+
+        // It continues from its stored snapshot as a replay of every
+        // reading does.
+        let lines = before_issue_19_drive(machine, old_lines.len() + more_lines);
+        assert_eq!(lines[..old_lines.len()], old_lines[..], "{machine}");
+        for chunk in lines[old_lines.len()..].chunks(1000) {
+            post_ndjson(&client, &base, machine, chunk).await;
+        }
+        let served = all_estimates(&client, &base, machine).await;
+        let replayed = replay_with_params(machine, engine, &params, &lines);
+        let new_t = old_estimates.last().unwrap()["t"].as_f64().unwrap();
+        let (served_new, replayed_new) = (after(&served, new_t), after(&replayed, new_t));
+        assert!(
+            served_new.len() > more_lines / 2,
+            "{machine}: {}",
+            served_new.len()
+        );
+        // zupt keeps its last seconds waiting for their decisions; replay
+        // decides them at the end of its input.
+        assert_eq!(
+            served_new[..],
+            replayed_new[..served_new.len()],
+            "{machine}"
+        );
+        let model = client
+            .get(format!("{base}/api/v1/machines/{machine}/model"))
+            .send()
+            .await
+            .unwrap();
+        assert!(
+            model.status() == 200 || model.status() == 404,
+            "{machine}: {}",
+            model.status()
+        );
+    }
+    server.kill();
+}
