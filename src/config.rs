@@ -55,8 +55,8 @@ pub enum ConfigError {
         engine: EngineKind,
         source: ParamError,
     },
-    #[error("machine `{0}` declares no engine (known: attitude)")]
-    NoEngine(String),
+    #[error("machine `{machine}` declares no engine (known: {known})")]
+    NoEngine { machine: String, known: String },
     #[error("machine `{machine}`: {reason}")]
     Invalid { machine: String, reason: String },
     #[error("config file {path}: {reason}")]
@@ -94,7 +94,10 @@ impl MachineDeclaration {
             )));
         }
         if self.engines.is_empty() {
-            return Err(ConfigError::NoEngine(id.to_string()));
+            return Err(ConfigError::NoEngine {
+                machine: id.to_string(),
+                known: EngineKind::names(),
+            });
         }
         let mut engines = BTreeMap::new();
         for (engine_name, overrides) in self.engines {

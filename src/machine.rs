@@ -21,7 +21,7 @@ use crate::config::MachineSpec;
 use crate::fusion::estimate::EstimateWriter;
 use crate::fusion::reorder::{Admission, ReorderBuffer};
 use crate::fusion::{
-    Engine, EngineKind, EngineOutput, ParamError, Reading, SensorKind, SnapshotError,
+    Engine, EngineKind, EngineModel, EngineOutput, ParamError, Reading, SensorKind, SnapshotError,
 };
 use crate::store::{EstimateRow, ReadingRow, Store, StoreError, Write, WriteOutcome};
 
@@ -175,7 +175,7 @@ impl MachineCore {
     }
 
     /// Each engine's model report, if it has one.
-    pub fn models(&self) -> BTreeMap<EngineKind, serde_json::Value> {
+    pub fn models(&self) -> BTreeMap<EngineKind, EngineModel> {
         self.engines
             .iter()
             .filter_map(|e| e.model().map(|m| (e.kind(), m)))
@@ -209,7 +209,7 @@ enum Command {
         reply: oneshot::Sender<Result<WriteOutcome, StoreError>>,
     },
     Models {
-        reply: oneshot::Sender<BTreeMap<EngineKind, serde_json::Value>>,
+        reply: oneshot::Sender<BTreeMap<EngineKind, EngineModel>>,
     },
     Stop {
         reply: oneshot::Sender<()>,
@@ -244,7 +244,7 @@ impl MachineHandle {
     }
 
     /// The engines' model reports.
-    pub async fn models(&self) -> Result<BTreeMap<EngineKind, serde_json::Value>, MachineError> {
+    pub async fn models(&self) -> Result<BTreeMap<EngineKind, EngineModel>, MachineError> {
         let (reply, answer) = oneshot::channel();
         self.commands
             .send(Command::Models { reply })

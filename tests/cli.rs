@@ -122,7 +122,11 @@ fn bad_arguments_are_refused_with_a_clear_message() {
     let cases: &[(&[&str], &str)] = &[
         (
             &["replay", "--engine", "kalman", "-"],
-            "unknown engine `kalman`",
+            "invalid value 'kalman' for '--engine <ENGINE>'",
+        ),
+        (
+            &["params", "--engine", "kalman"],
+            "[possible values: attitude, zupt, fuzzy]",
         ),
         (
             &[

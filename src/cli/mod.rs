@@ -58,8 +58,6 @@ pub enum CliError {
     #[error(transparent)]
     Params(#[from] crate::fusion::ParamError),
     #[error(transparent)]
-    Engine(#[from] crate::fusion::UnknownEngine),
-    #[error(transparent)]
     Eval(#[from] crate::eval::attitude::EvalError),
     #[error(transparent)]
     EvalZupt(#[from] crate::eval::zupt::ZuptEvalError),

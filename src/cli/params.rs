@@ -10,15 +10,15 @@ use crate::fusion::EngineKind;
 #[derive(Debug, Args)]
 pub struct ParamsArgs {
     /// Engine whose parameters to list.
-    #[arg(long)]
-    pub engine: String,
+    #[arg(long, value_enum)]
+    pub engine: EngineKind,
     /// As a Markdown table (the README's).
     #[arg(long)]
     pub markdown: bool,
 }
 
 pub fn run(args: ParamsArgs) -> Result<(), CliError> {
-    let kind: EngineKind = args.engine.parse()?;
+    let kind = args.engine;
     let mut out = io::stdout().lock();
     let result = (|| -> io::Result<()> {
         if args.markdown {

@@ -13,9 +13,9 @@ use crate::replay::{ReplayOptions, replay};
 
 #[derive(Debug, Args)]
 pub struct ReplayArgs {
-    /// Engine to run (attitude).
-    #[arg(long)]
-    pub engine: String,
+    /// Engine to run.
+    #[arg(long, value_enum)]
+    pub engine: EngineKind,
     /// An engine parameter as name=value (repeatable); see `tunnelnav params`.
     #[arg(long = "param", value_name = "NAME=VALUE")]
     pub params: Vec<String>,
@@ -30,7 +30,7 @@ pub struct ReplayArgs {
 }
 
 pub fn run(args: ReplayArgs) -> Result<(), CliError> {
-    let kind: EngineKind = args.engine.parse()?;
+    let kind = args.engine;
     let params = kind.params_from_assignments(args.params.iter().map(String::as_str))?;
     let mut engine = kind.create(params)?;
     let options = ReplayOptions {

@@ -66,7 +66,8 @@ use serde::{Deserialize, Serialize};
 use super::ErrorStats;
 use super::ahrs::{Madgwick, initial_attitude};
 use crate::fusion::angles::{deg, rad};
-use crate::fusion::fuzzy::FuzzyEngine;
+use crate::fusion::fuzzy::{FuzzyEngine, FuzzyParams};
+use crate::fusion::params::TypedParams;
 use crate::fusion::{
     Engine, EngineKind, EngineOutput, FuzzyEstimate, Motion, ParamError, Params, Reading,
     SensorData,
@@ -815,7 +816,7 @@ pub fn evaluate_trial(
     };
 
     let mut engine = FuzzyEngine::new(params.clone())?;
-    let window = params.real("window_samples")? as usize;
+    let window = FuzzyParams::from_params(params)?.window_samples;
     let mut out: Vec<EngineOutput> = Vec::with_capacity(4);
     let mut engine_errors = ErrorSeries::default();
     let mut gyro_raw = (GyroOnly::new(V3::zeros()), ErrorSeries::default());

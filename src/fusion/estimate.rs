@@ -2,163 +2,13 @@
 
 use serde::{Deserialize, Serialize};
 
-/// What the `attitude` engine estimates at one inclinometer reading.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct AttitudeEstimate {
-    /// Fused pitch at `t` (Eq. 19), nose up positive.
-    pub pitch_deg: f64,
-    /// Fused roll at `t` (Eq. 11), right side down positive.
-    pub roll_deg: f64,
-    /// One-step-ahead pitch prediction for `pred_t` (Eq. 12).
-    pub pitch_pred_deg: f64,
-    /// One-step-ahead roll prediction for `pred_t` (Eq. 13).
-    pub roll_pred_deg: f64,
-    /// The time the predictions are for, Unix seconds.
-    pub pred_t: f64,
-    /// False while the laser is in dropout or has not been seen yet.
-    pub laser_ok: bool,
-    /// The modelled inclinometer pitch error ê_a added to the inclinometer (Eq. 18).
-    pub pitch_correction_deg: f64,
-    /// Age of the held laser sample at `t`; `null` before the first one.
-    /// (tunnelnav extension: lets a display say how long the laser is out.)
-    pub laser_age_s: Option<f64>,
-    /// Number of times the pitch-error model has been trained; a client
-    /// refetches the model when it changes. (tunnelnav extension.)
-    pub model_version: u64,
-    /// The inclinometer reading this estimate was made from, as received
-    /// (tunnelnav extension: a display plots raw against fused).
-    pub incl_pitch_deg: f64,
-    /// See `incl_pitch_deg`.
-    pub incl_roll_deg: f64,
-}
+pub use super::attitude::estimate::AttitudeEstimate;
+pub use super::fuzzy::estimate::{FuzzyEstimate, Motion};
+pub use super::registry::EstimateValues;
+pub use super::zupt::estimate::{TrackPoint, ZuptEstimate};
 
-/// What the `zupt` engine estimates at one IMU reading.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct ZuptEstimate {
-    /// True where the detector declares zero velocity.
-    pub zv: bool,
-    /// North, east, down of the start point.
-    pub position_m: [f64; 3],
-    /// Along-track distance travelled: displacement along the body's x axis.
-    pub distance_m: f64,
-    /// North, east, down.
-    pub velocity_mps: [f64; 3],
-    pub pitch_deg: f64,
-    pub roll_deg: f64,
-    /// Clockwise from north, in [0, 360).
-    pub yaw_deg: f64,
-    /// False until the first still window levels the platform: until then
-    /// position and velocity are zero and the attitude is the raw levelling
-    /// (tunnelnav extension, as are the fields below).
-    pub aligned: bool,
-    /// 1σ of the position error (north, east, down) from the filter's covariance.
-    pub position_sigma_m: [f64; 3],
-    /// Height from the level datum (start point's height as first levelled
-    /// minus `position_m` down); `null` before the first level reading.
-    pub height_m: Option<f64>,
-    /// The newest odometer distance at `t`; `null` before the first.
-    pub odometer_m: Option<f64>,
-    /// Each test statistic over its threshold γ (below 1: still).
-    pub mv_ratio: f64,
-    pub are_ratio: f64,
-    pub shoe_ratio: f64,
-    pub mag_ratio: f64,
-    /// 1σ of the heading from the filter's covariance, degrees; `null`
-    /// before alignment (and in estimates stored before it was reported).
-    pub yaw_sigma_deg: Option<f64>,
-    /// On the estimate at which a push ends (the first epoch decided still
-    /// after it): the push's track smoothed over both of its still ends,
-    /// from the last still epoch before it, about one point a second;
-    /// `null` on every other estimate.
-    pub smoothed_push: Option<Vec<TrackPoint>>,
-}
-
-/// A point of a smoothed track.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct TrackPoint {
-    pub t: f64,
-    /// North, east, down of the start point.
-    pub position_m: [f64; 3],
-    /// Along-track distance.
-    pub distance_m: f64,
-    /// 1σ of the smoothed position.
-    pub position_sigma_m: [f64; 3],
-}
-
-/// The `fuzzy` engine's decision of the motion status.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Motion {
-    Static,
-    Moving,
-}
-
-impl Motion {
-    /// The protocol name.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Motion::Static => "static",
-            Motion::Moving => "moving",
-        }
-    }
-}
-
-/// What the `fuzzy` engine estimates at one IMU reading.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct FuzzyEstimate {
-    /// `static` when `static_degree` reaches the engine's threshold.
-    pub motion: Motion,
-    /// The motion expert's degree of "static", in [0, 1].
-    pub static_degree: f64,
-    pub pitch_deg: f64,
-    pub roll_deg: f64,
-    /// True heading (magnetic plus declination), clockwise from north, [0, 360).
-    pub heading_deg: f64,
-    /// Current gyro drift estimate, subtracted from every reading.
-    pub gyro_bias_dps: [f64; 3],
-    /// False until a still window has levelled the platform and fixed the
-    /// first gyro bias (tunnelnav extension, as are the fields below).
-    pub aligned: bool,
-    /// Magnetometer calibration: `collecting`, `planar`, `ellipsoid` or `raw`.
-    pub mag_calibration: crate::fusion::fuzzy::magcal::CalibrationState,
-    /// Azimuth of the field seen so far, degrees (of 360).
-    pub mag_coverage_deg: f64,
-    /// RMS relative radius error of the calibration fit; `null` before one.
-    pub mag_fit_rms: Option<f64>,
-    /// True heading from the newest calibrated, tilt-compensated
-    /// magnetometer reading alone; `null` before calibration.
-    pub mag_heading_deg: Option<f64>,
-    /// The motion expert's inputs.
-    pub accel_dev_mps2: f64,
-    pub accel_activity_mps2: f64,
-    pub gyro_activity_dps: f64,
-    /// One-sigma uncertainty of `gyro_bias_dps` per axis; `null` before
-    /// alignment.
-    pub gyro_bias_sigma_dps: Option<[f64; 3]>,
-    /// True while the magnetometer field departs from the site's in
-    /// magnitude or dip (a magnet, steel nearby): the compass is not used.
-    pub mag_disturbed: bool,
-}
-
-/// The engine-specific part of an estimate, tagged by `engine`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "engine", rename_all = "snake_case")]
-pub enum EstimateValues {
-    Attitude(AttitudeEstimate),
-    Zupt(ZuptEstimate),
-    Fuzzy(FuzzyEstimate),
-}
-
+/// Accessors for code that knows which engine it reads (evaluations, tests).
 impl EstimateValues {
-    /// The engine that produced these values.
-    pub fn engine(&self) -> super::EngineKind {
-        match self {
-            EstimateValues::Attitude(_) => super::EngineKind::Attitude,
-            EstimateValues::Zupt(_) => super::EngineKind::Zupt,
-            EstimateValues::Fuzzy(_) => super::EngineKind::Fuzzy,
-        }
-    }
-
     /// The `attitude` engine's values, if these are.
     pub fn as_attitude(&self) -> Option<&AttitudeEstimate> {
         match self {
@@ -182,17 +32,13 @@ impl EstimateValues {
             _ => None,
         }
     }
+}
 
-    /// The two quantities whose extremes history downsampling keeps, so a
-    /// spike stays visible at any zoom (attitude: pitch, roll; zupt:
-    /// distance, depth; fuzzy: pitch, roll).
-    pub fn extremes(&self) -> [f64; 2] {
-        match self {
-            EstimateValues::Attitude(a) => [a.pitch_deg, a.roll_deg],
-            EstimateValues::Zupt(z) => [z.distance_m, z.position_m[2]],
-            EstimateValues::Fuzzy(f) => [f.pitch_deg, f.roll_deg],
-        }
-    }
+/// The stored form of a plain estimate struct: postcard.
+pub(crate) fn postcard_bytes<T: Serialize>(estimate: &T) -> Vec<u8> {
+    // postcard fails only on types it cannot express (maps of unknown
+    // length, self-describing values); engine estimates are plain structs.
+    postcard::to_stdvec(estimate).expect("engine estimates are plain structs postcard can encode")
 }
 
 /// What an engine emits: an estimate before it is attributed to a machine.
@@ -259,177 +105,121 @@ impl EstimateWriter {
     /// Appends `output` and a newline to `out`.
     pub fn write_line(&mut self, output: &EngineOutput, out: &mut Vec<u8>) {
         out.push(b'{');
-        self.number(out, "t", output.t);
-        out.push(b',');
-        out.extend_from_slice(&self.machine_field);
-        match &output.values {
-            EstimateValues::Attitude(a) => {
-                out.extend_from_slice(b",\"engine\":\"attitude\"");
-                for (key, value) in [
-                    ("pitch_deg", a.pitch_deg),
-                    ("roll_deg", a.roll_deg),
-                    ("pitch_pred_deg", a.pitch_pred_deg),
-                    ("roll_pred_deg", a.roll_pred_deg),
-                    ("pred_t", a.pred_t),
-                ] {
-                    out.push(b',');
-                    self.number(out, key, value);
-                }
-                out.extend_from_slice(if a.laser_ok {
-                    b",\"laser_ok\":true"
-                } else {
-                    b",\"laser_ok\":false"
-                });
-                out.push(b',');
-                self.number(out, "pitch_correction_deg", a.pitch_correction_deg);
-                out.extend_from_slice(b",\"laser_age_s\":");
-                match a.laser_age_s {
-                    Some(age) => self.float(out, age),
-                    None => out.extend_from_slice(b"null"),
-                }
-                out.extend_from_slice(b",\"model_version\":");
-                out.extend_from_slice(self.integers.format(a.model_version).as_bytes());
-                for (key, value) in [
-                    ("incl_pitch_deg", a.incl_pitch_deg),
-                    ("incl_roll_deg", a.incl_roll_deg),
-                ] {
-                    out.push(b',');
-                    self.number(out, key, value);
-                }
-            }
-            EstimateValues::Zupt(z) => {
-                out.extend_from_slice(b",\"engine\":\"zupt\"");
-                self.flag(out, "zv", z.zv);
-                self.triple(out, "position_m", &z.position_m);
-                out.push(b',');
-                self.number(out, "distance_m", z.distance_m);
-                self.triple(out, "velocity_mps", &z.velocity_mps);
-                for (key, value) in [
-                    ("pitch_deg", z.pitch_deg),
-                    ("roll_deg", z.roll_deg),
-                    ("yaw_deg", z.yaw_deg),
-                ] {
-                    out.push(b',');
-                    self.number(out, key, value);
-                }
-                self.flag(out, "aligned", z.aligned);
-                self.triple(out, "position_sigma_m", &z.position_sigma_m);
-                self.optional(out, "height_m", z.height_m);
-                self.optional(out, "odometer_m", z.odometer_m);
-                for (key, value) in [
-                    ("mv_ratio", z.mv_ratio),
-                    ("are_ratio", z.are_ratio),
-                    ("shoe_ratio", z.shoe_ratio),
-                    ("mag_ratio", z.mag_ratio),
-                ] {
-                    out.push(b',');
-                    self.number(out, key, value);
-                }
-                self.optional(out, "yaw_sigma_deg", z.yaw_sigma_deg);
-                out.extend_from_slice(b",\"smoothed_push\":");
-                match &z.smoothed_push {
-                    None => out.extend_from_slice(b"null"),
-                    Some(points) => {
-                        out.push(b'[');
-                        for (i, point) in points.iter().enumerate() {
-                            if i > 0 {
-                                out.push(b',');
-                            }
-                            out.push(b'{');
-                            self.number(out, "t", point.t);
-                            self.triple(out, "position_m", &point.position_m);
-                            out.push(b',');
-                            self.number(out, "distance_m", point.distance_m);
-                            self.triple(out, "position_sigma_m", &point.position_sigma_m);
-                            out.push(b'}');
-                        }
-                        out.push(b']');
-                    }
-                }
-            }
-            EstimateValues::Fuzzy(f) => {
-                out.extend_from_slice(b",\"engine\":\"fuzzy\",\"motion\":\"");
-                out.extend_from_slice(f.motion.as_str().as_bytes());
-                out.push(b'"');
-                for (key, value) in [
-                    ("static_degree", f.static_degree),
-                    ("pitch_deg", f.pitch_deg),
-                    ("roll_deg", f.roll_deg),
-                    ("heading_deg", f.heading_deg),
-                ] {
-                    out.push(b',');
-                    self.number(out, key, value);
-                }
-                self.triple(out, "gyro_bias_dps", &f.gyro_bias_dps);
-                self.flag(out, "aligned", f.aligned);
-                out.extend_from_slice(b",\"mag_calibration\":\"");
-                out.extend_from_slice(f.mag_calibration.as_str().as_bytes());
-                out.extend_from_slice(b"\",");
-                self.number(out, "mag_coverage_deg", f.mag_coverage_deg);
-                self.optional(out, "mag_fit_rms", f.mag_fit_rms);
-                self.optional(out, "mag_heading_deg", f.mag_heading_deg);
-                for (key, value) in [
-                    ("accel_dev_mps2", f.accel_dev_mps2),
-                    ("accel_activity_mps2", f.accel_activity_mps2),
-                    ("gyro_activity_dps", f.gyro_activity_dps),
-                ] {
-                    out.push(b',');
-                    self.number(out, key, value);
-                }
-                match &f.gyro_bias_sigma_dps {
-                    Some(sigma) => self.triple(out, "gyro_bias_sigma_dps", sigma),
-                    None => out.extend_from_slice(b",\"gyro_bias_sigma_dps\":null"),
-                }
-                self.flag(out, "mag_disturbed", f.mag_disturbed);
-            }
-        }
+        let mut fields = JsonFields {
+            out,
+            floats: &mut self.floats,
+            integers: &mut self.integers,
+            first: true,
+        };
+        fields.number("t", output.t);
+        fields.out.push(b',');
+        fields.out.extend_from_slice(&self.machine_field);
+        fields.word("engine", output.values.engine().as_str());
+        output.values.write_fields(&mut fields);
         out.extend_from_slice(b"}\n");
+    }
+}
+
+/// Writes the fields of one JSON object as serde_json does, commas
+/// between them (an estimate's first fields are `t`, `machine`, `engine`);
+/// floats and integers with serde_json's own formatters.
+pub struct JsonFields<'a> {
+    out: &'a mut Vec<u8>,
+    floats: &'a mut zmij::Buffer,
+    integers: &'a mut itoa::Buffer,
+    /// No field written yet in the current object.
+    first: bool,
+}
+
+impl JsonFields<'_> {
+    /// `,"key":number` (`null` when not finite, as serde_json writes it).
+    pub fn number(&mut self, key: &str, value: f64) {
+        self.key(key);
+        self.float(value);
+    }
+
+    /// `,"key":integer`
+    pub fn integer(&mut self, key: &str, value: u64) {
+        self.key(key);
+        self.out
+            .extend_from_slice(self.integers.format(value).as_bytes());
     }
 
     /// `,"key":true|false`
-    fn flag(&mut self, out: &mut Vec<u8>, key: &str, value: bool) {
-        out.extend_from_slice(b",\"");
-        out.extend_from_slice(key.as_bytes());
-        out.extend_from_slice(if value { b"\":true" } else { b"\":false" });
+    pub fn flag(&mut self, key: &str, value: bool) {
+        self.key(key);
+        self.out
+            .extend_from_slice(if value { b"true" } else { b"false" });
+    }
+
+    /// `,"key":"word"` for a word that needs no escaping (an enum's name).
+    pub fn word(&mut self, key: &str, word: &'static str) {
+        debug_assert!(!word.contains(['"', '\\']) && !word.contains(char::is_control));
+        self.key(key);
+        self.out.push(b'"');
+        self.out.extend_from_slice(word.as_bytes());
+        self.out.push(b'"');
+    }
+
+    /// `,"key":null`
+    pub fn null(&mut self, key: &str) {
+        self.key(key);
+        self.out.extend_from_slice(b"null");
     }
 
     /// `,"key":[x,y,z]`
-    fn triple(&mut self, out: &mut Vec<u8>, key: &str, values: &[f64; 3]) {
-        out.extend_from_slice(b",\"");
-        out.extend_from_slice(key.as_bytes());
-        out.extend_from_slice(b"\":[");
+    pub fn triple(&mut self, key: &str, values: &[f64; 3]) {
+        self.key(key);
+        self.out.push(b'[');
         for (i, value) in values.iter().enumerate() {
             if i > 0 {
-                out.push(b',');
+                self.out.push(b',');
             }
-            self.float(out, *value);
+            self.float(*value);
         }
-        out.push(b']');
+        self.out.push(b']');
     }
 
     /// `,"key":number|null`
-    fn optional(&mut self, out: &mut Vec<u8>, key: &str, value: Option<f64>) {
-        out.extend_from_slice(b",\"");
-        out.extend_from_slice(key.as_bytes());
-        out.extend_from_slice(b"\":");
+    pub fn optional(&mut self, key: &str, value: Option<f64>) {
         match value {
-            Some(value) => self.float(out, value),
-            None => out.extend_from_slice(b"null"),
+            Some(value) => self.number(key, value),
+            None => self.null(key),
         }
     }
 
-    fn number(&mut self, out: &mut Vec<u8>, key: &str, value: f64) {
-        out.push(b'"');
-        out.extend_from_slice(key.as_bytes());
-        out.extend_from_slice(b"\":");
-        self.float(out, value);
+    /// `,"key":[{…},{…}]`, each object's fields written by `fields`.
+    pub fn objects<T>(&mut self, key: &str, items: &[T], mut fields: impl FnMut(&T, &mut Self)) {
+        self.key(key);
+        self.out.push(b'[');
+        for (i, item) in items.iter().enumerate() {
+            if i > 0 {
+                self.out.push(b',');
+            }
+            self.out.push(b'{');
+            self.first = true;
+            fields(item, self);
+            self.out.push(b'}');
+        }
+        self.out.push(b']');
     }
 
-    fn float(&mut self, out: &mut Vec<u8>, value: f64) {
+    /// `,"key":`, without the comma before an object's first field.
+    fn key(&mut self, key: &str) {
+        if !std::mem::take(&mut self.first) {
+            self.out.push(b',');
+        }
+        self.out.push(b'"');
+        self.out.extend_from_slice(key.as_bytes());
+        self.out.extend_from_slice(b"\":");
+    }
+
+    fn float(&mut self, value: f64) {
         if value.is_finite() {
-            out.extend_from_slice(self.floats.format_finite(value).as_bytes());
+            self.out
+                .extend_from_slice(self.floats.format_finite(value).as_bytes());
         } else {
-            out.extend_from_slice(b"null"); // as serde_json writes non-finite floats
+            self.out.extend_from_slice(b"null"); // as serde_json writes non-finite floats
         }
     }
 }

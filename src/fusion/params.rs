@@ -319,6 +319,16 @@ impl Params {
         Params::resolve(specs, overrides)
     }
 
+    /// Values a typed struct holds (each already checked when it was read).
+    pub fn from_checked<const N: usize>(values: [(&'static str, ParamValue); N]) -> Params {
+        Params {
+            values: values
+                .into_iter()
+                .map(|(name, value)| (name.to_string(), value))
+                .collect(),
+        }
+    }
+
     /// All values by name.
     pub fn values(&self) -> &BTreeMap<String, ParamValue> {
         &self.values
@@ -361,6 +371,182 @@ impl Params {
         }
     }
 }
+
+/// A parameter field of a typed parameter struct: how its value is read
+/// from, and written back to, a validated [`Params`].
+pub trait ParamField: Sized {
+    /// The value named `name` (already validated against its spec).
+    fn read(params: &Params, name: &'static str) -> Result<Self, ParamError>;
+    /// The value as it appears in declarations.
+    fn value(&self) -> ParamValue;
+}
+
+impl ParamField for f64 {
+    fn read(params: &Params, name: &'static str) -> Result<f64, ParamError> {
+        params.real(name)
+    }
+    fn value(&self) -> ParamValue {
+        ParamValue::Number(*self)
+    }
+}
+
+impl ParamField for usize {
+    fn read(params: &Params, name: &'static str) -> Result<usize, ParamError> {
+        let x = params.integer(name)?;
+        usize::try_from(x).map_err(|_| ParamError::Invalid {
+            name: name.to_string(),
+            value: x.to_string(),
+            expected: "a whole number of at least 0".to_string(),
+        })
+    }
+    fn value(&self) -> ParamValue {
+        ParamValue::Number(*self as f64)
+    }
+}
+
+impl ParamField for bool {
+    fn read(params: &Params, name: &'static str) -> Result<bool, ParamError> {
+        params.flag(name)
+    }
+    fn value(&self) -> ParamValue {
+        ParamValue::Bool(*self)
+    }
+}
+
+/// A typed view of an engine's parameters, generated with its spec table
+/// by [`param_table!`]: the engine reads fields, never names.
+pub trait TypedParams: Sized {
+    /// The spec table the struct is generated from.
+    const SPECS: &'static [ParamSpec];
+    /// The typed values of validated parameters.
+    fn from_params(params: &Params) -> Result<Self, ParamError>;
+    /// The values back as parameters (round trip of [`TypedParams::from_params`]).
+    fn to_params(&self) -> Params;
+}
+
+/// The typed struct of a choice parameter's words: an enum with one
+/// variant per word, parsed once, never defaulted.
+///
+/// ```ignore
+/// choice_enum! {
+///     /// Where the noise comes from.
+///     pub enum NoiseMode { Adaptive = "adaptive", Fixed = "fixed" }
+/// }
+/// ```
+macro_rules! choice_enum {
+    (
+        $(#[$meta:meta])*
+        $vis:vis enum $Name:ident {
+            $( $(#[$vmeta:meta])* $Variant:ident = $word:literal ),+ $(,)?
+        }
+    ) => {
+        $(#[$meta])*
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+        $vis enum $Name {
+            $( $(#[$vmeta])* #[serde(rename = $word)] $Variant ),+
+        }
+
+        impl $Name {
+            /// Every word, in declaration order.
+            pub const WORDS: &'static [&'static str] = &[$($word),+];
+
+            /// The protocol word.
+            pub const fn as_str(self) -> &'static str {
+                match self {
+                    $( $Name::$Variant => $word ),+
+                }
+            }
+
+            /// The value a word names, if it names one.
+            pub fn from_name(word: &str) -> Option<$Name> {
+                match word {
+                    $( $word => Some($Name::$Variant), )+
+                    _ => None,
+                }
+            }
+        }
+
+        impl $crate::fusion::params::ParamField for $Name {
+            fn read(
+                params: &$crate::fusion::params::Params,
+                name: &'static str,
+            ) -> Result<$Name, $crate::fusion::params::ParamError> {
+                let word = params.choice(name)?;
+                $Name::from_name(word).ok_or_else(|| $crate::fusion::params::ParamError::Invalid {
+                    name: name.to_string(),
+                    value: word.to_string(),
+                    expected: $Name::WORDS.join(" | "),
+                })
+            }
+            fn value(&self) -> $crate::fusion::params::ParamValue {
+                $crate::fusion::params::ParamValue::Text(self.as_str().to_string())
+            }
+        }
+    };
+}
+pub(crate) use choice_enum;
+
+/// An engine's parameter table and its typed struct, from one list:
+/// `name: type = kind(default, range…, unit, doc)` with kind `real`
+/// (`f64`: default, min, max, unit, doc), `integer` (`usize`: default,
+/// min, max, doc), `flag` (`bool`: default, doc) or `choice` (a
+/// [`choice_enum!`] type: default variant, doc).
+macro_rules! param_table {
+    (
+        $(#[$meta:meta])*
+        $vis:vis struct $Name:ident in $TABLE:ident {
+            $( $field:ident : $ty:ty = $kind:ident ( $($arg:expr),* $(,)? ) ),* $(,)?
+        }
+    ) => {
+        /// The parameter table: name, kind, default, range, unit, meaning.
+        $vis const $TABLE: &[$crate::fusion::params::ParamSpec] = &[
+            $( $crate::fusion::params::param_table!(@spec $field, $ty, $kind($($arg),*)) ),*
+        ];
+
+        $(#[$meta])*
+        #[derive(Debug, Clone, Copy, PartialEq)]
+        $vis struct $Name {
+            $( pub $field: $ty ),*
+        }
+
+        impl $crate::fusion::params::TypedParams for $Name {
+            const SPECS: &'static [$crate::fusion::params::ParamSpec] = $TABLE;
+
+            fn from_params(
+                params: &$crate::fusion::params::Params,
+            ) -> Result<$Name, $crate::fusion::params::ParamError> {
+                Ok($Name {
+                    $( $field: <$ty as $crate::fusion::params::ParamField>::read(
+                        params,
+                        stringify!($field),
+                    )? ),*
+                })
+            }
+
+            fn to_params(&self) -> $crate::fusion::params::Params {
+                $crate::fusion::params::Params::from_checked([
+                    $( (
+                        stringify!($field),
+                        $crate::fusion::params::ParamField::value(&self.$field),
+                    ) ),*
+                ])
+            }
+        }
+    };
+    (@spec $field:ident, $ty:ty, real($default:expr, $min:expr, $max:expr, $unit:expr, $doc:expr)) => {
+        $crate::fusion::params::real(stringify!($field), $default, $min, $max, $unit, $doc)
+    };
+    (@spec $field:ident, $ty:ty, integer($default:expr, $min:expr, $max:expr, $doc:expr)) => {
+        $crate::fusion::params::integer(stringify!($field), $default, $min, $max, $doc)
+    };
+    (@spec $field:ident, $ty:ty, flag($default:expr, $doc:expr)) => {
+        $crate::fusion::params::flag(stringify!($field), $default, $doc)
+    };
+    (@spec $field:ident, $ty:ty, choice($default:expr, $doc:expr)) => {
+        $crate::fusion::params::choice(stringify!($field), <$ty>::as_str($default), <$ty>::WORDS, $doc)
+    };
+}
+pub(crate) use param_table;
 
 fn find<'a>(specs: &'a [ParamSpec], name: &str) -> Result<&'a ParamSpec, ParamError> {
     specs
@@ -437,5 +623,77 @@ mod tests {
         assert!(matches!(err("gain"), ParamError::Malformed(_)));
         let json = Params::resolve(SPECS, [("gain".to_string(), ParamValue::Bool(true))]);
         assert!(matches!(json, Err(ParamError::Invalid { .. })));
+    }
+
+    choice_enum! {
+        /// A test mode.
+        enum Shade {
+            Light = "light",
+            Dark = "dark",
+        }
+    }
+
+    param_table! {
+        /// A test table.
+        struct TestParams in TEST_PARAMS {
+            gain: f64 = real(0.25, 0.0, 1.0, "s", "a gain"),
+            count: usize = integer(3, 0, 9, "a count"),
+            shade: Shade = choice(Shade::Dark, "a shade"),
+            on: bool = flag(true, "a switch"),
+        }
+    }
+
+    #[test]
+    fn a_typed_table_declares_its_specs_and_reads_its_fields() {
+        let names: Vec<&str> = TEST_PARAMS.iter().map(|s| s.name).collect();
+        assert_eq!(names, ["gain", "count", "shade", "on"]);
+        assert_eq!(TEST_PARAMS[0].unit, "s");
+        assert_eq!(TEST_PARAMS[2].range_text(), "light | dark");
+        assert_eq!(
+            TEST_PARAMS[2].default_value(),
+            ParamValue::Text("dark".into())
+        );
+
+        let typed = TestParams::from_params(&Params::defaults(TEST_PARAMS)).unwrap();
+        assert_eq!(
+            typed,
+            TestParams {
+                gain: 0.25,
+                count: 3,
+                shade: Shade::Dark,
+                on: true
+            }
+        );
+        let p = Params::from_assignments(TEST_PARAMS, ["shade=light", "count=7", "on=no"]).unwrap();
+        let typed = TestParams::from_params(&p).unwrap();
+        assert_eq!(
+            (typed.shade, typed.count, typed.on),
+            (Shade::Light, 7, false)
+        );
+        assert_eq!(typed.to_params(), p);
+    }
+
+    #[test]
+    fn a_choice_word_outside_the_enum_is_an_error_not_a_default() {
+        // Values that bypass the table's check (a hand-built set) are still
+        // refused by the typed read, naming the parameter.
+        let p = Params::from_checked([
+            ("gain", ParamValue::Number(0.5)),
+            ("count", ParamValue::Number(1.0)),
+            ("shade", ParamValue::Text("grey".into())),
+            ("on", ParamValue::Bool(true)),
+        ]);
+        let err = TestParams::from_params(&p).unwrap_err();
+        assert!(
+            matches!(&err, ParamError::Invalid { name, expected, .. } if name == "shade" && expected == "light | dark"),
+            "{err}"
+        );
+        let negative = Params::from_checked([
+            ("gain", ParamValue::Number(0.5)),
+            ("count", ParamValue::Number(-1.0)),
+            ("shade", ParamValue::Text("dark".into())),
+            ("on", ParamValue::Bool(true)),
+        ]);
+        assert!(TestParams::from_params(&negative).is_err());
     }
 }

@@ -13,7 +13,7 @@ use tokio_stream::wrappers::ReceiverStream;
 use super::SharedState;
 use super::error::ApiError;
 use crate::fusion::reading::{EARLIEST_T_S, LATEST_T_S};
-use crate::fusion::{EngineKind, EstimateRef, Reading, SensorData, SensorKind};
+use crate::fusion::{EngineKind, EngineModel, EstimateRef, Reading, SensorData, SensorKind};
 
 /// Points a history query returns unless told otherwise.
 pub const DEFAULT_MAX_POINTS: usize = 2000;
@@ -270,6 +270,14 @@ pub async fn readings(
         .into_response())
 }
 
+/// The model endpoint's answer: the engine's report and the machine.
+#[derive(Serialize)]
+struct ModelBody<'a> {
+    machine: &'a str,
+    #[serde(flatten)]
+    model: EngineModel,
+}
+
 /// `?engine=` of the model endpoint.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -300,12 +308,15 @@ pub async fn model(
             .copied()
             .unwrap_or(EngineKind::Attitude),
     };
-    let mut model = models.remove(&engine).ok_or_else(|| {
+    let model = models.remove(&engine).ok_or_else(|| {
         ApiError::NotFound(format!(
             "machine `{}` has no `{engine}` engine with a model (attitude: the learned pitch error; fuzzy: the magnetometer calibration)",
             machine.spec.id
         ))
     })?;
-    model["machine"] = machine.spec.id.as_str().into();
-    Ok(axum::Json(model).into_response())
+    Ok(axum::Json(ModelBody {
+        machine: &machine.spec.id,
+        model,
+    })
+    .into_response())
 }

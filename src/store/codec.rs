@@ -8,12 +8,11 @@
 //!   end. 16–48 bytes where the JSON is 90–180. Written by hand: the
 //!   variant is the `sensor` column and every field is an f64.
 //! - An estimate's values: postcard, about 60 bytes for an `attitude`
-//!   estimate where its JSON is about 330.
+//!   estimate where its JSON is about 330, of the engine's codec version
+//!   (the row's `codec` column); each engine's `estimate.rs` decodes every
+//!   version it has had.
 
-use crate::fusion::{
-    AttitudeEstimate, EngineKind, EstimateValues, FuzzyEstimate, Reading, SensorData, SensorKind,
-    ZuptEstimate,
-};
+use crate::fusion::{EngineKind, EstimateValues, Reading, SensorData, SensorKind};
 
 use super::StoreError;
 
@@ -90,130 +89,25 @@ pub fn decode_reading(t: f64, sensor: SensorKind, bytes: &[u8]) -> Result<Readin
     Ok(Reading { t, data })
 }
 
-/// The compact bytes of `values`.
+/// The compact bytes of `values`, of their engine's codec version.
 pub fn encode_values(values: &EstimateValues) -> Vec<u8> {
-    let encoded = match values {
-        EstimateValues::Attitude(a) => postcard::to_stdvec(a),
-        EstimateValues::Zupt(z) => postcard::to_stdvec(z),
-        EstimateValues::Fuzzy(f) => postcard::to_stdvec(f),
-    };
-    // postcard fails only on types it cannot express (maps of unknown
-    // length, self-describing values); engine estimates are plain structs.
-    encoded.expect("engine estimates are plain structs postcard can encode")
+    values.encode()
 }
 
-/// A `zupt` estimate as releases before the heading σ and the smoothed
-/// push stored it.
-#[derive(serde::Deserialize)]
-struct ZuptEstimateV1 {
-    zv: bool,
-    position_m: [f64; 3],
-    distance_m: f64,
-    velocity_mps: [f64; 3],
-    pitch_deg: f64,
-    roll_deg: f64,
-    yaw_deg: f64,
-    aligned: bool,
-    position_sigma_m: [f64; 3],
-    height_m: Option<f64>,
-    odometer_m: Option<f64>,
-    mv_ratio: f64,
-    are_ratio: f64,
-    shoe_ratio: f64,
-    mag_ratio: f64,
-}
-
-impl From<ZuptEstimateV1> for ZuptEstimate {
-    fn from(v: ZuptEstimateV1) -> ZuptEstimate {
-        ZuptEstimate {
-            zv: v.zv,
-            position_m: v.position_m,
-            distance_m: v.distance_m,
-            velocity_mps: v.velocity_mps,
-            pitch_deg: v.pitch_deg,
-            roll_deg: v.roll_deg,
-            yaw_deg: v.yaw_deg,
-            aligned: v.aligned,
-            position_sigma_m: v.position_sigma_m,
-            height_m: v.height_m,
-            odometer_m: v.odometer_m,
-            mv_ratio: v.mv_ratio,
-            are_ratio: v.are_ratio,
-            shoe_ratio: v.shoe_ratio,
-            mag_ratio: v.mag_ratio,
-            yaw_sigma_deg: None,
-            smoothed_push: None,
-        }
-    }
-}
-
-/// A `fuzzy` estimate as releases before the gyro bias σ and the
-/// disturbance flag stored it.
-#[derive(serde::Deserialize)]
-struct FuzzyEstimateV1 {
-    motion: crate::fusion::Motion,
-    static_degree: f64,
-    pitch_deg: f64,
-    roll_deg: f64,
-    heading_deg: f64,
-    gyro_bias_dps: [f64; 3],
-    aligned: bool,
-    mag_calibration: crate::fusion::fuzzy::magcal::CalibrationState,
-    mag_coverage_deg: f64,
-    mag_fit_rms: Option<f64>,
-    mag_heading_deg: Option<f64>,
-    accel_dev_mps2: f64,
-    accel_activity_mps2: f64,
-    gyro_activity_dps: f64,
-}
-
-impl From<FuzzyEstimateV1> for FuzzyEstimate {
-    fn from(v: FuzzyEstimateV1) -> FuzzyEstimate {
-        FuzzyEstimate {
-            motion: v.motion,
-            static_degree: v.static_degree,
-            pitch_deg: v.pitch_deg,
-            roll_deg: v.roll_deg,
-            heading_deg: v.heading_deg,
-            gyro_bias_dps: v.gyro_bias_dps,
-            aligned: v.aligned,
-            mag_calibration: v.mag_calibration,
-            mag_coverage_deg: v.mag_coverage_deg,
-            mag_fit_rms: v.mag_fit_rms,
-            mag_heading_deg: v.mag_heading_deg,
-            accel_dev_mps2: v.accel_dev_mps2,
-            accel_activity_mps2: v.accel_activity_mps2,
-            gyro_activity_dps: v.gyro_activity_dps,
-            gyro_bias_sigma_dps: None,
-            mag_disturbed: false,
-        }
-    }
-}
-
-/// The values `bytes` hold, for an estimate of `engine`.
-pub fn decode_values(engine: EngineKind, bytes: &[u8]) -> Result<EstimateValues, StoreError> {
-    let corrupt =
-        |e: postcard::Error| StoreError::Corrupt(format!("stored {engine} estimate: {e}"));
-    match engine {
-        EngineKind::Attitude => postcard::from_bytes::<AttitudeEstimate>(bytes)
-            .map(EstimateValues::Attitude)
-            .map_err(corrupt),
-        // Estimates stored before `yaw_sigma_deg` and `smoothed_push` lack them.
-        EngineKind::Zupt => postcard::from_bytes::<ZuptEstimate>(bytes)
-            .or_else(|_| postcard::from_bytes::<ZuptEstimateV1>(bytes).map(ZuptEstimate::from))
-            .map(EstimateValues::Zupt)
-            .map_err(corrupt),
-        // Estimates stored before `gyro_bias_sigma_dps` and `mag_disturbed` lack them.
-        EngineKind::Fuzzy => postcard::from_bytes::<FuzzyEstimate>(bytes)
-            .or_else(|_| postcard::from_bytes::<FuzzyEstimateV1>(bytes).map(FuzzyEstimate::from))
-            .map(EstimateValues::Fuzzy)
-            .map_err(corrupt),
-    }
+/// The values `bytes` hold, for an estimate of `engine` stored with codec
+/// `version`.
+pub fn decode_values(
+    engine: EngineKind,
+    version: u32,
+    bytes: &[u8],
+) -> Result<EstimateValues, StoreError> {
+    EstimateValues::decode(engine, version, bytes).map_err(|e| StoreError::Corrupt(e.to_string()))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::fusion::AttitudeEstimate;
 
     #[test]
     fn readings_of_every_sensor_round_trip_exactly() {
@@ -285,7 +179,7 @@ mod tests {
         });
         let bytes = encode_values(&values);
         assert!(bytes.len() <= 86, "{} bytes", bytes.len());
-        let back = decode_values(EngineKind::Attitude, &bytes).unwrap();
+        let back = decode_values(EngineKind::Attitude, 1, &bytes).unwrap();
         assert_eq!(format!("{back:?}"), format!("{values:?}"));
         let (a, b) = (back.as_attitude().unwrap(), values.as_attitude().unwrap());
         assert_eq!(
@@ -310,7 +204,35 @@ mod tests {
             incl_roll_deg: 2.1,
         });
         let bytes = encode_values(&values);
-        let err = decode_values(EngineKind::Attitude, &bytes[..bytes.len() - 3]).unwrap_err();
+        let err = decode_values(EngineKind::Attitude, 1, &bytes[..bytes.len() - 3]).unwrap_err();
         assert!(err.to_string().contains("attitude"), "{err}");
+    }
+
+    #[test]
+    fn a_version_newer_than_this_release_is_refused_naming_it() {
+        let values = EstimateValues::Attitude(AttitudeEstimate {
+            pitch_deg: 1.0,
+            roll_deg: 2.0,
+            pitch_pred_deg: 1.0,
+            roll_pred_deg: 2.0,
+            pred_t: 3.0,
+            laser_ok: true,
+            pitch_correction_deg: 0.5,
+            laser_age_s: None,
+            model_version: 3,
+            incl_pitch_deg: 1.1,
+            incl_roll_deg: 2.1,
+        });
+        let bytes = encode_values(&values);
+        let newer = EngineKind::Attitude.codec_version() + 1;
+        let err = decode_values(EngineKind::Attitude, newer, &bytes).unwrap_err();
+        let text = err.to_string();
+        assert!(
+            text.contains("attitude") && text.contains(&format!("codec version {newer}")),
+            "{text}"
+        );
+        // Rows stored before versions existed (0) decode as before.
+        let back = decode_values(EngineKind::Attitude, 0, &bytes).unwrap();
+        assert_eq!(back, values);
     }
 }

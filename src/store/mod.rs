@@ -103,8 +103,10 @@ pub struct EstimateRow {
     pub t: f64,
     /// The two values whose extremes downsampling keeps.
     pub extremes: [f64; 2],
-    /// The values, encoded by [`codec::encode_values`].
+    /// The values, encoded by [`codec::encode_values`] with the engine's
+    /// codec version, `codec`.
     pub values: Vec<u8>,
+    pub codec: u32,
 }
 
 impl EstimateRow {
@@ -115,6 +117,7 @@ impl EstimateRow {
             t: output.t,
             extremes: output.values.extremes(),
             values: codec::encode_values(&output.values),
+            codec: output.values.engine().codec_version(),
         }
     }
 }
@@ -581,8 +584,8 @@ fn apply_write(
     // restart is the same estimate, stored once.
     insert_rows(
         tx,
-        "INSERT OR IGNORE INTO estimates (machine_id, engine, t, extreme_a, extreme_b, body)",
-        6,
+        "INSERT OR IGNORE INTO estimates (machine_id, engine, t, extreme_a, extreme_b, body, codec)",
+        7,
         &write.estimates,
         |stmt, i, estimate| {
             stmt.raw_bind_parameter(i, machine_id)?;
@@ -590,7 +593,8 @@ fn apply_write(
             stmt.raw_bind_parameter(i + 2, estimate.t)?;
             stmt.raw_bind_parameter(i + 3, estimate.extremes[0])?;
             stmt.raw_bind_parameter(i + 4, estimate.extremes[1])?;
-            stmt.raw_bind_parameter(i + 5, &estimate.values)
+            stmt.raw_bind_parameter(i + 5, &estimate.values)?;
+            stmt.raw_bind_parameter(i + 6, estimate.codec)
         },
     )?;
     // Extremes per stored bucket. A recomputed estimate is the stored one

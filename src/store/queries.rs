@@ -25,12 +25,12 @@ pub(super) fn reading_row(row: &rusqlite::Row) -> Result<Reading, StoreError> {
     decode_reading(row.get(0)?, sensor, bytes)
 }
 
-/// Decodes a `(t, body)` row of `estimates`.
+/// Decodes a `(t, body, codec)` row of `estimates`.
 fn output_row(engine: EngineKind, row: &rusqlite::Row) -> Result<EngineOutput, StoreError> {
     let bytes = row.get_ref(1)?.as_blob().map_err(rusqlite::Error::from)?;
     Ok(EngineOutput {
         t: row.get(0)?,
-        values: decode_values(engine, bytes)?,
+        values: decode_values(engine, row.get(2)?, bytes)?,
     })
 }
 
@@ -175,7 +175,7 @@ impl Store {
                 )?;
             if count <= max_points as i64 {
                 let mut stmt = conn.prepare_cached(
-                    "SELECT t, body FROM estimates \
+                    "SELECT t, body, codec FROM estimates \
                      WHERE machine_id = ?1 AND engine = ?2 AND t >= ?3 AND t <= ?4 ORDER BY t",
                 )?;
                 let mut rows = stmt.query(range)?;
@@ -253,7 +253,7 @@ impl Store {
                 }
             }
             let mut stmt = conn.prepare_cached(
-                "SELECT t, body FROM estimates WHERE machine_id = ?1 AND engine = ?2 AND t = ?3",
+                "SELECT t, body, codec FROM estimates WHERE machine_id = ?1 AND engine = ?2 AND t = ?3",
             )?;
             for t in out.times() {
                 let mut rows = stmt.query(params![machine_id, engine_name, t])?;
@@ -303,7 +303,7 @@ impl Store {
     ) -> Result<Option<EngineOutput>, StoreError> {
         self.read(|conn| {
             let mut stmt = conn.prepare_cached(
-                "SELECT t, body FROM estimates WHERE machine_id = ?1 AND engine = ?2 \
+                "SELECT t, body, codec FROM estimates WHERE machine_id = ?1 AND engine = ?2 \
                  ORDER BY t DESC LIMIT 1",
             )?;
             let mut rows = stmt.query(params![machine_id, engine.as_str()])?;

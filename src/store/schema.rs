@@ -76,6 +76,12 @@ const MIGRATIONS: &[&str] = &[
         revoked_t REAL
     );
     ",
+    // 3: each estimate row carries the codec version of its body (the
+    // engine's `CODEC_VERSION`); rows stored before carry 0, which each
+    // engine decodes as the forms it stored until then.
+    "
+    ALTER TABLE estimates ADD COLUMN codec INTEGER NOT NULL DEFAULT 0;
+    ",
 ];
 
 /// The schema version this build writes.

@@ -43,19 +43,27 @@
 
 pub mod anfis;
 pub mod dual_rate;
+pub mod estimate;
 pub mod kalman;
 pub mod noise;
+pub mod params;
 
 use serde::{Deserialize, Serialize};
 
 use self::anfis::{Anfis, AnfisConfig, TrainingSample};
 use self::dual_rate::{InclHistory, InclPoint, LaserHold, Period, fuse, local_line};
+use self::estimate::AttitudeEstimate;
 use self::kalman::{H_INCLINOMETER, H_LASER, ProcessNoise, TiltFilter};
 use self::noise::{LaserCurvature, NoiseFit, Phase, PhaseDetector, Variogram};
+pub use self::params::{
+    AnfisSelect, AttitudeConfig, AttitudeParams, BiasMotion, Correction, NoiseMode, NoisePriors,
+    PARAMS, RETIRED,
+};
 use super::angles::{deg, rad, rad2};
-use super::estimate::{AttitudeEstimate, EngineOutput, EstimateValues};
-use super::params::{ParamError, ParamSpec, Params, Retired, choice, integer, real};
-use super::reading::{Reading, SensorData};
+use super::estimate::{EngineOutput, EstimateValues, JsonFields};
+use super::params::{ParamError, Params, Retired};
+use super::reading::{Reading, SensorData, SensorKind};
+use super::registry::{EngineDescriptor, EngineModel};
 use super::{Engine, EngineKind, SnapshotError};
 
 /// Version of the engine's snapshot. A snapshot of another version is
@@ -96,430 +104,6 @@ const SURPRISE_FIT_RMS: f64 = 2.5;
 /// tenth of a thousandth of a degree or above a degree.
 const MIN_SIGMA_DEG: f64 = 1e-4;
 const MAX_SIGMA_DEG: f64 = 1.0;
-
-/// The `attitude` engine's parameters. The noise values are priors: the
-/// engine measures the real ones from the data (`noise=adaptive`) and uses
-/// these only until it has (or always, with `noise=fixed`).
-pub const PARAMS: &[ParamSpec] = &[
-    real(
-        "fusion_gain_pitch",
-        0.0,
-        0.0,
-        1.0,
-        "",
-        "k_f1 of Eq. 10/19: weight of the held laser pitch blended into the estimate (paper: 0.02; the filter's update already fuses every laser sample)",
-    ),
-    real(
-        "fusion_gain_roll",
-        0.0,
-        0.0,
-        1.0,
-        "",
-        "k_f2 of Eq. 11: weight of the held laser roll blended into the estimate (paper: 0)",
-    ),
-    real(
-        "prediction_gain",
-        1.0,
-        0.0,
-        100.0,
-        "",
-        "k_p of Eq. 12/13: prediction horizon in inclinometer periods (paper: 1)",
-    ),
-    choice(
-        "noise",
-        "adaptive",
-        &["adaptive", "fixed"],
-        "adaptive: measurement and process noise estimated from the data, the values below as priors; fixed: the values below throughout",
-    ),
-    real(
-        "r_incl_deg2",
-        1.0e-4,
-        1.0e-12,
-        100.0,
-        "deg²",
-        "inclinometer measurement noise variance, per reading (R of Eq. 5)",
-    ),
-    real(
-        "r_laser_deg2",
-        1.0e-5,
-        1.0e-12,
-        100.0,
-        "deg²",
-        "laser measurement noise variance (R of Eq. 5)",
-    ),
-    real(
-        "q_pitch_deg2_per_s",
-        0.0,
-        0.0,
-        1.0,
-        "deg²/s",
-        "white steps of the pitch (Q of Eq. 4, per second)",
-    ),
-    real(
-        "q_pitch_rate_deg2_per_s3",
-        1.0e-10,
-        0.0,
-        1.0,
-        "deg²/s³",
-        "random walk of the pitch rate: how fast the shield's pitch can change its trend",
-    ),
-    real(
-        "q_bias_deg2_per_s",
-        1.0e-10,
-        0.0,
-        1.0,
-        "deg²/s",
-        "how far the pitch bias left after the error model may move between laser samples, per second",
-    ),
-    real(
-        "q_bias_per_roll",
-        1.0e-5,
-        0.0,
-        1.0,
-        "deg²/deg²",
-        "how far the pitch bias left after the error model may move between laser samples, per squared degree the roll moved",
-    ),
-    real(
-        "q_roll_deg2_per_s",
-        1.0e-9,
-        0.0,
-        1.0,
-        "deg²/s",
-        "white steps of the roll (Q of Eq. 4, per second)",
-    ),
-    real(
-        "q_roll_rate_deg2_per_s3",
-        1.0e-7,
-        0.0,
-        1.0,
-        "deg²/s³",
-        "random walk of the roll rate (cutterhead torque rolls the shield at up to 0.5 °/min)",
-    ),
-    real(
-        "laser_period_s",
-        120.0,
-        0.1,
-        86_400.0,
-        "s",
-        "laser period assumed until two samples have been seen (paper: 2 min)",
-    ),
-    real(
-        "dropout_factor",
-        2.5,
-        1.05,
-        1000.0,
-        "",
-        "the laser is in dropout once its sample is older than this many observed periods",
-    ),
-    choice(
-        "correction",
-        "anfis",
-        &["anfis", "offset", "none"],
-        "pitch error model: the ANFIS, a recency-weighted constant offset, or nothing (for comparison)",
-    ),
-    integer(
-        "anfis_memberships",
-        3,
-        1,
-        9,
-        "Gaussian memberships (rules) of the ANFIS (paper: 3, NM/O/PM); with anfis_select=gcv the fewest tried",
-    ),
-    choice(
-        "anfis_select",
-        "gcv",
-        &["gcv", "fixed"],
-        "gcv: models with anfis_memberships, +2 and +4 rules are trained side by side and the one generalised cross-validation prefers corrects; fixed: anfis_memberships only",
-    ),
-    integer(
-        "training_window_samples",
-        240,
-        10,
-        5000,
-        "most (roll, temperature, pitch error) pairs kept for training",
-    ),
-    real(
-        "training_bin_deg",
-        0.25,
-        0.001,
-        10.0,
-        "deg",
-        "width of the roll bins the training pairs are stratified by",
-    ),
-    integer(
-        "training_per_bin",
-        12,
-        1,
-        5000,
-        "most training pairs kept per roll bin (a new pair replaces the oldest of its bin)",
-    ),
-    real(
-        "training_half_life_samples",
-        200.0,
-        1.0,
-        1.0e9,
-        "samples",
-        "age at which a training pair weighs half as much as the newest",
-    ),
-    real(
-        "training_min_weight",
-        0.1,
-        0.0,
-        1.0,
-        "",
-        "floor of a training pair's recency weight, so the only pairs of a roll region still count",
-    ),
-    integer(
-        "anfis_epochs",
-        1,
-        1,
-        50,
-        "hybrid training epochs run per laser sample",
-    ),
-    integer(
-        "anfis_min_samples",
-        10,
-        2,
-        5000,
-        "pairs needed before the rules are fitted (until then: the mean error)",
-    ),
-    real(
-        "anfis_min_width_deg",
-        0.3,
-        1.0e-3,
-        90.0,
-        "deg",
-        "smallest membership width σ",
-    ),
-    real(
-        "anfis_min_span_deg",
-        1.0,
-        1.0e-3,
-        90.0,
-        "deg",
-        "smallest roll span the memberships are spread over at first",
-    ),
-    real(
-        "anfis_extrapolation_deg",
-        2.0,
-        0.0,
-        90.0,
-        "deg",
-        "beyond the trained roll range by more than this, the correction is held",
-    ),
-    real(
-        "anfis_ridge",
-        1.0e-3,
-        1.0e-6,
-        1.0,
-        "",
-        "weight pulling each rule towards the global plane through the training pairs (sets extrapolation)",
-    ),
-    real(
-        "pair_window_s",
-        60.0,
-        1.0,
-        3600.0,
-        "s",
-        "longest half-width of the inclinometer window a laser sample is compared with (the window follows the filter's averaging length, at least two inclinometer periods)",
-    ),
-    real(
-        "pair_max_gap_s",
-        60.0,
-        0.1,
-        86_400.0,
-        "s",
-        "largest inclinometer gap across which a laser instant is still paired",
-    ),
-];
-
-/// Parameters of earlier releases that no longer exist: a stored machine
-/// that has them loads without them; a new declaration that names one is
-/// refused with the reason.
-pub const RETIRED: &[Retired] = &[
-    Retired {
-        name: "correction_slew_deg_per_s",
-        reason: "a retrain now moves the filter's bias with the correction, so a true change is not slowed and no slew limit is needed",
-    },
-    Retired {
-        name: "roll_offset_gain",
-        reason: "the inclinometer's roll offset is now a state of the roll filter, learned from every laser sample",
-    },
-];
-
-/// Which pitch error model corrects the inclinometer.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Correction {
-    /// The ANFIS of Eq. 20–25 with the temperature term.
-    Anfis,
-    /// A recency-weighted constant offset (the ANFIS's fallback, for comparison).
-    Offset,
-    /// No correction (for comparison): the filter's bias state alone.
-    None,
-}
-
-/// Where the filters' noise comes from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum NoiseMode {
-    /// Estimated from the data ([`noise`]), the parameters as priors.
-    Adaptive,
-    /// The parameters throughout.
-    Fixed,
-}
-
-/// How far the pitch bias may move between two laser samples:
-/// `per_s`·Δt + `per_roll2`·Δβ² (rad², rad²/s, dimensionless).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct BiasMotion {
-    pub per_s: f64,
-    pub per_roll2: f64,
-}
-
-/// The noise parameters in working units (rad², per second where a rate).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct NoisePriors {
-    pub r_incl: f64,
-    pub r_laser: f64,
-    pub pitch: ProcessNoise,
-    pub roll: ProcessNoise,
-    pub bias: BiasMotion,
-}
-
-/// The engine's parameters in working units (radians).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct AttitudeConfig {
-    pub fusion_gain_pitch: f64,
-    pub fusion_gain_roll: f64,
-    pub prediction_gain: f64,
-    pub noise_mode: NoiseMode,
-    pub priors: NoisePriors,
-    pub laser_period_s: f64,
-    pub dropout_factor: f64,
-    pub correction: Correction,
-    pub anfis: AnfisConfig,
-    /// Membership counts of the candidate models (one with `anfis_select=fixed`).
-    pub candidates: [usize; 3],
-    pub candidate_count: usize,
-    pub pair_window_s: f64,
-    pub pair_max_gap_s: f64,
-}
-
-/// A choice parameter's word as one of its values: every word the spec
-/// allows is mapped, so an unmapped one is a programming error reported as
-/// a parameter error, never a silent default.
-fn pick<T: Copy>(p: &Params, name: &'static str, options: &[(&str, T)]) -> Result<T, ParamError> {
-    let word = p.choice(name)?;
-    options
-        .iter()
-        .find(|(w, _)| *w == word)
-        .map(|&(_, value)| value)
-        .ok_or_else(|| ParamError::Invalid {
-            name: name.to_string(),
-            value: word.to_string(),
-            expected: options
-                .iter()
-                .map(|(w, _)| *w)
-                .collect::<Vec<_>>()
-                .join(" | "),
-        })
-}
-
-impl AttitudeConfig {
-    /// The configurations of the candidate models.
-    pub fn model_configs(&self) -> impl Iterator<Item = AnfisConfig> + '_ {
-        self.candidates[..self.candidate_count]
-            .iter()
-            .map(|&memberships| AnfisConfig {
-                memberships,
-                ..self.anfis
-            })
-    }
-
-    /// Converts validated parameters; degrees become radians here.
-    pub fn from_params(p: &Params) -> Result<AttitudeConfig, ParamError> {
-        let correction = pick(
-            p,
-            "correction",
-            &[
-                ("anfis", Correction::Anfis),
-                ("offset", Correction::Offset),
-                ("none", Correction::None),
-            ],
-        )?;
-        let noise_mode = pick(
-            p,
-            "noise",
-            &[
-                ("adaptive", NoiseMode::Adaptive),
-                ("fixed", NoiseMode::Fixed),
-            ],
-        )?;
-        let select_gcv = pick(p, "anfis_select", &[("gcv", true), ("fixed", false)])?;
-        let fewest = p.integer("anfis_memberships")? as usize;
-        let mut candidates = [fewest; 3];
-        let mut candidate_count = 1;
-        if select_gcv {
-            for more in [fewest + 2, fewest + 4] {
-                if more <= anfis::MAX_MEMBERSHIPS {
-                    candidates[candidate_count] = more;
-                    candidate_count += 1;
-                }
-            }
-        }
-        let window = p.integer("training_window_samples")? as usize;
-        let min_samples = p.integer("anfis_min_samples")? as usize;
-        if min_samples > window {
-            return Err(ParamError::Inconsistent(format!(
-                "anfis_min_samples ({min_samples}) exceeds training_window_samples ({window})"
-            )));
-        }
-        Ok(AttitudeConfig {
-            fusion_gain_pitch: p.real("fusion_gain_pitch")?,
-            fusion_gain_roll: p.real("fusion_gain_roll")?,
-            prediction_gain: p.real("prediction_gain")?,
-            noise_mode,
-            priors: NoisePriors {
-                r_incl: rad2(p.real("r_incl_deg2")?),
-                r_laser: rad2(p.real("r_laser_deg2")?),
-                pitch: ProcessNoise {
-                    angle: rad2(p.real("q_pitch_deg2_per_s")?),
-                    rate: rad2(p.real("q_pitch_rate_deg2_per_s3")?),
-                },
-                // The roll's bias, the mounting offset, does not move.
-                roll: ProcessNoise {
-                    angle: rad2(p.real("q_roll_deg2_per_s")?),
-                    rate: rad2(p.real("q_roll_rate_deg2_per_s3")?),
-                },
-                bias: BiasMotion {
-                    per_s: rad2(p.real("q_bias_deg2_per_s")?),
-                    per_roll2: p.real("q_bias_per_roll")?,
-                },
-            },
-            laser_period_s: p.real("laser_period_s")?,
-            dropout_factor: p.real("dropout_factor")?,
-            correction,
-            anfis: AnfisConfig {
-                memberships: fewest,
-                window,
-                bin_width_rad: rad(p.real("training_bin_deg")?),
-                per_bin: p.integer("training_per_bin")? as usize,
-                half_life: p.real("training_half_life_samples")?,
-                min_weight: p.real("training_min_weight")?,
-                epochs: p.integer("anfis_epochs")? as usize,
-                min_samples,
-                min_width_rad: rad(p.real("anfis_min_width_deg")?),
-                min_span_rad: rad(p.real("anfis_min_span_deg")?),
-                extrapolation_rad: rad(p.real("anfis_extrapolation_deg")?),
-                ridge: p.real("anfis_ridge")?,
-            },
-            candidates,
-            candidate_count,
-            pair_window_s: p.real("pair_window_s")?,
-            pair_max_gap_s: p.real("pair_max_gap_s")?,
-        })
-    }
-}
 
 /// Counts of what the engine did with its readings.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -1235,6 +819,40 @@ fn laser_row(f: &mut TiltFilter, t: f64, q: &ProcessNoise, r: f64) -> ([f64; 3],
     )
 }
 
+/// The `attitude` engine as the registry lists it.
+pub struct Attitude;
+
+impl EngineDescriptor for Attitude {
+    const SUMMARY: &'static str =
+        "laser + inclinometer: pitch and roll, the inclinometer's pitch error learnt by an ANFIS";
+    const SENSORS: &'static [SensorKind] = &[SensorKind::Laser, SensorKind::Inclinometer];
+    const RETIRED: &'static [Retired] = RETIRED;
+    const CODEC_VERSION: u32 = estimate::CODEC_VERSION;
+    type Params = AttitudeParams;
+    type Engine = AttitudeEngine;
+    type Estimate = AttitudeEstimate;
+    type Model = ModelReport;
+
+    fn create(params: Params) -> Result<AttitudeEngine, ParamError> {
+        AttitudeEngine::new(params)
+    }
+    fn restore(snapshot: serde_json::Value) -> Result<AttitudeEngine, SnapshotError> {
+        AttitudeEngine::restore(snapshot)
+    }
+    fn write_fields(estimate: &AttitudeEstimate, fields: &mut JsonFields<'_>) {
+        estimate.write_fields(fields);
+    }
+    fn encode(estimate: &AttitudeEstimate) -> Vec<u8> {
+        estimate.encode()
+    }
+    fn decode(version: u32, bytes: &[u8]) -> Result<AttitudeEstimate, postcard::Error> {
+        AttitudeEstimate::decode(version, bytes)
+    }
+    fn extremes(estimate: &AttitudeEstimate) -> [f64; 2] {
+        estimate.extremes()
+    }
+}
+
 impl Engine for AttitudeEngine {
     fn kind(&self) -> EngineKind {
         EngineKind::Attitude
@@ -1266,8 +884,8 @@ impl Engine for AttitudeEngine {
         serde_json::to_value(self).unwrap_or(serde_json::Value::Null)
     }
 
-    fn model(&self) -> Option<serde_json::Value> {
-        serde_json::to_value(self.model_report(!self.laser_ok())).ok()
+    fn model(&self) -> Option<EngineModel> {
+        Some(EngineModel::Attitude(self.model_report(!self.laser_ok())))
     }
 }
 

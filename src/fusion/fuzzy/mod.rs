@@ -45,12 +45,14 @@
 //! absorbed into the estimated bias while static.
 
 pub mod disturbance;
+pub mod estimate;
 pub mod gyro_bias;
 pub mod magcal;
 pub mod mamdani;
 pub mod motion;
 pub mod noise_floor;
 pub mod orientation;
+pub mod params;
 pub mod tilt;
 pub mod uncertainty;
 
@@ -58,17 +60,20 @@ use nalgebra::UnitQuaternion;
 use serde::{Deserialize, Serialize};
 
 use self::disturbance::{DisturbanceDetector, Tolerances};
+use self::estimate::{FuzzyEstimate, Motion};
 use self::gyro_bias::{GyroBias, WalkLearner};
 use self::magcal::{CalibrationState, MagCalibration};
 use self::mamdani::{Mamdani, Scratch};
-use self::motion::{Breakpoints, MotionConfig, MotionSignals, MotionWindow};
+use self::motion::{MotionSignals, MotionWindow};
 use self::noise_floor::NoiseFloor;
 use self::orientation::{integrate, magnetic_heading, pull_heading, tilt_from_accel};
+pub use self::params::{FuzzyConfig, FuzzyParams, PARAMS, RETIRED};
 use self::tilt::TiltWindow;
 use super::angles::{deg, rad};
-use super::estimate::{EngineOutput, EstimateValues, FuzzyEstimate, Motion};
-use super::params::{ParamError, ParamSpec, Params, Retired, integer, real};
-use super::reading::{Reading, SensorData};
+use super::estimate::{EngineOutput, EstimateValues, JsonFields};
+use super::params::{ParamError, Params, Retired};
+use super::reading::{Reading, SensorData, SensorKind};
+use super::registry::{EngineDescriptor, EngineModel};
 use super::zupt::strapdown::{V3, attitude_from_euler};
 use super::{Engine, EngineKind, SnapshotError};
 
@@ -100,359 +105,6 @@ const UNCALIBRATED_HEADING_SIGMA_RAD: f64 = 0.17;
 const SPELL_STILLNESS: f64 = 0.9;
 /// The smallest floor used as a divisor (far below any sensor's noise).
 const MIN_FLOOR: f64 = 1e-9;
-
-/// The `fuzzy` engine's parameters. No threshold is in sensor units: the
-/// expert's breakpoints are multiples of the noise floor learnt at rest
-/// (README: how to tune).
-pub const PARAMS: &[ParamSpec] = &[
-    real(
-        "declination_deg",
-        0.0,
-        -180.0,
-        180.0,
-        "deg",
-        "magnetic declination, east positive: true heading = magnetic + declination",
-    ),
-    integer(
-        "window_samples",
-        50,
-        2,
-        10_000,
-        "IMU readings in the motion expert's trailing window (about half a second)",
-    ),
-    real(
-        "accel_dev_still_factor",
-        1.5,
-        0.0,
-        1000.0,
-        "× floor",
-        "|mean ‖f‖ − g| below this many accelerometer floors is fully `low`",
-    ),
-    real(
-        "accel_dev_moving_factor",
-        8.0,
-        0.0,
-        1000.0,
-        "× floor",
-        "|mean ‖f‖ − g| above this many accelerometer floors is fully `high`",
-    ),
-    real(
-        "accel_activity_still_factor",
-        2.0,
-        0.0,
-        1000.0,
-        "× floor",
-        "specific-force spread below this many accelerometer floors is fully `low`",
-    ),
-    real(
-        "accel_activity_moving_factor",
-        10.0,
-        0.0,
-        1000.0,
-        "× floor",
-        "specific-force spread above this many accelerometer floors is fully `high`",
-    ),
-    real(
-        "gyro_activity_still_factor",
-        1.6,
-        0.0,
-        1000.0,
-        "× floor",
-        "bias-compensated rate RMS below this many gyro floors is fully `low`",
-    ),
-    real(
-        "gyro_activity_moving_factor",
-        3.0,
-        0.0,
-        1000.0,
-        "× floor",
-        "bias-compensated rate RMS above this many gyro floors is fully `high`",
-    ),
-    real(
-        "noise_floor_rise_s",
-        300.0,
-        1.0,
-        1.0e6,
-        "s",
-        "the learnt noise floors rise e-fold in this time of louder windows (and fall 99× faster)",
-    ),
-    integer(
-        "defuzzification_points",
-        201,
-        2,
-        100_001,
-        "centroid discretisation: points over the output range [−0.5, 1.5], ends included",
-    ),
-    real(
-        "static_threshold",
-        0.55,
-        0.0,
-        1.0,
-        "",
-        "`motion` is static from this static degree up; bias learning starts above it",
-    ),
-    real(
-        "tilt_time_constant_s",
-        4.0,
-        0.001,
-        1.0e6,
-        "s",
-        "time constant of the pull towards the accelerometer tilt when fully static",
-    ),
-    real(
-        "tilt_moving_time_constant_s",
-        10.0,
-        0.001,
-        1.0e6,
-        "s",
-        "time constant of the gated pull towards the accelerometer tilt while moving",
-    ),
-    real(
-        "tilt_gate_deg",
-        3.0,
-        0.0,
-        90.0,
-        "deg",
-        "while moving, the accelerometer counts fully when it disagrees with the gyro tilt by less than this (g·sin), not at all beyond twice it",
-    ),
-    real(
-        "tilt_turn_pull",
-        0.005,
-        0.0,
-        1.0,
-        "",
-        "while moving, the accelerometer turns the tilt by at least this fraction of the angle the gyros turn through about a horizontal axis (their scale and axis errors grow with it), whatever the gate",
-    ),
-    real(
-        "heading_time_constant_s",
-        2.0,
-        0.001,
-        1.0e6,
-        "s",
-        "time constant of the pull towards the compass heading when fully static",
-    ),
-    real(
-        "heading_moving_time_constant_s",
-        30.0,
-        0.001,
-        1.0e6,
-        "s",
-        "time constant of the pull towards the compass heading while moving",
-    ),
-    real(
-        "heading_gate_deg",
-        4.0,
-        0.0,
-        180.0,
-        "deg",
-        "a compass heading further than this from the gyro-carried one is not used (a disturbance the field's magnitude and dip do not show)",
-    ),
-    real(
-        "heading_gate_s",
-        60.0,
-        0.0,
-        1.0e6,
-        "s",
-        "a compass that disagrees beyond the gate for this long is believed again (the heading was wrong, not the compass)",
-    ),
-    real(
-        "gyro_bias_walk_dps_per_sqrt_s",
-        0.005,
-        0.0,
-        10.0,
-        "deg/s/√s",
-        "random walk of the gyro bias between stops (its variance grows by the square of this per second) until the engine has learnt it from the bias changes between two long stops",
-    ),
-    real(
-        "mag_min_coverage_deg",
-        300.0,
-        10.0,
-        360.0,
-        "deg",
-        "field azimuth that must be seen before the magnetometer is calibrated",
-    ),
-    real(
-        "mag_inclination_deg",
-        60.0,
-        -89.0,
-        89.0,
-        "deg",
-        "inclination of the Earth's field at the site, down positive (sizes the vertical of a planar calibration; first dip reference)",
-    ),
-    real(
-        "mag_level_tolerance_deg",
-        1.5,
-        0.0,
-        90.0,
-        "deg",
-        "magnetometer readings tilted less than this count as level (a planar calibration uses only those)",
-    ),
-    integer(
-        "mag_refit_every",
-        50,
-        1,
-        1_000_000,
-        "refit the calibration every this many magnetometer readings",
-    ),
-    real(
-        "mag_disturbance_magnitude",
-        0.06,
-        0.0,
-        10.0,
-        "",
-        "a calibrated field whose magnitude departs from the site's by more than this fraction is disturbed",
-    ),
-    real(
-        "mag_disturbance_dip_deg",
-        4.0,
-        0.0,
-        90.0,
-        "deg",
-        "a calibrated field whose dip departs from the site's by more than this is disturbed",
-    ),
-    real(
-        "max_mag_age_s",
-        1.0,
-        0.0,
-        3600.0,
-        "s",
-        "an older magnetometer reading gives no heading",
-    ),
-    real(
-        "max_imu_gap_s",
-        0.5,
-        0.001,
-        3600.0,
-        "s",
-        "longer gaps between IMU readings are not integrated across; the window starts afresh",
-    ),
-];
-
-/// Parameters of earlier releases: a stored machine that has them loads
-/// without them; a new declaration that names one is refused saying why.
-pub const RETIRED: &[Retired] = &[
-    Retired {
-        name: "accel_dev_still_mps2",
-        reason: "thresholds are now multiples of the noise floor learnt at rest: use accel_dev_still_factor",
-    },
-    Retired {
-        name: "accel_dev_moving_mps2",
-        reason: "thresholds are now multiples of the noise floor learnt at rest: use accel_dev_moving_factor",
-    },
-    Retired {
-        name: "accel_activity_still_mps2",
-        reason: "thresholds are now multiples of the noise floor learnt at rest: use accel_activity_still_factor",
-    },
-    Retired {
-        name: "accel_activity_moving_mps2",
-        reason: "thresholds are now multiples of the noise floor learnt at rest: use accel_activity_moving_factor",
-    },
-    Retired {
-        name: "gyro_activity_still_dps",
-        reason: "thresholds are now multiples of the noise floor learnt at rest: use gyro_activity_still_factor",
-    },
-    Retired {
-        name: "gyro_activity_moving_dps",
-        reason: "thresholds are now multiples of the noise floor learnt at rest: use gyro_activity_moving_factor",
-    },
-    Retired {
-        name: "bias_time_constant_s",
-        reason: "the gyro bias is now a Kalman filter of a random walk: use gyro_bias_walk_dps_per_sqrt_s",
-    },
-];
-
-/// The engine's parameters in working units (SI, radians).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct FuzzyConfig {
-    pub declination_rad: f64,
-    pub window_samples: usize,
-    /// Breakpoints as multiples of the noise floors.
-    pub motion: MotionConfig,
-    pub floor_rise_s: f64,
-    pub static_threshold: f64,
-    pub tilt_time_constant_s: f64,
-    pub tilt_moving_time_constant_s: f64,
-    /// Fraction of the gyros' turn the tilt may always be pulled by while moving.
-    pub tilt_turn_pull: f64,
-    /// `tilt_gate_deg`, rad.
-    pub tilt_gate_rad: f64,
-    pub heading_time_constant_s: f64,
-    pub heading_moving_time_constant_s: f64,
-    pub heading_gate_rad: f64,
-    pub heading_gate_s: f64,
-    /// q of the bias random walk, rad²/s³.
-    pub bias_walk_density: f64,
-    pub mag_min_coverage_deg: f64,
-    pub mag_inclination_rad: f64,
-    pub mag_level_tolerance_rad: f64,
-    pub mag_refit_every: u32,
-    pub mag_disturbance: Tolerances,
-    pub max_mag_age_s: f64,
-    pub max_imu_gap_s: f64,
-}
-
-fn breakpoints(
-    p: &Params,
-    still: &'static str,
-    moving: &'static str,
-) -> Result<Breakpoints, ParamError> {
-    let (still_value, moving_value) = (p.real(still)?, p.real(moving)?);
-    if still_value >= moving_value {
-        return Err(ParamError::Inconsistent(format!(
-            "{moving} ({moving_value}) must be above {still} ({still_value})"
-        )));
-    }
-    Ok(Breakpoints {
-        still: still_value,
-        moving: moving_value,
-    })
-}
-
-impl FuzzyConfig {
-    /// Converts validated parameters; degrees become radians here.
-    pub fn from_params(p: &Params) -> Result<FuzzyConfig, ParamError> {
-        let walk = rad(p.real("gyro_bias_walk_dps_per_sqrt_s")?);
-        Ok(FuzzyConfig {
-            declination_rad: rad(p.real("declination_deg")?),
-            window_samples: p.integer("window_samples")? as usize,
-            motion: MotionConfig {
-                accel_dev: breakpoints(p, "accel_dev_still_factor", "accel_dev_moving_factor")?,
-                accel_activity: breakpoints(
-                    p,
-                    "accel_activity_still_factor",
-                    "accel_activity_moving_factor",
-                )?,
-                gyro_activity: breakpoints(
-                    p,
-                    "gyro_activity_still_factor",
-                    "gyro_activity_moving_factor",
-                )?,
-                resolution: p.integer("defuzzification_points")? as usize,
-            },
-            floor_rise_s: p.real("noise_floor_rise_s")?,
-            static_threshold: p.real("static_threshold")?,
-            tilt_time_constant_s: p.real("tilt_time_constant_s")?,
-            tilt_moving_time_constant_s: p.real("tilt_moving_time_constant_s")?,
-            tilt_turn_pull: p.real("tilt_turn_pull")?,
-            tilt_gate_rad: rad(p.real("tilt_gate_deg")?),
-            heading_time_constant_s: p.real("heading_time_constant_s")?,
-            heading_moving_time_constant_s: p.real("heading_moving_time_constant_s")?,
-            heading_gate_rad: rad(p.real("heading_gate_deg")?),
-            heading_gate_s: p.real("heading_gate_s")?,
-            bias_walk_density: walk * walk,
-            mag_min_coverage_deg: p.real("mag_min_coverage_deg")?,
-            mag_inclination_rad: rad(p.real("mag_inclination_deg")?),
-            mag_level_tolerance_rad: rad(p.real("mag_level_tolerance_deg")?),
-            mag_refit_every: p.integer("mag_refit_every")? as u32,
-            mag_disturbance: Tolerances {
-                magnitude: p.real("mag_disturbance_magnitude")?,
-                dip_rad: rad(p.real("mag_disturbance_dip_deg")?),
-            },
-            max_mag_age_s: p.real("max_mag_age_s")?,
-            max_imu_gap_s: p.real("max_imu_gap_s")?,
-        })
-    }
-}
 
 /// What the engine has done with its readings.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -1071,6 +723,63 @@ impl FuzzyEngine {
     }
 }
 
+/// The magnetometer calibration and the learnt noise floors, as the model
+/// endpoint reports them.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FuzzyModelReport {
+    /// Always `fuzzy`: tells this report from the `attitude` one.
+    pub engine: super::EngineKind,
+    pub mag_calibration: CalibrationState,
+    /// Azimuth of the field seen so far, degrees (of 360).
+    pub mag_coverage_deg: f64,
+    /// The hard-iron offset subtracted from every reading, µT; `null`
+    /// before a calibration.
+    pub hard_iron_ut: Option<[f64; 3]>,
+    /// The soft-iron matrix applied after it, rows.
+    pub soft_iron: Option<[[f64; 3]; 3]>,
+    /// RMS relative radius error of the calibration fit.
+    pub fit_rms: Option<f64>,
+    /// Fits refused by the plausibility gates.
+    pub mag_fits_refused: u64,
+    /// The noise floors learnt at rest: accelerometer m/s², gyro °/s.
+    pub accel_noise_floor_mps2: Option<f64>,
+    pub gyro_noise_floor_dps: Option<f64>,
+    pub stats: FuzzyStats,
+}
+
+/// The `fuzzy` engine as the registry lists it.
+pub struct Fuzzy;
+
+impl EngineDescriptor for Fuzzy {
+    const SUMMARY: &'static str = "MEMS IMU + compass: a fuzzy expert decides static or moving; tilt and compass while static, the gyro while moving";
+    const SENSORS: &'static [SensorKind] = &[SensorKind::Imu, SensorKind::Magnetometer];
+    const RETIRED: &'static [Retired] = RETIRED;
+    const CODEC_VERSION: u32 = estimate::CODEC_VERSION;
+    type Params = FuzzyParams;
+    type Engine = FuzzyEngine;
+    type Estimate = FuzzyEstimate;
+    type Model = FuzzyModelReport;
+
+    fn create(params: Params) -> Result<FuzzyEngine, ParamError> {
+        FuzzyEngine::new(params)
+    }
+    fn restore(snapshot: serde_json::Value) -> Result<FuzzyEngine, SnapshotError> {
+        FuzzyEngine::restore(snapshot)
+    }
+    fn write_fields(estimate: &FuzzyEstimate, fields: &mut JsonFields<'_>) {
+        estimate.write_fields(fields);
+    }
+    fn encode(estimate: &FuzzyEstimate) -> Vec<u8> {
+        estimate.encode()
+    }
+    fn decode(version: u32, bytes: &[u8]) -> Result<FuzzyEstimate, postcard::Error> {
+        FuzzyEstimate::decode(version, bytes)
+    }
+    fn extremes(estimate: &FuzzyEstimate) -> [f64; 2] {
+        estimate.extremes()
+    }
+}
+
 impl Engine for FuzzyEngine {
     fn kind(&self) -> EngineKind {
         EngineKind::Fuzzy
@@ -1101,22 +810,29 @@ impl Engine for FuzzyEngine {
         serde_json::to_value(self).unwrap_or(serde_json::Value::Null)
     }
 
-    fn model(&self) -> Option<serde_json::Value> {
+    fn model(&self) -> Option<EngineModel> {
         let correction = self.calibration.correction();
         let (accel_floor, gyro_floor) = self.noise_floors();
-        Some(serde_json::json!({
-            "engine": "fuzzy",
-            "mag_calibration": self.calibration.state(),
-            "mag_coverage_deg": self.calibration.coverage_deg(),
-            "hard_iron_ut": correction.map(|c| [c.hard_iron_ut.x, c.hard_iron_ut.y, c.hard_iron_ut.z]),
-            "soft_iron": correction.map(|c| {
-                [0, 1, 2].map(|i| [c.soft_iron[(i, 0)], c.soft_iron[(i, 1)], c.soft_iron[(i, 2)]])
+        Some(EngineModel::Fuzzy(FuzzyModelReport {
+            engine: super::EngineKind::Fuzzy,
+            mag_calibration: self.calibration.state(),
+            mag_coverage_deg: self.calibration.coverage_deg(),
+            hard_iron_ut: correction
+                .map(|c| [c.hard_iron_ut.x, c.hard_iron_ut.y, c.hard_iron_ut.z]),
+            soft_iron: correction.map(|c| {
+                [0, 1, 2].map(|i| {
+                    [
+                        c.soft_iron[(i, 0)],
+                        c.soft_iron[(i, 1)],
+                        c.soft_iron[(i, 2)],
+                    ]
+                })
             }),
-            "fit_rms": correction.map(|c| c.fit_rms),
-            "mag_fits_refused": self.calibration.refused_fits(),
-            "accel_noise_floor_mps2": accel_floor,
-            "gyro_noise_floor_dps": gyro_floor.map(deg),
-            "stats": self.stats,
+            fit_rms: correction.map(|c| c.fit_rms),
+            mag_fits_refused: self.calibration.refused_fits(),
+            accel_noise_floor_mps2: accel_floor,
+            gyro_noise_floor_dps: gyro_floor.map(deg),
+            stats: self.stats,
         }))
     }
 }

@@ -55,33 +55,14 @@ pub struct Statistics {
     pub mean_accel_mps2: V3,
 }
 
-/// What the statistics are computed on.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Signals {
-    /// The samples themselves: the paper's MV, ARE, SHOE, MAG.
-    Raw,
-    /// What the window integrates them to (module doc): steady vibration
-    /// at rest hardly counts.
-    Integrated,
-}
-
-impl Signals {
-    /// The `detector_signals` parameter value.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Signals::Raw => "raw",
-            Signals::Integrated => "integrated",
-        }
-    }
-
-    /// Parses a `detector_signals` parameter value.
-    pub fn from_name(name: &str) -> Option<Signals> {
-        match name {
-            "raw" => Some(Signals::Raw),
-            "integrated" => Some(Signals::Integrated),
-            _ => None,
-        }
+crate::fusion::params::choice_enum! {
+    /// What the statistics are computed on (the `detector_signals` parameter).
+    pub enum Signals {
+        /// What the window integrates them to (module doc): steady vibration
+        /// at rest hardly counts.
+        Integrated = "integrated",
+        /// The samples themselves: the paper's MV, ARE, SHOE, MAG.
+        Raw = "raw",
     }
 }
 

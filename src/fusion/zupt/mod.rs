@@ -25,6 +25,8 @@
 
 pub mod detectors;
 pub mod eskf;
+pub mod estimate;
+pub mod params;
 pub mod smoother;
 pub mod strapdown;
 pub mod zero_velocity;
@@ -34,23 +36,23 @@ use std::collections::VecDeque;
 use nalgebra::{SMatrix, SVector, UnitQuaternion};
 use serde::{Deserialize, Serialize};
 
-use self::detectors::{DetectorNoise, Signals, Statistics};
+use self::detectors::Statistics;
 use self::eskf::{
-    ACCEL_BIAS, ATT, Dynamics, ErrorStateFilter, GYRO_BIAS, POS, ProcessNoise, VEL,
-    body_velocity_matrix, height_matrix, zaru_matrix, zupt_matrix,
+    ACCEL_BIAS, ATT, Dynamics, ErrorStateFilter, GYRO_BIAS, POS, VEL, body_velocity_matrix,
+    height_matrix, zaru_matrix, zupt_matrix,
 };
+use self::estimate::{TrackPoint, ZuptEstimate};
+pub use self::params::{PARAMS, ZuptConfig, ZuptParams};
 use self::smoother::{Point, PushRecord};
 use self::strapdown::{
-    Increment, NavState, Site, V3, attitude_from_euler, earth_rate_n, level, normal_gravity_mps2,
-    radii_m,
+    Increment, NavState, V3, attitude_from_euler, earth_rate_n, level, normal_gravity_mps2, radii_m,
 };
-use self::zero_velocity::{
-    Adaptation, Decision, DetectorKind, PipelineConfig, Thresholds, ZeroVelocityPipeline,
-};
+use self::zero_velocity::{Decision, DetectorKind, ZeroVelocityPipeline};
 use super::angles::{deg, rad};
-use super::estimate::{EngineOutput, EstimateValues, TrackPoint, ZuptEstimate};
-use super::params::{ParamError, ParamSpec, Params, choice, flag, integer, real};
-use super::reading::{Reading, SensorData};
+use super::estimate::{EngineOutput, EstimateValues, JsonFields};
+use super::params::{ParamError, Params, Retired};
+use super::reading::{Reading, SensorData, SensorKind};
+use super::registry::{EngineDescriptor, NoModel};
 use super::{Engine, EngineKind, SnapshotError};
 
 /// Version of the engine's snapshot. A snapshot of another version is
@@ -58,392 +60,10 @@ use super::{Engine, EngineKind, SnapshotError};
 /// its stored readings. 2: integrated detector signals, learned rest
 /// levels, zero-angular-rate updates.
 pub const STATE_VERSION: u32 = 2;
-/// Standard gravity, for µg and mg parameters.
-const STANDARD_GRAVITY_MPS2: f64 = 9.806_65;
 /// Level or odometer readings kept waiting for the navigation time.
 const MAX_PENDING_AIDS: usize = 1024;
 /// Two odometer readings further apart than this give no speed.
 const ODOMETER_MAX_GAP_S: f64 = 10.0;
-
-/// The `zupt` engine's parameters. Sensor defaults are the paper's Table 1
-/// FOG IMU (gyro bias stability 0.5 °/h, ARW ≤ 0.05 °/√h, accelerometer
-/// bias 1 mg); detector defaults are the paper's W = L = 100 and 3 s, with
-/// thresholds set on the simulated trolley runs (README: how to tune).
-pub const PARAMS: &[ParamSpec] = &[
-    real(
-        "latitude_deg",
-        30.0,
-        -90.0,
-        90.0,
-        "deg",
-        "site latitude (Earth rate, gravity)",
-    ),
-    real(
-        "initial_height_m",
-        0.0,
-        -11_000.0,
-        9_000.0,
-        "m",
-        "ellipsoidal height of the start point (gravity)",
-    ),
-    real(
-        "initial_yaw_deg",
-        0.0,
-        -360.0,
-        360.0,
-        "deg",
-        "heading of the machine at the start, clockwise from north",
-    ),
-    real(
-        "initial_yaw_sigma_deg",
-        0.5,
-        0.0,
-        180.0,
-        "deg",
-        "uncertainty of initial_yaw_deg",
-    ),
-    choice(
-        "detector",
-        "tczvd",
-        &["tczvd", "mv", "are", "shoe", "mag", "none"],
-        "zero-velocity test: MV ∧ ARE ∧ SHOE, one test alone, or none (pure INS)",
-    ),
-    choice(
-        "detector_signals",
-        "integrated",
-        &["integrated", "raw"],
-        "what MV, ARE and SHOE test: the velocity and angle each window integrates to (steady machinery vibration hardly counts), or the raw samples (the paper)",
-    ),
-    integer(
-        "window_samples",
-        100,
-        1,
-        10_000,
-        "W: samples in each detector window, centred on the sample decided",
-    ),
-    integer(
-        "median_samples",
-        100,
-        1,
-        10_000,
-        "L: length of the binary median filter over the test decisions (1: off)",
-    ),
-    real(
-        "min_zv_s",
-        3.0,
-        0.0,
-        60.0,
-        "s",
-        "shortest zero-velocity run kept",
-    ),
-    flag(
-        "threshold_adapt",
-        true,
-        "thresholds follow each statistic's learned rest level (a machine whose pumps run while it stands has a higher floor); false: fixed γ",
-    ),
-    real(
-        "rest_level_factor",
-        4.0,
-        1.0,
-        1000.0,
-        "",
-        "κ: a test's threshold is at least κ × its statistic's learned rest level (the level a twentieth of the samples fall below)",
-    ),
-    real(
-        "threshold_max_factor",
-        5.0,
-        1.0,
-        1000.0,
-        "",
-        "m: a learned threshold is at most m × its configured γ, so motion that never stops cannot become the rest level",
-    ),
-    real(
-        "rest_level_rise_s",
-        180.0,
-        1.0,
-        86_400.0,
-        "s",
-        "τ: while every sample is above it the rest level rises by e in this long (it falls twenty times as fast)",
-    ),
-    real(
-        "sigma_accel_mps2",
-        0.005,
-        1.0e-6,
-        10.0,
-        "m/s²",
-        "σ_a normalising MV, SHOE and MAG: accelerometer noise per sample",
-    ),
-    real(
-        "sigma_gyro_dps",
-        0.01,
-        1.0e-6,
-        10.0,
-        "deg/s",
-        "σ_g normalising ARE and SHOE: gyro noise per sample",
-    ),
-    real(
-        "threshold_mv",
-        6.0,
-        0.0,
-        1.0e9,
-        "",
-        "γ of MV (at rest MV ≈ 3 when σ_a is the true noise)",
-    ),
-    real(
-        "threshold_are",
-        6.0,
-        0.0,
-        1.0e9,
-        "",
-        "γ of ARE (at rest ≈ 3 · (true σ / σ_g)²)",
-    ),
-    real(
-        "threshold_shoe",
-        20.0,
-        0.0,
-        1.0e9,
-        "",
-        "γ of SHOE (at rest ≈ MV + ARE + (‖f‖ − g)²/σ_a², the last from accelerometer bias)",
-    ),
-    real(
-        "threshold_mag",
-        12.0,
-        0.0,
-        1.0e9,
-        "",
-        "γ of MAG (at rest ≈ 1 + (‖f‖ − g)²/σ_a²)",
-    ),
-    real(
-        "gyro_arw_deg_per_sqrt_h",
-        0.05,
-        1.0e-6,
-        100.0,
-        "deg/√h",
-        "gyro angle random walk (filter process noise)",
-    ),
-    real(
-        "gyro_bias_sigma_deg_per_h",
-        2.0,
-        0.0,
-        1.0e5,
-        "deg/h",
-        "initial uncertainty of each gyro bias (run-to-run, wider than the datasheet's bias stability: a prior too tight makes the rest updates turn the heading instead of learning the bias)",
-    ),
-    real(
-        "gyro_bias_rw_deg_per_h_per_sqrt_h",
-        0.05,
-        0.0,
-        1.0e5,
-        "deg/h/√h",
-        "random walk of the gyro biases",
-    ),
-    real(
-        "accel_vrw_ug_per_sqrt_hz",
-        50.0,
-        1.0e-3,
-        1.0e6,
-        "µg/√Hz",
-        "accelerometer white noise (velocity random walk)",
-    ),
-    real(
-        "accel_bias_sigma_mg",
-        1.0,
-        0.0,
-        1.0e4,
-        "mg",
-        "initial uncertainty of each accelerometer bias",
-    ),
-    real(
-        "accel_bias_rw_ug_per_sqrt_s",
-        1.0,
-        0.0,
-        1.0e6,
-        "µg/√s",
-        "random walk of the accelerometer biases",
-    ),
-    real(
-        "filter_period_s",
-        0.1,
-        0.001,
-        10.0,
-        "s",
-        "how often the covariance is propagated and the updates are made",
-    ),
-    real(
-        "zupt_sigma_mps",
-        0.002,
-        1.0e-6,
-        10.0,
-        "m/s",
-        "noise of the zero-velocity pseudo-measurement",
-    ),
-    flag(
-        "zaru",
-        true,
-        "zero-angular-rate update at every rest: the gyros read the Earth's rotation there, so their biases (heading drift) are estimated",
-    ),
-    real(
-        "zaru_sigma_deg_per_h",
-        0.05,
-        0.0,
-        100_000.0,
-        "deg/h",
-        "rotation a standing machine may still have (settling), added to the gyro noise of each rest's mean rate",
-    ),
-    flag(
-        "smooth_pushes",
-        true,
-        "smooth each completed push over both of its still ends (Rauch–Tung–Striebel) and publish its track as `smoothed_push`",
-    ),
-    real(
-        "smooth_max_push_s",
-        300.0,
-        1.0,
-        7200.0,
-        "s",
-        "longer pushes are not smoothed (the record of a push, kept in the engine's snapshot, grows by about 5 kB a second)",
-    ),
-    real(
-        "level_sigma_m",
-        0.002,
-        1.0e-6,
-        100.0,
-        "m",
-        "noise of a level-instrument height",
-    ),
-    real(
-        "aid_gate_sigma",
-        6.0,
-        0.0,
-        1.0e6,
-        "",
-        "a level height or odometer speed further than this many σ from the prediction is refused (0: no gate)",
-    ),
-    flag(
-        "odometer_aiding",
-        false,
-        "fuse odometer speed (and zero sideways/vertical body speed); off: odometer shown only",
-    ),
-    real(
-        "odometer_sigma_mps",
-        0.005,
-        1.0e-6,
-        10.0,
-        "m/s",
-        "noise of the odometer speed (and of the zero sideways speed)",
-    ),
-    real(
-        "max_imu_gap_s",
-        0.5,
-        0.001,
-        3600.0,
-        "s",
-        "longer gaps between IMU readings end a stream (no integration across)",
-    ),
-];
-
-/// The engine's parameters in working units (SI, radians).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct ZuptConfig {
-    pub site: Site,
-    pub initial_yaw_rad: f64,
-    pub initial_yaw_sigma_rad: f64,
-    pub pipeline: PipelineConfig,
-    pub process_noise: ProcessNoise,
-    pub gyro_bias_sigma_rad_per_s: f64,
-    pub accel_bias_sigma_mps2: f64,
-    pub filter_period_s: f64,
-    pub zupt_sigma_mps: f64,
-    /// Zero-angular-rate updates at rest, and the settling rate allowed, rad/s.
-    pub zaru: bool,
-    pub zaru_sigma_rad_per_s: f64,
-    /// Smoothing of completed pushes, and the longest push smoothed, s.
-    pub smooth_pushes: bool,
-    pub smooth_max_push_s: f64,
-    pub level_sigma_m: f64,
-    pub aid_gate_sigma: f64,
-    pub odometer_aiding: bool,
-    pub odometer_sigma_mps: f64,
-    pub max_imu_gap_s: f64,
-}
-
-/// °/h to rad/s.
-fn rad_per_s_from_deg_per_h(x: f64) -> f64 {
-    rad(x) / 3600.0
-}
-
-impl ZuptConfig {
-    /// Converts validated parameters; degrees become radians here.
-    pub fn from_params(p: &Params) -> Result<ZuptConfig, ParamError> {
-        let site = Site {
-            lat_rad: rad(p.real("latitude_deg")?),
-            height_m: p.real("initial_height_m")?,
-        };
-        let detector =
-            DetectorKind::from_name(p.choice("detector")?).unwrap_or(DetectorKind::Tczvd);
-        Ok(ZuptConfig {
-            site,
-            initial_yaw_rad: rad(p.real("initial_yaw_deg")?),
-            initial_yaw_sigma_rad: rad(p.real("initial_yaw_sigma_deg")?),
-            pipeline: PipelineConfig {
-                detector,
-                thresholds: Thresholds {
-                    mv: p.real("threshold_mv")?,
-                    are: p.real("threshold_are")?,
-                    shoe: p.real("threshold_shoe")?,
-                    mag: p.real("threshold_mag")?,
-                },
-                noise: DetectorNoise {
-                    sigma_accel_mps2: p.real("sigma_accel_mps2")?,
-                    sigma_gyro_rad_per_s: rad(p.real("sigma_gyro_dps")?),
-                    gravity_mps2: normal_gravity_mps2(site.lat_rad, site.height_m),
-                },
-                signals: {
-                    let name = p.choice("detector_signals")?;
-                    Signals::from_name(name).ok_or_else(|| ParamError::Invalid {
-                        name: "detector_signals".into(),
-                        value: name.into(),
-                        expected: "integrated or raw".into(),
-                    })?
-                },
-                adaptation: p.flag("threshold_adapt")?.then_some(Adaptation {
-                    rest_level_factor: p.real("rest_level_factor")?,
-                    max_factor: p.real("threshold_max_factor")?,
-                    rise_s: p.real("rest_level_rise_s")?,
-                }),
-                window_samples: p.integer("window_samples")? as usize,
-                median_samples: p.integer("median_samples")? as usize,
-                min_run_s: p.real("min_zv_s")?,
-            },
-            process_noise: ProcessNoise {
-                // °/√h → rad/√s; µg/√Hz → (m/s²)/√Hz = (m/s)/√s.
-                gyro_arw: rad(p.real("gyro_arw_deg_per_sqrt_h")?) / 60.0,
-                gyro_bias_rw: rad_per_s_from_deg_per_h(
-                    p.real("gyro_bias_rw_deg_per_h_per_sqrt_h")?,
-                ) / 60.0,
-                accel_vrw: p.real("accel_vrw_ug_per_sqrt_hz")? * 1e-6 * STANDARD_GRAVITY_MPS2,
-                accel_bias_rw: p.real("accel_bias_rw_ug_per_sqrt_s")?
-                    * 1e-6
-                    * STANDARD_GRAVITY_MPS2,
-            },
-            gyro_bias_sigma_rad_per_s: rad_per_s_from_deg_per_h(
-                p.real("gyro_bias_sigma_deg_per_h")?,
-            ),
-            accel_bias_sigma_mps2: p.real("accel_bias_sigma_mg")? * 1e-3 * STANDARD_GRAVITY_MPS2,
-            filter_period_s: p.real("filter_period_s")?,
-            zupt_sigma_mps: p.real("zupt_sigma_mps")?,
-            zaru: p.flag("zaru")?,
-            zaru_sigma_rad_per_s: rad_per_s_from_deg_per_h(p.real("zaru_sigma_deg_per_h")?),
-            smooth_pushes: p.flag("smooth_pushes")?,
-            smooth_max_push_s: p.real("smooth_max_push_s")?,
-            level_sigma_m: p.real("level_sigma_m")?,
-            aid_gate_sigma: p.real("aid_gate_sigma")?,
-            odometer_aiding: p.flag("odometer_aiding")?,
-            odometer_sigma_mps: p.real("odometer_sigma_mps")?,
-            max_imu_gap_s: p.real("max_imu_gap_s")?,
-        })
-    }
-}
 
 /// One IMU reading in working units.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -1067,6 +687,40 @@ impl Navigation {
         self.state.attitude = UnitQuaternion::from_scaled_axis(block(ATT)) * self.state.attitude;
         self.accel_bias_mps2 += block(ACCEL_BIAS);
         self.gyro_bias_rad_per_s += block(GYRO_BIAS);
+    }
+}
+
+/// The `zupt` engine as the registry lists it.
+pub struct Zupt;
+
+impl EngineDescriptor for Zupt {
+    const SUMMARY: &'static str = "FOG strapdown INS: position and attitude, corrected at every zero-velocity rest and by the level";
+    const SENSORS: &'static [SensorKind] =
+        &[SensorKind::Imu, SensorKind::Level, SensorKind::Odometer];
+    const RETIRED: &'static [Retired] = &[];
+    const CODEC_VERSION: u32 = estimate::CODEC_VERSION;
+    type Params = ZuptParams;
+    type Engine = ZuptEngine;
+    type Estimate = ZuptEstimate;
+    type Model = NoModel;
+
+    fn create(params: Params) -> Result<ZuptEngine, ParamError> {
+        ZuptEngine::new(params)
+    }
+    fn restore(snapshot: serde_json::Value) -> Result<ZuptEngine, SnapshotError> {
+        ZuptEngine::restore(snapshot)
+    }
+    fn write_fields(estimate: &ZuptEstimate, fields: &mut JsonFields<'_>) {
+        estimate.write_fields(fields);
+    }
+    fn encode(estimate: &ZuptEstimate) -> Vec<u8> {
+        estimate.encode()
+    }
+    fn decode(version: u32, bytes: &[u8]) -> Result<ZuptEstimate, postcard::Error> {
+        ZuptEstimate::decode(version, bytes)
+    }
+    fn extremes(estimate: &ZuptEstimate) -> [f64; 2] {
+        estimate.extremes()
     }
 }
 

@@ -37,44 +37,17 @@ use serde::{Deserialize, Serialize};
 use super::detectors::{DetectorNoise, Signals, Statistics, WindowSums};
 use super::strapdown::V3;
 
-/// Which test decides zero velocity.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum DetectorKind {
-    /// MV ∧ ARE ∧ SHOE (the paper's three-condition detector).
-    Tczvd,
-    Mv,
-    Are,
-    Shoe,
-    Mag,
-    /// Never zero velocity: pure inertial navigation, for comparison.
-    None,
-}
-
-impl DetectorKind {
-    /// The `detector` parameter value.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            DetectorKind::Tczvd => "tczvd",
-            DetectorKind::Mv => "mv",
-            DetectorKind::Are => "are",
-            DetectorKind::Shoe => "shoe",
-            DetectorKind::Mag => "mag",
-            DetectorKind::None => "none",
-        }
-    }
-
-    /// Parses a `detector` parameter value.
-    pub fn from_name(name: &str) -> Option<DetectorKind> {
-        Some(match name {
-            "tczvd" => DetectorKind::Tczvd,
-            "mv" => DetectorKind::Mv,
-            "are" => DetectorKind::Are,
-            "shoe" => DetectorKind::Shoe,
-            "mag" => DetectorKind::Mag,
-            "none" => DetectorKind::None,
-            _ => return None,
-        })
+crate::fusion::params::choice_enum! {
+    /// Which test decides zero velocity (the `detector` parameter).
+    pub enum DetectorKind {
+        /// MV ∧ ARE ∧ SHOE (the paper's three-condition detector).
+        Tczvd = "tczvd",
+        Mv = "mv",
+        Are = "are",
+        Shoe = "shoe",
+        Mag = "mag",
+        /// Never zero velocity: pure inertial navigation, for comparison.
+        None = "none",
     }
 }
 

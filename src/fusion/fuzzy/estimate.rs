@@ -1,0 +1,158 @@
+//! What the `fuzzy` engine emits per IMU reading: the protocol's fields,
+//! their NDJSON form and their stored form (and the form earlier releases
+//! stored).
+
+use serde::{Deserialize, Serialize};
+
+use super::magcal::CalibrationState;
+use crate::fusion::estimate::JsonFields;
+
+/// The `fuzzy` engine's decision of the motion status.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Motion {
+    Static,
+    Moving,
+}
+
+impl Motion {
+    /// The protocol name.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Motion::Static => "static",
+            Motion::Moving => "moving",
+        }
+    }
+}
+
+/// What the `fuzzy` engine estimates at one IMU reading.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FuzzyEstimate {
+    /// `static` when `static_degree` reaches the engine's threshold.
+    pub motion: Motion,
+    /// The motion expert's degree of "static", in [0, 1].
+    pub static_degree: f64,
+    pub pitch_deg: f64,
+    pub roll_deg: f64,
+    /// True heading (magnetic plus declination), clockwise from north, [0, 360).
+    pub heading_deg: f64,
+    /// Current gyro drift estimate, subtracted from every reading.
+    pub gyro_bias_dps: [f64; 3],
+    /// False until a still window has levelled the platform and fixed the
+    /// first gyro bias (tunnelnav extension, as are the fields below).
+    pub aligned: bool,
+    /// Magnetometer calibration: `collecting`, `planar`, `ellipsoid` or `raw`.
+    pub mag_calibration: CalibrationState,
+    /// Azimuth of the field seen so far, degrees (of 360).
+    pub mag_coverage_deg: f64,
+    /// RMS relative radius error of the calibration fit; `null` before one.
+    pub mag_fit_rms: Option<f64>,
+    /// True heading from the newest calibrated, tilt-compensated
+    /// magnetometer reading alone; `null` before calibration.
+    pub mag_heading_deg: Option<f64>,
+    /// The motion expert's inputs.
+    pub accel_dev_mps2: f64,
+    pub accel_activity_mps2: f64,
+    pub gyro_activity_dps: f64,
+    /// One-sigma uncertainty of `gyro_bias_dps` per axis; `null` before
+    /// alignment.
+    pub gyro_bias_sigma_dps: Option<[f64; 3]>,
+    /// True while the magnetometer field departs from the site's in
+    /// magnitude or dip (a magnet, steel nearby): the compass is not used.
+    pub mag_disturbed: bool,
+}
+
+/// Stored estimates of this release: postcard of [`FuzzyEstimate`].
+/// 1: before the bias σ and the disturbance flag ([`FuzzyEstimateV1`]).
+pub const CODEC_VERSION: u32 = 2;
+
+impl FuzzyEstimate {
+    /// The fields after `"engine"`, as serde_json writes them.
+    pub fn write_fields(&self, w: &mut JsonFields<'_>) {
+        w.word("motion", self.motion.as_str());
+        w.number("static_degree", self.static_degree);
+        w.number("pitch_deg", self.pitch_deg);
+        w.number("roll_deg", self.roll_deg);
+        w.number("heading_deg", self.heading_deg);
+        w.triple("gyro_bias_dps", &self.gyro_bias_dps);
+        w.flag("aligned", self.aligned);
+        w.word("mag_calibration", self.mag_calibration.as_str());
+        w.number("mag_coverage_deg", self.mag_coverage_deg);
+        w.optional("mag_fit_rms", self.mag_fit_rms);
+        w.optional("mag_heading_deg", self.mag_heading_deg);
+        w.number("accel_dev_mps2", self.accel_dev_mps2);
+        w.number("accel_activity_mps2", self.accel_activity_mps2);
+        w.number("gyro_activity_dps", self.gyro_activity_dps);
+        match &self.gyro_bias_sigma_dps {
+            Some(sigma) => w.triple("gyro_bias_sigma_dps", sigma),
+            None => w.null("gyro_bias_sigma_dps"),
+        }
+        w.flag("mag_disturbed", self.mag_disturbed);
+    }
+
+    /// The stored form, of [`CODEC_VERSION`].
+    pub fn encode(&self) -> Vec<u8> {
+        crate::fusion::estimate::postcard_bytes(self)
+    }
+
+    /// The estimate stored as `bytes` with codec `version` (0: stored
+    /// before rows carried their version: version 2, or 1 where that fails).
+    pub fn decode(version: u32, bytes: &[u8]) -> Result<FuzzyEstimate, postcard::Error> {
+        match version {
+            0 => postcard::from_bytes::<FuzzyEstimate>(bytes).or_else(|_| {
+                postcard::from_bytes::<FuzzyEstimateV1>(bytes).map(FuzzyEstimate::from)
+            }),
+            1 => postcard::from_bytes::<FuzzyEstimateV1>(bytes).map(FuzzyEstimate::from),
+            2 => postcard::from_bytes(bytes),
+            _ => Err(postcard::Error::DeserializeBadEncoding),
+        }
+    }
+
+    /// `extreme_a`, `extreme_b` of the stored row: pitch and roll.
+    pub fn extremes(&self) -> [f64; 2] {
+        [self.pitch_deg, self.roll_deg]
+    }
+}
+
+/// A `fuzzy` estimate as releases before the gyro bias σ and the
+/// disturbance flag stored it (codec version 1).
+#[derive(Deserialize)]
+struct FuzzyEstimateV1 {
+    motion: Motion,
+    static_degree: f64,
+    pitch_deg: f64,
+    roll_deg: f64,
+    heading_deg: f64,
+    gyro_bias_dps: [f64; 3],
+    aligned: bool,
+    mag_calibration: CalibrationState,
+    mag_coverage_deg: f64,
+    mag_fit_rms: Option<f64>,
+    mag_heading_deg: Option<f64>,
+    accel_dev_mps2: f64,
+    accel_activity_mps2: f64,
+    gyro_activity_dps: f64,
+}
+
+impl From<FuzzyEstimateV1> for FuzzyEstimate {
+    fn from(v: FuzzyEstimateV1) -> FuzzyEstimate {
+        FuzzyEstimate {
+            motion: v.motion,
+            static_degree: v.static_degree,
+            pitch_deg: v.pitch_deg,
+            roll_deg: v.roll_deg,
+            heading_deg: v.heading_deg,
+            gyro_bias_dps: v.gyro_bias_dps,
+            aligned: v.aligned,
+            mag_calibration: v.mag_calibration,
+            mag_coverage_deg: v.mag_coverage_deg,
+            mag_fit_rms: v.mag_fit_rms,
+            mag_heading_deg: v.mag_heading_deg,
+            accel_dev_mps2: v.accel_dev_mps2,
+            accel_activity_mps2: v.accel_activity_mps2,
+            gyro_activity_dps: v.gyro_activity_dps,
+            gyro_bias_sigma_dps: None,
+            mag_disturbed: false,
+        }
+    }
+}

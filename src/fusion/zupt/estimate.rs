@@ -1,0 +1,162 @@
+//! What the `zupt` engine emits per IMU reading: the protocol's fields,
+//! their NDJSON form and their stored form (and the forms earlier
+//! releases stored).
+
+use serde::{Deserialize, Serialize};
+
+use crate::fusion::estimate::JsonFields;
+
+/// What the `zupt` engine estimates at one IMU reading.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ZuptEstimate {
+    /// True where the detector declares zero velocity.
+    pub zv: bool,
+    /// North, east, down of the start point.
+    pub position_m: [f64; 3],
+    /// Along-track distance travelled: displacement along the body's x axis.
+    pub distance_m: f64,
+    /// North, east, down.
+    pub velocity_mps: [f64; 3],
+    pub pitch_deg: f64,
+    pub roll_deg: f64,
+    /// Clockwise from north, in [0, 360).
+    pub yaw_deg: f64,
+    /// False until the first still window levels the platform: until then
+    /// position and velocity are zero and the attitude is the raw levelling
+    /// (tunnelnav extension, as are the fields below).
+    pub aligned: bool,
+    /// 1σ of the position error (north, east, down) from the filter's covariance.
+    pub position_sigma_m: [f64; 3],
+    /// Height from the level datum (start point's height as first levelled
+    /// minus `position_m` down); `null` before the first level reading.
+    pub height_m: Option<f64>,
+    /// The newest odometer distance at `t`; `null` before the first.
+    pub odometer_m: Option<f64>,
+    /// Each test statistic over its threshold γ (below 1: still).
+    pub mv_ratio: f64,
+    pub are_ratio: f64,
+    pub shoe_ratio: f64,
+    pub mag_ratio: f64,
+    /// 1σ of the heading from the filter's covariance, degrees; `null`
+    /// before alignment (and in estimates stored before it was reported).
+    pub yaw_sigma_deg: Option<f64>,
+    /// On the estimate at which a push ends (the first epoch decided still
+    /// after it): the push's track smoothed over both of its still ends,
+    /// from the last still epoch before it, about one point a second;
+    /// `null` on every other estimate.
+    pub smoothed_push: Option<Vec<TrackPoint>>,
+}
+
+/// A point of a smoothed track.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TrackPoint {
+    pub t: f64,
+    /// North, east, down of the start point.
+    pub position_m: [f64; 3],
+    /// Along-track distance.
+    pub distance_m: f64,
+    /// 1σ of the smoothed position.
+    pub position_sigma_m: [f64; 3],
+}
+
+/// Stored estimates of this release: postcard of [`ZuptEstimate`].
+/// 1: before the heading σ and the smoothed push ([`ZuptEstimateV1`]).
+pub const CODEC_VERSION: u32 = 2;
+
+impl ZuptEstimate {
+    /// The fields after `"engine"`, as serde_json writes them.
+    pub fn write_fields(&self, w: &mut JsonFields<'_>) {
+        w.flag("zv", self.zv);
+        w.triple("position_m", &self.position_m);
+        w.number("distance_m", self.distance_m);
+        w.triple("velocity_mps", &self.velocity_mps);
+        w.number("pitch_deg", self.pitch_deg);
+        w.number("roll_deg", self.roll_deg);
+        w.number("yaw_deg", self.yaw_deg);
+        w.flag("aligned", self.aligned);
+        w.triple("position_sigma_m", &self.position_sigma_m);
+        w.optional("height_m", self.height_m);
+        w.optional("odometer_m", self.odometer_m);
+        w.number("mv_ratio", self.mv_ratio);
+        w.number("are_ratio", self.are_ratio);
+        w.number("shoe_ratio", self.shoe_ratio);
+        w.number("mag_ratio", self.mag_ratio);
+        w.optional("yaw_sigma_deg", self.yaw_sigma_deg);
+        match &self.smoothed_push {
+            None => w.null("smoothed_push"),
+            Some(points) => w.objects("smoothed_push", points, |point, w| {
+                w.number("t", point.t);
+                w.triple("position_m", &point.position_m);
+                w.number("distance_m", point.distance_m);
+                w.triple("position_sigma_m", &point.position_sigma_m);
+            }),
+        }
+    }
+
+    /// The stored form, of [`CODEC_VERSION`].
+    pub fn encode(&self) -> Vec<u8> {
+        crate::fusion::estimate::postcard_bytes(self)
+    }
+
+    /// The estimate stored as `bytes` with codec `version` (0: stored
+    /// before rows carried their version: version 2, or 1 where that fails).
+    pub fn decode(version: u32, bytes: &[u8]) -> Result<ZuptEstimate, postcard::Error> {
+        match version {
+            0 => postcard::from_bytes::<ZuptEstimate>(bytes)
+                .or_else(|_| postcard::from_bytes::<ZuptEstimateV1>(bytes).map(ZuptEstimate::from)),
+            1 => postcard::from_bytes::<ZuptEstimateV1>(bytes).map(ZuptEstimate::from),
+            2 => postcard::from_bytes(bytes),
+            _ => Err(postcard::Error::DeserializeBadEncoding),
+        }
+    }
+
+    /// `extreme_a`, `extreme_b` of the stored row: distance and depth.
+    pub fn extremes(&self) -> [f64; 2] {
+        [self.distance_m, self.position_m[2]]
+    }
+}
+
+/// A `zupt` estimate as releases before the heading σ and the smoothed
+/// push stored it (codec version 1).
+#[derive(Deserialize)]
+struct ZuptEstimateV1 {
+    zv: bool,
+    position_m: [f64; 3],
+    distance_m: f64,
+    velocity_mps: [f64; 3],
+    pitch_deg: f64,
+    roll_deg: f64,
+    yaw_deg: f64,
+    aligned: bool,
+    position_sigma_m: [f64; 3],
+    height_m: Option<f64>,
+    odometer_m: Option<f64>,
+    mv_ratio: f64,
+    are_ratio: f64,
+    shoe_ratio: f64,
+    mag_ratio: f64,
+}
+
+impl From<ZuptEstimateV1> for ZuptEstimate {
+    fn from(v: ZuptEstimateV1) -> ZuptEstimate {
+        ZuptEstimate {
+            zv: v.zv,
+            position_m: v.position_m,
+            distance_m: v.distance_m,
+            velocity_mps: v.velocity_mps,
+            pitch_deg: v.pitch_deg,
+            roll_deg: v.roll_deg,
+            yaw_deg: v.yaw_deg,
+            aligned: v.aligned,
+            position_sigma_m: v.position_sigma_m,
+            height_m: v.height_m,
+            odometer_m: v.odometer_m,
+            mv_ratio: v.mv_ratio,
+            are_ratio: v.are_ratio,
+            shoe_ratio: v.shoe_ratio,
+            mag_ratio: v.mag_ratio,
+            yaw_sigma_deg: None,
+            smoothed_push: None,
+        }
+    }
+}
