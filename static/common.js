@@ -279,9 +279,18 @@ const tn = (function () {
       value: (u, v) => (v == null ? '—' : `${v.toFixed(digits)} ${unit}`) }, extra || {});
   }
 
+  // Each engine's script registers its part of the dashboard by the
+  // engine's protocol name: `card(latest)` gives the fleet card's rows
+  // ([label, text] pairs) from its newest estimate, `page()` runs its
+  // section of a machine page (static/machine.js starts the machine's).
+  const engines = {};
+  function registerEngine(name, parts) {
+    engines[name] = parts;
+  }
+
   return {
     clock, fixed, mmPerM, duration, timeOfDay, json, ndjson, setText, css,
     showConnection, follow, showSensors, pollStatus, windowButtons, axis, num,
-    shadeSpans, line, followEngine,
+    shadeSpans, line, followEngine, engines, registerEngine,
   };
 })();

@@ -13,22 +13,13 @@
     cards.set(card.dataset.machine, fields);
   });
 
+  // Each engine's rows, from its script (tn.registerEngine), in the
+  // order the server lists the machine's engines.
   function figures(latest) {
     const rows = [];
-    const a = latest.attitude;
-    if (a) {
-      rows.push(['pitch', `${tn.fixed(a.pitch_deg, 3)}° · ${tn.fixed(tn.mmPerM(a.pitch_deg), 1)} mm/m`]);
-      rows.push(['roll', `${tn.fixed(a.roll_deg, 3)}° · ${tn.fixed(tn.mmPerM(a.roll_deg), 1)} mm/m`]);
-    }
-    const z = latest.zupt;
-    if (z) {
-      rows.push(['distance', `${tn.fixed(z.distance_m, 2)} m · ${z.zv ? 'standing still' : 'moving'}`]);
-      rows.push(['heading', `${tn.fixed(z.yaw_deg, 2)}° · pitch ${tn.fixed(z.pitch_deg, 3)}°`]);
-    }
-    const f = latest.fuzzy;
-    if (f) {
-      rows.push(['heading', `${tn.fixed(f.heading_deg, 1)}° · ${f.motion === 'static' ? 'static' : 'moving'} · compass ${f.mag_calibration}`]);
-      rows.push(['pitch / roll', `${tn.fixed(f.pitch_deg, 2)}° / ${tn.fixed(f.roll_deg, 2)}°`]);
+    for (const [name, estimate] of Object.entries(latest)) {
+      const engine = tn.engines[name];
+      if (engine && engine.card) rows.push(...engine.card(estimate));
     }
     return rows;
   }

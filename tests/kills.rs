@@ -213,6 +213,9 @@ async fn sigterm_under_load_answers_in_flight_requests_and_exits_cleanly() {
             let mut refused = 0;
             loop {
                 let from = acknowledged.load(Ordering::SeqCst);
+                if from == lines.len() {
+                    return;
+                }
                 let chunk = &lines[from..(from + 300).min(lines.len())];
                 match send_ndjson(&client, &base, "t0", chunk).await {
                     Ok(r) if r.status() == 200 => {
@@ -233,7 +236,10 @@ async fn sigterm_under_load_answers_in_flight_requests_and_exits_cleanly() {
             }
         })
     };
-    tokio::time::sleep(Duration::from_millis(800)).await;
+    // Stop it mid-drive, while the gateway keeps sending.
+    while acknowledged.load(Ordering::SeqCst) < 3000 {
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
     let asked = std::time::Instant::now();
     let status = server.terminate();
     let took = asked.elapsed();

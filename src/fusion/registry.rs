@@ -151,6 +151,17 @@ macro_rules! engines {
                 }
             }
 
+            /// `params` read through the engine's typed parameters and
+            /// written back: equal to `params` when the engine reads every
+            /// value it is given.
+            pub fn read_params(self, params: &Params) -> Result<Params, ParamError> {
+                match self {
+                    $( EngineKind::$Variant =>
+                        <<$Descriptor as EngineDescriptor>::Params as TypedParams>::from_params(params)
+                            .map(|typed| typed.to_params()) ),+
+                }
+            }
+
             /// Every protocol name, comma separated (for messages).
             pub fn names() -> String {
                 [$($name),+].join(", ")
@@ -276,5 +287,31 @@ impl std::str::FromStr for EngineKind {
 impl std::fmt::Display for EngineKind {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(self.as_str())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::ValueEnum;
+
+    #[test]
+    fn every_engine_has_one_name_everywhere() {
+        for &kind in EngineKind::ALL {
+            let name = kind.as_str();
+            assert_eq!(name.parse::<EngineKind>().unwrap(), kind);
+            assert_eq!(kind.to_string(), name);
+            assert_eq!(serde_json::to_value(kind).unwrap(), name);
+            let possible = kind.to_possible_value().unwrap();
+            assert_eq!(possible.get_name(), name);
+            assert!(!kind.sensors().is_empty() && !kind.specs().is_empty());
+            assert!(kind.codec_version() >= 1);
+        }
+        assert_eq!(EngineKind::value_variants(), EngineKind::ALL);
+        let err = "kalman".parse::<EngineKind>().unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "unknown engine `kalman` (known: attitude, zupt, fuzzy)"
+        );
     }
 }

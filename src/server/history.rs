@@ -285,10 +285,10 @@ pub struct ModelQuery {
     engine: Option<String>,
 }
 
-/// `GET /api/v1/machines/{machine}/model[?engine=]`: the `attitude`
-/// engine's learned pitch-error model, or with `engine=fuzzy` (or on a
-/// machine without `attitude`) the `fuzzy` engine's magnetometer
-/// calibration.
+/// `GET /api/v1/machines/{machine}/model[?engine=]`: the model report of
+/// the named engine, or of the machine's first engine (in registry order)
+/// that has one: `attitude`, the learned pitch error and the self-tuned
+/// noise; `fuzzy`, the magnetometer calibration and the noise floors.
 pub async fn model(
     State(state): State<SharedState>,
     Path(machine): Path<String>,
@@ -297,23 +297,33 @@ pub async fn model(
     let machine = state.machine(&machine)?;
     let params = query(params)?;
     let mut models = machine.models().await?;
+    let with_model = models
+        .keys()
+        .map(|engine| engine.as_str())
+        .collect::<Vec<_>>()
+        .join(", ");
     let engine = match params.engine.as_deref() {
-        Some(name) => name
-            .parse()
-            .map_err(|e: crate::fusion::UnknownEngine| ApiError::BadRequest(e.to_string()))?,
-        None if models.contains_key(&EngineKind::Attitude) => EngineKind::Attitude,
-        None => models
-            .keys()
-            .next()
-            .copied()
-            .unwrap_or(EngineKind::Attitude),
+        Some(name) => Some(
+            name.parse::<EngineKind>()
+                .map_err(|e| ApiError::BadRequest(e.to_string()))?,
+        ),
+        // The first in registry order.
+        None => models.keys().next().copied(),
     };
-    let model = models.remove(&engine).ok_or_else(|| {
-        ApiError::NotFound(format!(
-            "machine `{}` has no `{engine}` engine with a model (attitude: the learned pitch error; fuzzy: the magnetometer calibration)",
-            machine.spec.id
-        ))
-    })?;
+    let model = engine
+        .and_then(|engine| models.remove(&engine))
+        .ok_or_else(|| {
+            let asked = engine.map_or(String::new(), |e| format!("`{e}` "));
+            ApiError::NotFound(format!(
+                "machine `{}` has no {asked}engine with a model (engines with one here: {})",
+                machine.spec.id,
+                if with_model.is_empty() {
+                    "none"
+                } else {
+                    &with_model
+                }
+            ))
+        })?;
     Ok(axum::Json(ModelBody {
         machine: &machine.spec.id,
         model,

@@ -9,7 +9,7 @@ mod ingest;
 mod live;
 mod machines;
 pub mod metrics;
-mod pages;
+pub mod pages;
 
 use std::collections::BTreeMap;
 use std::future::Future;

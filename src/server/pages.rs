@@ -10,14 +10,33 @@ use axum::http::{StatusCode, header};
 use axum::response::{IntoResponse, Response};
 
 use super::SharedState;
-use crate::fusion::EngineKind;
 use crate::fusion::zupt::ZuptConfig;
+use crate::fusion::{EngineKind, Params};
+
+/// One embedded file.
+struct Asset {
+    path: &'static str,
+    content_type: &'static str,
+    bytes: &'static [u8],
+}
+
+macro_rules! asset {
+    ($path:literal, $type:literal) => {
+        Asset {
+            path: $path,
+            content_type: $type,
+            bytes: include_bytes!(concat!("../../static/", $path)),
+        }
+    };
+}
 
 /// `GET /`: one card per machine.
 #[derive(Template, WebTemplate)]
 #[template(path = "fleet.html")]
 pub struct FleetPage {
     machines: Vec<MachineCard>,
+    /// Every engine's script: each gives its card rows.
+    engine_scripts: Vec<&'static str>,
 }
 
 struct MachineCard {
@@ -34,21 +53,90 @@ pub struct MachinePage {
     name: String,
     /// Engine names, comma-separated.
     engines: String,
-    /// The machine runs the `attitude` engine (charts, laser, ANFIS).
-    attitude: bool,
-    /// The `zupt` engine's detector and decision latency (about), if the
-    /// machine runs it (plan, profile, distance, detector state).
-    zupt: Option<ZuptView>,
-    /// The machine runs the `fuzzy` engine (compass, static degree, bias,
-    /// magnetometer calibration).
-    fuzzy: bool,
+    /// Each engine's section, in the machine's engine order.
+    sections: Vec<EngineSection>,
 }
 
-struct ZuptView {
-    detector: String,
+/// An engine's part of a machine page: its section (a template in
+/// `templates/engines/`) and the script that fills it (in `static/`).
+pub struct EngineSection {
+    pub html: String,
+    pub script: &'static str,
+}
+
+/// The `attitude` section: laser state, pitch and roll, the ANFIS, the noise.
+#[derive(Template)]
+#[template(path = "engines/attitude.html")]
+struct AttitudeSection;
+
+/// The `zupt` section; the detector and how far behind it decides.
+#[derive(Template)]
+#[template(path = "engines/zupt.html")]
+struct ZuptSection {
+    detector: &'static str,
     /// Samples the centred windows wait for, and the minimum rest, s.
     lookahead_samples: usize,
     min_zv_s: f64,
+}
+
+/// The `fuzzy` section: motion status, compass, calibration, bias.
+#[derive(Template)]
+#[template(path = "engines/fuzzy.html")]
+struct FuzzySection;
+
+/// Why an engine's section could not be made.
+#[derive(Debug, thiserror::Error)]
+pub enum SectionError {
+    #[error("the {engine} engine's parameters: {source}")]
+    Params {
+        engine: EngineKind,
+        source: crate::fusion::ParamError,
+    },
+    #[error("the {engine} engine's section: {source}")]
+    Render {
+        engine: EngineKind,
+        source: askama::Error,
+    },
+}
+
+/// The section of a machine page for `engine` running with `params`.
+/// Adding an engine: its template in `templates/engines/`, its script in
+/// `static/` (registering itself with `tn.registerEngine`), its arm here
+/// and in [`engine_script`].
+pub fn engine_section(engine: EngineKind, params: &Params) -> Result<EngineSection, SectionError> {
+    let html = match engine {
+        EngineKind::Attitude => AttitudeSection.render(),
+        EngineKind::Zupt => {
+            let config = ZuptConfig::from_params(params)
+                .map_err(|source| SectionError::Params { engine, source })?;
+            let pipeline = &config.pipeline;
+            ZuptSection {
+                detector: pipeline.detector.as_str(),
+                lookahead_samples: pipeline.lookahead_samples(),
+                min_zv_s: pipeline.min_run_s,
+            }
+            .render()
+        }
+        EngineKind::Fuzzy => FuzzySection.render(),
+    }
+    .map_err(|source| SectionError::Render { engine, source })?;
+    Ok(EngineSection {
+        html,
+        script: engine_script(engine).path,
+    })
+}
+
+/// The script of an engine's section (also loaded by the fleet page for
+/// its card rows).
+fn engine_script(engine: EngineKind) -> &'static Asset {
+    const ATTITUDE: Asset = asset!("attitude.js", "text/javascript; charset=utf-8");
+    const ZUPT: Asset = asset!("zupt.js", "text/javascript; charset=utf-8");
+    const FUZZY: Asset = asset!("fuzzy.js", "text/javascript; charset=utf-8");
+    match engine {
+        EngineKind::Attitude => &ATTITUDE,
+        EngineKind::Zupt => &ZUPT,
+        EngineKind::Fuzzy => &FUZZY,
+    }
 }
 
 #[derive(Template, WebTemplate)]
@@ -73,6 +161,10 @@ pub async fn fleet(State(state): State<SharedState>) -> FleetPage {
                 engines: engine_list(m.spec.engines.keys().copied()),
             })
             .collect(),
+        engine_scripts: EngineKind::ALL
+            .iter()
+            .map(|&engine| engine_script(engine).path)
+            .collect(),
     }
 }
 
@@ -84,44 +176,23 @@ pub async fn machine(State(state): State<SharedState>, Path(id): Path<String>) -
         };
         return (StatusCode::NOT_FOUND, page).into_response();
     };
-    MachinePage {
-        id: machine.spec.id.clone(),
-        name: machine.spec.name.clone(),
-        engines: engine_list(machine.spec.engines.keys().copied()),
-        attitude: machine.spec.engines.contains_key(&EngineKind::Attitude),
-        zupt: machine
-            .spec
-            .engines
-            .get(&EngineKind::Zupt)
-            .and_then(|params| ZuptConfig::from_params(params).ok())
-            .map(|config| {
-                let pipeline = &config.pipeline;
-                ZuptView {
-                    detector: pipeline.detector.as_str().to_string(),
-                    lookahead_samples: pipeline.lookahead_samples(),
-                    min_zv_s: pipeline.min_run_s,
-                }
-            }),
-        fuzzy: machine.spec.engines.contains_key(&EngineKind::Fuzzy),
-    }
-    .into_response()
-}
-
-/// One embedded file.
-struct Asset {
-    path: &'static str,
-    content_type: &'static str,
-    bytes: &'static [u8],
-}
-
-macro_rules! asset {
-    ($path:literal, $type:literal) => {
-        Asset {
-            path: $path,
-            content_type: $type,
-            bytes: include_bytes!(concat!("../../static/", $path)),
+    let sections: Result<Vec<EngineSection>, SectionError> = machine
+        .spec
+        .engines
+        .iter()
+        .map(|(&engine, params)| engine_section(engine, params))
+        .collect();
+    match sections {
+        Ok(sections) => MachinePage {
+            id: machine.spec.id.clone(),
+            name: machine.spec.name.clone(),
+            engines: engine_list(machine.spec.engines.keys().copied()),
+            sections,
         }
-    };
+        .into_response(),
+        // A stored declaration's parameters were validated when declared.
+        Err(e) => (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()).into_response(),
+    }
 }
 
 const ASSETS: &[Asset] = &[
@@ -129,9 +200,7 @@ const ASSETS: &[Asset] = &[
     asset!("common.js", "text/javascript; charset=utf-8"),
     asset!("favicon.svg", "image/svg+xml"),
     asset!("fleet.js", "text/javascript; charset=utf-8"),
-    asset!("attitude.js", "text/javascript; charset=utf-8"),
-    asset!("zupt.js", "text/javascript; charset=utf-8"),
-    asset!("fuzzy.js", "text/javascript; charset=utf-8"),
+    asset!("machine.js", "text/javascript; charset=utf-8"),
     asset!(
         "vendor/uplot/uPlot.iife.min.js",
         "text/javascript; charset=utf-8"
@@ -143,7 +212,11 @@ const ASSETS: &[Asset] = &[
 /// `GET /static/{*path}`: the embedded assets. Ours are revalidated on
 /// every load (they change with the binary); vendored ones are cached.
 pub async fn asset(Path(path): Path<String>) -> Response {
-    let Some(asset) = ASSETS.iter().find(|a| a.path == path) else {
+    let Some(asset) = ASSETS
+        .iter()
+        .chain(EngineKind::ALL.iter().map(|&engine| engine_script(engine)))
+        .find(|a| a.path == path)
+    else {
         let page = NotFoundPage {
             what: format!("There is no static file `{path}`."),
         };

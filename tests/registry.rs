@@ -1,0 +1,197 @@
+//! Every engine in the registry (`src/fusion/registry.rs`) holds to what
+//! the rest of tunnelnav assumes of it: its parameters round-trip through
+//! its typed struct, a snapshot continues exactly, its NDJSON writer
+//! equals serde_json, its stored form round-trips, and its page section
+//! renders with its script. A new engine is checked here by being listed.
+
+mod common;
+
+use common::{TestServer, declare_machine};
+use tunnelnav::fusion::estimate::EstimateWriter;
+use tunnelnav::fusion::{EngineKind, EngineOutput, ParamValue, Params, Reading};
+use tunnelnav::sim::pipejack::{PipeJackDrive, PipeJackScenario};
+use tunnelnav::sim::tbm::{TbmDrive, TbmScenario};
+use tunnelnav::sim::vehicle::{VehicleDrive, VehicleScenario};
+
+/// A few minutes of the sensors `engine` consumes.
+fn drive(engine: EngineKind) -> Vec<Reading> {
+    match engine {
+        EngineKind::Attitude => TbmDrive::new(TbmScenario {
+            seed: 2,
+            hours: 0.5,
+            laser_period_s: 30.0,
+            ..TbmScenario::default()
+        })
+        .unwrap()
+        .map(|event| event.reading)
+        .collect(),
+        EngineKind::Zupt => PipeJackDrive::new(PipeJackScenario {
+            seed: 2,
+            ..PipeJackScenario::default()
+        })
+        .unwrap()
+        .take(12_000)
+        .map(|event| event.reading)
+        .collect(),
+        EngineKind::Fuzzy => VehicleDrive::new(VehicleScenario {
+            seed: 2,
+            duration_s: 300.0,
+            ..VehicleScenario::default()
+        })
+        .unwrap()
+        .take(12_000)
+        .map(|event| event.reading)
+        .collect(),
+    }
+}
+
+/// Every output of `engine` fed `readings`, flushed at the end.
+fn run(engine: &mut dyn tunnelnav::fusion::Engine, readings: &[Reading]) -> Vec<EngineOutput> {
+    let mut out = Vec::new();
+    for reading in readings {
+        engine.feed(reading, &mut out);
+    }
+    out
+}
+
+#[test]
+fn parameters_round_trip_through_each_engines_typed_struct() {
+    for &kind in EngineKind::ALL {
+        let defaults = Params::defaults(kind.specs());
+        assert_eq!(kind.read_params(&defaults).unwrap(), defaults, "{kind}");
+        // Every value as text, as `--param` gives it.
+        let words: Vec<String> = kind
+            .specs()
+            .iter()
+            .map(|spec| format!("{}={}", spec.name, spec.default_value()))
+            .collect();
+        let parsed = kind
+            .params_from_assignments(words.iter().map(String::as_str))
+            .unwrap();
+        assert_eq!(parsed, defaults, "{kind}");
+        // A changed value is read, and written back as given.
+        let spec = kind
+            .specs()
+            .iter()
+            .find(|spec| matches!(spec.default_value(), ParamValue::Bool(_)))
+            .or_else(|| kind.specs().first())
+            .unwrap();
+        let changed = match spec.default_value() {
+            ParamValue::Bool(b) => ParamValue::Bool(!b),
+            other => other,
+        };
+        let params = kind.params([(spec.name.to_string(), changed)]).unwrap();
+        assert_eq!(kind.read_params(&params).unwrap(), params, "{kind}");
+        let engine = kind.create(params.clone()).unwrap();
+        assert_eq!(engine.params(), &params, "{kind}");
+        assert_eq!(engine.kind(), kind);
+    }
+}
+
+#[test]
+fn a_snapshot_continues_exactly_and_estimates_write_and_store_exactly() {
+    for &kind in EngineKind::ALL {
+        let readings = drive(kind);
+        let half = readings.len() / 2;
+        let params = Params::defaults(kind.specs());
+
+        let mut whole = kind.create(params.clone()).unwrap();
+        let expected = run(whole.as_mut(), &readings);
+        assert!(
+            expected.len() > readings.len() / 4,
+            "{kind}: {}",
+            expected.len()
+        );
+
+        // Snapshot half way, through its JSON text, and go on.
+        let mut first = kind.create(params).unwrap();
+        let mut outputs = run(first.as_mut(), &readings[..half]);
+        let text = serde_json::to_string(&first.snapshot()).unwrap();
+        let mut second = kind.restore(serde_json::from_str(&text).unwrap()).unwrap();
+        outputs.extend(run(second.as_mut(), &readings[half..]));
+        assert_eq!(
+            format!("{outputs:?}"),
+            format!("{expected:?}"),
+            "{kind}: restored engine diverged"
+        );
+        assert_eq!(second.params(), whole.params());
+
+        let mut writer = EstimateWriter::new("reg-1");
+        for output in &expected {
+            assert_eq!(output.values.engine(), kind);
+            // The NDJSON writer is serde_json, byte for byte.
+            let mut ours = Vec::new();
+            writer.write_line(output, &mut ours);
+            let mut serde = serde_json::to_vec(&output.for_machine("reg-1")).unwrap();
+            serde.push(b'\n');
+            assert_eq!(
+                String::from_utf8(ours).unwrap(),
+                String::from_utf8(serde).unwrap(),
+                "{kind}"
+            );
+            // The stored form of this release decodes to the same values.
+            let bytes = output.values.encode();
+            let back =
+                tunnelnav::fusion::EstimateValues::decode(kind, kind.codec_version(), &bytes)
+                    .unwrap();
+            assert_eq!(
+                format!("{back:?}"),
+                format!("{:?}", output.values),
+                "{kind}"
+            );
+        }
+        // A model, if the engine has one, serialises.
+        if let Some(model) = whole.model() {
+            assert!(serde_json::to_value(model).unwrap().is_object(), "{kind}");
+        }
+    }
+}
+
+#[tokio::test]
+async fn each_engines_page_section_renders_with_its_script() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start(dir.path()).await;
+    let client = reqwest::Client::new();
+    let base = server.url("");
+    for &kind in EngineKind::ALL {
+        let section =
+            tunnelnav::server::pages::engine_section(kind, &Params::defaults(kind.specs()))
+                .unwrap();
+        assert!(section.html.contains(&format!("id=\"{kind}\"")), "{kind}");
+
+        let machine = format!("page-{kind}");
+        let body = format!(r#"{{"engines": {{"{kind}": {{}}}}}}"#);
+        declare_machine(&client, &base, &machine, &body).await;
+        let page = client
+            .get(format!("{base}/machines/{machine}"))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(page.status(), 200);
+        let html = page.text().await.unwrap();
+        let tag = format!("<script src=\"/static/{}\">", section.script);
+        assert!(html.contains(&tag), "{kind}: {tag}");
+        let script = client
+            .get(format!("{base}/static/{}", section.script))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(script.status(), 200, "{kind}");
+        let text = script.text().await.unwrap();
+        assert!(
+            text.contains(&format!("tn.registerEngine('{kind}'")),
+            "{kind}: the script registers itself"
+        );
+        // The fleet page loads every engine's script for its card.
+        let fleet = client
+            .get(&base)
+            .send()
+            .await
+            .unwrap()
+            .text()
+            .await
+            .unwrap();
+        assert!(fleet.contains(&tag), "{kind}");
+    }
+    server.stop().await;
+}
