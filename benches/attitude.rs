@@ -8,6 +8,7 @@ use std::hint::black_box;
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use tunnelnav::fusion::attitude::anfis::{Anfis, TrainingSample};
 use tunnelnav::fusion::attitude::{AttitudeConfig, AttitudeEngine, PARAMS};
+use tunnelnav::fusion::pipeline::Pipeline;
 use tunnelnav::fusion::{Engine, Params, Reading};
 use tunnelnav::replay::{ReplayOptions, replay};
 use tunnelnav::sim::tbm::{TbmDrive, TbmScenario};
@@ -39,7 +40,8 @@ fn replay_throughput(c: &mut Criterion) {
         let mut out = Vec::with_capacity(ndjson.len() * 3);
         b.iter(|| {
             out.clear();
-            let mut engine = AttitudeEngine::with_defaults();
+            let mut engine =
+                Pipeline::with_engines(vec![Box::new(AttitudeEngine::with_defaults())]);
             let summary = replay(
                 &ndjson[..],
                 &mut out,

@@ -10,6 +10,7 @@ use std::hint::black_box;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use tunnelnav::fusion::fuzzy::FuzzyEngine;
+use tunnelnav::fusion::pipeline::Pipeline;
 use tunnelnav::fusion::{Engine, Reading, SensorKind};
 use tunnelnav::replay::{ReplayOptions, replay};
 use tunnelnav::sim::vehicle::{VehicleDrive, VehicleScenario};
@@ -51,7 +52,7 @@ fn throughput(c: &mut Criterion) {
         let mut out = Vec::with_capacity(ndjson.len() * 3);
         b.iter(|| {
             out.clear();
-            let mut engine = FuzzyEngine::with_defaults();
+            let mut engine = Pipeline::with_engines(vec![Box::new(FuzzyEngine::with_defaults())]);
             let summary = replay(
                 &ndjson[..],
                 &mut out,

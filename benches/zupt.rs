@@ -9,6 +9,7 @@
 use std::hint::black_box;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use tunnelnav::fusion::pipeline::Pipeline;
 use tunnelnav::fusion::zupt::ZuptEngine;
 use tunnelnav::fusion::{Engine, Reading, SensorKind};
 use tunnelnav::replay::{ReplayOptions, replay};
@@ -52,7 +53,7 @@ fn throughput(c: &mut Criterion) {
         let mut out = Vec::with_capacity(ndjson.len() * 3);
         b.iter(|| {
             out.clear();
-            let mut engine = ZuptEngine::with_defaults();
+            let mut engine = Pipeline::with_engines(vec![Box::new(ZuptEngine::with_defaults())]);
             let summary = replay(
                 &ndjson[..],
                 &mut out,

@@ -6,7 +6,9 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use crate::fusion::{EngineKind, ParamError, ParamValue, Params, UnknownEngine};
+use crate::fusion::{
+    Declaration, EngineKind, ParamError, ParamValue, Params, StreamKind, UnknownEngine,
+};
 
 /// Longest machine display name, in characters.
 pub const MAX_NAME_CHARS: usize = 200;
@@ -125,6 +127,26 @@ impl MachineDeclaration {
 }
 
 impl MachineSpec {
+    /// What the stages read of this declaration.
+    pub fn stage_declaration(&self) -> Declaration {
+        Declaration::of_engines(self.engines.keys().copied())
+    }
+
+    /// Every stream of estimates the machine has: its engines', then its
+    /// stages' (registry order).
+    pub fn streams(&self) -> Vec<StreamKind> {
+        self.engines
+            .keys()
+            .map(|&engine| StreamKind::from(engine))
+            .chain(
+                self.stage_declaration()
+                    .stages()
+                    .into_iter()
+                    .map(StreamKind::from),
+            )
+            .collect()
+    }
+
     /// A machine stored by an earlier release made current: retired
     /// parameters dropped, new ones at their defaults (see
     /// [`Params::upgraded`]).

@@ -19,9 +19,11 @@ use tokio::sync::{broadcast, mpsc, oneshot, watch};
 
 use crate::config::MachineSpec;
 use crate::fusion::estimate::EstimateWriter;
+use crate::fusion::pipeline::{Pipeline, PipelineState};
 use crate::fusion::reorder::{Admission, ReorderBuffer};
 use crate::fusion::{
-    Engine, EngineKind, EngineModel, EngineOutput, ParamError, Reading, SensorKind, SnapshotError,
+    EngineKind, EngineModel, EngineOutput, ParamError, Reading, SensorKind, SnapshotError,
+    StreamKind,
 };
 use crate::store::{EstimateRow, ReadingRow, Store, StoreError, Write, WriteOutcome};
 
@@ -55,7 +57,8 @@ pub enum MachineError {
 /// An estimate as the machine emits it: attributed, serialised once.
 #[derive(Debug, Clone)]
 pub struct FusedEstimate {
-    pub engine: EngineKind,
+    /// The engine or stage that made it.
+    pub engine: StreamKind,
     pub t: f64,
     /// The protocol JSON, one object, no newline.
     pub json: Arc<str>,
@@ -72,11 +75,11 @@ pub struct Emitted {
 /// What live clients receive.
 pub type LiveEstimate = Arc<FusedEstimate>;
 
-/// A machine's engines and reorder buffer: deterministic, no IO. The same
-/// readings in the same arrival order give the same estimates here, in a
-/// restored copy, and (for time-ordered input) in `replay`.
+/// A machine's engines, stages and reorder buffer: deterministic, no IO.
+/// The same readings in the same arrival order give the same estimates
+/// here, in a restored copy, and (for time-ordered input) in `replay`.
 pub struct MachineCore {
-    engines: Vec<Box<dyn Engine>>,
+    pipeline: Pipeline,
     reorder: ReorderBuffer,
     writer: EstimateWriter,
     ready: Vec<Reading>,
@@ -86,43 +89,36 @@ pub struct MachineCore {
 
 #[derive(Serialize, Deserialize)]
 struct CoreState {
-    engines: BTreeMap<EngineKind, serde_json::Value>,
+    #[serde(flatten)]
+    pipeline: PipelineState,
     reorder: serde_json::Value,
 }
 
 impl MachineCore {
-    /// Fresh engines for `spec`.
+    /// Fresh engines and stages for `spec`.
     pub fn new(spec: &MachineSpec) -> Result<MachineCore, ParamError> {
-        let engines = spec
-            .engines
-            .iter()
-            .map(|(kind, params)| kind.create(params.clone()))
-            .collect::<Result<_, _>>()?;
+        let pipeline = Pipeline::new(spec.engines.iter().map(|(&kind, params)| (kind, params)))?;
         Ok(Self::assemble(
             spec,
-            engines,
+            pipeline,
             ReorderBuffer::new(spec.reorder_window_s, REORDER_MAX_LEN),
         ))
     }
 
-    /// Engines continuing from a [`MachineCore::snapshot`].
+    /// Engines and stages continuing from a [`MachineCore::snapshot`].
     pub fn restore(spec: &MachineSpec, state: &str) -> Result<MachineCore, SnapshotError> {
         let state: CoreState =
             serde_json::from_str(state).map_err(|e| SnapshotError::Invalid(e.to_string()))?;
-        let mut engines = Vec::new();
-        for (kind, snapshot) in state.engines {
-            engines.push(kind.restore(snapshot)?);
-        }
         Ok(Self::assemble(
             spec,
-            engines,
+            Pipeline::restore(state.pipeline)?,
             ReorderBuffer::restore(state.reorder)?,
         ))
     }
 
-    fn assemble(spec: &MachineSpec, engines: Vec<Box<dyn Engine>>, reorder: ReorderBuffer) -> Self {
+    fn assemble(spec: &MachineSpec, pipeline: Pipeline, reorder: ReorderBuffer) -> Self {
         MachineCore {
-            engines,
+            pipeline,
             reorder,
             writer: EstimateWriter::new(&spec.id),
             ready: Vec::new(),
@@ -134,11 +130,7 @@ impl MachineCore {
     /// The whole state as JSON.
     pub fn snapshot(&self) -> String {
         let state = CoreState {
-            engines: self
-                .engines
-                .iter()
-                .map(|e| (e.kind(), e.snapshot()))
-                .collect(),
+            pipeline: self.pipeline.state(),
             reorder: self.reorder.snapshot(),
         };
         serde_json::to_string(&state).unwrap_or_default()
@@ -149,26 +141,20 @@ impl MachineCore {
         let admission = self.reorder.push(reading);
         self.reorder.pop_ready(&mut self.ready);
         for reading in self.ready.drain(..) {
-            let sensor = reading.sensor();
-            for engine in &mut self.engines {
-                if !engine.kind().sensors().contains(&sensor) {
-                    continue;
-                }
-                self.outputs.clear();
-                engine.feed(&reading, &mut self.outputs);
-                for output in &self.outputs {
-                    self.line.clear();
-                    self.writer.write_line(output, &mut self.line);
-                    let json = std::str::from_utf8(self.line.trim_ascii_end()).unwrap_or("{}");
-                    out.push(Emitted {
-                        live: FusedEstimate {
-                            engine: output.values.engine(),
-                            t: output.t,
-                            json: Arc::from(json),
-                        },
-                        row: EstimateRow::new(output),
-                    });
-                }
+            self.outputs.clear();
+            self.pipeline.feed(&reading, &mut self.outputs);
+            for output in &self.outputs {
+                self.line.clear();
+                self.writer.write_line(output, &mut self.line);
+                let json = std::str::from_utf8(self.line.trim_ascii_end()).unwrap_or("{}");
+                out.push(Emitted {
+                    live: FusedEstimate {
+                        engine: output.values.stream(),
+                        t: output.t,
+                        json: Arc::from(json),
+                    },
+                    row: EstimateRow::new(output),
+                });
             }
         }
         admission
@@ -176,10 +162,7 @@ impl MachineCore {
 
     /// Each engine's model report, if it has one.
     pub fn models(&self) -> BTreeMap<EngineKind, EngineModel> {
-        self.engines
-            .iter()
-            .filter_map(|e| e.model().map(|m| (e.kind(), m)))
-            .collect()
+        self.pipeline.models()
     }
 }
 
@@ -195,8 +178,8 @@ pub struct SensorStatus {
 /// What a machine looks like now; published after every request.
 #[derive(Debug, Clone, Default)]
 pub struct MachineStatus {
-    /// Latest estimate of each engine, protocol JSON.
-    pub latest: BTreeMap<EngineKind, LiveEstimate>,
+    /// Latest estimate of each engine and stage, protocol JSON.
+    pub latest: BTreeMap<StreamKind, LiveEstimate>,
     pub sensors: BTreeMap<SensorKind, SensorStatus>,
     /// Readings dropped as older than one of the same sensor already fused
     /// (stored all the same), since the server started.
@@ -289,7 +272,7 @@ pub fn stored_status(
     db_id: i64,
 ) -> Result<MachineStatus, MachineError> {
     let mut status = MachineStatus::default();
-    for &engine in spec.engines.keys() {
+    for engine in spec.streams() {
         let Some(output) = store.latest_estimate(db_id, engine)? else {
             continue;
         };
@@ -336,6 +319,14 @@ pub fn recover(store: &Store, spec: &MachineSpec, db_id: i64) -> Result<MachineC
                 tracing::warn!(
                     machine = %spec.id, %engine, found, expected,
                     "snapshot from an earlier release: rebuilding the engines from the stored readings"
+                );
+                (MachineCore::new(spec)?, 0)
+            }
+            // A stage this release adds starts with the machine's history.
+            Err(SnapshotError::MissingStage(stage)) => {
+                tracing::warn!(
+                    machine = %spec.id, %stage,
+                    "snapshot without a stage the machine now runs: rebuilding from the stored readings"
                 );
                 (MachineCore::new(spec)?, 0)
             }

@@ -1,5 +1,5 @@
-//! Streams NDJSON readings through an engine and writes its estimates as
-//! NDJSON. Memory stays constant however long the input: one line is held
+//! Streams NDJSON readings through an engine (and the stages after it,
+//! as a machine running it has) and writes the estimates as NDJSON. Memory stays constant however long the input: one line is held
 //! at a time, plus the bounded reorder buffer.
 
 use std::io::{self, BufRead, Write};
@@ -7,8 +7,9 @@ use std::io::{self, BufRead, Write};
 use serde::Serialize;
 
 use crate::fusion::estimate::EstimateWriter;
+use crate::fusion::parse_reading;
+use crate::fusion::pipeline::Pipeline;
 use crate::fusion::reorder::{Admission, ReorderBuffer};
-use crate::fusion::{Engine, parse_reading};
 
 /// Estimates are written out in chunks of about this many bytes.
 const FLUSH_BYTES: usize = 64 * 1024;
@@ -73,19 +74,18 @@ impl std::fmt::Display for ReplaySummary {
     }
 }
 
-/// Runs `engine` over the readings in `input`; estimates go to `output`,
-/// one line per rejected input line goes to `errors`.
+/// Runs `pipeline` over the readings in `input`; estimates go to
+/// `output`, one line per rejected input line goes to `errors`.
 pub fn replay(
     input: impl BufRead,
     mut output: impl Write,
     mut errors: impl Write,
-    engine: &mut dyn Engine,
+    pipeline: &mut Pipeline,
     options: &ReplayOptions,
 ) -> io::Result<ReplaySummary> {
     let mut input = input;
     let mut summary = ReplaySummary::default();
     let mut reorder = ReorderBuffer::new(options.reorder_window_s, options.reorder_max_len);
-    let sensors = engine.kind().sensors();
     let mut line = Vec::with_capacity(256);
     let mut line_number: u64 = 0;
     let mut ready = Vec::new();
@@ -95,13 +95,13 @@ pub fn replay(
     let mut pending = Vec::with_capacity(FLUSH_BYTES + 1024);
     let mut writer = EstimateWriter::new(&options.machine);
     let mut feed = |ready: &mut Vec<_>,
-                    engine: &mut dyn Engine,
+                    pipeline: &mut Pipeline,
                     pending: &mut Vec<u8>,
                     summary: &mut ReplaySummary|
      -> io::Result<()> {
         for reading in ready.drain(..) {
             outputs.clear();
-            engine.feed(&reading, &mut outputs);
+            pipeline.feed(&reading, &mut outputs);
             for estimate in &outputs {
                 writer.write_line(estimate, pending);
                 summary.estimates += 1;
@@ -141,7 +141,7 @@ pub fn replay(
             }
         };
         summary.readings += 1;
-        if !sensors.contains(&reading.sensor()) {
+        if !pipeline.uses(reading.sensor()) {
             summary.unused += 1;
             continue;
         }
@@ -156,17 +156,17 @@ pub fn replay(
             Admission::Duplicate => {}
         }
         reorder.pop_ready(&mut ready);
-        feed(&mut ready, engine, &mut pending, &mut summary)?;
+        feed(&mut ready, pipeline, &mut pending, &mut summary)?;
         if pending.len() >= FLUSH_BYTES {
             output.write_all(&pending)?;
             pending.clear();
         }
     }
     reorder.drain(&mut ready);
-    feed(&mut ready, engine, &mut pending, &mut summary)?;
-    // The end of the input: what the engine still holds comes out too.
+    feed(&mut ready, pipeline, &mut pending, &mut summary)?;
+    // The end of the input: what the engines still hold comes out too.
     let mut held = Vec::new();
-    engine.flush(&mut held);
+    pipeline.flush(&mut held);
     for estimate in &held {
         writer.write_line(estimate, &mut pending);
         summary.estimates += 1;
@@ -185,10 +185,12 @@ mod tests {
     use crate::fusion::EngineKind;
     use crate::fusion::Params;
 
-    fn engine() -> Box<dyn Engine> {
-        EngineKind::Attitude
-            .create(Params::defaults(EngineKind::Attitude.specs()))
-            .unwrap()
+    fn engine() -> Pipeline {
+        Pipeline::new([(
+            EngineKind::Attitude,
+            &Params::defaults(EngineKind::Attitude.specs()),
+        )])
+        .unwrap()
     }
 
     #[test]
@@ -206,7 +208,7 @@ mod tests {
             &input[..],
             std::io::sink(),
             &mut err,
-            engine().as_mut(),
+            &mut engine(),
             &ReplayOptions::default(),
         )
         .unwrap();
@@ -235,7 +237,7 @@ not json
             input.as_bytes(),
             &mut out,
             &mut err,
-            engine().as_mut(),
+            &mut engine(),
             &ReplayOptions::default(),
         )
         .unwrap();

@@ -8,7 +8,10 @@ mod common;
 
 use common::{TestServer, declare_machine};
 use tunnelnav::fusion::estimate::EstimateWriter;
-use tunnelnav::fusion::{EngineKind, EngineOutput, ParamValue, Params, Reading};
+use tunnelnav::fusion::pipeline::Pipeline;
+use tunnelnav::fusion::{
+    Declaration, EngineKind, EngineOutput, ParamValue, Params, Reading, StageKind, StreamKind,
+};
 use tunnelnav::sim::pipejack::{PipeJackDrive, PipeJackScenario};
 use tunnelnav::sim::tbm::{TbmDrive, TbmScenario};
 use tunnelnav::sim::vehicle::{VehicleDrive, VehicleScenario};
@@ -30,7 +33,7 @@ fn drive(engine: EngineKind) -> Vec<Reading> {
             ..PipeJackScenario::default()
         })
         .unwrap()
-        .take(12_000)
+        .take(40_000)
         .map(|event| event.reading)
         .collect(),
         EngineKind::Fuzzy => VehicleDrive::new(VehicleScenario {
@@ -118,7 +121,7 @@ fn a_snapshot_continues_exactly_and_estimates_write_and_store_exactly() {
 
         let mut writer = EstimateWriter::new("reg-1");
         for output in &expected {
-            assert_eq!(output.values.engine(), kind);
+            assert_eq!(output.values.stream(), StreamKind::from(kind));
             // The NDJSON writer is serde_json, byte for byte.
             let mut ours = Vec::new();
             writer.write_line(output, &mut ours);
@@ -131,9 +134,12 @@ fn a_snapshot_continues_exactly_and_estimates_write_and_store_exactly() {
             );
             // The stored form of this release decodes to the same values.
             let bytes = output.values.encode();
-            let back =
-                tunnelnav::fusion::EstimateValues::decode(kind, kind.codec_version(), &bytes)
-                    .unwrap();
+            let back = tunnelnav::fusion::EstimateValues::decode(
+                kind.into(),
+                kind.codec_version(),
+                &bytes,
+            )
+            .unwrap();
             assert_eq!(
                 format!("{back:?}"),
                 format!("{:?}", output.values),
@@ -194,4 +200,68 @@ async fn each_engines_page_section_renders_with_its_script() {
         assert!(fleet.contains(&tag), "{kind}");
     }
     server.stop().await;
+}
+
+#[test]
+fn every_stage_runs_after_an_engine_and_writes_stores_and_continues_exactly() {
+    for &stage in StageKind::ALL {
+        // The engines whose declaration alone calls for the stage.
+        let engines: Vec<EngineKind> = EngineKind::ALL
+            .iter()
+            .copied()
+            .filter(|&engine| Declaration::of_engines([engine]).stages().contains(&stage))
+            .collect();
+        assert!(!engines.is_empty(), "{stage}: no engine calls for it");
+        for engine in engines {
+            let readings = drive(engine);
+            let params = Params::defaults(engine.specs());
+            let mut whole = Pipeline::new([(engine, &params)]).unwrap();
+            assert_eq!(whole.stages().collect::<Vec<_>>(), [stage]);
+            let mut expected = Vec::new();
+            for reading in &readings {
+                whole.feed(reading, &mut expected);
+            }
+            whole.flush(&mut expected);
+            let derived: Vec<&EngineOutput> = expected
+                .iter()
+                .filter(|o| o.values.stream() == StreamKind::from(stage))
+                .collect();
+            assert!(!derived.is_empty(), "{stage} after {engine}: no output");
+
+            // Through a snapshot half way, the same outputs.
+            let half = readings.len() / 2;
+            let mut first = Pipeline::new([(engine, &params)]).unwrap();
+            let mut outputs = Vec::new();
+            for reading in &readings[..half] {
+                first.feed(reading, &mut outputs);
+            }
+            let text = serde_json::to_string(&first.state()).unwrap();
+            let mut second = Pipeline::restore(serde_json::from_str(&text).unwrap()).unwrap();
+            for reading in &readings[half..] {
+                second.feed(reading, &mut outputs);
+            }
+            second.flush(&mut outputs);
+            assert_eq!(format!("{outputs:?}"), format!("{expected:?}"), "{stage}");
+
+            let mut writer = EstimateWriter::new("reg-1");
+            for output in derived {
+                let mut ours = Vec::new();
+                writer.write_line(output, &mut ours);
+                let mut serde = serde_json::to_vec(&output.for_machine("reg-1")).unwrap();
+                serde.push(b'\n');
+                assert_eq!(
+                    String::from_utf8(ours).unwrap(),
+                    String::from_utf8(serde).unwrap()
+                );
+                let stream = output.values.stream();
+                let back = tunnelnav::fusion::EstimateValues::decode(
+                    stream,
+                    stream.codec_version(),
+                    &output.values.encode(),
+                )
+                .unwrap();
+                assert_eq!(format!("{back:?}"), format!("{:?}", output.values));
+            }
+        }
+    }
 }

@@ -18,7 +18,7 @@
 mod common;
 
 use common::{
-    ServerProcess, all_estimates, exported_readings, get_json, post_ndjson, replay_engine,
+    ServerProcess, all_estimates, exported_readings, get_json, post_ndjson, stream_estimates,
 };
 use serde_json::Value;
 use tunnelnav::sim::pipejack::{PipeJackDrive, PipeJackScenario};
@@ -37,8 +37,22 @@ fn serve_fixture(fixture: &str) -> (tempfile::TempDir, ServerProcess) {
 }
 
 /// `replay` of `lines` by `engine` with the parameters a machine
-/// declares (as its `config.engines.<engine>` object).
+/// declares (as its `config.engines.<engine>` object): the engine's
+/// estimates.
 fn replay_with_params(
+    machine: &str,
+    engine: &str,
+    params: &serde_json::Map<String, Value>,
+    lines: &[String],
+) -> Vec<Value> {
+    replay_streams_with_params(machine, engine, params, lines)
+        .into_iter()
+        .filter(|e| e["engine"] == engine)
+        .collect()
+}
+
+/// Like [`replay_with_params`], every stream: the engine's and its stages'.
+fn replay_streams_with_params(
     machine: &str,
     engine: &str,
     params: &serde_json::Map<String, Value>,
@@ -52,7 +66,7 @@ fn replay_with_params(
         })
         .collect();
     let assignments: Vec<&str> = assignments.iter().map(String::as_str).collect();
-    replay_engine(machine, engine, &assignments, lines)
+    common::replay_streams(machine, engine, &assignments, lines)
 }
 
 /// The estimates after time `t`.
@@ -397,6 +411,18 @@ async fn a_database_from_before_issue_19_opens_serves_and_continues() {
             replayed_new[..served_new.len()],
             "{machine}"
         );
+        // A stage this release adds (the jacking log after `zupt`) was
+        // rebuilt with the machine's whole history, as replay has it.
+        if engine == "zupt" {
+            let served_pushes = stream_estimates(&client, &base, machine, "pushes").await;
+            let replayed_pushes: Vec<Value> =
+                replay_streams_with_params(machine, engine, &params, &lines)
+                    .into_iter()
+                    .filter(|e| e["engine"] == "pushes")
+                    .collect();
+            assert!(!served_pushes.is_empty());
+            assert_eq!(served_pushes[..], replayed_pushes[..served_pushes.len()]);
+        }
         let model = client
             .get(format!("{base}/api/v1/machines/{machine}/model"))
             .send()

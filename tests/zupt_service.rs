@@ -5,7 +5,10 @@
 
 mod common;
 
-use common::{TestServer, all_estimates, declare_machine, post_ndjson, replay_engine};
+use common::{
+    TestServer, all_estimates, declare_machine, post_ndjson, replay_engine, replay_streams,
+    stream_estimates,
+};
 use serde_json::{Value, json};
 use tunnelnav::sim::pipejack::{PipeJackDrive, PipeJackScenario};
 
@@ -61,6 +64,7 @@ async fn served_estimates_match_replay_across_a_restart() {
     let base = server.url("");
     post_all(&client, &base, second).await;
     let served = all_estimates(&client, &base, MACHINE).await;
+    let served_pushes = stream_estimates(&client, &base, MACHINE, "pushes").await;
     server.stop().await;
 
     // Served: every IMU reading but the last few seconds, still held by
@@ -78,6 +82,21 @@ async fn served_estimates_match_replay_across_a_restart() {
     for (i, (s, r)) in served.iter().zip(&replayed).enumerate() {
         assert_eq!(s, r, "estimate {i}");
     }
+    // The jacking log after the engine: the same records as replay's
+    // (which has closed the last push too), each a stroke.
+    let replayed_pushes: Vec<Value> = replay_streams(MACHINE, "zupt", &PARAMS, &lines)
+        .into_iter()
+        .filter(|e| e["engine"] == "pushes")
+        .collect();
+    let logged = served_pushes.len();
+    assert!(logged >= 2, "{logged} pushes logged");
+    assert_eq!(served_pushes[..], replayed_pushes[..logged]);
+    for (i, push) in served_pushes.iter().enumerate() {
+        assert_eq!(push["push"], i + 1);
+        assert!(push["length_m"].as_f64().unwrap() > 0.1, "{push}");
+        assert!(push["duration_s"].as_f64().unwrap() > 1.0, "{push}");
+    }
+
     let last = served.last().unwrap();
     assert_eq!(last["aligned"], true);
     assert!(last["distance_m"].as_f64().unwrap() > 1.0, "{last}");

@@ -9,11 +9,13 @@ use clap::Args;
 
 use super::CliError;
 use crate::fusion::EngineKind;
+use crate::fusion::pipeline::Pipeline;
 use crate::replay::{ReplayOptions, replay};
 
 #[derive(Debug, Args)]
 pub struct ReplayArgs {
-    /// Engine to run.
+    /// Engine to run; the stages a machine running it has run after it
+    /// (`zupt`: the `pushes` jacking log).
     #[arg(long, value_enum)]
     pub engine: EngineKind,
     /// An engine parameter as name=value (repeatable); see `tunnelnav params`.
@@ -32,7 +34,7 @@ pub struct ReplayArgs {
 pub fn run(args: ReplayArgs) -> Result<(), CliError> {
     let kind = args.engine;
     let params = kind.params_from_assignments(args.params.iter().map(String::as_str))?;
-    let mut engine = kind.create(params)?;
+    let mut pipeline = Pipeline::with_engines(vec![kind.create(params)?]);
     let options = ReplayOptions {
         machine: args.machine,
         reorder_window_s: args.reorder_window_s,
@@ -45,7 +47,7 @@ pub fn run(args: ReplayArgs) -> Result<(), CliError> {
     let started = Instant::now();
     let result = if args.input.as_os_str() == "-" {
         let stdin = io::stdin();
-        replay(stdin.lock(), out, &mut err, engine.as_mut(), &options)
+        replay(stdin.lock(), out, &mut err, &mut pipeline, &options)
     } else {
         let file = File::open(&args.input).map_err(|source| CliError::File {
             context: format!("cannot open {}", args.input.display()),
@@ -55,7 +57,7 @@ pub fn run(args: ReplayArgs) -> Result<(), CliError> {
             BufReader::with_capacity(1 << 16, file),
             out,
             &mut err,
-            engine.as_mut(),
+            &mut pipeline,
             &options,
         )
     };

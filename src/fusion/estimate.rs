@@ -114,7 +114,7 @@ impl EstimateWriter {
         fields.number("t", output.t);
         fields.out.push(b',');
         fields.out.extend_from_slice(&self.machine_field);
-        fields.word("engine", output.values.engine().as_str());
+        fields.word("engine", output.values.stream().as_str());
         output.values.write_fields(&mut fields);
         out.extend_from_slice(b"}\n");
     }

@@ -8,9 +8,12 @@ pub mod attitude;
 pub mod estimate;
 pub mod fuzzy;
 pub mod params;
+pub mod pipeline;
+pub mod pushes;
 pub mod reading;
 pub mod registry;
 pub mod reorder;
+pub mod stage;
 pub mod zupt;
 
 pub use estimate::{
@@ -19,7 +22,11 @@ pub use estimate::{
 };
 pub use params::{ParamError, ParamKind, ParamSpec, ParamValue, Params, Retired};
 pub use reading::{Reading, ReadingError, SensorData, SensorKind, parse_reading};
-pub use registry::{CodecError, EngineDescriptor, EngineKind, EngineModel, NoModel, UnknownEngine};
+pub use registry::{
+    CodecError, EngineDescriptor, EngineKind, EngineModel, NoModel, StageDescriptor, StageKind,
+    StreamKind, UnknownEngine,
+};
+pub use stage::{Declaration, Stage};
 
 /// A fusion method that turns a machine's readings into estimates.
 ///
@@ -55,9 +62,9 @@ pub trait Engine: Send {
 /// Why a snapshot could not be restored.
 #[derive(Debug, thiserror::Error)]
 pub enum SnapshotError {
-    #[error("snapshot does not match the {engine} engine's state: {source}")]
+    #[error("snapshot does not match the {engine} state: {source}")]
     Shape {
-        engine: EngineKind,
+        engine: StreamKind,
         source: serde_json::Error,
     },
     #[error("snapshot holds invalid parameters: {0}")]
@@ -65,20 +72,22 @@ pub enum SnapshotError {
     #[error("snapshot state is inconsistent: {0}")]
     Invalid(String),
     #[error(
-        "snapshot of the {engine} engine has state version {found}, this release reads {expected}"
+        "snapshot of the {engine} state has state version {found}, this release reads {expected}"
     )]
     Outdated {
-        engine: EngineKind,
+        engine: StreamKind,
         found: u64,
         expected: u64,
     },
+    #[error("snapshot has no state of the {0} stage the machine now runs")]
+    MissingStage(StageKind),
 }
 
 impl SnapshotError {
     /// Refuses a snapshot whose `state_version` (1 when absent: before
     /// versions existed) is not `expected`, as outdated.
     pub fn check_version(
-        engine: EngineKind,
+        engine: impl Into<StreamKind>,
         snapshot: &serde_json::Value,
         expected: u32,
     ) -> Result<(), SnapshotError> {
@@ -90,7 +99,7 @@ impl SnapshotError {
             Ok(())
         } else {
             Err(SnapshotError::Outdated {
-                engine,
+                engine: engine.into(),
                 found,
                 expected: u64::from(expected),
             })
@@ -99,9 +108,12 @@ impl SnapshotError {
 
     /// An engine's state deserialised from its snapshot.
     pub fn parse<T: serde::de::DeserializeOwned>(
-        engine: EngineKind,
+        engine: impl Into<StreamKind>,
         snapshot: serde_json::Value,
     ) -> Result<T, SnapshotError> {
-        serde_json::from_value(snapshot).map_err(|source| SnapshotError::Shape { engine, source })
+        serde_json::from_value(snapshot).map_err(|source| SnapshotError::Shape {
+            engine: engine.into(),
+            source,
+        })
     }
 }

@@ -3,18 +3,22 @@
 //! Each engine module describes itself by implementing [`EngineDescriptor`]
 //! in one place: its sensors, parameter table, how it is created and
 //! restored, its estimate type (with that type's NDJSON writer and stored
-//! codec) and its model report. The [`engines!`] list at the bottom of this
+//! codec) and its model report. Each stage after the engines does the same
+//! with [`StageDescriptor`]. The [`registry!`] list at the bottom of this
 //! file turns the descriptors into [`EngineKind`] (a `clap::ValueEnum`),
-//! [`EstimateValues`] and [`EngineModel`], whose dispatch the compiler keeps
-//! complete. Adding an engine: its module, one line in that list, and its
-//! page section and script (`src/server/pages.rs` says where).
+//! [`StageKind`], [`StreamKind`] (engines and stages: what the estimates'
+//! `engine` field names), [`EstimateValues`] and [`EngineModel`], whose
+//! dispatch the compiler keeps complete. Adding an engine: its module, one
+//! line in that list, and its page section and script
+//! (`src/server/pages.rs` says where).
 
 use serde::{Deserialize, Serialize};
 
 use super::estimate::JsonFields;
 use super::params::{ParamError, ParamSpec, ParamValue, Params, Retired, TypedParams};
 use super::reading::SensorKind;
-use super::{Engine, SnapshotError, attitude, fuzzy, zupt};
+use super::stage::{Declaration, Stage};
+use super::{Engine, SnapshotError, attitude, fuzzy, pushes, zupt};
 
 /// What an engine module declares about itself.
 pub trait EngineDescriptor {
@@ -55,6 +59,32 @@ pub trait EngineDescriptor {
     fn extremes(estimate: &Self::Estimate) -> [f64; 2];
 }
 
+/// What a stage module declares about itself (see [`Stage`]).
+pub trait StageDescriptor {
+    /// One line on what the stage derives.
+    const SUMMARY: &'static str;
+    /// The version of [`StageDescriptor::Output`]'s stored form.
+    const CODEC_VERSION: u32;
+    /// The stage itself.
+    type Stage: Stage + 'static;
+    /// What the stage emits per estimate.
+    type Output: Serialize + serde::de::DeserializeOwned + Clone + PartialEq + std::fmt::Debug;
+
+    /// The stage for a machine so declared; `None` when the declaration
+    /// does not call for it.
+    fn create(declaration: &Declaration) -> Option<Self::Stage>;
+    /// A stage continuing from its [`Stage::snapshot`].
+    fn restore(snapshot: serde_json::Value) -> Result<Self::Stage, SnapshotError>;
+    /// The output's fields after `"engine"`, as serde_json writes them.
+    fn write_fields(output: &Self::Output, fields: &mut JsonFields<'_>);
+    /// The stored form of [`StageDescriptor::CODEC_VERSION`].
+    fn encode(output: &Self::Output) -> Vec<u8>;
+    /// An output stored with codec `version`.
+    fn decode(version: u32, bytes: &[u8]) -> Result<Self::Output, postcard::Error>;
+    /// The two quantities whose extremes history downsampling keeps.
+    fn extremes(output: &Self::Output) -> [f64; 2];
+}
+
 /// A model report for engines that have none.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 pub enum NoModel {}
@@ -63,16 +93,16 @@ pub enum NoModel {}
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum CodecError {
     #[error(
-        "a {engine} estimate stored with codec version {found}; this release reads up to {supported}"
+        "a {stream} estimate stored with codec version {found}; this release reads up to {supported}"
     )]
     Newer {
-        engine: EngineKind,
+        stream: StreamKind,
         found: u32,
         supported: u32,
     },
-    #[error("a {engine} estimate (codec version {version}) does not decode: {reason}")]
+    #[error("a {stream} estimate (codec version {version}) does not decode: {reason}")]
     Corrupt {
-        engine: EngineKind,
+        stream: StreamKind,
         version: u32,
         reason: String,
     },
@@ -86,8 +116,11 @@ pub struct UnknownEngine {
     pub known: String,
 }
 
-macro_rules! engines {
-    ( $( $(#[$doc:meta])* $Variant:ident = $name:literal => $Descriptor:ty ),+ $(,)? ) => {
+macro_rules! registry {
+    (
+        engines { $( $(#[$doc:meta])* $Variant:ident = $name:literal => $Descriptor:ty ),+ $(,)? }
+        stages { $( $(#[$sdoc:meta])* $Stage:ident = $sname:literal => $SDescriptor:ty ),+ $(,)? }
+    ) => {
         /// The engines tunnelnav knows.
         #[derive(
             Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord,
@@ -168,56 +201,172 @@ macro_rules! engines {
             }
         }
 
-        /// The engine-specific part of an estimate, tagged by `engine`.
+        /// The stages tunnelnav knows: each runs after the engines of the
+        /// machines whose declaration calls for it.
+        #[derive(
+            Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord,
+            Serialize, Deserialize,
+        )]
+        pub enum StageKind {
+            $( $(#[$sdoc])* #[serde(rename = $sname)] $Stage ),+
+        }
+
+        impl StageKind {
+            /// Every stage, in registry order.
+            pub const ALL: &'static [StageKind] = &[$(StageKind::$Stage),+];
+
+            /// The protocol name (its stream's `engine`).
+            pub fn as_str(self) -> &'static str {
+                match self { $( StageKind::$Stage => $sname ),+ }
+            }
+
+            /// One line on what the stage derives.
+            pub fn summary(self) -> &'static str {
+                match self { $( StageKind::$Stage => <$SDescriptor>::SUMMARY ),+ }
+            }
+
+            /// The stage for a machine so declared, if the declaration
+            /// calls for it.
+            pub fn create(self, declaration: &Declaration) -> Option<Box<dyn Stage>> {
+                match self {
+                    $( StageKind::$Stage => <$SDescriptor>::create(declaration)
+                        .map(|stage| Box::new(stage) as Box<dyn Stage>) ),+
+                }
+            }
+
+            /// A stage continuing from its [`Stage::snapshot`].
+            pub fn restore(
+                self,
+                snapshot: serde_json::Value,
+            ) -> Result<Box<dyn Stage>, SnapshotError> {
+                match self {
+                    $( StageKind::$Stage => Ok(Box::new(<$SDescriptor>::restore(snapshot)?)) ),+
+                }
+            }
+        }
+
+        /// What produced a stream of estimates: an engine or a stage. Its
+        /// name is the estimates' `engine` field and the API's `engine=`.
+        #[derive(
+            Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord,
+            Serialize, Deserialize,
+        )]
+        pub enum StreamKind {
+            $( #[serde(rename = $name)] $Variant, )+
+            $( #[serde(rename = $sname)] $Stage, )+
+        }
+
+        impl StreamKind {
+            /// Every stream, engines first, in registry order.
+            pub const ALL: &'static [StreamKind] =
+                &[$(StreamKind::$Variant,)+ $(StreamKind::$Stage,)+];
+
+            /// The protocol name.
+            pub fn as_str(self) -> &'static str {
+                match self {
+                    $( StreamKind::$Variant => $name, )+
+                    $( StreamKind::$Stage => $sname, )+
+                }
+            }
+
+            /// The codec version of the estimates this release stores.
+            pub fn codec_version(self) -> u32 {
+                match self {
+                    $( StreamKind::$Variant => <$Descriptor>::CODEC_VERSION, )+
+                    $( StreamKind::$Stage => <$SDescriptor>::CODEC_VERSION, )+
+                }
+            }
+
+            /// The engine, if an engine produces this stream.
+            pub fn engine(self) -> Option<EngineKind> {
+                match self {
+                    $( StreamKind::$Variant => Some(EngineKind::$Variant), )+
+                    _ => None,
+                }
+            }
+
+            /// Every protocol name, comma separated (for messages).
+            pub fn names() -> String {
+                [$($name,)+ $($sname,)+].join(", ")
+            }
+        }
+
+        impl From<EngineKind> for StreamKind {
+            fn from(engine: EngineKind) -> StreamKind {
+                match engine { $( EngineKind::$Variant => StreamKind::$Variant ),+ }
+            }
+        }
+
+        impl From<StageKind> for StreamKind {
+            fn from(stage: StageKind) -> StreamKind {
+                match stage { $( StageKind::$Stage => StreamKind::$Stage ),+ }
+            }
+        }
+
+        /// The stream-specific part of an estimate, tagged by `engine`.
         #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
         #[serde(tag = "engine")]
         pub enum EstimateValues {
-            $( #[serde(rename = $name)] $Variant(<$Descriptor as EngineDescriptor>::Estimate) ),+
+            $( #[serde(rename = $name)] $Variant(<$Descriptor as EngineDescriptor>::Estimate), )+
+            $( #[serde(rename = $sname)] $Stage(<$SDescriptor as StageDescriptor>::Output), )+
         }
 
         impl EstimateValues {
-            /// The engine that produced these values.
-            pub fn engine(&self) -> EngineKind {
-                match self { $( EstimateValues::$Variant(_) => EngineKind::$Variant ),+ }
+            /// The stream these values belong to.
+            pub fn stream(&self) -> StreamKind {
+                match self {
+                    $( EstimateValues::$Variant(_) => StreamKind::$Variant, )+
+                    $( EstimateValues::$Stage(_) => StreamKind::$Stage, )+
+                }
             }
 
             /// The two quantities whose extremes history downsampling keeps,
             /// so a spike stays visible at any zoom.
             pub fn extremes(&self) -> [f64; 2] {
-                match self { $( EstimateValues::$Variant(e) => <$Descriptor>::extremes(e) ),+ }
+                match self {
+                    $( EstimateValues::$Variant(e) => <$Descriptor>::extremes(e), )+
+                    $( EstimateValues::$Stage(e) => <$SDescriptor>::extremes(e), )+
+                }
             }
 
             /// The fields after `"engine"`, as serde_json writes them.
             pub fn write_fields(&self, fields: &mut JsonFields<'_>) {
                 match self {
-                    $( EstimateValues::$Variant(e) => <$Descriptor>::write_fields(e, fields) ),+
+                    $( EstimateValues::$Variant(e) => <$Descriptor>::write_fields(e, fields), )+
+                    $( EstimateValues::$Stage(e) => <$SDescriptor>::write_fields(e, fields), )+
                 }
             }
 
-            /// The stored form, of the engine's [`EngineKind::codec_version`].
+            /// The stored form, of the stream's [`StreamKind::codec_version`].
             pub fn encode(&self) -> Vec<u8> {
-                match self { $( EstimateValues::$Variant(e) => <$Descriptor>::encode(e) ),+ }
+                match self {
+                    $( EstimateValues::$Variant(e) => <$Descriptor>::encode(e), )+
+                    $( EstimateValues::$Stage(e) => <$SDescriptor>::encode(e), )+
+                }
             }
 
-            /// Values of `engine` stored as `bytes` with codec `version`.
+            /// Values of `stream` stored as `bytes` with codec `version`.
             pub fn decode(
-                engine: EngineKind,
+                stream: StreamKind,
                 version: u32,
                 bytes: &[u8],
             ) -> Result<EstimateValues, CodecError> {
-                let supported = engine.codec_version();
+                let supported = stream.codec_version();
                 if version > supported {
-                    return Err(CodecError::Newer { engine, found: version, supported });
+                    return Err(CodecError::Newer { stream, found: version, supported });
                 }
                 let corrupt = |e: postcard::Error| CodecError::Corrupt {
-                    engine,
+                    stream,
                     version,
                     reason: e.to_string(),
                 };
-                match engine {
-                    $( EngineKind::$Variant => <$Descriptor>::decode(version, bytes)
+                match stream {
+                    $( StreamKind::$Variant => <$Descriptor>::decode(version, bytes)
                         .map(EstimateValues::$Variant)
-                        .map_err(corrupt) ),+
+                        .map_err(corrupt), )+
+                    $( StreamKind::$Stage => <$SDescriptor>::decode(version, bytes)
+                        .map(EstimateValues::$Stage)
+                        .map_err(corrupt), )+
                 }
             }
         }
@@ -231,13 +380,19 @@ macro_rules! engines {
     };
 }
 
-engines! {
-    /// Laser + inclinometer dual-rate ANFIS fusion (He et al. 2021).
-    Attitude = "attitude" => attitude::Attitude,
-    /// FOG strapdown INS with zero-velocity updates (Zhang et al. 2024).
-    Zupt = "zupt" => zupt::Zupt,
-    /// MEMS IMU + magnetometer fused by a fuzzy expert's motion status (Wang 2005).
-    Fuzzy = "fuzzy" => fuzzy::Fuzzy,
+registry! {
+    engines {
+        /// Laser + inclinometer dual-rate ANFIS fusion (He et al. 2021).
+        Attitude = "attitude" => attitude::Attitude,
+        /// FOG strapdown INS with zero-velocity updates (Zhang et al. 2024).
+        Zupt = "zupt" => zupt::Zupt,
+        /// MEMS IMU + magnetometer fused by a fuzzy expert's motion status (Wang 2005).
+        Fuzzy = "fuzzy" => fuzzy::Fuzzy,
+    }
+    stages {
+        /// The jacking log: one record per completed push of a `zupt` machine.
+        Pushes = "pushes" => pushes::Pushes,
+    }
 }
 
 impl EngineKind {
@@ -281,6 +436,33 @@ impl std::str::FromStr for EngineKind {
                 name: name.to_string(),
                 known: EngineKind::names(),
             })
+    }
+}
+
+impl std::str::FromStr for StreamKind {
+    type Err = UnknownEngine;
+
+    fn from_str(name: &str) -> Result<Self, Self::Err> {
+        StreamKind::ALL
+            .iter()
+            .copied()
+            .find(|k| k.as_str() == name)
+            .ok_or_else(|| UnknownEngine {
+                name: name.to_string(),
+                known: StreamKind::names(),
+            })
+    }
+}
+
+impl std::fmt::Display for StreamKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl std::fmt::Display for StageKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
     }
 }
 

@@ -13,7 +13,9 @@ use tokio_stream::wrappers::ReceiverStream;
 use super::SharedState;
 use super::error::ApiError;
 use crate::fusion::reading::{EARLIEST_T_S, LATEST_T_S};
-use crate::fusion::{EngineKind, EngineModel, EstimateRef, Reading, SensorData, SensorKind};
+use crate::fusion::{
+    EngineKind, EngineModel, EstimateRef, Reading, SensorData, SensorKind, StreamKind,
+};
 
 /// Points a history query returns unless told otherwise.
 pub const DEFAULT_MAX_POINTS: usize = 2000;
@@ -24,7 +26,7 @@ const CHUNK_BYTES: usize = 64 * 1024;
 #[derive(Serialize)]
 struct HistoryPage<'a> {
     machine: &'a str,
-    engine: EngineKind,
+    engine: StreamKind,
     from: f64,
     to: f64,
     downsampled: bool,
@@ -87,20 +89,27 @@ pub async fn estimates(
     let machine = state.machine(&machine)?;
     let params = query(params)?;
     let engines: Vec<EngineKind> = machine.spec.engines.keys().copied().collect();
+    let streams = machine.spec.streams();
     let engine = match params.engine.as_deref() {
         Some(name) => {
-            let engine: EngineKind = name
+            let stream: StreamKind = name
                 .parse()
                 .map_err(|e: crate::fusion::UnknownEngine| ApiError::BadRequest(e.to_string()))?;
-            if !engines.contains(&engine) {
+            if !streams.contains(&stream) {
                 return Err(ApiError::BadRequest(format!(
-                    "machine `{}` does not run the `{engine}` engine",
-                    machine.spec.id
+                    "machine `{}` has no `{stream}` estimates (it has: {})",
+                    machine.spec.id,
+                    streams
+                        .iter()
+                        .map(|s| s.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
                 )));
             }
-            engine
+            stream
         }
-        None if engines.len() == 1 => engines[0],
+        // The machine's one engine; stages are asked for by name.
+        None if engines.len() == 1 => engines[0].into(),
         None => {
             return Err(ApiError::BadRequest(
                 "`engine` is required: the machine runs several".into(),

@@ -12,7 +12,7 @@
 //!   (the row's `codec` column); each engine's `estimate.rs` decodes every
 //!   version it has had.
 
-use crate::fusion::{EngineKind, EstimateValues, Reading, SensorData, SensorKind};
+use crate::fusion::{EstimateValues, Reading, SensorData, SensorKind, StreamKind};
 
 use super::StoreError;
 
@@ -97,7 +97,7 @@ pub fn encode_values(values: &EstimateValues) -> Vec<u8> {
 /// The values `bytes` hold, for an estimate of `engine` stored with codec
 /// `version`.
 pub fn decode_values(
-    engine: EngineKind,
+    engine: StreamKind,
     version: u32,
     bytes: &[u8],
 ) -> Result<EstimateValues, StoreError> {
@@ -179,7 +179,7 @@ mod tests {
         });
         let bytes = encode_values(&values);
         assert!(bytes.len() <= 86, "{} bytes", bytes.len());
-        let back = decode_values(EngineKind::Attitude, 1, &bytes).unwrap();
+        let back = decode_values(StreamKind::Attitude, 1, &bytes).unwrap();
         assert_eq!(format!("{back:?}"), format!("{values:?}"));
         let (a, b) = (back.as_attitude().unwrap(), values.as_attitude().unwrap());
         assert_eq!(
@@ -204,7 +204,7 @@ mod tests {
             incl_roll_deg: 2.1,
         });
         let bytes = encode_values(&values);
-        let err = decode_values(EngineKind::Attitude, 1, &bytes[..bytes.len() - 3]).unwrap_err();
+        let err = decode_values(StreamKind::Attitude, 1, &bytes[..bytes.len() - 3]).unwrap_err();
         assert!(err.to_string().contains("attitude"), "{err}");
     }
 
@@ -224,15 +224,15 @@ mod tests {
             incl_roll_deg: 2.1,
         });
         let bytes = encode_values(&values);
-        let newer = EngineKind::Attitude.codec_version() + 1;
-        let err = decode_values(EngineKind::Attitude, newer, &bytes).unwrap_err();
+        let newer = StreamKind::Attitude.codec_version() + 1;
+        let err = decode_values(StreamKind::Attitude, newer, &bytes).unwrap_err();
         let text = err.to_string();
         assert!(
             text.contains("attitude") && text.contains(&format!("codec version {newer}")),
             "{text}"
         );
         // Rows stored before versions existed (0) decode as before.
-        let back = decode_values(EngineKind::Attitude, 0, &bytes).unwrap();
+        let back = decode_values(StreamKind::Attitude, 0, &bytes).unwrap();
         assert_eq!(back, values);
     }
 }

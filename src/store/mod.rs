@@ -24,7 +24,7 @@ use rusqlite::{Connection, OpenFlags, OptionalExtension, params};
 use tokio::sync::{mpsc, oneshot};
 
 use crate::config::MachineSpec;
-use crate::fusion::{EngineKind, EngineOutput, Reading, SensorKind};
+use crate::fusion::{EngineOutput, Reading, SensorKind, StreamKind};
 
 /// The database file inside the data dir.
 pub const DB_FILE: &str = "tunnelnav.sqlite3";
@@ -99,7 +99,7 @@ impl ReadingRow {
 /// An estimate to store.
 #[derive(Debug, Clone)]
 pub struct EstimateRow {
-    pub engine: EngineKind,
+    pub engine: StreamKind,
     pub t: f64,
     /// The two values whose extremes downsampling keeps.
     pub extremes: [f64; 2],
@@ -113,11 +113,11 @@ impl EstimateRow {
     /// The row that stores `output`.
     pub fn new(output: &EngineOutput) -> EstimateRow {
         EstimateRow {
-            engine: output.values.engine(),
+            engine: output.values.stream(),
             t: output.t,
             extremes: output.values.extremes(),
             values: codec::encode_values(&output.values),
-            codec: output.values.engine().codec_version(),
+            codec: output.values.stream().codec_version(),
         }
     }
 }
@@ -557,7 +557,7 @@ fn apply_group(conn: &mut Connection, group: &[Request]) -> Result<Vec<Outcome>,
 }
 
 /// Extremes per (machine, engine, bucket width, bucket).
-type Buckets = BTreeMap<(i64, EngineKind, i64, i64), Extremes>;
+type Buckets = BTreeMap<(i64, StreamKind, i64, i64), Extremes>;
 
 fn apply_write(
     tx: &rusqlite::Transaction,

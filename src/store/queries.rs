@@ -4,7 +4,7 @@ use rusqlite::{OptionalExtension, params};
 
 use super::codec::{decode_reading, decode_values};
 use super::{Store, StoreError};
-use crate::fusion::{EngineKind, EngineOutput, Reading, SensorKind};
+use crate::fusion::{EngineOutput, Reading, SensorKind, StreamKind};
 
 /// Estimates of a time range, possibly downsampled.
 #[derive(Debug, Clone, Default)]
@@ -26,7 +26,7 @@ pub(super) fn reading_row(row: &rusqlite::Row) -> Result<Reading, StoreError> {
 }
 
 /// Decodes a `(t, body, codec)` row of `estimates`.
-fn output_row(engine: EngineKind, row: &rusqlite::Row) -> Result<EngineOutput, StoreError> {
+fn output_row(engine: StreamKind, row: &rusqlite::Row) -> Result<EngineOutput, StoreError> {
     let bytes = row.get_ref(1)?.as_blob().map_err(rusqlite::Error::from)?;
     Ok(EngineOutput {
         t: row.get(0)?,
@@ -154,7 +154,7 @@ impl Store {
     pub fn estimates_page(
         &self,
         machine_id: i64,
-        engine: EngineKind,
+        engine: StreamKind,
         from_t: f64,
         to_t: f64,
         max_points: usize,
@@ -299,7 +299,7 @@ impl Store {
     pub fn latest_estimate(
         &self,
         machine_id: i64,
-        engine: EngineKind,
+        engine: StreamKind,
     ) -> Result<Option<EngineOutput>, StoreError> {
         self.read(|conn| {
             let mut stmt = conn.prepare_cached(
@@ -414,7 +414,7 @@ mod tests {
             (t0 + 20.0, t0 + 420.0, 40),
         ] {
             let page = store
-                .estimates_page(id, EngineKind::Attitude, from, to, max_points)
+                .estimates_page(id, StreamKind::Attitude, from, to, max_points)
                 .unwrap();
             assert!(page.downsampled);
             let got = times(&page);
@@ -445,7 +445,7 @@ mod tests {
         }
         // At or under max_points nothing is dropped.
         let page = store
-            .estimates_page(id, EngineKind::Attitude, t0, t0 + 99.0, 100)
+            .estimates_page(id, StreamKind::Attitude, t0, t0 + 99.0, 100)
             .unwrap();
         assert!(!page.downsampled);
         assert_eq!(times(&page).len(), 100);

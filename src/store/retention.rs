@@ -13,7 +13,7 @@
 use rusqlite::{Connection, params};
 
 use super::StoreError;
-use crate::fusion::EngineKind;
+use crate::fusion::StreamKind;
 
 /// What to keep, and how often the server applies it.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -86,7 +86,7 @@ pub fn prune(
             .query_map([], |row| row.get(0))?
             .collect::<Result<_, _>>()?;
         for machine in machines {
-            for engine in EngineKind::ALL {
+            for engine in StreamKind::ALL {
                 pruned.estimates += thin(conn, machine, engine.as_str(), cut)?;
             }
         }

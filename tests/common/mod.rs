@@ -228,9 +228,25 @@ pub async fn all_estimates(
     base: &str,
     machine: &str,
 ) -> Vec<serde_json::Value> {
+    stream_estimates(client, base, machine, "").await
+}
+
+/// Every stored estimate of a machine's `stream` (an engine or stage
+/// name; empty: the machine's one engine), not downsampled.
+pub async fn stream_estimates(
+    client: &reqwest::Client,
+    base: &str,
+    machine: &str,
+    stream: &str,
+) -> Vec<serde_json::Value> {
+    let engine = if stream.is_empty() {
+        String::new()
+    } else {
+        format!("&engine={stream}")
+    };
     let response = client
         .get(format!(
-            "{base}/api/v1/machines/{machine}/estimates?max_points=100000"
+            "{base}/api/v1/machines/{machine}/estimates?max_points=100000{engine}"
         ))
         .send()
         .await
@@ -246,8 +262,23 @@ pub fn replay(machine: &str, lines: &[String]) -> Vec<serde_json::Value> {
     replay_engine(machine, "attitude", &[], lines)
 }
 
-/// Runs `tunnelnav replay --engine ENGINE --param ...` over the lines.
+/// Runs `tunnelnav replay --engine ENGINE --param ...` over the lines;
+/// the engine's estimates (without those of the stages after it).
 pub fn replay_engine(
+    machine: &str,
+    engine: &str,
+    params: &[&str],
+    lines: &[String],
+) -> Vec<serde_json::Value> {
+    replay_streams(machine, engine, params, lines)
+        .into_iter()
+        .filter(|e| e["engine"] == engine)
+        .collect()
+}
+
+/// Every estimate `tunnelnav replay --engine ENGINE --param ...` writes:
+/// the engine's and its stages'.
+pub fn replay_streams(
     machine: &str,
     engine: &str,
     params: &[&str],

@@ -1,0 +1,175 @@
+//! A machine's engines and the stages after them, fed time-ordered
+//! readings: what the server's machine actor and `replay` both run, so
+//! their outputs are the same.
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+use super::estimate::EngineOutput;
+use super::params::{ParamError, Params};
+use super::reading::Reading;
+use super::registry::{EngineKind, EngineModel, StageKind};
+use super::stage::{Declaration, Stage};
+use super::{Engine, SnapshotError};
+
+/// Engines, then stages.
+pub struct Pipeline {
+    engines: Vec<Box<dyn Engine>>,
+    stages: Vec<Box<dyn Stage>>,
+    /// One engine's outputs of the current reading, before the stages.
+    scratch: Vec<EngineOutput>,
+    /// The stages' outputs from one estimate.
+    derived: Vec<EngineOutput>,
+}
+
+/// The state of a pipeline, serialisable.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct PipelineState {
+    pub engines: BTreeMap<EngineKind, serde_json::Value>,
+    /// Absent in snapshots from before stages existed.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub stages: BTreeMap<StageKind, serde_json::Value>,
+}
+
+impl Pipeline {
+    /// Fresh engines with these parameters, and the stages their
+    /// declaration calls for.
+    pub fn new<'a>(
+        engines: impl IntoIterator<Item = (EngineKind, &'a Params)>,
+    ) -> Result<Pipeline, ParamError> {
+        let engines = engines
+            .into_iter()
+            .map(|(kind, params)| kind.create(params.clone()))
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(Pipeline::with_engines(engines))
+    }
+
+    /// These engines and the stages their declaration calls for.
+    pub fn with_engines(engines: Vec<Box<dyn Engine>>) -> Pipeline {
+        let declaration = Declaration::of_engines(engines.iter().map(|e| e.kind()));
+        let stages = StageKind::ALL
+            .iter()
+            .filter_map(|stage| stage.create(&declaration))
+            .collect();
+        Pipeline {
+            engines,
+            stages,
+            scratch: Vec::new(),
+            derived: Vec::new(),
+        }
+    }
+
+    /// Continues from a [`Pipeline::state`]. A stage the engines now call
+    /// for and the state lacks (it predates the stage) is refused as
+    /// [`SnapshotError::MissingStage`]: rebuild from the readings.
+    pub fn restore(state: PipelineState) -> Result<Pipeline, SnapshotError> {
+        let mut engines = Vec::new();
+        for (kind, snapshot) in state.engines {
+            engines.push(kind.restore(snapshot)?);
+        }
+        let declaration = Declaration::of_engines(engines.iter().map(|e| e.kind()));
+        let mut stages = Vec::new();
+        let mut snapshots = state.stages;
+        for stage in declaration.stages() {
+            let snapshot = snapshots
+                .remove(&stage)
+                .ok_or(SnapshotError::MissingStage(stage))?;
+            stages.push(stage.restore(snapshot)?);
+        }
+        Ok(Pipeline {
+            engines,
+            stages,
+            scratch: Vec::new(),
+            derived: Vec::new(),
+        })
+    }
+
+    /// The whole state.
+    pub fn state(&self) -> PipelineState {
+        PipelineState {
+            engines: self
+                .engines
+                .iter()
+                .map(|e| (e.kind(), e.snapshot()))
+                .collect(),
+            stages: self
+                .stages
+                .iter()
+                .map(|s| (s.kind(), s.snapshot()))
+                .collect(),
+        }
+    }
+
+    /// Feeds one time-ordered reading to the engines that use its sensor
+    /// and the stages; appends every output to `out`, each engine's
+    /// estimates followed by what the stages derive from them.
+    pub fn feed(&mut self, reading: &Reading, out: &mut Vec<EngineOutput>) {
+        let sensor = reading.sensor();
+        for stage in &mut self.stages {
+            stage.reading(reading, out);
+        }
+        for engine in &mut self.engines {
+            if !engine.kind().sensors().contains(&sensor) {
+                continue;
+            }
+            if self.stages.is_empty() {
+                engine.feed(reading, out);
+                continue;
+            }
+            engine.feed(reading, &mut self.scratch);
+            pass_on(&mut self.scratch, &mut self.stages, &mut self.derived, out);
+        }
+    }
+
+    /// The input has ended: what the engines still hold, and what the
+    /// stages derive from it.
+    pub fn flush(&mut self, out: &mut Vec<EngineOutput>) {
+        for engine in &mut self.engines {
+            engine.flush(&mut self.scratch);
+            pass_on(&mut self.scratch, &mut self.stages, &mut self.derived, out);
+        }
+    }
+
+    /// Whether a reading of `sensor` feeds any engine.
+    pub fn uses(&self, sensor: super::SensorKind) -> bool {
+        self.engines
+            .iter()
+            .any(|e| e.kind().sensors().contains(&sensor))
+    }
+
+    /// The engines.
+    pub fn engines(&self) -> &[Box<dyn Engine>] {
+        &self.engines
+    }
+
+    /// The stages running after them.
+    pub fn stages(&self) -> impl Iterator<Item = StageKind> + '_ {
+        self.stages.iter().map(|s| s.kind())
+    }
+
+    /// Each engine's model report, if it has one.
+    pub fn models(&self) -> BTreeMap<EngineKind, EngineModel> {
+        self.engines
+            .iter()
+            .filter_map(|e| e.model().map(|m| (e.kind(), m)))
+            .collect()
+    }
+}
+
+/// Moves an engine's `estimates` to `out`, each followed by what the
+/// `stages` derive from it (gathered in `derived`).
+fn pass_on(
+    estimates: &mut Vec<EngineOutput>,
+    stages: &mut [Box<dyn Stage>],
+    derived: &mut Vec<EngineOutput>,
+    out: &mut Vec<EngineOutput>,
+) {
+    for estimate in estimates.drain(..) {
+        for stage in stages.iter_mut() {
+            stage.estimate(&estimate, derived);
+        }
+        out.push(estimate);
+        out.append(derived);
+    }
+}

@@ -1,0 +1,59 @@
+//! Stages after the engines: each derives a stream of its own from a
+//! machine's declaration, the readings its engines are fed and the
+//! estimates they emit (the jacking log from `zupt`'s pushes; the
+//! deviation from the design axis from positions and attitude). Pure like
+//! the engines: the server's machine actor and `replay` run the same
+//! [`Pipeline`](super::pipeline::Pipeline) and get the same outputs.
+
+use super::estimate::EngineOutput;
+use super::reading::Reading;
+use super::registry::{EngineKind, StageKind};
+
+/// The part of a machine's declaration stages read.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Declaration {
+    /// The engines the machine runs.
+    pub engines: Vec<EngineKind>,
+}
+
+impl Declaration {
+    /// A declaration of these engines.
+    pub fn of_engines(engines: impl IntoIterator<Item = EngineKind>) -> Declaration {
+        Declaration {
+            engines: engines.into_iter().collect(),
+        }
+    }
+
+    /// Whether the machine runs `engine`.
+    pub fn runs(&self, engine: EngineKind) -> bool {
+        self.engines.contains(&engine)
+    }
+
+    /// The stages this declaration calls for, in registry order.
+    pub fn stages(&self) -> Vec<StageKind> {
+        StageKind::ALL
+            .iter()
+            .copied()
+            .filter(|stage| stage.create(self).is_some())
+            .collect()
+    }
+}
+
+/// A stage after the engines.
+pub trait Stage: Send {
+    /// Which stage this is.
+    fn kind(&self) -> StageKind;
+
+    /// A reading as the engines are fed it (in time order, after the
+    /// reorder buffer); appends what it derives to `out`. Most stages
+    /// need only estimates.
+    fn reading(&mut self, _reading: &Reading, _out: &mut Vec<EngineOutput>) {}
+
+    /// An engine's estimate, in the order the engines emit them; appends
+    /// what it derives to `out`.
+    fn estimate(&mut self, estimate: &EngineOutput, out: &mut Vec<EngineOutput>);
+
+    /// The whole state, serialisable: [`StageKind::restore`] continues
+    /// from it exactly.
+    fn snapshot(&self) -> serde_json::Value;
+}
