@@ -39,7 +39,7 @@
 
 use nalgebra::{Quaternion, UnitQuaternion, Vector4};
 
-use crate::fusion::zupt::strapdown::{V3, attitude_from_euler, level};
+use crate::fusion::geometry::{V3, attitude_from_euler, level};
 
 /// Readings with a smaller norm than this carry no direction.
 const MIN_NORM: f64 = 1e-9;

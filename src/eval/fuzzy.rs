@@ -43,7 +43,7 @@ use crate::fusion::fuzzy::orientation::{
     angle_difference, integrate, magnetic_heading, tilt_from_accel,
 };
 use crate::fusion::fuzzy::{FuzzyEngine, PARAMS};
-use crate::fusion::zupt::strapdown::{V3, attitude_from_euler};
+use crate::fusion::geometry::{V3, attitude_from_euler};
 use crate::fusion::{
     Engine, EngineOutput, FuzzyEstimate, Motion, ParamError, ParamValue, Params, SensorData,
 };

@@ -7,6 +7,7 @@ pub mod angles;
 pub mod attitude;
 pub mod estimate;
 pub mod fuzzy;
+pub mod geometry;
 pub mod params;
 pub mod pipeline;
 pub mod pushes;

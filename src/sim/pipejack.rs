@@ -52,7 +52,8 @@ use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
 use crate::fusion::angles::{deg, rad};
-use crate::fusion::zupt::strapdown::{Site, V3, attitude_from_euler, earth_rate_n};
+use crate::fusion::geometry::{V3, attitude_from_euler, earth_rate_n};
+use crate::fusion::zupt::strapdown::Site;
 use crate::fusion::{Reading, SensorData};
 
 use super::tbm::DEFAULT_START_T;
@@ -669,7 +670,7 @@ impl PipeJackDrive {
         let gravity = V3::new(
             0.0,
             0.0,
-            crate::fusion::zupt::strapdown::normal_gravity_mps2(lat, height),
+            crate::fusion::geometry::normal_gravity_mps2(lat, height),
         );
         // f = Cᵀ(a + (2ω_ie + ω_en) × v − g).
         let force_n = k.accel_mps2 + (2.0 * earth + transport).cross(&k.velocity_mps) - gravity;

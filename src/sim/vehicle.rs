@@ -56,7 +56,7 @@ use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
 use crate::fusion::angles::{deg, rad};
-use crate::fusion::zupt::strapdown::{V3, attitude_from_euler};
+use crate::fusion::geometry::{V3, attitude_from_euler};
 use crate::fusion::{Reading, SensorData};
 
 use super::tbm::DEFAULT_START_T;

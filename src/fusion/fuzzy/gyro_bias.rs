@@ -14,7 +14,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::fusion::zupt::strapdown::V3;
+use crate::fusion::geometry::V3;
 
 /// A static spell shorter than this says too little about the bias, s.
 const MIN_SPELL_S: f64 = 3.0;

@@ -62,7 +62,7 @@ use std::collections::VecDeque;
 use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, Vector2};
 use serde::{Deserialize, Serialize};
 
-use crate::fusion::zupt::strapdown::V3;
+use crate::fusion::geometry::V3;
 
 const AZIMUTH_BINS: usize = 36;
 const ELEVATION_BANDS: usize = 9;

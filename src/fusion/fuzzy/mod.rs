@@ -74,8 +74,8 @@ use super::estimate::{EngineOutput, EstimateValues, JsonFields};
 use super::params::{ParamError, Params, Retired};
 use super::reading::{Reading, SensorData, SensorKind};
 use super::registry::{EngineDescriptor, EngineModel};
-use super::zupt::strapdown::{V3, attitude_from_euler};
 use super::{Engine, EngineKind, SnapshotError};
+use crate::fusion::geometry::{V3, attitude_from_euler};
 
 /// Version of the engine's snapshot; a snapshot of another is outdated
 /// and the server rebuilds the engine from the stored readings.

@@ -29,7 +29,7 @@ use std::collections::VecDeque;
 use serde::{Deserialize, Serialize};
 
 use super::mamdani::{Antecedent, FuzzyError, Mamdani, Membership, Rule, Scratch, Variable};
-use crate::fusion::zupt::strapdown::V3;
+use crate::fusion::geometry::V3;
 
 /// Where each input's terms change: `low` falls from 1 at `still` to 0 at
 /// `moving`, `high` rises over the same span, `medium` peaks midway.

@@ -5,12 +5,12 @@
 
 use nalgebra::UnitQuaternion;
 
-use crate::fusion::zupt::strapdown::{V3, attitude_from_euler};
+use crate::fusion::geometry::{V3, attitude_from_euler};
 
 /// Roll and pitch (rad) from a specific force at rest: f = −g in the body
 /// frame, so pitch = atan2(f_x, √(f_y² + f_z²)), roll = atan2(−f_y, −f_z).
 pub fn tilt_from_accel(force_mps2: &V3) -> (f64, f64) {
-    crate::fusion::zupt::strapdown::level(force_mps2)
+    crate::fusion::geometry::level(force_mps2)
 }
 
 /// Magnetic heading (rad, clockwise from magnetic north) of a body whose

@@ -32,7 +32,7 @@ use std::collections::VecDeque;
 use nalgebra::{Unit, UnitQuaternion};
 use serde::{Deserialize, Serialize};
 
-use crate::fusion::zupt::strapdown::V3;
+use crate::fusion::geometry::V3;
 
 /// Measured and predicted forces over the motion window, with the sums of
 /// the older half kept in O(1) per reading.
@@ -162,7 +162,7 @@ pub fn correct_world(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::fusion::zupt::strapdown::attitude_from_euler;
+    use crate::fusion::geometry::attitude_from_euler;
 
     #[test]
     fn the_older_half_is_the_oldest_readings_held() {

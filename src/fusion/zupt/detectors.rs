@@ -42,7 +42,7 @@ use std::collections::VecDeque;
 
 use serde::{Deserialize, Serialize};
 
-use super::strapdown::V3;
+use crate::fusion::geometry::V3;
 
 /// The four statistics of one window, and its mean specific force.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]

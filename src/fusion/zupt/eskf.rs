@@ -16,7 +16,7 @@
 use nalgebra::{Matrix3, SMatrix, SVector};
 use serde::{Deserialize, Serialize};
 
-use super::strapdown::{V3, skew};
+use crate::fusion::geometry::{V3, skew};
 
 /// Number of error states.
 pub const N: usize = 15;

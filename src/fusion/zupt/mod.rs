@@ -44,9 +44,7 @@ use self::eskf::{
 use self::estimate::{TrackPoint, ZuptEstimate};
 pub use self::params::{PARAMS, ZuptConfig, ZuptParams};
 use self::smoother::{Point, PushRecord};
-use self::strapdown::{
-    Increment, NavState, V3, attitude_from_euler, earth_rate_n, level, normal_gravity_mps2, radii_m,
-};
+use self::strapdown::{Increment, NavState};
 use self::zero_velocity::{Decision, DetectorKind, ZeroVelocityPipeline};
 use super::angles::{deg, rad};
 use super::estimate::{EngineOutput, EstimateValues, JsonFields};
@@ -54,6 +52,9 @@ use super::params::{ParamError, Params, Retired};
 use super::reading::{Reading, SensorData, SensorKind};
 use super::registry::{EngineDescriptor, NoModel};
 use super::{Engine, EngineKind, SnapshotError};
+use crate::fusion::geometry::{
+    V3, attitude_from_euler, earth_rate_n, level, normal_gravity_mps2, radii_m,
+};
 
 /// Version of the engine's snapshot. A snapshot of another version is
 /// refused as [`SnapshotError::Outdated`]; the machine is then rebuilt from

@@ -5,9 +5,10 @@ use serde::{Deserialize, Serialize};
 
 use super::detectors::{DetectorNoise, Signals};
 use super::eskf::ProcessNoise;
-use super::strapdown::{Site, normal_gravity_mps2};
+use super::strapdown::Site;
 use super::zero_velocity::{Adaptation, DetectorKind, PipelineConfig, Thresholds};
 use crate::fusion::angles::rad;
+use crate::fusion::geometry::normal_gravity_mps2;
 use crate::fusion::params::{ParamError, Params, TypedParams, param_table};
 
 /// Standard gravity, for µg and mg parameters.

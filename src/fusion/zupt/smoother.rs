@@ -25,8 +25,8 @@ use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 use super::eskf::{Covariance, ErrorState, POS};
-use super::strapdown::V3;
 use crate::fusion::estimate::TrackPoint;
+use crate::fusion::geometry::V3;
 
 /// A point is kept at least this often during a push, s.
 pub const POINT_EVERY_S: f64 = 1.0;

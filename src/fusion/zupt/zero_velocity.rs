@@ -35,7 +35,7 @@ use std::collections::VecDeque;
 use serde::{Deserialize, Serialize};
 
 use super::detectors::{DetectorNoise, Signals, Statistics, WindowSums};
-use super::strapdown::V3;
+use crate::fusion::geometry::V3;
 
 crate::fusion::params::choice_enum! {
     /// Which test decides zero velocity (the `detector` parameter).
