@@ -26,6 +26,9 @@ use std::collections::VecDeque;
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
+pub use super::training_set::TrainingSample;
+use super::training_set::TrainingSet;
+
 /// Most memberships a model may have (the engine's parameter range).
 pub const MAX_MEMBERSHIPS: usize = 9;
 /// Two consequents per rule and the temperature coefficient.
@@ -45,23 +48,6 @@ const TEMP_RIDGE_C2: f64 = 0.25;
 /// Weighted spread of the training temperatures, °C, below which the
 /// temperature coefficient is not fitted (it would be noise).
 pub const MIN_TEMP_SPREAD_C: f64 = 0.3;
-
-/// One training pair from a laser instant (Eq. 16).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct TrainingSample {
-    /// Laser time, Unix seconds.
-    pub t: f64,
-    /// Roll at the laser instant (the laser's, β_L).
-    pub roll_rad: f64,
-    /// Pitch error e_a = α_L − α_I at that instant.
-    pub error_rad: f64,
-    /// Inclinometer temperature at that instant, if it sends one.
-    #[serde(default)]
-    pub temp_c: Option<f64>,
-    /// Arrival number, assigned by [`Anfis::add_sample`]; ages are counted in it.
-    #[serde(default)]
-    pub seq: u64,
-}
 
 /// How the model is shaped and trained.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -116,7 +102,7 @@ pub struct Rule {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Anfis {
     config: AnfisConfig,
-    samples: VecDeque<TrainingSample>,
+    samples: TrainingSet,
     /// Empty until `min_samples` pairs have been seen.
     rules: Vec<Rule>,
     /// Recency-weighted mean error: the output before the rules exist.
@@ -194,7 +180,7 @@ impl Anfis {
     pub fn new(config: AnfisConfig) -> Anfis {
         Anfis {
             config,
-            samples: VecDeque::with_capacity(config.window),
+            samples: TrainingSet::new(),
             rules: Vec::new(),
             mean_error_rad: 0.0,
             global_line: [0.0, 0.0, 0.0],
@@ -335,79 +321,26 @@ impl Anfis {
         Firings { rules: m, weights }
     }
 
-    /// Adds a pair: it replaces the oldest of its roll bin when the bin is
-    /// full, else the oldest of the fullest bin when the window is full.
-    /// Does not train.
-    pub fn add_sample(&mut self, mut sample: TrainingSample) {
-        sample.seq = self.samples.back().map_or(0, |s| s.seq + 1);
-        let bin = self.bin(sample.roll_rad);
-        let in_bin = self
-            .samples
-            .iter()
-            .filter(|s| self.bin(s.roll_rad) == bin)
-            .count();
-        let removed = if in_bin >= self.config.per_bin {
-            self.samples
-                .iter()
-                .position(|s| self.bin(s.roll_rad) == bin)
-        } else if self.samples.len() >= self.config.window {
-            self.oldest_of_fullest_bin()
-        } else {
-            None
-        };
-        if let Some(index) = removed {
-            self.samples.remove(index);
-        }
-        self.samples.push_back(sample);
+    /// Adds a pair to the training set ([`TrainingSet::add`]). Does not train.
+    pub fn add_sample(&mut self, sample: TrainingSample) {
+        let added = self.samples.add(sample, &self.config);
         // Keep the cached firings in step with the samples.
         let rules = &self.rules;
         if let Some(cache) = self.cache.0.as_mut() {
-            if let Some(index) = removed {
+            if let Some(index) = added.removed {
                 cache
                     .weights
                     .drain(index * cache.rules..(index + 1) * cache.rules);
             }
             let start = cache.weights.len();
             cache.weights.resize(start + cache.rules, 0.0);
-            fire_into(rules, sample.roll_rad, &mut cache.weights[start..]);
+            fire_into(rules, added.roll_rad, &mut cache.weights[start..]);
         }
     }
 
-    /// Where the window is full, the pair to forget: the oldest of the most
-    /// populated roll bin, so the rarest regions are the last to go.
-    fn oldest_of_fullest_bin(&self) -> Option<usize> {
-        let mut counts: Vec<(i64, usize)> = Vec::new();
-        for s in &self.samples {
-            let bin = self.bin(s.roll_rad);
-            match counts.iter_mut().find(|(b, _)| *b == bin) {
-                Some((_, n)) => *n += 1,
-                None => counts.push((bin, 1)),
-            }
-        }
-        let most = counts.iter().map(|&(_, n)| n).max()?;
-        self.samples.iter().position(|s| {
-            let bin = self.bin(s.roll_rad);
-            counts.iter().any(|&(b, n)| b == bin && n == most)
-        })
-    }
-
-    fn bin(&self, roll_rad: f64) -> i64 {
-        (roll_rad / self.config.bin_width_rad).floor() as i64
-    }
-
-    /// Recency weights, oldest first: the newest weighs 1, one half-life
-    /// older 0.5, never less than the floor.
+    /// Recency weights of the training set, oldest first.
     fn weights(&self) -> Vec<f64> {
-        let newest = self.samples.back().map_or(0, |s| s.seq);
-        self.samples
-            .iter()
-            .map(|s| {
-                let age = (newest - s.seq) as f64;
-                (-age / self.config.half_life)
-                    .exp2()
-                    .max(self.config.min_weight)
-            })
-            .collect()
+        self.samples.weights(&self.config)
     }
 
     /// Trains on the current set: hybrid epochs warm-started from the

@@ -47,6 +47,7 @@ pub mod estimate;
 pub mod kalman;
 pub mod noise;
 pub mod params;
+pub mod training_set;
 
 use serde::{Deserialize, Serialize};
 
