@@ -78,23 +78,6 @@ impl Token {
     }
 }
 
-/// What a request to `method path` needs (paths as routed by the server).
-pub fn need(method: &axum::http::Method, path: &str) -> Need {
-    let segments: Vec<&str> = path.trim_matches('/').split('/').collect();
-    match segments.as_slice() {
-        ["healthz"] | ["login"] | ["logout"] | ["favicon.ico"] => Need::Nothing,
-        ["static", ..] => Need::Nothing,
-        ["api", "v1", "machines", _] if method == axum::http::Method::PUT => Need::Admin,
-        ["api", "v1", "machines", machine, "readings"] if method == axum::http::Method::POST => {
-            Need::Ingest((*machine).to_string())
-        }
-        ["api", "v1", "machines", machine, "ingest"] => Need::Ingest((*machine).to_string()),
-        _ if method == axum::http::Method::GET || method == axum::http::Method::HEAD => Need::Read,
-        // Anything else that changes state (and unknown routes) needs admin.
-        _ => Need::Admin,
-    }
-}
-
 /// A new token and the hash to store.
 pub fn generate() -> (String, String) {
     let bytes: [u8; 32] = rand::random();
@@ -199,31 +182,6 @@ pub fn revoke(conn: &Connection, id: i64, now_t: f64) -> Result<Token, TokenErro
 #[cfg(test)]
 mod tests {
     use super::*;
-    use axum::http::Method;
-
-    #[test]
-    fn requests_need_what_their_route_does() {
-        assert_eq!(need(&Method::GET, "/healthz"), Need::Nothing);
-        assert_eq!(need(&Method::GET, "/static/app.css"), Need::Nothing);
-        assert_eq!(need(&Method::GET, "/"), Need::Read);
-        assert_eq!(need(&Method::GET, "/machines/tbm-1"), Need::Read);
-        assert_eq!(need(&Method::GET, "/metrics"), Need::Read);
-        assert_eq!(
-            need(&Method::GET, "/api/v1/machines/tbm-1/live"),
-            Need::Read
-        );
-        assert_eq!(need(&Method::PUT, "/api/v1/machines/tbm-1"), Need::Admin);
-        assert_eq!(
-            need(&Method::POST, "/api/v1/machines/tbm-1/readings"),
-            Need::Ingest("tbm-1".into())
-        );
-        assert_eq!(
-            need(&Method::GET, "/api/v1/machines/tbm-1/ingest"),
-            Need::Ingest("tbm-1".into())
-        );
-        assert_eq!(need(&Method::DELETE, "/api/v1/machines/tbm-1"), Need::Admin);
-        assert_eq!(need(&Method::POST, "/somewhere"), Need::Admin);
-    }
 
     #[test]
     fn scopes_grant_what_they_say() {

@@ -199,6 +199,62 @@ async fn tokens_gate_every_route_by_scope_and_machine() {
         assert_eq!(status, 200);
     }
 
+    // Every route declares what it needs: nothing, read, the ingest of its
+    // own machine, or admin. Without a token, 401 where it needs anything;
+    // with a token of the wrong scope, 403; with the right one, past the
+    // gate (whatever the route then answers).
+    let routes = [
+        (Method::GET, "/", "read"),
+        (Method::GET, "/machines/tbm-1", "read"),
+        (Method::GET, "/static/app.css", "nothing"),
+        (Method::GET, "/healthz", "nothing"),
+        (Method::GET, "/login", "nothing"),
+        (Method::GET, "/metrics", "read"),
+        (Method::GET, "/api/v1/machines", "read"),
+        (Method::GET, "/api/v1/machines/tbm-1", "read"),
+        (Method::PUT, "/api/v1/machines/tbm-1", "admin"),
+        (Method::GET, "/api/v1/machines/tbm-1/readings", "read"),
+        (Method::POST, "/api/v1/machines/tbm-1/readings", "ingest"),
+        (Method::GET, "/api/v1/machines/tbm-1/ingest", "ingest"),
+        (Method::GET, "/api/v1/machines/tbm-1/live", "read"),
+        (Method::GET, "/api/v1/machines/tbm-1/estimates", "read"),
+        (Method::GET, "/api/v1/machines/tbm-1/model", "read"),
+        (Method::GET, "/nowhere", "read"),
+        (Method::DELETE, "/api/v1/machines/tbm-1", "read"),
+    ];
+    for (method, path, need) in routes {
+        let url = server.url(path);
+        let anonymous = call(&client, method.clone(), url.clone(), None, None)
+            .await
+            .0;
+        let as_reader = call(&client, method.clone(), url.clone(), Some(&reader), None)
+            .await
+            .0;
+        let as_gateway = call(&client, method.clone(), url.clone(), Some(&gateway), None)
+            .await
+            .0;
+        let (past, gated) = (|s: u16| s != 401 && s != 403, |s: u16| s == 403);
+        let what = format!("{method} {path} needs {need}: {anonymous} {as_reader} {as_gateway}");
+        match need {
+            "nothing" => assert!(
+                past(anonymous) && past(as_reader) && past(as_gateway),
+                "{what}"
+            ),
+            "read" => assert!(
+                anonymous == 401 && past(as_reader) && gated(as_gateway),
+                "{what}"
+            ),
+            "ingest" => assert!(
+                anonymous == 401 && gated(as_reader) && past(as_gateway),
+                "{what}"
+            ),
+            _ => assert!(
+                anonymous == 401 && gated(as_reader) && gated(as_gateway),
+                "{what}"
+            ),
+        }
+    }
+
     // The ingest WebSocket takes the bearer header too; without it, 401.
     let url = server
         .url("/api/v1/machines/tbm-1/ingest")

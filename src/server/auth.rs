@@ -1,7 +1,9 @@
 //! Access control at the HTTP edge: every request's token (an
 //! `Authorization: Bearer` header, or the dashboard's `tunnelnav_token`
-//! cookie set by `POST /login`) is checked against what its route needs
-//! (`crate::auth::need`). Missing or unknown token: 401; a token without
+//! cookie set by `POST /login`) is checked against what its route needs:
+//! each route in `server::router` declares it with one of the layers here
+//! ([`read`], [`ingest`], [`admin`]; none for liveness, static files and
+//! the login page). Missing or unknown token: 401; a token without
 //! the scope or machine: 403; both with a JSON body. A page request
 //! without a token is sent to the login page instead.
 //!
@@ -16,7 +18,7 @@ use std::sync::{Arc, RwLock};
 use std::time::{Duration, Instant};
 
 use axum::Form;
-use axum::extract::{Request, State};
+use axum::extract::{Path, Request, State};
 use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::middleware::Next;
 use axum::response::{Html, IntoResponse, Redirect, Response};
@@ -161,9 +163,29 @@ fn wants_page(request: &Request) -> bool {
             .is_some_and(|accept| accept.contains("text/html"))
 }
 
-/// The middleware: checks every request against its route's need.
-pub async fn require(State(state): State<SharedState>, request: Request, next: Next) -> Response {
-    let need = auth::need(request.method(), request.uri().path());
+/// The route layer of routes that read (pages, history, status, live).
+pub async fn read(State(state): State<SharedState>, request: Request, next: Next) -> Response {
+    require(&state, Need::Read, request, next).await
+}
+
+/// The route layer of routes that send a machine's readings; the machine
+/// is the route's `{machine}`.
+pub async fn ingest(
+    State(state): State<SharedState>,
+    Path(machine): Path<String>,
+    request: Request,
+    next: Next,
+) -> Response {
+    require(&state, Need::Ingest(machine), request, next).await
+}
+
+/// The route layer of routes that change the configuration.
+pub async fn admin(State(state): State<SharedState>, request: Request, next: Next) -> Response {
+    require(&state, Need::Admin, request, next).await
+}
+
+/// Lets the request through if its token grants `need`.
+async fn require(state: &SharedState, need: Need, request: Request, next: Next) -> Response {
     let token = presented(request.headers());
     match state.gate.check(&state.store, token.as_deref(), &need) {
         Ok(()) => next.run(request).await,

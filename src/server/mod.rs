@@ -18,6 +18,7 @@ use std::sync::{Arc, RwLock};
 
 use axum::Router;
 use axum::extract::DefaultBodyLimit;
+use axum::handler::Handler;
 use axum::routing::get;
 use tokio::net::TcpListener;
 use tokio::sync::watch;
@@ -289,36 +290,51 @@ fn fresh_snapshot(spec: &MachineSpec) -> Result<String, ServerError> {
 /// The application's routes (used by `serve` and by the tests).
 pub fn router(state: SharedState) -> Router {
     let limit = state.limits.max_body_bytes;
+    // What each route needs, declared with it (`auth`: read, ingest,
+    // admin); liveness, static files and the login page need nothing.
+    let read = axum::middleware::from_fn_with_state(state.clone(), auth::read);
+    let ingest = axum::middleware::from_fn_with_state(state.clone(), auth::ingest);
+    let admin = axum::middleware::from_fn_with_state(state.clone(), auth::admin);
     Router::new()
-        .route("/", get(pages::fleet))
-        .route("/machines/{machine}", get(pages::machine))
+        .route("/", get(pages::fleet.layer(read.clone())))
+        .route(
+            "/machines/{machine}",
+            get(pages::machine.layer(read.clone())),
+        )
         .route("/static/{*path}", get(pages::asset))
         .route("/healthz", get(metrics::healthz))
-        .route("/metrics", get(metrics::render))
-        .route("/api/v1/machines", get(machines::list))
+        .route("/metrics", get(metrics::render.layer(read.clone())))
+        .route("/api/v1/machines", get(machines::list.layer(read.clone())))
         .route(
             "/api/v1/machines/{machine}",
-            get(machines::show).put(machines::put),
+            get(machines::show.layer(read.clone())).put(machines::put.layer(admin.clone())),
         )
         .route(
             "/api/v1/machines/{machine}/readings",
-            get(history::readings).post(ingest::post_readings),
+            get(history::readings.layer(read.clone()))
+                .post(ingest::post_readings.layer(ingest.clone())),
         )
-        .route("/api/v1/machines/{machine}/ingest", get(ingest::websocket))
-        .route("/api/v1/machines/{machine}/live", get(live::websocket))
+        .route(
+            "/api/v1/machines/{machine}/ingest",
+            get(ingest::websocket.layer(ingest)),
+        )
+        .route(
+            "/api/v1/machines/{machine}/live",
+            get(live::websocket.layer(read.clone())),
+        )
         .route(
             "/api/v1/machines/{machine}/estimates",
-            get(history::estimates),
+            get(history::estimates.layer(read.clone())),
         )
-        .route("/api/v1/machines/{machine}/model", get(history::model))
+        .route(
+            "/api/v1/machines/{machine}/model",
+            get(history::model.layer(read.clone())),
+        )
         .route("/login", get(auth::login_page).post(auth::login))
         .route("/logout", axum::routing::post(auth::logout))
-        .fallback(not_found)
-        .method_not_allowed_fallback(method_not_allowed)
-        .layer(axum::middleware::from_fn_with_state(
-            state.clone(),
-            auth::require,
-        ))
+        // Unknown routes and methods answer only those who may read.
+        .fallback(not_found.layer(read.clone()))
+        .method_not_allowed_fallback(method_not_allowed.layer(read))
         .layer(axum::middleware::from_fn_with_state(
             state.clone(),
             answer_in_time,
