@@ -186,7 +186,7 @@ impl AppState {
         }
         if !options.retention.keeps_everything() {
             tokio::spawn(apply_retention(
-                options.data_dir.clone(),
+                store.clone(),
                 options.retention,
                 options.clock,
             ));
@@ -344,31 +344,42 @@ pub fn router(state: SharedState) -> Router {
         .with_state(state)
 }
 
-/// Applies the retention policy now and every `every_s`, on its own
-/// connection in short transactions (see `store::retention`).
-async fn apply_retention(
-    data_dir: PathBuf,
-    policy: crate::store::retention::Retention,
-    clock: Clock,
-) {
+/// Applies the retention policy now and every `every_s`: each pass is
+/// planned on a read connection and done step by step on the store's
+/// writer between its commits (see `store::retention`).
+async fn apply_retention(store: Store, policy: crate::store::retention::Retention, clock: Clock) {
+    use crate::store::retention::{Pruned, plan};
     let every = std::time::Duration::from_secs_f64(policy.every_s.max(1.0));
     let mut tick = tokio::time::interval(every);
     loop {
         tick.tick().await;
-        let (data_dir, now_t) = (data_dir.clone(), clock.now_s());
-        let pass = tokio::task::spawn_blocking(move || {
-            let conn = Store::connect(&data_dir)?;
-            crate::store::retention::prune(&conn, now_t, &policy, 5000)
-        })
-        .await;
-        match pass {
-            Ok(Ok(pruned)) => tracing::info!(
+        let now_t = clock.now_s();
+        let pass = async {
+            let planner = store.clone();
+            let steps = tokio::task::spawn_blocking(move || {
+                planner.read(|conn| plan(conn, now_t, &policy, 5000))
+            })
+            .await
+            .map_err(|e| crate::store::StoreError::Corrupt(format!("retention plan: {e}")))??;
+            let mut pruned = Pruned::default();
+            for step in steps {
+                loop {
+                    let done = store.maintain(move |conn| step.apply(conn)).await?;
+                    pruned.add(done);
+                    if !step.again(&done) {
+                        break;
+                    }
+                }
+            }
+            Ok::<_, crate::store::StoreError>(pruned)
+        };
+        match pass.await {
+            Ok(pruned) => tracing::info!(
                 readings = pruned.readings,
                 estimates = pruned.estimates,
                 "retention pass"
             ),
-            Ok(Err(e)) => tracing::warn!(error = %e, "retention pass failed; next time again"),
-            Err(e) => tracing::error!(error = %e, "retention pass panicked"),
+            Err(e) => tracing::warn!(error = %e, "retention pass failed; next time again"),
         }
     }
 }

@@ -10,17 +10,23 @@
 //! `spawn_blocking`.
 
 pub mod codec;
+mod error;
 pub mod queries;
+mod read_pool;
 pub mod retention;
 pub mod schema;
+mod writer;
+
+pub use error::StoreError;
+use read_pool::ReadPool;
+use writer::{Queued, Request, checkpoints};
 
 pub use queries::{BUCKET_WIDTHS_S, EstimatesPage, Extremes};
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
-use rusqlite::{Connection, OpenFlags, OptionalExtension, params};
+use rusqlite::{Connection, OptionalExtension, params};
 use tokio::sync::{mpsc, oneshot};
 
 use crate::config::MachineSpec;
@@ -34,47 +40,6 @@ const MAX_GROUP: usize = 512;
 const CHECKPOINT_EVERY: std::time::Duration = std::time::Duration::from_millis(500);
 /// Requests waiting for the writer before senders wait (backpressure).
 const QUEUE_LEN: usize = 1024;
-
-/// Why the store failed.
-#[derive(Debug, thiserror::Error)]
-pub enum StoreError {
-    #[error("database: {0}")]
-    Sqlite(#[from] rusqlite::Error),
-    #[error("cannot create data dir {path}: {source}")]
-    DataDir {
-        path: String,
-        source: std::io::Error,
-    },
-    #[error("database schema version {found} is newer than this build supports ({supported})")]
-    NewerSchema { found: i64, supported: i64 },
-    #[error("the store has shut down")]
-    Closed,
-    #[error("stored data is corrupt: {0}")]
-    Corrupt(String),
-    #[error("the machine's engines could not be rebuilt after a failed write ({0})")]
-    Unrebuilt(String),
-}
-
-impl StoreError {
-    /// A failure that may pass: the database busy or locked by another
-    /// process, the disk full, an I/O error. The server answers 503 for
-    /// these and the client retries.
-    pub fn is_transient(&self) -> bool {
-        use rusqlite::ErrorCode;
-        match self {
-            StoreError::Sqlite(rusqlite::Error::SqliteFailure(e, _)) => matches!(
-                e.code,
-                ErrorCode::DatabaseBusy
-                    | ErrorCode::DatabaseLocked
-                    | ErrorCode::DiskFull
-                    | ErrorCode::SystemIoFailure
-                    | ErrorCode::CannotOpen
-            ),
-            StoreError::Unrebuilt(_) => true,
-            _ => false,
-        }
-    }
-}
 
 /// A reading to store: its time, sensor and data.
 #[derive(Debug, Clone)]
@@ -162,23 +127,6 @@ pub struct StoredSnapshot {
     pub state: String,
 }
 
-/// What the writer's queue carries.
-enum Queued {
-    Request(Request),
-    /// Checkpoint the log into the database and stop writing.
-    Close(oneshot::Sender<()>),
-}
-
-enum Request {
-    Write(Write),
-    PutMachine {
-        spec: MachineSpec,
-        /// The fresh state of the (re)declared machine's engines.
-        snapshot: String,
-        reply: oneshot::Sender<Result<i64, StoreError>>,
-    },
-}
-
 /// Cheap, cloneable handle to the store.
 #[derive(Clone)]
 pub struct Store {
@@ -217,7 +165,7 @@ impl Store {
         conn.pragma_update(None, "journal_size_limit", 64 * 1024 * 1024)?;
         conn.busy_timeout(std::time::Duration::from_secs(5))?;
         // Multi-row inserts of every length up to ROWS_PER_INSERT stay prepared.
-        conn.set_prepared_statement_cache_capacity(2 * ROWS_PER_INSERT + 32);
+        conn.set_prepared_statement_cache_capacity(2 * writer::ROWS_PER_INSERT + 32);
         schema::migrate(&mut conn)?;
         if let Some(max_bytes) = max_bytes {
             let page_bytes: i64 = conn.query_row("PRAGMA page_size", [], |row| row.get(0))?;
@@ -239,7 +187,7 @@ impl Store {
         std::thread::Builder::new()
             .name("store-writer".into())
             .spawn(move || {
-                writer(conn, queue);
+                writer::writer(conn, queue);
                 drop(alive);
             })
             .map_err(|source| StoreError::DataDir {
@@ -331,6 +279,25 @@ impl Store {
         answer.await.map_err(|_| StoreError::Closed)?
     }
 
+    /// Runs `f` on the writing connection, in the writer thread between
+    /// two group commits: maintenance (retention) that must not contend
+    /// with the writer for the database lock. Keep `f` short: ingest waits
+    /// for it.
+    pub async fn maintain<R: Send + 'static>(
+        &self,
+        f: impl FnOnce(&mut Connection) -> Result<R, StoreError> + Send + 'static,
+    ) -> Result<R, StoreError> {
+        let (reply, answer) = oneshot::channel();
+        let job: writer::Job = Box::new(move |conn| {
+            let _ = reply.send(f(conn));
+        });
+        self.requests
+            .send(Queued::Job(job))
+            .await
+            .map_err(|_| StoreError::Closed)?;
+        answer.await.map_err(|_| StoreError::Closed)?
+    }
+
     /// Runs `f` on a pooled read-only connection (blocking).
     pub fn read<R>(
         &self,
@@ -400,312 +367,6 @@ impl Store {
             Ok(count)
         })
     }
-}
-
-/// Copies the write-ahead log back into the database now and then, off
-/// the writer's path. A passive checkpoint never blocks the writer; when
-/// no reader holds an old snapshot the log is then reused from its start.
-/// Ends with the writer.
-fn checkpoints(conn: Connection, writer_gone: std::sync::mpsc::Receiver<()>) {
-    while let Err(std::sync::mpsc::RecvTimeoutError::Timeout) =
-        writer_gone.recv_timeout(CHECKPOINT_EVERY)
-    {
-        match conn.query_row("PRAGMA wal_checkpoint(PASSIVE)", [], |row| {
-            Ok((
-                row.get::<_, i64>(0)?,
-                row.get::<_, i64>(1)?,
-                row.get::<_, i64>(2)?,
-            ))
-        }) {
-            Ok(_) => {}
-            Err(e) => tracing::warn!(error = %e, "checkpoint failed"),
-        }
-    }
-}
-
-/// Read-only connections, opened on demand and reused.
-struct ReadPool {
-    path: PathBuf,
-    idle: Mutex<Vec<Connection>>,
-}
-
-impl ReadPool {
-    fn with<R>(
-        &self,
-        f: impl FnOnce(&Connection) -> Result<R, StoreError>,
-    ) -> Result<R, StoreError> {
-        let pooled = self.idle.lock().ok().and_then(|mut idle| idle.pop());
-        let conn = match pooled {
-            Some(conn) => conn,
-            None => {
-                let conn = Connection::open_with_flags(
-                    &self.path,
-                    OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX,
-                )?;
-                conn.busy_timeout(std::time::Duration::from_secs(5))?;
-                conn
-            }
-        };
-        let result = f(&conn);
-        if let Ok(mut idle) = self.idle.lock() {
-            idle.push(conn);
-        }
-        result
-    }
-}
-
-/// The writer thread: takes every waiting request, commits them together,
-/// then answers each.
-fn writer(mut conn: Connection, mut queue: mpsc::Receiver<Queued>) {
-    let mut group = Vec::with_capacity(MAX_GROUP);
-    let mut close = None;
-    while close.is_none() {
-        let Some(first) = queue.blocking_recv() else {
-            break;
-        };
-        let mut next = Some(first);
-        while let Some(request) = next.take() {
-            match request {
-                Queued::Close(reply) => close = Some(reply),
-                Queued::Request(request) => {
-                    group.push(request);
-                    if group.len() < MAX_GROUP {
-                        next = queue.try_recv().ok();
-                    }
-                }
-            }
-        }
-        if group.is_empty() {
-            continue;
-        }
-        match apply_group(&mut conn, &group) {
-            Ok(outcomes) => {
-                for (request, outcome) in group.drain(..).zip(outcomes) {
-                    answer(request, Ok(outcome));
-                }
-            }
-            Err(e) => {
-                // One bad request must not fail its neighbours: retry each alone.
-                tracing::warn!(error = %e, requests = group.len(), "group commit failed; retrying one by one");
-                for request in group.drain(..) {
-                    let result = apply_group(&mut conn, std::slice::from_ref(&request))
-                        .map(|mut outcomes| outcomes.pop().unwrap_or(Outcome::Put(0)));
-                    if let Err(e) = &result {
-                        tracing::error!(error = %e, "write failed");
-                    }
-                    answer(request, result);
-                }
-            }
-        }
-    }
-    // Later sends fail at once; requests already queued are dropped, and
-    // their senders see the store closed.
-    queue.close();
-    // Whether closed or dropped by every handle: leave no log behind.
-    if let Err(e) = conn.query_row("PRAGMA wal_checkpoint(TRUNCATE)", [], |_| Ok(())) {
-        tracing::warn!(error = %e, "final checkpoint failed");
-    }
-    if let Some(reply) = close {
-        let _ = reply.send(());
-    }
-}
-
-enum Outcome {
-    Write(WriteOutcome),
-    Put(i64),
-}
-
-fn answer(request: Request, result: Result<Outcome, StoreError>) {
-    match request {
-        Request::Write(write) => {
-            if let Some(after_commit) = write.after_commit {
-                after_commit(result.is_ok());
-            }
-            if let Some(reply) = write.reply {
-                let _ = reply.send(result.map(|o| match o {
-                    Outcome::Write(w) => w,
-                    Outcome::Put(_) => WriteOutcome::default(),
-                }));
-            }
-        }
-        Request::PutMachine { reply, .. } => {
-            let _ = reply.send(result.map(|o| match o {
-                Outcome::Put(id) => id,
-                Outcome::Write(_) => 0,
-            }));
-        }
-    }
-}
-
-fn apply_group(conn: &mut Connection, group: &[Request]) -> Result<Vec<Outcome>, StoreError> {
-    let tx = conn.transaction()?;
-    let mut outcomes = Vec::with_capacity(group.len());
-    // Bucket extremes of the whole group, upserted once each: with many
-    // small writes most of them fall in the same few buckets.
-    let mut buckets = Buckets::new();
-    for request in group {
-        outcomes.push(match request {
-            Request::Write(write) => Outcome::Write(apply_write(&tx, write, &mut buckets)?),
-            Request::PutMachine { spec, snapshot, .. } => {
-                Outcome::Put(apply_put_machine(&tx, spec, snapshot)?)
-            }
-        });
-    }
-    upsert_buckets(&tx, buckets)?;
-    tx.commit()?;
-    Ok(outcomes)
-}
-
-/// Extremes per (machine, engine, bucket width, bucket).
-type Buckets = BTreeMap<(i64, StreamKind, i64, i64), Extremes>;
-
-fn apply_write(
-    tx: &rusqlite::Transaction,
-    write: &Write,
-    buckets: &mut Buckets,
-) -> Result<WriteOutcome, StoreError> {
-    let mut outcome = WriteOutcome::default();
-    let machine_id = write.machine_id;
-    let stored = insert_rows(
-        tx,
-        "INSERT OR IGNORE INTO readings (machine_id, t, sensor, body)",
-        4,
-        &write.readings,
-        |stmt, i, reading| {
-            stmt.raw_bind_parameter(i, machine_id)?;
-            stmt.raw_bind_parameter(i + 1, reading.t)?;
-            stmt.raw_bind_parameter(i + 2, reading.sensor as i64)?;
-            stmt.raw_bind_parameter(i + 3, &reading.data)
-        },
-    )?;
-    outcome.stored = stored;
-    outcome.duplicates = write.readings.len() - stored;
-    // Estimates are a function of the readings: one recomputed after a
-    // restart is the same estimate, stored once.
-    insert_rows(
-        tx,
-        "INSERT OR IGNORE INTO estimates (machine_id, engine, t, extreme_a, extreme_b, body, codec)",
-        7,
-        &write.estimates,
-        |stmt, i, estimate| {
-            stmt.raw_bind_parameter(i, machine_id)?;
-            stmt.raw_bind_parameter(i + 1, estimate.engine.as_str())?;
-            stmt.raw_bind_parameter(i + 2, estimate.t)?;
-            stmt.raw_bind_parameter(i + 3, estimate.extremes[0])?;
-            stmt.raw_bind_parameter(i + 4, estimate.extremes[1])?;
-            stmt.raw_bind_parameter(i + 5, &estimate.values)?;
-            stmt.raw_bind_parameter(i + 6, estimate.codec)
-        },
-    )?;
-    // Extremes per stored bucket. A recomputed estimate is the stored one
-    // again (same time, same values), so folding it in changes nothing.
-    for estimate in &write.estimates {
-        let point = Extremes::point(estimate.t, estimate.extremes);
-        for width_s in BUCKET_WIDTHS_S {
-            let bucket = (estimate.t / width_s as f64).floor() as i64;
-            buckets
-                .entry((machine_id, estimate.engine, width_s, bucket))
-                .and_modify(|b| b.merge(&point))
-                .or_insert(point);
-        }
-    }
-    if let Some(state) = &write.snapshot {
-        save_snapshot(tx, write.machine_id, state)?;
-    }
-    Ok(outcome)
-}
-
-/// Folds a group's bucket extremes into `estimate_buckets`.
-fn upsert_buckets(tx: &rusqlite::Transaction, buckets: Buckets) -> Result<(), StoreError> {
-    let mut upsert = tx.prepare_cached(
-        "INSERT INTO estimate_buckets VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12) \
-         ON CONFLICT DO UPDATE SET \
-         t_min_a = CASE WHEN excluded.min_a < min_a THEN excluded.t_min_a ELSE t_min_a END, \
-         min_a = min(min_a, excluded.min_a), \
-         t_max_a = CASE WHEN excluded.max_a > max_a THEN excluded.t_max_a ELSE t_max_a END, \
-         max_a = max(max_a, excluded.max_a), \
-         t_min_b = CASE WHEN excluded.min_b < min_b THEN excluded.t_min_b ELSE t_min_b END, \
-         min_b = min(min_b, excluded.min_b), \
-         t_max_b = CASE WHEN excluded.max_b > max_b THEN excluded.t_max_b ELSE t_max_b END, \
-         max_b = max(max_b, excluded.max_b)",
-    )?;
-    for ((machine_id, engine, width_s, bucket), e) in buckets {
-        upsert.execute(params![
-            machine_id,
-            engine.as_str(),
-            width_s,
-            bucket,
-            e.min_a.0,
-            e.min_a.1,
-            e.max_a.0,
-            e.max_a.1,
-            e.min_b.0,
-            e.min_b.1,
-            e.max_b.0,
-            e.max_b.1
-        ])?;
-    }
-    Ok(())
-}
-
-/// Rows per multi-row `INSERT`: one statement step stores many rows.
-const ROWS_PER_INSERT: usize = 64;
-
-/// Inserts `rows` with `head` (`INSERT ... (columns)`) followed by
-/// `VALUES (?, ...), ...`, [`ROWS_PER_INSERT`] rows per statement; `bind`
-/// binds one row's `columns` values from parameter index `i` on. Returns
-/// how many rows were inserted (an `OR IGNORE` skips some).
-fn insert_rows<T>(
-    tx: &rusqlite::Transaction,
-    head: &str,
-    columns: usize,
-    rows: &[T],
-    bind: impl Fn(&mut rusqlite::Statement, usize, &T) -> rusqlite::Result<()>,
-) -> Result<usize, StoreError> {
-    let mut inserted = 0;
-    for chunk in rows.chunks(ROWS_PER_INSERT) {
-        let row = format!("({})", vec!["?"; columns].join(","));
-        let sql = format!("{head} VALUES {}", vec![row; chunk.len()].join(","));
-        let mut stmt = tx.prepare_cached(&sql)?;
-        for (k, item) in chunk.iter().enumerate() {
-            bind(&mut stmt, 1 + k * columns, item)?;
-        }
-        inserted += stmt.raw_execute()?;
-    }
-    Ok(inserted)
-}
-
-/// Records `state` as the machine's state after every reading stored so far.
-fn save_snapshot(
-    tx: &rusqlite::Transaction,
-    machine_id: i64,
-    state: &str,
-) -> Result<(), StoreError> {
-    let last_reading_id: i64 = tx
-        .prepare_cached("SELECT coalesce(max(id), 0) FROM readings WHERE machine_id = ?1")?
-        .query_row([machine_id], |row| row.get(0))?;
-    tx.prepare_cached(
-        "INSERT INTO snapshots (machine_id, last_reading_id, state) VALUES (?1, ?2, ?3) \
-         ON CONFLICT (machine_id) DO UPDATE SET last_reading_id = ?2, state = ?3",
-    )?
-    .execute(params![machine_id, last_reading_id, state])?;
-    Ok(())
-}
-
-fn apply_put_machine(
-    tx: &rusqlite::Transaction,
-    spec: &MachineSpec,
-    snapshot: &str,
-) -> Result<i64, StoreError> {
-    let json = serde_json::to_string(spec).map_err(|e| StoreError::Corrupt(e.to_string()))?;
-    let id: i64 = tx
-        .prepare_cached(
-            "INSERT INTO machines (machine, spec) VALUES (?1, ?2) \
-             ON CONFLICT (machine) DO UPDATE SET spec = ?2 RETURNING id",
-        )?
-        .query_row(params![spec.id, json], |row| row.get(0))?;
-    save_snapshot(tx, id, snapshot)?;
-    Ok(id)
 }
 
 #[cfg(test)]

@@ -3,8 +3,11 @@
 //! per-bucket extremes stay, so history over old ranges still shows every
 //! spike).
 //!
-//! Runs on its own connection beside the writer, in short transactions of
-//! at most `batch` rows, so ingest waits for a few milliseconds at a time.
+//! A pass is planned on a read connection ([`plan`]) and done step by
+//! step on the writer's connection between its group commits
+//! ([`Step::apply`] through `Store::maintain`): each step a short
+//! transaction of at most `batch` rows or one thinning window, so ingest
+//! waits for a few milliseconds at a time and nothing else writes.
 //! A reading is deleted only if its machine's latest snapshot already
 //! covers it: restart re-feeds the readings after the snapshot, and those
 //! are never pruned. A gateway resending a pruned reading gets it stored
@@ -56,28 +59,35 @@ const THIN_WINDOW_S: f64 = 600.0;
 /// One estimate kept per this many seconds.
 const THIN_TO_S: f64 = 60.0;
 
-/// One pass of the policy at `now_t`.
-pub fn prune(
+/// One unit of a pass, its own short transaction.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Step {
+    /// Delete up to `batch` readings older than `cut` that their
+    /// machine's snapshot covers; again while a full batch went
+    /// ([`Step::again`]).
+    Readings { cut: f64, batch: usize },
+    /// Thin one machine's estimates of one stream in `[from, to)`.
+    Thin {
+        machine: i64,
+        stream: StreamKind,
+        from: f64,
+        to: f64,
+    },
+}
+
+/// The steps of a pass of `policy` at `now_t`.
+pub fn plan(
     conn: &Connection,
     now_t: f64,
     policy: &Retention,
     batch: usize,
-) -> Result<Pruned, StoreError> {
-    let mut pruned = Pruned::default();
+) -> Result<Vec<Step>, StoreError> {
+    let mut steps = Vec::new();
     if let Some(keep_s) = policy.keep_readings_s {
-        let cut = now_t - keep_s;
-        loop {
-            let deleted = conn.execute(
-                "DELETE FROM readings WHERE id IN (
-                     SELECT r.id FROM readings r JOIN snapshots s ON s.machine_id = r.machine_id
-                     WHERE r.t < ?1 AND r.id <= s.last_reading_id LIMIT ?2)",
-                params![cut, batch as i64],
-            )?;
-            pruned.readings += deleted as u64;
-            if deleted < batch {
-                break;
-            }
-        }
+        steps.push(Step::Readings {
+            cut: now_t - keep_s,
+            batch,
+        });
     }
     if let Some(full_s) = policy.full_estimates_s {
         let cut = now_t - full_s;
@@ -86,40 +96,105 @@ pub fn prune(
             .query_map([], |row| row.get(0))?
             .collect::<Result<_, _>>()?;
         for machine in machines {
-            for engine in StreamKind::ALL {
-                pruned.estimates += thin(conn, machine, engine.as_str(), cut)?;
+            for &stream in StreamKind::ALL {
+                let oldest: Option<f64> = conn.query_row(
+                    "SELECT MIN(t) FROM estimates WHERE machine_id = ?1 AND engine = ?2",
+                    params![machine, stream.as_str()],
+                    |row| row.get(0),
+                )?;
+                let Some(oldest) = oldest else {
+                    continue;
+                };
+                let mut from = (oldest / THIN_WINDOW_S).floor() * THIN_WINDOW_S;
+                while from < cut {
+                    let to = (from + THIN_WINDOW_S).min(cut);
+                    steps.push(Step::Thin {
+                        machine,
+                        stream,
+                        from,
+                        to,
+                    });
+                    from = to;
+                }
+            }
+        }
+    }
+    Ok(steps)
+}
+
+impl Step {
+    /// Does the step; what it deleted.
+    pub fn apply(&self, conn: &Connection) -> Result<Pruned, StoreError> {
+        match *self {
+            Step::Readings { cut, batch } => {
+                let readings = conn.execute(
+                    "DELETE FROM readings WHERE id IN (
+                         SELECT r.id FROM readings r JOIN snapshots s ON s.machine_id = r.machine_id
+                         WHERE r.t < ?1 AND r.id <= s.last_reading_id LIMIT ?2)",
+                    params![cut, batch as i64],
+                )? as u64;
+                Ok(Pruned {
+                    readings,
+                    estimates: 0,
+                })
+            }
+            Step::Thin {
+                machine,
+                stream,
+                from,
+                to,
+            } => {
+                let estimates = conn.execute(
+                    "DELETE FROM estimates WHERE machine_id = ?1 AND engine = ?2 AND t >= ?3 AND t < ?4
+                       AND t NOT IN (
+                         SELECT MIN(t) FROM estimates
+                         WHERE machine_id = ?1 AND engine = ?2 AND t >= ?3 AND t < ?4
+                         GROUP BY CAST(t / ?5 AS INTEGER))",
+                    params![machine, stream.as_str(), from, to, THIN_TO_S],
+                )? as u64;
+                Ok(Pruned {
+                    readings: 0,
+                    estimates,
+                })
+            }
+        }
+    }
+}
+
+impl Step {
+    /// Whether the step has more to do after deleting `pruned`.
+    pub fn again(&self, pruned: &Pruned) -> bool {
+        matches!(*self, Step::Readings { batch, .. } if pruned.readings == batch as u64)
+    }
+}
+
+/// A whole pass of the policy at `now_t` on one connection (the steps of
+/// [`plan`], each applied as often as it has more to do).
+pub fn prune(
+    conn: &Connection,
+    now_t: f64,
+    policy: &Retention,
+    batch: usize,
+) -> Result<Pruned, StoreError> {
+    let mut pruned = Pruned::default();
+    for step in plan(conn, now_t, policy, batch)? {
+        loop {
+            let done = step.apply(conn)?;
+            pruned.add(done);
+            if !step.again(&done) {
+                break;
             }
         }
     }
     Ok(pruned)
 }
 
-/// Thins one machine's estimates of one engine before `cut`, window by
-/// window, each in its own transaction.
-fn thin(conn: &Connection, machine: i64, engine: &str, cut: f64) -> Result<u64, StoreError> {
-    let oldest: Option<f64> = conn.query_row(
-        "SELECT MIN(t) FROM estimates WHERE machine_id = ?1 AND engine = ?2",
-        params![machine, engine],
-        |row| row.get(0),
-    )?;
-    let Some(oldest) = oldest else {
-        return Ok(0);
-    };
-    let mut deleted = 0;
-    let mut from = (oldest / THIN_WINDOW_S).floor() * THIN_WINDOW_S;
-    while from < cut {
-        let to = (from + THIN_WINDOW_S).min(cut);
-        deleted += conn.execute(
-            "DELETE FROM estimates WHERE machine_id = ?1 AND engine = ?2 AND t >= ?3 AND t < ?4
-               AND t NOT IN (
-                 SELECT MIN(t) FROM estimates
-                 WHERE machine_id = ?1 AND engine = ?2 AND t >= ?3 AND t < ?4
-                 GROUP BY CAST(t / ?5 AS INTEGER))",
-            params![machine, engine, from, to, THIN_TO_S],
-        )? as u64;
-        from = to;
+impl Pruned {
+    /// Adds what another step deleted.
+    pub fn add(&mut self, other: Pruned) {
+        self.readings += other.readings;
+        self.estimates += other.estimates;
     }
-    Ok(deleted)
 }
 
 #[cfg(test)]
