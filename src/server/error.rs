@@ -102,18 +102,41 @@ impl ApiError {
     }
 
     /// The JSON body.
-    pub fn body(&self) -> serde_json::Value {
-        let mut body = serde_json::json!({ "error": self.to_string() });
+    pub fn body(&self) -> ErrorBody<'_> {
+        let mut body = ErrorBody {
+            error: self.to_string(),
+            machine: None,
+            accepted: None,
+            rejected: None,
+            status: None,
+        };
         match self {
-            ApiError::UnknownMachine(machine) => body["machine"] = machine.as_str().into(),
+            ApiError::UnknownMachine(machine) => body.machine = Some(machine),
             ApiError::NoValidReading { rejected } => {
-                body["accepted"] = 0.into();
-                body["rejected"] = serde_json::to_value(rejected).unwrap_or_default();
+                body.accepted = Some(0);
+                body.rejected = Some(rejected);
             }
             _ => {}
         }
         body
     }
+}
+
+/// Every error's JSON: what was wrong, and what it is about.
+#[derive(Debug, serde::Serialize)]
+pub struct ErrorBody<'a> {
+    pub error: String,
+    /// The unknown machine.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub machine: Option<&'a str>,
+    /// With `rejected`: a request none of whose readings was valid.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub accepted: Option<u64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rejected: Option<&'a [Rejected]>,
+    /// The HTTP status, where the answer has none of its own (a socket).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub status: Option<u16>,
 }
 
 impl IntoResponse for ApiError {

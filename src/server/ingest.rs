@@ -236,7 +236,7 @@ async fn serve_ingest(
             Ok(ack) => serde_json::to_string(&ack),
             Err(e) => {
                 let mut body = e.body();
-                body["status"] = e.status().as_u16().into();
+                body.status = Some(e.status().as_u16());
                 serde_json::to_string(&body)
             }
         };

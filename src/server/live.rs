@@ -17,12 +17,15 @@ use axum::extract::ws::rejection::WebSocketUpgradeRejection;
 use axum::extract::ws::{CloseFrame, Message, Utf8Bytes, WebSocket, WebSocketUpgrade};
 use axum::extract::{Path, State};
 use axum::response::Response;
-use serde_json::json;
+use std::collections::BTreeMap;
+
+use serde::Serialize;
 use serde_json::value::RawValue;
 use tokio::sync::broadcast::error::RecvError;
 
 use super::error::ApiError;
 use super::{Clock, SharedState};
+use crate::fusion::{EngineKind, StreamKind};
 use crate::machine::MachineHandle;
 
 /// `GET /api/v1/machines/{machine}/live`.
@@ -49,8 +52,34 @@ pub async fn websocket(
     }))
 }
 
-fn text(value: serde_json::Value) -> Message {
-    Message::Text(value.to_string().into())
+/// What the live socket sends besides estimates, tagged by `event`.
+#[derive(Serialize)]
+#[serde(tag = "event", rename_all = "snake_case")]
+enum Event<'a> {
+    /// First: the machine, its engines, the newest estimate of each
+    /// stream, and the clock.
+    Hello {
+        machine: &'a str,
+        name: &'a str,
+        engines: Vec<EngineKind>,
+        latest: BTreeMap<StreamKind, Box<RawValue>>,
+        server_t: f64,
+        clock_rate: f64,
+    },
+    /// The client fell behind and `missed` estimates between the two
+    /// times were dropped: fetch them from the history.
+    Gap {
+        missed: u64,
+        from_t: Option<f64>,
+        to_t: Option<f64>,
+    },
+    /// Keeps idle connections open; carries the clock.
+    Ping { server_t: f64 },
+}
+
+fn text(event: Event<'_>) -> Message {
+    // A tagged struct of plain fields always serialises.
+    Message::Text(serde_json::to_string(&event).unwrap_or_default().into())
 }
 
 async fn serve_live(
@@ -64,23 +93,20 @@ async fn serve_live(
     // the two (an estimate may come twice; `t` tells).
     let mut estimates = machine.subscribe();
     let status = machine.status();
-    let latest: serde_json::Map<String, serde_json::Value> = status
-        .latest
-        .iter()
-        .filter_map(|(engine, e)| {
-            let raw = RawValue::from_string(e.json.to_string()).ok()?;
-            Some((engine.as_str().to_string(), serde_json::to_value(raw).ok()?))
-        })
-        .collect();
-    let hello = json!({
-        "event": "hello",
-        "machine": machine.spec.id,
-        "name": machine.spec.name,
-        "engines": machine.spec.engines.keys().map(|e| e.as_str()).collect::<Vec<_>>(),
-        "latest": latest,
-        "server_t": clock.now_s(),
-        "clock_rate": clock.rate(),
-    });
+    let hello = Event::Hello {
+        machine: &machine.spec.id,
+        name: &machine.spec.name,
+        engines: machine.spec.engines.keys().copied().collect(),
+        latest: status
+            .latest
+            .iter()
+            .filter_map(|(&stream, e)| {
+                Some((stream, RawValue::from_string(e.json.to_string()).ok()?))
+            })
+            .collect(),
+        server_t: clock.now_s(),
+        clock_rate: clock.rate(),
+    };
     if socket.send(text(hello)).await.is_err() {
         return;
     }
@@ -101,7 +127,7 @@ async fn serve_live(
                     // The next estimate still buffered bounds the gap.
                     let next = estimates.recv().await;
                     let to_t = next.as_ref().ok().map(|e| e.t);
-                    let gap = json!({"event": "gap", "missed": missed, "from_t": last_t, "to_t": to_t});
+                    let gap = Event::Gap { missed, from_t: last_t, to_t };
                     if socket.send(text(gap)).await.is_err() {
                         return;
                     }
@@ -119,7 +145,7 @@ async fn serve_live(
                 }
             },
             _ = ping.tick() => {
-                if socket.send(text(json!({"event": "ping", "server_t": clock.now_s()}))).await.is_err() {
+                if socket.send(text(Event::Ping { server_t: clock.now_s() })).await.is_err() {
                     return;
                 }
             }

@@ -6,39 +6,117 @@ use axum::extract::rejection::BytesRejection;
 use axum::extract::{Path, State};
 use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
-use serde_json::{Map, Value, json};
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+use serde_json::value::RawValue;
 
 use super::SharedState;
 use super::error::ApiError;
 use crate::config::{MachineDeclaration, valid_machine_id};
+use crate::fusion::{EngineKind, SensorKind, StreamKind};
 use crate::machine::MachineHandle;
 
-/// Status summary: sensors' last readings and their age at `now` (server
-/// clock), laser state, latest estimate of each engine.
-fn status(machine: &MachineHandle, now: f64) -> Value {
+/// A sensor's last reading, as the status reports it.
+#[derive(Debug, Serialize)]
+pub struct SensorReport {
+    /// Time of the newest reading, Unix seconds.
+    pub last_t: f64,
+    /// Its age at the server clock's now.
+    pub age_s: f64,
+    /// Readings received since the server started.
+    pub readings: u64,
+}
+
+/// The laser's state, from the newest `attitude` estimate.
+#[derive(Debug, Serialize)]
+pub struct LaserReport {
+    pub ok: bool,
+    pub age_s: Option<f64>,
+    pub dropout: bool,
+}
+
+/// The fields of an `attitude` estimate the laser report reads.
+#[derive(Deserialize)]
+struct LaserFields {
+    laser_ok: bool,
+    laser_age_s: Option<f64>,
+}
+
+/// A machine's status: sensors' last readings and their age at `now`
+/// (server clock), laser state, latest estimate of each engine and stage;
+/// one machine's also its declaration and the clock.
+#[derive(Debug, Serialize)]
+pub struct MachineStatusBody {
+    pub machine: String,
+    pub name: String,
+    pub engines: Vec<EngineKind>,
+    /// The newest reading of any sensor; `null` before the first.
+    pub last_reading_t: Option<f64>,
+    pub sensors: BTreeMap<SensorKind, SensorReport>,
+    /// `null` for a machine without `attitude`.
+    pub laser: Option<LaserReport>,
+    /// Readings stored but too late to be fused, since the server started.
+    pub late_readings: u64,
+    pub live_clients: usize,
+    /// The newest estimate of each stream, as the live stream sent it.
+    pub latest: BTreeMap<StreamKind, Box<RawValue>>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub config: Option<MachineDeclaration>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub server_t: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub clock_rate: Option<f64>,
+}
+
+/// `GET /api/v1/machines`: every machine's status and the clock.
+#[derive(Debug, Serialize)]
+pub struct MachineList {
+    pub machines: Vec<MachineStatusBody>,
+    pub server_t: f64,
+    /// Server seconds per wall second (above 1 in the demo).
+    pub clock_rate: f64,
+}
+
+/// The answer to a declaration.
+#[derive(Debug, Serialize)]
+pub struct Declared {
+    pub machine: String,
+    pub created: bool,
+    pub changed: bool,
+    pub config: MachineDeclaration,
+}
+
+/// The status of `machine` at `now`.
+fn status(machine: &MachineHandle, now: f64) -> MachineStatusBody {
     let status = machine.status();
-    let sensors: Map<String, Value> = status
+    let sensors = status
         .sensors
         .iter()
-        .map(|(sensor, s)| {
+        .map(|(&sensor, s)| {
             (
-                sensor.as_str().to_string(),
-                json!({"last_t": s.last_t, "age_s": now - s.last_t, "readings": s.readings}),
+                sensor,
+                SensorReport {
+                    last_t: s.last_t,
+                    age_s: now - s.last_t,
+                    readings: s.readings,
+                },
             )
         })
         .collect();
-    let mut latest = Map::new();
-    for (engine, estimate) in &status.latest {
-        let value: Value = serde_json::from_str(&estimate.json).unwrap_or(Value::Null);
-        latest.insert(engine.as_str().to_string(), value);
-    }
-    let laser = latest.get("attitude").map(|a| {
-        json!({
-            "ok": a["laser_ok"],
-            "age_s": a["laser_age_s"],
-            "dropout": a["laser_ok"] == Value::Bool(false),
-        })
-    });
+    let latest: BTreeMap<StreamKind, Box<RawValue>> = status
+        .latest
+        .iter()
+        .filter_map(|(&stream, e)| Some((stream, RawValue::from_string(e.json.to_string()).ok()?)))
+        .collect();
+    let laser = latest
+        .get(&StreamKind::Attitude)
+        .and_then(|a| serde_json::from_str::<LaserFields>(a.get()).ok())
+        .map(|a| LaserReport {
+            ok: a.laser_ok,
+            age_s: a.laser_age_s,
+            dropout: !a.laser_ok,
+        });
     let last_reading_t = status
         .sensors
         .values()
@@ -46,17 +124,20 @@ fn status(machine: &MachineHandle, now: f64) -> Value {
         .fold(None, |acc: Option<f64>, t| {
             Some(acc.map_or(t, |a| a.max(t)))
         });
-    json!({
-        "machine": machine.spec.id,
-        "name": machine.spec.name,
-        "engines": machine.spec.engines.keys().map(|e| e.as_str()).collect::<Vec<_>>(),
-        "last_reading_t": last_reading_t,
-        "sensors": sensors,
-        "laser": laser,
-        "late_readings": status.late,
-        "live_clients": machine.live_clients(),
-        "latest": latest,
-    })
+    MachineStatusBody {
+        machine: machine.spec.id.clone(),
+        name: machine.spec.name.clone(),
+        engines: machine.spec.engines.keys().copied().collect(),
+        last_reading_t,
+        sensors,
+        laser,
+        late_readings: status.late,
+        live_clients: machine.live_clients(),
+        latest,
+        config: None,
+        server_t: None,
+        clock_rate: None,
+    }
 }
 
 /// The server clock's reading and rate (above 1 in the demo), so a page can
@@ -66,28 +147,32 @@ fn clock(state: &SharedState) -> (f64, f64) {
 }
 
 /// `GET /api/v1/machines`.
-pub async fn list(State(state): State<SharedState>) -> Json<Value> {
+pub async fn list(State(state): State<SharedState>) -> Json<MachineList> {
     let (now, rate) = clock(&state);
-    let machines: Vec<Value> = state
-        .all_machines()
-        .iter()
-        .map(|m| status(m, now))
-        .collect();
-    Json(json!({ "machines": machines, "server_t": now, "clock_rate": rate }))
+    Json(MachineList {
+        machines: state
+            .all_machines()
+            .iter()
+            .map(|m| status(m, now))
+            .collect(),
+        server_t: now,
+        clock_rate: rate,
+    })
 }
 
 /// `GET /api/v1/machines/{machine}`.
 pub async fn show(
     State(state): State<SharedState>,
     Path(machine): Path<String>,
-) -> Result<Json<Value>, ApiError> {
+) -> Result<Json<MachineStatusBody>, ApiError> {
     let machine = state.machine(&machine)?;
     let (now, rate) = clock(&state);
-    let mut body = status(&machine, now);
-    body["config"] = serde_json::to_value(machine.spec.declaration()).unwrap_or_default();
-    body["server_t"] = now.into();
-    body["clock_rate"] = rate.into();
-    Ok(Json(body))
+    Ok(Json(MachineStatusBody {
+        config: Some(machine.spec.declaration()),
+        server_t: Some(now),
+        clock_rate: Some(rate),
+        ..status(&machine, now)
+    }))
 }
 
 /// `PUT /api/v1/machines/{machine}`: 201 when created, 200 when replaced
@@ -111,12 +196,12 @@ pub async fn put(
     let spec = declaration.validate(&machine)?;
     let (created, changed) = state.declare(spec).await?;
     let handle = state.machine(&machine)?;
-    let body = json!({
-        "machine": machine,
-        "created": created,
-        "changed": changed,
-        "config": handle.spec.declaration(),
-    });
+    let body = Declared {
+        machine,
+        created,
+        changed,
+        config: handle.spec.declaration(),
+    };
     let status = if created {
         StatusCode::CREATED
     } else {

@@ -83,12 +83,21 @@ pub fn rejected(machine: &str, rejected: &[Rejected]) {
     }
 }
 
+/// The liveness answer.
+#[derive(Debug, serde::Serialize)]
+pub struct Health {
+    /// Always `ok`: the server answers.
+    pub status: &'static str,
+    /// Machines declared.
+    pub machines: usize,
+}
+
 /// `GET /healthz`.
-pub async fn healthz(State(state): State<SharedState>) -> impl IntoResponse {
-    Json(serde_json::json!({
-        "status": "ok",
-        "machines": state.all_machines().len(),
-    }))
+pub async fn healthz(State(state): State<SharedState>) -> Json<Health> {
+    Json(Health {
+        status: "ok",
+        machines: state.all_machines().len(),
+    })
 }
 
 /// `GET /metrics`.
