@@ -188,9 +188,9 @@ mod tests {
         );
     }
 
-    #[test]
-    fn truncated_bytes_are_reported_corrupt() {
-        let values = EstimateValues::Attitude(AttitudeEstimate {
+    /// A plain `attitude` estimate.
+    fn attitude_values() -> EstimateValues {
+        EstimateValues::Attitude(AttitudeEstimate {
             pitch_deg: 1.0,
             roll_deg: 2.0,
             pitch_pred_deg: 1.0,
@@ -202,7 +202,12 @@ mod tests {
             model_version: 3,
             incl_pitch_deg: 1.1,
             incl_roll_deg: 2.1,
-        });
+        })
+    }
+
+    #[test]
+    fn truncated_bytes_are_reported_corrupt() {
+        let values = attitude_values();
         let bytes = encode_values(&values);
         let err = decode_values(StreamKind::Attitude, 1, &bytes[..bytes.len() - 3]).unwrap_err();
         assert!(err.to_string().contains("attitude"), "{err}");
@@ -210,19 +215,7 @@ mod tests {
 
     #[test]
     fn a_version_newer_than_this_release_is_refused_naming_it() {
-        let values = EstimateValues::Attitude(AttitudeEstimate {
-            pitch_deg: 1.0,
-            roll_deg: 2.0,
-            pitch_pred_deg: 1.0,
-            roll_pred_deg: 2.0,
-            pred_t: 3.0,
-            laser_ok: true,
-            pitch_correction_deg: 0.5,
-            laser_age_s: None,
-            model_version: 3,
-            incl_pitch_deg: 1.1,
-            incl_roll_deg: 2.1,
-        });
+        let values = attitude_values();
         let bytes = encode_values(&values);
         let newer = StreamKind::Attitude.codec_version() + 1;
         let err = decode_values(StreamKind::Attitude, newer, &bytes).unwrap_err();
