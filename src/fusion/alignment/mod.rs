@@ -1,0 +1,328 @@
+//! The designed tunnel axis (DTA): a horizontal alignment of lines, arcs
+//! and clothoid spirals ([`horizontal`]) and a vertical profile of grades
+//! and parabolic curves ([`vertical`]), and where a point lies against it:
+//! station, offset to the right, height above the design.
+//!
+//! The JSON form is the protocol's ("Design axis and deviation"): project
+//! coordinates in metres, azimuth in degrees clockwise from grid north,
+//! radius + for a curve to the right looking along increasing station,
+//! `null` for straight.
+
+pub mod horizontal;
+pub mod vertical;
+
+use serde::{Deserialize, Serialize};
+
+pub use horizontal::{Element, ElementKind, Foot, Pose, ProjectionError};
+pub use vertical::{Profile, ProfileError, Pvi};
+
+use crate::fusion::angles::rad;
+
+/// Where the alignment starts, as declared.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StartPose {
+    pub easting_m: f64,
+    pub northing_m: f64,
+    pub azimuth_deg: f64,
+}
+
+/// One horizontal element as declared.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+pub enum ElementSpec {
+    Line {
+        length_m: f64,
+    },
+    Arc {
+        length_m: f64,
+        radius_m: f64,
+    },
+    Spiral {
+        length_m: f64,
+        radius_start_m: Option<f64>,
+        radius_end_m: Option<f64>,
+    },
+}
+
+/// The vertical profile as declared.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProfileSpec {
+    pub start_height_m: f64,
+    #[serde(default)]
+    pub pvis: Vec<Pvi>,
+    /// Percent, + rising.
+    pub end_grade_pct: f64,
+}
+
+/// An alignment as the protocol declares it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AlignmentSpec {
+    #[serde(default)]
+    pub name: String,
+    #[serde(default)]
+    pub start_station_m: f64,
+    pub start: StartPose,
+    pub horizontal: Vec<ElementSpec>,
+    pub vertical: ProfileSpec,
+}
+
+/// Why an alignment was refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum AlignmentError {
+    #[error("the alignment has no horizontal elements")]
+    Empty,
+    #[error("the start: {0}")]
+    Start(String),
+    #[error("horizontal element {index} ({kind}): {reason}")]
+    Element {
+        index: usize,
+        kind: &'static str,
+        reason: String,
+    },
+    #[error("vertical profile: {0}")]
+    Profile(#[from] ProfileError),
+}
+
+/// A validated alignment, its elements placed.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Alignment {
+    pub name: String,
+    pub elements: Vec<Element>,
+    pub profile: Profile,
+}
+
+/// Where a point lies against the axis.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Deviation {
+    pub station_m: f64,
+    /// + right of the axis looking along increasing station, m.
+    pub horizontal_m: f64,
+    /// + above the design height at that station, m.
+    pub vertical_m: f64,
+}
+
+/// A curvature from a declared radius: `None` is straight.
+fn curvature(radius_m: Option<f64>) -> Result<f64, String> {
+    match radius_m {
+        None => Ok(0.0),
+        Some(r) if r.is_finite() && r != 0.0 => Ok(1.0 / r),
+        Some(r) => Err(format!(
+            "radius {r} is not a radius: a non-zero number of metres, + right, or null for straight"
+        )),
+    }
+}
+
+impl AlignmentSpec {
+    /// The alignment with its elements placed end to end, or what is wrong.
+    pub fn build(&self) -> Result<Alignment, AlignmentError> {
+        if self.horizontal.is_empty() {
+            return Err(AlignmentError::Empty);
+        }
+        let s = &self.start;
+        if ![
+            s.easting_m,
+            s.northing_m,
+            s.azimuth_deg,
+            self.start_station_m,
+        ]
+        .iter()
+        .all(|x| x.is_finite())
+        {
+            return Err(AlignmentError::Start(
+                "easting, northing, azimuth and station must be finite numbers".into(),
+            ));
+        }
+        let mut pose = Pose {
+            easting_m: s.easting_m,
+            northing_m: s.northing_m,
+            azimuth_rad: rad(s.azimuth_deg),
+        };
+        let mut station = self.start_station_m;
+        let mut elements = Vec::with_capacity(self.horizontal.len());
+        for (index, spec) in self.horizontal.iter().enumerate() {
+            let (kind, length_m, k0, k1) = match *spec {
+                ElementSpec::Line { length_m } => (ElementKind::Line, length_m, Ok(0.0), Ok(0.0)),
+                ElementSpec::Arc { length_m, radius_m } => {
+                    let k = curvature(Some(radius_m));
+                    (ElementKind::Arc, length_m, k.clone(), k)
+                }
+                ElementSpec::Spiral {
+                    length_m,
+                    radius_start_m,
+                    radius_end_m,
+                } => (
+                    ElementKind::Spiral,
+                    length_m,
+                    curvature(radius_start_m),
+                    curvature(radius_end_m),
+                ),
+            };
+            let name = match kind {
+                ElementKind::Line => "line",
+                ElementKind::Arc => "arc",
+                ElementKind::Spiral => "spiral",
+            };
+            let refuse = |reason: String| AlignmentError::Element {
+                index,
+                kind: name,
+                reason,
+            };
+            if !(length_m.is_finite() && length_m > 0.0) {
+                return Err(refuse(format!("length {length_m} m is not positive")));
+            }
+            let (k0, k1) = (k0.map_err(refuse)?, k1.map_err(refuse)?);
+            if kind == ElementKind::Spiral && k0 == k1 {
+                return Err(refuse(
+                    "its start and end radius are equal: that is an arc or a line, not a spiral"
+                        .into(),
+                ));
+            }
+            let element = Element {
+                kind,
+                start: pose,
+                start_station_m: station,
+                length_m,
+                curvature_start: k0,
+                curvature_end: k1,
+            };
+            pose = element.end();
+            station += length_m;
+            elements.push(element);
+        }
+        let profile = Profile {
+            start_station_m: self.start_station_m,
+            start_height_m: self.vertical.start_height_m,
+            pvis: self.vertical.pvis.clone(),
+            end_grade: self.vertical.end_grade_pct / 100.0,
+        };
+        if !profile.start_height_m.is_finite() {
+            return Err(AlignmentError::Start("start height must be finite".into()));
+        }
+        profile.validate()?;
+        Ok(Alignment {
+            name: self.name.clone(),
+            elements,
+            profile,
+        })
+    }
+}
+
+impl Alignment {
+    /// Station of the start and the end.
+    pub fn station_range_m(&self) -> (f64, f64) {
+        let first = self.elements.first().map_or(0.0, |e| e.start_station_m);
+        let last = self
+            .elements
+            .last()
+            .map_or(0.0, |e| e.start_station_m + e.length_m);
+        (first, last)
+    }
+
+    /// The axis at `station_m`: its pose and design height.
+    pub fn axis_at(&self, station_m: f64) -> Option<(Pose, f64)> {
+        let element = self
+            .elements
+            .iter()
+            .find(|e| station_m <= e.start_station_m + e.length_m)?;
+        if station_m < element.start_station_m {
+            return None;
+        }
+        Some((
+            element.pose_at(station_m - element.start_station_m),
+            self.profile.height_at(station_m),
+        ))
+    }
+
+    /// Where (`easting_m`, `northing_m`, `height_m`) lies against the axis.
+    pub fn deviation(
+        &self,
+        easting_m: f64,
+        northing_m: f64,
+        height_m: f64,
+    ) -> Result<Deviation, ProjectionError> {
+        let foot = horizontal::project(&self.elements, easting_m, northing_m)?;
+        Ok(Deviation {
+            station_m: foot.station_m,
+            horizontal_m: foot.offset_m,
+            vertical_m: height_m - self.profile.height_at(foot.station_m),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The protocol's example.
+    const S1: &str = r#"{"name": "S-1 drive", "start_station_m": 0.0,
+     "start": {"easting_m": 1000.0, "northing_m": 5000.0, "azimuth_deg": 30.0},
+     "horizontal": [
+       {"type": "line", "length_m": 40.0},
+       {"type": "spiral", "length_m": 30.0, "radius_start_m": null, "radius_end_m": 300.0},
+       {"type": "arc", "length_m": 50.0, "radius_m": 300.0},
+       {"type": "spiral", "length_m": 30.0, "radius_start_m": 300.0, "radius_end_m": null},
+       {"type": "line", "length_m": 100.0}],
+     "vertical": {"start_height_m": 50.0,
+       "pvis": [{"station_m": 120.0, "height_m": 50.6, "curve_length_m": 60.0}],
+       "end_grade_pct": -0.5}}"#;
+
+    #[test]
+    fn the_protocols_example_builds_and_locates_points() {
+        let spec: AlignmentSpec = serde_json::from_str(S1).unwrap();
+        let alignment = spec.build().unwrap();
+        assert_eq!(alignment.station_range_m(), (0.0, 250.0));
+        // On the first line, 20 m in: 10 m east, 17.320508 m north; a
+        // point 0.05 m right of it and 0.02 m above the design (50.1 m).
+        let (e, n) = (1000.0 + 10.0, 5000.0 + 17.320_508_075_688_77);
+        let right = (30f64.to_radians().cos(), -(30f64.to_radians().sin()));
+        let d = alignment
+            .deviation(e + 0.05 * right.0, n + 0.05 * right.1, 50.12)
+            .unwrap();
+        assert!((d.station_m - 20.0).abs() < 1e-6, "{d:?}");
+        assert!((d.horizontal_m - 0.05).abs() < 1e-6, "{d:?}");
+        assert!((d.vertical_m - 0.02).abs() < 1e-9, "{d:?}");
+        // The total turn: the two spirals' 30/(2·300) each and the arc's
+        // 50/300: 0.26667 rad, so the last line runs at 30° + 15.279°.
+        let last = alignment.elements.last().unwrap().start;
+        let turned = 0.05 + 50.0 / 300.0 + 0.05;
+        assert!((last.azimuth_rad - (30f64.to_radians() + turned)).abs() < 1e-12);
+    }
+
+    #[test]
+    fn bad_declarations_name_the_element_and_what_is_wrong() {
+        let mut spec: AlignmentSpec = serde_json::from_str(S1).unwrap();
+        spec.horizontal[2] = ElementSpec::Arc {
+            length_m: 50.0,
+            radius_m: 0.0,
+        };
+        let err = spec.build().unwrap_err().to_string();
+        assert!(
+            err.contains("horizontal element 2 (arc)") && err.contains("radius 0"),
+            "{err}"
+        );
+        spec.horizontal[2] = ElementSpec::Spiral {
+            length_m: 50.0,
+            radius_start_m: Some(300.0),
+            radius_end_m: Some(300.0),
+        };
+        let err = spec.build().unwrap_err().to_string();
+        assert!(
+            err.contains("element 2 (spiral)") && err.contains("equal"),
+            "{err}"
+        );
+        spec.horizontal[2] = ElementSpec::Line { length_m: -1.0 };
+        assert!(
+            spec.build()
+                .unwrap_err()
+                .to_string()
+                .contains("not positive")
+        );
+        spec.horizontal.clear();
+        assert_eq!(spec.build().unwrap_err(), AlignmentError::Empty);
+        let unknown = S1.replace("\"arc\"", "\"helix\"");
+        assert!(serde_json::from_str::<AlignmentSpec>(&unknown).is_err());
+    }
+}
