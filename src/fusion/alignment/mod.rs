@@ -9,6 +9,7 @@
 //! `null` for straight.
 
 pub mod horizontal;
+pub mod landxml;
 pub mod vertical;
 
 use serde::{Deserialize, Serialize};
