@@ -31,6 +31,7 @@ fn reading() -> impl Strategy<Value = (f64, Reading)> {
                     pitch_deg,
                     roll_deg,
                     yaw_deg: None,
+                    position: None,
                 }
             } else {
                 SensorData::Inclinometer {

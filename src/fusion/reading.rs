@@ -61,16 +61,27 @@ impl std::fmt::Display for SensorKind {
     }
 }
 
+/// A point in project coordinates, metres.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct ProjectPoint {
+    pub easting_m: f64,
+    pub northing_m: f64,
+    pub height_m: f64,
+}
+
 /// What a sensor measured. Serialised with the protocol's `sensor` tag.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 #[serde(tag = "sensor", rename_all = "snake_case")]
 pub enum SensorData {
-    /// Laser targeting system / total station attitude.
+    /// Laser targeting system / total station: attitude, and where the
+    /// system measures it, the position of the machine's reference point.
     Laser {
         pitch_deg: f64,
         roll_deg: f64,
         #[serde(skip_serializing_if = "Option::is_none")]
         yaw_deg: Option<f64>,
+        #[serde(flatten, skip_serializing_if = "Option::is_none")]
+        position: Option<ProjectPoint>,
     },
     /// Two-axis gravity inclinometer.
     Inclinometer {
@@ -172,6 +183,9 @@ const BOUNDS: &[(&str, f64, f64)] = &[
     ("field_ut", -10_000.0, 10_000.0),
     ("height_m", -20_000.0, 20_000.0),
     ("distance_m", -1.0e7, 1.0e7),
+    // Project grids (UTM, national grids) stay within 10 000 km.
+    ("easting_m", -1.0e7, 1.0e7),
+    ("northing_m", -1.0e7, 1.0e7),
 ];
 
 fn bounds(field: &'static str) -> (f64, f64) {
@@ -254,6 +268,8 @@ struct RawReading {
     field_ut: Option<[f64; 3]>,
     height_m: Option<f64>,
     distance_m: Option<f64>,
+    easting_m: Option<f64>,
+    northing_m: Option<f64>,
 }
 
 impl RawReading {
@@ -269,6 +285,14 @@ impl RawReading {
                 pitch_deg: required("pitch_deg", self.pitch_deg)?,
                 roll_deg: required("roll_deg", self.roll_deg)?,
                 yaw_deg: optional("yaw_deg", self.yaw_deg)?,
+                position: match (self.easting_m, self.northing_m, self.height_m) {
+                    (None, None, None) => None,
+                    (e, n, h) => Some(ProjectPoint {
+                        easting_m: required("easting_m", e)?,
+                        northing_m: required("northing_m", n)?,
+                        height_m: required("height_m", h)?,
+                    }),
+                },
             },
             SensorKind::Inclinometer => SensorData::Inclinometer {
                 pitch_deg: required("pitch_deg", self.pitch_deg)?,
@@ -394,10 +418,16 @@ impl Reading {
                 pitch_deg,
                 roll_deg,
                 yaw_deg,
+                position,
             } => {
                 check("pitch_deg", *pitch_deg)?;
                 check("roll_deg", *roll_deg)?;
                 optional("yaw_deg", *yaw_deg)?;
+                if let Some(p) = position {
+                    check("easting_m", p.easting_m)?;
+                    check("northing_m", p.northing_m)?;
+                    check("height_m", p.height_m)?;
+                }
             }
             SensorData::Inclinometer {
                 pitch_deg,
@@ -460,6 +490,31 @@ mod tests {
             // The serialised form parses back to the same reading.
             assert_eq!(parse_reading(r.to_json().as_bytes()).unwrap(), r);
         }
+    }
+
+    #[test]
+    fn a_laser_reading_may_carry_a_position_all_three_or_none() {
+        let line = r#"{"t":1772431200,"sensor":"laser","pitch_deg":0.5,"roll_deg":1.2,"easting_m":1012.5,"northing_m":5021.25,"height_m":50.12}"#;
+        let r = parse_reading(line.as_bytes()).unwrap();
+        let SensorData::Laser { position, .. } = &r.data else {
+            panic!("{r:?}")
+        };
+        assert_eq!(
+            *position,
+            Some(ProjectPoint {
+                easting_m: 1012.5,
+                northing_m: 5021.25,
+                height_m: 50.12
+            })
+        );
+        assert_eq!(parse_reading(r.to_json().as_bytes()).unwrap(), r);
+        let partial = r#"{"t":1772431200,"sensor":"laser","pitch_deg":0.5,"roll_deg":1.2,"easting_m":1012.5,"height_m":50.12}"#;
+        assert_eq!(
+            parse_reading(partial.as_bytes()).unwrap_err(),
+            ReadingError::Missing {
+                field: "northing_m"
+            }
+        );
     }
 
     #[test]

@@ -248,6 +248,7 @@ mod tests {
                 pitch_deg: 0.0,
                 roll_deg: 0.0,
                 yaw_deg: None,
+                position: None,
             },
         }
     }

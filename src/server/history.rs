@@ -156,21 +156,27 @@ pub struct ReadingsQuery {
     format: Option<String>,
 }
 
-/// Columns of the CSV export; a reading fills those of its sensor.
+/// Columns of the CSV export; a reading fills those of its sensor (a
+/// laser's position: `easting_m`, `northing_m` and `height_m`).
 pub const CSV_HEADER: &str = "t,sensor,pitch_deg,roll_deg,yaw_deg,temp_c,\
 accel_x_mps2,accel_y_mps2,accel_z_mps2,gyro_x_dps,gyro_y_dps,gyro_z_dps,\
-field_x_ut,field_y_ut,field_z_ut,height_m,distance_m\n";
+field_x_ut,field_y_ut,field_z_ut,height_m,distance_m,easting_m,northing_m\n";
 
 fn csv_row(reading: &Reading, out: &mut String) {
     use std::fmt::Write;
-    let mut cells: [Option<f64>; 15] = [None; 15];
+    let mut cells: [Option<f64>; 17] = [None; 17];
     match reading.data {
         SensorData::Laser {
             pitch_deg,
             roll_deg,
             yaw_deg,
+            position,
         } => {
             (cells[0], cells[1], cells[2]) = (Some(pitch_deg), Some(roll_deg), yaw_deg);
+            if let Some(p) = position {
+                (cells[13], cells[15], cells[16]) =
+                    (Some(p.height_m), Some(p.easting_m), Some(p.northing_m));
+            }
         }
         SensorData::Inclinometer {
             pitch_deg,

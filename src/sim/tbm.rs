@@ -413,6 +413,7 @@ impl TbmDrive {
                 pitch_deg: truth.pitch_deg + 0.002 * n[0],
                 roll_deg: truth.roll_deg + 0.002 * n[1],
                 yaw_deg: Some(truth.yaw_deg + 0.005 * n[2]),
+                position: None,
             },
         };
         TbmEvent { truth, reading }

@@ -727,6 +727,7 @@ impl EnvelopeEvents {
                 pitch_deg: truth.pitch_deg + sigma * n[0],
                 roll_deg: truth.roll_deg + sigma * n[1],
                 yaw_deg: Some(truth.yaw_deg + 0.005 * n[2]),
+                position: None,
             },
         };
         TbmEvent { truth, reading }

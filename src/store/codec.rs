@@ -4,14 +4,15 @@
 //! its body; decoding takes them from the columns.
 //!
 //! - A reading's data: its numbers in protocol field order as little-endian
-//!   f64s; an absent optional field (`yaw_deg`, `temp_c`) is left off the
-//!   end. 16–48 bytes where the JSON is 90–180. Written by hand: the
+//!   f64s; an absent optional field (`yaw_deg`, `temp_c`, a laser's
+//!   position) is left off (the count tells which are there). 16–48 bytes where the JSON is 90–180. Written by hand: the
 //!   variant is the `sensor` column and every field is an f64.
 //! - An estimate's values: postcard, about 60 bytes for an `attitude`
 //!   estimate where its JSON is about 330, of the engine's codec version
 //!   (the row's `codec` column); each engine's `estimate.rs` decodes every
 //!   version it has had.
 
+use crate::fusion::reading::ProjectPoint;
 use crate::fusion::{EstimateValues, Reading, SensorData, SensorKind, StreamKind};
 
 use super::StoreError;
@@ -24,7 +25,14 @@ pub fn encode_reading(data: &SensorData) -> Vec<u8> {
             pitch_deg,
             roll_deg,
             yaw_deg,
-        } => numbers.extend([*pitch_deg, *roll_deg].into_iter().chain(*yaw_deg)),
+            position,
+        } => numbers.extend(
+            [*pitch_deg, *roll_deg].into_iter().chain(*yaw_deg).chain(
+                position
+                    .iter()
+                    .flat_map(|p| [p.easting_m, p.northing_m, p.height_m]),
+            ),
+        ),
         SensorData::Inclinometer {
             pitch_deg,
             roll_deg,
@@ -57,11 +65,23 @@ pub fn decode_reading(t: f64, sensor: SensorKind, bytes: &[u8]) -> Result<Readin
         .map(|b| f64::from_le_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]]))
         .collect();
     let data = match (sensor, n.as_slice()) {
-        (SensorKind::Laser, [pitch_deg, roll_deg, yaw @ ..]) if yaw.len() <= 1 => {
+        // 2 numbers: attitude; 3: with yaw; 5: with a position; 6: both.
+        (SensorKind::Laser, [pitch_deg, roll_deg, rest @ ..])
+            if rest.len() <= 4 && rest.len() != 2 =>
+        {
+            let (yaw, position) = rest.split_at(rest.len() % 3);
             SensorData::Laser {
                 pitch_deg: *pitch_deg,
                 roll_deg: *roll_deg,
                 yaw_deg: yaw.first().copied(),
+                position: match position {
+                    [e, n, h] => Some(ProjectPoint {
+                        easting_m: *e,
+                        northing_m: *n,
+                        height_m: *h,
+                    }),
+                    _ => None,
+                },
             }
         }
         (SensorKind::Inclinometer, [pitch_deg, roll_deg, temp @ ..]) if temp.len() <= 1 => {
@@ -117,11 +137,33 @@ mod tests {
                 pitch_deg: 0.1 + 0.2,
                 roll_deg: -0.0,
                 yaw_deg: Some(359.999_999_999),
+                position: None,
             },
             SensorData::Laser {
                 pitch_deg: 1.0,
                 roll_deg: 2.0,
                 yaw_deg: None,
+                position: None,
+            },
+            SensorData::Laser {
+                pitch_deg: 1.0,
+                roll_deg: 2.0,
+                yaw_deg: None,
+                position: Some(ProjectPoint {
+                    easting_m: 1012.5,
+                    northing_m: 5021.25,
+                    height_m: -3.5,
+                }),
+            },
+            SensorData::Laser {
+                pitch_deg: 1.0,
+                roll_deg: 2.0,
+                yaw_deg: Some(45.0),
+                position: Some(ProjectPoint {
+                    easting_m: 612_345.678,
+                    northing_m: 5_012_345.5,
+                    height_m: 430.25,
+                }),
             },
             SensorData::Inclinometer {
                 pitch_deg: -89.5,

@@ -912,6 +912,7 @@ mod tests {
                 pitch_deg,
                 roll_deg,
                 yaw_deg: None,
+                position: None,
             },
         }
     }
