@@ -97,7 +97,12 @@ struct CoreState {
 impl MachineCore {
     /// Fresh engines and stages for `spec`.
     pub fn new(spec: &MachineSpec) -> Result<MachineCore, ParamError> {
-        let pipeline = Pipeline::new(spec.engines.iter().map(|(&kind, params)| (kind, params)))?;
+        let engines = spec
+            .engines
+            .iter()
+            .map(|(kind, params)| kind.create(params.clone()))
+            .collect::<Result<Vec<_>, _>>()?;
+        let pipeline = Pipeline::declared(engines, &spec.stage_declaration());
         Ok(Self::assemble(
             spec,
             pipeline,
@@ -111,7 +116,7 @@ impl MachineCore {
             serde_json::from_str(state).map_err(|e| SnapshotError::Invalid(e.to_string()))?;
         Ok(Self::assemble(
             spec,
-            Pipeline::restore(state.pipeline)?,
+            Pipeline::restore(state.pipeline, &spec.stage_declaration())?,
             ReorderBuffer::restore(state.reorder)?,
         ))
     }

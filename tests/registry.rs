@@ -202,21 +202,53 @@ async fn each_engines_page_section_renders_with_its_script() {
     server.stop().await;
 }
 
+/// A machine running `engine` whose declaration calls for `stage`, if
+/// there is one to test it with.
+fn declaration_for(stage: StageKind, engine: EngineKind) -> Option<Declaration> {
+    match stage {
+        StageKind::Pushes => {
+            (engine == EngineKind::Zupt).then(|| Declaration::of_engines([engine]))
+        }
+        // The `zupt` source: a long straight axis through the start point,
+        // along the engine's initial heading (north), with a design grade.
+        StageKind::Dta => (engine == EngineKind::Zupt).then(|| {
+            let axis = r#"{"start_station_m": 1000.0,
+                "start": {"easting_m": 2000.0, "northing_m": 4900.0, "azimuth_deg": 0.0},
+                "horizontal": [{"type": "line", "length_m": 1000.0}],
+                "vertical": {"start_height_m": 30.0, "end_grade_pct": 0.5}}"#;
+            let spec: tunnelnav::fusion::alignment::AlignmentSpec =
+                serde_json::from_str(axis).unwrap();
+            Declaration {
+                alignment: Some(std::sync::Arc::new(spec.build().unwrap())),
+                geometry: Some(tunnelnav::fusion::dta::MachineGeometry {
+                    front_m: [1.5, 0.0, 0.0],
+                    rear_m: [-1.5, 0.0, 0.0],
+                }),
+                start: Some(tunnelnav::fusion::reading::ProjectPoint {
+                    easting_m: 2000.0,
+                    northing_m: 5000.0,
+                    height_m: 30.5,
+                }),
+                ..Declaration::of_engines([engine])
+            }
+        }),
+    }
+}
+
 #[test]
 fn every_stage_runs_after_an_engine_and_writes_stores_and_continues_exactly() {
     for &stage in StageKind::ALL {
-        // The engines whose declaration alone calls for the stage.
-        let engines: Vec<EngineKind> = EngineKind::ALL
+        let declared: Vec<(EngineKind, Declaration)> = EngineKind::ALL
             .iter()
-            .copied()
-            .filter(|&engine| Declaration::of_engines([engine]).stages().contains(&stage))
+            .filter_map(|&engine| Some((engine, declaration_for(stage, engine)?)))
             .collect();
-        assert!(!engines.is_empty(), "{stage}: no engine calls for it");
-        for engine in engines {
+        assert!(!declared.is_empty(), "{stage}: no engine to test it after");
+        for (engine, declaration) in declared {
             let readings = drive(engine);
             let params = Params::defaults(engine.specs());
-            let mut whole = Pipeline::new([(engine, &params)]).unwrap();
-            assert_eq!(whole.stages().collect::<Vec<_>>(), [stage]);
+            let create = || vec![engine.create(params.clone()).unwrap()];
+            let mut whole = Pipeline::declared(create(), &declaration);
+            assert!(whole.stages().any(|s| s == stage), "{stage}");
             let mut expected = Vec::new();
             for reading in &readings {
                 whole.feed(reading, &mut expected);
@@ -230,13 +262,14 @@ fn every_stage_runs_after_an_engine_and_writes_stores_and_continues_exactly() {
 
             // Through a snapshot half way, the same outputs.
             let half = readings.len() / 2;
-            let mut first = Pipeline::new([(engine, &params)]).unwrap();
+            let mut first = Pipeline::declared(create(), &declaration);
             let mut outputs = Vec::new();
             for reading in &readings[..half] {
                 first.feed(reading, &mut outputs);
             }
             let text = serde_json::to_string(&first.state()).unwrap();
-            let mut second = Pipeline::restore(serde_json::from_str(&text).unwrap()).unwrap();
+            let mut second =
+                Pipeline::restore(serde_json::from_str(&text).unwrap(), &declaration).unwrap();
             for reading in &readings[half..] {
                 second.feed(reading, &mut outputs);
             }

@@ -188,6 +188,16 @@ impl JsonFields<'_> {
         }
     }
 
+    /// `,"key":{…}`, its fields written by `fields`.
+    pub fn object(&mut self, key: &str, fields: impl FnOnce(&mut Self)) {
+        self.key(key);
+        self.out.push(b'{');
+        self.first = true;
+        fields(self);
+        self.first = false;
+        self.out.push(b'}');
+    }
+
     /// `,"key":[{…},{…}]`, each object's fields written by `fields`.
     pub fn objects<T>(&mut self, key: &str, items: &[T], mut fields: impl FnMut(&T, &mut Self)) {
         self.key(key);
@@ -199,6 +209,7 @@ impl JsonFields<'_> {
             self.out.push(b'{');
             self.first = true;
             fields(item, self);
+            self.first = false;
             self.out.push(b'}');
         }
         self.out.push(b']');

@@ -6,6 +6,7 @@
 pub mod alignment;
 pub mod angles;
 pub mod attitude;
+pub mod dta;
 pub mod estimate;
 pub mod fuzzy;
 pub mod geometry;

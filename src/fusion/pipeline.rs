@@ -33,8 +33,8 @@ pub struct PipelineState {
 }
 
 impl Pipeline {
-    /// Fresh engines with these parameters, and the stages their
-    /// declaration calls for.
+    /// Fresh engines with these parameters, and the stages a declaration
+    /// of only them calls for.
     pub fn new<'a>(
         engines: impl IntoIterator<Item = (EngineKind, &'a Params)>,
     ) -> Result<Pipeline, ParamError> {
@@ -45,12 +45,18 @@ impl Pipeline {
         Ok(Pipeline::with_engines(engines))
     }
 
-    /// These engines and the stages their declaration calls for.
+    /// These engines and the stages a declaration of only them calls for.
     pub fn with_engines(engines: Vec<Box<dyn Engine>>) -> Pipeline {
         let declaration = Declaration::of_engines(engines.iter().map(|e| e.kind()));
+        Pipeline::declared(engines, &declaration)
+    }
+
+    /// These engines and the stages `declaration` (of a machine running
+    /// them) calls for.
+    pub fn declared(engines: Vec<Box<dyn Engine>>, declaration: &Declaration) -> Pipeline {
         let stages = StageKind::ALL
             .iter()
-            .filter_map(|stage| stage.create(&declaration))
+            .filter_map(|stage| stage.create(declaration))
             .collect();
         Pipeline {
             engines,
@@ -63,19 +69,21 @@ impl Pipeline {
     /// Continues from a [`Pipeline::state`]. A stage the engines now call
     /// for and the state lacks (it predates the stage) is refused as
     /// [`SnapshotError::MissingStage`]: rebuild from the readings.
-    pub fn restore(state: PipelineState) -> Result<Pipeline, SnapshotError> {
+    pub fn restore(
+        state: PipelineState,
+        declaration: &Declaration,
+    ) -> Result<Pipeline, SnapshotError> {
         let mut engines = Vec::new();
         for (kind, snapshot) in state.engines {
             engines.push(kind.restore(snapshot)?);
         }
-        let declaration = Declaration::of_engines(engines.iter().map(|e| e.kind()));
         let mut stages = Vec::new();
         let mut snapshots = state.stages;
         for stage in declaration.stages() {
             let snapshot = snapshots
                 .remove(&stage)
                 .ok_or(SnapshotError::MissingStage(stage))?;
-            stages.push(stage.restore(snapshot)?);
+            stages.push(stage.restore(declaration, snapshot)?);
         }
         Ok(Pipeline {
             engines,

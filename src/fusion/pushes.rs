@@ -159,7 +159,7 @@ impl StageDescriptor for Pushes {
     fn create(declaration: &Declaration) -> Option<PushLog> {
         declaration.runs(EngineKind::Zupt).then(PushLog::new)
     }
-    fn restore(snapshot: serde_json::Value) -> Result<PushLog, SnapshotError> {
+    fn restore(_: &Declaration, snapshot: serde_json::Value) -> Result<PushLog, SnapshotError> {
         SnapshotError::check_version(StreamKind::Pushes, &snapshot, STATE_VERSION)?;
         SnapshotError::parse(StreamKind::Pushes, snapshot)
     }
@@ -276,7 +276,8 @@ mod tests {
         assert!(out.is_empty());
         log.estimate(&zupt_estimate(30.0, Some(standing)), &mut out);
         let text = serde_json::to_string(&log.snapshot()).unwrap();
-        let mut log = Pushes::restore(serde_json::from_str(&text).unwrap()).unwrap();
+        let declaration = Declaration::of_engines([EngineKind::Zupt]);
+        let mut log = Pushes::restore(&declaration, serde_json::from_str(&text).unwrap()).unwrap();
         log.estimate(&zupt_estimate(60.0, Some(west)), &mut out);
         let records: Vec<&PushRecord> = out
             .iter()
@@ -304,7 +305,7 @@ mod tests {
         );
         let outdated = serde_json::json!({"state_version": 0, "pushes": 3});
         assert!(matches!(
-            Pushes::restore(outdated),
+            Pushes::restore(&Declaration::default(), outdated),
             Err(SnapshotError::Outdated { found: 0, .. })
         ));
     }

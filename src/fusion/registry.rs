@@ -18,7 +18,7 @@ use super::estimate::JsonFields;
 use super::params::{ParamError, ParamSpec, ParamValue, Params, Retired, TypedParams};
 use super::reading::SensorKind;
 use super::stage::{Declaration, Stage};
-use super::{Engine, SnapshotError, attitude, fuzzy, pushes, zupt};
+use super::{Engine, SnapshotError, attitude, dta, fuzzy, pushes, zupt};
 
 /// What an engine module declares about itself.
 pub trait EngineDescriptor {
@@ -73,8 +73,11 @@ pub trait StageDescriptor {
     /// The stage for a machine so declared; `None` when the declaration
     /// does not call for it.
     fn create(declaration: &Declaration) -> Option<Self::Stage>;
-    /// A stage continuing from its [`Stage::snapshot`].
-    fn restore(snapshot: serde_json::Value) -> Result<Self::Stage, SnapshotError>;
+    /// A stage of a machine so declared continuing from its [`Stage::snapshot`].
+    fn restore(
+        declaration: &Declaration,
+        snapshot: serde_json::Value,
+    ) -> Result<Self::Stage, SnapshotError>;
     /// The output's fields after `"engine"`, as serde_json writes them.
     fn write_fields(output: &Self::Output, fields: &mut JsonFields<'_>);
     /// The stored form of [`StageDescriptor::CODEC_VERSION`].
@@ -234,13 +237,16 @@ macro_rules! registry {
                 }
             }
 
-            /// A stage continuing from its [`Stage::snapshot`].
+            /// A stage of a machine so declared continuing from its
+            /// [`Stage::snapshot`].
             pub fn restore(
                 self,
+                declaration: &Declaration,
                 snapshot: serde_json::Value,
             ) -> Result<Box<dyn Stage>, SnapshotError> {
                 match self {
-                    $( StageKind::$Stage => Ok(Box::new(<$SDescriptor>::restore(snapshot)?)) ),+
+                    $( StageKind::$Stage =>
+                        Ok(Box::new(<$SDescriptor>::restore(declaration, snapshot)?)) ),+
                 }
             }
         }
@@ -392,6 +398,8 @@ registry! {
     stages {
         /// The jacking log: one record per completed push of a `zupt` machine.
         Pushes = "pushes" => pushes::Pushes,
+        /// Deviation from the designed tunnel axis (machines with an alignment).
+        Dta = "dta" => dta::Dta,
     }
 }
 

@@ -5,8 +5,12 @@
 //! the engines: the server's machine actor and `replay` run the same
 //! [`Pipeline`](super::pipeline::Pipeline) and get the same outputs.
 
+use std::sync::Arc;
+
+use super::alignment::Alignment;
+use super::dta::{MachineGeometry, Tolerances};
 use super::estimate::EngineOutput;
-use super::reading::Reading;
+use super::reading::{ProjectPoint, Reading};
 use super::registry::{EngineKind, StageKind};
 
 /// The part of a machine's declaration stages read.
@@ -14,6 +18,14 @@ use super::registry::{EngineKind, StageKind};
 pub struct Declaration {
     /// The engines the machine runs.
     pub engines: Vec<EngineKind>,
+    /// The designed tunnel axis of its drive.
+    pub alignment: Option<Arc<Alignment>>,
+    /// Where its front and rear are on it.
+    pub geometry: Option<MachineGeometry>,
+    pub tolerances: Option<Tolerances>,
+    /// Project coordinates of its reference point at the first reading
+    /// (for engines whose position is relative to their start).
+    pub start: Option<ProjectPoint>,
 }
 
 impl Declaration {
@@ -21,6 +33,7 @@ impl Declaration {
     pub fn of_engines(engines: impl IntoIterator<Item = EngineKind>) -> Declaration {
         Declaration {
             engines: engines.into_iter().collect(),
+            ..Declaration::default()
         }
     }
 

@@ -1,0 +1,590 @@
+//! The `dta` stage: the machine's deviation from the designed tunnel axis
+//! at its front (cutterhead) and rear (shield tail), the tendency between
+//! them, and their status against the declared tolerances.
+//!
+//! Its positions come from either source the machine has (both, if it has
+//! both): a `laser` reading that carries the reference point's position,
+//! turned by the `attitude` engine's fused pitch and roll (the laser's
+//! own before the first estimate) and the laser's yaw; or a `zupt`
+//! estimate once aligned, its position relative to the declared start.
+//! Each point is the reference point plus C_nb(yaw, pitch, roll) · its body
+//! offset (x forward, y right, z down; NED, so height is minus down), then
+//! located against the axis ([`super::alignment`]).
+
+use std::sync::Arc;
+
+use serde::{Deserialize, Serialize};
+
+use super::alignment::Alignment;
+use super::angles::rad;
+use super::estimate::{EngineOutput, EstimateValues, JsonFields};
+use super::geometry::{V3, attitude_from_euler};
+use super::reading::{ProjectPoint, Reading, SensorData};
+use super::registry::{EngineKind, StageDescriptor, StageKind};
+use super::stage::{Declaration, Stage};
+use super::{SnapshotError, StreamKind};
+
+/// Version of the stage's snapshot.
+pub const STATE_VERSION: u32 = 1;
+/// Version of the stored [`DtaEstimate`].
+pub const CODEC_VERSION: u32 = 1;
+
+/// Where the machine's front and rear points are on it: metres from the
+/// navigation reference point in the body frame (x forward, y right, z
+/// down).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MachineGeometry {
+    pub front_m: [f64; 3],
+    pub rear_m: [f64; 3],
+}
+
+/// Warn and alarm limits of one deviation, mm (of its magnitude).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Limits {
+    pub warn: f64,
+    pub alarm: f64,
+}
+
+/// The tolerances the deviations are held to.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Tolerances {
+    pub horizontal_mm: Limits,
+    pub vertical_mm: Limits,
+}
+
+/// Which positions a `dta` estimate comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DtaSource {
+    Laser,
+    Zupt,
+}
+
+impl DtaSource {
+    /// The protocol name.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            DtaSource::Laser => "laser",
+            DtaSource::Zupt => "zupt",
+        }
+    }
+}
+
+/// The worst of the four deviations against the tolerances.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DtaStatus {
+    Ok,
+    Warn,
+    Alarm,
+}
+
+impl DtaStatus {
+    /// The protocol name.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            DtaStatus::Ok => "ok",
+            DtaStatus::Warn => "warn",
+            DtaStatus::Alarm => "alarm",
+        }
+    }
+}
+
+/// One point's deviation.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct PointDeviation {
+    pub station_m: f64,
+    /// + right of the axis looking along increasing station.
+    pub horizontal_mm: f64,
+    /// + above the design height at the point's station.
+    pub vertical_mm: f64,
+}
+
+/// What the `dta` stage emits per position.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DtaEstimate {
+    pub source: DtaSource,
+    /// Station of the reference point's foot on the axis.
+    pub station_m: f64,
+    pub front: PointDeviation,
+    pub rear: PointDeviation,
+    /// (front − rear) deviation per metre of machine length.
+    pub tendency_horizontal_mm_per_m: f64,
+    pub tendency_vertical_mm_per_m: f64,
+    /// Against the declared tolerances; `null` without tolerances.
+    pub status: Option<DtaStatus>,
+}
+
+impl DtaEstimate {
+    /// The fields after `"engine"`, as serde_json writes them.
+    pub fn write_fields(&self, w: &mut JsonFields<'_>) {
+        w.word("source", self.source.as_str());
+        w.number("station_m", self.station_m);
+        for (key, p) in [("front", &self.front), ("rear", &self.rear)] {
+            w.object(key, |w| {
+                w.number("station_m", p.station_m);
+                w.number("horizontal_mm", p.horizontal_mm);
+                w.number("vertical_mm", p.vertical_mm);
+            });
+        }
+        w.number(
+            "tendency_horizontal_mm_per_m",
+            self.tendency_horizontal_mm_per_m,
+        );
+        w.number(
+            "tendency_vertical_mm_per_m",
+            self.tendency_vertical_mm_per_m,
+        );
+        match self.status {
+            Some(status) => w.word("status", status.as_str()),
+            None => w.null("status"),
+        }
+    }
+}
+
+/// The stage's configuration, from the machine's declaration.
+#[derive(Debug, Clone, PartialEq)]
+struct Setup {
+    alignment: Arc<Alignment>,
+    geometry: MachineGeometry,
+    tolerances: Option<Tolerances>,
+    /// The `zupt` source's start point; `None`: no `zupt` source.
+    start: Option<ProjectPoint>,
+    /// Whether laser positions are a source (the machine runs `attitude`).
+    laser: bool,
+}
+
+/// What the stage remembers between readings.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+struct DtaState {
+    state_version: u32,
+    /// The newest fused pitch and roll, degrees.
+    attitude_deg: Option<(f64, f64)>,
+    /// Positions that fell outside the alignment's station range.
+    outside: u64,
+    /// Laser positions without a yaw (no direction for the points).
+    without_yaw: u64,
+}
+
+/// The stage.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DtaStage {
+    setup: Setup,
+    state: DtaState,
+}
+
+impl DtaStage {
+    fn setup(declaration: &Declaration) -> Option<Setup> {
+        let alignment = declaration.alignment.clone()?;
+        let geometry = declaration.geometry?;
+        let laser = declaration.runs(EngineKind::Attitude);
+        let start = declaration
+            .start
+            .filter(|_| declaration.runs(EngineKind::Zupt));
+        (laser || start.is_some()).then_some(Setup {
+            alignment,
+            geometry,
+            tolerances: declaration.tolerances,
+            start,
+            laser,
+        })
+    }
+
+    /// Deviations of the machine with its reference point at `reference`
+    /// and attitude (`yaw`, `pitch`, `roll`, degrees); `None` if a point
+    /// lies beyond the alignment.
+    fn locate(
+        &self,
+        source: DtaSource,
+        reference: ProjectPoint,
+        yaw_deg: f64,
+        pitch_deg: f64,
+        roll_deg: f64,
+    ) -> Option<DtaEstimate> {
+        let c = attitude_from_euler(rad(roll_deg), rad(pitch_deg), rad(yaw_deg));
+        let alignment = &self.setup.alignment;
+        let point = |body: [f64; 3]| {
+            let ned = c * V3::new(body[0], body[1], body[2]);
+            let (e, n, h) = (
+                reference.easting_m + ned.y,
+                reference.northing_m + ned.x,
+                reference.height_m - ned.z,
+            );
+            alignment.deviation(e, n, h).ok()
+        };
+        let centre = alignment
+            .deviation(
+                reference.easting_m,
+                reference.northing_m,
+                reference.height_m,
+            )
+            .ok()?;
+        let (front, rear) = (
+            point(self.setup.geometry.front_m)?,
+            point(self.setup.geometry.rear_m)?,
+        );
+        let mm = |d: super::alignment::Deviation| PointDeviation {
+            station_m: d.station_m,
+            horizontal_mm: d.horizontal_m * 1000.0,
+            vertical_mm: d.vertical_m * 1000.0,
+        };
+        let (front, rear) = (mm(front), mm(rear));
+        let g = self.setup.geometry;
+        let length_m = V3::from(g.front_m).metric_distance(&V3::from(g.rear_m));
+        let per_m = |a: f64, b: f64| {
+            if length_m > 0.0 {
+                (a - b) / length_m
+            } else {
+                0.0
+            }
+        };
+        let status = self.setup.tolerances.map(|t| {
+            let grade = |value: f64, limits: Limits| {
+                if value.abs() > limits.alarm {
+                    DtaStatus::Alarm
+                } else if value.abs() > limits.warn {
+                    DtaStatus::Warn
+                } else {
+                    DtaStatus::Ok
+                }
+            };
+            [
+                grade(front.horizontal_mm, t.horizontal_mm),
+                grade(rear.horizontal_mm, t.horizontal_mm),
+                grade(front.vertical_mm, t.vertical_mm),
+                grade(rear.vertical_mm, t.vertical_mm),
+            ]
+            .into_iter()
+            .max()
+            .unwrap_or(DtaStatus::Ok)
+        });
+        Some(DtaEstimate {
+            source,
+            station_m: centre.station_m,
+            tendency_horizontal_mm_per_m: per_m(front.horizontal_mm, rear.horizontal_mm),
+            tendency_vertical_mm_per_m: per_m(front.vertical_mm, rear.vertical_mm),
+            front,
+            rear,
+            status,
+        })
+    }
+
+    fn emit(&mut self, t: f64, located: Option<DtaEstimate>, out: &mut Vec<EngineOutput>) {
+        match located {
+            Some(estimate) => out.push(EngineOutput {
+                t,
+                values: EstimateValues::Dta(estimate),
+            }),
+            None => self.state.outside += 1,
+        }
+    }
+}
+
+impl Stage for DtaStage {
+    fn kind(&self) -> StageKind {
+        StageKind::Dta
+    }
+
+    fn reading(&mut self, reading: &Reading, out: &mut Vec<EngineOutput>) {
+        let SensorData::Laser {
+            pitch_deg,
+            roll_deg,
+            yaw_deg,
+            position: Some(position),
+        } = reading.data
+        else {
+            return;
+        };
+        if !self.setup.laser {
+            return;
+        }
+        let Some(yaw_deg) = yaw_deg else {
+            self.state.without_yaw += 1;
+            return;
+        };
+        let (pitch, roll) = self.state.attitude_deg.unwrap_or((pitch_deg, roll_deg));
+        let located = self.locate(DtaSource::Laser, position, yaw_deg, pitch, roll);
+        self.emit(reading.t, located, out);
+    }
+
+    fn estimate(&mut self, estimate: &EngineOutput, out: &mut Vec<EngineOutput>) {
+        match &estimate.values {
+            EstimateValues::Attitude(a) => {
+                self.state.attitude_deg = Some((a.pitch_deg, a.roll_deg))
+            }
+            EstimateValues::Zupt(z) if z.aligned => {
+                let Some(start) = self.setup.start else {
+                    return;
+                };
+                let [north, east, down] = z.position_m;
+                let reference = ProjectPoint {
+                    easting_m: start.easting_m + east,
+                    northing_m: start.northing_m + north,
+                    height_m: start.height_m - down,
+                };
+                let located = self.locate(
+                    DtaSource::Zupt,
+                    reference,
+                    z.yaw_deg,
+                    z.pitch_deg,
+                    z.roll_deg,
+                );
+                self.emit(estimate.t, located, out);
+            }
+            _ => {}
+        }
+    }
+
+    fn snapshot(&self) -> serde_json::Value {
+        // Plain numbers: serialising cannot fail.
+        serde_json::to_value(&self.state).unwrap_or(serde_json::Value::Null)
+    }
+}
+
+/// The `dta` stage as the registry lists it.
+pub struct Dta;
+
+impl StageDescriptor for Dta {
+    const SUMMARY: &'static str = "deviation from the designed tunnel axis at the machine's front and rear, for machines with an alignment";
+    const CODEC_VERSION: u32 = CODEC_VERSION;
+    type Stage = DtaStage;
+    type Output = DtaEstimate;
+
+    fn create(declaration: &Declaration) -> Option<DtaStage> {
+        Some(DtaStage {
+            setup: DtaStage::setup(declaration)?,
+            state: DtaState {
+                state_version: STATE_VERSION,
+                ..DtaState::default()
+            },
+        })
+    }
+    fn restore(
+        declaration: &Declaration,
+        snapshot: serde_json::Value,
+    ) -> Result<DtaStage, SnapshotError> {
+        SnapshotError::check_version(StreamKind::Dta, &snapshot, STATE_VERSION)?;
+        let state: DtaState = SnapshotError::parse(StreamKind::Dta, snapshot)?;
+        let setup = DtaStage::setup(declaration).ok_or(SnapshotError::Invalid(
+            "a dta snapshot for a machine without an alignment and geometry".into(),
+        ))?;
+        Ok(DtaStage { setup, state })
+    }
+    fn write_fields(output: &DtaEstimate, fields: &mut JsonFields<'_>) {
+        output.write_fields(fields);
+    }
+    fn encode(output: &DtaEstimate) -> Vec<u8> {
+        super::estimate::postcard_bytes(output)
+    }
+    fn decode(version: u32, bytes: &[u8]) -> Result<DtaEstimate, postcard::Error> {
+        match version {
+            0 | 1 => postcard::from_bytes(bytes),
+            _ => Err(postcard::Error::DeserializeBadEncoding),
+        }
+    }
+    fn extremes(output: &DtaEstimate) -> [f64; 2] {
+        [output.front.horizontal_mm, output.front.vertical_mm]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fusion::alignment::AlignmentSpec;
+
+    /// Due north from (1000, 5000) for 100 m, level at 50 m; the front 4 m
+    /// ahead of the reference point, the rear 5 m behind.
+    fn declaration(engines: &[EngineKind]) -> Declaration {
+        let axis = r#"{"start": {"easting_m": 1000.0, "northing_m": 5000.0, "azimuth_deg": 0.0},
+            "horizontal": [{"type": "line", "length_m": 100.0}],
+            "vertical": {"start_height_m": 50.0, "end_grade_pct": 0.0}}"#;
+        let spec: AlignmentSpec = serde_json::from_str(axis).unwrap();
+        Declaration {
+            alignment: Some(Arc::new(spec.build().unwrap())),
+            geometry: Some(MachineGeometry {
+                front_m: [4.0, 0.0, 0.0],
+                rear_m: [-5.0, 0.0, 0.0],
+            }),
+            tolerances: Some(Tolerances {
+                horizontal_mm: Limits {
+                    warn: 50.0,
+                    alarm: 100.0,
+                },
+                vertical_mm: Limits {
+                    warn: 30.0,
+                    alarm: 60.0,
+                },
+            }),
+            start: Some(ProjectPoint {
+                easting_m: 1000.0,
+                northing_m: 5000.0,
+                height_m: 50.0,
+            }),
+            engines: engines.to_vec(),
+        }
+    }
+
+    fn laser(t: f64, yaw_deg: f64, position: ProjectPoint) -> Reading {
+        Reading {
+            t,
+            data: SensorData::Laser {
+                pitch_deg: 0.0,
+                roll_deg: 0.0,
+                yaw_deg: Some(yaw_deg),
+                position: Some(position),
+            },
+        }
+    }
+
+    fn dta(out: &[EngineOutput]) -> &DtaEstimate {
+        match &out.last().expect("an estimate").values {
+            EstimateValues::Dta(d) => d,
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn front_and_rear_by_hand_from_a_laser_position() {
+        let mut stage = Dta::create(&declaration(&[EngineKind::Attitude])).unwrap();
+        let mut out = Vec::new();
+        // 20 mm right (east) of the axis, 29 mm high, square to it.
+        let at = ProjectPoint {
+            easting_m: 1000.02,
+            northing_m: 5010.0,
+            height_m: 50.029,
+        };
+        stage.reading(&laser(1.0, 0.0, at), &mut out);
+        let d = dta(&out);
+        assert_eq!(d.source, DtaSource::Laser);
+        assert!((d.station_m - 10.0).abs() < 1e-9);
+        assert!((d.front.station_m - 14.0).abs() < 1e-9 && (d.rear.station_m - 5.0).abs() < 1e-9);
+        for p in [d.front, d.rear] {
+            assert!((p.horizontal_mm - 20.0).abs() < 1e-6, "{p:?}");
+            assert!((p.vertical_mm - 29.0).abs() < 1e-6, "{p:?}");
+        }
+        assert!(d.tendency_horizontal_mm_per_m.abs() < 1e-6);
+        // Within both tolerances (vertical warns beyond 30 mm).
+        assert_eq!(d.status, Some(DtaStatus::Ok));
+
+        // Yawed 1° right and, from the attitude engine, pitched 1° nose up:
+        // the front moves 4·sin 1° right and up, the rear 5·sin 1° left and
+        // down; the tendency is 1000·tan 1°-ish mm/m both ways.
+        let sin1 = 1f64.to_radians().sin();
+        let fused = EngineOutput {
+            t: 2.0,
+            values: EstimateValues::Attitude(crate::fusion::AttitudeEstimate {
+                pitch_deg: 1.0,
+                roll_deg: 0.0,
+                pitch_pred_deg: 1.0,
+                roll_pred_deg: 0.0,
+                pred_t: 3.0,
+                laser_ok: true,
+                pitch_correction_deg: 0.0,
+                laser_age_s: Some(1.0),
+                model_version: 0,
+                incl_pitch_deg: 1.0,
+                incl_roll_deg: 0.0,
+            }),
+        };
+        stage.estimate(&fused, &mut out);
+        stage.reading(&laser(3.0, 1.0, at), &mut out);
+        let d = dta(&out);
+        let cos1 = 1f64.to_radians().cos();
+        // Heading 1° east of north and pitched 1° up: the body x axis is
+        // (E, N, up) = (cos1·sin1, cos1·cos1, sin1).
+        let front_h = 20.0 + 1000.0 * 4.0 * cos1 * sin1;
+        let rear_h = 20.0 - 1000.0 * 5.0 * cos1 * sin1;
+        assert!((d.front.horizontal_mm - front_h).abs() < 1e-6, "{d:?}");
+        assert!((d.rear.horizontal_mm - rear_h).abs() < 1e-6, "{d:?}");
+        assert!(
+            (d.front.vertical_mm - (29.0 + 4000.0 * sin1)).abs() < 1e-6,
+            "{d:?}"
+        );
+        assert!(
+            (d.rear.vertical_mm - (29.0 - 5000.0 * sin1)).abs() < 1e-6,
+            "{d:?}"
+        );
+        assert!((d.tendency_horizontal_mm_per_m - 1000.0 * cos1 * sin1).abs() < 1e-6);
+        assert!((d.tendency_vertical_mm_per_m - 1000.0 * sin1).abs() < 1e-6);
+        // Front 29 + 69.8 mm high: beyond the 60 mm alarm.
+        assert_eq!(d.status, Some(DtaStatus::Alarm));
+    }
+
+    #[test]
+    fn a_zupt_position_is_relative_to_the_declared_start() {
+        let mut stage = Dta::create(&declaration(&[EngineKind::Zupt])).unwrap();
+        let mut out = Vec::new();
+        let estimate = |position_m: [f64; 3], aligned| EngineOutput {
+            t: 5.0,
+            values: EstimateValues::Zupt(crate::fusion::ZuptEstimate {
+                zv: false,
+                position_m,
+                distance_m: 0.0,
+                velocity_mps: [0.0; 3],
+                pitch_deg: 0.0,
+                roll_deg: 0.0,
+                yaw_deg: 0.0,
+                aligned,
+                position_sigma_m: [0.01; 3],
+                height_m: None,
+                odometer_m: None,
+                mv_ratio: 0.0,
+                are_ratio: 0.0,
+                shoe_ratio: 0.0,
+                mag_ratio: 0.0,
+                yaw_sigma_deg: None,
+                smoothed_push: None,
+            }),
+        };
+        stage.estimate(&estimate([20.0, -0.07, 0.01], false), &mut out);
+        assert!(out.is_empty(), "nothing before alignment");
+        // 20 m north, 70 mm west (left), 10 mm down.
+        stage.estimate(&estimate([20.0, -0.07, 0.01], true), &mut out);
+        let d = dta(&out);
+        assert_eq!(d.source, DtaSource::Zupt);
+        assert!((d.station_m - 20.0).abs() < 1e-9);
+        assert!(
+            (d.front.horizontal_mm + 70.0).abs() < 1e-6
+                && (d.front.vertical_mm + 10.0).abs() < 1e-6
+        );
+        assert_eq!(d.status, Some(DtaStatus::Warn));
+        // Beyond the axis's end: no estimate, counted.
+        stage.estimate(&estimate([120.0, 0.0, 0.0], true), &mut out);
+        assert_eq!(out.len(), 1);
+        assert_eq!(stage.state.outside, 1);
+    }
+
+    #[test]
+    fn only_a_declared_axis_and_geometry_make_the_stage() {
+        let full = declaration(&[EngineKind::Attitude]);
+        assert!(Dta::create(&full).is_some());
+        assert!(
+            Dta::create(&Declaration {
+                alignment: None,
+                ..full.clone()
+            })
+            .is_none()
+        );
+        assert!(
+            Dta::create(&Declaration {
+                geometry: None,
+                ..full.clone()
+            })
+            .is_none()
+        );
+        // A fuzzy machine has no position to locate.
+        assert!(Dta::create(&declaration(&[EngineKind::Fuzzy])).is_none());
+        // Zupt without a start has none either.
+        let zupt = declaration(&[EngineKind::Zupt]);
+        assert!(
+            Dta::create(&Declaration {
+                start: None,
+                ..zupt
+            })
+            .is_none()
+        );
+    }
+}
