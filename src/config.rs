@@ -6,6 +6,11 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
+use std::sync::Arc;
+
+use crate::fusion::alignment::{Alignment, AlignmentSpec};
+use crate::fusion::dta::{MachineGeometry, Tolerances};
+use crate::fusion::reading::ProjectPoint;
 use crate::fusion::{
     Declaration, EngineKind, ParamError, ParamValue, Params, StreamKind, UnknownEngine,
 };
@@ -30,6 +35,18 @@ pub struct MachineDeclaration {
     /// time (tunnelnav extension, default 0: fused on arrival; see README).
     #[serde(default)]
     pub reorder_window_s: Option<f64>,
+    /// Where the machine's front and rear are (protocol, "Design axis and
+    /// deviation"); with an alignment, the `dta` stream.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub geometry: Option<MachineGeometry>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tolerances: Option<Tolerances>,
+    /// Project coordinates of the reference point at the first reading.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub start: Option<ProjectPoint>,
+    /// The design axis of the machine's drive.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub alignment: Option<AlignmentSpec>,
 }
 
 /// A validated machine: id, name, engines with complete parameters.
@@ -39,6 +56,17 @@ pub struct MachineSpec {
     pub name: String,
     pub engines: BTreeMap<EngineKind, Params>,
     pub reorder_window_s: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub geometry: Option<MachineGeometry>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tolerances: Option<Tolerances>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub start: Option<ProjectPoint>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub alignment: Option<AlignmentSpec>,
+    /// `alignment` built (when validated or loaded).
+    #[serde(skip)]
+    pub built_alignment: Option<Arc<Alignment>>,
 }
 
 /// Why a machine declaration or the config file was refused.
@@ -117,11 +145,52 @@ impl MachineDeclaration {
             engine.create(params.clone()).map_err(params_error)?;
             engines.insert(engine, params);
         }
+        let finite = |xs: &[f64]| xs.iter().all(|x| x.is_finite());
+        if let Some(g) = &self.geometry
+            && !finite(&[g.front_m, g.rear_m].concat())
+        {
+            return Err(invalid(
+                "`geometry`: front_m and rear_m must be finite numbers".into(),
+            ));
+        }
+        if let Some(t) = &self.tolerances {
+            for (what, limits) in [
+                ("horizontal_mm", t.horizontal_mm),
+                ("vertical_mm", t.vertical_mm),
+            ] {
+                if !(finite(&[limits.warn, limits.alarm])
+                    && 0.0 < limits.warn
+                    && limits.warn <= limits.alarm)
+                {
+                    return Err(invalid(format!(
+                        "`tolerances.{what}`: warn must be above 0 and at most alarm"
+                    )));
+                }
+            }
+        }
+        if let Some(p) = &self.start
+            && !finite(&[p.easting_m, p.northing_m, p.height_m])
+        {
+            return Err(invalid(
+                "`start`: easting, northing and height must be finite".into(),
+            ));
+        }
+        let built_alignment = self
+            .alignment
+            .as_ref()
+            .map(|a| a.build().map(Arc::new))
+            .transpose()
+            .map_err(|e| invalid(format!("`alignment`: {e}")))?;
         Ok(MachineSpec {
             id: id.to_string(),
             name,
             engines,
             reorder_window_s,
+            geometry: self.geometry,
+            tolerances: self.tolerances,
+            start: self.start,
+            alignment: self.alignment,
+            built_alignment,
         })
     }
 }
@@ -129,7 +198,13 @@ impl MachineDeclaration {
 impl MachineSpec {
     /// What the stages read of this declaration.
     pub fn stage_declaration(&self) -> Declaration {
-        Declaration::of_engines(self.engines.keys().copied())
+        Declaration {
+            alignment: self.built_alignment.clone(),
+            geometry: self.geometry,
+            tolerances: self.tolerances,
+            start: self.start,
+            ..Declaration::of_engines(self.engines.keys().copied())
+        }
     }
 
     /// Every stream of estimates the machine has: its engines', then its
@@ -160,6 +235,15 @@ impl MachineSpec {
                     source,
                 })?;
         }
+        self.built_alignment = self
+            .alignment
+            .as_ref()
+            .map(|a| a.build().map(Arc::new))
+            .transpose()
+            .map_err(|e| ConfigError::Invalid {
+                machine: self.id.clone(),
+                reason: format!("stored `alignment`: {e}"),
+            })?;
         Ok(self)
     }
 
@@ -174,6 +258,10 @@ impl MachineSpec {
                 .map(|(engine, params)| (engine.as_str().to_string(), params.values().clone()))
                 .collect(),
             reorder_window_s: Some(self.reorder_window_s),
+            geometry: self.geometry,
+            tolerances: self.tolerances,
+            start: self.start,
+            alignment: self.alignment.clone(),
         }
     }
 }

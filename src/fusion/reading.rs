@@ -62,7 +62,8 @@ impl std::fmt::Display for SensorKind {
 }
 
 /// A point in project coordinates, metres.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct ProjectPoint {
     pub easting_m: f64,
     pub northing_m: f64,

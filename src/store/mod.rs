@@ -270,7 +270,7 @@ impl Store {
         let (reply, answer) = oneshot::channel();
         self.requests
             .send(Queued::Request(Request::PutMachine {
-                spec,
+                spec: Box::new(spec),
                 snapshot,
                 reply,
             }))

@@ -30,7 +30,7 @@ pub(super) enum Queued {
 pub(super) enum Request {
     Write(Write),
     PutMachine {
-        spec: MachineSpec,
+        spec: Box<MachineSpec>,
         /// The fresh state of the (re)declared machine's engines.
         snapshot: String,
         reply: oneshot::Sender<Result<i64, StoreError>>,

@@ -1,0 +1,126 @@
+//! A pipe-jacking machine declared with its design axis, geometry,
+//! tolerances and start point over HTTP: its `dta` stream, served across
+//! a restart, equals the same engine and stage run over the same readings
+//! in this process, and the declaration reads back as declared.
+
+mod common;
+
+use common::{TestServer, declare_machine, get_json, post_ndjson, stream_estimates};
+use serde_json::{Value, json};
+use tunnelnav::config::MachineDeclaration;
+use tunnelnav::fusion::pipeline::Pipeline;
+use tunnelnav::fusion::{EngineOutput, EstimateValues, Reading};
+use tunnelnav::sim::pipejack::{PipeJackDrive, PipeJackScenario};
+
+const MACHINE: &str = "pj-dta-1";
+
+/// The machine: zupt heading north from (2000, 5000, 30.5) along a
+/// straight axis that starts 100 m behind it with a 0.5 % grade.
+fn declaration() -> Value {
+    json!({
+        "name": "Pipe jack on the S-2 axis",
+        "engines": {"zupt": {"latitude_deg": 30}},
+        "geometry": {"front_m": [1.5, 0.0, 0.0], "rear_m": [-1.5, 0.0, 0.0]},
+        "tolerances": {"horizontal_mm": {"warn": 50, "alarm": 100},
+                       "vertical_mm": {"warn": 30, "alarm": 60}},
+        "start": {"easting_m": 2000.0, "northing_m": 5000.0, "height_m": 30.5},
+        "alignment": {"name": "S-2", "start_station_m": 1000.0,
+            "start": {"easting_m": 2000.0, "northing_m": 4900.0, "azimuth_deg": 0.0},
+            "horizontal": [{"type": "line", "length_m": 1000.0}],
+            "vertical": {"start_height_m": 30.0, "end_grade_pct": 0.5}}
+    })
+}
+
+fn readings(seconds: f64) -> Vec<Reading> {
+    let drive = PipeJackDrive::new(PipeJackScenario::default()).unwrap();
+    let start = drive.scenario().start_t;
+    drive
+        .take_while(|e| e.reading.t < start + seconds)
+        .map(|e| e.reading)
+        .collect()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_dta_stream_is_served_as_the_stage_computes_it_across_a_restart() {
+    let dir = tempfile::tempdir().unwrap();
+    let readings = readings(150.0);
+    let lines: Vec<String> = readings.iter().map(Reading::to_json).collect();
+    let (first, second) = lines.split_at(lines.len() / 2);
+
+    let server = TestServer::start(dir.path()).await;
+    let client = reqwest::Client::new();
+    let base = server.url("");
+    declare_machine(&client, &base, MACHINE, &declaration().to_string()).await;
+    let shown = get_json(&client, &base, &format!("/api/v1/machines/{MACHINE}")).await;
+    assert_eq!(shown["config"]["alignment"]["name"], "S-2");
+    assert_eq!(shown["config"]["geometry"]["front_m"][0], 1.5);
+    assert_eq!(shown["config"]["start"]["height_m"], 30.5);
+    for chunk in first.chunks(2500) {
+        post_ndjson(&client, &base, MACHINE, chunk).await;
+    }
+    server.stop().await;
+
+    let server = TestServer::start(dir.path()).await;
+    let base = server.url("");
+    for chunk in second.chunks(2500) {
+        post_ndjson(&client, &base, MACHINE, chunk).await;
+    }
+    let served = stream_estimates(&client, &base, MACHINE, "dta").await;
+    let status = get_json(&client, &base, &format!("/api/v1/machines/{MACHINE}")).await;
+    server.stop().await;
+
+    // The same engine and stages in this process, fed in order.
+    let spec = serde_json::from_value::<MachineDeclaration>(declaration())
+        .unwrap()
+        .validate(MACHINE)
+        .unwrap();
+    let engines = spec
+        .engines
+        .iter()
+        .map(|(kind, params)| kind.create(params.clone()).unwrap())
+        .collect();
+    let mut pipeline = Pipeline::declared(engines, &spec.stage_declaration());
+    let mut outputs: Vec<EngineOutput> = Vec::new();
+    for reading in &readings {
+        pipeline.feed(reading, &mut outputs);
+    }
+    let expected: Vec<Value> = outputs
+        .iter()
+        .filter(|o| matches!(o.values, EstimateValues::Dta(_)))
+        .map(|o| serde_json::to_value(o.for_machine(MACHINE)).unwrap())
+        .collect();
+    assert!(served.len() > 1000, "{} dta estimates", served.len());
+    assert_eq!(served[..], expected[..served.len()]);
+    let last = served.last().unwrap();
+    assert_eq!(last["source"], "zupt");
+    // On the axis to within the INS's drift over a few pushes.
+    assert!(
+        last["front"]["horizontal_mm"].as_f64().unwrap().abs() < 500.0,
+        "{last}"
+    );
+    assert!(
+        last["station_m"].as_f64().unwrap() > 1100.0,
+        "the start point is at station 1100: {last}"
+    );
+    assert_eq!(status["latest"]["dta"]["engine"], "dta");
+
+    // A declaration whose axis is broken is refused naming the element.
+    let server = TestServer::start(dir.path()).await;
+    let base = server.url("");
+    let mut broken = declaration();
+    broken["alignment"]["horizontal"][0]["length_m"] = json!(-5);
+    let response = client
+        .put(format!("{base}/api/v1/machines/pj-dta-2"))
+        .body(broken.to_string())
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(response.status(), 400);
+    let body: Value = serde_json::from_slice(&response.bytes().await.unwrap()).unwrap();
+    let error = body["error"].as_str().unwrap();
+    assert!(
+        error.contains("alignment") && error.contains("horizontal element 0 (line)"),
+        "{error}"
+    );
+    server.stop().await;
+}
