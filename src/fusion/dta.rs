@@ -376,15 +376,6 @@ impl StageDescriptor for Dta {
     fn write_fields(output: &DtaEstimate, fields: &mut JsonFields<'_>) {
         output.write_fields(fields);
     }
-    fn encode(output: &DtaEstimate) -> Vec<u8> {
-        super::estimate::postcard_bytes(output)
-    }
-    fn decode(version: u32, bytes: &[u8]) -> Result<DtaEstimate, postcard::Error> {
-        match version {
-            0 | 1 => postcard::from_bytes(bytes),
-            _ => Err(postcard::Error::DeserializeBadEncoding),
-        }
-    }
     fn extremes(output: &DtaEstimate) -> [f64; 2] {
         [output.front.horizontal_mm, output.front.vertical_mm]
     }

@@ -166,15 +166,6 @@ impl StageDescriptor for Pushes {
     fn write_fields(output: &PushRecord, fields: &mut JsonFields<'_>) {
         output.write_fields(fields);
     }
-    fn encode(output: &PushRecord) -> Vec<u8> {
-        super::estimate::postcard_bytes(output)
-    }
-    fn decode(version: u32, bytes: &[u8]) -> Result<PushRecord, postcard::Error> {
-        match version {
-            0 | 1 => postcard::from_bytes(bytes),
-            _ => Err(postcard::Error::DeserializeBadEncoding),
-        }
-    }
     fn extremes(output: &PushRecord) -> [f64; 2] {
         [output.length_m, output.speed_mm_per_s]
     }

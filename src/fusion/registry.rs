@@ -80,10 +80,20 @@ pub trait StageDescriptor {
     ) -> Result<Self::Stage, SnapshotError>;
     /// The output's fields after `"engine"`, as serde_json writes them.
     fn write_fields(output: &Self::Output, fields: &mut JsonFields<'_>);
-    /// The stored form of [`StageDescriptor::CODEC_VERSION`].
-    fn encode(output: &Self::Output) -> Vec<u8>;
-    /// An output stored with codec `version`.
-    fn decode(version: u32, bytes: &[u8]) -> Result<Self::Output, postcard::Error>;
+    /// The stored form of [`StageDescriptor::CODEC_VERSION`]: postcard.
+    fn encode(output: &Self::Output) -> Vec<u8> {
+        super::estimate::postcard_bytes(output)
+    }
+    /// An output stored with codec `version`. The default reads a stage
+    /// whose stored form has never changed; one that changes keeps its
+    /// earlier forms readable here.
+    fn decode(version: u32, bytes: &[u8]) -> Result<Self::Output, postcard::Error> {
+        if version <= Self::CODEC_VERSION {
+            postcard::from_bytes(bytes)
+        } else {
+            Err(postcard::Error::DeserializeBadEncoding)
+        }
+    }
     /// The two quantities whose extremes history downsampling keeps.
     fn extremes(output: &Self::Output) -> [f64; 2];
 }
