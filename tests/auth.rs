@@ -219,6 +219,8 @@ async fn tokens_gate_every_route_by_scope_and_machine() {
         (Method::GET, "/api/v1/machines/tbm-1/live", "read"),
         (Method::GET, "/api/v1/machines/tbm-1/estimates", "read"),
         (Method::GET, "/api/v1/machines/tbm-1/model", "read"),
+        (Method::GET, "/api/v1/machines/tbm-1/alignment", "read"),
+        (Method::PUT, "/api/v1/machines/tbm-1/alignment", "admin"),
         (Method::GET, "/nowhere", "read"),
         (Method::DELETE, "/api/v1/machines/tbm-1", "read"),
     ];

@@ -124,3 +124,80 @@ async fn the_dta_stream_is_served_as_the_stage_computes_it_across_a_restart() {
     );
     server.stop().await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_axis_is_set_as_landxml_or_json_and_read_back() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start(dir.path()).await;
+    let client = reqwest::Client::new();
+    let base = server.url("");
+    let mut machine = declaration();
+    machine.as_object_mut().unwrap().remove("alignment");
+    declare_machine(&client, &base, "tbm-axis", &machine.to_string()).await;
+    let url = format!("{base}/api/v1/machines/tbm-axis/alignment");
+    let missing = client.get(&url).send().await.unwrap();
+    assert_eq!(missing.status(), 404);
+
+    let fixtures =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/alignment");
+    let xml = std::fs::read_to_string(fixtures.join("s1.xml")).unwrap();
+    let response = client
+        .put(&url)
+        .header("content-type", "application/xml")
+        .body(xml.clone())
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(response.status(), 200);
+    let summary: Value = serde_json::from_slice(&response.bytes().await.unwrap()).unwrap();
+    assert_eq!(summary["name"], "S-1 drive");
+    assert_eq!(summary["elements"].as_array().unwrap().len(), 5);
+    assert_eq!(summary["elements"][1]["type"], "spiral");
+    assert!((summary["length_m"].as_f64().unwrap() - 250.0).abs() < 1e-9);
+
+    // Read back as JSON: the geometry of the JSON twin.
+    let shown = get_json(&client, &base, "/api/v1/machines/tbm-axis/alignment").await;
+    let twin: Value =
+        serde_json::from_str(&std::fs::read_to_string(fixtures.join("s1.json")).unwrap()).unwrap();
+    for (a, b) in shown["horizontal"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .zip(twin["horizontal"].as_array().unwrap())
+    {
+        assert_eq!(a["type"], b["type"]);
+        for key in ["length_m", "radius_m", "radius_start_m", "radius_end_m"] {
+            match (a[key].as_f64(), b[key].as_f64()) {
+                (Some(x), Some(y)) => assert!((x - y).abs() < 1e-6, "{key}: {x} {y}"),
+                (x, y) => assert_eq!(x, y, "{key}"),
+            }
+        }
+    }
+    assert!((shown["start"]["azimuth_deg"].as_f64().unwrap() - 30.0).abs() < 1e-9);
+    assert!((shown["vertical"]["end_grade_pct"].as_f64().unwrap() + 0.5).abs() < 1e-9);
+
+    // The same as JSON; a broken LandXML is refused naming the element.
+    let response = client
+        .put(&url)
+        .body(twin.to_string())
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(response.status(), 200);
+    let broken = xml.replacen(r#"radius="300.000000""#, r#"radius="310.000000""#, 1);
+    let response = client
+        .put(&url)
+        .header("content-type", "application/xml")
+        .body(broken)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(response.status(), 400);
+    let body: Value = serde_json::from_slice(&response.bytes().await.unwrap()).unwrap();
+    let error = body["error"].as_str().unwrap();
+    assert!(
+        error.contains("LandXML") && error.contains("element 2 (<Curve>"),
+        "{error}"
+    );
+    server.stop().await;
+}

@@ -1,6 +1,7 @@
 //! The HTTP server: routes, shared state, start-up and shutdown. Handlers
 //! only translate: extract, ask the store or a machine's task, map errors.
 
+mod alignment;
 pub mod auth;
 mod clock;
 mod error;
@@ -329,6 +330,10 @@ pub fn router(state: SharedState) -> Router {
         .route(
             "/api/v1/machines/{machine}/model",
             get(history::model.layer(read.clone())),
+        )
+        .route(
+            "/api/v1/machines/{machine}/alignment",
+            get(alignment::show.layer(read.clone())).put(alignment::put.layer(admin.clone())),
         )
         .route("/login", get(auth::login_page).post(auth::login))
         .route("/logout", axum::routing::post(auth::logout))

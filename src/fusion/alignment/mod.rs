@@ -212,6 +212,44 @@ impl AlignmentSpec {
 }
 
 impl Alignment {
+    /// The protocol's JSON of this alignment (of a LandXML import, say).
+    pub fn to_spec(&self) -> AlignmentSpec {
+        let radius = |k: f64| (k != 0.0).then(|| 1.0 / k);
+        let first = self.elements.first().map(|e| e.start);
+        AlignmentSpec {
+            name: self.name.clone(),
+            start_station_m: self.station_range_m().0,
+            start: StartPose {
+                easting_m: first.map_or(0.0, |p| p.easting_m),
+                northing_m: first.map_or(0.0, |p| p.northing_m),
+                azimuth_deg: first.map_or(0.0, |p| p.azimuth_rad.to_degrees()),
+            },
+            horizontal: self
+                .elements
+                .iter()
+                .map(|e| match e.kind {
+                    ElementKind::Line => ElementSpec::Line {
+                        length_m: e.length_m,
+                    },
+                    ElementKind::Arc => ElementSpec::Arc {
+                        length_m: e.length_m,
+                        radius_m: 1.0 / e.curvature_start,
+                    },
+                    ElementKind::Spiral => ElementSpec::Spiral {
+                        length_m: e.length_m,
+                        radius_start_m: radius(e.curvature_start),
+                        radius_end_m: radius(e.curvature_end),
+                    },
+                })
+                .collect(),
+            vertical: ProfileSpec {
+                start_height_m: self.profile.start_height_m,
+                pvis: self.profile.pvis.clone(),
+                end_grade_pct: self.profile.end_grade * 100.0,
+            },
+        }
+    }
+
     /// Station of the start and the end.
     pub fn station_range_m(&self) -> (f64, f64) {
         let first = self.elements.first().map_or(0.0, |e| e.start_station_m);

@@ -1,0 +1,108 @@
+//! The design axis of a machine's drive: `PUT` as the protocol's JSON or
+//! as LandXML 1.2 (`Content-Type: application/xml`), `GET` as JSON.
+//! Setting it redeclares the machine with it (like any changed
+//! declaration: fresh engines, its readings and history kept).
+
+use axum::Json;
+use axum::body::Bytes;
+use axum::extract::rejection::BytesRejection;
+use axum::extract::{Path, State};
+use axum::http::{HeaderMap, header};
+use serde::Serialize;
+
+use super::SharedState;
+use super::error::ApiError;
+use crate::fusion::alignment::{AlignmentSpec, ElementKind, landxml};
+
+/// One element of the summary.
+#[derive(Debug, Serialize)]
+pub struct ElementSummary {
+    #[serde(rename = "type")]
+    pub kind: ElementKind,
+    pub start_station_m: f64,
+    pub length_m: f64,
+}
+
+/// What a `PUT` answers: the parsed axis in brief.
+#[derive(Debug, Serialize)]
+pub struct AlignmentSummary {
+    pub machine: String,
+    pub name: String,
+    pub start_station_m: f64,
+    pub end_station_m: f64,
+    pub length_m: f64,
+    pub elements: Vec<ElementSummary>,
+    /// Points of vertical intersection between the start and the end.
+    pub pvis: usize,
+}
+
+fn is_xml(headers: &HeaderMap) -> bool {
+    headers
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|t| t.contains("xml"))
+}
+
+/// `PUT /api/v1/machines/{machine}/alignment`.
+pub async fn put(
+    State(state): State<SharedState>,
+    Path(machine): Path<String>,
+    headers: HeaderMap,
+    body: Result<Bytes, BytesRejection>,
+) -> Result<Json<AlignmentSummary>, ApiError> {
+    let handle = state.machine(&machine)?;
+    let body = body.map_err(|e| ApiError::BadRequest(format!("could not read the body: {e}")))?;
+    let spec = if is_xml(&headers) {
+        let text = std::str::from_utf8(&body)
+            .map_err(|_| ApiError::BadRequest("the LandXML is not UTF-8 text".into()))?;
+        landxml::parse(text)
+            .map_err(|e| ApiError::BadRequest(format!("LandXML: {e}")))?
+            .to_spec()
+    } else {
+        serde_json::from_slice::<AlignmentSpec>(&body).map_err(|e| {
+            ApiError::BadRequest(format!(
+                "body is not an alignment (the protocol's JSON, or LandXML with Content-Type: application/xml): {e}"
+            ))
+        })?
+    };
+    let mut declaration = handle.spec.declaration();
+    declaration.alignment = Some(spec);
+    let spec = declaration.validate(&machine)?;
+    let built = spec
+        .built_alignment
+        .clone()
+        .ok_or_else(|| ApiError::Internal("a validated alignment was not built".into()))?;
+    state.declare(spec).await?;
+    let (start, end) = built.station_range_m();
+    Ok(Json(AlignmentSummary {
+        machine,
+        name: built.name.clone(),
+        start_station_m: start,
+        end_station_m: end,
+        length_m: end - start,
+        elements: built
+            .elements
+            .iter()
+            .map(|e| ElementSummary {
+                kind: e.kind,
+                start_station_m: e.start_station_m,
+                length_m: e.length_m,
+            })
+            .collect(),
+        pvis: built.profile.pvis.len(),
+    }))
+}
+
+/// `GET /api/v1/machines/{machine}/alignment`: as JSON; 404 without one.
+pub async fn show(
+    State(state): State<SharedState>,
+    Path(machine): Path<String>,
+) -> Result<Json<AlignmentSpec>, ApiError> {
+    let handle = state.machine(&machine)?;
+    handle
+        .spec
+        .alignment
+        .clone()
+        .map(Json)
+        .ok_or_else(|| ApiError::NotFound(format!("machine `{machine}` has no alignment declared")))
+}
