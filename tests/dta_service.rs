@@ -91,6 +91,30 @@ async fn the_dta_stream_is_served_as_the_stage_computes_it_across_a_restart() {
         .collect();
     assert!(served.len() > 1000, "{} dta estimates", served.len());
     assert_eq!(served[..], expected[..served.len()]);
+
+    // `replay --machine DECLARATION.json` runs the same engines and stages.
+    let file = dir.path().join(format!("{MACHINE}.json"));
+    std::fs::write(&file, declaration().to_string()).unwrap();
+    let input = dir.path().join("readings.ndjson");
+    std::fs::write(&input, lines.join("\n")).unwrap();
+    let output = std::process::Command::new(env!("CARGO_BIN_EXE_tunnelnav"))
+        .args(["replay", "--reorder-window-s", "0", "--machine"])
+        .arg(&file)
+        .arg(&input)
+        .output()
+        .unwrap();
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let replayed: Vec<Value> = String::from_utf8(output.stdout)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str::<Value>(l).unwrap())
+        .filter(|e| e["engine"] == "dta")
+        .collect();
+    assert_eq!(served[..], replayed[..served.len()]);
     let last = served.last().unwrap();
     assert_eq!(last["source"], "zupt");
     // On the axis to within the INS's drift over a few pushes.

@@ -1,28 +1,33 @@
-//! `tunnelnav replay --engine NAME [--param name=value ...] FILE|-`
+//! `tunnelnav replay --engine NAME [--param name=value ...] [--machine ID] FILE|-`, or `tunnelnav replay --machine DECLARATION.json FILE|-`
 
 use std::fs::File;
 use std::io::{self, BufReader, BufWriter, Write};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use clap::Args;
 
 use super::CliError;
+use crate::config::{MachineDeclaration, MachineSpec};
 use crate::fusion::EngineKind;
 use crate::fusion::pipeline::Pipeline;
 use crate::replay::{ReplayOptions, replay};
 
 #[derive(Debug, Args)]
 pub struct ReplayArgs {
-    /// Engine to run; the stages a machine running it has run after it
-    /// (`zupt`: the `pushes` jacking log).
+    /// Engine to run, and the stages a machine running it has after it
+    /// (`zupt`: the `pushes` jacking log). Needed unless `--machine` names
+    /// a declaration file.
     #[arg(long, value_enum)]
-    pub engine: EngineKind,
+    pub engine: Option<EngineKind>,
     /// An engine parameter as name=value (repeatable); see `tunnelnav params`.
     #[arg(long = "param", value_name = "NAME=VALUE")]
     pub params: Vec<String>,
-    /// Machine id written into the estimates.
-    #[arg(long, default_value = "replay")]
+    /// Machine id written into the estimates; or a machine declaration,
+    /// FILE.json (as `PUT /api/v1/machines/{id}` takes it: engines with
+    /// their parameters, geometry, tolerances, start, alignment), whose
+    /// engines and stages run, under the id of the file's stem.
+    #[arg(long, default_value = "replay", value_name = "ID|FILE.json")]
     pub machine: String,
     /// Seconds readings are held to put them back in time order.
     #[arg(long, default_value_t = 10.0)]
@@ -31,12 +36,58 @@ pub struct ReplayArgs {
     pub input: PathBuf,
 }
 
+/// The machine a declaration file declares, under its file's stem.
+fn declared(path: &Path) -> Result<MachineSpec, CliError> {
+    let text = std::fs::read_to_string(path).map_err(|source| CliError::File {
+        context: format!("cannot read {}", path.display()),
+        source,
+    })?;
+    let id = path
+        .file_stem()
+        .and_then(|s| s.to_str())
+        .unwrap_or("replay");
+    serde_json::from_str::<MachineDeclaration>(&text)
+        .map_err(|e| {
+            CliError::Refused(format!(
+                "{}: not a machine declaration: {e}",
+                path.display()
+            ))
+        })?
+        .validate(id)
+        .map_err(|e| CliError::Refused(format!("{}: {e}", path.display())))
+}
+
 pub fn run(args: ReplayArgs) -> Result<(), CliError> {
-    let kind = args.engine;
-    let params = kind.params_from_assignments(args.params.iter().map(String::as_str))?;
-    let mut pipeline = Pipeline::with_engines(vec![kind.create(params)?]);
+    let (mut pipeline, machine) = if args.machine.ends_with(".json") {
+        if args.engine.is_some() || !args.params.is_empty() {
+            return Err(CliError::Refused(
+                "--machine FILE.json declares the engines and their parameters: give no --engine or --param".into(),
+            ));
+        }
+        let spec = declared(Path::new(&args.machine))?;
+        let engines = spec
+            .engines
+            .iter()
+            .map(|(kind, params)| kind.create(params.clone()))
+            .collect::<Result<Vec<_>, _>>()?;
+        (
+            Pipeline::declared(engines, &spec.stage_declaration()),
+            spec.id,
+        )
+    } else {
+        let kind = args.engine.ok_or_else(|| {
+            CliError::Refused(
+                "--engine is needed unless --machine names a declaration file (FILE.json)".into(),
+            )
+        })?;
+        let params = kind.params_from_assignments(args.params.iter().map(String::as_str))?;
+        (
+            Pipeline::with_engines(vec![kind.create(params)?]),
+            args.machine,
+        )
+    };
     let options = ReplayOptions {
-        machine: args.machine,
+        machine,
         reorder_window_s: args.reorder_window_s,
         ..ReplayOptions::default()
     };
