@@ -225,3 +225,90 @@ async fn an_axis_is_set_as_landxml_or_json_and_read_back() {
     );
     server.stop().await;
 }
+
+/// A TBM on a straight axis due north from (1000, 5000), level at 50 m:
+/// level and square to the world (inclinometer and laser read 0), its
+/// reference point at known offsets from the axis and yawed by a known
+/// angle, the laser giving its position every 30 s.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn laser_positions_give_the_known_deviations_within_a_millimetre() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start(dir.path()).await;
+    let client = reqwest::Client::new();
+    let base = server.url("");
+    let declaration = json!({
+        "engines": {"attitude": {}},
+        "geometry": {"front_m": [4.2, 0.0, 0.0], "rear_m": [-5.1, 0.0, 0.0]},
+        "tolerances": {"horizontal_mm": {"warn": 50, "alarm": 100},
+                       "vertical_mm": {"warn": 30, "alarm": 60}},
+        "alignment": {"start": {"easting_m": 1000.0, "northing_m": 5000.0, "azimuth_deg": 0.0},
+            "horizontal": [{"type": "line", "length_m": 500.0}],
+            "vertical": {"start_height_m": 50.0, "end_grade_pct": 0.0}}
+    });
+    declare_machine(&client, &base, "tbm-dta", &declaration.to_string()).await;
+    let t0 = 1_772_431_200.0;
+    // At laser sample k: 10 + 0.3k m along, dx = 20 + 3k mm right,
+    // dz = −10 + 2k mm high, yaw 0.05k° (right).
+    let truth = |k: f64| {
+        (
+            10.0 + 0.3 * k,
+            0.020 + 0.003 * k,
+            -0.010 + 0.002 * k,
+            0.05 * k,
+        )
+    };
+    let mut lines = Vec::new();
+    for s in 0..=600u32 {
+        let t = t0 + f64::from(s);
+        lines.push(
+            json!({"t": t, "sensor": "inclinometer", "pitch_deg": 0.0, "roll_deg": 0.0})
+                .to_string(),
+        );
+        if s % 30 == 0 {
+            let (along, dx, dz, yaw) = truth(f64::from(s / 30));
+            lines.push(
+                json!({"t": t, "sensor": "laser", "pitch_deg": 0.0, "roll_deg": 0.0,
+                       "yaw_deg": yaw, "easting_m": 1000.0 + dx,
+                       "northing_m": 5000.0 + along, "height_m": 50.0 + dz})
+                .to_string(),
+            );
+        }
+    }
+    post_ndjson(&client, &base, "tbm-dta", &lines).await;
+    let served = stream_estimates(&client, &base, "tbm-dta", "dta").await;
+    assert_eq!(served.len(), 21);
+    for (k, d) in served.iter().enumerate() {
+        let (along, dx, dz, yaw) = truth(k as f64);
+        let (sin, cos) = yaw.to_radians().sin_cos();
+        let mm = |x: f64| x * 1000.0;
+        let close = |field: &Value, want: f64| {
+            let got = field.as_f64().unwrap();
+            assert!(
+                (got - want).abs() < 1.0,
+                "sample {k}: {got} against {want}: {d}"
+            );
+        };
+        close(&d["front"]["horizontal_mm"], mm(dx + 4.2 * sin));
+        close(&d["rear"]["horizontal_mm"], mm(dx - 5.1 * sin));
+        close(&d["front"]["vertical_mm"], mm(dz));
+        close(&d["rear"]["vertical_mm"], mm(dz));
+        close(
+            &d["front"]["station_m"],
+            (along + 4.2 * cos) * 1000.0 / 1000.0,
+        );
+        close(&d["station_m"], along);
+        close(&d["tendency_horizontal_mm_per_m"], mm(9.3 * sin) / 9.3);
+        assert_eq!(d["source"], "laser");
+        let worst_h = mm(dx + 4.2 * sin).abs().max(mm(dx - 5.1 * sin).abs());
+        let worst_v = mm(dz).abs();
+        let want = if worst_h > 100.0 || worst_v > 60.0 {
+            "alarm"
+        } else if worst_h > 50.0 || worst_v > 30.0 {
+            "warn"
+        } else {
+            "ok"
+        };
+        assert_eq!(d["status"], want, "sample {k}: {d}");
+    }
+    server.stop().await;
+}
