@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::{TestServer, declare_machine, get_json, post_ndjson, stream_estimates};
+use common::{TestServer, declare_machine, get_json, post_ndjson, put_refused, stream_estimates};
 use serde_json::{Value, json};
 use tunnelnav::config::MachineDeclaration;
 use tunnelnav::fusion::pipeline::Pipeline;
@@ -133,15 +133,8 @@ async fn the_dta_stream_is_served_as_the_stage_computes_it_across_a_restart() {
     let base = server.url("");
     let mut broken = declaration();
     broken["alignment"]["horizontal"][0]["length_m"] = json!(-5);
-    let response = client
-        .put(format!("{base}/api/v1/machines/pj-dta-2"))
-        .body(broken.to_string())
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(response.status(), 400);
-    let body: Value = serde_json::from_slice(&response.bytes().await.unwrap()).unwrap();
-    let error = body["error"].as_str().unwrap();
+    let url = format!("{base}/api/v1/machines/pj-dta-2");
+    let error = put_refused(&client, &url, None, broken.to_string()).await;
     assert!(
         error.contains("alignment") && error.contains("horizontal element 0 (line)"),
         "{error}"
@@ -209,16 +202,7 @@ async fn an_axis_is_set_as_landxml_or_json_and_read_back() {
         .unwrap();
     assert_eq!(response.status(), 200);
     let broken = xml.replacen(r#"radius="300.000000""#, r#"radius="310.000000""#, 1);
-    let response = client
-        .put(&url)
-        .header("content-type", "application/xml")
-        .body(broken)
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(response.status(), 400);
-    let body: Value = serde_json::from_slice(&response.bytes().await.unwrap()).unwrap();
-    let error = body["error"].as_str().unwrap();
+    let error = put_refused(&client, &url, Some("application/xml"), broken).await;
     assert!(
         error.contains("LandXML") && error.contains("element 2 (<Curve>"),
         "{error}"

@@ -139,15 +139,13 @@ async fn a_database_from_the_previous_release_opens_and_continues() {
     assert!(model["noise"]["incl_pitch_vibrating_deg"].as_f64().unwrap() > 0.0);
 
     // A declaration naming a retired parameter is refused, saying why.
-    let response = client
-        .put(format!("{base}/api/v1/machines/tbm-new"))
-        .body(r#"{"name": "new", "engines": {"attitude": {"roll_offset_gain": 0.1}}}"#)
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(response.status(), 400);
-    let body: Value = serde_json::from_slice(&response.bytes().await.unwrap()).unwrap();
-    let error = body["error"].as_str().unwrap();
+    let error = common::put_refused(
+        &client,
+        &format!("{base}/api/v1/machines/tbm-new"),
+        None,
+        r#"{"name": "new", "engines": {"attitude": {"roll_offset_gain": 0.1}}}"#.to_string(),
+    )
+    .await;
     assert!(
         error.contains("roll_offset_gain") && error.contains("retired"),
         "{error}"

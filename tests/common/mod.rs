@@ -320,3 +320,21 @@ pub async fn get_json(client: &reqwest::Client, base: &str, path: &str) -> serde
     assert_eq!(response.status(), 200, "{path}");
     serde_json::from_slice(&response.bytes().await.unwrap()).unwrap()
 }
+
+/// `PUT`s `body` (of `content_type`, if given) to `url`; asserts a 400
+/// with a JSON error and returns the error's text.
+pub async fn put_refused(
+    client: &reqwest::Client,
+    url: &str,
+    content_type: Option<&str>,
+    body: String,
+) -> String {
+    let mut request = client.put(url).body(body);
+    if let Some(content_type) = content_type {
+        request = request.header("content-type", content_type);
+    }
+    let response = request.send().await.unwrap();
+    assert_eq!(response.status(), 400);
+    let body: serde_json::Value = serde_json::from_slice(&response.bytes().await.unwrap()).unwrap();
+    body["error"].as_str().unwrap().to_string()
+}
