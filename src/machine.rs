@@ -121,6 +121,20 @@ impl MachineCore {
         ))
     }
 
+    /// The engines of a [`MachineCore::snapshot`] under a declaration that
+    /// differs only in what the stages read (the design axis, geometry,
+    /// tolerances, start): the engines go on where they stood, a stage the
+    /// declaration now calls for starts from here.
+    pub fn redeclared(spec: &MachineSpec, state: &str) -> Result<MachineCore, SnapshotError> {
+        let state: CoreState =
+            serde_json::from_str(state).map_err(|e| SnapshotError::Invalid(e.to_string()))?;
+        Ok(Self::assemble(
+            spec,
+            Pipeline::restore_adding_stages(state.pipeline, &spec.stage_declaration())?,
+            ReorderBuffer::restore(state.reorder)?,
+        ))
+    }
+
     fn assemble(spec: &MachineSpec, pipeline: Pipeline, reorder: ReorderBuffer) -> Self {
         MachineCore {
             pipeline,

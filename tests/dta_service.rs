@@ -296,3 +296,90 @@ async fn laser_positions_give_the_known_deviations_within_a_millimetre() {
     }
     server.stop().await;
 }
+
+/// Setting the axis of a running machine keeps its engines where they
+/// stood: its attitude estimates stay those of a machine declared with the
+/// axis from the start, and its `dta` stream starts at the change.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn setting_the_axis_keeps_the_engines() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start(dir.path()).await;
+    let client = reqwest::Client::new();
+    let base = server.url("");
+    let axis = json!({"start": {"easting_m": 1000.0, "northing_m": 5000.0, "azimuth_deg": 0.0},
+        "horizontal": [{"type": "line", "length_m": 500.0}],
+        "vertical": {"start_height_m": 50.0, "end_grade_pct": 0.0}});
+    let with_axis = json!({
+        "engines": {"attitude": {}},
+        "geometry": {"front_m": [4.2, 0.0, 0.0], "rear_m": [-5.1, 0.0, 0.0]},
+        "alignment": axis,
+    });
+    let mut without = with_axis.clone();
+    without.as_object_mut().unwrap().remove("alignment");
+    declare_machine(&client, &base, "a", &with_axis.to_string()).await;
+    declare_machine(&client, &base, "b", &without.to_string()).await;
+    let t0 = 1_772_431_200.0;
+    let lines: Vec<String> = (0..=1200u32)
+        .flat_map(|s| {
+            let t = t0 + f64::from(s);
+            // A slow pitch and roll sweep, the laser every 60 s.
+            let (pitch, roll) = (0.2 * (f64::from(s) / 300.0).sin(), 0.5 * (f64::from(s) / 200.0).cos());
+            let mut out = vec![
+                json!({"t": t, "sensor": "inclinometer", "pitch_deg": pitch + 0.05, "roll_deg": roll})
+                    .to_string(),
+            ];
+            if s % 60 == 0 {
+                out.push(
+                    json!({"t": t, "sensor": "laser", "pitch_deg": pitch, "roll_deg": roll,
+                           "yaw_deg": 0.3, "easting_m": 1000.01, "northing_m": 5010.0 + 0.01 * f64::from(s),
+                           "height_m": 50.02})
+                    .to_string(),
+                );
+            }
+            out
+        })
+        .collect();
+    let (first, second) = lines.split_at(lines.len() / 2);
+    for machine in ["a", "b"] {
+        post_ndjson(&client, &base, machine, first).await;
+    }
+    let response = client
+        .put(format!("{base}/api/v1/machines/b/alignment"))
+        .body(axis.to_string())
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(response.status(), 200);
+    for machine in ["a", "b"] {
+        post_ndjson(&client, &base, machine, second).await;
+    }
+    let attitude = |m: &'static str| stream_estimates(&client, &base, m, "attitude");
+    let (a, b) = (attitude("a").await, attitude("b").await);
+    assert_eq!(a.len(), b.len());
+    for (x, y) in a.iter().zip(&b) {
+        let mut y = y.clone();
+        y["machine"] = x["machine"].clone();
+        assert_eq!(*x, y);
+    }
+    let (dta_a, dta_b) = (
+        stream_estimates(&client, &base, "a", "dta").await,
+        stream_estimates(&client, &base, "b", "dta").await,
+    );
+    assert!(
+        !dta_b.is_empty() && dta_b.len() < dta_a.len(),
+        "{} {}",
+        dta_b.len(),
+        dta_a.len()
+    );
+    // The new stage's first position comes before it has seen a fused
+    // attitude (it turns the points by the laser's own); from the second
+    // on, the same as the machine that had the axis all along.
+    let from = dta_a.len() - dta_b.len();
+    assert_eq!(dta_a[from]["t"], dta_b[0]["t"]);
+    for (x, y) in dta_a[from + 1..].iter().zip(&dta_b[1..]) {
+        let mut y = y.clone();
+        y["machine"] = x["machine"].clone();
+        assert_eq!(*x, y);
+    }
+    server.stop().await;
+}

@@ -73,6 +73,24 @@ impl Pipeline {
         state: PipelineState,
         declaration: &Declaration,
     ) -> Result<Pipeline, SnapshotError> {
+        Pipeline::restore_as(state, declaration, false)
+    }
+
+    /// Like [`Pipeline::restore`], but a stage the state lacks starts
+    /// afresh (the machine's declaration gained it just now: it derives
+    /// from here on).
+    pub fn restore_adding_stages(
+        state: PipelineState,
+        declaration: &Declaration,
+    ) -> Result<Pipeline, SnapshotError> {
+        Pipeline::restore_as(state, declaration, true)
+    }
+
+    fn restore_as(
+        state: PipelineState,
+        declaration: &Declaration,
+        add_missing: bool,
+    ) -> Result<Pipeline, SnapshotError> {
         let mut engines = Vec::new();
         for (kind, snapshot) in state.engines {
             engines.push(kind.restore(snapshot)?);
@@ -80,10 +98,11 @@ impl Pipeline {
         let mut stages = Vec::new();
         let mut snapshots = state.stages;
         for stage in declaration.stages() {
-            let snapshot = snapshots
-                .remove(&stage)
-                .ok_or(SnapshotError::MissingStage(stage))?;
-            stages.push(stage.restore(declaration, snapshot)?);
+            match (snapshots.remove(&stage), add_missing) {
+                (Some(snapshot), _) => stages.push(stage.restore(declaration, snapshot)?),
+                (None, true) => stages.extend(stage.create(declaration)),
+                (None, false) => return Err(SnapshotError::MissingStage(stage)),
+            }
         }
         Ok(Pipeline {
             engines,

@@ -1,7 +1,8 @@
 //! The design axis of a machine's drive: `PUT` as the protocol's JSON or
 //! as LandXML 1.2 (`Content-Type: application/xml`), `GET` as JSON.
-//! Setting it redeclares the machine with it (like any changed
-//! declaration: fresh engines, its readings and history kept).
+//! Setting it redeclares the machine with it; as only what the stages
+//! read changes, the engines go on where they stood and the `dta` stage
+//! derives from here on.
 
 use axum::Json;
 use axum::body::Bytes;

@@ -233,13 +233,32 @@ impl AppState {
     pub async fn declare(&self, spec: MachineSpec) -> Result<(bool, bool), ApiError> {
         let _admin = self.admin.lock().await;
         let existing = self.machine(&spec.id).ok();
+        let mut kept = None;
         if let Some(existing) = &existing {
             if *existing.spec == spec {
                 return Ok((false, false));
             }
             existing.stop().await;
+            // Only what the stages read changed (the design axis, say):
+            // the engines go on from the snapshot the stop stored.
+            let old = &existing.spec;
+            if old.engines == spec.engines && old.reorder_window_s == spec.reorder_window_s {
+                let (store, db_id) = (self.store.clone(), existing.db_id);
+                let snapshot = tokio::task::spawn_blocking(move || store.snapshot(db_id))
+                    .await
+                    .map_err(|e| ApiError::Internal(e.to_string()))??;
+                if let Some(snapshot) = snapshot {
+                    kept = Some(
+                        MachineCore::redeclared(&spec, &snapshot.state)
+                            .map_err(|e| ApiError::Internal(e.to_string()))?,
+                    );
+                }
+            }
         }
-        let core = MachineCore::new(&spec).map_err(|e| ApiError::BadRequest(e.to_string()))?;
+        let core = match kept {
+            Some(core) => core,
+            None => MachineCore::new(&spec).map_err(|e| ApiError::BadRequest(e.to_string()))?,
+        };
         let db_id = self
             .store
             .put_machine(spec.clone(), core.snapshot())
