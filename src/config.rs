@@ -8,8 +8,9 @@ use serde::{Deserialize, Serialize};
 
 use std::sync::Arc;
 
-use crate::fusion::alignment::{Alignment, AlignmentSpec};
+use crate::fusion::alignment::{Alignment, AlignmentError, AlignmentSpec};
 use crate::fusion::dta::{MachineGeometry, Tolerances};
+use crate::fusion::pipeline::Pipeline;
 use crate::fusion::reading::ProjectPoint;
 use crate::fusion::{
     Declaration, EngineKind, ParamError, ParamValue, Params, StreamKind, UnknownEngine,
@@ -175,12 +176,8 @@ impl MachineDeclaration {
                 "`start`: easting, northing and height must be finite".into(),
             ));
         }
-        let built_alignment = self
-            .alignment
-            .as_ref()
-            .map(|a| a.build().map(Arc::new))
-            .transpose()
-            .map_err(|e| invalid(format!("`alignment`: {e}")))?;
+        let built_alignment =
+            built(self.alignment.as_ref()).map_err(|e| invalid(format!("`alignment`: {e}")))?;
         Ok(MachineSpec {
             id: id.to_string(),
             name,
@@ -195,7 +192,23 @@ impl MachineDeclaration {
     }
 }
 
+/// A declared alignment, built.
+fn built(alignment: Option<&AlignmentSpec>) -> Result<Option<Arc<Alignment>>, AlignmentError> {
+    alignment.map(|a| a.build().map(Arc::new)).transpose()
+}
+
 impl MachineSpec {
+    /// Fresh engines with the declared parameters and the stages the
+    /// declaration calls for: what a machine runs, served or replayed.
+    pub fn pipeline(&self) -> Result<Pipeline, ParamError> {
+        let engines = self
+            .engines
+            .iter()
+            .map(|(kind, params)| kind.create(params.clone()))
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(Pipeline::declared(engines, &self.stage_declaration()))
+    }
+
     /// What the stages read of this declaration.
     pub fn stage_declaration(&self) -> Declaration {
         Declaration {
@@ -235,12 +248,8 @@ impl MachineSpec {
                     source,
                 })?;
         }
-        self.built_alignment = self
-            .alignment
-            .as_ref()
-            .map(|a| a.build().map(Arc::new))
-            .transpose()
-            .map_err(|e| ConfigError::Invalid {
+        self.built_alignment =
+            built(self.alignment.as_ref()).map_err(|e| ConfigError::Invalid {
                 machine: self.id.clone(),
                 reason: format!("stored `alignment`: {e}"),
             })?;

@@ -97,15 +97,9 @@ struct CoreState {
 impl MachineCore {
     /// Fresh engines and stages for `spec`.
     pub fn new(spec: &MachineSpec) -> Result<MachineCore, ParamError> {
-        let engines = spec
-            .engines
-            .iter()
-            .map(|(kind, params)| kind.create(params.clone()))
-            .collect::<Result<Vec<_>, _>>()?;
-        let pipeline = Pipeline::declared(engines, &spec.stage_declaration());
         Ok(Self::assemble(
             spec,
-            pipeline,
+            spec.pipeline()?,
             ReorderBuffer::new(spec.reorder_window_s, REORDER_MAX_LEN),
         ))
     }

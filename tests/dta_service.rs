@@ -8,7 +8,6 @@ mod common;
 use common::{TestServer, declare_machine, get_json, post_ndjson, put_refused, stream_estimates};
 use serde_json::{Value, json};
 use tunnelnav::config::MachineDeclaration;
-use tunnelnav::fusion::pipeline::Pipeline;
 use tunnelnav::fusion::{EngineOutput, EstimateValues, Reading};
 use tunnelnav::sim::pipejack::{PipeJackDrive, PipeJackScenario};
 
@@ -74,12 +73,7 @@ async fn the_dta_stream_is_served_as_the_stage_computes_it_across_a_restart() {
         .unwrap()
         .validate(MACHINE)
         .unwrap();
-    let engines = spec
-        .engines
-        .iter()
-        .map(|(kind, params)| kind.create(params.clone()).unwrap())
-        .collect();
-    let mut pipeline = Pipeline::declared(engines, &spec.stage_declaration());
+    let mut pipeline = spec.pipeline().unwrap();
     let mut outputs: Vec<EngineOutput> = Vec::new();
     for reading in &readings {
         pipeline.feed(reading, &mut outputs);

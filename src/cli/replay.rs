@@ -65,15 +65,7 @@ pub fn run(args: ReplayArgs) -> Result<(), CliError> {
             ));
         }
         let spec = declared(Path::new(&args.machine))?;
-        let engines = spec
-            .engines
-            .iter()
-            .map(|(kind, params)| kind.create(params.clone()))
-            .collect::<Result<Vec<_>, _>>()?;
-        (
-            Pipeline::declared(engines, &spec.stage_declaration()),
-            spec.id,
-        )
+        (spec.pipeline()?, spec.id)
     } else {
         let kind = args.engine.ok_or_else(|| {
             CliError::Refused(

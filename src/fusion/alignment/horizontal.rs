@@ -177,9 +177,14 @@ pub enum ProjectionError {
 
 /// Along-track component of `(P − X(s))` on the element: zero at the foot.
 fn along(element: &Element, s: f64, easting_m: f64, northing_m: f64) -> f64 {
-    let x = element.pose_at(s);
-    (easting_m - x.easting_m) * x.azimuth_rad.sin()
-        + (northing_m - x.northing_m) * x.azimuth_rad.cos()
+    components(&element.pose_at(s), easting_m, northing_m).0
+}
+
+/// `(P − X)` along the axis's direction at `x` and across it, + right.
+fn components(x: &Pose, easting_m: f64, northing_m: f64) -> (f64, f64) {
+    let (de, dn) = (easting_m - x.easting_m, northing_m - x.northing_m);
+    let (sin, cos) = x.azimuth_rad.sin_cos();
+    (de * sin + dn * cos, de * cos - dn * sin)
 }
 
 /// The foot of (`easting_m`, `northing_m`) on `elements`: the nearest point
@@ -208,7 +213,7 @@ pub fn project(
         }
         let mut s = 0.5 * (lo + hi);
         for _ in 0..100 {
-            let f = along(element, s, easting_m, northing_m);
+            let (f, right) = components(&element.pose_at(s), easting_m, northing_m);
             if f.abs() < 1e-12 {
                 break;
             }
@@ -221,10 +226,7 @@ pub fn project(
                 break;
             }
             // Newton: d(along)/ds = −1 + κ·(offset to the left).
-            let x = element.pose_at(s);
-            let left = -((easting_m - x.easting_m) * x.azimuth_rad.cos()
-                - (northing_m - x.northing_m) * x.azimuth_rad.sin());
-            let slope = -1.0 + element.curvature(s) * left;
+            let slope = -1.0 - element.curvature(s) * right;
             let newton = s - f / slope;
             s = if slope < 0.0 && newton > lo && newton < hi {
                 newton
@@ -233,8 +235,7 @@ pub fn project(
             };
         }
         let pose = element.pose_at(s);
-        let offset_m = (easting_m - pose.easting_m) * pose.azimuth_rad.cos()
-            - (northing_m - pose.northing_m) * pose.azimuth_rad.sin();
+        let offset_m = components(&pose, easting_m, northing_m).1;
         let foot = Foot {
             station_m: element.start_station_m + s,
             pose,
