@@ -7,13 +7,14 @@
 use axum::Json;
 use axum::body::Bytes;
 use axum::extract::rejection::BytesRejection;
-use axum::extract::{Path, State};
+use axum::extract::rejection::QueryRejection;
+use axum::extract::{Path, Query, State};
 use axum::http::{HeaderMap, header};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::SharedState;
 use super::error::ApiError;
-use crate::fusion::alignment::{AlignmentSpec, ElementKind, landxml};
+use crate::fusion::alignment::{AlignmentSpec, AxisPoint, ElementKind, landxml};
 
 /// One element of the summary.
 #[derive(Debug, Serialize)]
@@ -106,4 +107,52 @@ pub async fn show(
         .clone()
         .map(Json)
         .ok_or_else(|| ApiError::NotFound(format!("machine `{machine}` has no alignment declared")))
+}
+
+/// The most points `GET .../alignment/axis` answers.
+const MAX_AXIS_POINTS: f64 = 20_000.0;
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AxisQuery {
+    /// Station spacing, m (default 5).
+    step_m: Option<f64>,
+}
+
+/// What `GET .../alignment/axis` answers: the axis sampled for drawing.
+#[derive(Debug, Serialize)]
+pub struct AxisBody {
+    pub machine: String,
+    pub step_m: f64,
+    pub points: Vec<AxisPoint>,
+}
+
+/// `GET /api/v1/machines/{machine}/alignment/axis?step_m=5`: points of the
+/// axis (easting, northing, design height) every `step_m` of station and
+/// at each element's start, for plan and profile drawings.
+pub async fn axis(
+    State(state): State<SharedState>,
+    Path(machine): Path<String>,
+    query: Result<Query<AxisQuery>, QueryRejection>,
+) -> Result<Json<AxisBody>, ApiError> {
+    let handle = state.machine(&machine)?;
+    let Query(query) =
+        query.map_err(|e| ApiError::BadRequest(format!("bad query string: {}", e.body_text())))?;
+    let alignment = handle.spec.built_alignment.as_ref().ok_or_else(|| {
+        ApiError::NotFound(format!("machine `{machine}` has no alignment declared"))
+    })?;
+    let step_m = query.step_m.unwrap_or(5.0);
+    let (start, end) = alignment.station_range_m();
+    if !(step_m.is_finite() && step_m > 0.0) || (end - start) / step_m > MAX_AXIS_POINTS {
+        return Err(ApiError::BadRequest(format!(
+            "step_m {step_m} is not a spacing for this axis: a positive number of metres, at least {:.3} for its {:.1} m",
+            (end - start) / MAX_AXIS_POINTS,
+            end - start
+        )));
+    }
+    Ok(Json(AxisBody {
+        machine,
+        step_m,
+        points: alignment.sampled(step_m),
+    }))
 }

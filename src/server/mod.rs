@@ -354,6 +354,10 @@ pub fn router(state: SharedState) -> Router {
             "/api/v1/machines/{machine}/alignment",
             get(alignment::show.layer(read.clone())).put(alignment::put.layer(admin.clone())),
         )
+        .route(
+            "/api/v1/machines/{machine}/alignment/axis",
+            get(alignment::axis.layer(read.clone())),
+        )
         .route("/login", get(auth::login_page).post(auth::login))
         .route("/logout", axum::routing::post(auth::logout))
         // Unknown routes and methods answer only those who may read.

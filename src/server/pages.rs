@@ -10,8 +10,9 @@ use axum::http::{StatusCode, header};
 use axum::response::{IntoResponse, Response};
 
 use super::SharedState;
+use crate::config::MachineSpec;
 use crate::fusion::zupt::ZuptConfig;
-use crate::fusion::{EngineKind, Params};
+use crate::fusion::{EngineKind, Params, StageKind};
 
 /// One embedded file.
 struct Asset {
@@ -84,6 +85,20 @@ struct ZuptSection {
 #[template(path = "engines/fuzzy.html")]
 struct FuzzySection;
 
+/// The `dta` section: the head/tail target, the deviations, the drive
+/// against station, plan and profile. Limits are empty without tolerances.
+#[derive(Template)]
+#[template(path = "stages/dta.html")]
+struct DtaSection {
+    axis_name: String,
+    warn_h: String,
+    alarm_h: String,
+    warn_v: String,
+    alarm_v: String,
+    /// Front to rear along the body's x axis, m.
+    length_m: f64,
+}
+
 /// Why an engine's section could not be made.
 #[derive(Debug, thiserror::Error)]
 pub enum SectionError {
@@ -95,6 +110,11 @@ pub enum SectionError {
     #[error("the {engine} engine's section: {source}")]
     Render {
         engine: EngineKind,
+        source: askama::Error,
+    },
+    #[error("the {stage} stage's section: {source}")]
+    RenderStage {
+        stage: StageKind,
         source: askama::Error,
     },
 }
@@ -139,6 +159,51 @@ fn engine_script(engine: EngineKind) -> &'static Asset {
     }
 }
 
+/// The section of a machine page for a stage the machine runs, if it has
+/// one (`pushes` is not drawn: its records are in the history API).
+pub fn stage_section(
+    stage: StageKind,
+    spec: &MachineSpec,
+) -> Result<Option<EngineSection>, SectionError> {
+    let Some(script) = stage_script(stage) else {
+        return Ok(None);
+    };
+    let html = match stage {
+        StageKind::Dta => {
+            let limit = |v: Option<f64>| v.map(|v| v.to_string()).unwrap_or_default();
+            let t = spec.tolerances;
+            DtaSection {
+                axis_name: spec
+                    .built_alignment
+                    .as_ref()
+                    .map(|a| a.name.clone())
+                    .unwrap_or_default(),
+                warn_h: limit(t.map(|t| t.horizontal_mm.warn)),
+                alarm_h: limit(t.map(|t| t.horizontal_mm.alarm)),
+                warn_v: limit(t.map(|t| t.vertical_mm.warn)),
+                alarm_v: limit(t.map(|t| t.vertical_mm.alarm)),
+                length_m: spec.geometry.map_or(0.0, |g| g.front_m[0] - g.rear_m[0]),
+            }
+            .render()
+        }
+        StageKind::Pushes => return Ok(None),
+    }
+    .map_err(|source| SectionError::RenderStage { stage, source })?;
+    Ok(Some(EngineSection {
+        html,
+        script: script.path,
+    }))
+}
+
+/// The script of a stage's section and fleet card rows, if it has one.
+fn stage_script(stage: StageKind) -> Option<&'static Asset> {
+    const DTA: Asset = asset!("dta.js", "text/javascript; charset=utf-8");
+    match stage {
+        StageKind::Dta => Some(&DTA),
+        StageKind::Pushes => None,
+    }
+}
+
 #[derive(Template, WebTemplate)]
 #[template(path = "not_found.html")]
 struct NotFoundPage {
@@ -164,6 +229,12 @@ pub async fn fleet(State(state): State<SharedState>) -> FleetPage {
         engine_scripts: EngineKind::ALL
             .iter()
             .map(|&engine| engine_script(engine).path)
+            .chain(
+                StageKind::ALL
+                    .iter()
+                    .filter_map(|&s| stage_script(s))
+                    .map(|a| a.path),
+            )
             .collect(),
     }
 }
@@ -176,17 +247,33 @@ pub async fn machine(State(state): State<SharedState>, Path(id): Path<String>) -
         };
         return (StatusCode::NOT_FOUND, page).into_response();
     };
-    let sections: Result<Vec<EngineSection>, SectionError> = machine
-        .spec
-        .engines
+    // The stages' sections first: the deviation from the axis is what the
+    // driver steers by.
+    let spec = &machine.spec;
+    let mut names = Vec::new();
+    let mut sections = Vec::new();
+    let stages = spec.stage_declaration().stages();
+    let made: Result<(), SectionError> = stages
         .iter()
-        .map(|(&engine, params)| engine_section(engine, params))
-        .collect();
-    match sections {
-        Ok(sections) => MachinePage {
-            id: machine.spec.id.clone(),
-            name: machine.spec.name.clone(),
-            engines: engine_list(machine.spec.engines.keys().copied()),
+        .try_for_each(|&stage| {
+            if let Some(section) = stage_section(stage, spec)? {
+                names.push(stage.as_str());
+                sections.push(section);
+            }
+            Ok(())
+        })
+        .and_then(|()| {
+            spec.engines.iter().try_for_each(|(&engine, params)| {
+                sections.push(engine_section(engine, params)?);
+                names.push(engine.as_str());
+                Ok(())
+            })
+        });
+    match made {
+        Ok(()) => MachinePage {
+            id: spec.id.clone(),
+            name: spec.name.clone(),
+            engines: names.join(", "),
             sections,
         }
         .into_response(),
@@ -215,6 +302,11 @@ pub async fn asset(Path(path): Path<String>) -> Response {
     let Some(asset) = ASSETS
         .iter()
         .chain(EngineKind::ALL.iter().map(|&engine| engine_script(engine)))
+        .chain(
+            StageKind::ALL
+                .iter()
+                .filter_map(|&stage| stage_script(stage)),
+        )
         .find(|a| a.path == path)
     else {
         let page = NotFoundPage {

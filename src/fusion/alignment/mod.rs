@@ -105,6 +105,16 @@ pub struct Deviation {
     pub vertical_m: f64,
 }
 
+/// A point of the axis, for drawing it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct AxisPoint {
+    pub station_m: f64,
+    pub easting_m: f64,
+    pub northing_m: f64,
+    /// Design height at the station.
+    pub height_m: f64,
+}
+
 /// A curvature from a declared radius: `None` is straight.
 fn curvature(radius_m: Option<f64>) -> Result<f64, String> {
     match radius_m {
@@ -275,6 +285,32 @@ impl Alignment {
         ))
     }
 
+    /// The axis every `step_m` of station from its start, at every element's
+    /// start and at its end (stations ascending, none twice).
+    pub fn sampled(&self, step_m: f64) -> Vec<AxisPoint> {
+        let (start, end) = self.station_range_m();
+        let mut stations: Vec<f64> = self.elements.iter().map(|e| e.start_station_m).collect();
+        if step_m > 0.0 {
+            let steps = ((end - start) / step_m).floor() as usize;
+            stations.extend((1..=steps).map(|i| start + i as f64 * step_m));
+        }
+        stations.push(end);
+        stations.sort_by(f64::total_cmp);
+        stations.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
+        stations
+            .into_iter()
+            .filter_map(|station_m| {
+                let (pose, height_m) = self.axis_at(station_m)?;
+                Some(AxisPoint {
+                    station_m,
+                    easting_m: pose.easting_m,
+                    northing_m: pose.northing_m,
+                    height_m,
+                })
+            })
+            .collect()
+    }
+
     /// Where (`easting_m`, `northing_m`, `height_m`) lies against the axis.
     pub fn deviation(
         &self,
@@ -363,5 +399,29 @@ mod tests {
         assert_eq!(spec.build().unwrap_err(), AlignmentError::Empty);
         let unknown = S1.replace("\"arc\"", "\"helix\"");
         assert!(serde_json::from_str::<AlignmentSpec>(&unknown).is_err());
+    }
+
+    #[test]
+    fn the_sampled_axis_has_every_step_and_every_element_start() {
+        let alignment = serde_json::from_str::<AlignmentSpec>(S1)
+            .unwrap()
+            .build()
+            .unwrap();
+        let points = alignment.sampled(25.0);
+        let stations: Vec<f64> = points.iter().map(|p| p.station_m).collect();
+        // Steps 0, 25, …, 250 and the element starts 40, 70, 120, 150.
+        assert_eq!(
+            stations,
+            [
+                0.0, 25.0, 40.0, 50.0, 70.0, 75.0, 100.0, 120.0, 125.0, 150.0, 175.0, 200.0, 225.0,
+                250.0
+            ]
+        );
+        // 25 m along the first line at 30°: 12.5 m east, 21.650635 m north;
+        // the first grade runs from 50 m to the PVI's 50.6 m at 120 m (0.5 %).
+        let p = points[1];
+        assert!((p.easting_m - 1012.5).abs() < 1e-9, "{p:?}");
+        assert!((p.northing_m - 5021.650_635_094_61).abs() < 1e-9, "{p:?}");
+        assert!((p.height_m - 50.125).abs() < 1e-9, "{p:?}");
     }
 }
