@@ -421,7 +421,7 @@ mod tests {
         // the first grade runs from 50 m to the PVI's 50.6 m at 120 m (0.5 %).
         let p = points[1];
         assert!((p.easting_m - 1012.5).abs() < 1e-9, "{p:?}");
-        assert!((p.northing_m - 5021.650_635_094_61).abs() < 1e-9, "{p:?}");
+        assert!((p.northing_m - 5_021.650_635_094_61).abs() < 1e-9, "{p:?}");
         assert!((p.height_m - 50.125).abs() < 1e-9, "{p:?}");
     }
 }
