@@ -3,6 +3,7 @@
 
 pub mod ahrs;
 pub mod attitude;
+pub mod dta;
 pub mod fuzzy;
 pub mod kf3;
 pub mod recording;

@@ -1,6 +1,7 @@
 //! Seeded, pure scenario generators with known truth. The same seed gives
 //! the same readings on every machine.
 
+pub mod axis_drive;
 pub mod pipejack;
 pub mod tbm;
 pub mod tbm_envelope;
