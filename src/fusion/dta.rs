@@ -5,7 +5,7 @@
 //! Its positions come from either source the machine has (both, if it has
 //! both): a `laser` reading that carries the reference point's position,
 //! turned by the `attitude` engine's fused pitch and roll (the laser's
-//! own before the first estimate) and the laser's yaw; or a `zupt`
+//! own until the engine has had a laser sample) and the laser's yaw; or a `zupt`
 //! estimate once aligned, its position relative to the declared start.
 //! Each point is the reference point plus C_nb(yaw, pitch, roll) · its body
 //! offset (x forward, y right, z down; NED, so height is minus down), then
@@ -312,7 +312,10 @@ impl Stage for DtaStage {
 
     fn estimate(&mut self, estimate: &EngineOutput, out: &mut Vec<EngineOutput>) {
         match &estimate.values {
-            EstimateValues::Attitude(a) => {
+            // Only once the engine has had a laser sample: before, its pitch
+            // carries the inclinometer's unlearned error (tenths of a degree,
+            // centimetres over the shield), and the laser's own is better.
+            EstimateValues::Attitude(a) if a.laser_age_s.is_some() => {
                 self.state.attitude_deg = Some((a.pitch_deg, a.roll_deg))
             }
             EstimateValues::Zupt(z) if z.aligned => {
@@ -460,26 +463,34 @@ mod tests {
         // Within both tolerances (vertical warns beyond 30 mm).
         assert_eq!(d.status, Some(DtaStatus::Ok));
 
+        // An attitude estimate before the engine's first laser sample (its
+        // pitch still carries the inclinometer's error) is not used.
+        let attitude = |t: f64, pitch_deg: f64, laser_age_s: Option<f64>| EngineOutput {
+            t,
+            values: EstimateValues::Attitude(crate::fusion::AttitudeEstimate {
+                pitch_deg,
+                roll_deg: 0.0,
+                pitch_pred_deg: pitch_deg,
+                roll_pred_deg: 0.0,
+                pred_t: t + 1.0,
+                laser_ok: laser_age_s.is_some(),
+                pitch_correction_deg: 0.0,
+                laser_age_s,
+                model_version: 0,
+                incl_pitch_deg: pitch_deg,
+                incl_roll_deg: 0.0,
+            }),
+        };
+        stage.estimate(&attitude(1.2, 5.0, None), &mut out);
+        stage.reading(&laser(1.5, 0.0, at), &mut out);
+        let flat = dta(&out);
+        assert!((flat.front.vertical_mm - 29.0).abs() < 1e-6, "{flat:?}");
+
         // Yawed 1° right and, from the attitude engine, pitched 1° nose up:
         // the front moves 4·sin 1° right and up, the rear 5·sin 1° left and
         // down; the tendency is 1000·tan 1°-ish mm/m both ways.
         let sin1 = 1f64.to_radians().sin();
-        let fused = EngineOutput {
-            t: 2.0,
-            values: EstimateValues::Attitude(crate::fusion::AttitudeEstimate {
-                pitch_deg: 1.0,
-                roll_deg: 0.0,
-                pitch_pred_deg: 1.0,
-                roll_pred_deg: 0.0,
-                pred_t: 3.0,
-                laser_ok: true,
-                pitch_correction_deg: 0.0,
-                laser_age_s: Some(1.0),
-                model_version: 0,
-                incl_pitch_deg: 1.0,
-                incl_roll_deg: 0.0,
-            }),
-        };
+        let fused = attitude(2.0, 1.0, Some(1.0));
         stage.estimate(&fused, &mut out);
         stage.reading(&laser(3.0, 1.0, at), &mut out);
         let d = dta(&out);
