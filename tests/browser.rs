@@ -745,3 +745,287 @@ async fn the_dashboard_signs_in_when_tokens_are_required() {
     browser.close().await.ok();
     server.stop().await;
 }
+
+/// What the `dta` panel shows, read from the page: the readouts and their
+/// statuses, the computed colours of the values and of the status
+/// variables, where the target drew the front mark and the canvas's pixel
+/// there, and the deviation-against-station chart's data.
+const DTA_VIEW: &str = r#"
+const d = window.tunnelnavDta;
+if (!d) return null;
+const $ = (id) => document.getElementById(id);
+const probe = (name) => {
+  const el = document.createElement('span');
+  el.style.color = `var(${name})`;
+  document.body.appendChild(el);
+  const colour = getComputedStyle(el).color;
+  el.remove();
+  return colour;
+};
+const mm = (id) => parseFloat($(id).textContent.replace('\u2212', '-'));
+const colour = (id) => getComputedStyle($(id).closest('.readout-value')).color;
+let pixel = null;
+if (d.marks.front) {
+  const canvas = $('dta-target');
+  const r = canvas.width / canvas.clientWidth;
+  const p = canvas.getContext('2d')
+    .getImageData(Math.round(d.marks.front.x * r), Math.round(d.marks.front.y * r), 1, 1).data;
+  pixel = `rgb(${p[0]}, ${p[1]}, ${p[2]})`;
+}
+const values = (i) => d.charts.h ? d.charts.h.data[i].filter((v) => v !== null) : [];
+return {
+  conn: $('conn-state').dataset.state,
+  latest: !!d.state.latest,
+  front_h: mm('dta-front-h'), front_v: mm('dta-front-v'),
+  rear_h: mm('dta-rear-h'), rear_v: mm('dta-rear-v'),
+  front_h_status: $('dta-front-h-box').dataset.status,
+  front_v_status: $('dta-front-v-box').dataset.status,
+  rear_h_status: $('dta-rear-h-box').dataset.status,
+  rear_v_status: $('dta-rear-v-box').dataset.status,
+  badge: $('dta-status').dataset.status,
+  badge_class: $('dta-status').className,
+  badge_text: $('dta-status').textContent,
+  front_h_colour: colour('dta-front-h'), front_v_colour: colour('dta-front-v'),
+  rear_h_colour: colour('dta-rear-h'),
+  ok: probe('--ok'), warn: probe('--warn'), bad: probe('--bad'), fused: probe('--fused'),
+  chainage: $('dta-chainage').textContent,
+  target_draws: d.draws.target, plan_draws: d.draws.plan, profile_draws: d.draws.profile,
+  front_x: d.marks.front ? d.marks.front.x : null,
+  front_y: d.marks.front ? d.marks.front.y : null,
+  pixel,
+  stations: d.charts.h ? d.charts.h.data[0].length : 0,
+  most_front_h: Math.max(0, ...values(1)),
+  axis_points: d.state.axis.length,
+};
+"#;
+
+/// Polls [`DTA_VIEW`] until `done` holds; panics with the view (and saves
+/// a screenshot) after `secs`.
+async fn wait_for_dta(
+    browser: &Client,
+    what: &str,
+    secs: u64,
+    done: impl Fn(&Value) -> bool,
+) -> Value {
+    let deadline = Instant::now() + Duration::from_secs(secs);
+    loop {
+        let view = js(browser, DTA_VIEW).await;
+        if !view.is_null() && done(&view) {
+            return view;
+        }
+        if Instant::now() > deadline {
+            save_screenshot(browser, "browser-dta-failure.png").await;
+            panic!("timed out waiting for {what}; dta panel: {view:#}");
+        }
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+}
+
+/// A TBM on the S-1 axis (tests/fixtures/alignment/s1.json: a straight
+/// first 40 m at azimuth 30°, rising at 0.5 %) with tolerances H 50/100,
+/// V 30/60 mm. Its laser puts it on the axis (history), then 70 mm right
+/// and 10 mm high (live: warn), then 100 mm right and 40 mm low yawed
+/// 0.3° right (live: the front 122 mm right, alarm; the rear 73 mm, warn).
+/// The panel's readouts, their colours, the badge and the target's front
+/// mark follow each step; the fleet card shows the alarm.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn dta_panel_draws_moves_and_shows_warn_and_alarm_colours() {
+    let Some((driver_program, chromium)) = browser_programs() else {
+        return;
+    };
+    const TBM: &str = "tbm-dta-browser";
+    let dir = tempfile::tempdir().unwrap();
+    let server = common::TestServer::start(dir.path()).await;
+    let client = reqwest::Client::new();
+    let base = server.url("");
+    let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/alignment/s1.json");
+    let alignment: Value =
+        serde_json::from_str(&std::fs::read_to_string(fixture).unwrap()).unwrap();
+    let declaration = json!({
+        "name": "TBM on S-1",
+        "engines": {"attitude": {}},
+        "geometry": {"front_m": [4.2, 0.0, 0.0], "rear_m": [-5.1, 0.0, 0.0]},
+        "tolerances": {"horizontal_mm": {"warn": 50, "alarm": 100},
+                       "vertical_mm": {"warn": 30, "alarm": 60}},
+        "alignment": alignment,
+    });
+    common::declare_machine(&client, &base, TBM, &declaration.to_string()).await;
+
+    // Ten minutes ending now: 1 Hz inclinometer, the laser every 30 s. The
+    // machine pitches with the 0.5 % grade and advances 10 → 19 m.
+    let now = tunnelnav::server::wall_clock_s();
+    let t0 = (now - 600.0).floor();
+    let (azimuth, grade) = (30f64.to_radians(), 0.005f64);
+    let pitch_deg = grade.atan().to_degrees();
+    // (right offset m, height offset m, yaw error °) of each phase.
+    let phase_of = |s: u32| match s {
+        0..300 => (0.0, 0.0, 0.0),
+        300..450 => (0.070, 0.010, 0.0),
+        _ => (0.100, -0.040, 0.3),
+    };
+    let readings = |from: u32, to: u32| -> Vec<String> {
+        let mut lines = Vec::new();
+        for s in from..to {
+            let t = t0 + f64::from(s);
+            lines.push(
+                json!({"t": t, "sensor": "inclinometer", "pitch_deg": pitch_deg, "roll_deg": 0.0})
+                    .to_string(),
+            );
+            if s % 30 == 0 {
+                let (right, up, yaw) = phase_of(s);
+                let station = 10.0 + 0.015 * f64::from(s);
+                let (sin, cos) = azimuth.sin_cos();
+                lines.push(
+                    json!({"t": t, "sensor": "laser", "pitch_deg": pitch_deg, "roll_deg": 0.0,
+                           "yaw_deg": 30.0 + yaw,
+                           "easting_m": 1000.0 + station * sin + right * cos,
+                           "northing_m": 5000.0 + station * cos - right * sin,
+                           "height_m": 50.0 + grade * station + up})
+                    .to_string(),
+                );
+            }
+        }
+        lines
+    };
+    let post_live = |lines: Vec<String>| {
+        let (client, base) = (client.clone(), base.clone());
+        async move {
+            for chunk in lines.chunks(31) {
+                post_ndjson(&client, &base, TBM, chunk).await;
+                tokio::time::sleep(Duration::from_millis(100)).await;
+            }
+        }
+    };
+    post_ndjson(&client, &base, TBM, &readings(0, 300)).await;
+
+    let driver = Driver::start(&driver_program);
+    let browser = connect(&driver, chromium.as_deref()).await;
+    browser
+        .goto(&format!("{base}/machines/{TBM}"))
+        .await
+        .expect("page loads");
+    let near = |v: &Value, key: &str, want: f64| {
+        v[key].as_f64().is_some_and(|got| (got - want).abs() <= 3.0)
+    };
+    let is = |v: &Value, key: &str, want: &str| v[key] == want;
+
+    // On the axis: everything ok, the target drawn with the front mark at
+    // the centre.
+    let ok = wait_for_dta(&browser, "the panel on the axis", 15, |v| {
+        is(v, "conn", "live")
+            && near(v, "front_h", 0.0)
+            && near(v, "front_v", 0.0)
+            && near(v, "rear_h", 0.0)
+            && near(v, "rear_v", 0.0)
+            && [
+                "front_h_status",
+                "front_v_status",
+                "rear_h_status",
+                "rear_v_status",
+            ]
+            .iter()
+            .all(|k| is(v, k, "ok"))
+            && is(v, "badge", "ok")
+            && v["badge_class"].as_str().unwrap_or("").contains("ok")
+            && v["front_h_colour"] == v["ok"]
+            && v["target_draws"].as_u64() > Some(0)
+            && v["plan_draws"].as_u64() > Some(0)
+            && v["profile_draws"].as_u64() > Some(0)
+            && v["pixel"] == v["fused"]
+            && v["stations"].as_u64() > Some(5)
+            && v["axis_points"].as_u64() > Some(40)
+    })
+    .await;
+    assert_ne!(ok["ok"], ok["warn"], "{ok:#}");
+    assert_ne!(ok["warn"], ok["bad"], "{ok:#}");
+    save_screenshot(&browser, "browser-dta-ok.png").await;
+    let centre_x = ok["front_x"].as_f64().unwrap();
+
+    // 70 mm right, 10 mm high: the horizontal readouts warn, the vertical
+    // ones stay ok, the front mark moves right.
+    post_live(readings(300, 450)).await;
+    let warn = wait_for_dta(&browser, "the warning", 15, |v| {
+        near(v, "front_h", 70.0)
+            && near(v, "rear_h", 70.0)
+            && near(v, "front_v", 10.0)
+            && is(v, "front_h_status", "warn")
+            && is(v, "rear_h_status", "warn")
+            && is(v, "front_v_status", "ok")
+            && is(v, "badge", "warn")
+            && v["badge_class"].as_str().unwrap_or("").contains("warn")
+            && v["badge_text"]
+                .as_str()
+                .unwrap_or("")
+                .contains("horizontal +70")
+            && v["front_h_colour"] == v["warn"]
+            && v["front_v_colour"] == v["ok"]
+            && v["front_x"].as_f64().is_some_and(|x| x > centre_x + 40.0)
+            && v["pixel"] == v["fused"]
+            && v["chainage"] != ok["chainage"]
+    })
+    .await;
+    assert_ne!(warn["front_h_colour"], ok["front_h_colour"], "{warn:#}");
+
+    // 100 mm right, 40 mm low, yawed right: the front alarms, the rear
+    // warns, the mark moves further right and down.
+    post_live(readings(450, 600)).await;
+    let alarm = wait_for_dta(&browser, "the alarm", 15, |v| {
+        near(v, "front_h", 122.0)
+            && near(v, "rear_h", 73.3)
+            && near(v, "front_v", -40.0)
+            && is(v, "front_h_status", "alarm")
+            && is(v, "rear_h_status", "warn")
+            && is(v, "front_v_status", "warn")
+            && is(v, "badge", "alarm")
+            && v["badge_class"].as_str().unwrap_or("").contains("bad")
+            && v["front_h_colour"] == v["bad"]
+            && v["rear_h_colour"] == v["warn"]
+            && v["front_x"].as_f64() > warn["front_x"].as_f64()
+            && v["front_y"].as_f64() > warn["front_y"].as_f64()
+            && v["pixel"] == v["fused"]
+            && v["most_front_h"].as_f64().is_some_and(|h| h > 115.0)
+    })
+    .await;
+    assert_ne!(alarm["front_h_colour"], warn["front_h_colour"], "{alarm:#}");
+    save_screenshot(&browser, "browser-dta.png").await;
+
+    // The other theme redraws the target.
+    let draws = alarm["target_draws"].as_u64().unwrap();
+    browser
+        .find(fantoccini::Locator::Css("#theme-toggle"))
+        .await
+        .expect("the theme button")
+        .click()
+        .await
+        .expect("click");
+    wait_for_dta(&browser, "the target redrawn in the other theme", 10, |v| {
+        v["target_draws"].as_u64() > Some(draws)
+            && v["pixel"] == v["fused"]
+            && v["fused"] != alarm["fused"]
+    })
+    .await;
+    save_screenshot(&browser, "browser-dta-theme.png").await;
+
+    // The fleet card: the deviations and the alarm, coloured.
+    browser
+        .goto(&format!("{base}/"))
+        .await
+        .expect("fleet loads");
+    wait_for(
+        &browser,
+        "the fleet card's deviation rows",
+        &format!(
+            "const c = document.querySelector('[data-machine=\"{TBM}\"]'); \
+             const flag = c && c.querySelector('.dta-flag'); \
+             return !!flag && flag.dataset.status === 'alarm' && /ALARM/.test(flag.textContent) \
+               && /DTA front/.test(c.textContent) && /H \\+12\\d/.test(c.textContent) \
+               && getComputedStyle(flag).color !== getComputedStyle(c).color;"
+        ),
+        15,
+    )
+    .await;
+    save_screenshot(&browser, "browser-dta-fleet.png").await;
+    assert_clean_console(&browser).await;
+    browser.close().await.ok();
+    server.stop().await;
+}
