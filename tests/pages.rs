@@ -124,13 +124,26 @@ async fn demo_posts_five_machines_with_a_dropout_and_resumes() {
     let mut first_end = 0.0_f64;
     for machine in machines {
         let id = machine["machine"].as_str().unwrap();
+        let engine = match id {
+            "pipejack-ins" => "zupt",
+            "service-van" => "fuzzy",
+            _ => "attitude",
+        };
         let history = json(
             &client,
             server.url(&format!(
-                "/api/v1/machines/{id}/estimates?max_points=100000"
+                "/api/v1/machines/{id}/estimates?engine={engine}&max_points=100000"
             )),
         )
         .await;
+        if id != "service-van" {
+            let dta = json(
+                &client,
+                server.url(&format!("/api/v1/machines/{id}/estimates?engine=dta")),
+            )
+            .await;
+            check_dta(id, dta["estimates"].as_array().unwrap());
+        }
         let estimates = history["estimates"].as_array().unwrap();
         if id == "pipejack-ins" {
             check_ins(estimates);
@@ -225,6 +238,32 @@ fn check_vehicle(estimates: &[Value]) {
         last["heading_deg"].is_number() && last["mag_heading_deg"].is_number(),
         "{last}"
     );
+}
+
+/// Every demo drive follows a design axis: its `dta` stream comes from
+/// the right source, near the axis (the TBMs' simulated deviations stay
+/// within 2.2 × the warn limit; the INS machine drives the axis itself).
+fn check_dta(id: &str, estimates: &[Value]) {
+    let (source, within_mm) = match id {
+        "pipejack-ins" => ("zupt", 30.0),
+        "tbm-south" => ("laser", 130.0),
+        _ => ("laser", 80.0),
+    };
+    assert!(
+        estimates.len() > 5,
+        "{id}: {} dta estimates",
+        estimates.len()
+    );
+    for e in estimates {
+        assert_eq!(e["source"], source, "{id}: {e}");
+        for point in ["front", "rear"] {
+            for axis in ["horizontal_mm", "vertical_mm"] {
+                let mm = e[point][axis].as_f64().unwrap();
+                assert!(mm.abs() < within_mm, "{id}: {point} {axis} {mm}: {e}");
+            }
+        }
+        assert!(e["status"].is_string(), "{id}: {e}");
+    }
 }
 
 fn check_ins(estimates: &[Value]) {

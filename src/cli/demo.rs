@@ -1,13 +1,19 @@
 //! `tunnelnav demo [--listen ADDR] [--data-dir DIR] [--rate R] [--seconds S]`
 //!
-//! The server, three simulated TBMs, a pipe-jacking machine guided by a
-//! FOG INS, a service vehicle with a MEMS IMU and a magnetometer, and
-//! their field gateways, at an accelerated clock: the gateways
-//! post the simulator's readings over real HTTP (NDJSON) and WebSocket as
-//! the clock reaches their time, so a 2-minute laser period shows up every
-//! few seconds. One machine's laser is blocked for 20 minutes of every
-//! hour; the INS machine advances at 2 mm/s and stops for each pipe. The server runs with the same
-//! clock, so ages and its future check agree with the gateways.
+//! The server, three simulated laser-guided machines (two TBMs, one pipe
+//! jack), a pipe-jacking machine guided by a FOG INS, a service vehicle
+//! with a MEMS IMU and a magnetometer, and their field gateways, at an
+//! accelerated clock: the gateways post the simulator's readings over real
+//! HTTP (NDJSON) and WebSocket as the clock reaches their time, so a
+//! 1-minute laser period shows up every few seconds. Each machine drives
+//! its declared design axis (curves with spirals, a compound curve,
+//! vertical curves): the laser-guided ones with a deviation that drifts
+//! towards the warn limit (tbm-south's past the alarm limit) and is
+//! steered back, the INS machine along its straight axis, so its
+//! deviation is the INS's own error. One machine's laser is blocked for
+//! 20 minutes of every hour; the INS machine advances at 2 mm/s and stops
+//! for each pipe. The server runs with the same clock, so ages and its
+//! future check agree with the gateways.
 //!
 //! A second run on the same data dir resumes: the clock starts after the
 //! newest stored reading, and each machine starts a new stretch of drive.
@@ -24,36 +30,129 @@ use tokio_tungstenite::tungstenite::Message;
 use super::CliError;
 use super::load::post_ndjson;
 use super::serve::{init_tracing, shutdown_signal, start};
+use crate::config::MachineSpec;
 use crate::config::ServerConfig;
 use crate::fusion::{Reading, SensorData, SensorKind};
 use crate::server::{self, Clock, Limits, ServerOptions, wall_clock_s};
+use crate::sim::axis_drive::{AxisDrive, AxisDriveScenario};
 use crate::sim::pipejack::{Case, PipeJackDrive, PipeJackScenario};
-use crate::sim::tbm::{TbmDrive, TbmScenario};
 use crate::sim::vehicle::{VehicleDrive, VehicleScenario};
 use crate::store::Store;
 
-/// The demo machines, declared as a config file would.
+/// The demo machines, declared as a config file would; their design
+/// axes are added by [`demo_machines`].
 const DEMO_MACHINES: &str = r#"
 [machines.tbm-north]
 name = "TBM North · S-1 drive"
 engines = { attitude = {} }
+geometry = { front_m = [4.2, 0.4, 1.1], rear_m = [-5.1, 0.4, 1.1] }
+tolerances = { horizontal_mm = { warn = 50, alarm = 100 }, vertical_mm = { warn = 30, alarm = 60 } }
 
 [machines.tbm-south]
 name = "TBM South · S-2 drive (WebSocket gateway)"
 engines = { attitude = {} }
+geometry = { front_m = [4.6, -0.3, 1.2], rear_m = [-5.4, -0.3, 1.2] }
+tolerances = { horizontal_mm = { warn = 50, alarm = 100 }, vertical_mm = { warn = 30, alarm = 60 } }
 
 [machines.pipejack-3]
 name = "Pipe jack P-3 · laser blocked 20 min per hour"
 engines = { attitude = {} }
+geometry = { front_m = [2.1, 0.2, 0.5], rear_m = [-1.4, 0.2, 0.5] }
+tolerances = { horizontal_mm = { warn = 30, alarm = 60 }, vertical_mm = { warn = 20, alarm = 40 } }
 
 [machines.pipejack-ins]
 name = "Pipe jack P-7 · FOG INS, zero-velocity updates, odometer"
 engines = { zupt = { latitude_deg = 30, initial_yaw_deg = 30, window_samples = 25, median_samples = 25, odometer_aiding = true } }
+geometry = { front_m = [2.0, 0.0, 0.3], rear_m = [-1.5, 0.0, 0.3] }
+tolerances = { horizontal_mm = { warn = 30, alarm = 60 }, vertical_mm = { warn = 20, alarm = 40 } }
+start = { easting_m = 1200.0, northing_m = 5600.0, height_m = 12.0 }
 
 [machines.service-van]
 name = "Service vehicle V-2 · MEMS IMU + compass, fuzzy motion expert"
 engines = { fuzzy = { declination_deg = 2.5, mag_inclination_deg = 60, window_samples = 13 } }
 "#;
+
+/// The design axes of the demo's drives (the protocol's JSON): S-1 a
+/// right-hand curve between spirals over a crest; S-2 a left-hand
+/// compound curve (a spiral between arcs of 450 and 900 m) through a sag
+/// and a crest; P-3 a tight microtunnel curve; P-7 straight along the INS
+/// machine's simulated course (heading 30°, rising 0.5°), from 5 m behind
+/// its declared start and 0.3 m below it (the machine's axis, where its
+/// declared front and rear are).
+const DEMO_AXES: [(&str, &str); 4] = [
+    (
+        "tbm-north",
+        r#"{"name": "S-1 drive", "start_station_m": 0.0,
+        "start": {"easting_m": 1000.0, "northing_m": 5000.0, "azimuth_deg": 30.0},
+        "horizontal": [
+          {"type": "line", "length_m": 40.0},
+          {"type": "spiral", "length_m": 30.0, "radius_start_m": null, "radius_end_m": 300.0},
+          {"type": "arc", "length_m": 60.0, "radius_m": 300.0},
+          {"type": "spiral", "length_m": 30.0, "radius_start_m": 300.0, "radius_end_m": null},
+          {"type": "line", "length_m": 140.0}],
+        "vertical": {"start_height_m": 50.0,
+          "pvis": [{"station_m": 150.0, "height_m": 50.9, "curve_length_m": 80.0}],
+          "end_grade_pct": -0.8}}"#,
+    ),
+    (
+        "tbm-south",
+        r#"{"name": "S-2 drive", "start_station_m": 1000.0,
+        "start": {"easting_m": 1400.0, "northing_m": 4800.0, "azimuth_deg": 200.0},
+        "horizontal": [
+          {"type": "line", "length_m": 30.0},
+          {"type": "spiral", "length_m": 40.0, "radius_start_m": null, "radius_end_m": -450.0},
+          {"type": "arc", "length_m": 80.0, "radius_m": -450.0},
+          {"type": "spiral", "length_m": 30.0, "radius_start_m": -450.0, "radius_end_m": -900.0},
+          {"type": "arc", "length_m": 60.0, "radius_m": -900.0},
+          {"type": "spiral", "length_m": 30.0, "radius_start_m": -900.0, "radius_end_m": null},
+          {"type": "line", "length_m": 60.0}],
+        "vertical": {"start_height_m": 42.0,
+          "pvis": [{"station_m": 1100.0, "height_m": 41.2, "curve_length_m": 60.0},
+                   {"station_m": 1240.0, "height_m": 41.9, "curve_length_m": 60.0}],
+          "end_grade_pct": 0.3}}"#,
+    ),
+    (
+        "pipejack-3",
+        r#"{"name": "P-3 microtunnel", "start_station_m": 0.0,
+        "start": {"easting_m": 900.0, "northing_m": 5200.0, "azimuth_deg": 95.0},
+        "horizontal": [
+          {"type": "line", "length_m": 20.0},
+          {"type": "spiral", "length_m": 20.0, "radius_start_m": null, "radius_end_m": 250.0},
+          {"type": "arc", "length_m": 40.0, "radius_m": 250.0},
+          {"type": "spiral", "length_m": 20.0, "radius_start_m": 250.0, "radius_end_m": null},
+          {"type": "line", "length_m": 100.0}],
+        "vertical": {"start_height_m": 8.0,
+          "pvis": [{"station_m": 90.0, "height_m": 8.9, "curve_length_m": 40.0}],
+          "end_grade_pct": 0.2}}"#,
+    ),
+    (
+        "pipejack-ins",
+        r#"{"name": "P-7 straight", "start_station_m": 0.0,
+        "start": {"easting_m": 1197.5, "northing_m": 5595.669872981078, "azimuth_deg": 30.0},
+        "horizontal": [{"type": "line", "length_m": 3000.0}],
+        "vertical": {"start_height_m": 11.656365661, "end_grade_pct": 0.872686779}}"#,
+    ),
+];
+
+/// The demo machines with their design axes, validated.
+fn demo_machines() -> Result<Vec<crate::config::MachineSpec>, CliError> {
+    let mut config: ServerConfig = toml::from_str(DEMO_MACHINES)
+        .map_err(|e| CliError::Scenario(format!("demo machines: {e}")))?;
+    for (id, axis) in DEMO_AXES {
+        let declaration = config.machines.get_mut(id).ok_or_else(|| {
+            CliError::Scenario(format!("demo axis for an undeclared machine {id}"))
+        })?;
+        declaration.alignment = Some(
+            serde_json::from_str(axis)
+                .map_err(|e| CliError::Scenario(format!("demo axis of {id}: {e}")))?,
+        );
+    }
+    Ok(config
+        .machines
+        .into_iter()
+        .map(|(id, declaration)| declaration.validate(&id))
+        .collect::<Result<_, _>>()?)
+}
 
 /// The demo INS's IMU rate: a quarter of the field's 100 Hz keeps the
 /// accelerated demo's database growth modest (the detector windows are
@@ -170,7 +269,11 @@ pub fn run(args: DemoArgs) -> Result<(), CliError> {
             args.rate
         )));
     }
-    let machines = ServerConfig::parse(DEMO_MACHINES)?;
+    let machines = demo_machines()?;
+    let axes: Vec<Option<AxisDriveScenario>> = GATEWAYS
+        .iter()
+        .map(|gateway| axis_scenario(gateway, &machines))
+        .collect();
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()?;
@@ -192,17 +295,18 @@ pub fn run(args: DemoArgs) -> Result<(), CliError> {
         let address = listener.local_addr()?;
         println!(
             "tunnelnav demo: open http://{address}/ in a browser. Five simulated machines, \
-             server clock ×{} (a 2-minute laser period every {:.0} s), data in {}. Ctrl-C stops.",
+             server clock ×{} (a 1-minute laser period every {:.0} s), data in {}. Ctrl-C stops.",
             args.rate,
-            120.0 / args.rate,
+            DEMO_LASER_PERIOD_S / args.rate,
             args.data_dir.display()
         );
 
         let (stop_gateways, stopping) = watch::channel(false);
         let mut gateways = Vec::new();
-        for gateway in &GATEWAYS {
+        for (gateway, axis) in GATEWAYS.iter().zip(axes) {
             gateways.push(tokio::spawn(run_gateway(
                 gateway,
+                axis,
                 address,
                 clock,
                 resume.aids,
@@ -284,21 +388,15 @@ fn laser_blocked(gateway: &Gateway, since_start_s: f64) -> bool {
 /// The simulated readings of a gateway's machine, for a year from `start_t`.
 fn readings(
     gateway: &Gateway,
+    axis: Option<AxisDriveScenario>,
     start_t: f64,
     (height_m, odometer_m): (Option<f64>, Option<f64>),
 ) -> Result<Box<dyn Iterator<Item = Reading> + Send>, String> {
     Ok(match gateway.kind {
-        Kind::Tbm => Box::new(
-            TbmDrive::new(TbmScenario {
-                seed: gateway.seed,
-                start_t,
-                hours: 24.0 * 366.0,
-                incl_period_s: 1.0,
-                laser_period_s: 120.0,
-                dropouts: Vec::new(),
-            })?
-            .map(|e| e.reading),
-        ),
+        Kind::Tbm => {
+            let axis = axis.ok_or("a demo TBM without a design axis")?;
+            Box::new(AxisDrives::new(axis, gateway.seed, start_t)?)
+        }
         Kind::PipeJack => Box::new(
             PipeJackDrive::new(PipeJackScenario {
                 case: Case::Field,
@@ -314,6 +412,76 @@ fn readings(
         ),
         Kind::Vehicle => Box::new(VehicleShifts::new(gateway.seed, start_t)?),
     })
+}
+
+/// The demo's laser period, s.
+const DEMO_LASER_PERIOD_S: f64 = 60.0;
+
+/// What a demo TBM drives: its declared axis and geometry, strokes and
+/// ring builds quicker than a real TBM's (1.5 m per 12–20 min) so that at
+/// the demo's clock the deviation visibly drifts towards the warn limit
+/// (tbm-south's past the alarm) and is steered back within minutes.
+fn axis_scenario(gateway: &Gateway, machines: &[MachineSpec]) -> Option<AxisDriveScenario> {
+    if gateway.kind != Kind::Tbm {
+        return None;
+    }
+    let spec = machines.iter().find(|m| m.id == gateway.machine)?;
+    let alignment = spec.alignment.clone()?;
+    let geometry = spec.geometry?;
+    let length_m = geometry.front_m[0] - geometry.rear_m[0];
+    Some(AxisDriveScenario {
+        geometry,
+        tolerances: spec.tolerances?,
+        start_station_m: alignment.start_station_m + length_m + 2.0,
+        peak_fraction: if gateway.machine == "tbm-south" {
+            2.2
+        } else {
+            1.3
+        },
+        drift_wavelength_m: (36.0, 14.0),
+        stroke_min: (8.0, 13.0),
+        ring_build_min: (4.0, 7.0),
+        laser_period_s: DEMO_LASER_PERIOD_S,
+        hours: 24.0 * 366.0,
+        ..AxisDriveScenario::on(alignment, gateway.seed)
+    })
+}
+
+/// A demo TBM's readings: drives along its axis back to back, each from
+/// the axis's start once the last one reached its end (half an hour after
+/// its last stroke), with the next seed.
+struct AxisDrives {
+    scenario: AxisDriveScenario,
+    drive: AxisDrive,
+    end_t: f64,
+}
+
+impl AxisDrives {
+    fn new(mut scenario: AxisDriveScenario, seed: u64, start_t: f64) -> Result<AxisDrives, String> {
+        scenario.seed = seed;
+        scenario.start_t = start_t;
+        let drive = AxisDrive::new(scenario.clone())?;
+        let end_t = drive.last_stroke_end_t() + 1800.0;
+        Ok(AxisDrives {
+            scenario,
+            drive,
+            end_t,
+        })
+    }
+}
+
+impl Iterator for AxisDrives {
+    type Item = Reading;
+
+    fn next(&mut self) -> Option<Reading> {
+        if let Some(event) = self.drive.next().filter(|e| e.reading.t < self.end_t) {
+            return Some(event.reading);
+        }
+        let next =
+            AxisDrives::new(self.scenario.clone(), self.scenario.seed + 1, self.end_t).ok()?;
+        *self = next;
+        self.drive.next().map(|e| e.reading)
+    }
 }
 
 /// The demo vehicle's readings: simulated shifts back to back, each
@@ -372,13 +540,14 @@ impl Iterator for VehicleShifts {
 /// them, keeping what could not be delivered for the next send.
 async fn run_gateway(
     gateway: &'static Gateway,
+    axis: Option<AxisDriveScenario>,
     address: SocketAddr,
     clock: Clock,
     aids: (Option<f64>, Option<f64>),
     mut stop: watch::Receiver<bool>,
 ) {
     let start_t = clock.now_s();
-    let mut drive = match readings(gateway, start_t, aids) {
+    let mut drive = match readings(gateway, axis, start_t, aids) {
         Ok(drive) => drive.peekable(),
         Err(e) => {
             tracing::error!(machine = gateway.machine, "demo drive: {e}");

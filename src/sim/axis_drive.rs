@@ -542,6 +542,12 @@ impl AxisDrive {
         &self.scenario
     }
 
+    /// When the last excavation stroke ends (the drive's end or the
+    /// axis's, whichever comes first).
+    pub fn last_stroke_end_t(&self) -> f64 {
+        self.strokes.last().map_or(self.scenario.start_t, |s| s.1)
+    }
+
     /// The cutterhead's station at `t`, and whether it is cutting.
     fn front_station(&self, t: f64) -> (f64, bool) {
         let mut station = self.scenario.start_station_m;
