@@ -201,6 +201,35 @@ async fn an_axis_is_set_as_landxml_or_json_and_read_back() {
         error.contains("LandXML") && error.contains("element 2 (<Curve>"),
         "{error}"
     );
+
+    // The axis sampled for drawing: every 50 m and each element's start
+    // (40, 70, 120, 150 m); 25 m along the first line at 30° from
+    // (1000, 5000) is (1012.5, 5021.650635), on the 0.5 % grade from 50 m.
+    let axis = get_json(
+        &client,
+        &base,
+        "/api/v1/machines/tbm-axis/alignment/axis?step_m=25",
+    )
+    .await;
+    let points = axis["points"].as_array().unwrap();
+    let stations: Vec<f64> = points
+        .iter()
+        .map(|p| p["station_m"].as_f64().unwrap())
+        .collect();
+    assert_eq!(stations.len(), 14, "{stations:?}");
+    assert!((points[1]["easting_m"].as_f64().unwrap() - 1012.5).abs() < 1e-6);
+    assert!((points[1]["northing_m"].as_f64().unwrap() - 5021.650_635).abs() < 1e-6);
+    assert!((points[1]["height_m"].as_f64().unwrap() - 50.125).abs() < 1e-9);
+    for bad in ["0", "-1", "0.001", "x"] {
+        let response = client
+            .get(format!("{url}/axis?step_m={bad}"))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(response.status(), 400, "step_m={bad}");
+        let body: Value = serde_json::from_slice(&response.bytes().await.unwrap()).unwrap();
+        assert!(body["error"].as_str().unwrap().contains("step_m"), "{body}");
+    }
     server.stop().await;
 }
 
