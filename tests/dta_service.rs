@@ -218,7 +218,7 @@ async fn an_axis_is_set_as_landxml_or_json_and_read_back() {
         .collect();
     assert_eq!(stations.len(), 14, "{stations:?}");
     assert!((points[1]["easting_m"].as_f64().unwrap() - 1012.5).abs() < 1e-6);
-    assert!((points[1]["northing_m"].as_f64().unwrap() - 5021.650_635).abs() < 1e-6);
+    assert!((points[1]["northing_m"].as_f64().unwrap() - 5_021.650_635).abs() < 1e-6);
     assert!((points[1]["height_m"].as_f64().unwrap() - 50.125).abs() < 1e-9);
     for bad in ["0", "-1", "0.001", "x"] {
         let response = client

@@ -30,25 +30,48 @@ pub enum EvalTarget {
     Recording(RecordingArgs),
     /// The `dta` stream (deviation from the design axis) end to end:
     /// simulated TBM drives along random axes with known deviations,
-    /// through the `attitude` engine and the `dta` stage.
+    /// through the `attitude` engine and the `dta` stage (`--source
+    /// laser`), or simulated pipe-jacking field drives along a straight
+    /// axis through the `zupt` engine, scored also against the INS's own
+    /// σ (`--source zupt`).
     Dta(DtaArgs),
+}
+
+/// Where the `dta` positions come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum DtaSourceArg {
+    /// Laser positions turned by the `attitude` engine (TBM drives).
+    Laser,
+    /// The `zupt` INS's positions from the declared start (pipe jacking).
+    Zupt,
 }
 
 #[derive(Debug, Args)]
 pub struct DtaArgs {
+    /// Which source's positions to score.
+    #[arg(long, value_enum, default_value_t = DtaSourceArg::Laser)]
+    pub source: DtaSourceArg,
     /// First seed.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Drives drawn from the envelope, from --seed on.
+    /// Drives, each drawn from its seed, from --seed on.
     #[arg(long, default_value_t = 20)]
     pub seeds: u64,
-    /// An `attitude` parameter as name=value (repeatable).
+    /// A parameter of the source's engine (`attitude` or `zupt`) as
+    /// name=value (repeatable). The `zupt` machine runs with
+    /// odometer_aiding=true unless told; its latitude_deg and
+    /// initial_yaw_deg are always the drive's.
     #[arg(long = "param", value_name = "NAME=VALUE")]
     pub params: Vec<String>,
     /// 1σ of each coordinate of the laser's position, mm (the envelope's
-    /// is 1 mm; 0 leaves only the attitude's part of the error).
+    /// is 1 mm; 0 leaves only the attitude's part of the error). Laser
+    /// source only.
     #[arg(long)]
     pub position_sigma_mm: Option<f64>,
+    /// Length of each pipe-jacking field drive, hours. Zupt source only
+    /// (default 1).
+    #[arg(long)]
+    pub field_hours: Option<f64>,
     /// Print the scores as JSON instead of a table: a line per drive, then
     /// {"summary": ...}.
     #[arg(long)]
@@ -180,7 +203,13 @@ pub fn run(target: EvalTarget) -> Result<(), CliError> {
             }
             Ok(())
         }
+        EvalTarget::Dta(args) if args.source == DtaSourceArg::Zupt => run_dta_zupt(&args),
         EvalTarget::Dta(args) => {
+            if args.field_hours.is_some() {
+                return Err(CliError::Scenario(
+                    "--field-hours is for --source zupt".into(),
+                ));
+            }
             let params = EngineKind::Attitude
                 .params_from_assignments(args.params.iter().map(String::as_str))?;
             let mut scores = Vec::new();
@@ -296,6 +325,48 @@ pub fn run(target: EvalTarget) -> Result<(), CliError> {
             Ok(())
         }
     }
+}
+
+/// `eval dta --source zupt`: each seed's drive through the `zupt` engine
+/// and the `dta` stage, a JSON line each or a table at the end.
+fn run_dta_zupt(args: &DtaArgs) -> Result<(), CliError> {
+    use crate::eval::dta_ins;
+    if args.position_sigma_mm.is_some() {
+        return Err(CliError::Scenario(
+            "--position-sigma-mm is for --source laser".into(),
+        ));
+    }
+    let hours = args
+        .field_hours
+        .unwrap_or(dta_ins::FIELD_DURATION_S / 3600.0);
+    let params = EngineKind::Zupt.params_from_assignments(
+        dta_ins::DEFAULT_ASSIGNMENTS
+            .into_iter()
+            .chain(args.params.iter().map(String::as_str)),
+    )?;
+    let mut scores = Vec::new();
+    for seed in args.seed..args.seed.saturating_add(args.seeds.max(1)) {
+        let scenario = dta_ins::ZuptDtaScenario::draw(seed, hours * 3600.0);
+        let score = dta_ins::evaluate(&scenario, &params).map_err(CliError::Scenario)?;
+        if args.json {
+            println!(
+                "{}",
+                serde_json::to_string(&score).map_err(std::io::Error::other)?
+            );
+        }
+        scores.push(score);
+    }
+    let summary = dta_ins::summarise(&scores);
+    if args.json {
+        let value = serde_json::json!({ "summary": summary });
+        println!(
+            "{}",
+            serde_json::to_string(&value).map_err(std::io::Error::other)?
+        );
+    } else {
+        print!("{}", dta_ins::render(&scores, &summary));
+    }
+    Ok(())
 }
 
 /// Runs an evaluation for `seeds` seeds from `first`, printing each as a

@@ -4,6 +4,7 @@
 pub mod ahrs;
 pub mod attitude;
 pub mod dta;
+pub mod dta_ins;
 pub mod fuzzy;
 pub mod kf3;
 pub mod recording;
