@@ -120,6 +120,14 @@ async fn the_dta_stream_is_served_as_the_stage_computes_it_across_a_restart() {
         last["station_m"].as_f64().unwrap() > 1100.0,
         "the start point is at station 1100: {last}"
     );
+    // Each point carries the INS's own σ (position and attitude over the
+    // lever arm).
+    for point in ["front", "rear"] {
+        for key in ["sigma_horizontal_mm", "sigma_vertical_mm"] {
+            let sigma = last[point][key].as_f64().unwrap_or(f64::NAN);
+            assert!(sigma > 0.0 && sigma < 1e4, "{point} {key}: {last}");
+        }
+    }
     assert_eq!(status["latest"]["dta"]["engine"], "dta");
 
     // A declaration whose axis is broken is refused naming the element.
@@ -306,6 +314,8 @@ async fn laser_positions_give_the_known_deviations_within_a_millimetre() {
         close(&d["station_m"], along);
         close(&d["tendency_horizontal_mm_per_m"], mm(9.3 * sin) / 9.3);
         assert_eq!(d["source"], "laser");
+        // Laser positions come without a σ.
+        assert!(d["front"]["sigma_horizontal_mm"].is_null(), "{d}");
         let worst_h = mm(dx + 4.2 * sin).abs().max(mm(dx - 5.1 * sin).abs());
         let worst_v = mm(dz).abs();
         let want = if worst_h > 100.0 || worst_v > 60.0 {

@@ -26,8 +26,9 @@ use super::{SnapshotError, StreamKind};
 
 /// Version of the stage's snapshot.
 pub const STATE_VERSION: u32 = 1;
-/// Version of the stored [`DtaEstimate`].
-pub const CODEC_VERSION: u32 = 1;
+/// Version of the stored [`DtaEstimate`]. 1: before the points' σ
+/// ([`DtaEstimateV1`]).
+pub const CODEC_VERSION: u32 = 2;
 
 /// Where the machine's front and rear points are on it: metres from the
 /// navigation reference point in the body frame (x forward, y right, z
@@ -101,6 +102,38 @@ pub struct PointDeviation {
     pub horizontal_mm: f64,
     /// + above the design height at the point's station.
     pub vertical_mm: f64,
+    /// 1σ of the horizontal and vertical deviation from the source's own
+    /// covariance (tunnelnav extension): the position's σ and the
+    /// attitude's σ over the lever arm to the point. `null` for laser
+    /// positions, which come without one.
+    pub sigma_horizontal_mm: Option<f64>,
+    pub sigma_vertical_mm: Option<f64>,
+}
+
+/// The source's own uncertainty: 1σ of the reference point's position and
+/// of the attitude error about north, east and down.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Uncertainty {
+    position_m: [f64; 3],
+    attitude_rad: [f64; 3],
+}
+
+impl Uncertainty {
+    /// σ of the horizontal deviation (across an axis at `azimuth_rad`) and
+    /// of the vertical one of a point `lever` (north, east, down, m) from
+    /// the reference point. A small attitude error φ moves the point by
+    /// φ × lever; the components are taken as independent.
+    fn of_point(&self, lever: V3, azimuth_rad: f64) -> (f64, f64) {
+        let [sn, se, sd] = self.position_m;
+        let [an, ae, ad] = self.attitude_rad;
+        let var_n = sn * sn + (ae * lever.z).powi(2) + (ad * lever.y).powi(2);
+        let var_e = se * se + (ad * lever.x).powi(2) + (an * lever.z).powi(2);
+        let var_d = sd * sd + (an * lever.y).powi(2) + (ae * lever.x).powi(2);
+        // Across the axis: (east, north) · (cos a, −sin a).
+        let (sin_a, cos_a) = azimuth_rad.sin_cos();
+        let horizontal = (cos_a * cos_a * var_e + sin_a * sin_a * var_n).sqrt();
+        (horizontal * 1000.0, var_d.sqrt() * 1000.0)
+    }
 }
 
 /// What the `dta` stage emits per position.
@@ -128,6 +161,8 @@ impl DtaEstimate {
                 w.number("station_m", p.station_m);
                 w.number("horizontal_mm", p.horizontal_mm);
                 w.number("vertical_mm", p.vertical_mm);
+                w.optional("sigma_horizontal_mm", p.sigma_horizontal_mm);
+                w.optional("sigma_vertical_mm", p.sigma_vertical_mm);
             });
         }
         w.number(
@@ -141,6 +176,52 @@ impl DtaEstimate {
         match self.status {
             Some(status) => w.word("status", status.as_str()),
             None => w.null("status"),
+        }
+    }
+}
+
+/// A `dta` estimate as the release before the points' σ stored it (codec
+/// version 1).
+#[derive(Deserialize)]
+struct DtaEstimateV1 {
+    source: DtaSource,
+    station_m: f64,
+    front: PointDeviationV1,
+    rear: PointDeviationV1,
+    tendency_horizontal_mm_per_m: f64,
+    tendency_vertical_mm_per_m: f64,
+    status: Option<DtaStatus>,
+}
+
+#[derive(Deserialize)]
+struct PointDeviationV1 {
+    station_m: f64,
+    horizontal_mm: f64,
+    vertical_mm: f64,
+}
+
+impl From<PointDeviationV1> for PointDeviation {
+    fn from(p: PointDeviationV1) -> PointDeviation {
+        PointDeviation {
+            station_m: p.station_m,
+            horizontal_mm: p.horizontal_mm,
+            vertical_mm: p.vertical_mm,
+            sigma_horizontal_mm: None,
+            sigma_vertical_mm: None,
+        }
+    }
+}
+
+impl From<DtaEstimateV1> for DtaEstimate {
+    fn from(v: DtaEstimateV1) -> DtaEstimate {
+        DtaEstimate {
+            source: v.source,
+            station_m: v.station_m,
+            front: v.front.into(),
+            rear: v.rear.into(),
+            tendency_horizontal_mm_per_m: v.tendency_horizontal_mm_per_m,
+            tendency_vertical_mm_per_m: v.tendency_vertical_mm_per_m,
+            status: v.status,
         }
     }
 }
@@ -200,9 +281,8 @@ impl DtaStage {
         &self,
         source: DtaSource,
         reference: ProjectPoint,
-        yaw_deg: f64,
-        pitch_deg: f64,
-        roll_deg: f64,
+        (yaw_deg, pitch_deg, roll_deg): (f64, f64, f64),
+        uncertainty: Option<Uncertainty>,
     ) -> Option<DtaEstimate> {
         let c = attitude_from_euler(rad(roll_deg), rad(pitch_deg), rad(yaw_deg));
         let alignment = &self.setup.alignment;
@@ -213,7 +293,16 @@ impl DtaStage {
                 reference.northing_m + ned.x,
                 reference.height_m - ned.z,
             );
-            alignment.deviation(e, n, h).ok()
+            let d = alignment.deviation(e, n, h).ok()?;
+            let sigma = match uncertainty {
+                Some(u) => {
+                    let (pose, _) = alignment.axis_at(d.station_m)?;
+                    let (h, v) = u.of_point(ned, pose.azimuth_rad);
+                    (Some(h), Some(v))
+                }
+                None => (None, None),
+            };
+            Some((d, sigma))
         };
         let centre = alignment
             .deviation(
@@ -226,10 +315,14 @@ impl DtaStage {
             point(self.setup.geometry.front_m)?,
             point(self.setup.geometry.rear_m)?,
         );
-        let mm = |d: super::alignment::Deviation| PointDeviation {
-            station_m: d.station_m,
-            horizontal_mm: d.horizontal_m * 1000.0,
-            vertical_mm: d.vertical_m * 1000.0,
+        let mm = |(d, sigma): (super::alignment::Deviation, (Option<f64>, Option<f64>))| {
+            PointDeviation {
+                station_m: d.station_m,
+                horizontal_mm: d.horizontal_m * 1000.0,
+                vertical_mm: d.vertical_m * 1000.0,
+                sigma_horizontal_mm: sigma.0,
+                sigma_vertical_mm: sigma.1,
+            }
         };
         let (front, rear) = (mm(front), mm(rear));
         let g = self.setup.geometry;
@@ -306,7 +399,7 @@ impl Stage for DtaStage {
             return;
         };
         let (pitch, roll) = self.state.attitude_deg.unwrap_or((pitch_deg, roll_deg));
-        let located = self.locate(DtaSource::Laser, position, yaw_deg, pitch, roll);
+        let located = self.locate(DtaSource::Laser, position, (yaw_deg, pitch, roll), None);
         self.emit(reading.t, located, out);
     }
 
@@ -328,12 +421,20 @@ impl Stage for DtaStage {
                     northing_m: start.northing_m + north,
                     height_m: start.height_m - down,
                 };
+                // With the INS's own σ (estimates stored before it reported
+                // its attitude σ: heading σ alone, tilt taken as exact).
+                let attitude_sigma_deg = z
+                    .attitude_sigma_deg
+                    .or(z.yaw_sigma_deg.map(|yaw| [0.0, 0.0, yaw]));
+                let uncertainty = attitude_sigma_deg.map(|a| Uncertainty {
+                    position_m: z.position_sigma_m,
+                    attitude_rad: a.map(rad),
+                });
                 let located = self.locate(
                     DtaSource::Zupt,
                     reference,
-                    z.yaw_deg,
-                    z.pitch_deg,
-                    z.roll_deg,
+                    (z.yaw_deg, z.pitch_deg, z.roll_deg),
+                    uncertainty,
                 );
                 self.emit(estimate.t, located, out);
             }
@@ -378,6 +479,13 @@ impl StageDescriptor for Dta {
     }
     fn write_fields(output: &DtaEstimate, fields: &mut JsonFields<'_>) {
         output.write_fields(fields);
+    }
+    fn decode(version: u32, bytes: &[u8]) -> Result<DtaEstimate, postcard::Error> {
+        match version {
+            0 | 1 => postcard::from_bytes::<DtaEstimateV1>(bytes).map(DtaEstimate::from),
+            CODEC_VERSION => postcard::from_bytes(bytes),
+            _ => Err(postcard::Error::DeserializeBadEncoding),
+        }
     }
     fn extremes(output: &DtaEstimate) -> [f64; 2] {
         [output.front.horizontal_mm, output.front.vertical_mm]
@@ -537,7 +645,8 @@ mod tests {
                 are_ratio: 0.0,
                 shoe_ratio: 0.0,
                 mag_ratio: 0.0,
-                yaw_sigma_deg: None,
+                yaw_sigma_deg: Some(0.1),
+                attitude_sigma_deg: Some([0.05, 0.05, 0.1]),
                 smoothed_push: None,
             }),
         };
@@ -553,6 +662,16 @@ mod tests {
                 && (d.front.vertical_mm + 10.0).abs() < 1e-6
         );
         assert_eq!(d.status, Some(DtaStatus::Warn));
+        // The INS's σ: 10 mm per coordinate, and the attitude's over the
+        // lever (4 m ahead, 5 m behind, level, due north): across the axis
+        // the heading's 0.1°, vertically the tilt about east, 0.05°:
+        // √(10² + (4000·0.1°)²) = 12.1959 mm, √(10² + (4000·0.05°)²) =
+        // 10.5917 mm; the rear's over 5 m 13.2723 and 10.9105 mm.
+        let close = |a: Option<f64>, b: f64| (a.unwrap() - b).abs() < 1e-3;
+        assert!(close(d.front.sigma_horizontal_mm, 12.1959), "{d:?}");
+        assert!(close(d.front.sigma_vertical_mm, 10.5917), "{d:?}");
+        assert!(close(d.rear.sigma_horizontal_mm, 13.2723), "{d:?}");
+        assert!(close(d.rear.sigma_vertical_mm, 10.9105), "{d:?}");
         // Beyond the axis's end: no estimate, counted.
         stage.estimate(&estimate([120.0, 0.0, 0.0], true), &mut out);
         assert_eq!(out.len(), 1);

@@ -304,6 +304,7 @@ mod tests {
                     shoe_ratio: if i == 9 { f64::INFINITY } else { 1.5 },
                     mag_ratio: 1e-9,
                     yaw_sigma_deg: Some(0.012),
+                    attitude_sigma_deg: Some([0.004, 0.005, 0.012]),
                     smoothed_push: Some(vec![
                         TrackPoint {
                             t: 1.5,

@@ -205,6 +205,7 @@ mod tests {
                 shoe_ratio: 0.0,
                 mag_ratio: 0.0,
                 yaw_sigma_deg: None,
+                attitude_sigma_deg: None,
                 smoothed_push,
             }),
         }

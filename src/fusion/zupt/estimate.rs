@@ -40,6 +40,10 @@ pub struct ZuptEstimate {
     /// 1σ of the heading from the filter's covariance, degrees; `null`
     /// before alignment (and in estimates stored before it was reported).
     pub yaw_sigma_deg: Option<f64>,
+    /// 1σ of the attitude error about north, east and down from the
+    /// filter's covariance, degrees (tilt and heading); `null` before
+    /// alignment and in estimates stored before it was reported.
+    pub attitude_sigma_deg: Option<[f64; 3]>,
     /// On the estimate at which a push ends (the first epoch decided still
     /// after it): the push's track smoothed over both of its still ends,
     /// from the last still epoch before it, about one point a second;
@@ -60,8 +64,9 @@ pub struct TrackPoint {
 }
 
 /// Stored estimates of this release: postcard of [`ZuptEstimate`].
-/// 1: before the heading σ and the smoothed push ([`ZuptEstimateV1`]).
-pub const CODEC_VERSION: u32 = 2;
+/// 1: before the heading σ and the smoothed push ([`ZuptEstimateV1`]);
+/// 2: before the attitude σ ([`ZuptEstimateV2`]).
+pub const CODEC_VERSION: u32 = 3;
 
 impl ZuptEstimate {
     /// The fields after `"engine"`, as serde_json writes them.
@@ -82,6 +87,10 @@ impl ZuptEstimate {
         w.number("shoe_ratio", self.shoe_ratio);
         w.number("mag_ratio", self.mag_ratio);
         w.optional("yaw_sigma_deg", self.yaw_sigma_deg);
+        match &self.attitude_sigma_deg {
+            Some(sigma) => w.triple("attitude_sigma_deg", sigma),
+            None => w.null("attitude_sigma_deg"),
+        }
         match &self.smoothed_push {
             None => w.null("smoothed_push"),
             Some(points) => w.objects("smoothed_push", points, |point, w| {
@@ -101,11 +110,13 @@ impl ZuptEstimate {
     /// The estimate stored as `bytes` with codec `version` (0: stored
     /// before rows carried their version: version 2, or 1 where that fails).
     pub fn decode(version: u32, bytes: &[u8]) -> Result<ZuptEstimate, postcard::Error> {
+        let v1 = |bytes| postcard::from_bytes::<ZuptEstimateV1>(bytes).map(ZuptEstimate::from);
+        let v2 = |bytes| postcard::from_bytes::<ZuptEstimateV2>(bytes).map(ZuptEstimate::from);
         match version {
-            0 => postcard::from_bytes::<ZuptEstimate>(bytes)
-                .or_else(|_| postcard::from_bytes::<ZuptEstimateV1>(bytes).map(ZuptEstimate::from)),
-            1 => postcard::from_bytes::<ZuptEstimateV1>(bytes).map(ZuptEstimate::from),
-            2 => postcard::from_bytes(bytes),
+            0 => v2(bytes).or_else(|_| v1(bytes)),
+            1 => v1(bytes),
+            2 => v2(bytes),
+            3 => postcard::from_bytes(bytes),
             _ => Err(postcard::Error::DeserializeBadEncoding),
         }
     }
@@ -156,7 +167,56 @@ impl From<ZuptEstimateV1> for ZuptEstimate {
             shoe_ratio: v.shoe_ratio,
             mag_ratio: v.mag_ratio,
             yaw_sigma_deg: None,
+            attitude_sigma_deg: None,
             smoothed_push: None,
+        }
+    }
+}
+
+/// A `zupt` estimate as releases before the attitude σ stored it (codec
+/// version 2).
+#[derive(Deserialize)]
+struct ZuptEstimateV2 {
+    zv: bool,
+    position_m: [f64; 3],
+    distance_m: f64,
+    velocity_mps: [f64; 3],
+    pitch_deg: f64,
+    roll_deg: f64,
+    yaw_deg: f64,
+    aligned: bool,
+    position_sigma_m: [f64; 3],
+    height_m: Option<f64>,
+    odometer_m: Option<f64>,
+    mv_ratio: f64,
+    are_ratio: f64,
+    shoe_ratio: f64,
+    mag_ratio: f64,
+    yaw_sigma_deg: Option<f64>,
+    smoothed_push: Option<Vec<TrackPoint>>,
+}
+
+impl From<ZuptEstimateV2> for ZuptEstimate {
+    fn from(v: ZuptEstimateV2) -> ZuptEstimate {
+        ZuptEstimate {
+            zv: v.zv,
+            position_m: v.position_m,
+            distance_m: v.distance_m,
+            velocity_mps: v.velocity_mps,
+            pitch_deg: v.pitch_deg,
+            roll_deg: v.roll_deg,
+            yaw_deg: v.yaw_deg,
+            aligned: v.aligned,
+            position_sigma_m: v.position_sigma_m,
+            height_m: v.height_m,
+            odometer_m: v.odometer_m,
+            mv_ratio: v.mv_ratio,
+            are_ratio: v.are_ratio,
+            shoe_ratio: v.shoe_ratio,
+            mag_ratio: v.mag_ratio,
+            yaw_sigma_deg: v.yaw_sigma_deg,
+            attitude_sigma_deg: None,
+            smoothed_push: v.smoothed_push,
         }
     }
 }

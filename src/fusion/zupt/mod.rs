@@ -388,7 +388,8 @@ impl ZuptEngine {
         let (roll, pitch, yaw) = nav.state.euler();
         let position = nav.state.position_m;
         let sigma = nav.filter.sigma(POS);
-        let yaw_sigma_deg = deg(nav.filter.sigma(ATT).z);
+        let attitude_sigma = nav.filter.sigma(ATT);
+        let yaw_sigma_deg = deg(attitude_sigma.z);
         let velocity = nav.state.velocity_mps;
         EngineOutput {
             t: sample.t,
@@ -402,6 +403,11 @@ impl ZuptEngine {
                 [sigma.x, sigma.y, sigma.z],
                 nav.height_datum_m.map(|datum| datum - position.z),
                 Some(yaw_sigma_deg),
+                Some([
+                    deg(attitude_sigma.x),
+                    deg(attitude_sigma.y),
+                    deg(attitude_sigma.z),
+                ]),
                 smoothed_push,
             )),
         }
@@ -423,6 +429,7 @@ impl ZuptEngine {
                 None,
                 None,
                 None,
+                None,
             )),
         }
     }
@@ -439,6 +446,7 @@ impl ZuptEngine {
         position_sigma_m: [f64; 3],
         height_m: Option<f64>,
         yaw_sigma_deg: Option<f64>,
+        attitude_sigma_deg: Option<[f64; 3]>,
         smoothed_push: Option<Vec<TrackPoint>>,
     ) -> ZuptEstimate {
         let s = &decision.statistics;
@@ -467,6 +475,7 @@ impl ZuptEngine {
             shoe_ratio: ratio(s.shoe, g.shoe),
             mag_ratio: ratio(s.mag, g.mag),
             yaw_sigma_deg,
+            attitude_sigma_deg,
             smoothed_push,
         }
     }
