@@ -215,6 +215,9 @@ tn.registerEngine('dta', {
           setText($(`dta-${p}-${c}-dir`), dir);
           const word = c === 'h' ? (v > 0 ? 'right of' : 'left of') : (v > 0 ? 'above' : 'below');
           box.title = num(v) ? `${Math.abs(v).toFixed(1)} mm ${word} the axis` : '';
+          // The source's own 1σ (INS positions carry one, laser ones not).
+          const sigma = e[p][c === 'h' ? 'sigma_horizontal_mm' : 'sigma_vertical_mm'];
+          setText($(`dta-${p}-${c}-sigma`), num(sigma) ? `± ${sigma.toFixed(sigma < 10 ? 1 : 0)} mm` : '');
         }
       }
       setText($('dta-chainage'), chainage(e.station_m));

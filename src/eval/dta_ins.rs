@@ -265,10 +265,10 @@ pub struct ZuptDtaScore {
     /// Front and rear errors against the INS's σ.
     pub horizontal: Consistency,
     pub vertical: Consistency,
-    /// The vertical errors against the INS's σ with the levelling's tilt
-    /// σ (the engine's `accel_bias_sigma_mg` over g) over each point's
-    /// lever arm added: what the attitude's part of the error would need.
-    pub vertical_with_tilt: Consistency,
+    /// Front and rear errors against the `dta` estimate's own σ (the
+    /// INS's position σ and its attitude σ over the lever arm).
+    pub own_horizontal: Consistency,
+    pub own_vertical: Consistency,
     /// The reference point's own error (the INS's position against the
     /// truth, on the axis's normal and in height) against the same σ.
     pub reference_horizontal: Consistency,
@@ -336,14 +336,9 @@ pub fn evaluate(scenario: &ZuptDtaScenario, base: &Params) -> Result<ZuptDtaScor
         ..Declaration::of_engines([EngineKind::Zupt])
     };
     let params = engine_params(scenario, base)?;
-    // The tilt's 1σ the levelling leaves (the accelerometer bias over g).
-    let tilt_sigma_rad = 1e-3
-        * params
-            .real("accel_bias_sigma_mg")
-            .map_err(|e| e.to_string())?;
     let engine = EngineKind::Zupt.create(params).map_err(|e| e.to_string())?;
     let mut pipeline = Pipeline::declared(vec![engine], &declaration);
-    let mut scorer = Scorer::new(scenario, axis, tilt_sigma_rad);
+    let mut scorer = Scorer::new(scenario, axis);
     let mut outputs: Vec<EngineOutput> = Vec::new();
     for event in drive {
         if let Some(truth) = event.truth {
@@ -376,13 +371,13 @@ struct InsEstimate {
 struct Scorer<'a> {
     scenario: &'a ZuptDtaScenario,
     axis: StraightAxis,
-    tilt_sigma_rad: f64,
     truths: VecDeque<PipeJackTruth>,
     latest: Option<InsEstimate>,
     score: ZuptDtaScore,
     horizontal: Vec<f64>,
     vertical: Vec<f64>,
-    vertical_with_tilt: Vec<f64>,
+    own_horizontal: Vec<f64>,
+    own_vertical: Vec<f64>,
     reference_h: Vec<f64>,
     reference_v: Vec<f64>,
     sigma_h: Vec<f64>,
@@ -390,11 +385,10 @@ struct Scorer<'a> {
 }
 
 impl<'a> Scorer<'a> {
-    fn new(scenario: &'a ZuptDtaScenario, axis: StraightAxis, tilt_sigma_rad: f64) -> Scorer<'a> {
+    fn new(scenario: &'a ZuptDtaScenario, axis: StraightAxis) -> Scorer<'a> {
         Scorer {
             scenario,
             axis,
-            tilt_sigma_rad,
             truths: VecDeque::new(),
             latest: None,
             score: ZuptDtaScore {
@@ -414,7 +408,8 @@ impl<'a> Scorer<'a> {
                 largest_true_vertical_mm: 0.0,
                 horizontal: Consistency::default(),
                 vertical: Consistency::default(),
-                vertical_with_tilt: Consistency::default(),
+                own_horizontal: Consistency::default(),
+                own_vertical: Consistency::default(),
                 reference_horizontal: Consistency::default(),
                 reference_vertical: Consistency::default(),
                 lever_horizontal: ErrorStats::default(),
@@ -426,7 +421,8 @@ impl<'a> Scorer<'a> {
             },
             horizontal: Vec::new(),
             vertical: Vec::new(),
-            vertical_with_tilt: Vec::new(),
+            own_horizontal: Vec::new(),
+            own_vertical: Vec::new(),
             reference_h: Vec::new(),
             reference_v: Vec::new(),
             sigma_h: Vec::new(),
@@ -510,21 +506,14 @@ impl<'a> Scorer<'a> {
         self.reference_v
             .push(reference_error_v.abs() / sigma_vertical);
 
-        for (estimated, truth_point, body, stats_h, stats_v) in [
+        for (estimated, truth_point, stats_h, stats_v) in [
             (
                 d.front,
                 front,
-                geometry.front_m,
                 &mut s.front_horizontal,
                 &mut s.front_vertical,
             ),
-            (
-                d.rear,
-                rear,
-                geometry.rear_m,
-                &mut s.rear_horizontal,
-                &mut s.rear_vertical,
-            ),
+            (d.rear, rear, &mut s.rear_horizontal, &mut s.rear_vertical),
         ] {
             let error_h = estimated.horizontal_mm - 1000.0 * truth_point.right_m;
             let error_v = estimated.vertical_mm - 1000.0 * truth_point.above_m;
@@ -532,10 +521,17 @@ impl<'a> Scorer<'a> {
             stats_v.add(error_v);
             self.horizontal.push(error_h.abs() / sigma_horizontal);
             self.vertical.push(error_v.abs() / sigma_vertical);
-            // The levelling's tilt σ over the point's lever arm, added.
-            let tilt_mm = 1000.0 * self.tilt_sigma_rad * body[0].hypot(body[1]);
-            self.vertical_with_tilt
-                .push(error_v.abs() / sigma_vertical.hypot(tilt_mm));
+            // Against the estimate's own σ.
+            let (Some(own_h), Some(own_v)) =
+                (estimated.sigma_horizontal_mm, estimated.sigma_vertical_mm)
+            else {
+                return Err(format!(
+                    "a zupt dta estimate at t={} without its σ",
+                    output.t
+                ));
+            };
+            self.own_horizontal.push(error_h.abs() / own_h);
+            self.own_vertical.push(error_v.abs() / own_v);
             s.lever_horizontal.add(error_h - reference_error_h);
             s.lever_vertical.add(error_v - reference_error_v);
         }
@@ -560,7 +556,8 @@ impl<'a> Scorer<'a> {
             distance_m,
             horizontal: Consistency::of(self.horizontal),
             vertical: Consistency::of(self.vertical),
-            vertical_with_tilt: Consistency::of(self.vertical_with_tilt),
+            own_horizontal: Consistency::of(self.own_horizontal),
+            own_vertical: Consistency::of(self.own_vertical),
             reference_horizontal: Consistency::of(self.reference_h),
             reference_vertical: Consistency::of(self.reference_v),
             median_sigma_horizontal_mm: median(self.sigma_h),
@@ -594,6 +591,11 @@ pub struct ZuptDtaSummary {
     pub lowest_within_2_sigma_horizontal: f64,
     pub median_within_2_sigma_vertical: f64,
     pub lowest_within_2_sigma_vertical: f64,
+    /// The same against the `dta` estimate's own σ.
+    pub median_within_own_2_sigma_horizontal: f64,
+    pub lowest_within_own_2_sigma_horizontal: f64,
+    pub median_within_own_2_sigma_vertical: f64,
+    pub lowest_within_own_2_sigma_vertical: f64,
     /// Largest |error|/σ of any drive.
     pub worst_normalised_horizontal: f64,
     pub worst_normalised_vertical: f64,
@@ -616,6 +618,10 @@ pub fn summarise(scores: &[ZuptDtaScore]) -> ZuptDtaSummary {
         lowest_within_2_sigma_horizontal: lowest(&|s| s.horizontal.within[1]),
         median_within_2_sigma_vertical: median(of(&|s| s.vertical.within[1])),
         lowest_within_2_sigma_vertical: lowest(&|s| s.vertical.within[1]),
+        median_within_own_2_sigma_horizontal: median(of(&|s| s.own_horizontal.within[1])),
+        lowest_within_own_2_sigma_horizontal: lowest(&|s| s.own_horizontal.within[1]),
+        median_within_own_2_sigma_vertical: median(of(&|s| s.own_vertical.within[1])),
+        lowest_within_own_2_sigma_vertical: lowest(&|s| s.own_vertical.within[1]),
         worst_normalised_horizontal: worst(&|s| s.horizontal.max),
         worst_normalised_vertical: worst(&|s| s.vertical.max),
     }
@@ -660,7 +666,7 @@ pub fn render(scores: &[ZuptDtaScore], summary: &ZuptDtaSummary) -> String {
         "\nwhere the error comes from: the INS's own σ (median), its reference point against it, \
          and the attitude's error over the lever arm (not in the σ)\n\
          seed  σ H/V mm     ref H |e|/σ med/p95/max ≤1/2/3σ %   ref V |e|/σ med/p95/max ≤1/2/3σ %   \
-         lever H rms/max   lever V rms/max   yaw/pitch err max °   V with tilt σ ≤1/2/3σ %\n",
+         lever H rms/max   lever V rms/max   yaw/pitch err max °   dta's own σ: H ≤2σ, V ≤2/3σ %\n",
     );
     for s in scores {
         out.push_str(&format!(
@@ -676,15 +682,16 @@ pub fn render(scores: &[ZuptDtaScore], summary: &ZuptDtaSummary) -> String {
             s.lever_vertical.max_abs,
             s.max_yaw_error_deg,
             s.max_pitch_error_deg,
-            100.0 * s.vertical_with_tilt.within[0],
-            100.0 * s.vertical_with_tilt.within[1],
-            100.0 * s.vertical_with_tilt.within[2],
+            100.0 * s.own_horizontal.within[1],
+            100.0 * s.own_vertical.within[1],
+            100.0 * s.own_vertical.within[2],
         ));
     }
     out.push_str(&format!(
         "\n{} drives, {} estimates: largest deviation error per drive median {:.2} mm, worst {:.2} mm; \
          RMS front H median {:.2} mm, V {:.2} mm; station worst {:.1} mm; \
          within the INS's 2σ: H median {:.1} %, lowest {:.1} %, V median {:.1} %, lowest {:.1} %; \
+         within the dta estimate's own 2σ: H median {:.1} %, lowest {:.1} %, V median {:.1} %, lowest {:.1} %; \
          |e|/σ worst H {:.2}, V {:.2}\n",
         summary.drives,
         summary.estimates,
@@ -697,6 +704,10 @@ pub fn render(scores: &[ZuptDtaScore], summary: &ZuptDtaSummary) -> String {
         100.0 * summary.lowest_within_2_sigma_horizontal,
         100.0 * summary.median_within_2_sigma_vertical,
         100.0 * summary.lowest_within_2_sigma_vertical,
+        100.0 * summary.median_within_own_2_sigma_horizontal,
+        100.0 * summary.lowest_within_own_2_sigma_horizontal,
+        100.0 * summary.median_within_own_2_sigma_vertical,
+        100.0 * summary.lowest_within_own_2_sigma_vertical,
         summary.worst_normalised_horizontal,
         summary.worst_normalised_vertical,
     ));
@@ -800,13 +811,14 @@ mod tests {
                     are_ratio: 0.0,
                     shoe_ratio: 0.0,
                     mag_ratio: 0.0,
-                    yaw_sigma_deg: None,
+                    yaw_sigma_deg: Some(0.1),
+                    attitude_sigma_deg: Some([0.05, 0.05, 0.1]),
                     smoothed_push: None,
                 }),
             };
             let mut outputs = vec![zupt.clone()];
             stage.estimate(&zupt, &mut outputs);
-            let mut scorer = Scorer::new(&scenario, axis, 1e-3);
+            let mut scorer = Scorer::new(&scenario, axis);
             scorer.truths.push_back(truth);
             for output in &outputs {
                 scorer.output(output).unwrap();
