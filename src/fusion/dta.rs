@@ -708,4 +708,31 @@ mod tests {
             .is_none()
         );
     }
+
+    #[test]
+    fn an_estimate_stored_before_the_points_sigma_still_reads() {
+        // The layout codec 1 stored: points without σ.
+        #[derive(Serialize)]
+        struct Point(f64, f64, f64);
+        #[derive(Serialize)]
+        struct V1(DtaSource, f64, Point, Point, f64, f64, Option<DtaStatus>);
+        let bytes = postcard::to_allocvec(&V1(
+            DtaSource::Laser,
+            12.5,
+            Point(16.7, 20.0, -3.0),
+            Point(7.4, 18.0, -2.0),
+            0.215,
+            -0.1,
+            Some(DtaStatus::Ok),
+        ))
+        .unwrap();
+        let d = Dta::decode(1, &bytes).unwrap();
+        assert_eq!(d.front.horizontal_mm, 20.0);
+        assert_eq!(d.rear.vertical_mm, -2.0);
+        assert_eq!(d.front.sigma_horizontal_mm, None);
+        assert_eq!(d.status, Some(DtaStatus::Ok));
+        assert!(Dta::decode(CODEC_VERSION + 1, &bytes).is_err());
+        // This release's form round-trips.
+        assert_eq!(Dta::decode(CODEC_VERSION, &Dta::encode(&d)).unwrap(), d);
+    }
 }

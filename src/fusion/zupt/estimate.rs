@@ -220,3 +220,67 @@ impl From<ZuptEstimateV2> for ZuptEstimate {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_estimate_stored_before_the_attitude_sigma_still_reads() {
+        // Codec 2's layout: the current fields without `attitude_sigma_deg`.
+        #[derive(Serialize)]
+        struct V2 {
+            zv: bool,
+            position_m: [f64; 3],
+            distance_m: f64,
+            velocity_mps: [f64; 3],
+            pitch_deg: f64,
+            roll_deg: f64,
+            yaw_deg: f64,
+            aligned: bool,
+            position_sigma_m: [f64; 3],
+            height_m: Option<f64>,
+            odometer_m: Option<f64>,
+            mv_ratio: f64,
+            are_ratio: f64,
+            shoe_ratio: f64,
+            mag_ratio: f64,
+            yaw_sigma_deg: Option<f64>,
+            smoothed_push: Option<Vec<TrackPoint>>,
+        }
+        let bytes = postcard::to_allocvec(&V2 {
+            zv: true,
+            position_m: [1.0, 2.0, 3.0],
+            distance_m: 2.5,
+            velocity_mps: [0.0; 3],
+            pitch_deg: 0.5,
+            roll_deg: -0.2,
+            yaw_deg: 30.0,
+            aligned: true,
+            position_sigma_m: [0.01, 0.01, 0.002],
+            height_m: Some(12.0),
+            odometer_m: None,
+            mv_ratio: 0.3,
+            are_ratio: 0.4,
+            shoe_ratio: 0.2,
+            mag_ratio: 0.1,
+            yaw_sigma_deg: Some(0.4),
+            smoothed_push: None,
+        })
+        .unwrap();
+        for version in [0, 2] {
+            let z = ZuptEstimate::decode(version, &bytes).unwrap();
+            assert_eq!(z.yaw_sigma_deg, Some(0.4));
+            assert_eq!(z.height_m, Some(12.0));
+            assert_eq!(z.attitude_sigma_deg, None);
+        }
+        let current = ZuptEstimate {
+            attitude_sigma_deg: Some([0.04, 0.05, 0.4]),
+            ..ZuptEstimate::decode(2, &bytes).unwrap()
+        };
+        assert_eq!(
+            ZuptEstimate::decode(CODEC_VERSION, &current.encode()).unwrap(),
+            current
+        );
+    }
+}
