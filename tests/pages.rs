@@ -242,11 +242,11 @@ fn check_vehicle(estimates: &[Value]) {
 
 /// Every demo drive follows a design axis: its `dta` stream comes from
 /// the right source, near the axis (the TBMs' simulated deviations stay
-/// within 2.2 × the warn limit; the INS machine drives the axis itself).
+/// within 1.8 × the warn limit; the INS machine drives the axis itself).
 fn check_dta(id: &str, estimates: &[Value]) {
     let (source, within_mm) = match id {
         "pipejack-ins" => ("zupt", 30.0),
-        "tbm-south" => ("laser", 130.0),
+        "tbm-south" => ("laser", 100.0),
         _ => ("laser", 80.0),
     };
     assert!(

@@ -8,7 +8,7 @@
 //! 1-minute laser period shows up every few seconds. Each machine drives
 //! its declared design axis (curves with spirals, a compound curve,
 //! vertical curves): the laser-guided ones with a deviation that drifts
-//! towards the warn limit (tbm-south's past the alarm limit) and is
+//! towards the warn limit (tbm-south's past it, often) and is
 //! steered back, the INS machine along its straight axis, so its
 //! deviation is the INS's own error. One machine's laser is blocked for
 //! 20 minutes of every hour; the INS machine advances at 2 mm/s and stops
@@ -420,7 +420,7 @@ const DEMO_LASER_PERIOD_S: f64 = 60.0;
 /// What a demo TBM drives: its declared axis and geometry, strokes and
 /// ring builds quicker than a real TBM's (1.5 m per 12–20 min) so that at
 /// the demo's clock the deviation visibly drifts towards the warn limit
-/// (tbm-south's past the alarm) and is steered back within minutes.
+/// (tbm-south's past it, often) and is steered back within minutes.
 fn axis_scenario(gateway: &Gateway, machines: &[MachineSpec]) -> Option<AxisDriveScenario> {
     if gateway.kind != Kind::Tbm {
         return None;
@@ -434,7 +434,7 @@ fn axis_scenario(gateway: &Gateway, machines: &[MachineSpec]) -> Option<AxisDriv
         tolerances: spec.tolerances?,
         start_station_m: alignment.start_station_m + length_m + 2.0,
         peak_fraction: if gateway.machine == "tbm-south" {
-            2.2
+            1.8
         } else {
             1.3
         },
