@@ -210,6 +210,47 @@ async fn an_axis_is_set_as_landxml_or_json_and_read_back() {
         "{error}"
     );
 
+    // Station equations in the LandXML are read and kept in the JSON.
+    let rechained = xml.replacen(
+        "<CoordGeom>",
+        r#"<StaEquation staBack="100.0" staAhead="1100.0" staInternal="100.0"/><CoordGeom>"#,
+        1,
+    );
+    let response = client
+        .put(&url)
+        .header("content-type", "application/xml")
+        .body(rechained)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(response.status(), 200);
+    let shown = get_json(&client, &base, "/api/v1/machines/tbm-axis/alignment").await;
+    assert_eq!(
+        shown["station_equations"][0]["station_ahead_m"], 1100.0,
+        "{shown}"
+    );
+    let axis = get_json(
+        &client,
+        &base,
+        "/api/v1/machines/tbm-axis/alignment/axis?step_m=50",
+    )
+    .await;
+    let last = axis["points"].as_array().unwrap().last().unwrap().clone();
+    assert_eq!(
+        (
+            last["internal_station_m"].as_f64(),
+            last["station_m"].as_f64()
+        ),
+        (Some(250.0), Some(1250.0))
+    );
+    let response = client
+        .put(&url)
+        .body(twin.to_string())
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(response.status(), 200);
+
     // The axis sampled for drawing: every 50 m and each element's start
     // (40, 70, 120, 150 m); 25 m along the first line at 30° from
     // (1000, 5000) is (1012.5, 5021.650635), on the 0.5 % grade from 50 m.

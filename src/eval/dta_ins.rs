@@ -86,6 +86,7 @@ impl StraightAxis {
                 pvis: Vec::new(),
                 end_grade_pct: self.grade_pct,
             },
+            station_equations: Vec::new(),
         }
     }
 

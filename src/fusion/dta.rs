@@ -296,7 +296,7 @@ impl DtaStage {
             let d = alignment.deviation(e, n, h).ok()?;
             let sigma = match uncertainty {
                 Some(u) => {
-                    let (pose, _) = alignment.axis_at(d.station_m)?;
+                    let (pose, _) = alignment.axis_at(d.internal_station_m)?;
                     let (h, v) = u.of_point(ned, pose.azimuth_rad);
                     (Some(h), Some(v))
                 }

@@ -187,6 +187,7 @@ impl AxisDriveScenario {
                 pvis,
                 end_grade_pct: rng.random_range(-2.0..2.0),
             },
+            station_equations: Vec::new(),
         };
         let shield_m = rng.random_range(6.0..12.0);
         let front_x = rng.random_range(0.3..0.7) * shield_m;

@@ -130,16 +130,6 @@ pub fn parse(text: &str) -> Result<Alignment, LandXmlError> {
         .descendants()
         .find(|n| n.is_element() && local(n) == "Alignment")
         .ok_or_else(|| LandXmlError::Missing("no <Alignment> element".into()))?;
-    if document
-        .descendants()
-        .any(|n| n.is_element() && local(&n) == "StaEquation")
-    {
-        return Err(LandXmlError::Missing(
-            "the alignment has station equations (<StaEquation>), which this release does not read: \
-             declare it without them or as JSON"
-                .into(),
-        ));
-    }
     let name = alignment.attribute("name").unwrap_or("").to_string();
     let coord_geom = children(alignment, "CoordGeom")
         .next()
@@ -148,11 +138,40 @@ pub fn parse(text: &str) -> Result<Alignment, LandXmlError> {
     let elements = coord_geom_elements(coord_geom, start_station)?;
     let profile = profile(alignment, start_station)?;
     profile.validate().map_err(AlignmentError::from)?;
-    Ok(Alignment {
+    let equations = station_equations(alignment)?;
+    let alignment = Alignment {
         name,
         elements,
         profile,
-    })
+        equations,
+    };
+    let (start, end) = alignment.station_range_m();
+    crate::fusion::alignment::check_equations(&alignment.equations, start, end)?;
+    Ok(alignment)
+}
+
+/// The alignment's `StaEquation`s (`staInternal`, `staAhead`, `staBack`),
+/// in increasing internal station as LandXML lists them.
+fn station_equations(
+    alignment: Node,
+) -> Result<Vec<crate::fusion::alignment::StationEquation>, LandXmlError> {
+    children(alignment, "StaEquation")
+        .enumerate()
+        .map(|(index, node)| {
+            let label = format!("<StaEquation> {index}");
+            let required = |name: &str| {
+                attribute(node, name, &label)?.ok_or_else(|| LandXmlError::Element {
+                    element: label.clone(),
+                    reason: format!("no {name}"),
+                })
+            };
+            Ok(crate::fusion::alignment::StationEquation {
+                station_internal_m: required("staInternal")?,
+                station_ahead_m: required("staAhead")?,
+                station_back_m: attribute(node, "staBack", &label)?,
+            })
+        })
+        .collect()
 }
 
 fn coord_geom_elements(coord_geom: Node, start_station: f64) -> Result<Vec<Element>, LandXmlError> {
@@ -401,6 +420,49 @@ mod tests {
                 assert!((a.vertical_m - b.vertical_m).abs() < 1e-4, "{station}");
             }
         }
+    }
+
+    #[test]
+    fn station_equations_are_read_and_the_stationing_follows_them() {
+        // Re-chained at internal station 100: from there it reads 1100.
+        let with = S1_XML.replacen(
+            "<CoordGeom>",
+            r#"<StaEquation staBack="100.000" staAhead="1100.000" staInternal="100.000" desc="re-chainage"/>
+      <CoordGeom>"#,
+            1,
+        );
+        let alignment = parse(&with).unwrap();
+        assert_eq!(alignment.equations.len(), 1);
+        assert_eq!(alignment.equations[0].station_back_m, Some(100.0));
+        let (pose, _) = alignment.axis_at(130.0).unwrap();
+        let d = alignment
+            .deviation(pose.easting_m, pose.northing_m, 50.0)
+            .unwrap();
+        assert!((d.internal_station_m - 130.0).abs() < 1e-6, "{d:?}");
+        assert!((d.station_m - 1130.0).abs() < 1e-6, "{d:?}");
+        let before = alignment.axis_at(60.0).unwrap().0;
+        let d = alignment
+            .deviation(before.easting_m, before.northing_m, 50.0)
+            .unwrap();
+        assert!((d.station_m - 60.0).abs() < 1e-6, "{d:?}");
+        // The JSON twin carries them.
+        assert_eq!(
+            alignment.to_spec().build().unwrap().equations,
+            alignment.equations
+        );
+
+        let no_ahead = with.replacen(r#" staAhead="1100.000""#, "", 1);
+        let err = parse(&no_ahead).unwrap_err().to_string();
+        assert!(
+            err.contains("<StaEquation> 0") && err.contains("staAhead"),
+            "{err}"
+        );
+        let beyond = with.replacen(r#"staInternal="100.000""#, r#"staInternal="400.000""#, 1);
+        let err = parse(&beyond).unwrap_err().to_string();
+        assert!(
+            err.contains("station equation 0") && err.contains("400"),
+            "{err}"
+        );
     }
 
     #[test]

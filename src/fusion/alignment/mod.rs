@@ -6,7 +6,9 @@
 //! The JSON form is the protocol's ("Design axis and deviation"): project
 //! coordinates in metres, azimuth in degrees clockwise from grid north,
 //! radius + for a curve to the right looking along increasing station,
-//! `null` for straight.
+//! `null` for straight. Stations are internal (continuous from the
+//! start); station equations, if any, turn them into the stationing the
+//! drawings use, which is what the `dta` stream reports.
 
 pub mod horizontal;
 pub mod landxml;
@@ -68,6 +70,23 @@ pub struct AlignmentSpec {
     pub start: StartPose,
     pub horizontal: Vec<ElementSpec>,
     pub vertical: ProfileSpec,
+    /// Where the stationing jumps (tunnelnav extension; LandXML's
+    /// `StaEquation`), in increasing internal station. Every other station
+    /// of the declaration is internal: continuous from `start_station_m`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub station_equations: Vec<StationEquation>,
+}
+
+/// A station equation: from `station_internal_m` on, the station reads
+/// `station_ahead_m` plus the distance past it (the station back, before
+/// the equation, is informative only).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StationEquation {
+    pub station_internal_m: f64,
+    pub station_ahead_m: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub station_back_m: Option<f64>,
 }
 
 /// Why an alignment was refused.
@@ -85,6 +104,8 @@ pub enum AlignmentError {
     },
     #[error("vertical profile: {0}")]
     Profile(#[from] ProfileError),
+    #[error("station equation {index}: {reason}")]
+    Equation { index: usize, reason: String },
 }
 
 /// A validated alignment, its elements placed.
@@ -93,12 +114,18 @@ pub struct Alignment {
     pub name: String,
     pub elements: Vec<Element>,
     pub profile: Profile,
+    /// In increasing internal station.
+    pub equations: Vec<StationEquation>,
 }
 
 /// Where a point lies against the axis.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Deviation {
+    /// The station of the perpendicular foot as the stationing reads (its
+    /// station equations applied).
     pub station_m: f64,
+    /// The same, continuous from the start (what the geometry is in).
+    pub internal_station_m: f64,
     /// + right of the axis looking along increasing station, m.
     pub horizontal_m: f64,
     /// + above the design height at that station, m.
@@ -108,7 +135,9 @@ pub struct Deviation {
 /// A point of the axis, for drawing it.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct AxisPoint {
+    /// As the stationing reads (station equations applied).
     pub station_m: f64,
+    pub internal_station_m: f64,
     pub easting_m: f64,
     pub northing_m: f64,
     /// Design height at the station.
@@ -124,6 +153,34 @@ fn curvature(radius_m: Option<f64>) -> Result<f64, String> {
             "radius {r} is not a radius: a non-zero number of metres, + right, or null for straight"
         )),
     }
+}
+
+/// Station equations in increasing internal station strictly inside
+/// (`start_m`, `end_m`), their stations finite.
+pub fn check_equations(
+    equations: &[StationEquation],
+    start_m: f64,
+    end_m: f64,
+) -> Result<(), AlignmentError> {
+    let mut previous = start_m;
+    for (index, e) in equations.iter().enumerate() {
+        let refuse = |reason: String| AlignmentError::Equation { index, reason };
+        if ![e.station_internal_m, e.station_ahead_m]
+            .iter()
+            .all(|x| x.is_finite())
+            || e.station_back_m.is_some_and(|b| !b.is_finite())
+        {
+            return Err(refuse("stations must be finite numbers".into()));
+        }
+        if e.station_internal_m <= previous || e.station_internal_m >= end_m {
+            return Err(refuse(format!(
+                "internal station {} is not after the previous equation (or the start, {previous}) and before the end ({end_m})",
+                e.station_internal_m
+            )));
+        }
+        previous = e.station_internal_m;
+    }
+    Ok(())
 }
 
 impl AlignmentSpec {
@@ -213,10 +270,12 @@ impl AlignmentSpec {
             return Err(AlignmentError::Start("start height must be finite".into()));
         }
         profile.validate()?;
+        check_equations(&self.station_equations, self.start_station_m, station)?;
         Ok(Alignment {
             name: self.name.clone(),
             elements,
             profile,
+            equations: self.station_equations.clone(),
         })
     }
 }
@@ -257,10 +316,25 @@ impl Alignment {
                 pvis: self.profile.pvis.clone(),
                 end_grade_pct: self.profile.end_grade * 100.0,
             },
+            station_equations: self.equations.clone(),
         }
     }
 
-    /// Station of the start and the end.
+    /// The station as the stationing reads at `internal_m`: past the last
+    /// equation at or before it, its station ahead plus the distance since.
+    pub fn station_of(&self, internal_m: f64) -> f64 {
+        match self
+            .equations
+            .iter()
+            .rev()
+            .find(|e| e.station_internal_m <= internal_m)
+        {
+            Some(e) => e.station_ahead_m + (internal_m - e.station_internal_m),
+            None => internal_m,
+        }
+    }
+
+    /// Internal station of the start and the end.
     pub fn station_range_m(&self) -> (f64, f64) {
         let first = self.elements.first().map_or(0.0, |e| e.start_station_m);
         let last = self
@@ -270,7 +344,7 @@ impl Alignment {
         (first, last)
     }
 
-    /// The axis at `station_m`: its pose and design height.
+    /// The axis at internal station `station_m`: its pose and design height.
     pub fn axis_at(&self, station_m: f64) -> Option<(Pose, f64)> {
         let element = self
             .elements
@@ -285,8 +359,8 @@ impl Alignment {
         ))
     }
 
-    /// The axis every `step_m` of station from its start, at every element's
-    /// start and at its end (stations ascending, none twice).
+    /// The axis every `step_m` of internal station from its start, at every
+    /// element's start and at its end (ascending, none twice).
     pub fn sampled(&self, step_m: f64) -> Vec<AxisPoint> {
         let (start, end) = self.station_range_m();
         let mut stations: Vec<f64> = self.elements.iter().map(|e| e.start_station_m).collect();
@@ -302,7 +376,8 @@ impl Alignment {
             .filter_map(|station_m| {
                 let (pose, height_m) = self.axis_at(station_m)?;
                 Some(AxisPoint {
-                    station_m,
+                    station_m: self.station_of(station_m),
+                    internal_station_m: station_m,
                     easting_m: pose.easting_m,
                     northing_m: pose.northing_m,
                     height_m,
@@ -320,7 +395,8 @@ impl Alignment {
     ) -> Result<Deviation, ProjectionError> {
         let foot = horizontal::project(&self.elements, easting_m, northing_m)?;
         Ok(Deviation {
-            station_m: foot.station_m,
+            station_m: self.station_of(foot.station_m),
+            internal_station_m: foot.station_m,
             horizontal_m: foot.offset_m,
             vertical_m: height_m - self.profile.height_at(foot.station_m),
         })
@@ -423,5 +499,65 @@ mod tests {
         assert!((p.easting_m - 1012.5).abs() < 1e-9, "{p:?}");
         assert!((p.northing_m - 5_021.650_635_094_61).abs() < 1e-9, "{p:?}");
         assert!((p.height_m - 50.125).abs() < 1e-9, "{p:?}");
+    }
+
+    #[test]
+    fn station_equations_renumber_the_stationing_after_them() {
+        let mut spec: AlignmentSpec = serde_json::from_str(S1).unwrap();
+        // Chainage 0+000 to 0+100, then (an overlap) 0+080 onwards, then
+        // 1+000 from internal 200.
+        spec.station_equations = vec![
+            StationEquation {
+                station_internal_m: 100.0,
+                station_ahead_m: 80.0,
+                station_back_m: Some(100.0),
+            },
+            StationEquation {
+                station_internal_m: 200.0,
+                station_ahead_m: 1000.0,
+                station_back_m: None,
+            },
+        ];
+        let alignment = spec.build().unwrap();
+        for (internal, reads) in [
+            (0.0, 0.0),
+            (99.0, 99.0),
+            (100.0, 80.0),
+            (150.0, 130.0),
+            (200.0, 1000.0),
+            (250.0, 1050.0),
+        ] {
+            assert!(
+                (alignment.station_of(internal) - reads).abs() < 1e-12,
+                "{internal}"
+            );
+        }
+        let points = alignment.sampled(50.0);
+        let last = points.last().unwrap();
+        assert_eq!((last.internal_station_m, last.station_m), (250.0, 1050.0));
+        // Round trip through the JSON; a missing field reads as none.
+        let json = serde_json::to_string(&alignment.to_spec()).unwrap();
+        assert_eq!(
+            serde_json::from_str::<AlignmentSpec>(&json)
+                .unwrap()
+                .build()
+                .unwrap(),
+            alignment
+        );
+        assert!(
+            serde_json::from_str::<AlignmentSpec>(S1)
+                .unwrap()
+                .station_equations
+                .is_empty()
+        );
+        // Out of order, at the start, past the end, not a number: refused.
+        for internal in [0.0, 260.0, f64::NAN] {
+            spec.station_equations[0].station_internal_m = internal;
+            let err = spec.build().unwrap_err().to_string();
+            assert!(err.starts_with("station equation 0"), "{err}");
+        }
+        spec.station_equations[0].station_internal_m = 220.0;
+        let err = spec.build().unwrap_err().to_string();
+        assert!(err.starts_with("station equation 1"), "{err}");
     }
 }
