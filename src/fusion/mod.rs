@@ -3,6 +3,7 @@
 //! arrives with each reading, so the server, `replay` and the tests run the
 //! very same code and get the very same estimates.
 
+pub mod alarms;
 pub mod alignment;
 pub mod angles;
 pub mod attitude;

@@ -1,0 +1,674 @@
+//! Alarm rules: pure functions of a machine's readings, estimates and the
+//! server clock's ticks, deciding when an alarm is raised and when it
+//! clears (the shell stores, acknowledges, notifies). Kinds:
+//! - `deviation`: the `dta` stream beyond the warn or alarm tolerance;
+//! - `laser_dropout`: the `attitude` engine's laser sample older than a
+//!   limit;
+//! - `stale_sensor`: a sensor silent for more than N of its own periods,
+//!   learned from its readings ([`period`]);
+//! - `ins_uncertainty`: the `zupt` position's horizontal 1σ above a limit;
+//! - `engine_reset`: the `zupt` engine lost its solution and re-aligns.
+//!
+//! Values at a limit do not flap: a limit must be undercut by a band
+//! before it counts as cleared, and a condition must hold (or be gone) for
+//! a minimum time ([`debounce`]).
+
+pub mod debounce;
+pub mod period;
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+use self::debounce::{Debounced, Edge, Hysteresis};
+use self::period::LearnedPeriod;
+use super::dta::{DtaEstimate, Tolerances};
+use super::estimate::{EngineOutput, EstimateValues};
+use super::reading::{Reading, SensorKind};
+
+/// What an alarm is about.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AlarmKind {
+    Deviation,
+    LaserDropout,
+    StaleSensor,
+    InsUncertainty,
+    EngineReset,
+}
+
+impl AlarmKind {
+    /// The protocol's name.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            AlarmKind::Deviation => "deviation",
+            AlarmKind::LaserDropout => "laser_dropout",
+            AlarmKind::StaleSensor => "stale_sensor",
+            AlarmKind::InsUncertainty => "ins_uncertainty",
+            AlarmKind::EngineReset => "engine_reset",
+        }
+    }
+}
+
+/// How bad.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Severity {
+    Warn,
+    Alarm,
+}
+
+/// One alarm of a machine: its kind, severity and what it concerns (a
+/// sensor's name for `stale_sensor`, else empty). At most one alarm per
+/// key is active at a time.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+pub struct AlarmKey {
+    pub kind: AlarmKind,
+    pub severity: Severity,
+    pub subject: String,
+}
+
+/// An alarm raised or cleared.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Transition {
+    pub key: AlarmKey,
+    /// True: raised; false: cleared.
+    pub raised: bool,
+    /// When the condition began (raised) or ended (cleared), s.
+    pub t: f64,
+    /// For the operator: what is wrong (raised) or that it is over.
+    pub message: String,
+}
+
+/// The rules' settings (a machine declaration's `alarms`), with defaults
+/// that need no site tuning: the periods are learned, the tolerances
+/// are the machine's.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct AlarmConfig {
+    /// A condition must hold this long before it is raised, and be gone
+    /// this long before it clears, s.
+    pub min_duration_s: f64,
+    /// Below a limit by this fraction of it before a value counts as back.
+    pub hysteresis_fraction: f64,
+    /// Laser sample older than this: `laser_dropout` warn, then alarm, s.
+    pub laser_dropout_warn_s: f64,
+    pub laser_dropout_alarm_s: f64,
+    /// A sensor silent for this many of its periods (and at least
+    /// `stale_min_s`): `stale_sensor`.
+    pub stale_periods: f64,
+    pub stale_min_s: f64,
+    /// The INS's horizontal position 1σ above this: `ins_uncertainty`, mm.
+    pub ins_sigma_warn_mm: f64,
+    pub ins_sigma_alarm_mm: f64,
+}
+
+impl Default for AlarmConfig {
+    fn default() -> Self {
+        AlarmConfig {
+            min_duration_s: 10.0,
+            hysteresis_fraction: 0.1,
+            laser_dropout_warn_s: 300.0,
+            laser_dropout_alarm_s: 1800.0,
+            stale_periods: 5.0,
+            stale_min_s: 10.0,
+            ins_sigma_warn_mm: 100.0,
+            ins_sigma_alarm_mm: 250.0,
+        }
+    }
+}
+
+impl AlarmConfig {
+    /// What is wrong with the settings, if anything.
+    pub fn validate(&self) -> Result<(), String> {
+        let fields = [
+            ("min_duration_s", self.min_duration_s),
+            ("hysteresis_fraction", self.hysteresis_fraction),
+            ("laser_dropout_warn_s", self.laser_dropout_warn_s),
+            ("laser_dropout_alarm_s", self.laser_dropout_alarm_s),
+            ("stale_periods", self.stale_periods),
+            ("stale_min_s", self.stale_min_s),
+            ("ins_sigma_warn_mm", self.ins_sigma_warn_mm),
+            ("ins_sigma_alarm_mm", self.ins_sigma_alarm_mm),
+        ];
+        for (name, value) in fields {
+            if !(value.is_finite() && value >= 0.0) {
+                return Err(format!("alarms.{name} = {value} is not a number ≥ 0"));
+            }
+        }
+        if self.hysteresis_fraction >= 1.0 {
+            return Err("alarms.hysteresis_fraction must be below 1".into());
+        }
+        if self.laser_dropout_alarm_s < self.laser_dropout_warn_s
+            || self.ins_sigma_alarm_mm < self.ins_sigma_warn_mm
+        {
+            return Err("alarms: each alarm limit must be at or above its warn limit".into());
+        }
+        if self.stale_periods < 1.0 {
+            return Err("alarms.stale_periods must be at least 1".into());
+        }
+        Ok(())
+    }
+}
+
+/// A limit-crossing rule's state: whether the value is beyond the limit
+/// (with hysteresis) and the debounced alarm.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+struct Level {
+    beyond: bool,
+    alarm: Debounced,
+}
+
+impl Level {
+    fn update(&mut self, t: f64, value: f64, limit: Hysteresis, min_s: f64) -> Option<Edge> {
+        self.beyond = limit.exceeded(value, self.beyond);
+        self.alarm.update(t, self.beyond, min_s)
+    }
+}
+
+/// What the rules remember (part of the machine's snapshot).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct AlarmState {
+    /// Deviation, laser dropout, INS σ: [warn, alarm] each.
+    deviation: [Level; 2],
+    laser: [Level; 2],
+    ins: [Level; 2],
+    reset: Debounced,
+    was_aligned: bool,
+    sensors: BTreeMap<SensorKind, (LearnedPeriod, Debounced)>,
+}
+
+/// The rules of one machine.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AlarmRules {
+    config: AlarmConfig,
+    tolerances: Option<Tolerances>,
+    state: AlarmState,
+}
+
+const SEVERITIES: [Severity; 2] = [Severity::Warn, Severity::Alarm];
+
+fn key(kind: AlarmKind, severity: Severity, subject: &str) -> AlarmKey {
+    AlarmKey {
+        kind,
+        severity,
+        subject: subject.to_string(),
+    }
+}
+
+fn push(out: &mut Vec<Transition>, key: AlarmKey, edge: Edge, raised: String, cleared: String) {
+    out.push(match edge {
+        Edge::Raised { onset_t } => Transition {
+            key,
+            raised: true,
+            t: onset_t,
+            message: raised,
+        },
+        Edge::Cleared { gone_t } => Transition {
+            key,
+            raised: false,
+            t: gone_t,
+            message: cleared,
+        },
+    });
+}
+
+impl AlarmRules {
+    /// Rules with `config` for a machine with `tolerances` (none: no
+    /// deviation alarms), from a fresh state or a snapshot's.
+    pub fn new(
+        config: AlarmConfig,
+        tolerances: Option<Tolerances>,
+        state: AlarmState,
+    ) -> AlarmRules {
+        AlarmRules {
+            config,
+            tolerances,
+            state,
+        }
+    }
+
+    /// The state to snapshot.
+    pub fn state(&self) -> &AlarmState {
+        &self.state
+    }
+
+    /// A reading: its sensor's period and newest time; a stale sensor
+    /// that speaks again clears (after the minimum time's readings).
+    pub fn reading(&mut self, reading: &Reading, out: &mut Vec<Transition>) {
+        let sensor = reading.sensor();
+        let (period, stale) = self.state.sensors.entry(sensor).or_default();
+        period.add(reading.t);
+        if let Some(edge) = stale.update(reading.t, false, 0.0) {
+            push(
+                out,
+                key(AlarmKind::StaleSensor, Severity::Alarm, sensor.as_str()),
+                edge,
+                String::new(),
+                format!("{sensor} readings again"),
+            );
+        }
+    }
+
+    /// The server clock at `now_t`: sensors silent for too long.
+    pub fn tick(&mut self, now_t: f64, out: &mut Vec<Transition>) {
+        let c = self.config;
+        for (sensor, (period, stale)) in &mut self.state.sensors {
+            let (Some(last_t), Some(period_s)) = (period.last_t, period.period_s()) else {
+                continue;
+            };
+            let limit_s = (c.stale_periods * period_s).max(c.stale_min_s);
+            let silent_s = now_t - last_t;
+            if silent_s > limit_s
+                && let Some(edge) = stale.update(last_t + limit_s, true, 0.0)
+            {
+                push(
+                    out,
+                    key(AlarmKind::StaleSensor, Severity::Alarm, sensor.as_str()),
+                    edge,
+                    format!(
+                        "no {sensor} reading for {silent_s:.0} s (it reads every {period_s:.2} s)"
+                    ),
+                    String::new(),
+                );
+            }
+        }
+    }
+
+    /// An engine's or stage's estimate.
+    pub fn estimate(&mut self, estimate: &EngineOutput, out: &mut Vec<Transition>) {
+        let t = estimate.t;
+        let c = self.config;
+        match &estimate.values {
+            EstimateValues::Dta(d) => self.deviation(t, d, out),
+            EstimateValues::Attitude(a) => {
+                let Some(age_s) = a.laser_age_s else { return };
+                let limits = [c.laser_dropout_warn_s, c.laser_dropout_alarm_s];
+                for (i, severity) in SEVERITIES.into_iter().enumerate() {
+                    // Time is the quantity itself: no minimum on top.
+                    let limit = Hysteresis {
+                        limit: limits[i],
+                        band: 0.0,
+                    };
+                    if let Some(edge) = self.state.laser[i].update(t, age_s, limit, 0.0) {
+                        push(
+                            out,
+                            key(AlarmKind::LaserDropout, severity, ""),
+                            edge,
+                            format!("no laser sample for over {:.0} min", limits[i] / 60.0),
+                            "laser samples again".into(),
+                        );
+                    }
+                }
+            }
+            EstimateValues::Zupt(z) => {
+                if z.aligned {
+                    let sigma_mm = z.position_sigma_m[0].hypot(z.position_sigma_m[1]) * 1000.0;
+                    let limits = [c.ins_sigma_warn_mm, c.ins_sigma_alarm_mm];
+                    for (i, severity) in SEVERITIES.into_iter().enumerate() {
+                        let limit = Hysteresis {
+                            limit: limits[i],
+                            band: c.hysteresis_fraction * limits[i],
+                        };
+                        if let Some(edge) =
+                            self.state.ins[i].update(t, sigma_mm, limit, c.min_duration_s)
+                        {
+                            push(
+                                out,
+                                key(AlarmKind::InsUncertainty, severity, ""),
+                                edge,
+                                format!(
+                                    "INS horizontal position 1σ {sigma_mm:.0} mm, over {:.0} mm: a check survey is due",
+                                    limits[i]
+                                ),
+                                format!(
+                                    "INS horizontal position 1σ back under {:.0} mm",
+                                    limits[i]
+                                ),
+                            );
+                        }
+                    }
+                }
+                let reset = self.state.was_aligned && !z.aligned;
+                self.state.was_aligned = z.aligned;
+                let holds = reset || (self.state.reset.active && !z.aligned);
+                if let Some(edge) = self.state.reset.update(t, holds, 0.0) {
+                    push(
+                        out,
+                        key(AlarmKind::EngineReset, Severity::Warn, "zupt"),
+                        edge,
+                        "the INS lost its navigation solution and is re-aligning: positions restart"
+                            .into(),
+                        "the INS is aligned again".into(),
+                    );
+                }
+            }
+            _ => {}
+        }
+    }
+
+    fn deviation(&mut self, t: f64, d: &DtaEstimate, out: &mut Vec<Transition>) {
+        let Some(tol) = self.tolerances else { return };
+        let c = self.config;
+        let points = [("front", &d.front), ("rear", &d.rear)];
+        for (i, severity) in SEVERITIES.into_iter().enumerate() {
+            let limit = |l: super::dta::Limits| if i == 0 { l.warn } else { l.alarm };
+            let (h, v) = (limit(tol.horizontal_mm), limit(tol.vertical_mm));
+            // The worst of the four against its own limit, as a ratio.
+            let mut worst = (0.0, String::new());
+            for (name, p) in points {
+                for (axis, value, lim) in [
+                    ("horizontal", p.horizontal_mm, h),
+                    ("vertical", p.vertical_mm, v),
+                ] {
+                    let ratio = if lim > 0.0 { value.abs() / lim } else { 0.0 };
+                    if ratio > worst.0 {
+                        worst = (
+                            ratio,
+                            format!("{name} {axis} {value:+.0} mm beyond ±{lim:.0} mm"),
+                        );
+                    }
+                }
+            }
+            let limit = Hysteresis {
+                limit: 1.0,
+                band: c.hysteresis_fraction,
+            };
+            if let Some(edge) = self.state.deviation[i].update(t, worst.0, limit, c.min_duration_s)
+            {
+                let word = if i == 0 { "warn" } else { "alarm" };
+                push(
+                    out,
+                    key(AlarmKind::Deviation, severity, ""),
+                    edge,
+                    format!(
+                        "deviation from the design axis: {} (the {word} tolerance)",
+                        worst.1
+                    ),
+                    format!("deviation back within the {word} tolerance"),
+                );
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fusion::dta::{DtaSource, Limits, PointDeviation};
+    use crate::fusion::reading::SensorData;
+    use crate::fusion::{AttitudeEstimate, ZuptEstimate};
+
+    fn rules() -> AlarmRules {
+        let tolerances = Tolerances {
+            horizontal_mm: Limits {
+                warn: 50.0,
+                alarm: 100.0,
+            },
+            vertical_mm: Limits {
+                warn: 30.0,
+                alarm: 60.0,
+            },
+        };
+        AlarmRules::new(
+            AlarmConfig::default(),
+            Some(tolerances),
+            AlarmState::default(),
+        )
+    }
+
+    fn dta(t: f64, front_h_mm: f64, rear_v_mm: f64) -> EngineOutput {
+        let point = |h, v| PointDeviation {
+            station_m: 10.0,
+            horizontal_mm: h,
+            vertical_mm: v,
+            sigma_horizontal_mm: None,
+            sigma_vertical_mm: None,
+        };
+        EngineOutput {
+            t,
+            values: EstimateValues::Dta(DtaEstimate {
+                source: DtaSource::Laser,
+                station_m: 10.0,
+                front: point(front_h_mm, 0.0),
+                rear: point(0.0, rear_v_mm),
+                tendency_horizontal_mm_per_m: 0.0,
+                tendency_vertical_mm_per_m: 0.0,
+                status: None,
+            }),
+        }
+    }
+
+    fn run(
+        rules: &mut AlarmRules,
+        outputs: impl IntoIterator<Item = EngineOutput>,
+    ) -> Vec<Transition> {
+        let mut out = Vec::new();
+        for o in outputs {
+            rules.estimate(&o, &mut out);
+        }
+        out
+    }
+
+    #[test]
+    fn deviation_is_raised_after_the_minimum_time_holds_at_the_limit_and_clears() {
+        let mut r = rules();
+        // 40 mm for 10 s, then 55 mm from t = 10: warn raised at t = 20,
+        // dated 10.
+        let mut out = run(&mut r, (0..10).map(|i| dta(f64::from(i), 40.0, 0.0)));
+        out.extend(run(&mut r, (10..=20).map(|i| dta(f64::from(i), 55.0, 0.0))));
+        assert_eq!(out.len(), 1, "{out:?}");
+        assert!(out[0].raised && out[0].t == 10.0);
+        assert_eq!(out[0].key, key(AlarmKind::Deviation, Severity::Warn, ""));
+        assert!(
+            out[0]
+                .message
+                .contains("front horizontal +55 mm beyond ±50 mm"),
+            "{}",
+            out[0].message
+        );
+        // Hovering 46–52 mm (above 45, the limit less its 10 %): no flapping.
+        let hover = (21..60).map(|i| dta(f64::from(i), if i % 2 == 0 { 46.0 } else { 52.0 }, 0.0));
+        assert!(run(&mut r, hover).is_empty());
+        // Back to 40 mm at t = 60: cleared at t = 70, dated 60.
+        let out = run(&mut r, (60..=70).map(|i| dta(f64::from(i), 40.0, 0.0)));
+        assert_eq!(out.len(), 1, "{out:?}");
+        assert!(!out[0].raised && out[0].t == 60.0);
+        // The rear 70 mm low: beyond the vertical alarm limit (60): warn and
+        // alarm both, once each.
+        let out = run(&mut r, (71..=100).map(|i| dta(f64::from(i), 0.0, -70.0)));
+        let raised: Vec<_> = out
+            .iter()
+            .filter(|t| t.raised)
+            .map(|t| t.key.severity)
+            .collect();
+        assert_eq!(raised, [Severity::Warn, Severity::Alarm], "{out:?}");
+        assert!(
+            out[1]
+                .message
+                .contains("rear vertical -70 mm beyond ±60 mm"),
+            "{}",
+            out[1].message
+        );
+    }
+
+    #[test]
+    fn without_tolerances_there_is_no_deviation_alarm() {
+        let mut r = AlarmRules::new(AlarmConfig::default(), None, AlarmState::default());
+        assert!(run(&mut r, (0..100).map(|i| dta(f64::from(i), 500.0, 500.0))).is_empty());
+    }
+
+    fn attitude(t: f64, laser_age_s: Option<f64>) -> EngineOutput {
+        EngineOutput {
+            t,
+            values: EstimateValues::Attitude(AttitudeEstimate {
+                pitch_deg: 0.0,
+                roll_deg: 0.0,
+                pitch_pred_deg: 0.0,
+                roll_pred_deg: 0.0,
+                pred_t: t,
+                laser_ok: laser_age_s.is_some_and(|a| a < 300.0),
+                pitch_correction_deg: 0.0,
+                laser_age_s,
+                model_version: 0,
+                incl_pitch_deg: 0.0,
+                incl_roll_deg: 0.0,
+            }),
+        }
+    }
+
+    #[test]
+    fn a_laser_dropout_warns_after_five_minutes_alarms_after_thirty_and_clears() {
+        let mut r = rules();
+        // No laser yet: nothing. Then the last sample at t = 100.
+        let mut out = run(&mut r, (0..100).map(|i| attitude(f64::from(i), None)));
+        out.extend(run(
+            &mut r,
+            (100..2000).map(|i| attitude(f64::from(i), Some(f64::from(i) - 100.0))),
+        ));
+        let raised: Vec<_> = out.iter().map(|t| (t.key.severity, t.t)).collect();
+        // Older than 300 s first at t = 401, than 1800 s at t = 1901.
+        assert_eq!(raised, [(Severity::Warn, 401.0), (Severity::Alarm, 1901.0)]);
+        let out = run(&mut r, [attitude(2000.0, Some(0.5))]);
+        assert_eq!(out.len(), 2);
+        assert!(out.iter().all(|t| !t.raised && t.t == 2000.0));
+    }
+
+    fn inclinometer(t: f64) -> Reading {
+        Reading {
+            t,
+            data: SensorData::Inclinometer {
+                pitch_deg: 0.0,
+                roll_deg: 0.0,
+                temp_c: None,
+            },
+        }
+    }
+
+    #[test]
+    fn a_sensor_silent_for_five_of_its_periods_is_stale_until_it_reads_again() {
+        let mut r = rules();
+        let mut out = Vec::new();
+        // 2 s readings to t = 40: stale after max(5 × 2, 10) = 10 s.
+        for i in 0..=20 {
+            r.reading(&inclinometer(2.0 * f64::from(i)), &mut out);
+        }
+        r.tick(49.0, &mut out);
+        assert!(out.is_empty());
+        r.tick(51.0, &mut out);
+        r.tick(60.0, &mut out);
+        assert_eq!(out.len(), 1, "{out:?}");
+        assert!(out[0].raised && out[0].t == 50.0);
+        assert_eq!(
+            out[0].key,
+            key(AlarmKind::StaleSensor, Severity::Alarm, "inclinometer")
+        );
+        assert!(
+            out[0].message.contains("no inclinometer reading for 11 s"),
+            "{}",
+            out[0].message
+        );
+        r.reading(&inclinometer(61.0), &mut out);
+        assert_eq!(out.len(), 2);
+        assert!(!out[1].raised && out[1].t == 61.0);
+        // A sensor with fewer than three intervals is not judged.
+        let mut fresh = rules();
+        let mut out = Vec::new();
+        fresh.reading(&inclinometer(0.0), &mut out);
+        fresh.tick(1e6, &mut out);
+        assert!(out.is_empty());
+    }
+
+    fn zupt(t: f64, aligned: bool, sigma_m: f64) -> EngineOutput {
+        EngineOutput {
+            t,
+            values: EstimateValues::Zupt(ZuptEstimate {
+                zv: false,
+                position_m: [0.0; 3],
+                distance_m: 0.0,
+                velocity_mps: [0.0; 3],
+                pitch_deg: 0.0,
+                roll_deg: 0.0,
+                yaw_deg: 0.0,
+                aligned,
+                position_sigma_m: [sigma_m, sigma_m, 0.001],
+                height_m: None,
+                odometer_m: None,
+                mv_ratio: 0.0,
+                are_ratio: 0.0,
+                shoe_ratio: 0.0,
+                mag_ratio: 0.0,
+                yaw_sigma_deg: None,
+                attitude_sigma_deg: None,
+                smoothed_push: None,
+            }),
+        }
+    }
+
+    #[test]
+    fn the_ins_uncertainty_and_a_reset_are_raised_and_cleared() {
+        let mut r = rules();
+        // σ 60 mm per axis: 84.9 mm horizontally, under 100; 80 mm per
+        // axis from t = 5: 113 mm, warn raised at t = 15, dated 5.
+        let mut out = run(&mut r, (0..5).map(|i| zupt(f64::from(i), true, 0.060)));
+        out.extend(run(
+            &mut r,
+            (5..=15).map(|i| zupt(f64::from(i), true, 0.080)),
+        ));
+        assert_eq!(out.len(), 1, "{out:?}");
+        assert_eq!(
+            (out[0].key.kind, out[0].t),
+            (AlarmKind::InsUncertainty, 5.0)
+        );
+        // The engine loses its solution at t = 16: a reset at once; the
+        // uncertainty is not judged while unaligned; aligned again at 30.
+        let out = run(&mut r, (16..30).map(|i| zupt(f64::from(i), false, 0.0)));
+        assert_eq!(out.len(), 1, "{out:?}");
+        assert_eq!(
+            (out[0].key.kind, out[0].raised, out[0].t),
+            (AlarmKind::EngineReset, true, 16.0)
+        );
+        let out = run(&mut r, (30..45).map(|i| zupt(f64::from(i), true, 0.001)));
+        let cleared: Vec<_> = out.iter().map(|t| (t.key.kind, t.raised, t.t)).collect();
+        assert_eq!(
+            cleared,
+            [
+                (AlarmKind::EngineReset, false, 30.0),
+                (AlarmKind::InsUncertainty, false, 30.0)
+            ]
+        );
+    }
+
+    #[test]
+    fn the_state_survives_a_snapshot() {
+        let mut r = rules();
+        run(&mut r, (0..=20).map(|i| dta(f64::from(i), 55.0, 0.0)));
+        let json = serde_json::to_value(r.state()).unwrap();
+        let state: AlarmState = serde_json::from_value(json).unwrap();
+        let mut restored = AlarmRules::new(AlarmConfig::default(), r.tolerances, state);
+        assert_eq!(restored, r);
+        // Still active: no second raise.
+        assert!(
+            run(
+                &mut restored,
+                (21..40).map(|i| dta(f64::from(i), 55.0, 0.0))
+            )
+            .is_empty()
+        );
+    }
+
+    #[test]
+    fn bad_settings_are_named() {
+        let bad = AlarmConfig {
+            laser_dropout_alarm_s: 10.0,
+            ..AlarmConfig::default()
+        };
+        assert!(bad.validate().unwrap_err().contains("at or above"));
+        let bad = AlarmConfig {
+            min_duration_s: -1.0,
+            ..AlarmConfig::default()
+        };
+        assert!(bad.validate().unwrap_err().contains("min_duration_s"));
+        assert!(AlarmConfig::default().validate().is_ok());
+    }
+}
