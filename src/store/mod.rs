@@ -9,6 +9,7 @@
 //! beside the writer) and are blocking calls: async callers run them with
 //! `spawn_blocking`.
 
+pub mod alarms;
 pub mod codec;
 mod error;
 pub mod queries;
@@ -96,6 +97,8 @@ pub struct Write {
     pub machine_id: i64,
     pub readings: Vec<ReadingRow>,
     pub estimates: Vec<EstimateRow>,
+    /// Alarms these readings raised or cleared.
+    pub alarms: Vec<alarms::AlarmRow>,
     /// A snapshot of the machine's state after every reading written so far
     /// (including these) arrived.
     pub snapshot: Option<String>,
@@ -400,6 +403,7 @@ mod tests {
         store
             .write(Write {
                 machine_id,
+                alarms: Vec::new(),
                 readings,
                 estimates: Vec::new(),
                 snapshot: snapshot.map(str::to_string),
@@ -458,6 +462,7 @@ mod tests {
         let late = store
             .write(Write {
                 machine_id: id,
+                alarms: Vec::new(),
                 readings: vec![reading(5.0)],
                 estimates: Vec::new(),
                 snapshot: None,

@@ -377,6 +377,7 @@ mod tests {
             store
                 .write(Write {
                     machine_id: id,
+                    alarms: Vec::new(),
                     readings: Vec::new(),
                     estimates,
                     snapshot: None,

@@ -82,6 +82,27 @@ const MIGRATIONS: &[&str] = &[
     "
     ALTER TABLE estimates ADD COLUMN codec INTEGER NOT NULL DEFAULT 0;
     ",
+    // 4: alarms, raised, cleared and acknowledged in place (the audit log);
+    // a raise recomputed after a restart is stored once.
+    "
+    CREATE TABLE alarms (
+        id INTEGER PRIMARY KEY,
+        machine_id INTEGER NOT NULL REFERENCES machines(id),
+        -- deviation, laser_dropout, stale_sensor, ins_uncertainty, engine_reset
+        kind TEXT NOT NULL,
+        severity TEXT NOT NULL CHECK (severity IN ('warn', 'alarm')),
+        -- what it concerns (a sensor), or ''
+        subject TEXT NOT NULL,
+        message TEXT NOT NULL,
+        raised_t REAL NOT NULL,
+        cleared_t REAL,
+        acked_t REAL,
+        -- the acknowledging token's name
+        acked_by TEXT,
+        UNIQUE (machine_id, kind, severity, subject, raised_t)
+    );
+    CREATE INDEX alarms_open ON alarms(machine_id, cleared_t);
+    ",
 ];
 
 /// The schema version this build writes.

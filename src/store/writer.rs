@@ -224,6 +224,7 @@ fn apply_write(
                 .or_insert(point);
         }
     }
+    super::alarms::apply(tx, machine_id, &write.alarms)?;
     if let Some(state) = &write.snapshot {
         save_snapshot(tx, write.machine_id, state)?;
     }

@@ -1,0 +1,284 @@
+//! Alarms as stored: one row per raised alarm, cleared and acknowledged in
+//! place, so the table is also the audit log (who acknowledged what, when).
+//! Rows are written in the same transaction as the readings that raised or
+//! cleared them; a transition recomputed after a restart (the same machine,
+//! kind, severity, subject and time) is stored once.
+
+use rusqlite::{Connection, OptionalExtension, Row, params};
+use serde::Serialize;
+
+use super::{Store, StoreError};
+use crate::fusion::alarms::Transition;
+
+/// A raised or cleared alarm to write with its machine's readings.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AlarmRow {
+    pub kind: &'static str,
+    pub severity: &'static str,
+    pub subject: String,
+    pub raised: bool,
+    pub t: f64,
+    pub message: String,
+}
+
+impl AlarmRow {
+    /// The row of a transition.
+    pub fn new(transition: &Transition) -> AlarmRow {
+        AlarmRow {
+            kind: transition.key.kind.as_str(),
+            severity: match transition.key.severity {
+                crate::fusion::alarms::Severity::Warn => "warn",
+                crate::fusion::alarms::Severity::Alarm => "alarm",
+            },
+            subject: transition.key.subject.clone(),
+            raised: transition.raised,
+            t: transition.t,
+            message: transition.message.clone(),
+        }
+    }
+}
+
+/// A stored alarm, as the API lists it.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct StoredAlarm {
+    pub id: i64,
+    pub machine: String,
+    pub kind: String,
+    pub severity: String,
+    /// What it concerns (a sensor for `stale_sensor`), or empty.
+    pub subject: String,
+    pub message: String,
+    pub raised_t: f64,
+    pub cleared_t: Option<f64>,
+    pub acked_t: Option<f64>,
+    /// The name of the token that acknowledged it.
+    pub acked_by: Option<String>,
+}
+
+/// Writes `rows` of machine `machine_id` in `tx`: a raise inserts (once),
+/// a clear closes the open alarm of its key.
+pub(super) fn apply(
+    tx: &rusqlite::Transaction,
+    machine_id: i64,
+    rows: &[AlarmRow],
+) -> Result<(), StoreError> {
+    for row in rows {
+        if row.raised {
+            tx.prepare_cached(
+                "INSERT OR IGNORE INTO alarms (machine_id, kind, severity, subject, message, raised_t) \
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
+            )?
+            .execute(params![
+                machine_id,
+                row.kind,
+                row.severity,
+                row.subject,
+                row.message,
+                row.t
+            ])?;
+        } else {
+            tx.prepare_cached(
+                "UPDATE alarms SET cleared_t = ?5 WHERE machine_id = ?1 AND kind = ?2 \
+                 AND severity = ?3 AND subject = ?4 AND cleared_t IS NULL AND raised_t <= ?5",
+            )?
+            .execute(params![
+                machine_id,
+                row.kind,
+                row.severity,
+                row.subject,
+                row.t
+            ])?;
+        }
+    }
+    Ok(())
+}
+
+const COLUMNS: &str = "a.id, m.machine, a.kind, a.severity, a.subject, a.message, a.raised_t, \
+                       a.cleared_t, a.acked_t, a.acked_by";
+
+fn stored(row: &Row) -> rusqlite::Result<StoredAlarm> {
+    Ok(StoredAlarm {
+        id: row.get(0)?,
+        machine: row.get(1)?,
+        kind: row.get(2)?,
+        severity: row.get(3)?,
+        subject: row.get(4)?,
+        message: row.get(5)?,
+        raised_t: row.get(6)?,
+        cleared_t: row.get(7)?,
+        acked_t: row.get(8)?,
+        acked_by: row.get(9)?,
+    })
+}
+
+/// Which alarms to list.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct AlarmFilter {
+    /// One machine's (its protocol id), or every machine's.
+    pub machine: Option<String>,
+    /// Only those not cleared yet.
+    pub active_only: bool,
+}
+
+fn list(conn: &Connection, filter: &AlarmFilter) -> Result<Vec<StoredAlarm>, StoreError> {
+    let sql = format!(
+        "SELECT {COLUMNS} FROM alarms a JOIN machines m ON m.id = a.machine_id \
+         WHERE (?1 IS NULL OR m.machine = ?1) AND (?2 = 0 OR a.cleared_t IS NULL) \
+         ORDER BY a.raised_t DESC, a.id DESC"
+    );
+    let mut stmt = conn.prepare_cached(&sql)?;
+    let rows = stmt.query_map(params![filter.machine, filter.active_only], stored)?;
+    Ok(rows.collect::<Result<_, _>>()?)
+}
+
+fn by_id(conn: &Connection, id: i64) -> Result<Option<StoredAlarm>, StoreError> {
+    let sql = format!(
+        "SELECT {COLUMNS} FROM alarms a JOIN machines m ON m.id = a.machine_id WHERE a.id = ?1"
+    );
+    Ok(conn.query_row(&sql, [id], stored).optional()?)
+}
+
+impl Store {
+    /// The alarms `filter` asks for, newest first.
+    pub fn alarms(&self, filter: &AlarmFilter) -> Result<Vec<StoredAlarm>, StoreError> {
+        self.read(|conn| list(conn, filter))
+    }
+
+    /// Acknowledges alarm `id` by `by` at `t` (the first acknowledgement
+    /// stands); the alarm as it now is, or `None` if there is no such alarm.
+    pub async fn ack_alarm(
+        &self,
+        id: i64,
+        by: String,
+        t: f64,
+    ) -> Result<Option<StoredAlarm>, StoreError> {
+        self.maintain(move |conn| {
+            conn.execute(
+                "UPDATE alarms SET acked_t = ?2, acked_by = ?3 WHERE id = ?1 AND acked_t IS NULL",
+                params![id, t, by],
+            )?;
+            by_id(conn, id)
+        })
+        .await
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::MachineDeclaration;
+    use crate::store::Write;
+    use tokio::sync::oneshot;
+
+    fn row(kind: &'static str, subject: &str, raised: bool, t: f64) -> AlarmRow {
+        AlarmRow {
+            kind,
+            severity: "warn",
+            subject: subject.into(),
+            raised,
+            t,
+            message: format!("{kind} {raised} at {t}"),
+        }
+    }
+
+    async fn write(store: &Store, machine_id: i64, alarms: Vec<AlarmRow>) {
+        let (reply, answer) = oneshot::channel();
+        store
+            .write(Write {
+                machine_id,
+                alarms,
+                readings: Vec::new(),
+                estimates: Vec::new(),
+                snapshot: None,
+                after_commit: None,
+                reply: Some(reply),
+            })
+            .await
+            .unwrap();
+        answer.await.unwrap().unwrap();
+    }
+
+    #[tokio::test]
+    async fn alarms_are_raised_once_cleared_acknowledged_and_kept() {
+        let dir = tempfile::tempdir().unwrap();
+        let store = Store::open(dir.path()).unwrap();
+        let spec = serde_json::from_value::<MachineDeclaration>(
+            serde_json::json!({"engines": {"attitude": {}}}),
+        )
+        .unwrap();
+        let id = store
+            .put_machine(spec.clone().validate("m1").unwrap(), "fresh".into())
+            .await
+            .unwrap();
+        let other = store
+            .put_machine(spec.validate("m2").unwrap(), "fresh".into())
+            .await
+            .unwrap();
+        // A raise, the same raise again (recomputed after a restart), a
+        // stale sensor of the other machine, then the first one cleared.
+        write(&store, id, vec![row("deviation", "", true, 10.0)]).await;
+        write(&store, id, vec![row("deviation", "", true, 10.0)]).await;
+        write(
+            &store,
+            other,
+            vec![row("stale_sensor", "laser", true, 12.0)],
+        )
+        .await;
+        write(&store, id, vec![row("deviation", "", false, 40.0)]).await;
+
+        let all = store.alarms(&AlarmFilter::default()).unwrap();
+        assert_eq!(all.len(), 2, "{all:?}");
+        assert_eq!(
+            (all[0].machine.as_str(), all[0].subject.as_str()),
+            ("m2", "laser")
+        );
+        assert_eq!((all[1].raised_t, all[1].cleared_t), (10.0, Some(40.0)));
+        let active = store
+            .alarms(&AlarmFilter {
+                machine: None,
+                active_only: true,
+            })
+            .unwrap();
+        assert_eq!(active.len(), 1);
+        let mine = store
+            .alarms(&AlarmFilter {
+                machine: Some("m1".into()),
+                active_only: false,
+            })
+            .unwrap();
+        assert_eq!(mine.len(), 1);
+        // A second raise of the same key after the clear is a new alarm.
+        write(&store, id, vec![row("deviation", "", true, 50.0)]).await;
+        assert_eq!(store.alarms(&AlarmFilter::default()).unwrap().len(), 3);
+
+        // The first acknowledgement stands; an unknown alarm is None.
+        let acked = store
+            .ack_alarm(all[0].id, "shift-lead".into(), 60.0)
+            .await
+            .unwrap()
+            .unwrap();
+        assert_eq!(
+            (acked.acked_t, acked.acked_by.as_deref()),
+            (Some(60.0), Some("shift-lead"))
+        );
+        let again = store
+            .ack_alarm(all[0].id, "someone".into(), 70.0)
+            .await
+            .unwrap()
+            .unwrap();
+        assert_eq!(again.acked_by.as_deref(), Some("shift-lead"));
+        assert_eq!(store.ack_alarm(9999, "x".into(), 1.0).await.unwrap(), None);
+        store.close().await;
+
+        // Reopened: all still there, as they were.
+        let store = Store::open(dir.path()).unwrap();
+        let reopened = store.alarms(&AlarmFilter::default()).unwrap();
+        assert_eq!(reopened.len(), 3);
+        assert!(
+            reopened
+                .iter()
+                .any(|a| a.acked_by.as_deref() == Some("shift-lead"))
+        );
+        store.close().await;
+    }
+}
