@@ -8,6 +8,7 @@ use serde::{Deserialize, Serialize};
 
 use std::sync::Arc;
 
+use crate::fusion::alarms::AlarmConfig;
 use crate::fusion::alignment::{Alignment, AlignmentError, AlignmentSpec};
 use crate::fusion::dta::{MachineGeometry, Tolerances};
 use crate::fusion::pipeline::Pipeline;
@@ -48,6 +49,9 @@ pub struct MachineDeclaration {
     /// The design axis of the machine's drive.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub alignment: Option<AlignmentSpec>,
+    /// The alarm rules' settings (defaults when absent).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub alarms: Option<AlarmConfig>,
 }
 
 /// A validated machine: id, name, engines with complete parameters.
@@ -65,6 +69,9 @@ pub struct MachineSpec {
     pub start: Option<ProjectPoint>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub alignment: Option<AlignmentSpec>,
+    /// The alarm rules' settings.
+    #[serde(default)]
+    pub alarms: AlarmConfig,
     /// `alignment` built (when validated or loaded).
     #[serde(skip)]
     pub built_alignment: Option<Arc<Alignment>>,
@@ -178,6 +185,8 @@ impl MachineDeclaration {
         }
         let built_alignment =
             built(self.alignment.as_ref()).map_err(|e| invalid(format!("`alignment`: {e}")))?;
+        let alarms = self.alarms.unwrap_or_default();
+        alarms.validate().map_err(invalid)?;
         Ok(MachineSpec {
             id: id.to_string(),
             name,
@@ -187,6 +196,7 @@ impl MachineDeclaration {
             tolerances: self.tolerances,
             start: self.start,
             alignment: self.alignment,
+            alarms,
             built_alignment,
         })
     }
@@ -271,6 +281,7 @@ impl MachineSpec {
             tolerances: self.tolerances,
             start: self.start,
             alignment: self.alignment.clone(),
+            alarms: (self.alarms != AlarmConfig::default()).then_some(self.alarms),
         }
     }
 }
@@ -375,5 +386,35 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("unknown field `engine`"), "{err}");
+    }
+
+    #[test]
+    fn alarm_settings_are_optional_validated_and_named() {
+        let declare = |alarms: serde_json::Value| {
+            serde_json::from_value::<MachineDeclaration>(serde_json::json!({
+                "engines": {"attitude": {}}, "alarms": alarms
+            }))
+            .map_err(|e| e.to_string())
+            .and_then(|d| d.validate("m").map_err(|e| e.to_string()))
+        };
+        let spec = declare(serde_json::json!({"laser_dropout_warn_s": 120})).unwrap();
+        assert_eq!(spec.alarms.laser_dropout_warn_s, 120.0);
+        assert_eq!(
+            spec.alarms.stale_periods,
+            AlarmConfig::default().stale_periods
+        );
+        assert_eq!(spec.declaration().alarms, Some(spec.alarms));
+        let err = declare(serde_json::json!({"min_duration_s": -1})).unwrap_err();
+        assert!(err.contains("alarms.min_duration_s"), "{err}");
+        let err = declare(serde_json::json!({"ring_the_bell": true})).unwrap_err();
+        assert!(err.contains("ring_the_bell"), "{err}");
+        let plain = serde_json::from_value::<MachineDeclaration>(
+            serde_json::json!({"engines": {"attitude": {}}}),
+        )
+        .unwrap()
+        .validate("m")
+        .unwrap();
+        assert_eq!(plain.alarms, AlarmConfig::default());
+        assert_eq!(plain.declaration().alarms, None);
     }
 }

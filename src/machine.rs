@@ -18,6 +18,7 @@ use serde::{Deserialize, Serialize};
 use tokio::sync::{broadcast, mpsc, oneshot, watch};
 
 use crate::config::MachineSpec;
+use crate::fusion::alarms::{AlarmRules, AlarmState, Transition};
 use crate::fusion::estimate::EstimateWriter;
 use crate::fusion::pipeline::{Pipeline, PipelineState};
 use crate::fusion::reorder::{Admission, ReorderBuffer};
@@ -25,6 +26,8 @@ use crate::fusion::{
     EngineKind, EngineModel, EngineOutput, ParamError, Reading, SensorKind, SnapshotError,
     StreamKind,
 };
+use crate::server::Clock;
+use crate::store::alarms::AlarmRow;
 use crate::store::{EstimateRow, ReadingRow, Store, StoreError, Write, WriteOutcome};
 
 /// Most readings the reorder buffer holds per machine.
@@ -81,6 +84,9 @@ pub type LiveEstimate = Arc<FusedEstimate>;
 pub struct MachineCore {
     pipeline: Pipeline,
     reorder: ReorderBuffer,
+    alarms: AlarmRules,
+    /// Alarm transitions since [`MachineCore::take_alarms`].
+    transitions: Vec<Transition>,
     writer: EstimateWriter,
     ready: Vec<Reading>,
     outputs: Vec<EngineOutput>,
@@ -92,6 +98,9 @@ struct CoreState {
     #[serde(flatten)]
     pipeline: PipelineState,
     reorder: serde_json::Value,
+    /// Absent in snapshots from before the alarms: no alarm active.
+    #[serde(default)]
+    alarms: AlarmState,
 }
 
 impl MachineCore {
@@ -101,6 +110,7 @@ impl MachineCore {
             spec,
             spec.pipeline()?,
             ReorderBuffer::new(spec.reorder_window_s, REORDER_MAX_LEN),
+            AlarmState::default(),
         ))
     }
 
@@ -112,6 +122,7 @@ impl MachineCore {
             spec,
             Pipeline::restore(state.pipeline, &spec.stage_declaration())?,
             ReorderBuffer::restore(state.reorder)?,
+            state.alarms,
         ))
     }
 
@@ -126,13 +137,21 @@ impl MachineCore {
             spec,
             Pipeline::restore_adding_stages(state.pipeline, &spec.stage_declaration())?,
             ReorderBuffer::restore(state.reorder)?,
+            state.alarms,
         ))
     }
 
-    fn assemble(spec: &MachineSpec, pipeline: Pipeline, reorder: ReorderBuffer) -> Self {
+    fn assemble(
+        spec: &MachineSpec,
+        pipeline: Pipeline,
+        reorder: ReorderBuffer,
+        alarms: AlarmState,
+    ) -> Self {
         MachineCore {
             pipeline,
             reorder,
+            alarms: AlarmRules::new(spec.alarms, spec.tolerances, alarms),
+            transitions: Vec::new(),
             writer: EstimateWriter::new(&spec.id),
             ready: Vec::new(),
             outputs: Vec::new(),
@@ -145,6 +164,7 @@ impl MachineCore {
         let state = CoreState {
             pipeline: self.pipeline.state(),
             reorder: self.reorder.snapshot(),
+            alarms: self.alarms.state().clone(),
         };
         serde_json::to_string(&state).unwrap_or_default()
     }
@@ -155,8 +175,10 @@ impl MachineCore {
         self.reorder.pop_ready(&mut self.ready);
         for reading in self.ready.drain(..) {
             self.outputs.clear();
+            self.alarms.reading(&reading, &mut self.transitions);
             self.pipeline.feed(&reading, &mut self.outputs);
             for output in &self.outputs {
+                self.alarms.estimate(output, &mut self.transitions);
                 self.line.clear();
                 self.writer.write_line(output, &mut self.line);
                 let json = std::str::from_utf8(self.line.trim_ascii_end()).unwrap_or("{}");
@@ -171,6 +193,18 @@ impl MachineCore {
             }
         }
         admission
+    }
+
+    /// The alarms raised and cleared since the last call.
+    pub fn take_alarms(&mut self) -> Vec<Transition> {
+        std::mem::take(&mut self.transitions)
+    }
+
+    /// The server clock at `now_t`: sensors silent too long. Returns the
+    /// alarms raised (and any pending from readings).
+    pub fn tick(&mut self, now_t: f64) -> Vec<Transition> {
+        self.alarms.tick(now_t, &mut self.transitions);
+        self.take_alarms()
     }
 
     /// Each engine's model report, if it has one.
@@ -348,19 +382,21 @@ pub fn recover(store: &Store, spec: &MachineSpec, db_id: i64) -> Result<MachineC
         None => (MachineCore::new(spec)?, 0),
     };
     let mut estimates = Vec::new();
-    let flush = |estimates: &mut Vec<Emitted>, snapshot: Option<String>| {
-        let (reply, answer) = oneshot::channel();
-        store.write_blocking(Write {
-            machine_id: db_id,
-            readings: Vec::new(),
-            estimates: estimates.drain(..).map(|e| e.row).collect(),
-            snapshot,
-            after_commit: None,
-            reply: Some(reply),
-        })?;
-        answer.blocking_recv().map_err(|_| StoreError::Closed)??;
-        Ok::<_, MachineError>(())
-    };
+    let flush =
+        |estimates: &mut Vec<Emitted>, alarms: Vec<Transition>, snapshot: Option<String>| {
+            let (reply, answer) = oneshot::channel();
+            store.write_blocking(Write {
+                machine_id: db_id,
+                alarms: alarms.iter().map(AlarmRow::new).collect(),
+                readings: Vec::new(),
+                estimates: estimates.drain(..).map(|e| e.row).collect(),
+                snapshot,
+                after_commit: None,
+                reply: Some(reply),
+            })?;
+            answer.blocking_recv().map_err(|_| StoreError::Closed)??;
+            Ok::<_, MachineError>(())
+        };
     let mut failure = None;
     let refed = store.readings_since(db_id, after_id, |reading| {
         if let Err(e) = reading.validate() {
@@ -372,14 +408,16 @@ pub fn recover(store: &Store, spec: &MachineSpec, db_id: i64) -> Result<MachineC
             core.push(reading, &mut estimates);
         }
         if estimates.len() >= REFEED_CHUNK {
-            flush(&mut estimates, None).map_err(|e| StoreError::Corrupt(e.to_string()))?;
+            flush(&mut estimates, core.take_alarms(), None)
+                .map_err(|e| StoreError::Corrupt(e.to_string()))?;
         }
         Ok(())
     })?;
     if let Some(e) = failure {
         return Err(e);
     }
-    flush(&mut estimates, Some(core.snapshot()))?;
+    let alarms = core.take_alarms();
+    flush(&mut estimates, alarms, Some(core.snapshot()))?;
     tracing::info!(machine = %spec.id, refed, "machine restored");
     Ok(core)
 }
@@ -392,6 +430,7 @@ pub fn spawn(
     core: MachineCore,
     current: MachineStatus,
     queue_len: usize,
+    clock: Clock,
 ) -> MachineHandle {
     let (commands, queue) = mpsc::channel(queue_len.max(1));
     let (live, _) = broadcast::channel(LIVE_BUFFER);
@@ -407,6 +446,7 @@ pub fn spawn(
         status: status_tx,
         current,
         since_snapshot: 0,
+        clock,
     };
     tokio::spawn(actor.run(queue));
     MachineHandle {
@@ -431,11 +471,28 @@ struct Actor {
     status: watch::Sender<Arc<MachineStatus>>,
     current: MachineStatus,
     since_snapshot: u64,
+    /// The server clock, for sensors gone silent.
+    clock: Clock,
 }
+
+/// Real time between the checks for silent sensors.
+const ALARM_TICK: std::time::Duration = std::time::Duration::from_secs(1);
 
 impl Actor {
     async fn run(mut self, mut queue: mpsc::Receiver<Command>) {
-        while let Some(command) = queue.recv().await {
+        let mut tick = tokio::time::interval(ALARM_TICK);
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        loop {
+            let command = tokio::select! {
+                command = queue.recv() => match command {
+                    Some(command) => command,
+                    None => return,
+                },
+                _ = tick.tick() => {
+                    self.check_silence().await;
+                    continue;
+                }
+            };
             let mut stale = None;
             if self.write_failed.swap(false, Ordering::SeqCst) {
                 stale = self.rebuild().await;
@@ -463,6 +520,7 @@ impl Actor {
                     let (done, committed) = oneshot::channel();
                     let write = Write {
                         machine_id: self.db_id,
+                        alarms: Vec::new(),
                         readings: Vec::new(),
                         estimates: Vec::new(),
                         snapshot: Some(self.core.snapshot()),
@@ -476,6 +534,35 @@ impl Actor {
                     return;
                 }
             }
+        }
+    }
+
+    /// Sensors silent for too long by the server clock: their alarms,
+    /// stored (with no readings) once raised.
+    async fn check_silence(&mut self) {
+        if self.write_failed.load(Ordering::SeqCst) {
+            return;
+        }
+        let transitions = self.core.tick(self.clock.now_s());
+        if transitions.is_empty() {
+            return;
+        }
+        let write_failed = self.write_failed.clone();
+        let write = Write {
+            machine_id: self.db_id,
+            alarms: transitions.iter().map(AlarmRow::new).collect(),
+            readings: Vec::new(),
+            estimates: Vec::new(),
+            snapshot: None,
+            after_commit: Some(Box::new(move |committed| {
+                if !committed {
+                    write_failed.store(true, Ordering::SeqCst);
+                }
+            })),
+            reply: None,
+        };
+        if let Err(e) = self.store.write(write).await {
+            tracing::error!(error = %e, "store closed");
         }
     }
 
@@ -547,6 +634,7 @@ impl Actor {
         let write_failed = self.write_failed.clone();
         let write = Write {
             machine_id: self.db_id,
+            alarms: self.core.take_alarms().iter().map(AlarmRow::new).collect(),
             readings: rows,
             estimates: estimate_rows,
             snapshot,
@@ -565,5 +653,117 @@ impl Actor {
         if let Err(e) = self.store.write(write).await {
             tracing::error!(error = %e, "store closed");
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::MachineDeclaration;
+    use crate::fusion::SensorData;
+    use crate::fusion::alarms::{AlarmKind, Severity};
+    use crate::fusion::reading::ProjectPoint;
+
+    /// An attitude machine on a straight axis due north from (1000, 5000),
+    /// level at 50 m, with ±50/100 mm horizontal tolerances.
+    fn spec() -> MachineSpec {
+        serde_json::from_value::<MachineDeclaration>(serde_json::json!({
+            "engines": {"attitude": {}},
+            "geometry": {"front_m": [4.0, 0.0, 0.0], "rear_m": [-5.0, 0.0, 0.0]},
+            "tolerances": {"horizontal_mm": {"warn": 50, "alarm": 100},
+                           "vertical_mm": {"warn": 30, "alarm": 60}},
+            "alignment": {"start": {"easting_m": 1000.0, "northing_m": 5000.0, "azimuth_deg": 0.0},
+                          "horizontal": [{"type": "line", "length_m": 100.0}],
+                          "vertical": {"start_height_m": 50.0, "end_grade_pct": 0.0}}
+        }))
+        .unwrap()
+        .validate("tbm-alarms")
+        .unwrap()
+    }
+
+    /// A laser reading at `t` with the machine `right_mm` right of the axis.
+    fn laser(t: f64, right_mm: f64) -> Reading {
+        Reading {
+            t,
+            data: SensorData::Laser {
+                pitch_deg: 0.0,
+                roll_deg: 0.0,
+                yaw_deg: Some(0.0),
+                position: Some(ProjectPoint {
+                    easting_m: 1000.0 + right_mm / 1000.0,
+                    northing_m: 5020.0,
+                    height_m: 50.0,
+                }),
+            },
+        }
+    }
+
+    fn feed(
+        core: &mut MachineCore,
+        readings: impl IntoIterator<Item = Reading>,
+    ) -> Vec<Transition> {
+        let mut out = Vec::new();
+        for reading in readings {
+            core.push(reading, &mut out);
+        }
+        core.take_alarms()
+    }
+
+    #[test]
+    fn the_machine_raises_clears_and_remembers_its_alarms_across_a_snapshot() {
+        let spec = spec();
+        let mut core = MachineCore::new(&spec).unwrap();
+        // 70 mm right from t = 0, every 2 s: warn raised once the 10 s
+        // minimum has passed, dated 0.
+        let raised = feed(&mut core, (0..=10).map(|i| laser(2.0 * f64::from(i), 70.0)));
+        assert_eq!(raised.len(), 1, "{raised:?}");
+        assert_eq!(
+            (
+                raised[0].key.kind,
+                raised[0].key.severity,
+                raised[0].raised,
+                raised[0].t
+            ),
+            (AlarmKind::Deviation, Severity::Warn, true, 0.0)
+        );
+        // Restored from a snapshot, it stays raised: no second raise.
+        let mut restored = MachineCore::restore(&spec, &core.snapshot()).unwrap();
+        assert!(
+            feed(
+                &mut restored,
+                (11..20).map(|i| laser(2.0 * f64::from(i), 70.0))
+            )
+            .is_empty()
+        );
+        // Back on the axis from t = 40: cleared at t = 50, dated 40.
+        let cleared = feed(
+            &mut restored,
+            (20..=25).map(|i| laser(2.0 * f64::from(i), 0.0)),
+        );
+        assert_eq!(cleared.len(), 1, "{cleared:?}");
+        assert!(!cleared[0].raised && cleared[0].t == 40.0);
+        // The laser then falls silent: stale after 5 of its 2 s periods,
+        // at least 10 s, past its last reading at t = 50.
+        assert!(restored.tick(59.0).is_empty());
+        let stale = restored.tick(61.0);
+        assert_eq!(stale.len(), 1, "{stale:?}");
+        assert_eq!(
+            (stale[0].key.kind, stale[0].key.subject.as_str(), stale[0].t),
+            (AlarmKind::StaleSensor, "laser", 60.0)
+        );
+    }
+
+    #[test]
+    fn a_snapshot_from_before_the_alarms_restores_with_none_active() {
+        let spec = spec();
+        let core = MachineCore::new(&spec).unwrap();
+        let mut state: serde_json::Value = serde_json::from_str(&core.snapshot()).unwrap();
+        state.as_object_mut().unwrap().remove("alarms");
+        let mut restored = MachineCore::restore(&spec, &state.to_string()).unwrap();
+        let raised = feed(
+            &mut restored,
+            (0..=10).map(|i| laser(2.0 * f64::from(i), 70.0)),
+        );
+        assert_eq!(raised.len(), 1);
     }
 }

@@ -182,6 +182,7 @@ impl AppState {
                     core,
                     status,
                     options.limits.machine_queue,
+                    options.clock,
                 )),
             );
         }
@@ -275,6 +276,7 @@ impl AppState {
             core,
             status,
             self.limits.machine_queue,
+            self.clock,
         ));
         if let Ok(mut machines) = self.machines.write() {
             machines.insert(spec.id, handle);
