@@ -86,14 +86,20 @@ impl Gate {
         Ok(tokens)
     }
 
-    /// Whether `presented` (a token text, if any) may do `need`.
-    fn check(&self, store: &Store, presented: Option<&str>, need: &Need) -> Result<(), ApiError> {
+    /// Whether `presented` (a token text, if any) may do `need`: the
+    /// token's name if it was checked, `None` while access is open.
+    fn check(
+        &self,
+        store: &Store,
+        presented: Option<&str>,
+        need: &Need,
+    ) -> Result<Option<String>, ApiError> {
         if *need == Need::Nothing {
-            return Ok(());
+            return Ok(None);
         }
         let tokens = self.current(store)?;
         if tokens.is_empty() && !self.insist.load(Ordering::Relaxed) {
-            return Ok(());
+            return Ok(None);
         }
         let Some(presented) = presented else {
             return Err(ApiError::Unauthorized(
@@ -106,7 +112,7 @@ impl Gate {
             ));
         };
         if token.allows(need) {
-            return Ok(());
+            return Ok(Some(token.name.clone()));
         }
         Err(ApiError::Forbidden(match need {
             Need::Ingest(machine) => format!(
@@ -184,11 +190,20 @@ pub async fn admin(State(state): State<SharedState>, request: Request, next: Nex
     require(&state, Need::Admin, request, next).await
 }
 
-/// Lets the request through if its token grants `need`.
-async fn require(state: &SharedState, need: Need, request: Request, next: Next) -> Response {
+/// Who a request came from: the name of the token it carried, `None`
+/// while access is open (no tokens). Set by the route layers.
+#[derive(Debug, Clone)]
+pub struct Caller(pub Option<String>);
+
+/// Lets the request through if its token grants `need`, telling the
+/// handler who it is ([`Caller`]).
+async fn require(state: &SharedState, need: Need, mut request: Request, next: Next) -> Response {
     let token = presented(request.headers());
     match state.gate.check(&state.store, token.as_deref(), &need) {
-        Ok(()) => next.run(request).await,
+        Ok(name) => {
+            request.extensions_mut().insert(Caller(name));
+            next.run(request).await
+        }
         Err(ApiError::Unauthorized(_)) if wants_page(&request) => {
             Redirect::to("/login").into_response()
         }

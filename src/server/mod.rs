@@ -1,6 +1,7 @@
 //! The HTTP server: routes, shared state, start-up and shutdown. Handlers
 //! only translate: extract, ask the store or a machine's task, map errors.
 
+mod alarms;
 mod alignment;
 pub mod auth;
 mod clock;
@@ -355,6 +356,11 @@ pub fn router(state: SharedState) -> Router {
         .route(
             "/api/v1/machines/{machine}/alignment",
             get(alignment::show.layer(read.clone())).put(alignment::put.layer(admin.clone())),
+        )
+        .route("/api/v1/alarms", get(alarms::list.layer(read.clone())))
+        .route(
+            "/api/v1/alarms/{id}/ack",
+            axum::routing::post(alarms::ack.layer(read.clone())),
         )
         .route(
             "/api/v1/machines/{machine}/alignment/axis",
