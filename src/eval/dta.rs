@@ -42,15 +42,12 @@ pub struct DtaScore {
 impl DtaScore {
     /// The largest error of any deviation of the drive, mm.
     pub fn worst_deviation_mm(&self) -> f64 {
-        [
+        super::largest_abs(&[
             &self.front_horizontal,
             &self.front_vertical,
             &self.rear_horizontal,
             &self.rear_vertical,
-        ]
-        .iter()
-        .map(|s| s.max_abs)
-        .fold(0.0, f64::max)
+        ])
     }
 }
 
@@ -196,14 +193,7 @@ pub struct DtaSummary {
 
 /// The summary of `scores`.
 pub fn summarise(scores: &[DtaScore]) -> DtaSummary {
-    let median = |mut v: Vec<f64>| -> f64 {
-        v.sort_by(f64::total_cmp);
-        if v.is_empty() {
-            f64::NAN
-        } else {
-            v[v.len() / 2]
-        }
-    };
+    let median = super::median;
     let worst = |f: &dyn Fn(&DtaScore) -> f64| scores.iter().map(f).fold(0.0, f64::max);
     DtaSummary {
         drives: scores.len(),

@@ -26,7 +26,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
-use super::ErrorStats;
+use super::{ErrorStats, median};
 use crate::fusion::alignment::{AlignmentSpec, ElementSpec, ProfileSpec, StartPose};
 use crate::fusion::dta::{DtaSource, MachineGeometry};
 use crate::fusion::pipeline::Pipeline;
@@ -289,15 +289,12 @@ pub struct ZuptDtaScore {
 impl ZuptDtaScore {
     /// The largest error of any deviation of the drive, mm.
     pub fn worst_deviation_mm(&self) -> f64 {
-        [
+        super::largest_abs(&[
             &self.front_horizontal,
             &self.front_vertical,
             &self.rear_horizontal,
             &self.rear_vertical,
-        ]
-        .iter()
-        .map(|s| s.max_abs)
-        .fold(0.0, f64::max)
+        ])
     }
 }
 
@@ -565,15 +562,6 @@ impl<'a> Scorer<'a> {
             median_sigma_vertical_mm: median(self.sigma_v),
             ..self.score
         }
-    }
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    if v.is_empty() {
-        f64::NAN
-    } else {
-        v[v.len() / 2]
     }
 }
 

@@ -37,3 +37,14 @@ impl ErrorStats {
         }
     }
 }
+
+/// The largest absolute error over several error statistics.
+pub fn largest_abs(stats: &[&ErrorStats]) -> f64 {
+    stats.iter().map(|s| s.max_abs).fold(0.0, f64::max)
+}
+
+/// The median of `values` (the upper one of an even count; NaN if empty).
+pub fn median(mut values: Vec<f64>) -> f64 {
+    values.sort_by(f64::total_cmp);
+    values.get(values.len() / 2).copied().unwrap_or(f64::NAN)
+}
