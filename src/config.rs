@@ -16,6 +16,7 @@ use crate::fusion::reading::ProjectPoint;
 use crate::fusion::{
     Declaration, EngineKind, ParamError, ParamValue, Params, StreamKind, UnknownEngine,
 };
+pub use crate::server::notify::WebhookConfig;
 
 /// Longest machine display name, in characters.
 pub const MAX_NAME_CHARS: usize = 200;
@@ -300,11 +301,21 @@ pub struct ServerConfig {
     /// Machine id → declaration.
     #[serde(default)]
     pub machines: BTreeMap<String, MachineDeclaration>,
+    /// Where alarm changes are posted (`[webhooks]`: `warn`, `alarm`).
+    #[serde(default)]
+    pub webhooks: WebhookConfig,
+}
+
+/// A config file, validated.
+#[derive(Debug, Clone, Default)]
+pub struct ServerSettings {
+    pub machines: Vec<MachineSpec>,
+    pub webhooks: WebhookConfig,
 }
 
 impl ServerConfig {
     /// Reads and validates a config file.
-    pub fn load(path: &Path) -> Result<Vec<MachineSpec>, ConfigError> {
+    pub fn load(path: &Path) -> Result<ServerSettings, ConfigError> {
         let file_error = |reason: String| ConfigError::File {
             path: path.display().to_string(),
             reason,
@@ -317,16 +328,23 @@ impl ServerConfig {
     }
 
     /// Parses and validates config text.
-    pub fn parse(text: &str) -> Result<Vec<MachineSpec>, ConfigError> {
+    pub fn parse(text: &str) -> Result<ServerSettings, ConfigError> {
         let config: ServerConfig = toml::from_str(text).map_err(|e| ConfigError::File {
             path: String::new(),
             reason: e.to_string(),
         })?;
-        config
-            .machines
-            .into_iter()
-            .map(|(id, declaration)| declaration.validate(&id))
-            .collect()
+        config.webhooks.validate().map_err(|e| ConfigError::File {
+            path: String::new(),
+            reason: e.to_string(),
+        })?;
+        Ok(ServerSettings {
+            machines: config
+                .machines
+                .into_iter()
+                .map(|(id, declaration)| declaration.validate(&id))
+                .collect::<Result<_, _>>()?,
+            webhooks: config.webhooks,
+        })
     }
 }
 
@@ -345,6 +363,26 @@ mod tests {
     }
 
     #[test]
+    fn a_config_file_names_webhooks_and_refuses_bad_ones() {
+        let settings = ServerConfig::parse(
+            "[webhooks]\nalarm = \"http://127.0.0.1:9000/alarm\"\nattempts = 3\n",
+        )
+        .unwrap();
+        assert_eq!(
+            settings.webhooks.alarm.as_deref(),
+            Some("http://127.0.0.1:9000/alarm")
+        );
+        assert_eq!(
+            (settings.webhooks.warn, settings.webhooks.attempts),
+            (None, 3)
+        );
+        let err = ServerConfig::parse("[webhooks]\nwarn = \"ftp://x/\"\n").unwrap_err();
+        assert!(err.to_string().contains("webhooks.warn"), "{err}");
+        let err = ServerConfig::parse("[webhooks]\nwarm = \"http://x/\"\n").unwrap_err();
+        assert!(err.to_string().contains("warm"), "{err}");
+    }
+
+    #[test]
     fn a_config_file_declares_machines_with_parameters() {
         let specs = ServerConfig::parse(
             r#"
@@ -355,7 +393,8 @@ mod tests {
             [machines.tbm-2.engines.attitude]
             "#,
         )
-        .unwrap();
+        .unwrap()
+        .machines;
         assert_eq!(specs.len(), 2);
         assert_eq!(specs[0].name, "TBM 1");
         assert_eq!(specs[1].name, "tbm-2");

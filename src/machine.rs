@@ -27,6 +27,7 @@ use crate::fusion::{
     StreamKind,
 };
 use crate::server::Clock;
+use crate::server::notify::AlarmNotifier;
 use crate::store::alarms::AlarmRow;
 use crate::store::{EstimateRow, ReadingRow, Store, StoreError, Write, WriteOutcome};
 
@@ -422,16 +423,32 @@ pub fn recover(store: &Store, spec: &MachineSpec, db_id: i64) -> Result<MachineC
     Ok(core)
 }
 
+/// What a machine's task shares with the server.
+#[derive(Clone)]
+pub struct Surroundings {
+    pub store: Store,
+    /// Ingest requests that may wait for the task (busy beyond).
+    pub queue_len: usize,
+    /// The server clock, for sensors gone silent.
+    pub clock: Clock,
+    /// Where committed alarm changes go.
+    pub alarm_changes: AlarmNotifier,
+}
+
 /// Starts the task that owns `core`.
 pub fn spawn(
-    store: Store,
+    surroundings: Surroundings,
     spec: MachineSpec,
     db_id: i64,
     core: MachineCore,
     current: MachineStatus,
-    queue_len: usize,
-    clock: Clock,
 ) -> MachineHandle {
+    let Surroundings {
+        store,
+        queue_len,
+        clock,
+        alarm_changes,
+    } = surroundings;
     let (commands, queue) = mpsc::channel(queue_len.max(1));
     let (live, _) = broadcast::channel(LIVE_BUFFER);
     let (status_tx, status) = watch::channel(Arc::new(current.clone()));
@@ -447,6 +464,7 @@ pub fn spawn(
         current,
         since_snapshot: 0,
         clock,
+        alarm_changes,
     };
     tokio::spawn(actor.run(queue));
     MachineHandle {
@@ -473,6 +491,8 @@ struct Actor {
     since_snapshot: u64,
     /// The server clock, for sensors gone silent.
     clock: Clock,
+    /// Where the alarms this machine's writes changed go once committed.
+    alarm_changes: AlarmNotifier,
 }
 
 /// Real time between the checks for silent sensors.
@@ -548,16 +568,16 @@ impl Actor {
             return;
         }
         let write_failed = self.write_failed.clone();
+        let notifier = self.alarm_changes.clone();
         let write = Write {
             machine_id: self.db_id,
             alarms: transitions.iter().map(AlarmRow::new).collect(),
             readings: Vec::new(),
             estimates: Vec::new(),
             snapshot: None,
-            after_commit: Some(Box::new(move |committed| {
-                if !committed {
-                    write_failed.store(true, Ordering::SeqCst);
-                }
+            after_commit: Some(Box::new(move |committed| match committed {
+                Some(changes) => notifier.publish(changes),
+                None => write_failed.store(true, Ordering::SeqCst),
             })),
             reply: None,
         };
@@ -632,21 +652,22 @@ impl Actor {
         self.status.send_replace(Arc::new(self.current.clone()));
         let sender = self.live.clone();
         let write_failed = self.write_failed.clone();
+        let notifier = self.alarm_changes.clone();
         let write = Write {
             machine_id: self.db_id,
             alarms: self.core.take_alarms().iter().map(AlarmRow::new).collect(),
             readings: rows,
             estimates: estimate_rows,
             snapshot,
-            after_commit: Some(Box::new(move |committed| {
-                if committed {
+            after_commit: Some(Box::new(move |committed| match committed {
+                Some(changes) => {
                     for estimate in live {
                         // No receivers is fine.
                         let _ = sender.send(estimate);
                     }
-                } else {
-                    write_failed.store(true, Ordering::SeqCst);
+                    notifier.publish(changes);
                 }
+                None => write_failed.store(true, Ordering::SeqCst),
             })),
             reply: Some(reply),
         };
@@ -698,6 +719,17 @@ mod tests {
         }
     }
 
+    fn inclinometer(t: f64) -> Reading {
+        Reading {
+            t,
+            data: SensorData::Inclinometer {
+                pitch_deg: 0.0,
+                roll_deg: 0.0,
+                temp_c: None,
+            },
+        }
+    }
+
     fn feed(
         core: &mut MachineCore,
         readings: impl IntoIterator<Item = Reading>,
@@ -735,21 +767,26 @@ mod tests {
             )
             .is_empty()
         );
-        // Back on the axis from t = 40: cleared at t = 50, dated 40.
+        // Back on the axis from t = 40, an inclinometer reading between
+        // each: cleared at t = 50, dated 40.
         let cleared = feed(
             &mut restored,
-            (20..=25).map(|i| laser(2.0 * f64::from(i), 0.0)),
+            (20..=25).flat_map(|i| {
+                let t = 2.0 * f64::from(i);
+                [laser(t, 0.0), inclinometer(t + 1.0)]
+            }),
         );
         assert_eq!(cleared.len(), 1, "{cleared:?}");
         assert!(!cleared[0].raised && cleared[0].t == 40.0);
-        // The laser then falls silent: stale after 5 of its 2 s periods,
-        // at least 10 s, past its last reading at t = 50.
-        assert!(restored.tick(59.0).is_empty());
-        let stale = restored.tick(61.0);
+        // The machine then falls silent: the inclinometer is stale after 5
+        // of its 2 s periods, at least 10 s, past its last reading at
+        // t = 51 (the laser's silence is a laser dropout's business).
+        assert!(restored.tick(60.0).is_empty());
+        let stale = restored.tick(62.0);
         assert_eq!(stale.len(), 1, "{stale:?}");
         assert_eq!(
             (stale[0].key.kind, stale[0].key.subject.as_str(), stale[0].t),
-            (AlarmKind::StaleSensor, "laser", 60.0)
+            (AlarmKind::StaleSensor, "inclinometer", 61.0)
         );
     }
 

@@ -15,11 +15,73 @@ const tn = (function () {
       this.syncedAt = performance.now();
       showClock();
     },
+    // Stopped at the last good contact while the connection is lost.
+    frozenT: null,
     now() {
+      if (this.frozenT !== null) return this.frozenT;
       if (this.serverT === null) return Date.now() / 1000;
       return this.serverT + (performance.now() - this.syncedAt) / 1000 * this.rate;
     },
   };
+
+  // The page's links to the server (its polls and sockets, by name). Any
+  // one failing (network, 401, server down) turns the page to "connection
+  // lost — data as of HH:MM:SS" and stops the clock until all are back:
+  // stale data is never shown as live.
+  const link = {
+    failing: new Map(),
+    lastGoodT: null,
+    ok(source) {
+      this.lastGoodT = clock.frozenT === null ? clock.now() : clock.serverT;
+      if (!this.failing.delete(source)) return;
+      if (this.failing.size === 0) clock.frozenT = null;
+      showLink();
+    },
+    failed(source, reason) {
+      if (this.failing.size === 0) clock.frozenT = this.lastGoodT !== null ? this.lastGoodT : clock.now();
+      this.failing.set(source, reason);
+      showLink();
+    },
+    lost() { return this.failing.size > 0; },
+  };
+
+  function hhmmss(t) {
+    return new Date(t * 1000).toLocaleTimeString([], { hour12: false });
+  }
+
+  function showLink() {
+    const el = document.getElementById('conn-lost');
+    const lost = link.lost();
+    document.body.classList.toggle('offline', lost);
+    if (!el) return;
+    el.hidden = !lost;
+    if (!lost) return;
+    const reasons = [...new Set(link.failing.values())];
+    const signedOut = reasons.some((r) => /\b401\b/.test(r));
+    const asOf = link.lastGoodT !== null ? hhmmss(link.lastGoodT) : 'never';
+    el.innerHTML = '';
+    const strong = document.createElement('strong');
+    strong.textContent = `connection lost — data as of ${asOf}`;
+    el.append(strong, ` (${reasons.join('; ')})`);
+    if (signedOut) {
+      const a = document.createElement('a');
+      a.href = "/login";
+      a.textContent = 'sign in again';
+      el.append(' · ', a);
+    }
+    showClock();
+  }
+
+  // Closes a socket that has been silent for longer than two of the
+  // server's 10 s pings (a network gone without a reset): its onclose
+  // then reports the loss and reconnects.
+  function silenceWatchdog(socket) {
+    let last = performance.now();
+    const timer = setInterval(() => {
+      if (performance.now() - last > 25000) socket.close();
+    }, 1000);
+    return { heard() { last = performance.now(); }, stop() { clearInterval(timer); } };
+  }
 
   const DEG = Math.PI / 180;
 
@@ -49,7 +111,17 @@ const tn = (function () {
   }
 
   async function json(url) {
-    const response = await fetch(url, { headers: { Accept: 'application/json' } });
+    // A request the network swallowed fails after 10 s instead of hanging.
+    const abort = new AbortController();
+    const timer = setTimeout(() => abort.abort(), 10000);
+    let response;
+    try {
+      response = await fetch(url, { headers: { Accept: 'application/json' }, signal: abort.signal });
+    } catch (e) {
+      throw new Error(e.name === 'AbortError' ? `${url}: no answer within 10 s` : `${url}: server unreachable`);
+    } finally {
+      clearTimeout(timer);
+    }
     if (!response.ok) {
       let reason = response.statusText;
       try { reason = (await response.json()).error || reason; } catch (e) { /* not JSON */ }
@@ -100,7 +172,9 @@ const tn = (function () {
     const el = document.getElementById('server-clock');
     if (!el || clock.serverT === null) return;
     const rate = clock.rate === 1 ? '' : ` (×${clock.rate})`;
-    setText(el, `server clock ${timeOfDay(clock.now())}${rate}`);
+    const stopped = clock.frozenT !== null;
+    el.classList.toggle('stopped', stopped);
+    setText(el, `server clock ${timeOfDay(clock.now())}${rate}${stopped ? ' (stopped)' : ''}`);
   }
   setInterval(showClock, 250);
 
@@ -129,16 +203,20 @@ const tn = (function () {
       const scheme = location.protocol === 'https:' ? 'wss:' : 'ws:';
       const socket = new WebSocket(`${scheme}//${location.host}${api}/live`);
       handle.socket = socket;
+      const watchdog = silenceWatchdog(socket);
       socket.onmessage = (event) => {
+        watchdog.heard();
         let m;
         try { m = JSON.parse(event.data); } catch (e) { return; }
         if (m.event === 'hello') {
           retryMs = 500;
           clock.sync(m.server_t, m.clock_rate);
+          link.ok('live');
           on.hello(m, connected);
           connected = true;
         } else if (m.event === 'ping') {
           clock.sync(m.server_t, m.clock_rate || clock.rate);
+          link.ok('live');
         } else if (m.event === 'gap') {
           on.gap(m);
         } else if (m.event === undefined && m.engine) {
@@ -146,6 +224,8 @@ const tn = (function () {
         }
       };
       socket.onclose = () => {
+        watchdog.stop();
+        link.failed('live', 'live stream closed');
         on.closed();
         setTimeout(connect, retryMs);
         retryMs = Math.min(retryMs * 2, 10000);
@@ -171,9 +251,10 @@ const tn = (function () {
       try {
         const s = await json(api);
         clock.sync(s.server_t, s.clock_rate);
+        link.ok('status');
         showSensors(body, s);
       } catch (e) {
-        console.warn('status:', e.message);
+        link.failed('status', e.message);
       }
     };
     await poll();
@@ -289,7 +370,7 @@ const tn = (function () {
   }
 
   return {
-    clock, fixed, mmPerM, duration, timeOfDay, json, ndjson, setText, css,
+    clock, link, silenceWatchdog, fixed, mmPerM, duration, timeOfDay, json, ndjson, setText, css,
     showConnection, follow, showSensors, pollStatus, windowButtons, axis, num,
     shadeSpans, line, followEngine, engines, registerEngine,
   };

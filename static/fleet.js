@@ -64,6 +64,7 @@
     try {
       const body = await tn.json('/api/v1/machines');
       tn.clock.sync(body.server_t, body.clock_rate);
+      tn.link.ok('fleet');
       const ids = body.machines.map((m) => m.machine);
       if (ids.length !== cards.size || ids.some((id) => !cards.has(id))) {
         // Machines were declared or removed: the server renders the new set.
@@ -72,7 +73,7 @@
       }
       for (const m of body.machines) render(cards.get(m.machine), m, body.server_t);
     } catch (e) {
-      console.warn('fleet poll failed:', e.message);
+      tn.link.failed('fleet', e.message);
     }
   }
 

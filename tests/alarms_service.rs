@@ -24,15 +24,20 @@ fn declaration() -> Value {
 }
 
 /// Laser readings every 2 s from `from_t`, `count` of them, the machine
-/// 70 mm right of the axis (beyond the 50 mm warn limit).
+/// 70 mm right of the axis (beyond the 50 mm warn limit), each followed by
+/// an inclinometer reading a second later.
 fn off_axis(from_t: f64, count: u32) -> Vec<String> {
     (0..count)
-        .map(|i| {
-            json!({"t": from_t + 2.0 * f64::from(i), "sensor": "laser",
-                   "pitch_deg": 0.0, "roll_deg": 0.0, "yaw_deg": 0.0,
-                   "easting_m": 1000.07, "northing_m": 5020.0, "height_m": 50.0})
-            .to_string()
+        .flat_map(|i| {
+            let t = from_t + 2.0 * f64::from(i);
+            [
+                json!({"t": t, "sensor": "laser",
+                       "pitch_deg": 0.0, "roll_deg": 0.0, "yaw_deg": 0.0,
+                       "easting_m": 1000.07, "northing_m": 5020.0, "height_m": 50.0}),
+                json!({"t": t + 1.0, "sensor": "inclinometer", "pitch_deg": 0.0, "roll_deg": 0.0}),
+            ]
         })
+        .map(|reading| reading.to_string())
         .collect()
 }
 
@@ -61,8 +66,8 @@ async fn alarms_are_raised_listed_acknowledged_by_name_and_kept_across_a_restart
     declare_machine(&client, &base, "tbm-alarms", &declaration().to_string()).await;
 
     // 40 s off the axis, ending 20 s ago: a deviation warning (held over
-    // the 10 s minimum) and, as the laser's 2 s period times 5 has passed
-    // since its last reading, a stale laser.
+    // the 10 s minimum) and, as the inclinometer's 2 s period times 5 has
+    // passed since its last reading, a stale inclinometer.
     let from_t = (wall_clock_s() - 60.0).floor();
     post_ndjson(&client, &base, "tbm-alarms", &off_axis(from_t, 21)).await;
     let mut listed = Vec::new();
@@ -85,7 +90,7 @@ async fn alarms_are_raised_listed_acknowledged_by_name_and_kept_across_a_restart
         .collect();
     assert!(kinds.contains(&("deviation", "warn", "")), "{listed:?}");
     assert!(
-        kinds.contains(&("stale_sensor", "alarm", "laser")),
+        kinds.contains(&("stale_sensor", "alarm", "inclinometer")),
         "{listed:?}"
     );
     assert_eq!(listed.len(), 2, "each raised once: {listed:?}");
@@ -101,7 +106,7 @@ async fn alarms_are_raised_listed_acknowledged_by_name_and_kept_across_a_restart
         deviation["message"]
             .as_str()
             .unwrap()
-            .contains("+70 mm beyond ±50 mm"),
+            .contains("horizontal +70 mm (±50 mm)"),
         "{deviation}"
     );
     // Filters and refusals.
@@ -178,4 +183,171 @@ async fn get_json_with(client: &reqwest::Client, base: &str, path: &str, token: 
         .unwrap();
     assert_eq!(response.status(), 200, "{path}");
     serde_json::from_slice(&response.bytes().await.unwrap()).unwrap()
+}
+
+/// What the local webhook receiver saw: each request's path,
+/// `Idempotency-Key` and body, and how many it refused so far.
+#[derive(Default)]
+struct Received {
+    requests: Vec<(String, String, Value)>,
+    refused: usize,
+}
+
+/// A webhook receiver on a free port that answers 500 to the first
+/// `refuse` requests, then 200.
+async fn receiver(
+    refuse: usize,
+) -> (
+    String,
+    std::sync::Arc<std::sync::Mutex<Received>>,
+    tokio::task::JoinHandle<()>,
+) {
+    use axum::http::{HeaderMap, StatusCode, Uri};
+    let seen = std::sync::Arc::new(std::sync::Mutex::new(Received::default()));
+    let state = seen.clone();
+    let app = axum::Router::new().fallback(
+        move |uri: Uri, headers: HeaderMap, body: axum::body::Bytes| {
+            let state = state.clone();
+            async move {
+                let mut seen = state.lock().unwrap();
+                if seen.refused < refuse {
+                    seen.refused += 1;
+                    return StatusCode::INTERNAL_SERVER_ERROR;
+                }
+                let key = headers
+                    .get("idempotency-key")
+                    .and_then(|v| v.to_str().ok())
+                    .unwrap_or_default()
+                    .to_string();
+                let body: Value = serde_json::from_slice(&body).unwrap_or(Value::Null);
+                seen.requests.push((uri.path().to_string(), key, body));
+                StatusCode::OK
+            }
+        },
+    );
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let address = listener.local_addr().unwrap();
+    let task = tokio::spawn(async move {
+        axum::serve(listener, app).await.unwrap();
+    });
+    (format!("http://{address}"), seen, task)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn webhooks_get_each_transition_once_per_severity_retried_after_a_500() {
+    let (hooks, seen, receiving) = receiver(1).await;
+    let dir = tempfile::tempdir().unwrap();
+    let webhooks = tunnelnav::config::WebhookConfig {
+        warn: Some(format!("{hooks}/warn")),
+        alarm: Some(format!("{hooks}/alarm")),
+        first_retry_s: 0.2,
+        ..Default::default()
+    };
+    let server = common::TestServer::start_configured(
+        dir.path(),
+        tunnelnav::server::Limits::default(),
+        webhooks,
+    )
+    .await;
+    let client = reqwest::Client::new();
+    let base = server.url("");
+    declare_machine(&client, &base, "tbm-hooks", &declaration().to_string()).await;
+
+    // A deviation warning and a stale inclinometer (an alarm), as above.
+    let from_t = (wall_clock_s() - 60.0).floor();
+    post_ndjson(&client, &base, "tbm-hooks", &off_axis(from_t, 21)).await;
+    let wait_for = |n: usize| {
+        let seen = seen.clone();
+        async move {
+            for _ in 0..100 {
+                if seen.lock().unwrap().requests.len() >= n {
+                    return;
+                }
+                tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+            }
+            panic!("fewer than {n} webhook deliveries");
+        }
+    };
+    wait_for(2).await;
+    let listed = alarms(&client, &base, "", None).await;
+    let deviation = listed.iter().find(|a| a["kind"] == "deviation").unwrap();
+    // Acknowledged twice: one more delivery.
+    for _ in 0..2 {
+        let url = format!("{base}/api/v1/alarms/{}/ack", deviation["id"]);
+        assert_eq!(client.post(&url).send().await.unwrap().status(), 200);
+    }
+    wait_for(3).await;
+    // Back on the axis: the deviation clears (a fourth delivery).
+    let on_axis: Vec<String> = (0..12)
+        .map(|i| {
+            json!({"t": from_t + 60.0 + 2.0 * f64::from(i), "sensor": "laser",
+                   "pitch_deg": 0.0, "roll_deg": 0.0, "yaw_deg": 0.0,
+                   "easting_m": 1000.0, "northing_m": 5020.0, "height_m": 50.0})
+            .to_string()
+        })
+        .collect();
+    post_ndjson(&client, &base, "tbm-hooks", &on_axis).await;
+    wait_for(4).await;
+    // Nothing more comes (no delivery twice).
+    tokio::time::sleep(std::time::Duration::from_millis(1500)).await;
+    let seen = std::mem::take(&mut *seen.lock().unwrap());
+    assert_eq!(
+        seen.refused, 1,
+        "the first attempt was refused, then retried"
+    );
+    let mut got: Vec<(String, String, String, String)> = seen
+        .requests
+        .iter()
+        .map(|(path, key, body)| {
+            (
+                path.clone(),
+                body["kind"].as_str().unwrap_or_default().to_string(),
+                body["transition"].as_str().unwrap_or_default().to_string(),
+                key.clone(),
+            )
+        })
+        .collect();
+    got.sort();
+    let id = |kind: &str| listed.iter().find(|a| a["kind"] == kind).unwrap()["id"].clone();
+    assert_eq!(
+        got,
+        [
+            (
+                "/alarm".to_string(),
+                "stale_sensor".to_string(),
+                "raised".to_string(),
+                format!("alarm-{}-raised", id("stale_sensor"))
+            ),
+            (
+                "/warn".into(),
+                "deviation".into(),
+                "acknowledged".into(),
+                format!("alarm-{}-acknowledged", id("deviation"))
+            ),
+            (
+                "/warn".into(),
+                "deviation".into(),
+                "cleared".into(),
+                format!("alarm-{}-cleared", id("deviation"))
+            ),
+            (
+                "/warn".into(),
+                "deviation".into(),
+                "raised".into(),
+                format!("alarm-{}-raised", id("deviation"))
+            ),
+        ],
+        "{:#?}",
+        seen.requests
+    );
+    let cleared = seen
+        .requests
+        .iter()
+        .find(|(_, key, _)| key.ends_with("cleared"))
+        .unwrap();
+    assert_eq!(cleared.2["machine"], "tbm-hooks");
+    assert_eq!(cleared.2["acked_by"], "anonymous");
+    assert!(cleared.2["cleared_t"].as_f64().unwrap() >= from_t + 60.0);
+    server.stop().await;
+    receiving.abort();
 }

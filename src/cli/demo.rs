@@ -290,6 +290,7 @@ pub fn run(args: DemoArgs) -> Result<(), CliError> {
             limits: Limits::default(),
             clock,
             retention: crate::store::retention::Retention::default(),
+            webhooks: Default::default(),
         };
         let (state, listener) = start(options, args.listen, args.allow_no_auth).await?;
         let address = listener.local_addr()?;

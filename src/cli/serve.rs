@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use clap::Args;
 
 use super::CliError;
-use crate::config::ServerConfig;
+use crate::config::{ServerConfig, ServerSettings};
 use crate::server::{self, AppState, Clock, Limits, ServerOptions, SharedState};
 
 #[derive(Debug, Args)]
@@ -17,7 +17,7 @@ pub struct ServeArgs {
     /// Directory holding the database (created if missing).
     #[arg(long, default_value = "data")]
     pub data_dir: PathBuf,
-    /// TOML file declaring machines (see README).
+    /// TOML file declaring machines and webhooks (see README).
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Serve with no access tokens on an address other than loopback:
@@ -56,9 +56,9 @@ impl ServeArgs {
 
 pub fn run(args: ServeArgs) -> Result<(), CliError> {
     init_tracing();
-    let machines = match &args.config {
+    let settings = match &args.config {
         Some(path) => ServerConfig::load(path)?,
-        None => Vec::new(),
+        None => ServerSettings::default(),
     };
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
@@ -66,13 +66,14 @@ pub fn run(args: ServeArgs) -> Result<(), CliError> {
     runtime.block_on(async {
         let options = ServerOptions {
             data_dir: args.data_dir.clone(),
-            machines,
+            machines: settings.machines,
             limits: Limits {
                 max_database_bytes: args.max_database_mb.map(|mb| (mb * 1e6) as u64),
                 ..Limits::default()
             },
             clock: Clock::system(),
             retention: args.retention(),
+            webhooks: settings.webhooks,
         };
         let (state, listener) = start(options, args.listen, args.allow_no_auth).await?;
         server::run(listener, state, shutdown_signal()).await?;

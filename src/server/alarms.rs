@@ -10,7 +10,7 @@ use serde::{Deserialize, Serialize};
 use super::SharedState;
 use super::auth::Caller;
 use super::error::ApiError;
-use crate::store::alarms::{AlarmFilter, StoredAlarm};
+use crate::store::alarms::{AlarmChange, AlarmFilter, Change, StoredAlarm};
 
 /// Who acknowledged, while access is open (no tokens exist).
 const ANONYMOUS: &str = "anonymous";
@@ -52,15 +52,25 @@ pub async fn list(
         machine: query.machine,
         active_only,
     };
+    Ok(Json(AlarmList {
+        alarms: stored(&state, filter).await?,
+    }))
+}
+
+/// The stored alarms `filter` asks for, newest first.
+pub async fn stored(
+    state: &SharedState,
+    filter: AlarmFilter,
+) -> Result<Vec<StoredAlarm>, ApiError> {
     let store = state.store.clone();
-    let alarms = tokio::task::spawn_blocking(move || store.alarms(&filter))
+    Ok(tokio::task::spawn_blocking(move || store.alarms(&filter))
         .await
-        .map_err(|e| ApiError::Internal(e.to_string()))??;
-    Ok(Json(AlarmList { alarms }))
+        .map_err(|e| ApiError::Internal(e.to_string()))??)
 }
 
 /// `POST /api/v1/alarms/{id}/ack`: the alarm as acknowledged (the first
-/// acknowledgement stands); 404 for an unknown id.
+/// acknowledgement stands, and only it is announced to live clients and
+/// webhooks); 404 for an unknown id.
 pub async fn ack(
     State(state): State<SharedState>,
     Path(id): Path<String>,
@@ -72,10 +82,16 @@ pub async fn ack(
     let by = caller
         .and_then(|Extension(Caller(name))| name)
         .unwrap_or_else(|| ANONYMOUS.to_string());
-    state
+    let (alarm, acked) = state
         .store
         .ack_alarm(id, by, state.clock.now_s())
         .await?
-        .map(Json)
-        .ok_or_else(|| ApiError::NotFound(format!("there is no alarm {id}")))
+        .ok_or_else(|| ApiError::NotFound(format!("there is no alarm {id}")))?;
+    if acked {
+        state.alarms.publish(vec![AlarmChange {
+            transition: Change::Acknowledged,
+            alarm: alarm.clone(),
+        }]);
+    }
+    Ok(Json(alarm))
 }

@@ -8,7 +8,15 @@
 //!   estimates behind:
 //!   `missed` estimates between `from_t` and `to_t` (exclusive) were not
 //!   sent; fetch them from the history API. Ingest and other clients never
-//!   wait for a slow client.
+//!   wait for a slow client;
+//! - `alarm` when one of the machine's alarms was raised, cleared or
+//!   acknowledged: the stored alarm with its `transition`;
+//! - `alarm_gap` when this client fell more than
+//!   [`super::notify::ALARM_BUFFER`] alarm changes behind: fetch
+//!   `GET /api/v1/alarms` again.
+//!
+//! `GET /api/v1/alarms/live` is the fleet's alarm socket: `hello` with the
+//! active alarms of every machine, then `alarm`, `alarm_gap` and `ping`.
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -21,12 +29,14 @@ use std::collections::BTreeMap;
 
 use serde::Serialize;
 use serde_json::value::RawValue;
+use tokio::sync::broadcast;
 use tokio::sync::broadcast::error::RecvError;
 
 use super::error::ApiError;
 use super::{Clock, SharedState};
 use crate::fusion::{EngineKind, StreamKind};
 use crate::machine::MachineHandle;
+use crate::store::alarms::{AlarmChange, AlarmFilter, StoredAlarm};
 
 /// `GET /api/v1/machines/{machine}/live`.
 pub async fn websocket(
@@ -43,13 +53,73 @@ pub async fn websocket(
             machine.spec.id
         )));
     }
+    // Subscribed before the active alarms are read, so none falls between.
+    let alarm_changes = state.alarms.subscribe();
+    let active = super::alarms::stored(
+        &state,
+        AlarmFilter {
+            machine: Some(machine.spec.id.clone()),
+            active_only: true,
+        },
+    )
+    .await?;
     let shutdown = state.shutdown_signal();
     let (ping_every, clock) = (state.limits.live_ping_interval, state.clock);
     let guard = state.live_socket();
     Ok(upgrade.on_upgrade(move |socket| async move {
-        serve_live(socket, machine, ping_every, clock, shutdown).await;
+        let channels = Channels {
+            alarm_changes,
+            ping_every,
+            clock,
+            shutdown,
+        };
+        serve_live(socket, machine, active, channels).await;
         drop(guard);
     }))
+}
+
+/// `GET /api/v1/alarms/live`: every machine's alarm changes.
+pub async fn alarms_websocket(
+    State(state): State<SharedState>,
+    upgrade: Result<WebSocketUpgrade, WebSocketUpgradeRejection>,
+) -> Result<Response, ApiError> {
+    let upgrade = upgrade.map_err(ApiError::from)?;
+    let Some(counted) = state.alarm_socket() else {
+        return Err(ApiError::Unavailable(format!(
+            "the fleet's alarm socket already has {} clients, the most allowed",
+            state.limits.max_live_clients_per_machine
+        )));
+    };
+    let alarm_changes = state.alarms.subscribe();
+    let active = super::alarms::stored(
+        &state,
+        AlarmFilter {
+            machine: None,
+            active_only: true,
+        },
+    )
+    .await?;
+    let shutdown = state.shutdown_signal();
+    let (ping_every, clock) = (state.limits.live_ping_interval, state.clock);
+    let guard = state.live_socket();
+    Ok(upgrade.on_upgrade(move |socket| async move {
+        let channels = Channels {
+            alarm_changes,
+            ping_every,
+            clock,
+            shutdown,
+        };
+        serve_alarms(socket, active, channels).await;
+        drop((guard, counted));
+    }))
+}
+
+/// What a live socket listens to besides estimates.
+struct Channels {
+    alarm_changes: broadcast::Receiver<Arc<AlarmChange>>,
+    ping_every: Duration,
+    clock: Clock,
+    shutdown: tokio::sync::watch::Receiver<bool>,
 }
 
 /// What the live socket sends besides estimates, tagged by `event`.
@@ -63,9 +133,25 @@ enum Event<'a> {
         name: &'a str,
         engines: Vec<EngineKind>,
         latest: BTreeMap<StreamKind, Box<RawValue>>,
+        /// The machine's active alarms, newest first.
+        alarms: Vec<StoredAlarm>,
         server_t: f64,
         clock_rate: f64,
     },
+    /// First on the fleet's alarm socket: every active alarm, newest first.
+    #[serde(rename = "hello")]
+    AlarmsHello {
+        alarms: Vec<StoredAlarm>,
+        server_t: f64,
+        clock_rate: f64,
+    },
+    /// An alarm raised, cleared or acknowledged.
+    Alarm {
+        #[serde(flatten)]
+        change: &'a AlarmChange,
+    },
+    /// `missed` alarm changes were not sent: fetch the list again.
+    AlarmGap { missed: u64 },
     /// The client fell behind and `missed` estimates between the two
     /// times were dropped: fetch them from the history.
     Gap {
@@ -85,10 +171,15 @@ fn text(event: Event<'_>) -> Message {
 async fn serve_live(
     mut socket: WebSocket,
     machine: Arc<MachineHandle>,
-    ping_every: Duration,
-    clock: Clock,
-    mut shutdown: tokio::sync::watch::Receiver<bool>,
+    alarms: Vec<StoredAlarm>,
+    channels: Channels,
 ) {
+    let Channels {
+        mut alarm_changes,
+        ping_every,
+        clock,
+        mut shutdown,
+    } = channels;
     // Subscribe before reading the latest state, so nothing falls between
     // the two (an estimate may come twice; `t` tells).
     let mut estimates = machine.subscribe();
@@ -104,6 +195,7 @@ async fn serve_live(
                 Some((stream, RawValue::from_string(e.json.to_string()).ok()?))
             })
             .collect(),
+        alarms,
         server_t: clock.now_s(),
         clock_rate: clock.rate(),
     };
@@ -144,6 +236,18 @@ async fn serve_live(
                     return;
                 }
             },
+            changed = alarm_changes.recv() => {
+                let event = match &changed {
+                    Ok(change) if change.alarm.machine != machine.spec.id => continue,
+                    Ok(change) => Event::Alarm { change },
+                    Err(RecvError::Lagged(missed)) => Event::AlarmGap { missed: *missed },
+                    // The server keeps the sender as long as it runs.
+                    Err(RecvError::Closed) => return,
+                };
+                if socket.send(text(event)).await.is_err() {
+                    return;
+                }
+            }
             _ = ping.tick() => {
                 if socket.send(text(Event::Ping { server_t: clock.now_s() })).await.is_err() {
                     return;
@@ -152,6 +256,52 @@ async fn serve_live(
             incoming = socket.recv() => match incoming {
                 Some(Ok(Message::Close(_))) | None | Some(Err(_)) => return,
                 // Clients have nothing to say; anything else is ignored.
+                Some(Ok(_)) => {}
+            },
+            () = stopping(&mut shutdown) => {
+                close(socket, "server shutting down").await;
+                return;
+            }
+        }
+    }
+}
+
+async fn serve_alarms(mut socket: WebSocket, alarms: Vec<StoredAlarm>, channels: Channels) {
+    let Channels {
+        mut alarm_changes,
+        ping_every,
+        clock,
+        mut shutdown,
+    } = channels;
+    let hello = Event::AlarmsHello {
+        alarms,
+        server_t: clock.now_s(),
+        clock_rate: clock.rate(),
+    };
+    if socket.send(text(hello)).await.is_err() {
+        return;
+    }
+    let mut ping = tokio::time::interval(ping_every);
+    ping.tick().await;
+    loop {
+        tokio::select! {
+            changed = alarm_changes.recv() => {
+                let event = match &changed {
+                    Ok(change) => Event::Alarm { change },
+                    Err(RecvError::Lagged(missed)) => Event::AlarmGap { missed: *missed },
+                    Err(RecvError::Closed) => return,
+                };
+                if socket.send(text(event)).await.is_err() {
+                    return;
+                }
+            }
+            _ = ping.tick() => {
+                if socket.send(text(Event::Ping { server_t: clock.now_s() })).await.is_err() {
+                    return;
+                }
+            }
+            incoming = socket.recv() => match incoming {
+                Some(Ok(Message::Close(_))) | None | Some(Err(_)) => return,
                 Some(Ok(_)) => {}
             },
             () = stopping(&mut shutdown) => {

@@ -13,13 +13,16 @@ use metrics_exporter_prometheus::{Matcher, PrometheusBuilder, PrometheusHandle};
 
 use super::SharedState;
 use super::error::Rejected;
+use crate::fusion::alarms::{AlarmKind, Severity};
 use crate::fusion::{Reading, SensorKind};
+use crate::store::alarms::AlarmFilter;
 
 const ACCEPTED: &str = "tunnelnav_readings_accepted_total";
 const REJECTED: &str = "tunnelnav_readings_rejected_total";
 const INGEST_SECONDS: &str = "tunnelnav_ingest_seconds";
 const LIVE_CLIENTS: &str = "tunnelnav_live_clients";
 const STORE_BYTES: &str = "tunnelnav_store_bytes";
+const ALARMS_ACTIVE: &str = "tunnelnav_alarms_active";
 
 /// The process-wide recorder (the `metrics` facade has one global recorder;
 /// servers started in one test process share it).
@@ -45,6 +48,10 @@ fn handle() -> Option<&'static PrometheusHandle> {
             );
             metrics::describe_gauge!(LIVE_CLIENTS, "live WebSocket clients per machine");
             metrics::describe_gauge!(STORE_BYTES, metrics::Unit::Bytes, "database and WAL size");
+            metrics::describe_gauge!(
+                ALARMS_ACTIVE,
+                "alarms raised and not cleared, per machine, kind and severity"
+            );
             Some(handle)
         })
         .as_ref()
@@ -107,6 +114,42 @@ pub async fn render(State(state): State<SharedState>) -> impl IntoResponse {
             .set(machine.live_clients() as f64);
     }
     metrics::gauge!(STORE_BYTES).set(state.store.size_bytes() as f64);
+    // Every machine × kind × severity, zero when none is active, so an
+    // alert rule sees the series before the first alarm.
+    let active = super::alarms::stored(
+        &state,
+        AlarmFilter {
+            machine: None,
+            active_only: true,
+        },
+    )
+    .await;
+    match active {
+        Ok(active) => {
+            for machine in state.all_machines() {
+                for kind in AlarmKind::ALL {
+                    for severity in Severity::ALL {
+                        let count = active
+                            .iter()
+                            .filter(|a| {
+                                a.machine == machine.spec.id
+                                    && a.kind == kind.as_str()
+                                    && a.severity == severity.as_str()
+                            })
+                            .count();
+                        metrics::gauge!(
+                            ALARMS_ACTIVE,
+                            "machine" => machine.spec.id.clone(),
+                            "kind" => kind.as_str(),
+                            "severity" => severity.as_str()
+                        )
+                        .set(count as f64);
+                    }
+                }
+            }
+        }
+        Err(e) => tracing::warn!(error = %e, "active alarms not read for /metrics"),
+    }
     let text = handle().map(|h| h.render()).unwrap_or_default();
     (
         [(

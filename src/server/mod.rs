@@ -11,6 +11,7 @@ mod ingest;
 mod live;
 mod machines;
 pub mod metrics;
+pub mod notify;
 pub mod pages;
 
 use std::collections::BTreeMap;
@@ -91,6 +92,8 @@ pub struct ServerOptions {
     pub clock: Clock,
     /// What history to keep.
     pub retention: crate::store::retention::Retention,
+    /// Where alarm changes are posted.
+    pub webhooks: notify::WebhookConfig,
 }
 
 /// Why the server could not start.
@@ -119,9 +122,14 @@ pub struct AppState {
     shutdown: watch::Sender<bool>,
     /// Access tokens in force.
     pub gate: auth::Gate,
+    /// Stored alarm changes to live clients and webhooks.
+    pub alarms: notify::AlarmNotifier,
     /// Live sockets open now: shutdown waits (a little) for their close
     /// frames to go out.
     live_sockets: Arc<std::sync::atomic::AtomicUsize>,
+    /// Fleet alarm sockets open now (at most as many as one machine's
+    /// live clients).
+    alarm_sockets: Arc<std::sync::atomic::AtomicUsize>,
 }
 
 /// Counts an open live socket while it lives.
@@ -159,6 +167,7 @@ impl AppState {
                 specs.insert(spec.id.clone(), (id, spec));
             }
         }
+        let alarms = notify::AlarmNotifier::start(&options.webhooks);
         let mut machines = BTreeMap::new();
         for (id, (db_id, spec)) in specs {
             let (core, status) = {
@@ -177,13 +186,16 @@ impl AppState {
             machines.insert(
                 id,
                 Arc::new(machine::spawn(
-                    store.clone(),
+                    machine::Surroundings {
+                        store: store.clone(),
+                        queue_len: options.limits.machine_queue,
+                        clock: options.clock,
+                        alarm_changes: alarms.clone(),
+                    },
                     spec,
                     db_id,
                     core,
                     status,
-                    options.limits.machine_queue,
-                    options.clock,
                 )),
             );
         }
@@ -202,7 +214,9 @@ impl AppState {
             clock: options.clock,
             shutdown: watch::channel(false).0,
             gate: auth::Gate::default(),
+            alarms,
             live_sockets: Arc::default(),
+            alarm_sockets: Arc::default(),
         }))
     }
 
@@ -211,6 +225,17 @@ impl AppState {
         self.live_sockets
             .fetch_add(1, std::sync::atomic::Ordering::SeqCst);
         LiveSocketGuard(self.live_sockets.clone())
+    }
+
+    /// Counts a fleet alarm socket until the guard drops; `None` when
+    /// there are as many as the limit allows.
+    pub fn alarm_socket(&self) -> Option<LiveSocketGuard> {
+        use std::sync::atomic::Ordering::SeqCst;
+        let most = self.limits.max_live_clients_per_machine;
+        self.alarm_sockets
+            .fetch_update(SeqCst, SeqCst, |open| (open < most).then_some(open + 1))
+            .ok()?;
+        Some(LiveSocketGuard(self.alarm_sockets.clone()))
     }
 
     /// A running machine.
@@ -271,13 +296,16 @@ impl AppState {
             .map(|m| (*m.status()).clone())
             .unwrap_or_default();
         let handle = Arc::new(machine::spawn(
-            self.store.clone(),
+            machine::Surroundings {
+                store: self.store.clone(),
+                queue_len: self.limits.machine_queue,
+                clock: self.clock,
+                alarm_changes: self.alarms.clone(),
+            },
             spec.clone(),
             db_id,
             core,
             status,
-            self.limits.machine_queue,
-            self.clock,
         ));
         if let Ok(mut machines) = self.machines.write() {
             machines.insert(spec.id, handle);
@@ -358,6 +386,10 @@ pub fn router(state: SharedState) -> Router {
             get(alignment::show.layer(read.clone())).put(alignment::put.layer(admin.clone())),
         )
         .route("/api/v1/alarms", get(alarms::list.layer(read.clone())))
+        .route(
+            "/api/v1/alarms/live",
+            get(live::alarms_websocket.layer(read.clone())),
+        )
         .route(
             "/api/v1/alarms/{id}/ack",
             axum::routing::post(alarms::ack.layer(read.clone())),

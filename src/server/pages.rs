@@ -284,6 +284,7 @@ pub async fn machine(State(state): State<SharedState>, Path(id): Path<String>) -
 
 const ASSETS: &[Asset] = &[
     asset!("app.css", "text/css; charset=utf-8"),
+    asset!("alarms.js", "text/javascript; charset=utf-8"),
     asset!("common.js", "text/javascript; charset=utf-8"),
     asset!("favicon.svg", "image/svg+xml"),
     asset!("fleet.js", "text/javascript; charset=utf-8"),

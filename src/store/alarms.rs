@@ -26,10 +26,7 @@ impl AlarmRow {
     pub fn new(transition: &Transition) -> AlarmRow {
         AlarmRow {
             kind: transition.key.kind.as_str(),
-            severity: match transition.key.severity {
-                crate::fusion::alarms::Severity::Warn => "warn",
-                crate::fusion::alarms::Severity::Alarm => "alarm",
-            },
+            severity: transition.key.severity.as_str(),
             subject: transition.key.subject.clone(),
             raised: transition.raised,
             t: transition.t,
@@ -55,42 +52,75 @@ pub struct StoredAlarm {
     pub acked_by: Option<String>,
 }
 
+/// What happened to a stored alarm: the live event's `transition`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Change {
+    Raised,
+    Cleared,
+    Acknowledged,
+}
+
+/// A stored alarm as one transition left it (for live clients and
+/// webhooks).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct AlarmChange {
+    pub transition: Change,
+    #[serde(flatten)]
+    pub alarm: StoredAlarm,
+}
+
 /// Writes `rows` of machine `machine_id` in `tx`: a raise inserts (once),
-/// a clear closes the open alarm of its key.
+/// a clear closes the open alarm of its key. Returns the alarms that
+/// changed (a raise already stored, or a clear with nothing open, changes
+/// nothing).
 pub(super) fn apply(
     tx: &rusqlite::Transaction,
     machine_id: i64,
     rows: &[AlarmRow],
-) -> Result<(), StoreError> {
+) -> Result<Vec<AlarmChange>, StoreError> {
+    let mut changed = Vec::new();
     for row in rows {
         if row.raised {
-            tx.prepare_cached(
-                "INSERT OR IGNORE INTO alarms (machine_id, kind, severity, subject, message, raised_t) \
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
-            )?
-            .execute(params![
-                machine_id,
-                row.kind,
-                row.severity,
-                row.subject,
-                row.message,
-                row.t
-            ])?;
+            let inserted = tx
+                .prepare_cached(
+                    "INSERT OR IGNORE INTO alarms (machine_id, kind, severity, subject, message, raised_t) \
+                     VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
+                )?
+                .execute(params![
+                    machine_id,
+                    row.kind,
+                    row.severity,
+                    row.subject,
+                    row.message,
+                    row.t
+                ])?;
+            if inserted == 1 {
+                changed.push((Change::Raised, tx.last_insert_rowid()));
+            }
         } else {
-            tx.prepare_cached(
+            let mut clear = tx.prepare_cached(
                 "UPDATE alarms SET cleared_t = ?5 WHERE machine_id = ?1 AND kind = ?2 \
-                 AND severity = ?3 AND subject = ?4 AND cleared_t IS NULL AND raised_t <= ?5",
-            )?
-            .execute(params![
-                machine_id,
-                row.kind,
-                row.severity,
-                row.subject,
-                row.t
-            ])?;
+                 AND severity = ?3 AND subject = ?4 AND cleared_t IS NULL AND raised_t <= ?5 \
+                 RETURNING id",
+            )?;
+            let ids = clear.query_map(
+                params![machine_id, row.kind, row.severity, row.subject, row.t],
+                |r| r.get::<_, i64>(0),
+            )?;
+            for id in ids {
+                changed.push((Change::Cleared, id?));
+            }
         }
     }
-    Ok(())
+    changed
+        .into_iter()
+        .filter_map(|(transition, id)| {
+            by_id(tx, id)
+                .map(|alarm| alarm.map(|alarm| AlarmChange { transition, alarm }))
+                .transpose()
+        })
+        .collect()
 }
 
 const COLUMNS: &str = "a.id, m.machine, a.kind, a.severity, a.subject, a.message, a.raised_t, \
@@ -145,19 +175,20 @@ impl Store {
     }
 
     /// Acknowledges alarm `id` by `by` at `t` (the first acknowledgement
-    /// stands); the alarm as it now is, or `None` if there is no such alarm.
+    /// stands). The alarm as it now is and whether this call acknowledged
+    /// it, or `None` if there is no such alarm.
     pub async fn ack_alarm(
         &self,
         id: i64,
         by: String,
         t: f64,
-    ) -> Result<Option<StoredAlarm>, StoreError> {
+    ) -> Result<Option<(StoredAlarm, bool)>, StoreError> {
         self.maintain(move |conn| {
-            conn.execute(
+            let acked = conn.execute(
                 "UPDATE alarms SET acked_t = ?2, acked_by = ?3 WHERE id = ?1 AND acked_t IS NULL",
                 params![id, t, by],
-            )?;
-            by_id(conn, id)
+            )? == 1;
+            Ok(by_id(conn, id)?.map(|alarm| (alarm, acked)))
         })
         .await
     }
@@ -181,8 +212,15 @@ mod tests {
         }
     }
 
-    async fn write(store: &Store, machine_id: i64, alarms: Vec<AlarmRow>) {
+    /// Writes `alarms`; the changes the commit reported, as
+    /// (transition, raised_t, cleared_t).
+    async fn write(
+        store: &Store,
+        machine_id: i64,
+        alarms: Vec<AlarmRow>,
+    ) -> Vec<(Change, f64, Option<f64>)> {
         let (reply, answer) = oneshot::channel();
+        let (report, reported) = oneshot::channel();
         store
             .write(Write {
                 machine_id,
@@ -190,12 +228,19 @@ mod tests {
                 readings: Vec::new(),
                 estimates: Vec::new(),
                 snapshot: None,
-                after_commit: None,
+                after_commit: Some(Box::new(move |changes| {
+                    let _ = report.send(changes);
+                })),
                 reply: Some(reply),
             })
             .await
             .unwrap();
         answer.await.unwrap().unwrap();
+        let changes = reported.await.unwrap().expect("committed");
+        changes
+            .into_iter()
+            .map(|c| (c.transition, c.alarm.raised_t, c.alarm.cleared_t))
+            .collect()
     }
 
     #[tokio::test]
@@ -216,15 +261,30 @@ mod tests {
             .unwrap();
         // A raise, the same raise again (recomputed after a restart), a
         // stale sensor of the other machine, then the first one cleared.
-        write(&store, id, vec![row("deviation", "", true, 10.0)]).await;
-        write(&store, id, vec![row("deviation", "", true, 10.0)]).await;
+        // Each change is reported once: the repeated raise and a clear
+        // with nothing open change nothing.
+        assert_eq!(
+            write(&store, id, vec![row("deviation", "", true, 10.0)]).await,
+            [(Change::Raised, 10.0, None)]
+        );
+        assert_eq!(
+            write(&store, id, vec![row("deviation", "", true, 10.0)]).await,
+            []
+        );
         write(
             &store,
             other,
             vec![row("stale_sensor", "laser", true, 12.0)],
         )
         .await;
-        write(&store, id, vec![row("deviation", "", false, 40.0)]).await;
+        assert_eq!(
+            write(&store, id, vec![row("deviation", "", false, 40.0)]).await,
+            [(Change::Cleared, 10.0, Some(40.0))]
+        );
+        assert_eq!(
+            write(&store, id, vec![row("deviation", "", false, 45.0)]).await,
+            []
+        );
 
         let all = store.alarms(&AlarmFilter::default()).unwrap();
         assert_eq!(all.len(), 2, "{all:?}");
@@ -252,21 +312,24 @@ mod tests {
         assert_eq!(store.alarms(&AlarmFilter::default()).unwrap().len(), 3);
 
         // The first acknowledgement stands; an unknown alarm is None.
-        let acked = store
+        let (acked, first) = store
             .ack_alarm(all[0].id, "shift-lead".into(), 60.0)
             .await
             .unwrap()
             .unwrap();
         assert_eq!(
-            (acked.acked_t, acked.acked_by.as_deref()),
-            (Some(60.0), Some("shift-lead"))
+            (acked.acked_t, acked.acked_by.as_deref(), first),
+            (Some(60.0), Some("shift-lead"), true)
         );
-        let again = store
+        let (again, first) = store
             .ack_alarm(all[0].id, "someone".into(), 70.0)
             .await
             .unwrap()
             .unwrap();
-        assert_eq!(again.acked_by.as_deref(), Some("shift-lead"));
+        assert_eq!(
+            (again.acked_by.as_deref(), first),
+            (Some("shift-lead"), false)
+        );
         assert_eq!(store.ack_alarm(9999, "x".into(), 1.0).await.unwrap(), None);
         store.close().await;
 

@@ -88,8 +88,9 @@ impl EstimateRow {
     }
 }
 
-/// Called once the write it belongs to is committed (`true`) or has failed.
-pub type AfterCommit = Box<dyn FnOnce(bool) + Send>;
+/// Called once the write it belongs to is committed — with the alarms it
+/// changed — or has failed (`None`).
+pub type AfterCommit = Box<dyn FnOnce(Option<Vec<alarms::AlarmChange>>) + Send>;
 
 /// One machine's readings and the estimates and snapshot they led to,
 /// committed together.

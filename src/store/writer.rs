@@ -126,27 +126,33 @@ fn commit(conn: &mut Connection, group: &mut Vec<Request>) {
 }
 
 enum Outcome {
-    Write(WriteOutcome),
+    /// What a write stored and the alarms it changed.
+    Write(WriteOutcome, Vec<super::alarms::AlarmChange>),
     Put(i64),
 }
 
 fn answer(request: Request, result: Result<Outcome, StoreError>) {
     match request {
         Request::Write(write) => {
+            let result = result.map(|o| match o {
+                Outcome::Write(w, alarms) => (w, alarms),
+                Outcome::Put(_) => (WriteOutcome::default(), Vec::new()),
+            });
+            let (outcome, alarms) = match result {
+                Ok((w, alarms)) => (Ok(w), Some(alarms)),
+                Err(e) => (Err(e), None),
+            };
             if let Some(after_commit) = write.after_commit {
-                after_commit(result.is_ok());
+                after_commit(alarms);
             }
             if let Some(reply) = write.reply {
-                let _ = reply.send(result.map(|o| match o {
-                    Outcome::Write(w) => w,
-                    Outcome::Put(_) => WriteOutcome::default(),
-                }));
+                let _ = reply.send(outcome);
             }
         }
         Request::PutMachine { reply, .. } => {
             let _ = reply.send(result.map(|o| match o {
                 Outcome::Put(id) => id,
-                Outcome::Write(_) => 0,
+                Outcome::Write(..) => 0,
             }));
         }
     }
@@ -160,7 +166,10 @@ fn apply_group(conn: &mut Connection, group: &[Request]) -> Result<Vec<Outcome>,
     let mut buckets = Buckets::new();
     for request in group {
         outcomes.push(match request {
-            Request::Write(write) => Outcome::Write(apply_write(&tx, write, &mut buckets)?),
+            Request::Write(write) => {
+                let (outcome, alarms) = apply_write(&tx, write, &mut buckets)?;
+                Outcome::Write(outcome, alarms)
+            }
             Request::PutMachine { spec, snapshot, .. } => {
                 Outcome::Put(apply_put_machine(&tx, spec, snapshot)?)
             }
@@ -178,7 +187,7 @@ fn apply_write(
     tx: &rusqlite::Transaction,
     write: &Write,
     buckets: &mut Buckets,
-) -> Result<WriteOutcome, StoreError> {
+) -> Result<(WriteOutcome, Vec<super::alarms::AlarmChange>), StoreError> {
     let mut outcome = WriteOutcome::default();
     let machine_id = write.machine_id;
     let stored = insert_rows(
@@ -224,11 +233,11 @@ fn apply_write(
                 .or_insert(point);
         }
     }
-    super::alarms::apply(tx, machine_id, &write.alarms)?;
+    let alarms = super::alarms::apply(tx, machine_id, &write.alarms)?;
     if let Some(state) = &write.snapshot {
         save_snapshot(tx, write.machine_id, state)?;
     }
-    Ok(outcome)
+    Ok((outcome, alarms))
 }
 
 /// Folds a group's bucket extremes into `estimate_buckets`.

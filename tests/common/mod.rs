@@ -26,6 +26,15 @@ impl TestServer {
     }
 
     pub async fn start_with(data_dir: &Path, limits: Limits) -> TestServer {
+        Self::start_configured(data_dir, limits, Default::default()).await
+    }
+
+    /// A server posting alarm changes to `webhooks`.
+    pub async fn start_configured(
+        data_dir: &Path,
+        limits: Limits,
+        webhooks: tunnelnav::config::WebhookConfig,
+    ) -> TestServer {
         server::metrics::install();
         let state = AppState::start(ServerOptions {
             data_dir: data_dir.to_path_buf(),
@@ -33,6 +42,7 @@ impl TestServer {
             limits,
             clock: Clock::system(),
             retention: tunnelnav::store::retention::Retention::default(),
+            webhooks,
         })
         .await
         .expect("server starts");

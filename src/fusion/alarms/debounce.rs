@@ -42,6 +42,12 @@ pub struct Debounced {
     /// When the condition last changed away from `active`, if it has not
     /// changed back since: the start of a pending raise or clear.
     pending_since_t: Option<f64>,
+    /// When the active condition began (absent in snapshots from before
+    /// it was kept): a clear is never dated before it, even when late data
+    /// (a gateway forwarding what it buffered) says the condition ended
+    /// earlier than it was seen.
+    #[serde(default)]
+    onset_t: Option<f64>,
 }
 
 impl Debounced {
@@ -59,9 +65,13 @@ impl Debounced {
         self.active = holds;
         self.pending_since_t = None;
         Some(if holds {
+            self.onset_t = Some(since);
             Edge::Raised { onset_t: since }
         } else {
-            Edge::Cleared { gone_t: since }
+            let onset_t = self.onset_t.take().unwrap_or(since);
+            Edge::Cleared {
+                gone_t: since.max(onset_t),
+            }
         })
     }
 }
@@ -115,6 +125,28 @@ mod tests {
         assert_eq!(
             d.update(111.0, true, 0.0),
             Some(Edge::Raised { onset_t: 111.0 })
+        );
+    }
+
+    #[test]
+    fn late_data_never_dates_a_clear_before_its_raise() {
+        let mut d = Debounced::default();
+        assert_eq!(
+            d.update(50.0, true, 0.0),
+            Some(Edge::Raised { onset_t: 50.0 })
+        );
+        // A reading stamped 41 s, forwarded late, ends it: cleared at 50 s.
+        assert_eq!(
+            d.update(41.0, false, 0.0),
+            Some(Edge::Cleared { gone_t: 50.0 })
+        );
+        assert_eq!(
+            d.update(60.0, true, 0.0),
+            Some(Edge::Raised { onset_t: 60.0 })
+        );
+        assert_eq!(
+            d.update(70.0, false, 0.0),
+            Some(Edge::Cleared { gone_t: 70.0 })
         );
     }
 

@@ -5,7 +5,8 @@
 //! - `laser_dropout`: the `attitude` engine's laser sample older than a
 //!   limit;
 //! - `stale_sensor`: a sensor silent for more than N of its own periods,
-//!   learned from its readings ([`period`]);
+//!   learned from its readings ([`period`]); not the laser, whose beam is
+//!   lost routinely for minutes (`laser_dropout` is its rule);
 //! - `ins_uncertainty`: the `zupt` position's horizontal 1σ above a limit;
 //! - `engine_reset`: the `zupt` engine lost its solution and re-aligns.
 //!
@@ -38,6 +39,15 @@ pub enum AlarmKind {
 }
 
 impl AlarmKind {
+    /// Every kind.
+    pub const ALL: [AlarmKind; 5] = [
+        AlarmKind::Deviation,
+        AlarmKind::LaserDropout,
+        AlarmKind::StaleSensor,
+        AlarmKind::InsUncertainty,
+        AlarmKind::EngineReset,
+    ];
+
     /// The protocol's name.
     pub fn as_str(self) -> &'static str {
         match self {
@@ -56,6 +66,19 @@ impl AlarmKind {
 pub enum Severity {
     Warn,
     Alarm,
+}
+
+impl Severity {
+    /// Both, the milder first.
+    pub const ALL: [Severity; 2] = [Severity::Warn, Severity::Alarm];
+
+    /// The protocol's name.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Severity::Warn => "warn",
+            Severity::Alarm => "alarm",
+        }
+    }
 }
 
 /// One alarm of a machine: its kind, severity and what it concerns (a
@@ -254,6 +277,9 @@ impl AlarmRules {
     pub fn tick(&mut self, now_t: f64, out: &mut Vec<Transition>) {
         let c = self.config;
         for (sensor, (period, stale)) in &mut self.state.sensors {
+            if *sensor == SensorKind::Laser {
+                continue;
+            }
             let (Some(last_t), Some(period_s)) = (period.last_t, period.period_s()) else {
                 continue;
             };
@@ -365,7 +391,7 @@ impl AlarmRules {
                     if ratio > worst.0 {
                         worst = (
                             ratio,
-                            format!("{name} {axis} {value:+.0} mm beyond ±{lim:.0} mm"),
+                            format!("{name} {axis} {value:+.0} mm (±{lim:.0} mm)"),
                         );
                     }
                 }
@@ -382,7 +408,7 @@ impl AlarmRules {
                     key(AlarmKind::Deviation, severity, ""),
                     edge,
                     format!(
-                        "deviation from the design axis: {} (the {word} tolerance)",
+                        "deviation from the design axis past the {word} tolerance: {}",
                         worst.1
                     ),
                     format!("deviation back within the {word} tolerance"),
@@ -463,7 +489,7 @@ mod tests {
         assert!(
             out[0]
                 .message
-                .contains("front horizontal +55 mm beyond ±50 mm"),
+                .contains("past the warn tolerance: front horizontal +55 mm (±50 mm)"),
             "{}",
             out[0].message
         );
@@ -484,9 +510,7 @@ mod tests {
             .collect();
         assert_eq!(raised, [Severity::Warn, Severity::Alarm], "{out:?}");
         assert!(
-            out[1]
-                .message
-                .contains("rear vertical -70 mm beyond ±60 mm"),
+            out[1].message.contains("rear vertical -70 mm (±60 mm)"),
             "{}",
             out[1].message
         );
@@ -571,6 +595,29 @@ mod tests {
         r.reading(&inclinometer(61.0), &mut out);
         assert_eq!(out.len(), 2);
         assert!(!out[1].raised && out[1].t == 61.0);
+        // Silent again; the readings of the silence forwarded late clear
+        // it, dated no earlier than its raise.
+        r.tick(80.0, &mut out);
+        assert!(out[2].raised && out[2].t == 71.0, "{out:?}");
+        r.reading(&inclinometer(63.0), &mut out);
+        assert!(!out[3].raised && out[3].t == 71.0, "{out:?}");
+        // The laser is not judged stale: its silence is a laser dropout.
+        let mut laser_only = rules();
+        let mut out = Vec::new();
+        for i in 0..=20 {
+            let laser = Reading {
+                t: 30.0 * f64::from(i),
+                data: SensorData::Laser {
+                    pitch_deg: 0.0,
+                    roll_deg: 0.0,
+                    yaw_deg: None,
+                    position: None,
+                },
+            };
+            laser_only.reading(&laser, &mut out);
+        }
+        laser_only.tick(1e6, &mut out);
+        assert!(out.is_empty(), "{out:?}");
         // A sensor with fewer than three intervals is not judged.
         let mut fresh = rules();
         let mut out = Vec::new();

@@ -1,0 +1,206 @@
+// The fleet-wide alarm bar on every page: follows /api/v1/alarms/live
+// (hello with the active alarms, then raised / cleared / acknowledged),
+// lists them newest first with the worst severity, acknowledges, chimes
+// for new unacknowledged ones (toggle remembered), and colours the fleet
+// cards. The socket counts as one of the page's connections (tn.link).
+'use strict';
+
+(function () {
+  const bar = document.getElementById('alarm-bar');
+  if (!bar) return;
+  const summary = document.getElementById('alarm-summary');
+  const list = document.getElementById('alarm-list');
+  const chime = document.getElementById('alarm-chime');
+  const toggle = document.getElementById('chime-toggle');
+  const hint = document.getElementById('chime-hint');
+  const active = new Map(); // id → alarm
+  const chimed = new Set(); // ids already chimed for
+  const STORE_KEY = 'tunnelnav-chime';
+
+  // --- chime: a short two-tone WAV built here (no binary asset) ---------
+  function chimeWav() {
+    const rate = 22050, seconds = 0.9;
+    const n = Math.floor(rate * seconds);
+    const data = new DataView(new ArrayBuffer(44 + 2 * n));
+    const text = (at, s) => { for (let i = 0; i < s.length; i++) data.setUint8(at + i, s.charCodeAt(i)); };
+    text(0, 'RIFF'); data.setUint32(4, 36 + 2 * n, true); text(8, 'WAVE');
+    text(12, 'fmt '); data.setUint32(16, 16, true); data.setUint16(20, 1, true);
+    data.setUint16(22, 1, true); data.setUint32(24, rate, true); data.setUint32(28, 2 * rate, true);
+    data.setUint16(32, 2, true); data.setUint16(34, 16, true);
+    text(36, 'data'); data.setUint32(40, 2 * n, true);
+    for (let i = 0; i < n; i++) {
+      const t = i / rate;
+      const f = t < seconds / 2 ? 880 : 660;
+      const local = t < seconds / 2 ? t : t - seconds / 2;
+      const envelope = Math.exp(-6 * local);
+      data.setInt16(44 + 2 * i, Math.round(12000 * envelope * Math.sin(2 * Math.PI * f * t)), true);
+    }
+    return URL.createObjectURL(new Blob([data], { type: 'audio/wav' }));
+  }
+  chime.src = chimeWav();
+  let started = 0;
+  chime.addEventListener('playing', () => { started += 1; chime.dataset.started = String(started); });
+
+  function chimeOn() {
+    try { return localStorage.getItem(STORE_KEY) !== 'off'; } catch (e) { return true; }
+  }
+  function showToggle() {
+    const on = chimeOn();
+    toggle.setAttribute('aria-pressed', String(on));
+    tn.setText(toggle, on ? '🔔 chime on' : '🔕 chime off');
+  }
+  toggle.addEventListener('click', () => {
+    try { localStorage.setItem(STORE_KEY, chimeOn() ? 'off' : 'on'); } catch (e) { /* private mode */ }
+    showToggle();
+  });
+  showToggle();
+
+  function ring() {
+    if (!chimeOn()) return;
+    chime.currentTime = 0;
+    const playing = chime.play();
+    if (playing && playing.catch) {
+      playing.then(() => { hint.hidden = true; }).catch((e) => {
+        // Browsers refuse sound before the first click on the page.
+        if (e && e.name === 'NotAllowedError') {
+          hint.hidden = false;
+          document.addEventListener('click', () => { hint.hidden = true; }, { once: true });
+        }
+      });
+    }
+  }
+
+  // --- the bar ------------------------------------------------------------
+  const escape = (s) => String(s).replace(/[&<>"']/g, (c) => ({
+    '&': '&amp;', '<': '&lt;', '>': '&gt;', '"': '&quot;', "'": '&#39;',
+  }[c]));
+
+  function sorted() {
+    return [...active.values()].sort((a, b) => (b.raised_t - a.raised_t) || (b.id - a.id));
+  }
+
+  function render() {
+    const alarms = sorted();
+    bar.hidden = alarms.length === 0;
+    const worst = alarms.some((a) => a.severity === 'alarm') ? 'alarm'
+      : (alarms.length ? 'warn' : 'none');
+    bar.dataset.worst = worst;
+    const unacked = alarms.filter((a) => a.acked_t == null).length;
+    const label = worst === 'alarm' ? 'ALARM' : 'WARNING';
+    tn.setText(summary, alarms.length === 0 ? '' :
+      `${label} · ${alarms.length} active alarm${alarms.length === 1 ? '' : 's'}` +
+      (unacked ? ` · ${unacked} unacknowledged` : ''));
+    const html = alarms.map((a) => {
+      const cls = a.severity === 'alarm' ? 'bad' : 'warn';
+      const ack = a.acked_t == null
+        ? `<button type="button" class="ack" data-id="${a.id}">Acknowledge</button>`
+        : `<span class="acked">acknowledged by ${escape(a.acked_by || '?')} ${tn.timeOfDay(a.acked_t)}</span>`;
+      return `<li class="alarm ${cls}" data-id="${a.id}">` +
+        `<span class="badge ${cls}">${a.severity === 'alarm' ? 'ALARM' : 'warn'}</span> ` +
+        `<a href="/machines/${encodeURIComponent(a.machine)}">${escape(a.machine)}</a> ` +
+        `<span class="message">${escape(a.message)}</span> ` +
+        `<span class="since">since ${tn.timeOfDay(a.raised_t)}</span> ${ack}</li>`;
+    }).join('');
+    if (list.innerHTML !== html) list.innerHTML = html;
+    colourCards(alarms);
+  }
+
+  // Fleet cards (and the machine page's heading): worst severity each.
+  function colourCards(alarms) {
+    const worstOf = new Map();
+    for (const a of alarms) {
+      const was = worstOf.get(a.machine);
+      if (was !== 'alarm') worstOf.set(a.machine, a.severity);
+    }
+    document.querySelectorAll('[data-machine]').forEach((el) => {
+      const worst = worstOf.get(el.dataset.machine) || '';
+      if (el.dataset.alarm !== worst) el.dataset.alarm = worst;
+      const line = el.querySelector('[data-field="alarms"]');
+      if (line) {
+        const n = alarms.filter((a) => a.machine === el.dataset.machine).length;
+        tn.setText(line, n ? `⚠ ${n} active alarm${n === 1 ? '' : 's'}` : '');
+        line.className = `alarm-line ${worst === 'alarm' ? 'bad' : (worst ? 'warn' : '')}`;
+      }
+    });
+  }
+
+  list.addEventListener('click', async (event) => {
+    const button = event.target.closest('button.ack');
+    if (!button) return;
+    event.preventDefault();
+    button.disabled = true;
+    try {
+      const response = await fetch(`/api/v1/alarms/${button.dataset.id}/ack`, { method: 'POST' });
+      if (!response.ok) {
+        let reason = response.statusText;
+        try { reason = (await response.json()).error || reason; } catch (e) { /* not JSON */ }
+        throw new Error(`${response.status} ${reason}`);
+      }
+      update({ transition: 'acknowledged', ...(await response.json()) });
+    } catch (e) {
+      button.disabled = false;
+      button.title = `not acknowledged: ${e.message}`;
+      tn.setText(button, 'Acknowledge (failed, retry)');
+    }
+  });
+
+  // One raised, cleared or acknowledged alarm.
+  function update(change) {
+    const { transition, event, ...alarm } = change;
+    if (transition === 'cleared' || alarm.cleared_t != null) active.delete(alarm.id);
+    else active.set(alarm.id, alarm);
+    refresh();
+  }
+
+  // The whole active list (on hello, or after falling behind).
+  function replace(alarms) {
+    active.clear();
+    for (const a of alarms) active.set(a.id, a);
+    refresh();
+  }
+
+  // Redraws; chimes once for each unacknowledged alarm not chimed for yet.
+  function refresh() {
+    const fresh = sorted().filter((a) => a.acked_t == null && !chimed.has(a.id));
+    fresh.forEach((a) => chimed.add(a.id));
+    render();
+    if (fresh.length) ring();
+  }
+
+  // --- the socket, reconnecting with back-off -----------------------------
+  let retryMs = 500;
+  function connect() {
+    const scheme = location.protocol === 'https:' ? 'wss:' : 'ws:';
+    const socket = new WebSocket(`${scheme}//${location.host}/api/v1/alarms/live`);
+    let opened = false;
+    const watchdog = tn.silenceWatchdog(socket);
+    socket.onmessage = (message) => {
+      watchdog.heard();
+      let m;
+      try { m = JSON.parse(message.data); } catch (e) { return; }
+      if (m.event === 'hello') {
+        opened = true;
+        retryMs = 500;
+        tn.clock.sync(m.server_t, m.clock_rate);
+        tn.link.ok('alarms');
+        replace(m.alarms);
+      } else if (m.event === 'alarm') {
+        update(m);
+      } else if (m.event === 'alarm_gap') {
+        // Fell behind: the list again.
+        tn.json('/api/v1/alarms').then((body) => replace(body.alarms))
+          .catch((e) => tn.link.failed('alarms', e.message));
+      } else if (m.event === 'ping') {
+        tn.clock.sync(m.server_t, m.clock_rate || tn.clock.rate);
+        tn.link.ok('alarms');
+      }
+    };
+    socket.onclose = (close) => {
+      watchdog.stop();
+      tn.link.failed('alarms', opened ? 'alarm stream closed' : `alarm stream refused (${close.code})`);
+      setTimeout(connect, retryMs);
+      retryMs = Math.min(retryMs * 2, 10000);
+    };
+  }
+  connect();
+})();
