@@ -13,6 +13,9 @@
   const chime = document.getElementById('alarm-chime');
   const toggle = document.getElementById('chime-toggle');
   const hint = document.getElementById('chime-hint');
+  const ackedBox = document.getElementById('alarms-acked');
+  const ackedSummary = ackedBox.querySelector('summary');
+  const ackedList = document.getElementById('alarm-acked-list');
   const active = new Map(); // id → alarm
   const chimed = new Set(); // ids already chimed for
   const STORE_KEY = 'tunnelnav-chime';
@@ -47,7 +50,7 @@
   function showToggle() {
     const on = chimeOn();
     toggle.setAttribute('aria-pressed', String(on));
-    tn.setText(toggle, on ? '🔔 chime on' : '🔕 chime off');
+    tn.setText(toggle, on ? '♪ chime on' : '♪ chime off');
   }
   toggle.addEventListener('click', () => {
     try { localStorage.setItem(STORE_KEY, chimeOn() ? 'off' : 'on'); } catch (e) { /* private mode */ }
@@ -79,29 +82,38 @@
     return [...active.values()].sort((a, b) => (b.raised_t - a.raised_t) || (b.id - a.id));
   }
 
+  // Unacknowledged alarms are listed (newest first) with their button;
+  // acknowledged ones that are still active fold into a line below, so
+  // acknowledging takes an alarm off the list but not out of sight.
   function render() {
     const alarms = sorted();
+    const open = alarms.filter((a) => a.acked_t == null);
+    const acked = alarms.filter((a) => a.acked_t != null);
     bar.hidden = alarms.length === 0;
-    const worst = alarms.some((a) => a.severity === 'alarm') ? 'alarm'
-      : (alarms.length ? 'warn' : 'none');
-    bar.dataset.worst = worst;
-    const unacked = alarms.filter((a) => a.acked_t == null).length;
-    const label = worst === 'alarm' ? 'ALARM' : 'WARNING';
+    const worstOf = (list) => (list.some((a) => a.severity === 'alarm') ? 'alarm'
+      : (list.length ? 'warn' : ''));
+    bar.dataset.worst = open.length ? worstOf(open) : (acked.length ? 'acked' : 'none');
+    const label = { alarm: 'ALARM', warn: 'WARNING' }[worstOf(alarms)] || '';
     tn.setText(summary, alarms.length === 0 ? '' :
-      `${label} · ${alarms.length} active alarm${alarms.length === 1 ? '' : 's'}` +
-      (unacked ? ` · ${unacked} unacknowledged` : ''));
-    const html = alarms.map((a) => {
+      `${label} · ${alarms.length} active alarm${alarms.length === 1 ? '' : 's'} · ` +
+      `${open.length} unacknowledged`);
+    const row = (a, button) => {
       const cls = a.severity === 'alarm' ? 'bad' : 'warn';
-      const ack = a.acked_t == null
+      const end = button
         ? `<button type="button" class="ack" data-id="${a.id}">Acknowledge</button>`
         : `<span class="acked">acknowledged by ${escape(a.acked_by || '?')} ${tn.timeOfDay(a.acked_t)}</span>`;
       return `<li class="alarm ${cls}" data-id="${a.id}">` +
         `<span class="badge ${cls}">${a.severity === 'alarm' ? 'ALARM' : 'warn'}</span> ` +
         `<a href="/machines/${encodeURIComponent(a.machine)}">${escape(a.machine)}</a> ` +
         `<span class="message">${escape(a.message)}</span> ` +
-        `<span class="since">since ${tn.timeOfDay(a.raised_t)}</span> ${ack}</li>`;
-    }).join('');
+        `<span class="since">since ${tn.timeOfDay(a.raised_t)}</span> ${end}</li>`;
+    };
+    const html = open.map((a) => row(a, true)).join('');
     if (list.innerHTML !== html) list.innerHTML = html;
+    ackedBox.hidden = acked.length === 0;
+    tn.setText(ackedSummary, `${acked.length} acknowledged, still active`);
+    const ackedHtml = acked.map((a) => row(a, false)).join('');
+    if (ackedList.innerHTML !== ackedHtml) ackedList.innerHTML = ackedHtml;
     colourCards(alarms);
   }
 
@@ -195,9 +207,9 @@
         tn.link.ok('alarms');
       }
     };
-    socket.onclose = (close) => {
+    socket.onclose = () => {
       watchdog.stop();
-      tn.link.failed('alarms', opened ? 'alarm stream closed' : `alarm stream refused (${close.code})`);
+      tn.link.failed('alarms', opened ? 'alarm stream closed' : 'alarm stream: no connection');
       setTimeout(connect, retryMs);
       retryMs = Math.min(retryMs * 2, 10000);
     };

@@ -74,6 +74,11 @@
       for (const m of body.machines) render(cards.get(m.machine), m, body.server_t);
     } catch (e) {
       tn.link.failed('fleet', e.message);
+      // Nothing on the cards may still say live.
+      for (const card of cards.values()) {
+        tn.setText(card.state, 'no connection');
+        card.state.className = 'badge';
+      }
     }
   }
 

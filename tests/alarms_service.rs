@@ -109,6 +109,22 @@ async fn alarms_are_raised_listed_acknowledged_by_name_and_kept_across_a_restart
             .contains("horizontal +70 mm (±50 mm)"),
         "{deviation}"
     );
+    // The Prometheus gauge counts them.
+    let metrics = client
+        .get(format!("{base}/metrics"))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    for series in [
+        r#"tunnelnav_alarms_active{machine="tbm-alarms",kind="deviation",severity="warn"} 1"#,
+        r#"tunnelnav_alarms_active{machine="tbm-alarms",kind="stale_sensor",severity="alarm"} 1"#,
+        r#"tunnelnav_alarms_active{machine="tbm-alarms",kind="deviation",severity="alarm"} 0"#,
+    ] {
+        assert!(metrics.contains(series), "{series} missing:\n{metrics}");
+    }
     // Filters and refusals.
     assert_eq!(
         alarms(&client, &base, "?machine=tbm-alarms&state=all", None)

@@ -92,7 +92,9 @@ impl WebDriverCompatibleCommand for BrowserLog {
 async fn connect(driver: &Driver, chromium: Option<&Path>) -> Client {
     let mut chrome = json!({
         "args": ["--headless=new", "--no-sandbox", "--disable-gpu",
-                 "--disable-dev-shm-usage", "--window-size=1400,1900"],
+                 "--disable-dev-shm-usage", "--window-size=1400,1900",
+                 // A control-room screen is set up once to allow sound.
+                 "--autoplay-policy=no-user-gesture-required"],
     });
     if let Some(binary) = chromium {
         chrome["binary"] = binary.display().to_string().into();
@@ -138,10 +140,13 @@ async fn wait_for(browser: &Client, what: &str, script: &str, secs: u64) {
         if Instant::now() > deadline {
             let state = js(
                 browser,
-                "return {laser: document.getElementById('laser-status').dataset.state, \
-                 conn: document.getElementById('conn-state').textContent, \
-                 pitch: document.getElementById('pitch-value').textContent, \
-                 note: document.getElementById('history-note').textContent};",
+                "const text = (id) => document.getElementById(id)?.textContent; \
+                 return {laser: document.getElementById('laser-status')?.dataset.state, \
+                 conn: text('conn-state'), pitch: text('pitch-value'), \
+                 note: text('history-note'), alarms: text('alarm-bar'), \
+                 lost: text('conn-lost'), clock: text('server-clock'), \
+                 bar_hidden: document.getElementById('alarm-bar')?.hidden, \
+                 card: document.querySelector('.machine-card')?.textContent};",
             )
             .await;
             save_screenshot(browser, "browser-failure.png").await;
@@ -742,6 +747,25 @@ async fn the_dashboard_signs_in_when_tokens_are_required() {
     )
     .await;
     assert_clean_console(&browser).await;
+
+    // The token is revoked: the page says the connection is lost (not
+    // live), offers to sign in again, and the clock stops.
+    {
+        let conn = tunnelnav::store::Store::connect(dir.path()).unwrap();
+        let tokens = tunnelnav::auth::list(&conn).unwrap();
+        let id = tokens.iter().find(|t| t.name == "control room").unwrap().id;
+        tunnelnav::auth::revoke(&conn, id, tunnelnav::server::wall_clock_s()).unwrap();
+    }
+    wait_for(
+        &browser,
+        "connection lost after the token was revoked",
+        "const lost = document.getElementById('conn-lost'); \
+         return !lost.hidden && /connection lost — data as of/.test(lost.textContent) \
+           && /401/.test(lost.textContent) && !!lost.querySelector('a[href=\"/login\"]') \
+           && document.getElementById('server-clock').classList.contains('stopped');",
+        10,
+    )
+    .await;
     browser.close().await.ok();
     server.stop().await;
 }
@@ -1028,4 +1052,199 @@ async fn dta_panel_draws_moves_and_shows_warn_and_alarm_colours() {
     assert_clean_console(&browser).await;
     browser.close().await.ok();
     server.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_alarm_bar_rings_is_acknowledged_and_the_page_says_when_the_server_is_gone() {
+    let Some((driver_program, chromium)) = browser_programs() else {
+        return;
+    };
+    const TBM: &str = "tbm-alarm-browser";
+    let dir = tempfile::tempdir().unwrap();
+    let server = common::TestServer::start(dir.path()).await;
+    let client = reqwest::Client::new();
+    let base = server.url("");
+    // Due north from (1000, 5000) at 50 m; ±50/100 mm horizontally.
+    let declaration = json!({
+        "name": "TBM with alarms",
+        "engines": {"attitude": {}},
+        "geometry": {"front_m": [4.0, 0.0, 0.0], "rear_m": [-5.0, 0.0, 0.0]},
+        "tolerances": {"horizontal_mm": {"warn": 50, "alarm": 100},
+                       "vertical_mm": {"warn": 30, "alarm": 60}},
+        "alignment": {"start": {"easting_m": 1000.0, "northing_m": 5000.0, "azimuth_deg": 0.0},
+                      "horizontal": [{"type": "line", "length_m": 100.0}],
+                      "vertical": {"start_height_m": 50.0, "end_grade_pct": 0.0}},
+        // No gateway keeps posting here: sensors are not judged stale.
+        "alarms": {"stale_min_s": 3600}
+    });
+    common::declare_machine(&client, &base, TBM, &declaration.to_string()).await;
+    // Seconds `from..to` before now: 1 Hz inclinometer and a laser every
+    // 2 s, `right_mm` right of the axis.
+    let readings = |from: i32, to: i32, right_mm: f64| -> Vec<String> {
+        let now = tunnelnav::server::wall_clock_s().floor();
+        (from..to)
+            .flat_map(|s| {
+                let t = now + f64::from(s);
+                let mut lines = vec![
+                    json!({"t": t, "sensor": "inclinometer", "pitch_deg": 0.0, "roll_deg": 0.0}),
+                ];
+                if s % 2 == 0 {
+                    lines.push(json!({"t": t, "sensor": "laser", "pitch_deg": 0.0,
+                        "roll_deg": 0.0, "yaw_deg": 0.0, "easting_m": 1000.0 + right_mm / 1000.0,
+                        "northing_m": 5020.0, "height_m": 50.0}));
+                }
+                lines
+            })
+            .map(|line| line.to_string())
+            .collect()
+    };
+    // On the axis from 60 to 30 s ago.
+    post_ndjson(&client, &base, TBM, &readings(-60, -30, 0.0)).await;
+
+    let driver = Driver::start(&driver_program);
+    let browser = connect(&driver, chromium.as_deref()).await;
+    browser
+        .goto(&format!("{base}/"))
+        .await
+        .expect("fleet loads");
+    wait_for(
+        &browser,
+        "the fleet page, no alarm",
+        "return document.getElementById('alarm-bar').hidden \
+           && /server clock/.test(document.getElementById('server-clock').textContent) \
+           && /\\d/.test(document.querySelector('.machine-card [data-field=sensors]').textContent);",
+        10,
+    )
+    .await;
+
+    // 70 mm right from 28 to 10 s ago: a deviation warning. The bar shows
+    // it within 2 s, and the chime starts.
+    post_ndjson(&client, &base, TBM, &readings(-28, -10, 70.0)).await;
+    let posted = Instant::now();
+    wait_for(
+        &browser,
+        "the alarm bar with the deviation warning",
+        "const bar = document.getElementById('alarm-bar'); \
+         const row = document.querySelector('#alarm-list li'); \
+         return !bar.hidden && bar.dataset.worst === 'warn' && !!row \
+           && /deviation from the design axis/.test(row.textContent) \
+           && /WARNING · 1 active alarm · 1 unacknowledged/.test(bar.textContent);",
+        2,
+    )
+    .await;
+    let shown_after = posted.elapsed();
+    assert!(shown_after < Duration::from_secs(2), "{shown_after:?}");
+    wait_for(
+        &browser,
+        "the chime started",
+        "return Number(document.getElementById('alarm-chime').dataset.started || 0) === 1;",
+        5,
+    )
+    .await;
+    let state = js(
+        &browser,
+        &format!(
+            "const card = document.querySelector('.machine-card[data-machine=\"{TBM}\"]'); \
+             return {{card: card.dataset.alarm, line: card.querySelector('[data-field=alarms]').textContent, \
+                      border: getComputedStyle(card).borderTopColor, \
+                      warn: getComputedStyle(document.documentElement).getPropertyValue('--warn').trim(), \
+                      live: document.getElementById('alarm-summary').getAttribute('aria-live')}};"
+        ),
+    )
+    .await;
+    assert_eq!(state["card"], "warn", "{state}");
+    assert_eq!(state["line"], "⚠ 1 active alarm", "{state}");
+    assert_eq!(state["live"], "assertive", "{state}");
+    save_screenshot(&browser, "browser-alarm-bar.png").await;
+
+    // Acknowledged from the bar: off the list, folded into the
+    // acknowledged line, stored with the (open access) name.
+    browser
+        .find(fantoccini::Locator::Css("#alarm-list button.ack"))
+        .await
+        .expect("an acknowledge button")
+        .click()
+        .await
+        .expect("click");
+    wait_for(
+        &browser,
+        "the alarm acknowledged",
+        "const bar = document.getElementById('alarm-bar'); \
+         return document.querySelectorAll('#alarm-list li').length === 0 \
+           && bar.dataset.worst === 'acked' && !document.getElementById('alarms-acked').hidden \
+           && /1 acknowledged, still active/.test(bar.textContent) \
+           && /0 unacknowledged/.test(bar.textContent);",
+        5,
+    )
+    .await;
+    let stored = common::get_json(&client, &base, "/api/v1/alarms").await;
+    assert_eq!(stored["alarms"][0]["acked_by"], "anonymous", "{stored}");
+
+    // The chime toggle is remembered: off, a new alarm (100 mm: the alarm
+    // tolerance) rings no more.
+    browser
+        .find(fantoccini::Locator::Css("#chime-toggle"))
+        .await
+        .expect("the chime toggle")
+        .click()
+        .await
+        .expect("click");
+    browser.refresh().await.expect("reload");
+    wait_for(
+        &browser,
+        "the toggle still off after a reload",
+        "return document.getElementById('chime-toggle').getAttribute('aria-pressed') === 'false' \
+           && !document.getElementById('alarm-bar').hidden;",
+        10,
+    )
+    .await;
+    post_ndjson(&client, &base, TBM, &readings(-9, 3, 130.0)).await;
+    wait_for(
+        &browser,
+        "the deviation alarm listed, silently",
+        "const bar = document.getElementById('alarm-bar'); \
+         return bar.dataset.worst === 'alarm' && /ALARM/.test(bar.textContent);",
+        5,
+    )
+    .await;
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    assert_eq!(
+        js(
+            &browser,
+            "return document.getElementById('alarm-chime').dataset.started || '0';"
+        )
+        .await,
+        "0",
+        "no chime while it is off"
+    );
+    assert_clean_console(&browser).await;
+
+    // The server stops: within 5 s the page says so and the clock stops.
+    server.stop().await;
+    let stopped = Instant::now();
+    wait_for(
+        &browser,
+        "connection lost",
+        "const lost = document.getElementById('conn-lost'); \
+         return !lost.hidden && /connection lost — data as of \\d\\d:\\d\\d:\\d\\d/.test(lost.textContent) \
+           && document.getElementById('server-clock').classList.contains('stopped') \
+           && document.querySelector('[data-field=state]').textContent === 'no connection';",
+        5,
+    )
+    .await;
+    assert!(stopped.elapsed() < Duration::from_secs(5));
+    let clock = js(
+        &browser,
+        "return document.getElementById('server-clock').textContent;",
+    )
+    .await;
+    tokio::time::sleep(Duration::from_millis(1500)).await;
+    let later = js(
+        &browser,
+        "return document.getElementById('server-clock').textContent;",
+    )
+    .await;
+    assert_eq!(clock, later, "the clock stopped");
+    save_screenshot(&browser, "browser-connection-lost.png").await;
+    browser.close().await.ok();
 }

@@ -1,0 +1,92 @@
+//! The example alert rules in `deploy/prometheus/` against Prometheus's
+//! own checker: `promtool check rules` and `promtool test rules` (the
+//! rules fire and clear as the test file says), and the alarm gauge they
+//! use as a real server exports it.
+//!
+//! Skipped (and says so) without `promtool` (Debian's `prometheus`
+//! package), unless `TUNNELNAV_PROMTOOL_TEST=required` (set by `.ci/run`).
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+use common::{TestServer, declare_machine};
+
+fn promtool(args: &[&str]) -> Option<std::process::Output> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/prometheus");
+    match Command::new("promtool")
+        .args(args)
+        .current_dir(dir)
+        .output()
+    {
+        Ok(output) => Some(output),
+        Err(e) => {
+            assert!(
+                std::env::var("TUNNELNAV_PROMTOOL_TEST").as_deref() != Ok("required"),
+                "TUNNELNAV_PROMTOOL_TEST=required but promtool does not run ({e}); \
+                 apt-get install prometheus"
+            );
+            eprintln!("SKIPPED: promtool not found ({e}); apt-get install prometheus");
+            None
+        }
+    }
+}
+
+#[test]
+fn the_example_alert_rules_pass_promtool_and_its_unit_tests() {
+    for args in [
+        &["check", "rules", "tunnelnav-alerts.yml"][..],
+        &["test", "rules", "tunnelnav-alerts.test.yml"][..],
+    ] {
+        let Some(output) = promtool(args) else { return };
+        assert!(
+            output.status.success(),
+            "promtool {args:?}:\n{}{}",
+            String::from_utf8_lossy(&output.stdout),
+            String::from_utf8_lossy(&output.stderr)
+        );
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_alarm_gauge_is_exported_for_every_kind_and_severity_from_the_start() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start(dir.path()).await;
+    let client = reqwest::Client::new();
+    let base = server.url("");
+    declare_machine(
+        &client,
+        &base,
+        "tbm-gauge",
+        r#"{"engines": {"attitude": {}}}"#,
+    )
+    .await;
+    let text = client
+        .get(format!("{base}/metrics"))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    assert!(
+        text.contains("# TYPE tunnelnav_alarms_active gauge"),
+        "{text}"
+    );
+    for kind in [
+        "deviation",
+        "laser_dropout",
+        "stale_sensor",
+        "ins_uncertainty",
+        "engine_reset",
+    ] {
+        for severity in ["warn", "alarm"] {
+            let series = format!(
+                "tunnelnav_alarms_active{{machine=\"tbm-gauge\",kind=\"{kind}\",severity=\"{severity}\"}} 0"
+            );
+            assert!(text.contains(&series), "{series} missing:\n{text}");
+        }
+    }
+    server.stop().await;
+}
