@@ -221,6 +221,10 @@ async fn tokens_gate_every_route_by_scope_and_machine() {
         (Method::GET, "/api/v1/machines/tbm-1/model", "read"),
         (Method::GET, "/api/v1/machines/tbm-1/alignment", "read"),
         (Method::PUT, "/api/v1/machines/tbm-1/alignment", "admin"),
+        (Method::GET, "/api/v1/machines/tbm-1/alignment/axis", "read"),
+        (Method::GET, "/api/v1/alarms", "read"),
+        (Method::GET, "/api/v1/alarms/live", "read"),
+        (Method::POST, "/api/v1/alarms/1/ack", "read"),
         (Method::GET, "/nowhere", "read"),
         (Method::DELETE, "/api/v1/machines/tbm-1", "read"),
     ];
