@@ -36,11 +36,12 @@ async fn next_json(socket: &mut Socket, timeout: Duration) -> Value {
     }
 }
 
-/// The next estimate, skipping `ping` events.
+/// The next estimate (or `gap`), skipping `ping` and alarm events (these
+/// drives are in the past, so the server clock finds their sensors stale).
 async fn next_estimate(socket: &mut Socket) -> Value {
     loop {
         let frame = next_json(socket, Duration::from_secs(5)).await;
-        if frame["event"] != "ping" {
+        if !["ping", "alarm", "alarm_gap"].contains(&frame["event"].as_str().unwrap_or_default()) {
             return frame;
         }
     }

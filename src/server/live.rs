@@ -35,7 +35,7 @@ use tokio::sync::broadcast::error::RecvError;
 use super::error::ApiError;
 use super::{Clock, SharedState};
 use crate::fusion::{EngineKind, StreamKind};
-use crate::machine::MachineHandle;
+use crate::machine::{LiveEstimate, MachineHandle};
 use crate::store::alarms::{AlarmChange, AlarmFilter, StoredAlarm};
 
 /// `GET /api/v1/machines/{machine}/live`.
@@ -169,22 +169,16 @@ fn text(event: Event<'_>) -> Message {
 }
 
 async fn serve_live(
-    mut socket: WebSocket,
+    socket: WebSocket,
     machine: Arc<MachineHandle>,
     alarms: Vec<StoredAlarm>,
     channels: Channels,
 ) {
-    let Channels {
-        mut alarm_changes,
-        ping_every,
-        clock,
-        mut shutdown,
-    } = channels;
     // Subscribe before reading the latest state, so nothing falls between
     // the two (an estimate may come twice; `t` tells).
-    let mut estimates = machine.subscribe();
+    let estimates = machine.subscribe();
     let status = machine.status();
-    let hello = Event::Hello {
+    let hello = text(Event::Hello {
         machine: &machine.spec.id,
         name: &machine.spec.name,
         engines: machine.spec.engines.keys().copied().collect(),
@@ -196,10 +190,41 @@ async fn serve_live(
             })
             .collect(),
         alarms,
-        server_t: clock.now_s(),
-        clock_rate: clock.rate(),
+        server_t: channels.clock.now_s(),
+        clock_rate: channels.clock.rate(),
+    });
+    serve(socket, hello, Some((&machine.spec.id, estimates)), channels).await;
+}
+
+async fn serve_alarms(socket: WebSocket, alarms: Vec<StoredAlarm>, channels: Channels) {
+    let hello = text(Event::AlarmsHello {
+        alarms,
+        server_t: channels.clock.now_s(),
+        clock_rate: channels.clock.rate(),
+    });
+    serve(socket, hello, None, channels).await;
+}
+
+/// Sends `hello`, then until either side closes: the machine's estimates
+/// and its alarm changes (with `machine`), or every alarm change (the
+/// fleet's socket), and pings.
+async fn serve(
+    mut socket: WebSocket,
+    hello: Message,
+    machine: Option<(&str, broadcast::Receiver<LiveEstimate>)>,
+    channels: Channels,
+) {
+    let Channels {
+        mut alarm_changes,
+        ping_every,
+        clock,
+        mut shutdown,
+    } = channels;
+    let (only, mut estimates) = match machine {
+        Some((id, estimates)) => (Some(id), Some(estimates)),
+        None => (None, None),
     };
-    if socket.send(text(hello)).await.is_err() {
+    if socket.send(hello).await.is_err() {
         return;
     }
     let mut ping = tokio::time::interval(ping_every);
@@ -207,7 +232,7 @@ async fn serve_live(
     let mut last_t: Option<f64> = None;
     loop {
         tokio::select! {
-            received = estimates.recv() => match received {
+            received = next_estimate(&mut estimates) => match received {
                 Ok(estimate) => {
                     last_t = Some(estimate.t);
                     let frame = Message::Text(Utf8Bytes::from(estimate.json.to_string()));
@@ -217,7 +242,7 @@ async fn serve_live(
                 }
                 Err(RecvError::Lagged(missed)) => {
                     // The next estimate still buffered bounds the gap.
-                    let next = estimates.recv().await;
+                    let next = next_estimate(&mut estimates).await;
                     let to_t = next.as_ref().ok().map(|e| e.t);
                     let gap = Event::Gap { missed, from_t: last_t, to_t };
                     if socket.send(text(gap)).await.is_err() {
@@ -238,7 +263,7 @@ async fn serve_live(
             },
             changed = alarm_changes.recv() => {
                 let event = match &changed {
-                    Ok(change) if change.alarm.machine != machine.spec.id => continue,
+                    Ok(change) if only.is_some_and(|id| change.alarm.machine != id) => continue,
                     Ok(change) => Event::Alarm { change },
                     Err(RecvError::Lagged(missed)) => Event::AlarmGap { missed: *missed },
                     // The server keeps the sender as long as it runs.
@@ -266,49 +291,13 @@ async fn serve_live(
     }
 }
 
-async fn serve_alarms(mut socket: WebSocket, alarms: Vec<StoredAlarm>, channels: Channels) {
-    let Channels {
-        mut alarm_changes,
-        ping_every,
-        clock,
-        mut shutdown,
-    } = channels;
-    let hello = Event::AlarmsHello {
-        alarms,
-        server_t: clock.now_s(),
-        clock_rate: clock.rate(),
-    };
-    if socket.send(text(hello)).await.is_err() {
-        return;
-    }
-    let mut ping = tokio::time::interval(ping_every);
-    ping.tick().await;
-    loop {
-        tokio::select! {
-            changed = alarm_changes.recv() => {
-                let event = match &changed {
-                    Ok(change) => Event::Alarm { change },
-                    Err(RecvError::Lagged(missed)) => Event::AlarmGap { missed: *missed },
-                    Err(RecvError::Closed) => return,
-                };
-                if socket.send(text(event)).await.is_err() {
-                    return;
-                }
-            }
-            _ = ping.tick() => {
-                if socket.send(text(Event::Ping { server_t: clock.now_s() })).await.is_err() {
-                    return;
-                }
-            }
-            incoming = socket.recv() => match incoming {
-                Some(Ok(Message::Close(_))) | None | Some(Err(_)) => return,
-                Some(Ok(_)) => {}
-            },
-            () = stopping(&mut shutdown) => {
-                close(socket, "server shutting down").await;
-                return;
-            }
-        }
+/// The next estimate, or never (the fleet's alarm socket has none).
+async fn next_estimate(
+    estimates: &mut Option<broadcast::Receiver<LiveEstimate>>,
+) -> Result<LiveEstimate, RecvError> {
+    match estimates {
+        Some(receiver) => receiver.recv().await,
+        None => std::future::pending().await,
     }
 }
 
