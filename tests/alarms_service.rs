@@ -110,14 +110,7 @@ async fn alarms_are_raised_listed_acknowledged_by_name_and_kept_across_a_restart
         "{deviation}"
     );
     // The Prometheus gauge counts them.
-    let metrics = client
-        .get(format!("{base}/metrics"))
-        .send()
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap();
+    let metrics = common::get_text(&client, &base, "/metrics").await;
     for series in [
         r#"tunnelnav_alarms_active{machine="tbm-alarms",kind="deviation",severity="warn"} 1"#,
         r#"tunnelnav_alarms_active{machine="tbm-alarms",kind="stale_sensor",severity="alarm"} 1"#,

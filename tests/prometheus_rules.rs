@@ -62,14 +62,7 @@ async fn the_alarm_gauge_is_exported_for_every_kind_and_severity_from_the_start(
         r#"{"engines": {"attitude": {}}}"#,
     )
     .await;
-    let text = client
-        .get(format!("{base}/metrics"))
-        .send()
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap();
+    let text = common::get_text(&client, &base, "/metrics").await;
     assert!(
         text.contains("# TYPE tunnelnav_alarms_active gauge"),
         "{text}"

@@ -53,26 +53,9 @@ pub async fn websocket(
             machine.spec.id
         )));
     }
-    // Subscribed before the active alarms are read, so none falls between.
-    let alarm_changes = state.alarms.subscribe();
-    let active = super::alarms::stored(
-        &state,
-        AlarmFilter {
-            machine: Some(machine.spec.id.clone()),
-            active_only: true,
-        },
-    )
-    .await?;
-    let shutdown = state.shutdown_signal();
-    let (ping_every, clock) = (state.limits.live_ping_interval, state.clock);
+    let (channels, active) = Channels::open(&state, Some(machine.spec.id.clone())).await?;
     let guard = state.live_socket();
     Ok(upgrade.on_upgrade(move |socket| async move {
-        let channels = Channels {
-            alarm_changes,
-            ping_every,
-            clock,
-            shutdown,
-        };
         serve_live(socket, machine, active, channels).await;
         drop(guard);
     }))
@@ -90,25 +73,9 @@ pub async fn alarms_websocket(
             state.limits.max_live_clients_per_machine
         )));
     };
-    let alarm_changes = state.alarms.subscribe();
-    let active = super::alarms::stored(
-        &state,
-        AlarmFilter {
-            machine: None,
-            active_only: true,
-        },
-    )
-    .await?;
-    let shutdown = state.shutdown_signal();
-    let (ping_every, clock) = (state.limits.live_ping_interval, state.clock);
+    let (channels, active) = Channels::open(&state, None).await?;
     let guard = state.live_socket();
     Ok(upgrade.on_upgrade(move |socket| async move {
-        let channels = Channels {
-            alarm_changes,
-            ping_every,
-            clock,
-            shutdown,
-        };
         serve_alarms(socket, active, channels).await;
         drop((guard, counted));
     }))
@@ -120,6 +87,29 @@ struct Channels {
     ping_every: Duration,
     clock: Clock,
     shutdown: tokio::sync::watch::Receiver<bool>,
+}
+
+impl Channels {
+    /// The channels of a new socket and the active alarms (of `machine`,
+    /// or all), read after subscribing so that none falls between.
+    async fn open(
+        state: &SharedState,
+        machine: Option<String>,
+    ) -> Result<(Channels, Vec<StoredAlarm>), ApiError> {
+        let alarm_changes = state.alarms.subscribe();
+        let filter = AlarmFilter {
+            machine,
+            active_only: true,
+        };
+        let active = super::alarms::stored(state, filter).await?;
+        let channels = Channels {
+            alarm_changes,
+            ping_every: state.limits.live_ping_interval,
+            clock: state.clock,
+            shutdown: state.shutdown_signal(),
+        };
+        Ok((channels, active))
+    }
 }
 
 /// What the live socket sends besides estimates, tagged by `event`.

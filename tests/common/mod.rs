@@ -325,6 +325,18 @@ pub fn replay_streams(
 }
 
 /// `GET base + path` answered 200 with JSON: the value.
+/// The body of `GET {base}{path}` as text.
+pub async fn get_text(client: &reqwest::Client, base: &str, path: &str) -> String {
+    client
+        .get(format!("{base}{path}"))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap()
+}
+
 pub async fn get_json(client: &reqwest::Client, base: &str, path: &str) -> serde_json::Value {
     let response = client.get(format!("{base}{path}")).send().await.unwrap();
     assert_eq!(response.status(), 200, "{path}");
