@@ -13,12 +13,20 @@
   const chime = document.getElementById('alarm-chime');
   const toggle = document.getElementById('chime-toggle');
   const hint = document.getElementById('chime-hint');
+  const ackError = document.getElementById('alarm-error');
   const ackedBox = document.getElementById('alarms-acked');
   const ackedSummary = ackedBox.querySelector('summary');
   const ackedList = document.getElementById('alarm-acked-list');
   const active = new Map(); // id → alarm
-  const chimed = new Set(); // ids already chimed for
+  const cleared = new Set(); // ids seen cleared: never shown again
+  const acking = new Set(); // ids whose acknowledgement is on its way
   const STORE_KEY = 'tunnelnav-chime';
+  // Ids already chimed for, over the pages of this tab (moving between
+  // pages does not ring again).
+  const CHIMED_KEY = 'tunnelnav-chimed';
+  const chimed = new Set((() => {
+    try { return JSON.parse(sessionStorage.getItem(CHIMED_KEY) || '[]'); } catch (e) { return []; }
+  })());
 
   // --- chime: a short two-tone WAV built here (no binary asset) ---------
   function chimeWav() {
@@ -100,7 +108,7 @@
     const row = (a, button) => {
       const cls = a.severity === 'alarm' ? 'bad' : 'warn';
       const end = button
-        ? `<button type="button" class="ack" data-id="${a.id}">Acknowledge</button>`
+        ? `<button type="button" class="ack" data-id="${a.id}"${acking.has(a.id) ? ' disabled' : ''}>Acknowledge</button>`
         : `<span class="acked">acknowledged by ${escape(a.acked_by || '?')} ${tn.timeOfDay(a.acked_t)}</span>`;
       return `<li class="alarm ${cls}" data-id="${a.id}">` +
         `<span class="badge ${cls}">${a.severity === 'alarm' ? 'ALARM' : 'warn'}</span> ` +
@@ -140,9 +148,14 @@
     const button = event.target.closest('button.ack');
     if (!button) return;
     event.preventDefault();
-    button.disabled = true;
+    const id = Number(button.dataset.id);
+    acking.add(id);
+    ackError.hidden = true;
+    render();
+    const abort = new AbortController();
+    const timer = setTimeout(() => abort.abort(), 10000);
     try {
-      const response = await fetch(`/api/v1/alarms/${button.dataset.id}/ack`, { method: 'POST' });
+      const response = await fetch(`/api/v1/alarms/${id}/ack`, { method: 'POST', signal: abort.signal });
       if (!response.ok) {
         let reason = response.statusText;
         try { reason = (await response.json()).error || reason; } catch (e) { /* not JSON */ }
@@ -150,16 +163,21 @@
       }
       update({ transition: 'acknowledged', ...(await response.json()) });
     } catch (e) {
-      button.disabled = false;
-      button.title = `not acknowledged: ${e.message}`;
-      tn.setText(button, 'Acknowledge (failed, retry)');
+      const why = e.name === 'AbortError' ? 'no answer within 10 s' : e.message;
+      tn.setText(ackError, `alarm ${id} not acknowledged: ${why}; try again`);
+      ackError.hidden = false;
+    } finally {
+      clearTimeout(timer);
+      acking.delete(id);
+      render();
     }
   });
 
   // One raised, cleared or acknowledged alarm.
   function update(change) {
     const { transition, event, ...alarm } = change;
-    if (transition === 'cleared' || alarm.cleared_t != null) active.delete(alarm.id);
+    if (transition === 'cleared' || alarm.cleared_t != null) cleared.add(alarm.id);
+    if (cleared.has(alarm.id)) active.delete(alarm.id);
     else active.set(alarm.id, alarm);
     refresh();
   }
@@ -175,6 +193,9 @@
   function refresh() {
     const fresh = sorted().filter((a) => a.acked_t == null && !chimed.has(a.id));
     fresh.forEach((a) => chimed.add(a.id));
+    if (fresh.length) {
+      try { sessionStorage.setItem(CHIMED_KEY, JSON.stringify([...chimed].slice(-500))); } catch (e) { /* private mode */ }
+    }
     render();
     if (fresh.length) ring();
   }
@@ -199,9 +220,8 @@
       } else if (m.event === 'alarm') {
         update(m);
       } else if (m.event === 'alarm_gap') {
-        // Fell behind: the list again.
-        tn.json('/api/v1/alarms').then((body) => replace(body.alarms))
-          .catch((e) => tn.link.failed('alarms', e.message));
+        // Fell behind: reconnect, and the new hello has the whole list.
+        socket.close();
       } else if (m.event === 'ping') {
         tn.clock.sync(m.server_t, m.clock_rate || tn.clock.rate);
         tn.link.ok('alarms');

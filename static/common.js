@@ -196,8 +196,10 @@ const tn = (function () {
   // has hello(message, isReconnect), estimate(message), gap(message) and
   // closed(); hello and ping sync the clock, unknown events are ignored.
   // The returned handle's `socket` is the current WebSocket.
+  let links = 0;
   function follow(api, on) {
     const handle = { socket: null };
+    const name = `live ${api} #${++links}`;
     let retryMs = 500, connected = false;
     function connect() {
       const scheme = location.protocol === 'https:' ? 'wss:' : 'ws:';
@@ -211,12 +213,12 @@ const tn = (function () {
         if (m.event === 'hello') {
           retryMs = 500;
           clock.sync(m.server_t, m.clock_rate);
-          link.ok('live');
+          link.ok(name);
           on.hello(m, connected);
           connected = true;
         } else if (m.event === 'ping') {
           clock.sync(m.server_t, m.clock_rate || clock.rate);
-          link.ok('live');
+          link.ok(name);
         } else if (m.event === 'gap') {
           on.gap(m);
         } else if (m.event === undefined && m.engine) {
@@ -225,7 +227,7 @@ const tn = (function () {
       };
       socket.onclose = () => {
         watchdog.stop();
-        link.failed('live', 'live stream closed');
+        link.failed(name, 'live stream closed');
         on.closed();
         setTimeout(connect, retryMs);
         retryMs = Math.min(retryMs * 2, 10000);
@@ -247,18 +249,36 @@ const tn = (function () {
   // A machine page's status every 2 s: syncs the clock and fills the
   // sensors table. Resolves after the first poll.
   async function pollStatus(api, body) {
-    const poll = async () => {
-      try {
-        const s = await json(api);
-        clock.sync(s.server_t, s.clock_rate);
-        link.ok('status');
-        showSensors(body, s);
-      } catch (e) {
-        link.failed('status', e.message);
-      }
-    };
+    const name = `status ${api} #${++links}`;
+    const poll = latestOnly(async () => json(api), (s) => {
+      clock.sync(s.server_t, s.clock_rate);
+      link.ok(name);
+      showSensors(body, s);
+    }, (e) => link.failed(name, e.message));
     await poll();
     setInterval(poll, 2000);
+  }
+
+  // A poll whose answers are used only if no later poll has answered
+  // first (polls overlap when the server is slow): `fetch()` resolves to
+  // the answer, `use(answer)` or `fail(error)` takes it.
+  function latestOnly(fetchIt, use, fail) {
+    let started = 0, settled = 0;
+    return async () => {
+      const mine = ++started;
+      let answer;
+      try {
+        answer = await fetchIt();
+      } catch (e) {
+        if (mine < settled) return;
+        settled = mine;
+        fail(e);
+        return;
+      }
+      if (mine < settled) return;
+      settled = mine;
+      use(answer);
+    };
   }
 
   // A group of time-window buttons: the clicked one becomes active and
@@ -370,7 +390,7 @@ const tn = (function () {
   }
 
   return {
-    clock, link, silenceWatchdog, fixed, mmPerM, duration, timeOfDay, json, ndjson, setText, css,
+    clock, link, silenceWatchdog, latestOnly, fixed, mmPerM, duration, timeOfDay, json, ndjson, setText, css,
     showConnection, follow, showSensors, pollStatus, windowButtons, axis, num,
     shadeSpans, line, followEngine, engines, registerEngine,
   };

@@ -60,27 +60,24 @@
     if (card.sensors.innerHTML !== sensors) card.sensors.innerHTML = sensors;
   }
 
-  async function poll() {
-    try {
-      const body = await tn.json('/api/v1/machines');
-      tn.clock.sync(body.server_t, body.clock_rate);
-      tn.link.ok('fleet');
-      const ids = body.machines.map((m) => m.machine);
-      if (ids.length !== cards.size || ids.some((id) => !cards.has(id))) {
-        // Machines were declared or removed: the server renders the new set.
-        location.reload();
-        return;
-      }
-      for (const m of body.machines) render(cards.get(m.machine), m, body.server_t);
-    } catch (e) {
-      tn.link.failed('fleet', e.message);
-      // Nothing on the cards may still say live.
-      for (const card of cards.values()) {
-        tn.setText(card.state, 'no connection');
-        card.state.className = 'badge';
-      }
+  const poll = tn.latestOnly(() => tn.json('/api/v1/machines'), (body) => {
+    tn.clock.sync(body.server_t, body.clock_rate);
+    tn.link.ok('fleet');
+    const ids = body.machines.map((m) => m.machine);
+    if (ids.length !== cards.size || ids.some((id) => !cards.has(id))) {
+      // Machines were declared or removed: the server renders the new set.
+      location.reload();
+      return;
     }
-  }
+    for (const m of body.machines) render(cards.get(m.machine), m, body.server_t);
+  }, (e) => {
+    tn.link.failed('fleet', e.message);
+    // Nothing on the cards may still say live.
+    for (const card of cards.values()) {
+      tn.setText(card.state, 'no connection');
+      card.state.className = 'badge';
+    }
+  });
 
   poll();
   setInterval(poll, 1000);

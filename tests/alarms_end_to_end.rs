@@ -382,9 +382,11 @@ async fn a_drive_off_its_axis_without_laser_then_silent_raises_three_alarms_once
         let same = kept.iter().find(|a| a["id"] == alarm["id"]);
         assert_eq!(same, Some(alarm), "kept as it was");
     }
+    // Only a new silence (after the forwarded readings, which end at
+    // `now_t`) may have raised something since.
     for other in kept.iter().filter(|a| !done.contains(a)) {
         assert_eq!(other["kind"], "stale_sensor", "{other}");
-        assert!(other["raised_t"].as_f64().unwrap() > now_t - 2.0, "{other}");
+        assert!(other["raised_t"].as_f64().unwrap() >= now_t, "{other}");
     }
     server.kill();
 }

@@ -304,6 +304,14 @@ async fn webhooks_get_each_transition_once_per_severity_retried_after_a_500() {
         seen.refused, 1,
         "the first attempt was refused, then retried"
     );
+    // In order per URL: the warn URL got raise, acknowledgement, clear.
+    let warn_order: Vec<&str> = seen
+        .requests
+        .iter()
+        .filter(|(path, _, _)| path == "/warn")
+        .map(|(_, _, body)| body["transition"].as_str().unwrap_or_default())
+        .collect();
+    assert_eq!(warn_order, ["raised", "acknowledged", "cleared"]);
     let mut got: Vec<(String, String, String, String)> = seen
         .requests
         .iter()

@@ -10,7 +10,7 @@ use serde::{Deserialize, Serialize};
 use super::SharedState;
 use super::auth::Caller;
 use super::error::ApiError;
-use crate::store::alarms::{AlarmChange, AlarmFilter, Change, StoredAlarm};
+use crate::store::alarms::{AlarmFilter, StoredAlarm};
 
 /// Who acknowledged, while access is open (no tokens exist).
 const ANONYMOUS: &str = "anonymous";
@@ -82,16 +82,13 @@ pub async fn ack(
     let by = caller
         .and_then(|Extension(Caller(name))| name)
         .unwrap_or_else(|| ANONYMOUS.to_string());
-    let (alarm, acked) = state
+    let notifier = state.alarms.clone();
+    let (alarm, _) = state
         .store
-        .ack_alarm(id, by, state.clock.now_s())
+        .ack_alarm(id, by, state.clock.now_s(), move |change| {
+            notifier.publish(vec![change])
+        })
         .await?
         .ok_or_else(|| ApiError::NotFound(format!("there is no alarm {id}")))?;
-    if acked {
-        state.alarms.publish(vec![AlarmChange {
-            transition: Change::Acknowledged,
-            alarm: alarm.clone(),
-        }]);
-    }
     Ok(Json(alarm))
 }

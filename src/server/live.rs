@@ -70,7 +70,7 @@ pub async fn alarms_websocket(
     let Some(counted) = state.alarm_socket() else {
         return Err(ApiError::Unavailable(format!(
             "the fleet's alarm socket already has {} clients, the most allowed",
-            state.limits.max_live_clients_per_machine
+            state.limits.max_alarm_clients
         )));
     };
     let (channels, active) = Channels::open(&state, None).await?;

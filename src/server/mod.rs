@@ -55,6 +55,8 @@ pub struct Limits {
     pub machine_queue: usize,
     /// Live sockets per machine (503 beyond).
     pub max_live_clients_per_machine: usize,
+    /// Fleet alarm sockets (every dashboard page opens one; 503 beyond).
+    pub max_alarm_clients: usize,
     /// Longest a request may take to be answered (408 beyond); streamed
     /// bodies and open WebSockets are not cut.
     pub request_timeout: std::time::Duration,
@@ -74,6 +76,7 @@ impl Default for Limits {
             max_future_s: 600.0,
             machine_queue: 64,
             max_live_clients_per_machine: 100,
+            max_alarm_clients: 1000,
             request_timeout: std::time::Duration::from_secs(30),
             max_database_bytes: None,
         }
@@ -127,8 +130,7 @@ pub struct AppState {
     /// Live sockets open now: shutdown waits (a little) for their close
     /// frames to go out.
     live_sockets: Arc<std::sync::atomic::AtomicUsize>,
-    /// Fleet alarm sockets open now (at most as many as one machine's
-    /// live clients).
+    /// Fleet alarm sockets open now (at most `Limits::max_alarm_clients`).
     alarm_sockets: Arc<std::sync::atomic::AtomicUsize>,
 }
 
@@ -231,7 +233,7 @@ impl AppState {
     /// there are as many as the limit allows.
     pub fn alarm_socket(&self) -> Option<LiveSocketGuard> {
         use std::sync::atomic::Ordering::SeqCst;
-        let most = self.limits.max_live_clients_per_machine;
+        let most = self.limits.max_alarm_clients;
         self.alarm_sockets
             .fetch_update(SeqCst, SeqCst, |open| (open < most).then_some(open + 1))
             .ok()?;

@@ -16,6 +16,9 @@ use crate::store::alarms::AlarmChange;
 /// Alarm changes a live client may fall behind by before it is told to
 /// fetch the list again.
 pub const ALARM_BUFFER: usize = 1024;
+/// Changes waiting for one webhook URL; beyond (a receiver down for long
+/// while alarms keep changing), new changes are dropped and logged.
+pub const WEBHOOK_QUEUE: usize = 1000;
 
 /// Webhooks, one URL per severity (`[webhooks]` in the server config).
 #[derive(Debug, Clone, PartialEq, Deserialize)]
@@ -136,8 +139,8 @@ impl WebhookConfig {
 #[derive(Clone)]
 pub struct AlarmNotifier {
     live: broadcast::Sender<Arc<AlarmChange>>,
-    warn: Option<mpsc::UnboundedSender<Arc<AlarmChange>>>,
-    alarm: Option<mpsc::UnboundedSender<Arc<AlarmChange>>>,
+    warn: Option<(String, mpsc::Sender<Arc<AlarmChange>>)>,
+    alarm: Option<(String, mpsc::Sender<Arc<AlarmChange>>)>,
 }
 
 impl AlarmNotifier {
@@ -148,12 +151,13 @@ impl AlarmNotifier {
         let client = reqwest::Client::builder()
             .timeout(Duration::from_secs_f64(webhooks.timeout_s))
             .build()
+            .inspect_err(|e| tracing::error!(error = %e, "no HTTP client: webhooks are off"))
             .ok();
         let spawn = |url: &Option<String>| {
             let (url, client) = (url.clone()?, client.clone()?);
-            let (queue, changes) = mpsc::unbounded_channel();
-            tokio::spawn(deliver(client, url, webhooks.clone(), changes));
-            Some(queue)
+            let (queue, changes) = mpsc::channel(WEBHOOK_QUEUE);
+            tokio::spawn(deliver(client, url.clone(), webhooks.clone(), changes));
+            Some((url, queue))
         };
         AlarmNotifier {
             warn: spawn(&webhooks.warn),
@@ -170,8 +174,13 @@ impl AlarmNotifier {
                 "alarm" => &self.alarm,
                 _ => &self.warn,
             };
-            if let Some(queue) = webhook {
-                let _ = queue.send(change.clone());
+            if let Some((url, queue)) = webhook
+                && queue.try_send(change.clone()).is_err()
+            {
+                tracing::error!(
+                    %url, alarm = change.alarm.id, pending = WEBHOOK_QUEUE,
+                    "webhook queue full (the receiver has not answered for long): change not posted"
+                );
             }
             // No live client is fine.
             let _ = self.live.send(change);
@@ -193,7 +202,7 @@ async fn deliver(
     client: reqwest::Client,
     url: String,
     config: WebhookConfig,
-    mut changes: mpsc::UnboundedReceiver<Arc<AlarmChange>>,
+    mut changes: mpsc::Receiver<Arc<AlarmChange>>,
 ) {
     while let Some(change) = changes.recv().await {
         let body = match serde_json::to_vec(&*change) {

@@ -80,6 +80,14 @@ pub(super) fn apply(
     rows: &[AlarmRow],
 ) -> Result<Vec<AlarmChange>, StoreError> {
     let mut changed = Vec::new();
+    // Each alarm as this row left it (a raise and its clear in one write
+    // are announced as two states, not twice the cleared one).
+    let mut push = |transition, id| -> Result<(), StoreError> {
+        if let Some(alarm) = by_id(tx, id)? {
+            changed.push(AlarmChange { transition, alarm });
+        }
+        Ok(())
+    };
     for row in rows {
         if row.raised {
             let inserted = tx
@@ -96,31 +104,26 @@ pub(super) fn apply(
                     row.t
                 ])?;
             if inserted == 1 {
-                changed.push((Change::Raised, tx.last_insert_rowid()));
+                push(Change::Raised, tx.last_insert_rowid())?;
             }
         } else {
-            let mut clear = tx.prepare_cached(
-                "UPDATE alarms SET cleared_t = ?5 WHERE machine_id = ?1 AND kind = ?2 \
-                 AND severity = ?3 AND subject = ?4 AND cleared_t IS NULL AND raised_t <= ?5 \
-                 RETURNING id",
-            )?;
-            let ids = clear.query_map(
-                params![machine_id, row.kind, row.severity, row.subject, row.t],
-                |r| r.get::<_, i64>(0),
-            )?;
+            let ids: Vec<i64> = tx
+                .prepare_cached(
+                    "UPDATE alarms SET cleared_t = ?5 WHERE machine_id = ?1 AND kind = ?2 \
+                     AND severity = ?3 AND subject = ?4 AND cleared_t IS NULL AND raised_t <= ?5 \
+                     RETURNING id",
+                )?
+                .query_map(
+                    params![machine_id, row.kind, row.severity, row.subject, row.t],
+                    |r| r.get::<_, i64>(0),
+                )?
+                .collect::<Result<_, _>>()?;
             for id in ids {
-                changed.push((Change::Cleared, id?));
+                push(Change::Cleared, id)?;
             }
         }
     }
-    changed
-        .into_iter()
-        .filter_map(|(transition, id)| {
-            by_id(tx, id)
-                .map(|alarm| alarm.map(|alarm| AlarmChange { transition, alarm }))
-                .transpose()
-        })
-        .collect()
+    Ok(changed)
 }
 
 const COLUMNS: &str = "a.id, m.machine, a.kind, a.severity, a.subject, a.message, a.raised_t, \
@@ -175,20 +178,32 @@ impl Store {
     }
 
     /// Acknowledges alarm `id` by `by` at `t` (the first acknowledgement
-    /// stands). The alarm as it now is and whether this call acknowledged
-    /// it, or `None` if there is no such alarm.
+    /// stands); the alarm as it now is and whether this call acknowledged
+    /// it, or `None` if there is no such alarm. `announce` gets the
+    /// acknowledged alarm on the writer thread right after the update, so
+    /// it is ordered with the alarm changes commits report (a clear
+    /// committed just after is announced after it) and runs even if the
+    /// caller goes away.
     pub async fn ack_alarm(
         &self,
         id: i64,
         by: String,
         t: f64,
+        announce: impl FnOnce(AlarmChange) + Send + 'static,
     ) -> Result<Option<(StoredAlarm, bool)>, StoreError> {
         self.maintain(move |conn| {
             let acked = conn.execute(
                 "UPDATE alarms SET acked_t = ?2, acked_by = ?3 WHERE id = ?1 AND acked_t IS NULL",
                 params![id, t, by],
             )? == 1;
-            Ok(by_id(conn, id)?.map(|alarm| (alarm, acked)))
+            let alarm = by_id(conn, id)?;
+            if let (true, Some(alarm)) = (acked, &alarm) {
+                announce(AlarmChange {
+                    transition: Change::Acknowledged,
+                    alarm: alarm.clone(),
+                });
+            }
+            Ok(alarm.map(|alarm| (alarm, acked)))
         })
         .await
     }
@@ -313,7 +328,7 @@ mod tests {
 
         // The first acknowledgement stands; an unknown alarm is None.
         let (acked, first) = store
-            .ack_alarm(all[0].id, "shift-lead".into(), 60.0)
+            .ack_alarm(all[0].id, "shift-lead".into(), 60.0, |_| {})
             .await
             .unwrap()
             .unwrap();
@@ -322,7 +337,7 @@ mod tests {
             (Some(60.0), Some("shift-lead"), true)
         );
         let (again, first) = store
-            .ack_alarm(all[0].id, "someone".into(), 70.0)
+            .ack_alarm(all[0].id, "someone".into(), 70.0, |_| {})
             .await
             .unwrap()
             .unwrap();
@@ -330,7 +345,13 @@ mod tests {
             (again.acked_by.as_deref(), first),
             (Some("shift-lead"), false)
         );
-        assert_eq!(store.ack_alarm(9999, "x".into(), 1.0).await.unwrap(), None);
+        assert_eq!(
+            store
+                .ack_alarm(9999, "x".into(), 1.0, |_| {})
+                .await
+                .unwrap(),
+            None
+        );
         store.close().await;
 
         // Reopened: all still there, as they were.

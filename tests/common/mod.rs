@@ -35,6 +35,21 @@ impl TestServer {
         limits: Limits,
         webhooks: tunnelnav::config::WebhookConfig,
     ) -> TestServer {
+        let any_port = "127.0.0.1:0".parse().unwrap();
+        Self::launch(data_dir, limits, webhooks, any_port).await
+    }
+
+    /// A server on `address` (the one a stopped server had, say).
+    pub async fn start_at(data_dir: &Path, address: std::net::SocketAddr) -> TestServer {
+        Self::launch(data_dir, Limits::default(), Default::default(), address).await
+    }
+
+    async fn launch(
+        data_dir: &Path,
+        limits: Limits,
+        webhooks: tunnelnav::config::WebhookConfig,
+        address: std::net::SocketAddr,
+    ) -> TestServer {
         server::metrics::install();
         let state = AppState::start(ServerOptions {
             data_dir: data_dir.to_path_buf(),
@@ -46,7 +61,7 @@ impl TestServer {
         })
         .await
         .expect("server starts");
-        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let listener = tokio::net::TcpListener::bind(address).await.unwrap();
         let address = listener.local_addr().unwrap();
         let (stop, stopped) = oneshot::channel::<()>();
         let task = tokio::spawn(server::run(listener, state.clone(), async move {
