@@ -259,10 +259,13 @@ pub struct DemoArgs {
     /// tokens (its simulated gateways send none).
     #[arg(long)]
     pub allow_no_auth: bool,
+    /// Log lines as text or JSON objects.
+    #[arg(long, value_enum, default_value = "text")]
+    pub log_format: super::serve::LogFormat,
 }
 
 pub fn run(args: DemoArgs) -> Result<(), CliError> {
-    init_tracing();
+    init_tracing(args.log_format);
     if !(args.rate.is_finite() && args.rate > 0.0 && args.rate <= 10_000.0) {
         return Err(CliError::Scenario(format!(
             "--rate {} is not in (0, 10000]",

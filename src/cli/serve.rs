@@ -40,6 +40,9 @@ pub struct ServeArgs {
     /// Seconds between retention passes.
     #[arg(long, default_value_t = 3600.0, value_name = "SECONDS")]
     pub retention_every_s: f64,
+    /// Log lines as text or JSON objects.
+    #[arg(long, value_enum, default_value = "text")]
+    pub log_format: LogFormat,
 }
 
 impl ServeArgs {
@@ -55,7 +58,7 @@ impl ServeArgs {
 }
 
 pub fn run(args: ServeArgs) -> Result<(), CliError> {
-    init_tracing();
+    init_tracing(args.log_format);
     let settings = match &args.config {
         Some(path) => ServerConfig::load(path)?,
         None => ServerSettings::default(),
@@ -155,12 +158,28 @@ pub async fn shutdown_signal() {
     }
 }
 
-/// Logs to stderr; `RUST_LOG` filters (default `info`).
-pub fn init_tracing() {
+/// How log lines are written.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum LogFormat {
+    /// One human-readable line per event (coloured on a terminal only).
+    Text,
+    /// One JSON object per line (for journald, Loki, Elasticsearch).
+    Json,
+}
+
+/// Logs to stderr in `format`; `RUST_LOG` filters (default `info`). Colour
+/// only when stderr is a terminal, so files and journald get plain text.
+pub fn init_tracing(format: LogFormat) {
+    use std::io::IsTerminal;
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
-    let _ = tracing_subscriber::fmt()
+    let builder = tracing_subscriber::fmt()
         .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .try_init();
+        .with_writer(std::io::stderr);
+    let _ = match format {
+        LogFormat::Text => builder
+            .with_ansi(std::io::stderr().is_terminal())
+            .try_init(),
+        LogFormat::Json => builder.json().flatten_event(true).try_init(),
+    };
 }

@@ -410,8 +410,42 @@ pub fn router(state: SharedState) -> Router {
             answer_in_time,
         ))
         .layer(DefaultBodyLimit::max(limit))
-        .layer(TraceLayer::new_for_http())
+        .layer(
+            TraceLayer::new_for_http()
+                .make_span_with(request_span)
+                .on_request(())
+                .on_response(
+                    tower_http::trace::DefaultOnResponse::new()
+                        .level(tracing::Level::INFO)
+                        .latency_unit(tower_http::LatencyUnit::Millis),
+                ),
+        )
         .with_state(state)
+}
+
+/// The span of one request, so its one INFO line (on the response: status
+/// and latency) names the method, the route as declared (`{machine}` and
+/// all, or `unmatched`) and the machine, if the route has one.
+fn request_span(request: &axum::http::Request<axum::body::Body>) -> tracing::Span {
+    let route = request
+        .extensions()
+        .get::<axum::extract::MatchedPath>()
+        .map_or("unmatched", |m| m.as_str());
+    // The path segment where the route says `{machine}`.
+    let machine = route
+        .split('/')
+        .position(|segment| segment == "{machine}")
+        .and_then(|i| request.uri().path().split('/').nth(i));
+    let span = tracing::info_span!(
+        "request",
+        method = %request.method(),
+        route = %route,
+        machine = tracing::field::Empty,
+    );
+    if let Some(machine) = machine {
+        span.record("machine", tracing::field::display(machine));
+    }
+    span
 }
 
 /// Applies the retention policy now and every `every_s`: each pass is
