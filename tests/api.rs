@@ -277,7 +277,7 @@ async fn ingest_accepts_every_body_shape_and_names_each_bad_reading() {
         "{metrics}"
     );
     assert!(metrics.contains(r#"tunnelnav_readings_rejected_total{machine="m",sensor="unknown"}"#));
-    assert!(metrics.contains("tunnelnav_ingest_seconds_bucket"));
+    assert!(metrics.contains("tunnelnav_ingest_duration_seconds_bucket"));
     assert!(metrics.contains("tunnelnav_store_bytes"));
     assert!(metrics.contains(r#"tunnelnav_live_clients{machine="m"} 0"#));
     server.stop().await;

@@ -187,6 +187,13 @@ async fn live_clients_are_capped_per_machine() {
         }
         other => panic!("a third live client was let in: {other:?}"),
     }
+    // Counted by reason.
+    let metrics = common::get_text(&reqwest::Client::new(), &server.url(""), "/metrics").await;
+    let refused = metrics
+        .lines()
+        .find_map(|l| l.strip_prefix(r#"tunnelnav_refusals_total{reason="too_many_clients"} "#))
+        .and_then(|n| n.parse::<f64>().ok());
+    assert!(refused >= Some(1.0), "{metrics}");
     drop((first, second));
     server.stop().await;
 }

@@ -21,6 +21,44 @@ pub struct Rejected {
     pub sensor: Option<crate::fusion::SensorKind>,
 }
 
+/// Why the server refused a request it could not serve now (503, counted
+/// in `tunnelnav_refusals_total{reason}`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Refusal {
+    /// The server is shutting down.
+    ShuttingDown,
+    /// The store cannot write now (disk or database cap full, I/O error).
+    StoreUnavailable,
+    /// The machine is being redeclared or restarted.
+    MachineRestarting,
+    /// The machine's ingest queue is full.
+    MachineBusy,
+    /// As many live sockets as allowed are open.
+    TooManyClients,
+}
+
+impl Refusal {
+    /// Every reason, for registering the counter's series.
+    pub const ALL: [Refusal; 5] = [
+        Refusal::ShuttingDown,
+        Refusal::StoreUnavailable,
+        Refusal::MachineRestarting,
+        Refusal::MachineBusy,
+        Refusal::TooManyClients,
+    ];
+
+    /// The metric label.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Refusal::ShuttingDown => "shutting_down",
+            Refusal::StoreUnavailable => "store_unavailable",
+            Refusal::MachineRestarting => "machine_restarting",
+            Refusal::MachineBusy => "machine_busy",
+            Refusal::TooManyClients => "too_many_clients",
+        }
+    }
+}
+
 /// Why a request failed.
 #[derive(Debug, thiserror::Error)]
 pub enum ApiError {
@@ -38,8 +76,8 @@ pub enum ApiError {
     TooLarge(String),
     #[error(transparent)]
     Config(#[from] ConfigError),
-    #[error("{0}")]
-    Unavailable(String),
+    #[error("{message}")]
+    Unavailable { reason: Refusal, message: String },
     #[error("internal error")]
     Internal(String),
     #[error("{0}")]
@@ -62,10 +100,16 @@ impl From<axum::extract::ws::rejection::WebSocketUpgradeRejection> for ApiError 
 impl From<StoreError> for ApiError {
     fn from(e: StoreError) -> Self {
         match e {
-            StoreError::Closed => ApiError::Unavailable("the store is shutting down".into()),
-            e if e.is_transient() => ApiError::Unavailable(format!(
-                "the store cannot write now ({e}); nothing of this request was stored, retry"
-            )),
+            StoreError::Closed => ApiError::Unavailable {
+                reason: Refusal::ShuttingDown,
+                message: "the store is shutting down".into(),
+            },
+            e if e.is_transient() => ApiError::Unavailable {
+                reason: Refusal::StoreUnavailable,
+                message: format!(
+                    "the store cannot write now ({e}); nothing of this request was stored, retry"
+                ),
+            },
             other => ApiError::Internal(other.to_string()),
         }
     }
@@ -74,11 +118,17 @@ impl From<StoreError> for ApiError {
 impl From<MachineError> for ApiError {
     fn from(e: MachineError) -> Self {
         match e {
-            MachineError::Stopped(machine) => ApiError::Unavailable(format!(
-                "machine `{machine}` is restarting or the server is shutting down; retry"
-            )),
+            MachineError::Stopped(machine) => ApiError::Unavailable {
+                reason: Refusal::MachineRestarting,
+                message: format!(
+                    "machine `{machine}` is restarting or the server is shutting down; retry"
+                ),
+            },
             MachineError::Store(e) => e.into(),
-            busy @ MachineError::Busy { .. } => ApiError::Unavailable(format!("{busy}; retry")),
+            busy @ MachineError::Busy { .. } => ApiError::Unavailable {
+                reason: Refusal::MachineBusy,
+                message: format!("{busy}; retry"),
+            },
             other => ApiError::Internal(other.to_string()),
         }
     }
@@ -93,7 +143,7 @@ impl ApiError {
             }
             ApiError::MethodNotAllowed { .. } => StatusCode::METHOD_NOT_ALLOWED,
             ApiError::TooLarge(_) => StatusCode::PAYLOAD_TOO_LARGE,
-            ApiError::Unavailable(_) => StatusCode::SERVICE_UNAVAILABLE,
+            ApiError::Unavailable { .. } => StatusCode::SERVICE_UNAVAILABLE,
             ApiError::Internal(_) => StatusCode::INTERNAL_SERVER_ERROR,
             ApiError::Timeout(_) => StatusCode::REQUEST_TIMEOUT,
             ApiError::Unauthorized(_) => StatusCode::UNAUTHORIZED,
@@ -144,6 +194,9 @@ impl IntoResponse for ApiError {
         if let ApiError::Internal(detail) = &self {
             // Details go to the log, not to the client.
             tracing::error!(%detail, "internal error");
+        }
+        if let ApiError::Unavailable { reason, .. } = &self {
+            super::metrics::refused(*reason);
         }
         let status = self.status();
         let mut response = (status, Json(self.body())).into_response();

@@ -32,7 +32,7 @@ use serde_json::value::RawValue;
 use tokio::sync::broadcast;
 use tokio::sync::broadcast::error::RecvError;
 
-use super::error::ApiError;
+use super::error::{ApiError, Refusal};
 use super::{Clock, SharedState};
 use crate::fusion::{EngineKind, StreamKind};
 use crate::machine::{LiveEstimate, MachineHandle};
@@ -48,10 +48,13 @@ pub async fn websocket(
     let upgrade = upgrade.map_err(ApiError::from)?;
     let most = state.limits.max_live_clients_per_machine;
     if machine.live_clients() >= most {
-        return Err(ApiError::Unavailable(format!(
-            "machine `{}` already has {most} live clients, the most allowed",
-            machine.spec.id
-        )));
+        return Err(ApiError::Unavailable {
+            reason: Refusal::TooManyClients,
+            message: format!(
+                "machine `{}` already has {most} live clients, the most allowed",
+                machine.spec.id
+            ),
+        });
     }
     let (channels, active) = Channels::open(&state, Some(machine.spec.id.clone())).await?;
     let guard = state.live_socket();
@@ -68,10 +71,13 @@ pub async fn alarms_websocket(
 ) -> Result<Response, ApiError> {
     let upgrade = upgrade.map_err(ApiError::from)?;
     let Some(counted) = state.alarm_socket() else {
-        return Err(ApiError::Unavailable(format!(
-            "the fleet's alarm socket already has {} clients, the most allowed",
-            state.limits.max_alarm_clients
-        )));
+        return Err(ApiError::Unavailable {
+            reason: Refusal::TooManyClients,
+            message: format!(
+                "the fleet's alarm socket already has {} clients, the most allowed",
+                state.limits.max_alarm_clients
+            ),
+        });
     };
     let (channels, active) = Channels::open(&state, None).await?;
     let guard = state.live_socket();

@@ -88,7 +88,7 @@ pub struct Declared {
 }
 
 /// The status of `machine` at `now`.
-fn status(machine: &MachineHandle, now: f64) -> MachineStatusBody {
+pub(super) fn status(machine: &MachineHandle, now: f64) -> MachineStatusBody {
     let status = machine.status();
     let sensors = status
         .sensors

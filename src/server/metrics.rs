@@ -1,28 +1,40 @@
-//! `/healthz` and `/metrics` (Prometheus text), and the counters the
-//! handlers record.
+//! `/healthz` and `/metrics` (Prometheus text), and the series the handlers
+//! record. Names follow Prometheus conventions (base units, `_total` for
+//! counters, `_seconds`, `_bytes`); every series that can be known at start
+//! is registered then, at zero, so alert rules see it before its first
+//! event. The list is documented in the README ("Metrics") and checked
+//! against a fresh server by `tests/metrics.rs`.
 
 use std::collections::BTreeMap;
 use std::sync::OnceLock;
 use std::time::Duration;
 
 use axum::Json;
-use axum::extract::State;
+use axum::extract::{MatchedPath, Request, State};
 use axum::http::header;
-use axum::response::IntoResponse;
+use axum::middleware::Next;
+use axum::response::{IntoResponse, Response};
 use metrics_exporter_prometheus::{Matcher, PrometheusBuilder, PrometheusHandle};
 
 use super::SharedState;
-use super::error::Rejected;
+use super::error::{Refusal, Rejected};
+use crate::config::MachineSpec;
 use crate::fusion::alarms::{AlarmKind, Severity};
 use crate::fusion::{Reading, SensorKind};
 use crate::store::alarms::AlarmFilter;
 
 const ACCEPTED: &str = "tunnelnav_readings_accepted_total";
 const REJECTED: &str = "tunnelnav_readings_rejected_total";
-const INGEST_SECONDS: &str = "tunnelnav_ingest_seconds";
+const INGEST_DURATION: &str = "tunnelnav_ingest_duration_seconds";
 const LIVE_CLIENTS: &str = "tunnelnav_live_clients";
 const STORE_BYTES: &str = "tunnelnav_store_bytes";
 const ALARMS_ACTIVE: &str = "tunnelnav_alarms_active";
+const BUILD_INFO: &str = "tunnelnav_build_info";
+const REFUSALS: &str = "tunnelnav_refusals_total";
+const HTTP_RESPONSES: &str = "tunnelnav_http_responses_total";
+const LAST_READING: &str = "tunnelnav_last_reading_timestamp_seconds";
+const LASER_DROPOUT: &str = "tunnelnav_laser_dropout";
+const MACHINES: &str = "tunnelnav_machines";
 
 /// The process-wide recorder (the `metrics` facade has one global recorder;
 /// servers started in one test process share it).
@@ -32,34 +44,103 @@ fn handle() -> Option<&'static PrometheusHandle> {
         .get_or_init(|| {
             let builder = PrometheusBuilder::new()
                 .set_buckets_for_metric(
-                    Matcher::Full(INGEST_SECONDS.to_string()),
+                    Matcher::Full(INGEST_DURATION.to_string()),
                     &[
                         0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0,
                     ],
                 )
                 .ok()?;
             let handle = builder.install_recorder().ok()?;
-            metrics::describe_counter!(ACCEPTED, "valid readings stored, per machine and sensor");
-            metrics::describe_counter!(REJECTED, "readings refused, per machine and sensor");
-            metrics::describe_histogram!(
-                INGEST_SECONDS,
-                metrics::Unit::Seconds,
-                "ingest request time from parsed body to committed"
-            );
-            metrics::describe_gauge!(LIVE_CLIENTS, "live WebSocket clients per machine");
-            metrics::describe_gauge!(STORE_BYTES, metrics::Unit::Bytes, "database and WAL size");
-            metrics::describe_gauge!(
-                ALARMS_ACTIVE,
-                "alarms raised and not cleared, per machine, kind and severity"
-            );
+            describe();
             Some(handle)
         })
         .as_ref()
 }
 
+/// The process's CPU, memory, file descriptors and threads
+/// (`process_*`, as Prometheus's own client libraries name them).
+fn process() -> &'static metrics_process::Collector {
+    static COLLECTOR: OnceLock<metrics_process::Collector> = OnceLock::new();
+    COLLECTOR.get_or_init(metrics_process::Collector::default)
+}
+
+fn describe() {
+    use metrics::Unit;
+    metrics::describe_counter!(ACCEPTED, "valid readings stored, per machine and sensor");
+    metrics::describe_counter!(
+        REJECTED,
+        "readings refused as invalid, per machine and sensor"
+    );
+    metrics::describe_histogram!(
+        INGEST_DURATION,
+        Unit::Seconds,
+        "ingest request time from parsed body to committed"
+    );
+    metrics::describe_gauge!(LIVE_CLIENTS, "live WebSocket clients per machine");
+    metrics::describe_gauge!(STORE_BYTES, Unit::Bytes, "database and WAL size");
+    metrics::describe_gauge!(
+        ALARMS_ACTIVE,
+        "alarms raised and not cleared, per machine, kind and severity"
+    );
+    metrics::describe_gauge!(BUILD_INFO, "always 1; the running release in `version`");
+    metrics::describe_counter!(REFUSALS, "requests answered 503 (retry later), per reason");
+    metrics::describe_counter!(
+        HTTP_RESPONSES,
+        "HTTP responses per declared route, method and status"
+    );
+    metrics::describe_gauge!(
+        LAST_READING,
+        Unit::Seconds,
+        "Unix time of the newest reading per machine and sensor (reading time)"
+    );
+    metrics::describe_gauge!(
+        LASER_DROPOUT,
+        "1 while the machine's attitude engine is in laser dropout"
+    );
+    metrics::describe_gauge!(MACHINES, "machines declared");
+    metrics::gauge!(BUILD_INFO, "version" => env!("CARGO_PKG_VERSION")).set(1.0);
+    for reason in Refusal::ALL {
+        metrics::counter!(REFUSALS, "reason" => reason.as_str()).absolute(0);
+    }
+    // An empty histogram is rendered too.
+    let _ = metrics::histogram!(INGEST_DURATION);
+    process().describe();
+}
+
 /// Installs the recorder (idempotent); call before serving.
 pub fn install() {
     let _ = handle();
+}
+
+/// Registers a machine's series at zero (at start and when declared): its
+/// readings accepted and rejected and its newest reading's time per
+/// sensor its engines use, its live clients and laser dropout (its alarms:
+/// see [`render`]).
+pub fn register_machine(spec: &MachineSpec) {
+    let machine = spec.id.clone();
+    let mut sensors: Vec<SensorKind> = spec
+        .engines
+        .keys()
+        .flat_map(|engine| engine.sensors().iter().copied())
+        .collect();
+    sensors.sort();
+    sensors.dedup();
+    for sensor in sensors {
+        for name in [ACCEPTED, REJECTED] {
+            metrics::counter!(name, "machine" => machine.clone(), "sensor" => sensor.as_str())
+                .increment(0);
+        }
+        // 0 until the sensor's first reading: "never", older than any.
+        metrics::gauge!(LAST_READING, "machine" => machine.clone(), "sensor" => sensor.as_str())
+            .increment(0.0);
+    }
+    metrics::gauge!(LIVE_CLIENTS, "machine" => machine.clone()).increment(0.0);
+    if spec
+        .engines
+        .contains_key(&crate::fusion::EngineKind::Attitude)
+    {
+        metrics::gauge!(LASER_DROPOUT, "machine" => machine).increment(0.0);
+    }
 }
 
 /// Readings per sensor in a batch.
@@ -77,7 +158,7 @@ pub fn accepted(machine: &str, counts: &BTreeMap<SensorKind, u64>, elapsed: Dura
         metrics::counter!(ACCEPTED, "machine" => machine.to_string(), "sensor" => sensor.as_str())
             .increment(*n);
     }
-    metrics::histogram!(INGEST_SECONDS).record(elapsed.as_secs_f64());
+    metrics::histogram!(INGEST_DURATION).record(elapsed.as_secs_f64());
 }
 
 /// Records refused readings, by the sensor they claimed (`unknown` when
@@ -88,6 +169,30 @@ pub fn rejected(machine: &str, rejected: &[Rejected]) {
         metrics::counter!(REJECTED, "machine" => machine.to_string(), "sensor" => sensor)
             .increment(1);
     }
+}
+
+/// Records a request answered 503.
+pub fn refused(reason: Refusal) {
+    metrics::counter!(REFUSALS, "reason" => reason.as_str()).increment(1);
+}
+
+/// Middleware (inside the router, so the route is known): counts every
+/// response by declared route, method and status.
+pub async fn count_responses(request: Request, next: Next) -> Response {
+    let route = request
+        .extensions()
+        .get::<MatchedPath>()
+        .map_or_else(|| "unmatched".to_string(), |m| m.as_str().to_string());
+    let method = request.method().to_string();
+    let response = next.run(request).await;
+    metrics::counter!(
+        HTTP_RESPONSES,
+        "route" => route,
+        "method" => method,
+        "status" => response.status().as_u16().to_string()
+    )
+    .increment(1);
+    response
 }
 
 /// The liveness answer.
@@ -107,49 +212,30 @@ pub async fn healthz(State(state): State<SharedState>) -> Json<Health> {
     })
 }
 
-/// `GET /metrics`.
+/// `GET /metrics`: the counters as recorded, and the gauges read now.
 pub async fn render(State(state): State<SharedState>) -> impl IntoResponse {
-    for machine in state.all_machines() {
-        metrics::gauge!(LIVE_CLIENTS, "machine" => machine.spec.id.clone())
-            .set(machine.live_clients() as f64);
+    let now = state.clock.now_s();
+    let machines = state.all_machines();
+    metrics::gauge!(MACHINES).set(machines.len() as f64);
+    for machine in &machines {
+        let id = machine.spec.id.clone();
+        let status = super::machines::status(machine, now);
+        metrics::gauge!(LIVE_CLIENTS, "machine" => id.clone()).set(status.live_clients as f64);
+        for (sensor, report) in &status.sensors {
+            metrics::gauge!(LAST_READING, "machine" => id.clone(), "sensor" => sensor.as_str())
+                .set(report.last_t);
+        }
+        if let Some(laser) = &status.laser {
+            metrics::gauge!(LASER_DROPOUT, "machine" => id.clone()).set(if laser.dropout {
+                1.0
+            } else {
+                0.0
+            });
+        }
     }
     metrics::gauge!(STORE_BYTES).set(state.store.size_bytes() as f64);
-    // Every machine × kind × severity, zero when none is active, so an
-    // alert rule sees the series before the first alarm.
-    let active = super::alarms::stored(
-        &state,
-        AlarmFilter {
-            machine: None,
-            active_only: true,
-        },
-    )
-    .await;
-    match active {
-        Ok(active) => {
-            for machine in state.all_machines() {
-                for kind in AlarmKind::ALL {
-                    for severity in Severity::ALL {
-                        let count = active
-                            .iter()
-                            .filter(|a| {
-                                a.machine == machine.spec.id
-                                    && a.kind == kind.as_str()
-                                    && a.severity == severity.as_str()
-                            })
-                            .count();
-                        metrics::gauge!(
-                            ALARMS_ACTIVE,
-                            "machine" => machine.spec.id.clone(),
-                            "kind" => kind.as_str(),
-                            "severity" => severity.as_str()
-                        )
-                        .set(count as f64);
-                    }
-                }
-            }
-        }
-        Err(e) => tracing::warn!(error = %e, "active alarms not read for /metrics"),
-    }
+    set_active_alarms(&state).await;
+    process().collect();
     let text = handle().map(|h| h.render()).unwrap_or_default();
     (
         [(
@@ -158,4 +244,41 @@ pub async fn render(State(state): State<SharedState>) -> impl IntoResponse {
         )],
         text,
     )
+}
+
+/// Every machine × kind × severity, zero when none is active, so an alert
+/// rule sees the series before the first alarm.
+async fn set_active_alarms(state: &SharedState) {
+    let filter = AlarmFilter {
+        machine: None,
+        active_only: true,
+    };
+    let active = match super::alarms::stored(state, filter).await {
+        Ok(active) => active,
+        Err(e) => {
+            tracing::warn!(error = %e, "active alarms not read for /metrics");
+            return;
+        }
+    };
+    for machine in state.all_machines() {
+        for kind in AlarmKind::ALL {
+            for severity in Severity::ALL {
+                let count = active
+                    .iter()
+                    .filter(|a| {
+                        a.machine == machine.spec.id
+                            && a.kind == kind.as_str()
+                            && a.severity == severity.as_str()
+                    })
+                    .count();
+                metrics::gauge!(
+                    ALARMS_ACTIVE,
+                    "machine" => machine.spec.id.clone(),
+                    "kind" => kind.as_str(),
+                    "severity" => severity.as_str()
+                )
+                .set(count as f64);
+            }
+        }
+    }
 }

@@ -172,6 +172,7 @@ impl AppState {
         let alarms = notify::AlarmNotifier::start(&options.webhooks);
         let mut machines = BTreeMap::new();
         for (id, (db_id, spec)) in specs {
+            metrics::register_machine(&spec);
             let (core, status) = {
                 let (store, spec) = (store.clone(), spec.clone());
                 tokio::task::spawn_blocking(move || {
@@ -292,6 +293,7 @@ impl AppState {
             .store
             .put_machine(spec.clone(), core.snapshot())
             .await?;
+        metrics::register_machine(&spec);
         // A redeclared machine keeps its history, so its status too.
         let status = existing
             .as_ref()
@@ -410,6 +412,7 @@ pub fn router(state: SharedState) -> Router {
             answer_in_time,
         ))
         .layer(DefaultBodyLimit::max(limit))
+        .layer(axum::middleware::from_fn(metrics::count_responses))
         .layer(
             TraceLayer::new_for_http()
                 .make_span_with(request_span)
