@@ -304,6 +304,9 @@ pub struct ServerConfig {
     /// Where alarm changes are posted (`[webhooks]`: `warn`, `alarm`).
     #[serde(default)]
     pub webhooks: WebhookConfig,
+    /// The server's limits (`[limits]`), each optional.
+    #[serde(default)]
+    pub limits: LimitsConfig,
 }
 
 /// A config file, validated.
@@ -311,6 +314,93 @@ pub struct ServerConfig {
 pub struct ServerSettings {
     pub machines: Vec<MachineSpec>,
     pub webhooks: WebhookConfig,
+    pub limits: LimitsConfig,
+}
+
+/// `[limits]` of the config file: what clients may send and how long the
+/// server waits; each absent one keeps its default (see README).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LimitsConfig {
+    pub max_body_mb: Option<f64>,
+    pub max_readings_per_request: Option<usize>,
+    pub max_frame_mb: Option<f64>,
+    pub max_points_limit: Option<usize>,
+    pub live_ping_interval_s: Option<f64>,
+    pub max_future_s: Option<f64>,
+    pub machine_queue: Option<usize>,
+    pub max_live_clients_per_machine: Option<usize>,
+    pub max_alarm_clients: Option<usize>,
+    pub request_timeout_s: Option<f64>,
+    pub max_database_mb: Option<f64>,
+}
+
+impl LimitsConfig {
+    /// `defaults` with these limits applied; an out-of-range value is
+    /// refused naming it.
+    pub fn apply(&self, defaults: crate::server::Limits) -> Result<crate::server::Limits, String> {
+        use std::time::Duration;
+        fn real(name: &str, value: Option<f64>, min: f64, max: f64) -> Result<Option<f64>, String> {
+            match value {
+                Some(v) if !(v.is_finite() && v >= min && v <= max) => Err(format!(
+                    "limits.{name} must be between {min} and {max}, not {v}"
+                )),
+                other => Ok(other),
+            }
+        }
+        fn count(name: &str, value: Option<usize>, max: usize) -> Result<Option<usize>, String> {
+            match value {
+                Some(v) if v == 0 || v > max => Err(format!(
+                    "limits.{name} must be between 1 and {max}, not {v}"
+                )),
+                other => Ok(other),
+            }
+        }
+        let mb = |v: f64| (v * 1e6) as usize;
+        let mut limits = defaults;
+        if let Some(v) = real("max_body_mb", self.max_body_mb, 0.001, 4096.0)? {
+            limits.max_body_bytes = mb(v);
+        }
+        if let Some(v) = count(
+            "max_readings_per_request",
+            self.max_readings_per_request,
+            10_000_000,
+        )? {
+            limits.max_readings_per_request = v;
+        }
+        if let Some(v) = real("max_frame_mb", self.max_frame_mb, 0.001, 1024.0)? {
+            limits.max_frame_bytes = mb(v);
+        }
+        if let Some(v) = count("max_points_limit", self.max_points_limit, 10_000_000)? {
+            limits.max_points_limit = v;
+        }
+        if let Some(v) = real("live_ping_interval_s", self.live_ping_interval_s, 1.0, 15.0)? {
+            limits.live_ping_interval = Duration::from_secs_f64(v);
+        }
+        if let Some(v) = real("max_future_s", self.max_future_s, 0.0, 86_400.0)? {
+            limits.max_future_s = v;
+        }
+        if let Some(v) = count("machine_queue", self.machine_queue, 100_000)? {
+            limits.machine_queue = v;
+        }
+        if let Some(v) = count(
+            "max_live_clients_per_machine",
+            self.max_live_clients_per_machine,
+            100_000,
+        )? {
+            limits.max_live_clients_per_machine = v;
+        }
+        if let Some(v) = count("max_alarm_clients", self.max_alarm_clients, 100_000)? {
+            limits.max_alarm_clients = v;
+        }
+        if let Some(v) = real("request_timeout_s", self.request_timeout_s, 1.0, 3600.0)? {
+            limits.request_timeout = Duration::from_secs_f64(v);
+        }
+        if let Some(v) = real("max_database_mb", self.max_database_mb, 1.0, 1e9)? {
+            limits.max_database_bytes = Some((v * 1e6) as u64);
+        }
+        Ok(limits)
+    }
 }
 
 impl ServerConfig {
@@ -337,6 +427,13 @@ impl ServerConfig {
             path: String::new(),
             reason: e.to_string(),
         })?;
+        config
+            .limits
+            .apply(crate::server::Limits::default())
+            .map_err(|reason| ConfigError::File {
+                path: String::new(),
+                reason,
+            })?;
         Ok(ServerSettings {
             machines: config
                 .machines
@@ -344,6 +441,7 @@ impl ServerConfig {
                 .map(|(id, declaration)| declaration.validate(&id))
                 .collect::<Result<_, _>>()?,
             webhooks: config.webhooks,
+            limits: config.limits,
         })
     }
 }
@@ -360,6 +458,29 @@ mod tests {
         assert!(!valid_machine_id(""));
         assert!(!valid_machine_id("tbm 1"));
         assert!(!valid_machine_id("tbm/1"));
+    }
+
+    #[test]
+    fn a_config_file_sets_limits_and_refuses_bad_ones() {
+        let settings = ServerConfig::parse(
+            "[limits]\nmax_body_mb = 2\nmachine_queue = 8\nrequest_timeout_s = 5\n",
+        )
+        .unwrap();
+        let limits = settings
+            .limits
+            .apply(crate::server::Limits::default())
+            .unwrap();
+        assert_eq!(limits.max_body_bytes, 2_000_000);
+        assert_eq!(limits.machine_queue, 8);
+        assert_eq!(limits.request_timeout, std::time::Duration::from_secs(5));
+        // Untouched ones keep their defaults.
+        assert_eq!(limits.max_readings_per_request, 100_000);
+        let err = ServerConfig::parse("[limits]\nmachine_queue = 0\n").unwrap_err();
+        assert!(err.to_string().contains("limits.machine_queue"), "{err}");
+        let err = ServerConfig::parse("[limits]\nlive_ping_interval_s = 60\n").unwrap_err();
+        assert!(err.to_string().contains("live_ping_interval_s"), "{err}");
+        let err = ServerConfig::parse("[limits]\nmax_bodies = 1\n").unwrap_err();
+        assert!(err.to_string().contains("max_bodies"), "{err}");
     }
 
     #[test]

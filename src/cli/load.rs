@@ -40,6 +40,10 @@ pub struct LoadArgs {
     /// A running server; without it one is started for the run.
     #[arg(long)]
     pub url: Option<String>,
+    /// An admin token for that server (it declares machines and posts
+    /// readings); sent as `Authorization: Bearer`.
+    #[arg(long, env = "TUNNELNAV_TOKEN", hide_env_values = true)]
+    pub token: Option<String>,
     /// Machines (one gateway each, several for `single`).
     #[arg(long, default_value_t = 50)]
     pub machines: usize,
@@ -161,8 +165,18 @@ pub fn run(args: LoadArgs) -> Result<(), CliError> {
         .enable_all()
         .build()?;
     let result = runtime.block_on(async {
+        let mut headers = reqwest::header::HeaderMap::new();
+        if let Some(token) = &args.token {
+            let mut bearer = reqwest::header::HeaderValue::from_str(&format!("Bearer {token}"))
+                .map_err(|_| {
+                    CliError::Scenario("--token holds characters a header cannot".into())
+                })?;
+            bearer.set_sensitive(true);
+            headers.insert(reqwest::header::AUTHORIZATION, bearer);
+        }
         let client = reqwest::Client::builder()
             .pool_max_idle_per_host(args.concurrency.max(args.machines))
+            .default_headers(headers)
             .build()
             .map_err(|e| CliError::Scenario(e.to_string()))?;
         let run_id = std::process::id();
@@ -288,10 +302,19 @@ async fn live(
     let ws_base = url.replacen("http://", "ws://", 1);
     let mut readers = Vec::new();
     for (i, machine) in machines.iter().enumerate() {
-        let (socket, _) =
-            tokio_tungstenite::connect_async(format!("{ws_base}/api/v1/machines/{machine}/live"))
-                .await
-                .map_err(|e| CliError::Scenario(format!("live socket: {e}")))?;
+        use tokio_tungstenite::tungstenite::client::IntoClientRequest;
+        let mut request = format!("{ws_base}/api/v1/machines/{machine}/live")
+            .into_client_request()
+            .map_err(|e| CliError::Scenario(format!("live socket: {e}")))?;
+        if let Some(token) = &args.token {
+            let bearer = format!("Bearer {token}").parse().map_err(|_| {
+                CliError::Scenario("--token holds characters a header cannot".into())
+            })?;
+            request.headers_mut().insert("authorization", bearer);
+        }
+        let (socket, _) = tokio_tungstenite::connect_async(request)
+            .await
+            .map_err(|e| CliError::Scenario(format!("live socket: {e}")))?;
         let (sent, latencies) = (sent.clone(), latencies.clone());
         readers.push(tokio::spawn(async move {
             let mut socket = socket;

@@ -9,39 +9,47 @@ use super::CliError;
 use crate::config::{ServerConfig, ServerSettings};
 use crate::server::{self, AppState, Clock, Limits, ServerOptions, SharedState};
 
+/// Every flag can also come from the environment variable named in its
+/// help (`TUNNELNAV_*`, for containers and systemd units); a flag given on
+/// the command line wins.
 #[derive(Debug, Args)]
 pub struct ServeArgs {
     /// Address to listen on.
-    #[arg(long, default_value = "127.0.0.1:8080")]
+    #[arg(long, env = "TUNNELNAV_LISTEN", default_value = "127.0.0.1:8080")]
     pub listen: SocketAddr,
     /// Directory holding the database (created if missing).
-    #[arg(long, default_value = "data")]
+    #[arg(long, env = "TUNNELNAV_DATA_DIR", default_value = "data")]
     pub data_dir: PathBuf,
-    /// TOML file declaring machines and webhooks (see README).
-    #[arg(long)]
+    /// TOML file declaring machines, webhooks and limits (see README).
+    #[arg(long, env = "TUNNELNAV_CONFIG")]
     pub config: Option<PathBuf>,
     /// Serve with no access tokens on an address other than loopback:
     /// anyone who can reach the port may read, post and declare machines.
-    #[arg(long)]
+    #[arg(long, env = "TUNNELNAV_ALLOW_NO_AUTH")]
     pub allow_no_auth: bool,
     /// Delete raw readings older than this many days (default: keep all).
     /// Readings the latest engine snapshot does not cover yet are kept.
-    #[arg(long, value_name = "DAYS")]
+    #[arg(long, env = "TUNNELNAV_KEEP_READINGS_DAYS", value_name = "DAYS")]
     pub keep_readings_days: Option<f64>,
     /// Thin estimates older than this many days to one a minute (default:
     /// keep all); the per-bucket extremes stay.
-    #[arg(long, value_name = "DAYS")]
+    #[arg(long, env = "TUNNELNAV_KEEP_ESTIMATES_DAYS", value_name = "DAYS")]
     pub keep_estimates_days: Option<f64>,
     /// Cap the database file at this many megabytes: beyond, ingest
     /// answers 503 as on a full disk until retention or a larger cap makes
     /// room.
-    #[arg(long, value_name = "MB")]
+    #[arg(long, env = "TUNNELNAV_MAX_DATABASE_MB", value_name = "MB")]
     pub max_database_mb: Option<f64>,
     /// Seconds between retention passes.
-    #[arg(long, default_value_t = 3600.0, value_name = "SECONDS")]
+    #[arg(
+        long,
+        env = "TUNNELNAV_RETENTION_EVERY_S",
+        default_value_t = 3600.0,
+        value_name = "SECONDS"
+    )]
     pub retention_every_s: f64,
     /// Log lines as text or JSON objects.
-    #[arg(long, value_enum, default_value = "text")]
+    #[arg(long, env = "TUNNELNAV_LOG_FORMAT", value_enum, default_value = "text")]
     pub log_format: LogFormat,
 }
 
@@ -63,6 +71,20 @@ pub fn run(args: ServeArgs) -> Result<(), CliError> {
         Some(path) => ServerConfig::load(path)?,
         None => ServerSettings::default(),
     };
+    // The config file's limits, then the command line's database cap.
+    let mut limits = settings.limits.apply(Limits::default()).map_err(|reason| {
+        crate::config::ConfigError::File {
+            path: args
+                .config
+                .as_ref()
+                .map(|p| p.display().to_string())
+                .unwrap_or_default(),
+            reason,
+        }
+    })?;
+    if let Some(mb) = args.max_database_mb {
+        limits.max_database_bytes = Some((mb * 1e6) as u64);
+    }
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()?;
@@ -70,10 +92,7 @@ pub fn run(args: ServeArgs) -> Result<(), CliError> {
         let options = ServerOptions {
             data_dir: args.data_dir.clone(),
             machines: settings.machines,
-            limits: Limits {
-                max_database_bytes: args.max_database_mb.map(|mb| (mb * 1e6) as u64),
-                ..Limits::default()
-            },
+            limits,
             clock: Clock::system(),
             retention: args.retention(),
             webhooks: settings.webhooks,
