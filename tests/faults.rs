@@ -295,7 +295,10 @@ async fn a_stalled_request_gets_408_in_time() {
     }
     let answer = String::from_utf8_lossy(&answer);
     assert!(answer.starts_with("HTTP/1.1 408"), "{answer}");
-    assert!(answer.contains("not answered within 0.5 s"), "{answer}");
+    assert!(
+        answer.contains("body did not arrive within 0.5 s"),
+        "{answer}"
+    );
     assert!(started.elapsed() < Duration::from_secs(3));
     // Others are served meanwhile and after.
     let health = client.get(format!("{base}/healthz")).send().await.unwrap();

@@ -221,8 +221,25 @@ async fn require(state: &SharedState, need: Need, mut request: Request, next: Ne
 }
 
 /// `GET /login`: a form that posts a token (never in a URL).
-pub async fn login_page() -> Html<&'static str> {
-    Html(LOGIN_PAGE)
+pub async fn login_page() -> Html<String> {
+    Html(LOGIN_PAGE.replace(LOGIN_ERROR, ""))
+}
+
+/// Where the login page says why a sign-in failed.
+const LOGIN_ERROR: &str = "<!--error-->";
+
+/// The login page again, saying why the token was refused.
+fn login_refused(error: &ApiError) -> Response {
+    let escaped = error
+        .to_string()
+        .replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;");
+    let page = LOGIN_PAGE.replace(
+        LOGIN_ERROR,
+        &format!(r#"<p class="login-error" role="alert">Not signed in: {escaped}</p>"#),
+    );
+    (error.status(), Html(page)).into_response()
 }
 
 const LOGIN_PAGE: &str = r#"<!doctype html>
@@ -230,6 +247,7 @@ const LOGIN_PAGE: &str = r#"<!doctype html>
 <link rel="icon" href="/static/favicon.svg" type="image/svg+xml">
 <link rel="stylesheet" href="/static/app.css"></head>
 <body><main class="login"><h1>tunnelnav</h1>
+<!--error-->
 <form method="post" action="/login">
 <label for="token">Access token (read or admin)</label>
 <input id="token" name="token" type="password" autocomplete="current-password" required>
@@ -248,7 +266,7 @@ pub struct LoginForm {
 pub async fn login(State(state): State<SharedState>, Form(form): Form<LoginForm>) -> Response {
     let token = form.token.trim();
     if let Err(e) = state.gate.check(&state.store, Some(token), &Need::Read) {
-        return e.into_response();
+        return login_refused(&e);
     }
     let cookie = format!("{COOKIE}={token}; Path=/; HttpOnly; SameSite=Strict");
     match HeaderValue::from_str(&cookie) {
@@ -257,8 +275,9 @@ pub async fn login(State(state): State<SharedState>, Form(form): Form<LoginForm>
             response.headers_mut().insert(header::SET_COOKIE, value);
             response
         }
-        Err(_) => ApiError::BadRequest("the token has characters a cookie cannot hold".into())
-            .into_response(),
+        Err(_) => login_refused(&ApiError::BadRequest(
+            "the token has characters a cookie cannot hold".into(),
+        )),
     }
 }
 

@@ -35,16 +35,19 @@ pub enum Refusal {
     MachineBusy,
     /// As many live sockets as allowed are open.
     TooManyClients,
+    /// The request was not answered in time though it had arrived whole.
+    Stalled,
 }
 
 impl Refusal {
     /// Every reason, for registering the counter's series.
-    pub const ALL: [Refusal; 5] = [
+    pub const ALL: [Refusal; 6] = [
         Refusal::ShuttingDown,
         Refusal::StoreUnavailable,
         Refusal::MachineRestarting,
         Refusal::MachineBusy,
         Refusal::TooManyClients,
+        Refusal::Stalled,
     ];
 
     /// The metric label.
@@ -55,6 +58,7 @@ impl Refusal {
             Refusal::MachineRestarting => "machine_restarting",
             Refusal::MachineBusy => "machine_busy",
             Refusal::TooManyClients => "too_many_clients",
+            Refusal::Stalled => "stalled",
         }
     }
 }

@@ -33,9 +33,15 @@ struct HistoryPage<'a> {
     estimates: Vec<EstimateRef<'a>>,
 }
 
-/// Parses a query-string time: Unix seconds or RFC 3339.
+/// A Unix time above this (the year 5138 in seconds) is read as
+/// milliseconds, as Grafana sends them.
+pub const MILLISECONDS_ABOVE: f64 = 1e11;
+
+/// Parses a query-string time: Unix seconds (milliseconds above
+/// [`MILLISECONDS_ABOVE`]) or RFC 3339.
 pub fn parse_time(field: &str, text: &str) -> Result<f64, ApiError> {
     let t = match text.trim().parse::<f64>() {
+        Ok(t) if t.is_finite() && t.abs() > MILLISECONDS_ABOVE => t / 1000.0,
         Ok(t) if t.is_finite() => t,
         _ => chrono::DateTime::parse_from_rfc3339(text.trim())
             .map(|d| d.timestamp() as f64 + f64::from(d.timestamp_subsec_nanos()) * 1e-9)
@@ -78,6 +84,9 @@ pub struct EstimatesQuery {
     from: Option<String>,
     to: Option<String>,
     max_points: Option<usize>,
+    /// `json` (default: a page, downsampled above `max_points`), or
+    /// `ndjson` / `csv`: every estimate in the range, streamed.
+    format: Option<String>,
 }
 
 /// `GET /api/v1/machines/{machine}/estimates`.
@@ -117,6 +126,27 @@ pub async fn estimates(
         }
     };
     let (from_t, to_t) = range(params.from.as_deref(), params.to.as_deref())?;
+    let csv = match params.format.as_deref() {
+        None | Some("json") => None,
+        Some("ndjson") => Some(false),
+        Some("csv") => Some(true),
+        Some(other) => {
+            return Err(ApiError::BadRequest(format!(
+                "`format` = `{other}`: expected json, ndjson or csv"
+            )));
+        }
+    };
+    if let Some(csv) = csv {
+        if params.max_points.is_some() {
+            return Err(ApiError::BadRequest(
+                "`max_points` applies to the JSON page; an ndjson or csv export has every estimate"
+                    .into(),
+            ));
+        }
+        return Ok(export_estimates(
+            &state, &machine, engine, from_t, to_t, csv,
+        ));
+    }
     let max_points = params.max_points.unwrap_or(DEFAULT_MAX_POINTS);
     if !(1..=state.limits.max_points_limit).contains(&max_points) {
         return Err(ApiError::BadRequest(format!(
@@ -145,6 +175,101 @@ pub async fn estimates(
             .collect(),
     })
     .into_response())
+}
+
+/// Every estimate of `engine` in the range, streamed as NDJSON (the live
+/// stream's objects) or CSV (a column per field of the first estimate;
+/// arrays and objects as JSON in one cell).
+fn export_estimates(
+    state: &SharedState,
+    machine: &crate::machine::MachineHandle,
+    engine: StreamKind,
+    from_t: f64,
+    to_t: f64,
+    csv: bool,
+) -> Response {
+    let (store, db_id, machine_id) = (state.store.clone(), machine.db_id, machine.spec.id.clone());
+    let content_type = if csv {
+        "text/csv; charset=utf-8"
+    } else {
+        "application/x-ndjson"
+    };
+    let body = stream_chunks(move |chunk, send| {
+        let mut columns: Option<Vec<String>> = None;
+        store.export_estimates(db_id, engine, from_t, to_t, |estimate| {
+            let Ok(serde_json::Value::Object(fields)) =
+                serde_json::to_value(estimate.for_machine(&machine_id))
+            else {
+                return true;
+            };
+            if csv {
+                let header = columns.get_or_insert_with(|| {
+                    let names: Vec<String> = fields.keys().cloned().collect();
+                    chunk.push_str(&names.join(","));
+                    chunk.push('\n');
+                    names
+                });
+                let cells: Vec<String> = header
+                    .iter()
+                    .map(|name| csv_cell(fields.get(name)))
+                    .collect();
+                chunk.push_str(&cells.join(","));
+            } else {
+                chunk.push_str(&serde_json::Value::Object(fields).to_string());
+            }
+            chunk.push('\n');
+            send(chunk)
+        })
+    });
+    ([(header::CONTENT_TYPE, content_type)], body).into_response()
+}
+
+/// One CSV cell: numbers and booleans as they are, nothing for null,
+/// strings, arrays and objects quoted (quotes doubled).
+fn csv_cell(value: Option<&serde_json::Value>) -> String {
+    use serde_json::Value;
+    match value {
+        None | Some(Value::Null) => String::new(),
+        Some(Value::Number(n)) => n.to_string(),
+        Some(Value::Bool(b)) => b.to_string(),
+        Some(Value::String(s)) => format!("\"{}\"", s.replace('"', "\"\"")),
+        Some(other) => format!("\"{}\"", other.to_string().replace('"', "\"\"")),
+    }
+}
+
+/// A streamed body filled by `produce` on a blocking thread: it appends to
+/// the chunk and calls `send` after each item, which passes the chunk on
+/// once it is full and answers false when the client has gone (stop).
+fn stream_chunks(
+    produce: impl FnOnce(
+        &mut String,
+        &mut dyn FnMut(&mut String) -> bool,
+    ) -> Result<(), crate::store::StoreError>
+    + Send
+    + 'static,
+) -> Body {
+    let (chunks, receiver) = mpsc::channel::<Result<Bytes, std::io::Error>>(4);
+    tokio::task::spawn_blocking(move || {
+        let mut chunk = String::with_capacity(CHUNK_BYTES + 1024);
+        let mut send = |chunk: &mut String| {
+            if chunk.len() < CHUNK_BYTES {
+                return true;
+            }
+            let full = std::mem::replace(chunk, String::with_capacity(CHUNK_BYTES + 1024));
+            // A closed channel means the client went away: stop reading.
+            chunks.blocking_send(Ok(Bytes::from(full))).is_ok()
+        };
+        let result = produce(&mut chunk, &mut send);
+        let last = match result {
+            Ok(()) => Ok(Bytes::from(chunk)),
+            Err(e) => {
+                tracing::error!(error = %e, "export failed");
+                Err(std::io::Error::other(e.to_string()))
+            }
+        };
+        let _ = chunks.blocking_send(last);
+    });
+    Body::from_stream(ReceiverStream::new(receiver))
 }
 
 #[derive(Debug, Deserialize)]
@@ -242,47 +367,27 @@ pub async fn readings(
             )));
         }
     };
-    let (chunks, receiver) = mpsc::channel::<Result<Bytes, std::io::Error>>(4);
-    let store = state.store.clone();
-    let db_id = machine.db_id;
-    tokio::task::spawn_blocking(move || {
-        let mut chunk = String::with_capacity(CHUNK_BYTES + 1024);
+    let (store, db_id) = (state.store.clone(), machine.db_id);
+    let body = stream_chunks(move |chunk, send| {
         if csv {
             chunk.push_str(CSV_HEADER);
         }
-        let result = store.export_readings(db_id, sensor, from_t, to_t, |reading| {
+        store.export_readings(db_id, sensor, from_t, to_t, |reading| {
             if csv {
-                csv_row(reading, &mut chunk);
+                csv_row(reading, chunk);
             } else {
                 chunk.push_str(&reading.to_json());
                 chunk.push('\n');
             }
-            if chunk.len() >= CHUNK_BYTES {
-                let full = std::mem::replace(&mut chunk, String::with_capacity(CHUNK_BYTES + 1024));
-                // A closed channel means the client went away: stop reading.
-                return chunks.blocking_send(Ok(Bytes::from(full))).is_ok();
-            }
-            true
-        });
-        let last = match result {
-            Ok(()) => Ok(Bytes::from(chunk)),
-            Err(e) => {
-                tracing::error!(error = %e, "readings export failed");
-                Err(std::io::Error::other(e.to_string()))
-            }
-        };
-        let _ = chunks.blocking_send(last);
+            send(chunk)
+        })
     });
     let content_type = if csv {
         "text/csv; charset=utf-8"
     } else {
         "application/x-ndjson"
     };
-    Ok((
-        [(header::CONTENT_TYPE, content_type)],
-        Body::from_stream(ReceiverStream::new(receiver)),
-    )
-        .into_response())
+    Ok(([(header::CONTENT_TYPE, content_type)], body).into_response())
 }
 
 /// The model endpoint's answer: the engine's report and the machine.

@@ -124,6 +124,18 @@ pub fn parse_batch(body: &[u8], ndjson: bool, rules: &BatchRules) -> Result<Pars
             take(index, item.get().as_bytes());
         }
     } else if text.first() == Some(&b'{') {
+        // Several lines of objects sent as plain JSON: say what to send.
+        let lines = text
+            .split(|&b| b == b'\n')
+            .map(<[u8]>::trim_ascii)
+            .filter(|l| !l.is_empty())
+            .count();
+        if lines > 1 && parse_reading(text).is_err() {
+            return Err(ApiError::BadRequest(format!(
+                "the body looks like NDJSON ({lines} lines of JSON objects) but was not sent as \
+                 such: send it with Content-Type: application/x-ndjson, or as one JSON array"
+            )));
+        }
         take(0, text);
     } else {
         return Err(ApiError::BadRequest(

@@ -57,7 +57,8 @@ pub struct Limits {
     pub max_live_clients_per_machine: usize,
     /// Fleet alarm sockets (every dashboard page opens one; 503 beyond).
     pub max_alarm_clients: usize,
-    /// Longest a request may take to be answered (408 beyond); streamed
+    /// Longest a request may take to be answered (beyond: 408 if its body
+    /// had not arrived, else 503); streamed
     /// bodies and open WebSockets are not cut.
     pub request_timeout: std::time::Duration,
     /// Cap on the database file (a small card on a site computer): beyond
@@ -491,22 +492,47 @@ async fn apply_retention(store: Store, policy: crate::store::retention::Retentio
     }
 }
 
-/// Answers 408 when a request is not answered within the limit (a slow
-/// upload, a stuck store); a streamed body or an open WebSocket, once
-/// answered, is not cut.
+/// Answers a request not answered within the limit: 408 when its body
+/// had not all arrived (the client is slow), else 503 with `Retry-After`
+/// (the server is stalled: a stuck store, an overload). A streamed body or
+/// an open WebSocket, once answered, is not cut.
 async fn answer_in_time(
     axum::extract::State(state): axum::extract::State<SharedState>,
     request: axum::extract::Request,
     next: axum::middleware::Next,
 ) -> axum::response::Response {
+    use axum::body::HttpBody;
     use axum::response::IntoResponse;
+    use futures_util::StreamExt;
+    use std::sync::atomic::{AtomicBool, Ordering};
     let limit = state.limits.request_timeout;
+    // Whether the whole body has been read (an empty one at once).
+    let received = Arc::new(AtomicBool::new(request.body().is_end_stream()));
+    let request = {
+        let received = received.clone();
+        request.map(|body| {
+            let end = futures_util::stream::once(async move {
+                received.store(true, Ordering::SeqCst);
+                Ok::<_, axum::Error>(axum::body::Bytes::new())
+            });
+            axum::body::Body::from_stream(body.into_data_stream().chain(end))
+        })
+    };
     match tokio::time::timeout(limit, next.run(request)).await {
         Ok(response) => response,
-        Err(_) => ApiError::Timeout(format!(
-            "the request was not answered within {} s; if it was a post, retry it (duplicates are stored once)",
+        Err(_) if !received.load(Ordering::SeqCst) => ApiError::Timeout(format!(
+            "the request's body did not arrive within {} s; if it was a post, retry it (duplicates are stored once)",
             limit.as_secs_f64()
         ))
+        .into_response(),
+        Err(_) => ApiError::Unavailable {
+            reason: error::Refusal::Stalled,
+            message: format!(
+                "the server did not answer within {} s (overloaded or its store stuck); retry \
+                 (a post's duplicates are stored once)",
+                limit.as_secs_f64()
+            ),
+        }
         .into_response(),
     }
 }

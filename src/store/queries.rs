@@ -295,6 +295,31 @@ impl Store {
 }
 
 impl Store {
+    /// Every stored estimate of `engine` in `[from_t, to_t]`, in time
+    /// order, to `f` until it answers false (blocking).
+    pub fn export_estimates(
+        &self,
+        machine_id: i64,
+        engine: StreamKind,
+        from_t: f64,
+        to_t: f64,
+        mut f: impl FnMut(&EngineOutput) -> bool,
+    ) -> Result<(), StoreError> {
+        self.read(|conn| {
+            let mut stmt = conn.prepare_cached(
+                "SELECT t, body, codec FROM estimates \
+                 WHERE machine_id = ?1 AND engine = ?2 AND t >= ?3 AND t <= ?4 ORDER BY t",
+            )?;
+            let mut rows = stmt.query(params![machine_id, engine.as_str(), from_t, to_t])?;
+            while let Some(row) = rows.next()? {
+                if !f(&output_row(engine, row)?) {
+                    break;
+                }
+            }
+            Ok(())
+        })
+    }
+
     /// The newest stored estimate of an engine.
     pub fn latest_estimate(
         &self,
