@@ -35,7 +35,7 @@ pub struct MachineDeclaration {
     /// Engine name → parameter overrides.
     pub engines: BTreeMap<String, BTreeMap<String, ParamValue>>,
     /// How long readings are held to restore time order, seconds of reading
-    /// time (tunnelnav extension, default 0: fused on arrival; see README).
+    /// time (tunnelnav extension, default 0: fused on arrival; docs/api.md).
     #[serde(default)]
     pub reorder_window_s: Option<f64>,
     /// Where the machine's front and rear are (protocol, "Design axis and
@@ -318,7 +318,7 @@ pub struct ServerSettings {
 }
 
 /// `[limits]` of the config file: what clients may send and how long the
-/// server waits; each absent one keeps its default (see README).
+/// server waits; each absent one keeps its default (docs/operations.md).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LimitsConfig {

@@ -1,4 +1,4 @@
-//! `/metrics` on a fresh server against the README's table ("Metrics"):
+//! `/metrics` on a fresh server against the table in `docs/api.md` ("Metrics"):
 //! every documented series is there before any reading, with the
 //! documented type and labels, and nothing undocumented; `promtool check
 //! metrics` (Prometheus's own linter of names and types) finds nothing,
@@ -12,14 +12,13 @@ use std::process::{Command, Stdio};
 
 use common::{TestServer, declare_machine, get_text};
 
-/// The README's metrics table: name → (type, labels).
+/// The metrics table of `docs/api.md`: name → (type, labels).
 fn documented() -> BTreeMap<String, (String, Vec<String>)> {
-    let readme =
-        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/README.md")).unwrap();
-    let section = readme
-        .split("### Metrics\n")
+    let doc = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/docs/api.md")).unwrap();
+    let section = doc
+        .split("\n## Metrics\n")
         .nth(1)
-        .and_then(|rest| rest.split("\n### ").next())
+        .and_then(|rest| rest.split("\n## ").next())
         .expect("a Metrics section");
     section
         .lines()

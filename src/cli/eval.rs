@@ -84,7 +84,7 @@ pub struct RecordingArgs {
     #[arg(long)]
     pub dir: std::path::PathBuf,
     /// An engine parameter as name=value (repeatable), on top of what the
-    /// README tells an installer (window of half a second at the
+    /// documentation (docs/engines/fuzzy.md) tells an installer (window of half a second at the
     /// recording's rate, the site's inclination).
     #[arg(long = "param", value_name = "NAME=VALUE")]
     pub params: Vec<String>,

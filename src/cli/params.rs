@@ -12,7 +12,7 @@ pub struct ParamsArgs {
     /// Engine whose parameters to list.
     #[arg(long, value_enum)]
     pub engine: EngineKind,
-    /// As a Markdown table (the README's).
+    /// As a Markdown table (the one in docs/engines/).
     #[arg(long)]
     pub markdown: bool,
 }

@@ -20,7 +20,7 @@ pub struct ServeArgs {
     /// Directory holding the database (created if missing).
     #[arg(long, env = "TUNNELNAV_DATA_DIR", default_value = "data")]
     pub data_dir: PathBuf,
-    /// TOML file declaring machines, webhooks and limits (see README).
+    /// TOML file declaring machines, webhooks and limits (docs/operations.md).
     #[arg(long, env = "TUNNELNAV_CONFIG")]
     pub config: Option<PathBuf>,
     /// Serve with no access tokens on an address other than loopback:

@@ -80,7 +80,7 @@ type V3 = Vector3<f64>;
 pub const EPOCH_T_S: f64 = 1_600_000_000.0;
 /// Inclination of the Earth's field in Berlin (WMM: about 68°, down).
 pub const BERLIN_INCLINATION_DEG: f64 = 68.0;
-/// The motion expert's window, seconds (README: "keep the window at about
+/// The motion expert's window, seconds (docs/engines/fuzzy.md: "keep the window at about
 /// half a second").
 pub const WINDOW_S: f64 = 0.5;
 /// The CSV header.
@@ -408,7 +408,7 @@ fn rate_from_times(path: &Path, samples: &[Sample]) -> Result<f64, RecordingErro
     }
 }
 
-/// The engine's parameters as the README tells an installer to set them
+/// The engine's parameters as docs/engines/fuzzy.md tells an installer to set them
 /// for this recording: defaults, `window_samples` half a second of samples
 /// at `rate_hz`, `mag_inclination_deg` for Berlin (declination left at 0:
 /// the heading offset is removed), then `assignments` (`name=value`) on top.

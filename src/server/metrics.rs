@@ -2,7 +2,7 @@
 //! record. Names follow Prometheus conventions (base units, `_total` for
 //! counters, `_seconds`, `_bytes`); every series that can be known at start
 //! is registered then, at zero, so alert rules see it before its first
-//! event. The list is documented in the README ("Metrics") and checked
+//! event. The list is documented in `docs/api.md` ("Metrics") and checked
 //! against a fresh server by `tests/metrics.rs`.
 
 use std::collections::BTreeMap;

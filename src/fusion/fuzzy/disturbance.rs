@@ -2,7 +2,7 @@
 //! the field's magnitude or its dip (the angle below the horizontal),
 //! which the Earth's field at a site does not. While either departs from
 //! the site's, the compass is not used and its readings do not enter the
-//! calibration (README: "The fuzzy engine", magnetic disturbances).
+//! calibration (docs/engines/fuzzy.md: magnetic disturbances).
 //!
 //! With the calibrated field m_c levelled by the current tilt, h = its
 //! horizontal magnitude and v its downward part:

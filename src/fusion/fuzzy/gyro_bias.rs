@@ -1,8 +1,8 @@
 //! The gyro bias as a random walk, estimated by a Kalman filter per axis
 //! that is updated at every static reading and only predicted in between,
 //! so a bias that warms up while driving is corrected at the next stop,
-//! however brief, and its uncertainty is known (README: "The fuzzy
-//! engine", gyro bias between stops).
+//! however brief, and its uncertainty is known (docs/engines/fuzzy.md:
+//! gyro bias between stops).
 //!
 //! Per axis, with the bias b and its variance P:
 //! - predict over dt:  P ← P + q·dt  (q: the random walk's density, rad²/s³);

@@ -1,7 +1,7 @@
 //! The `fuzzy` engine (Wang 2005): low-cost MEMS accelerometers and gyros
 //! plus a magnetometer, fused according to a fuzzy expert's decision of
 //! the motion status. Only the paper's abstract survives, so the design is
-//! ours, in its spirit (README: "The fuzzy engine").
+//! ours, in its spirit (docs/engines/fuzzy.md).
 //!
 //! Per IMU reading:
 //! 1. the reading enters a short trailing window ([`motion::MotionWindow`]);

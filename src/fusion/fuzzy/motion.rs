@@ -433,7 +433,7 @@ mod tests {
     #[test]
     fn the_discretisation_moves_the_static_degree_only_slightly() {
         // 201 points (the default) against 20 001 over the inputs' span:
-        // the centroid moves by less than 10⁻⁴ (README: discretisation).
+        // the centroid moves by less than 10⁻⁴ (docs/engines/fuzzy.md: discretisation).
         let coarse = motion_expert(&config()).unwrap();
         let fine = motion_expert(&MotionConfig {
             resolution: 20_001,

@@ -1,7 +1,7 @@
 //! The sensors' noise floor, learned from the data: a low quantile of the
 //! motion window's spreads, so every activity threshold of the expert is a
-//! multiple of what this particular IMU shows at rest (README: "The fuzzy
-//! engine", no sensor-specific constants).
+//! multiple of what this particular IMU shows at rest (docs/engines/fuzzy.md:
+//! no sensor-specific constants).
 //!
 //! Each floor follows the `QUANTILE` of its statistic x by the
 //! multiplicative stochastic approximation

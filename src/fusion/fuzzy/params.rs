@@ -11,7 +11,7 @@ use crate::fusion::params::{ParamError, Params, Retired, TypedParams, param_tabl
 param_table! {
     /// The `fuzzy` engine's parameters. No threshold is in sensor units: the
     /// expert's breakpoints are multiples of the noise floor learnt at rest
-    /// (README: how to tune).
+    /// (docs/engines/fuzzy.md: how to tune).
     pub struct FuzzyParams in PARAMS {
         declination_deg: f64 = real(
             0.0,

@@ -1,5 +1,5 @@
 //! The accelerometer as a tilt reference that does not pull while the
-//! vehicle accelerates (README: "The fuzzy engine", tilt while moving).
+//! vehicle accelerates (docs/engines/fuzzy.md: tilt while moving).
 //!
 //! For each IMU reading the engine keeps the specific force turned into
 //! the world frame, C f (C: its gyro-propagated body-to-world attitude),

@@ -1,6 +1,6 @@
 //! The σ of an angle the engine carries on the gyros (tilt, heading)
 //! against the σ of the sensor that pulls it back (accelerometer, compass)
-//! (README: "The fuzzy engine", step 4). With σ the angle's own and σ_ref
+//! (docs/engines/fuzzy.md: step 4). With σ the angle's own and σ_ref
 //! the sensor's:
 //! - the sensor is believed within max(gate, 2·√(σ² + σ_ref²)): two σ of
 //!   the innovation, never less than the configured gate;

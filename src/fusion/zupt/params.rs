@@ -18,7 +18,7 @@ param_table! {
     /// The `zupt` engine's parameters. Sensor defaults are the paper's Table 1
     /// FOG IMU (gyro bias stability 0.5 °/h, ARW ≤ 0.05 °/√h, accelerometer
     /// bias 1 mg); detector defaults are the paper's W = L = 100 and 3 s, with
-    /// thresholds set on the simulated trolley runs (README: how to tune).
+    /// thresholds set on the simulated trolley runs (docs/engines/zupt.md: how to tune).
     pub struct ZuptParams in PARAMS {
         latitude_deg: f64 = real(
             30.0,
