@@ -49,6 +49,38 @@ fn the_example_alert_rules_pass_promtool_and_its_unit_tests() {
     }
 }
 
+#[test]
+fn the_example_scrape_configuration_passes_promtool() {
+    // promtool checks that the token file exists: a copy with one.
+    let dir = tempfile::tempdir().unwrap();
+    let examples = Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/prometheus");
+    for file in ["prometheus.yml", "tunnelnav-alerts.yml"] {
+        std::fs::copy(examples.join(file), dir.path().join(file)).unwrap();
+    }
+    std::fs::write(dir.path().join("tunnelnav.token"), "tnv_example\n").unwrap();
+    let output = match Command::new("promtool")
+        .args(["check", "config", "prometheus.yml"])
+        .current_dir(dir.path())
+        .output()
+    {
+        Ok(output) => output,
+        Err(e) => {
+            assert!(
+                std::env::var("TUNNELNAV_PROMTOOL_TEST").as_deref() != Ok("required"),
+                "TUNNELNAV_PROMTOOL_TEST=required but promtool does not run ({e})"
+            );
+            eprintln!("SKIPPED: promtool not found ({e})");
+            return;
+        }
+    };
+    assert!(
+        output.status.success(),
+        "{}{}",
+        String::from_utf8_lossy(&output.stdout),
+        String::from_utf8_lossy(&output.stderr)
+    );
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_alarm_gauge_is_exported_for_every_kind_and_severity_from_the_start() {
     let dir = tempfile::tempdir().unwrap();
