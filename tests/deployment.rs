@@ -5,7 +5,6 @@
 
 mod common;
 
-use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
 
 use serde_json::json;
@@ -24,26 +23,16 @@ async fn serve_takes_its_settings_from_the_environment_and_limits_from_the_confi
         "[limits]\nmax_readings_per_request = 5\n\n[machines.tbm-env.engines.attitude]\n",
     )
     .unwrap();
-    let mut child = tunnelnav()
-        .arg("serve")
-        .env("TUNNELNAV_LISTEN", "127.0.0.1:0")
-        .env("TUNNELNAV_DATA_DIR", &data_dir)
-        .env("TUNNELNAV_CONFIG", &config)
-        .env("TUNNELNAV_LOG_FORMAT", "json")
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .unwrap();
-    let mut first = String::new();
-    BufReader::new(child.stdout.take().unwrap())
-        .read_line(&mut first)
-        .unwrap();
-    let base = first
-        .trim()
-        .strip_prefix("listening on ")
-        .unwrap()
-        .to_string();
+    let (mut child, base) = common::spawn_serving(
+        tunnelnav()
+            .arg("serve")
+            .env("TUNNELNAV_LISTEN", "127.0.0.1:0")
+            .env("TUNNELNAV_DATA_DIR", &data_dir)
+            .env("TUNNELNAV_CONFIG", &config)
+            .env("TUNNELNAV_LOG_FORMAT", "json")
+            .env("RUST_LOG", "warn")
+            .stderr(Stdio::inherit()),
+    );
     assert!(data_dir.join("tunnelnav.sqlite3").exists());
     let client = reqwest::Client::new();
     let machine = common::get_json(&client, &base, "/api/v1/machines/tbm-env").await;

@@ -7,8 +7,6 @@
 mod common;
 
 use std::collections::BTreeMap;
-use std::io::Write;
-use std::process::{Command, Stdio};
 
 use common::{TestServer, declare_machine, get_text};
 
@@ -98,38 +96,16 @@ async fn a_fresh_server_exports_every_documented_series_and_only_those() {
     }
 
     // Prometheus's own linter.
-    match Command::new("promtool")
-        .args(["check", "metrics"])
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-    {
-        Ok(mut promtool) => {
-            promtool
-                .stdin
-                .take()
-                .unwrap()
-                .write_all(text.as_bytes())
-                .unwrap();
-            let output = promtool.wait_with_output().unwrap();
-            let said = format!(
-                "{}{}",
-                String::from_utf8_lossy(&output.stdout),
-                String::from_utf8_lossy(&output.stderr)
-            );
-            assert!(
-                output.status.success() && said.trim().is_empty(),
-                "promtool: {said}"
-            );
-        }
-        Err(e) => {
-            assert!(
-                std::env::var("TUNNELNAV_PROMTOOL_TEST").as_deref() != Ok("required"),
-                "TUNNELNAV_PROMTOOL_TEST=required but promtool does not run ({e})"
-            );
-            eprintln!("SKIPPED promtool check metrics: {e}");
-        }
+    if let Some(output) = common::promtool(&["check", "metrics"], dir.path(), Some(&text)) {
+        let said = format!(
+            "{}{}",
+            String::from_utf8_lossy(&output.stdout),
+            String::from_utf8_lossy(&output.stderr)
+        );
+        assert!(
+            output.status.success() && said.trim().is_empty(),
+            "promtool: {said}"
+        );
     }
     server.stop().await;
 }

@@ -9,28 +9,11 @@
 mod common;
 
 use std::path::Path;
-use std::process::Command;
 
 use common::{TestServer, declare_machine};
 
-fn promtool(args: &[&str]) -> Option<std::process::Output> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/prometheus");
-    match Command::new("promtool")
-        .args(args)
-        .current_dir(dir)
-        .output()
-    {
-        Ok(output) => Some(output),
-        Err(e) => {
-            assert!(
-                std::env::var("TUNNELNAV_PROMTOOL_TEST").as_deref() != Ok("required"),
-                "TUNNELNAV_PROMTOOL_TEST=required but promtool does not run ({e}); \
-                 apt-get install prometheus"
-            );
-            eprintln!("SKIPPED: promtool not found ({e}); apt-get install prometheus");
-            None
-        }
-    }
+fn examples() -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/prometheus")
 }
 
 #[test]
@@ -39,7 +22,9 @@ fn the_example_alert_rules_pass_promtool_and_its_unit_tests() {
         &["check", "rules", "tunnelnav-alerts.yml"][..],
         &["test", "rules", "tunnelnav-alerts.test.yml"][..],
     ] {
-        let Some(output) = promtool(args) else { return };
+        let Some(output) = common::promtool(args, &examples(), None) else {
+            return;
+        };
         assert!(
             output.status.success(),
             "promtool {args:?}:\n{}{}",
@@ -53,25 +38,13 @@ fn the_example_alert_rules_pass_promtool_and_its_unit_tests() {
 fn the_example_scrape_configuration_passes_promtool() {
     // promtool checks that the token file exists: a copy with one.
     let dir = tempfile::tempdir().unwrap();
-    let examples = Path::new(env!("CARGO_MANIFEST_DIR")).join("deploy/prometheus");
     for file in ["prometheus.yml", "tunnelnav-alerts.yml"] {
-        std::fs::copy(examples.join(file), dir.path().join(file)).unwrap();
+        std::fs::copy(examples().join(file), dir.path().join(file)).unwrap();
     }
     std::fs::write(dir.path().join("tunnelnav.token"), "tnv_example\n").unwrap();
-    let output = match Command::new("promtool")
-        .args(["check", "config", "prometheus.yml"])
-        .current_dir(dir.path())
-        .output()
-    {
-        Ok(output) => output,
-        Err(e) => {
-            assert!(
-                std::env::var("TUNNELNAV_PROMTOOL_TEST").as_deref() != Ok("required"),
-                "TUNNELNAV_PROMTOOL_TEST=required but promtool does not run ({e})"
-            );
-            eprintln!("SKIPPED: promtool not found ({e})");
-            return;
-        }
+    let Some(output) = common::promtool(&["check", "config", "prometheus.yml"], dir.path(), None)
+    else {
+        return;
     };
     assert!(
         output.status.success(),

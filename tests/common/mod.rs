@@ -375,3 +375,54 @@ pub async fn put_refused(
     let body: serde_json::Value = serde_json::from_slice(&response.bytes().await.unwrap()).unwrap();
     body["error"].as_str().unwrap().to_string()
 }
+
+/// Runs `promtool` with `args` in `dir`, `input` on its stdin; `None` (and
+/// says so) when it is not installed, unless `TUNNELNAV_PROMTOOL_TEST=required`
+/// (CI), where that fails the test.
+pub fn promtool(args: &[&str], dir: &Path, input: Option<&str>) -> Option<std::process::Output> {
+    use std::io::Write;
+    let spawned = Command::new("promtool")
+        .args(args)
+        .current_dir(dir)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn();
+    let mut child = match spawned {
+        Ok(child) => child,
+        Err(e) => {
+            assert!(
+                std::env::var("TUNNELNAV_PROMTOOL_TEST").as_deref() != Ok("required"),
+                "TUNNELNAV_PROMTOOL_TEST=required but promtool does not run ({e}); \
+                 apt-get install prometheus"
+            );
+            eprintln!("SKIPPED: promtool not found ({e}); apt-get install prometheus");
+            return None;
+        }
+    };
+    let mut stdin = child.stdin.take().unwrap();
+    if let Some(input) = input {
+        stdin.write_all(input.as_bytes()).unwrap();
+    }
+    drop(stdin);
+    Some(child.wait_with_output().unwrap())
+}
+
+/// Spawns a prepared `tunnelnav serve` (stdout piped here) and returns it
+/// with its base URL, read from its first line (`listening on URL`).
+pub fn spawn_serving(command: &mut Command) -> (Child, String) {
+    let mut child = command
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("tunnelnav runs");
+    let mut first = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut first)
+        .unwrap();
+    let base = first
+        .trim()
+        .strip_prefix("listening on ")
+        .unwrap_or_else(|| panic!("unexpected first line {first:?}"))
+        .to_string();
+    (child, base)
+}
