@@ -314,7 +314,8 @@ pub struct ServerConfig {
 pub struct ServerSettings {
     pub machines: Vec<MachineSpec>,
     pub webhooks: WebhookConfig,
-    pub limits: LimitsConfig,
+    /// The server's limits: the defaults with `[limits]` applied.
+    pub limits: crate::server::Limits,
 }
 
 /// `[limits]` of the config file: what clients may send and how long the
@@ -427,7 +428,7 @@ impl ServerConfig {
             path: String::new(),
             reason: e.to_string(),
         })?;
-        config
+        let limits = config
             .limits
             .apply(crate::server::Limits::default())
             .map_err(|reason| ConfigError::File {
@@ -441,7 +442,7 @@ impl ServerConfig {
                 .map(|(id, declaration)| declaration.validate(&id))
                 .collect::<Result<_, _>>()?,
             webhooks: config.webhooks,
-            limits: config.limits,
+            limits,
         })
     }
 }
@@ -466,10 +467,7 @@ mod tests {
             "[limits]\nmax_body_mb = 2\nmachine_queue = 8\nrequest_timeout_s = 5\n",
         )
         .unwrap();
-        let limits = settings
-            .limits
-            .apply(crate::server::Limits::default())
-            .unwrap();
+        let limits = settings.limits;
         assert_eq!(limits.max_body_bytes, 2_000_000);
         assert_eq!(limits.machine_queue, 8);
         assert_eq!(limits.request_timeout, std::time::Duration::from_secs(5));

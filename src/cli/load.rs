@@ -165,6 +165,7 @@ pub fn run(args: LoadArgs) -> Result<(), CliError> {
         .enable_all()
         .build()?;
     let result = runtime.block_on(async {
+        // The token's header, for every request and the live sockets.
         let mut headers = reqwest::header::HeaderMap::new();
         if let Some(token) = &args.token {
             let mut bearer = reqwest::header::HeaderValue::from_str(&format!("Bearer {token}"))
@@ -176,7 +177,7 @@ pub fn run(args: LoadArgs) -> Result<(), CliError> {
         }
         let client = reqwest::Client::builder()
             .pool_max_idle_per_host(args.concurrency.max(args.machines))
-            .default_headers(headers)
+            .default_headers(headers.clone())
             .build()
             .map_err(|e| CliError::Scenario(e.to_string()))?;
         let run_id = std::process::id();
@@ -204,7 +205,7 @@ pub fn run(args: LoadArgs) -> Result<(), CliError> {
         }
         match args.mode {
             LoadMode::Batch | LoadMode::Single => throughput(&args, &client, &url, &machines).await,
-            LoadMode::Live => live(&args, &client, &url, &machines).await,
+            LoadMode::Live => live(&args, &client, &headers, &url, &machines).await,
             LoadMode::History => history(&args, &client, &url, &machines[0]).await,
         }
     });
@@ -291,6 +292,7 @@ async fn throughput(
 async fn live(
     args: &LoadArgs,
     client: &reqwest::Client,
+    headers: &reqwest::header::HeaderMap,
     url: &str,
     machines: &[String],
 ) -> Result<(), CliError> {
@@ -306,12 +308,7 @@ async fn live(
         let mut request = format!("{ws_base}/api/v1/machines/{machine}/live")
             .into_client_request()
             .map_err(|e| CliError::Scenario(format!("live socket: {e}")))?;
-        if let Some(token) = &args.token {
-            let bearer = format!("Bearer {token}").parse().map_err(|_| {
-                CliError::Scenario("--token holds characters a header cannot".into())
-            })?;
-            request.headers_mut().insert("authorization", bearer);
-        }
+        request.headers_mut().extend(headers.clone());
         let (socket, _) = tokio_tungstenite::connect_async(request)
             .await
             .map_err(|e| CliError::Scenario(format!("live socket: {e}")))?;

@@ -7,7 +7,7 @@ use clap::Args;
 
 use super::CliError;
 use crate::config::{ServerConfig, ServerSettings};
-use crate::server::{self, AppState, Clock, Limits, ServerOptions, SharedState};
+use crate::server::{self, AppState, Clock, ServerOptions, SharedState};
 
 /// Every flag can also come from the environment variable named in its
 /// help (`TUNNELNAV_*`, for containers and systemd units); a flag given on
@@ -72,16 +72,7 @@ pub fn run(args: ServeArgs) -> Result<(), CliError> {
         None => ServerSettings::default(),
     };
     // The config file's limits, then the command line's database cap.
-    let mut limits = settings.limits.apply(Limits::default()).map_err(|reason| {
-        crate::config::ConfigError::File {
-            path: args
-                .config
-                .as_ref()
-                .map(|p| p.display().to_string())
-                .unwrap_or_default(),
-            reason,
-        }
-    })?;
+    let mut limits = settings.limits;
     if let Some(mb) = args.max_database_mb {
         limits.max_database_bytes = Some((mb * 1e6) as u64);
     }
