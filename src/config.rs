@@ -26,13 +26,15 @@ pub const MAX_REORDER_WINDOW_S: f64 = 600.0;
 
 /// A machine as declared by an operator, before validation: what `PUT`
 /// bodies and the config file contain.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct MachineDeclaration {
     /// Display name; the id when absent.
     #[serde(default)]
     pub name: Option<String>,
-    /// Engine name → parameter overrides.
+    /// Engine name → parameter overrides (docs/engines/ lists each
+    /// engine's parameters).
+    #[schema(schema_with = engines_schema)]
     pub engines: BTreeMap<String, BTreeMap<String, ParamValue>>,
     /// How long readings are held to restore time order, seconds of reading
     /// time (tunnelnav extension, default 0: fused on arrival; docs/api.md).
@@ -110,6 +112,62 @@ pub fn valid_machine_id(id: &str) -> bool {
             .all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'_')
 }
 
+/// The schema of a declaration's `engines`, from the engines' parameter
+/// tables (what [`MachineDeclaration::validate`] checks them against):
+/// at least one engine, each with only its own parameters, in range.
+fn engines_schema() -> utoipa::openapi::schema::Schema {
+    use crate::fusion::ParamKind;
+    use utoipa::openapi::schema::{ObjectBuilder, Type};
+    let mut engines = ObjectBuilder::new()
+        .schema_type(Type::Object)
+        .description(Some(
+            "Engine name → its parameter overrides (docs/engines/); the others keep their defaults",
+        ))
+        .min_properties(Some(1))
+        .additional_properties(Some(
+            utoipa::openapi::schema::AdditionalProperties::FreeForm(false),
+        ));
+    for &engine in crate::fusion::EngineKind::ALL {
+        let mut params = ObjectBuilder::new()
+            .schema_type(Type::Object)
+            .additional_properties(Some(
+                utoipa::openapi::schema::AdditionalProperties::FreeForm(false),
+            ));
+        for spec in engine.specs() {
+            let unit = if spec.unit.is_empty() {
+                String::new()
+            } else {
+                format!(" ({})", spec.unit)
+            };
+            let value = match spec.kind {
+                ParamKind::Real { default, min, max } => ObjectBuilder::new()
+                    .schema_type(Type::Number)
+                    .minimum(Some(min))
+                    .maximum(Some(max))
+                    .default(Some(default.into())),
+                ParamKind::Integer { default, min, max } => ObjectBuilder::new()
+                    .schema_type(Type::Integer)
+                    .minimum(Some(min as f64))
+                    .maximum(Some(max as f64))
+                    .default(Some(default.into())),
+                ParamKind::Bool { default } => ObjectBuilder::new()
+                    .schema_type(Type::Boolean)
+                    .default(Some(default.into())),
+                ParamKind::Choice { default, options } => ObjectBuilder::new()
+                    .schema_type(Type::String)
+                    .enum_values(Some(options.iter().copied()))
+                    .default(Some(default.into())),
+            };
+            params = params.property(
+                spec.name,
+                value.description(Some(format!("{}{unit}", spec.doc))),
+            );
+        }
+        engines = engines.property(engine.as_str(), params);
+    }
+    engines.into()
+}
+
 impl MachineDeclaration {
     /// Checks everything an engine would refuse later, naming the culprit.
     pub fn validate(self, id: &str) -> Result<MachineSpec, ConfigError> {
@@ -183,6 +241,13 @@ impl MachineDeclaration {
             return Err(invalid(
                 "`start`: easting, northing and height must be finite".into(),
             ));
+        }
+        // Only a new declaration is held to scale (an axis stored by an
+        // earlier release still opens: see `upgraded`).
+        if let Some(alignment) = &self.alignment {
+            alignment
+                .check_scale()
+                .map_err(|e| invalid(format!("`alignment`: {e}")))?;
         }
         let built_alignment =
             built(self.alignment.as_ref()).map_err(|e| invalid(format!("`alignment`: {e}")))?;

@@ -489,3 +489,56 @@ async fn server_estimates_equal_replay_of_the_same_readings() {
     assert_eq!(served, replayed);
     server.stop().await;
 }
+
+/// A redeclaration restarts the machine; readings posted meanwhile go to
+/// its successor instead of being refused (each is stored once).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn readings_posted_while_the_machine_is_redeclared_are_all_stored() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start(dir.path()).await;
+    let client = reqwest::Client::new();
+    let base = server.url("");
+    let declaration = |name: &str| json!({"name": name, "engines": {"attitude": {}}}).to_string();
+    common::declare_machine(&client, &base, "tbm-r", &declaration("A")).await;
+    let t0 = tunnelnav::server::wall_clock_s().floor() - 1000.0;
+    let posting = {
+        let (client, base) = (client.clone(), base.clone());
+        tokio::spawn(async move {
+            let mut statuses = Vec::new();
+            for i in 0..200 {
+                let reading = json!({"t": t0 + f64::from(i), "sensor": "inclinometer",
+                                     "pitch_deg": 0.1, "roll_deg": 0.2});
+                let response = client
+                    .post(format!("{base}/api/v1/machines/tbm-r/readings"))
+                    .body(reading.to_string())
+                    .send()
+                    .await
+                    .unwrap();
+                let status = response.status().as_u16();
+                let (_, ack) = json_of(response).await;
+                statuses.push((status, ack["duplicates"].clone()));
+            }
+            statuses
+        })
+    };
+    for i in 0..10 {
+        let body = declaration(&format!("name {i}"));
+        let response = client
+            .put(format!("{base}/api/v1/machines/tbm-r"))
+            .body(body)
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(response.status(), 200);
+        tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+    }
+    // Each answered 200, none stored twice.
+    let statuses = posting.await.unwrap();
+    assert!(
+        statuses.iter().all(|(s, d)| *s == 200 && *d == json!(0)),
+        "{statuses:?}"
+    );
+    let stored = common::exported_readings(&client, &base, "tbm-r").await;
+    assert_eq!(stored.len(), 200);
+    server.stop().await;
+}

@@ -1291,3 +1291,88 @@ async fn the_alarm_bar_rings_is_acknowledged_and_the_page_says_when_the_server_i
     browser.close().await.ok();
     server.stop().await;
 }
+
+/// The API docs page: the bundled Swagger UI draws every operation of the
+/// server's OpenAPI document, and "Try it out" on `GET /healthz` gets its
+/// answer from the server.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_api_docs_page_draws_every_operation_and_tries_one() {
+    let Some((driver_program, chromium)) = browser_programs() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let server = common::TestServer::start(dir.path()).await;
+    let client = reqwest::Client::new();
+    let base = server.url("");
+    let document = common::get_json(&client, &base, "/api/v1/openapi.json").await;
+    let operations: usize = document["paths"]
+        .as_object()
+        .unwrap()
+        .values()
+        .map(|item| item.as_object().unwrap().len())
+        .sum();
+    assert_eq!(operations, 20);
+
+    let driver = Driver::start(&driver_program);
+    let browser = connect(&driver, chromium.as_deref()).await;
+    browser
+        .goto(&format!("{base}/api/docs"))
+        .await
+        .expect("page loads");
+    wait_for(
+        &browser,
+        "every operation drawn",
+        &format!("return document.querySelectorAll('.opblock').length === {operations};"),
+        20,
+    )
+    .await;
+    let title = js(
+        &browser,
+        "return document.querySelector('.info .title')?.textContent;",
+    )
+    .await;
+    assert!(title.as_str().unwrap().starts_with("tunnelnav"), "{title}");
+    // Open GET /healthz, try it out, execute.
+    js(
+        &browser,
+        "document.querySelector('#operations-service-healthz .opblock-summary-control').click(); \
+         return true;",
+    )
+    .await;
+    wait_for(
+        &browser,
+        "the try-out button",
+        "return !!document.querySelector('#operations-service-healthz .try-out__btn');",
+        10,
+    )
+    .await;
+    js(
+        &browser,
+        "document.querySelector('#operations-service-healthz .try-out__btn').click(); return true;",
+    )
+    .await;
+    wait_for(
+        &browser,
+        "the execute button",
+        "return !!document.querySelector('#operations-service-healthz .execute');",
+        10,
+    )
+    .await;
+    js(
+        &browser,
+        "document.querySelector('#operations-service-healthz .execute').click(); return true;",
+    )
+    .await;
+    wait_for(
+        &browser,
+        "the server's answer",
+        "const live = document.querySelector('#operations-service-healthz .live-responses-table'); \
+         return !!live && live.textContent.includes('200') && live.textContent.includes('\"ok\"');",
+        10,
+    )
+    .await;
+    save_screenshot(&browser, "browser-api-docs.png").await;
+    assert_clean_console(&browser).await;
+    browser.close().await.unwrap();
+    server.stop().await;
+}

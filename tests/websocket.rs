@@ -223,3 +223,42 @@ async fn a_stalled_live_client_gets_a_gap_and_blocks_nobody() {
         lines.len()
     );
 }
+
+/// An ingest socket outlives a redeclaration of its machine: the frames
+/// after it are stored by the restarted machine.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_ingest_socket_goes_on_across_a_redeclaration() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start(dir.path()).await;
+    let client = reqwest::Client::new();
+    let base = server.url("");
+    let declare =
+        |name: &str| serde_json::json!({"name": name, "engines": {"attitude": {}}}).to_string();
+    common::declare_machine(&client, &base, "tbm-ws", &declare("before")).await;
+    let mut socket = connect(server.ws_url("/api/v1/machines/tbm-ws/ingest")).await;
+    let t0 = tunnelnav::server::wall_clock_s().floor() - 100.0;
+    // A reading, a redeclaration, a reading, another, a last reading.
+    for (i, redeclared) in [Some("after"), Some("after again"), None]
+        .into_iter()
+        .enumerate()
+    {
+        let reading = serde_json::json!({"t": t0 + i as f64, "sensor": "inclinometer",
+                                          "pitch_deg": 0.1, "roll_deg": 0.2});
+        socket
+            .send(Message::Text(reading.to_string().into()))
+            .await
+            .unwrap();
+        let ack = next_json(&mut socket, Duration::from_secs(5)).await;
+        assert_eq!(ack["accepted"], 1, "{ack}");
+        if let Some(name) = redeclared {
+            common::declare_machine(&client, &base, "tbm-ws", &declare(name)).await;
+        }
+    }
+    assert_eq!(
+        common::exported_readings(&client, &base, "tbm-ws")
+            .await
+            .len(),
+        3
+    );
+    server.stop().await;
+}

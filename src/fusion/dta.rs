@@ -33,7 +33,7 @@ pub const CODEC_VERSION: u32 = 2;
 /// Where the machine's front and rear points are on it: metres from the
 /// navigation reference point in the body frame (x forward, y right, z
 /// down).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct MachineGeometry {
     pub front_m: [f64; 3],
@@ -41,7 +41,7 @@ pub struct MachineGeometry {
 }
 
 /// Warn and alarm limits of one deviation, mm (of its magnitude).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Limits {
     pub warn: f64,
@@ -49,7 +49,7 @@ pub struct Limits {
 }
 
 /// The tolerances the deviations are held to.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Tolerances {
     pub horizontal_mm: Limits,
@@ -57,7 +57,7 @@ pub struct Tolerances {
 }
 
 /// Which positions a `dta` estimate comes from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum DtaSource {
     Laser,
@@ -75,7 +75,9 @@ impl DtaSource {
 }
 
 /// The worst of the four deviations against the tolerances.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize, utoipa::ToSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum DtaStatus {
     Ok,
@@ -95,7 +97,7 @@ impl DtaStatus {
 }
 
 /// One point's deviation.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct PointDeviation {
     pub station_m: f64,
     /// + right of the axis looking along increasing station.
@@ -137,7 +139,7 @@ impl Uncertainty {
 }
 
 /// What the `dta` stage emits per position.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct DtaEstimate {
     pub source: DtaSource,
     /// Station of the reference point's foot on the axis.

@@ -175,7 +175,7 @@ pub const fn flag(name: &'static str, default: bool, doc: &'static str) -> Param
 }
 
 /// A parameter value as it appears in configuration files and JSON.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(untagged)]
 pub enum ParamValue {
     Bool(bool),
@@ -463,6 +463,22 @@ macro_rules! choice_enum {
                     $( $word => Some($Name::$Variant), )+
                     _ => None,
                 }
+            }
+        }
+
+        // Its schema (the OpenAPI document) lists its words.
+        impl utoipa::PartialSchema for $Name {
+            fn schema() -> utoipa::openapi::RefOr<utoipa::openapi::schema::Schema> {
+                utoipa::openapi::schema::ObjectBuilder::new()
+                    .schema_type(utoipa::openapi::schema::Type::String)
+                    .enum_values(Some($Name::WORDS.iter().copied()))
+                    .into()
+            }
+        }
+
+        impl utoipa::ToSchema for $Name {
+            fn name() -> std::borrow::Cow<'static, str> {
+                std::borrow::Cow::Borrowed(stringify!($Name))
             }
         }
 

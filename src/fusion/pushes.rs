@@ -27,7 +27,7 @@ const MIN_DISPLACEMENT_M: f64 = 1e-3;
 pub const MIN_ADVANCE_M: f64 = 0.005;
 
 /// One completed push.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct PushRecord {
     /// Pushes completed since the machine started, this one included.
     pub push: u64,

@@ -15,7 +15,19 @@ pub const EARLIEST_T_S: f64 = 946_684_800.0;
 pub const LATEST_T_S: f64 = 4_102_444_800.0;
 
 /// The kinds of sensor a reading can come from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Hash,
+    PartialOrd,
+    Ord,
+    Serialize,
+    Deserialize,
+    utoipa::ToSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum SensorKind {
     Laser,
@@ -62,7 +74,7 @@ impl std::fmt::Display for SensorKind {
 }
 
 /// A point in project coordinates, metres.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ProjectPoint {
     pub easting_m: f64,
@@ -189,7 +201,10 @@ const BOUNDS: &[(&str, f64, f64)] = &[
     ("northing_m", -1.0e7, 1.0e7),
 ];
 
-fn bounds(field: &'static str) -> (f64, f64) {
+/// The bounds the validator holds `field` to, (min, max); unbounded for a
+/// field it does not bound. (The OpenAPI document's reading schema reads
+/// them too.)
+pub fn field_bounds(field: &str) -> (f64, f64) {
     BOUNDS
         .iter()
         .find(|(name, _, _)| *name == field)
@@ -201,7 +216,7 @@ fn check(field: &'static str, value: f64) -> Result<f64, ReadingError> {
     if !value.is_finite() {
         return Err(ReadingError::NonFinite { field });
     }
-    let (min, max) = bounds(field);
+    let (min, max) = field_bounds(field);
     if value < min || value > max {
         return Err(ReadingError::OutOfRange {
             field,

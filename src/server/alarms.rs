@@ -15,21 +15,51 @@ use crate::store::alarms::{AlarmFilter, StoredAlarm};
 /// Who acknowledged, while access is open (no tokens exist).
 const ANONYMOUS: &str = "anonymous";
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, utoipa::IntoParams)]
 #[serde(deny_unknown_fields)]
+#[into_params(parameter_in = Query)]
 pub struct AlarmsQuery {
+    /// Only this machine's alarms.
+    #[param(pattern = r"^[A-Za-z0-9_-]{1,64}$")]
     machine: Option<String>,
     /// `active` (default: not cleared) or `all`.
+    #[param(inline, value_type = Option<AlarmsState>)]
     state: Option<String>,
 }
 
+/// Which alarms a list holds.
+#[derive(utoipa::ToSchema)]
+#[schema(rename_all = "lowercase")]
+#[allow(
+    dead_code,
+    reason = "names the values of `state` in the document; parsed as text"
+)]
+enum AlarmsState {
+    Active,
+    All,
+}
+
+/// The path parameter naming an alarm.
+#[derive(Debug, Deserialize, utoipa::IntoParams)]
+#[into_params(parameter_in = Path)]
+pub struct AlarmPath {
+    /// The alarm's id, as listed.
+    #[param(value_type = i64, example = 1)]
+    id: String,
+}
+
 /// What `GET /api/v1/alarms` answers, newest first.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, utoipa::ToSchema)]
 pub struct AlarmList {
     pub alarms: Vec<StoredAlarm>,
 }
 
+/// The alarms, newest first.
+///
 /// `GET /api/v1/alarms?machine=&state=active|all`.
+#[utoipa::path(get, path = "/api/v1/alarms", operation_id = "list_alarms", tag = "alarms", params(AlarmsQuery),
+    responses((status = OK, description = "The alarms, newest first", body = AlarmList),
+        (status = NOT_FOUND, description = "`machine` names no machine", body = super::error::ErrorBody)))]
 pub async fn list(
     State(state): State<SharedState>,
     query: Result<Query<AlarmsQuery>, QueryRejection>,
@@ -68,12 +98,17 @@ pub async fn stored(
         .map_err(|e| ApiError::Internal(e.to_string()))??)
 }
 
+/// Acknowledge an alarm.
+///
 /// `POST /api/v1/alarms/{id}/ack`: the alarm as acknowledged (the first
 /// acknowledgement stands, and only it is announced to live clients and
 /// webhooks); 404 for an unknown id.
+#[utoipa::path(post, path = "/api/v1/alarms/{id}/ack", operation_id = "ack_alarm", tag = "alarms", params(AlarmPath),
+    responses((status = OK, description = "The alarm, acknowledged by the token's name (`anonymous` while access is open); the first acknowledgement stands", body = StoredAlarm),
+        (status = NOT_FOUND, description = "No alarm has this id", body = super::error::ErrorBody)))]
 pub async fn ack(
     State(state): State<SharedState>,
-    Path(id): Path<String>,
+    Path(AlarmPath { id }): Path<AlarmPath>,
     caller: Option<Extension<Caller>>,
 ) -> Result<Json<StoredAlarm>, ApiError> {
     let id: i64 = id

@@ -14,10 +14,11 @@ use serde::{Deserialize, Serialize};
 
 use super::SharedState;
 use super::error::ApiError;
+use super::openapi::MachinePath;
 use crate::fusion::alignment::{AlignmentSpec, AxisPoint, ElementKind, landxml};
 
 /// One element of the summary.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, utoipa::ToSchema)]
 pub struct ElementSummary {
     #[serde(rename = "type")]
     pub kind: ElementKind,
@@ -26,7 +27,7 @@ pub struct ElementSummary {
 }
 
 /// What a `PUT` answers: the parsed axis in brief.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, utoipa::ToSchema)]
 pub struct AlignmentSummary {
     pub machine: String,
     pub name: String,
@@ -45,10 +46,17 @@ fn is_xml(headers: &HeaderMap) -> bool {
         .is_some_and(|t| t.contains("xml"))
 }
 
+/// Set the design axis.
+///
 /// `PUT /api/v1/machines/{machine}/alignment`.
+#[utoipa::path(put, path = "/api/v1/machines/{machine}/alignment", operation_id = "put_alignment", tag = "alignment",
+    params(MachinePath),
+    request_body(description = "The design axis: the protocol's JSON, or LandXML 1.2 (`Content-Type: application/xml`, or any type naming xml such as `text/xml`; the first alignment with its profile)",
+        content((AlignmentSpec = "application/json"), (String = "application/xml"))),
+    responses((status = OK, description = "Set: the machine is redeclared with it and its `dta` stream derives from here on", body = AlignmentSummary)))]
 pub async fn put(
     State(state): State<SharedState>,
-    Path(machine): Path<String>,
+    Path(MachinePath { machine }): Path<MachinePath>,
     headers: HeaderMap,
     body: Result<Bytes, BytesRejection>,
 ) -> Result<Json<AlignmentSummary>, ApiError> {
@@ -95,10 +103,16 @@ pub async fn put(
     }))
 }
 
+/// The design axis as declared.
+///
 /// `GET /api/v1/machines/{machine}/alignment`: as JSON; 404 without one.
+#[utoipa::path(get, path = "/api/v1/machines/{machine}/alignment", operation_id = "get_alignment", tag = "alignment",
+    params(MachinePath),
+    responses((status = OK, description = "The declared design axis", body = AlignmentSpec),
+        (status = NOT_FOUND, description = "No such machine, or it has no alignment", body = super::error::ErrorBody)))]
 pub async fn show(
     State(state): State<SharedState>,
-    Path(machine): Path<String>,
+    Path(MachinePath { machine }): Path<MachinePath>,
 ) -> Result<Json<AlignmentSpec>, ApiError> {
     let handle = state.machine(&machine)?;
     handle
@@ -112,27 +126,35 @@ pub async fn show(
 /// The most points `GET .../alignment/axis` answers.
 const MAX_AXIS_POINTS: f64 = 20_000.0;
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, utoipa::IntoParams)]
 #[serde(deny_unknown_fields)]
+#[into_params(parameter_in = Query)]
 pub struct AxisQuery {
-    /// Station spacing, m (default 5).
+    /// Station spacing, m (default 5); at most 20 000 points.
+    #[param(exclusive_minimum = 0.0)]
     step_m: Option<f64>,
 }
 
 /// What `GET .../alignment/axis` answers: the axis sampled for drawing.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, utoipa::ToSchema)]
 pub struct AxisBody {
     pub machine: String,
     pub step_m: f64,
     pub points: Vec<AxisPoint>,
 }
 
+/// The design axis sampled for drawing.
+///
 /// `GET /api/v1/machines/{machine}/alignment/axis?step_m=5`: points of the
 /// axis (easting, northing, design height) every `step_m` of station and
 /// at each element's start, for plan and profile drawings.
+#[utoipa::path(get, path = "/api/v1/machines/{machine}/alignment/axis", operation_id = "get_axis", tag = "alignment",
+    params(MachinePath, AxisQuery),
+    responses((status = OK, description = "Points of the axis for drawing", body = AxisBody),
+        (status = NOT_FOUND, description = "No such machine, or it has no alignment", body = super::error::ErrorBody)))]
 pub async fn axis(
     State(state): State<SharedState>,
-    Path(machine): Path<String>,
+    Path(MachinePath { machine }): Path<MachinePath>,
     query: Result<Query<AxisQuery>, QueryRejection>,
 ) -> Result<Json<AxisBody>, ApiError> {
     let handle = state.machine(&machine)?;

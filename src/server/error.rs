@@ -11,7 +11,7 @@ use crate::machine::MachineError;
 use crate::store::StoreError;
 
 /// One reading refused, by its position in the request.
-#[derive(Debug, Clone, Serialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, PartialEq, utoipa::ToSchema)]
 pub struct Rejected {
     /// 0-based position in the array, or among the non-blank NDJSON lines.
     pub index: usize,
@@ -177,8 +177,9 @@ impl ApiError {
 }
 
 /// Every error's JSON: what was wrong, and what it is about.
-#[derive(Debug, serde::Serialize)]
+#[derive(Debug, serde::Serialize, utoipa::ToSchema)]
 pub struct ErrorBody<'a> {
+    /// What was wrong, for a person.
     pub error: String,
     /// The unknown machine.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -187,6 +188,7 @@ pub struct ErrorBody<'a> {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub accepted: Option<u64>,
     #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = Option<Vec<Rejected>>)]
     pub rejected: Option<&'a [Rejected]>,
     /// The HTTP status, where the answer has none of its own (a socket).
     #[serde(skip_serializing_if = "Option::is_none")]

@@ -12,6 +12,7 @@ use tokio_stream::wrappers::ReceiverStream;
 
 use super::SharedState;
 use super::error::ApiError;
+use super::openapi::{Estimate, MachinePath, query_time};
 use crate::fusion::reading::{EARLIEST_T_S, LATEST_T_S};
 use crate::fusion::{
     EngineKind, EngineModel, EstimateRef, Reading, SensorData, SensorKind, StreamKind,
@@ -23,13 +24,17 @@ pub const DEFAULT_MAX_POINTS: usize = 2000;
 const CHUNK_BYTES: usize = 64 * 1024;
 
 /// The body of an estimates history answer.
-#[derive(Serialize)]
+#[derive(Serialize, utoipa::ToSchema)]
 struct HistoryPage<'a> {
     machine: &'a str,
     engine: StreamKind,
+    /// The range asked for, Unix seconds.
     from: f64,
     to: f64,
+    /// True when the range held more than `max_points` estimates: then
+    /// each of `max_points` buckets keeps its extremes.
     downsampled: bool,
+    #[schema(value_type = Vec<Estimate>)]
     estimates: Vec<EstimateRef<'a>>,
 }
 
@@ -77,22 +82,68 @@ fn query<T>(query: Result<Query<T>, QueryRejection>) -> Result<T, ApiError> {
         .map_err(|e| ApiError::BadRequest(format!("bad query string: {}", e.body_text())))
 }
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, utoipa::IntoParams)]
 #[serde(deny_unknown_fields)]
+#[into_params(parameter_in = Query)]
 pub struct EstimatesQuery {
+    /// The stream: an engine or stage the machine runs (required when it
+    /// runs several).
+    #[param(inline, value_type = Option<StreamKind>)]
     engine: Option<String>,
+    /// Start of the range (default: the earliest).
+    #[param(schema_with = query_time)]
     from: Option<String>,
+    /// End of the range (default: the latest); not before `from`.
+    #[param(schema_with = query_time)]
     to: Option<String>,
+    /// Most estimates in a JSON page (default 2000); above it the range
+    /// is downsampled keeping each bucket's extremes.
+    #[param(minimum = 1)]
     max_points: Option<usize>,
     /// `json` (default: a page, downsampled above `max_points`), or
     /// `ndjson` / `csv`: every estimate in the range, streamed.
+    #[param(inline, value_type = Option<EstimatesFormat>)]
     format: Option<String>,
 }
 
+/// How estimates are answered.
+#[derive(utoipa::ToSchema)]
+#[schema(rename_all = "lowercase")]
+#[allow(
+    dead_code,
+    reason = "names the values of `format` in the document; parsed as text"
+)]
+enum EstimatesFormat {
+    Json,
+    Ndjson,
+    Csv,
+}
+
+/// How readings are answered.
+#[derive(utoipa::ToSchema)]
+#[schema(rename_all = "lowercase")]
+#[allow(
+    dead_code,
+    reason = "names the values of `format` in the document; parsed as text"
+)]
+enum ReadingsFormat {
+    Ndjson,
+    Csv,
+}
+
+/// A stream's estimates.
+///
 /// `GET /api/v1/machines/{machine}/estimates`.
+#[utoipa::path(get, path = "/api/v1/machines/{machine}/estimates", operation_id = "get_estimates", tag = "estimates",
+    params(MachinePath, EstimatesQuery),
+    responses((status = OK, description = "The estimates of one stream in the range: a page (JSON), or every one streamed (NDJSON, CSV)",
+        content(
+            (HistoryPage = "application/json"),
+            (String = "application/x-ndjson", example = json!("{\"t\":1772431200.0,\"machine\":\"tbm-north\",\"engine\":\"attitude\",...}\n")),
+            (String = "text/csv")))))]
 pub async fn estimates(
     State(state): State<SharedState>,
-    Path(machine): Path<String>,
+    Path(MachinePath { machine }): Path<MachinePath>,
     params: Result<Query<EstimatesQuery>, QueryRejection>,
 ) -> Result<Response, ApiError> {
     let machine = state.machine(&machine)?;
@@ -272,12 +323,21 @@ fn stream_chunks(
     Body::from_stream(ReceiverStream::new(receiver))
 }
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, utoipa::IntoParams)]
 #[serde(deny_unknown_fields)]
+#[into_params(parameter_in = Query)]
 pub struct ReadingsQuery {
+    /// Only this sensor's readings (default: every sensor's).
+    #[param(inline, value_type = Option<SensorKind>)]
     sensor: Option<String>,
+    /// Start of the range (default: the earliest).
+    #[param(schema_with = query_time)]
     from: Option<String>,
+    /// End of the range (default: the latest); not before `from`.
+    #[param(schema_with = query_time)]
     to: Option<String>,
+    /// `ndjson` (default, the protocol's readings) or `csv`.
+    #[param(inline, value_type = Option<ReadingsFormat>)]
     format: Option<String>,
 }
 
@@ -337,11 +397,17 @@ fn csv_row(reading: &Reading, out: &mut String) {
     out.push('\n');
 }
 
+/// Stored readings.
+///
 /// `GET /api/v1/machines/{machine}/readings`: streamed from the store in
 /// chunks; memory stays bounded whatever the range.
+#[utoipa::path(get, path = "/api/v1/machines/{machine}/readings", operation_id = "export_readings", tag = "readings",
+    params(MachinePath, ReadingsQuery),
+    responses((status = OK, description = "The stored readings in the range, in time order, streamed",
+        content((String = "application/x-ndjson"), (String = "text/csv")))))]
 pub async fn readings(
     State(state): State<SharedState>,
-    Path(machine): Path<String>,
+    Path(MachinePath { machine }): Path<MachinePath>,
     params: Result<Query<ReadingsQuery>, QueryRejection>,
 ) -> Result<Response, ApiError> {
     let machine = state.machine(&machine)?;
@@ -391,32 +457,47 @@ pub async fn readings(
 }
 
 /// The model endpoint's answer: the engine's report and the machine.
-#[derive(Serialize)]
+#[derive(Serialize, utoipa::ToSchema)]
 struct ModelBody<'a> {
     machine: &'a str,
     #[serde(flatten)]
+    #[schema(value_type = super::openapi::EngineModelReport)]
     model: EngineModel,
 }
 
 /// `?engine=` of the model endpoint.
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, utoipa::IntoParams)]
 #[serde(deny_unknown_fields)]
+#[into_params(parameter_in = Query)]
 pub struct ModelQuery {
+    /// The engine (default: the machine's first with a model).
+    #[param(inline, value_type = Option<EngineKind>)]
     engine: Option<String>,
 }
 
+/// An engine's learned model.
+///
 /// `GET /api/v1/machines/{machine}/model[?engine=]`: the model report of
 /// the named engine, or of the machine's first engine (in registry order)
 /// that has one: `attitude`, the learned pitch error and the self-tuned
 /// noise; `fuzzy`, the magnetometer calibration and the noise floors.
+#[utoipa::path(get, path = "/api/v1/machines/{machine}/model", operation_id = "get_model", tag = "estimates",
+    params(MachinePath, ModelQuery),
+    responses((status = OK, description = "The engine's model report, with `machine`", body = ModelBody),
+        (status = NOT_FOUND, description = "No such machine, or it has no engine with a model (of that name)", body = super::error::ErrorBody)))]
 pub async fn model(
     State(state): State<SharedState>,
-    Path(machine): Path<String>,
+    Path(MachinePath { machine }): Path<MachinePath>,
     params: Result<Query<ModelQuery>, QueryRejection>,
 ) -> Result<Response, ApiError> {
     let machine = state.machine(&machine)?;
     let params = query(params)?;
-    let mut models = machine.models().await?;
+    let mut models = state
+        .on_machine(
+            &machine.spec.id,
+            |machine| async move { machine.models().await },
+        )
+        .await?;
     let with_model = models
         .keys()
         .map(|engine| engine.as_str())

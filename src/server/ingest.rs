@@ -17,9 +17,9 @@ use serde::Serialize;
 use serde_json::value::RawValue;
 
 use super::error::{ApiError, Rejected};
-use super::{Clock, Limits, SharedState, metrics};
+use super::openapi::{MachinePath, ReadingsBody};
+use super::{AppState, Clock, Limits, SharedState, metrics};
 use crate::fusion::{Reading, SensorKind, parse_reading};
-use crate::machine::MachineHandle;
 
 /// The readings of one request, valid ones and refused ones.
 #[derive(Debug, Default)]
@@ -29,7 +29,7 @@ pub struct ParsedBatch {
 }
 
 /// The answer to an ingest request or frame.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, utoipa::ToSchema)]
 pub struct Ack {
     /// Valid readings, now stored (including duplicates).
     pub accepted: usize,
@@ -156,10 +156,14 @@ fn claimed_sensor(bytes: &[u8]) -> Option<SensorKind> {
     SensorKind::from_name(probe.sensor?)
 }
 
-/// Stores and fuses a parsed batch, answering after the commit.
-async fn ingest(machine: &MachineHandle, batch: ParsedBatch) -> Result<Ack, ApiError> {
+/// Stores and fuses a parsed batch in machine `id`, answering after the
+/// commit (by the machine's successor if it is redeclared meanwhile).
+pub(super) async fn ingest(
+    state: &AppState,
+    id: &str,
+    batch: ParsedBatch,
+) -> Result<Ack, ApiError> {
     let started = Instant::now();
-    let id = &machine.spec.id;
     metrics::rejected(id, &batch.rejected);
     if batch.readings.is_empty() {
         if batch.rejected.is_empty() {
@@ -175,7 +179,12 @@ async fn ingest(machine: &MachineHandle, batch: ParsedBatch) -> Result<Ack, ApiE
     }
     let counts = metrics::count_by_sensor(&batch.readings);
     let accepted = batch.readings.len();
-    let outcome = machine.ingest(batch.readings).await?;
+    let outcome = state
+        .on_machine(id, |machine| {
+            let readings = batch.readings.clone();
+            async move { machine.ingest(readings).await }
+        })
+        .await?;
     metrics::accepted(id, &counts, started.elapsed());
     Ok(Ack {
         accepted,
@@ -184,14 +193,23 @@ async fn ingest(machine: &MachineHandle, batch: ParsedBatch) -> Result<Ack, ApiE
     })
 }
 
+/// Send readings.
+///
 /// `POST /api/v1/machines/{machine}/readings`.
+#[utoipa::path(post, path = "/api/v1/machines/{machine}/readings", operation_id = "post_readings", tag = "readings",
+    params(MachinePath),
+    request_body(description = "One reading, an array of readings, or NDJSON (one reading per line, `Content-Type: application/x-ndjson`)",
+        content((ReadingsBody = "application/json"), (String = "application/x-ndjson"))),
+    responses(
+        (status = OK, description = "The valid readings are stored (duplicates included) and fused; the invalid ones are listed by index", body = Ack),
+        (status = BAD_REQUEST, description = "The body is not readings, or none of them is valid (then with `accepted: 0` and `rejected`)", body = super::error::ErrorBody)))]
 pub async fn post_readings(
     State(state): State<SharedState>,
-    Path(machine): Path<String>,
+    Path(MachinePath { machine }): Path<MachinePath>,
     headers: HeaderMap,
     body: Result<Bytes, BytesRejection>,
 ) -> Result<Json<Ack>, ApiError> {
-    let machine = state.machine(&machine)?;
+    state.machine(&machine)?;
     let body = body.map_err(|rejection| {
         if rejection.status() == StatusCode::PAYLOAD_TOO_LARGE {
             ApiError::TooLarge(format!(
@@ -207,34 +225,39 @@ pub async fn post_readings(
         .and_then(|v| v.to_str().ok())
         .is_some_and(|v| v.starts_with("application/x-ndjson"));
     let batch = parse_batch(&body, ndjson, &BatchRules::now(&state.limits, &state.clock))?;
-    Ok(Json(ingest(&machine, batch).await?))
+    Ok(Json(ingest(&state, &machine, batch).await?))
 }
 
+/// Send readings (WebSocket).
+///
 /// `GET /api/v1/machines/{machine}/ingest`: WebSocket ingest.
+#[utoipa::path(get, path = "/api/v1/machines/{machine}/ingest", operation_id = "ingest_socket", tag = "readings",
+    params(MachinePath),
+    description = "WebSocket: each text frame holds one reading or an array; each is answered with an `Ack` (docs/protocol.md, \"Ingest WebSocket\").",
+    responses(
+        (status = SWITCHING_PROTOCOLS, description = "The socket is open"),
+        (status = BAD_REQUEST, description = "Not a WebSocket upgrade request", body = super::error::ErrorBody)))]
 pub async fn websocket(
     State(state): State<SharedState>,
-    Path(machine): Path<String>,
+    Path(MachinePath { machine }): Path<MachinePath>,
     upgrade: Result<WebSocketUpgrade, WebSocketUpgradeRejection>,
 ) -> Result<Response, ApiError> {
-    let machine = state.machine(&machine)?;
+    state.machine(&machine)?;
     let upgrade = upgrade.map_err(ApiError::from)?;
-    let (limits, clock) = (state.limits, state.clock);
     Ok(upgrade
-        .max_message_size(limits.max_frame_bytes)
-        .on_upgrade(move |socket| serve_ingest(socket, machine, limits, clock)))
+        .max_message_size(state.limits.max_frame_bytes)
+        .on_upgrade(move |socket| serve_ingest(socket, state, machine)))
 }
 
-async fn serve_ingest(
-    mut socket: WebSocket,
-    machine: std::sync::Arc<MachineHandle>,
-    limits: Limits,
-    clock: Clock,
-) {
+/// Answers each frame; the machine is looked up per frame, so a socket
+/// outlives a redeclaration of its machine.
+async fn serve_ingest(mut socket: WebSocket, state: SharedState, machine: String) {
+    let (limits, clock) = (state.limits, state.clock);
     while let Some(Ok(message)) = socket.recv().await {
         let answer = match message {
             Message::Text(text) => {
                 match parse_batch(text.as_bytes(), false, &BatchRules::now(&limits, &clock)) {
-                    Ok(batch) => ingest(&machine, batch).await,
+                    Ok(batch) => ingest(&state, &machine, batch).await,
                     Err(e) => Err(e),
                 }
             }

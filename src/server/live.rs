@@ -33,15 +33,24 @@ use tokio::sync::broadcast;
 use tokio::sync::broadcast::error::RecvError;
 
 use super::error::{ApiError, Refusal};
+use super::openapi::MachinePath;
 use super::{Clock, SharedState};
 use crate::fusion::{EngineKind, StreamKind};
 use crate::machine::{LiveEstimate, MachineHandle};
 use crate::store::alarms::{AlarmChange, AlarmFilter, StoredAlarm};
 
+/// Follow a machine (WebSocket).
+///
 /// `GET /api/v1/machines/{machine}/live`.
+#[utoipa::path(get, path = "/api/v1/machines/{machine}/live", operation_id = "live_socket", tag = "estimates",
+    params(MachinePath),
+    description = "WebSocket: a `hello` with the newest estimates and active alarms, then every estimate as it is made, `alarm` events and `ping`s (docs/protocol.md, \"Live stream\").",
+    responses(
+        (status = SWITCHING_PROTOCOLS, description = "The socket is open"),
+        (status = BAD_REQUEST, description = "Not a WebSocket upgrade request", body = super::error::ErrorBody)))]
 pub async fn websocket(
     State(state): State<SharedState>,
-    Path(machine): Path<String>,
+    Path(MachinePath { machine }): Path<MachinePath>,
     upgrade: Result<WebSocketUpgrade, WebSocketUpgradeRejection>,
 ) -> Result<Response, ApiError> {
     let machine = state.machine(&machine)?;
@@ -64,7 +73,14 @@ pub async fn websocket(
     }))
 }
 
+/// Follow every machine's alarms (WebSocket).
+///
 /// `GET /api/v1/alarms/live`: every machine's alarm changes.
+#[utoipa::path(get, path = "/api/v1/alarms/live", operation_id = "alarms_socket", tag = "alarms",
+    description = "WebSocket: a `hello` with the active alarms, then an `alarm` event for each raise, clear and acknowledgement, `alarm_gap` when some were missed, and `ping`s (docs/protocol.md).",
+    responses(
+        (status = SWITCHING_PROTOCOLS, description = "The socket is open"),
+        (status = BAD_REQUEST, description = "Not a WebSocket upgrade request", body = super::error::ErrorBody)))]
 pub async fn alarms_websocket(
     State(state): State<SharedState>,
     upgrade: Result<WebSocketUpgrade, WebSocketUpgradeRejection>,

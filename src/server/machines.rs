@@ -13,12 +13,13 @@ use serde_json::value::RawValue;
 
 use super::SharedState;
 use super::error::ApiError;
+use super::openapi::MachinePath;
 use crate::config::{MachineDeclaration, valid_machine_id};
 use crate::fusion::{EngineKind, SensorKind, StreamKind};
 use crate::machine::MachineHandle;
 
 /// A sensor's last reading, as the status reports it.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, utoipa::ToSchema)]
 pub struct SensorReport {
     /// Time of the newest reading, Unix seconds.
     pub last_t: f64,
@@ -29,7 +30,7 @@ pub struct SensorReport {
 }
 
 /// The laser's state, from the newest `attitude` estimate.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, utoipa::ToSchema)]
 pub struct LaserReport {
     pub ok: bool,
     pub age_s: Option<f64>,
@@ -46,7 +47,7 @@ struct LaserFields {
 /// A machine's status: sensors' last readings and their age at `now`
 /// (server clock), laser state, latest estimate of each engine and stage;
 /// one machine's also its declaration and the clock.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, utoipa::ToSchema)]
 pub struct MachineStatusBody {
     pub machine: String,
     pub name: String,
@@ -60,6 +61,7 @@ pub struct MachineStatusBody {
     pub late_readings: u64,
     pub live_clients: usize,
     /// The newest estimate of each stream, as the live stream sent it.
+    #[schema(value_type = BTreeMap<StreamKind, super::openapi::Estimate>)]
     pub latest: BTreeMap<StreamKind, Box<RawValue>>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub config: Option<MachineDeclaration>,
@@ -70,7 +72,7 @@ pub struct MachineStatusBody {
 }
 
 /// `GET /api/v1/machines`: every machine's status and the clock.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, utoipa::ToSchema)]
 pub struct MachineList {
     pub machines: Vec<MachineStatusBody>,
     pub server_t: f64,
@@ -79,7 +81,7 @@ pub struct MachineList {
 }
 
 /// The answer to a declaration.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, utoipa::ToSchema)]
 pub struct Declared {
     pub machine: String,
     pub created: bool,
@@ -146,7 +148,11 @@ fn clock(state: &SharedState) -> (f64, f64) {
     (state.clock.now_s(), state.clock.rate())
 }
 
+/// Every machine's status.
+///
 /// `GET /api/v1/machines`.
+#[utoipa::path(get, path = "/api/v1/machines", operation_id = "list_machines", tag = "machines",
+    responses((status = OK, description = "Every machine's status and the server clock", body = MachineList)))]
 pub async fn list(State(state): State<SharedState>) -> Json<MachineList> {
     let (now, rate) = clock(&state);
     Json(MachineList {
@@ -160,10 +166,14 @@ pub async fn list(State(state): State<SharedState>) -> Json<MachineList> {
     })
 }
 
+/// A machine's status and declaration.
+///
 /// `GET /api/v1/machines/{machine}`.
+#[utoipa::path(get, path = "/api/v1/machines/{machine}", operation_id = "get_machine", tag = "machines", params(MachinePath),
+    responses((status = OK, description = "The machine's status, its declaration and the server clock", body = MachineStatusBody)))]
 pub async fn show(
     State(state): State<SharedState>,
-    Path(machine): Path<String>,
+    Path(MachinePath { machine }): Path<MachinePath>,
 ) -> Result<Json<MachineStatusBody>, ApiError> {
     let machine = state.machine(&machine)?;
     let (now, rate) = clock(&state);
@@ -175,11 +185,18 @@ pub async fn show(
     }))
 }
 
+/// Declare a machine.
+///
 /// `PUT /api/v1/machines/{machine}`: 201 when created, 200 when replaced
 /// or unchanged (an identical declaration keeps the learned state).
+#[utoipa::path(put, path = "/api/v1/machines/{machine}", operation_id = "declare_machine", tag = "machines", params(MachinePath),
+    request_body(content = MachineDeclaration, description = "The machine: its engines with parameter overrides, and optionally its geometry, tolerances, start point, design axis and alarm settings (docs/protocol.md, \"Machines\")"),
+    responses(
+        (status = CREATED, description = "Declared", body = Declared),
+        (status = OK, description = "Replaced, or unchanged (an identical declaration keeps the learned state)", body = Declared)))]
 pub async fn put(
     State(state): State<SharedState>,
-    Path(machine): Path<String>,
+    Path(MachinePath { machine }): Path<MachinePath>,
     body: Result<Bytes, BytesRejection>,
 ) -> Result<Response, ApiError> {
     if !valid_machine_id(&machine) {

@@ -196,7 +196,7 @@ pub async fn count_responses(request: Request, next: Next) -> Response {
 }
 
 /// The liveness answer.
-#[derive(Debug, serde::Serialize)]
+#[derive(Debug, serde::Serialize, utoipa::ToSchema)]
 pub struct Health {
     /// Always `ok`: the server answers.
     pub status: &'static str,
@@ -204,7 +204,11 @@ pub struct Health {
     pub machines: usize,
 }
 
+/// Liveness.
+///
 /// `GET /healthz`.
+#[utoipa::path(get, path = "/healthz", operation_id = "healthz", tag = "service",
+    responses((status = OK, description = "The server answers", body = Health)))]
 pub async fn healthz(State(state): State<SharedState>) -> Json<Health> {
     Json(Health {
         status: "ok",
@@ -212,7 +216,11 @@ pub async fn healthz(State(state): State<SharedState>) -> Json<Health> {
     })
 }
 
+/// Prometheus metrics.
+///
 /// `GET /metrics`: the counters as recorded, and the gauges read now.
+#[utoipa::path(get, path = "/metrics", operation_id = "metrics", tag = "service",
+    responses((status = OK, description = "Prometheus text exposition (docs/api.md, \"Metrics\")", content_type = "text/plain", body = String)))]
 pub async fn render(State(state): State<SharedState>) -> impl IntoResponse {
     let now = state.clock.now_s();
     let machines = state.all_machines();

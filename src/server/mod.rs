@@ -12,6 +12,7 @@ mod live;
 mod machines;
 pub mod metrics;
 pub mod notify;
+mod openapi;
 pub mod pages;
 
 use std::collections::BTreeMap;
@@ -19,13 +20,16 @@ use std::future::Future;
 use std::path::PathBuf;
 use std::sync::{Arc, RwLock};
 
-use axum::Router;
 use axum::extract::DefaultBodyLimit;
 use axum::handler::Handler;
 use axum::routing::get;
+use axum::{Extension, Router};
 use tokio::net::TcpListener;
 use tokio::sync::watch;
 use tower_http::trace::TraceLayer;
+use utoipa::OpenApi;
+use utoipa_axum::router::{OpenApiRouter, UtoipaMethodRouter};
+use utoipa_axum::routes;
 
 pub use clock::{Clock, wall_clock_s};
 pub use error::{ApiError, Rejected};
@@ -251,6 +255,38 @@ impl AppState {
             .ok_or_else(|| ApiError::UnknownMachine(id.to_string()))
     }
 
+    /// Runs `op` on machine `id`; if a redeclaration stopped that machine
+    /// under it, runs it again on its successor once the redeclaration is
+    /// done, so a gateway or a reader does not see the restart. A machine
+    /// that stopped otherwise (the server shutting down, a failed
+    /// redeclaration) answers 503 at once.
+    pub async fn on_machine<T, Fut>(
+        &self,
+        id: &str,
+        op: impl Fn(Arc<MachineHandle>) -> Fut,
+    ) -> Result<T, ApiError>
+    where
+        Fut: Future<Output = Result<T, MachineError>>,
+    {
+        let mut machine = self.machine(id)?;
+        // A few successive redeclarations are followed; not more.
+        for _ in 0..3 {
+            match op(machine.clone()).await {
+                Err(MachineError::Stopped(_)) if !*self.shutdown.borrow() => {
+                    // A redeclaration holds this until its successor runs.
+                    drop(self.admin.lock().await);
+                    let successor = self.machine(id)?;
+                    if Arc::ptr_eq(&successor, &machine) {
+                        break;
+                    }
+                    machine = successor;
+                }
+                outcome => return outcome.map_err(ApiError::from),
+            }
+        }
+        Err(MachineError::Stopped(id.to_string()).into())
+    }
+
     /// Every running machine, by id.
     pub fn all_machines(&self) -> Vec<Arc<MachineHandle>> {
         self.machines
@@ -343,68 +379,92 @@ fn fresh_snapshot(spec: &MachineSpec) -> Result<String, ServerError> {
         })
 }
 
+/// What a route needs of the caller's token (see `auth`).
+#[derive(Debug, Clone, Copy)]
+enum Role {
+    Read,
+    Ingest,
+    Admin,
+}
+
+impl Role {
+    fn as_str(self) -> &'static str {
+        match self {
+            Role::Read => "read",
+            Role::Ingest => "ingest",
+            Role::Admin => "admin",
+        }
+    }
+}
+
+/// `routes` behind the check of `role`, which their operations in the
+/// document name as their security requirement: the check and its
+/// description come from this one place.
+fn guarded(
+    state: &SharedState,
+    role: Role,
+    (schemas, mut paths, routes): UtoipaMethodRouter<SharedState>,
+) -> UtoipaMethodRouter<SharedState> {
+    use utoipa::openapi::security::SecurityRequirement;
+    let requirement = vec![
+        SecurityRequirement::new("bearer", [role.as_str()]),
+        SecurityRequirement::new("session", [role.as_str()]),
+    ];
+    for item in paths.paths.values_mut() {
+        for operation in openapi::operations_mut(item) {
+            operation.security = Some(requirement.clone());
+        }
+    }
+    let state = state.clone();
+    let routes = match role {
+        Role::Read => routes.layer(axum::middleware::from_fn_with_state(state, auth::read)),
+        Role::Ingest => routes.layer(axum::middleware::from_fn_with_state(state, auth::ingest)),
+        Role::Admin => routes.layer(axum::middleware::from_fn_with_state(state, auth::admin)),
+    };
+    (schemas, paths, routes)
+}
+
+/// The API's routes, each with its description (`openapi`).
+fn api_routes(state: &SharedState) -> OpenApiRouter<SharedState> {
+    use Role::{Admin, Ingest, Read};
+    let guard = |role, routes| guarded(state, role, routes);
+    OpenApiRouter::with_openapi(openapi::ApiDoc::openapi())
+        .routes(guard(Read, routes!(pages::fleet)))
+        .routes(guard(Read, routes!(pages::machine)))
+        .routes(routes!(metrics::healthz))
+        .routes(routes!(openapi::document))
+        .routes(guard(Read, routes!(metrics::render)))
+        .routes(guard(Read, routes!(machines::list)))
+        .routes(guard(Read, routes!(machines::show)))
+        .routes(guard(Admin, routes!(machines::put)))
+        .routes(guard(Read, routes!(history::readings)))
+        .routes(guard(Ingest, routes!(ingest::post_readings)))
+        .routes(guard(Ingest, routes!(ingest::websocket)))
+        .routes(guard(Read, routes!(live::websocket)))
+        .routes(guard(Read, routes!(history::estimates)))
+        .routes(guard(Read, routes!(history::model)))
+        .routes(guard(Read, routes!(alignment::show)))
+        .routes(guard(Admin, routes!(alignment::put)))
+        .routes(guard(Read, routes!(alignment::axis)))
+        .routes(guard(Read, routes!(alarms::list)))
+        .routes(guard(Read, routes!(live::alarms_websocket)))
+        .routes(guard(Read, routes!(alarms::ack)))
+}
+
 /// The application's routes (used by `serve` and by the tests).
 pub fn router(state: SharedState) -> Router {
     let limit = state.limits.max_body_bytes;
-    // What each route needs, declared with it (`auth`: read, ingest,
-    // admin); liveness, static files and the login page need nothing.
+    let (api, document) = api_routes(&state).split_for_parts();
+    let document = openapi::finish(document);
+    // Serialising a document of plain maps and strings cannot fail.
+    let json = document.to_json().unwrap_or_default();
+    // Static files, the docs page and the login page need no token.
     let read = axum::middleware::from_fn_with_state(state.clone(), auth::read);
-    let ingest = axum::middleware::from_fn_with_state(state.clone(), auth::ingest);
-    let admin = axum::middleware::from_fn_with_state(state.clone(), auth::admin);
-    Router::new()
-        .route("/", get(pages::fleet.layer(read.clone())))
-        .route(
-            "/machines/{machine}",
-            get(pages::machine.layer(read.clone())),
-        )
-        .route("/static/{*path}", get(pages::asset))
-        .route("/healthz", get(metrics::healthz))
-        .route("/metrics", get(metrics::render.layer(read.clone())))
-        .route("/api/v1/machines", get(machines::list.layer(read.clone())))
-        .route(
-            "/api/v1/machines/{machine}",
-            get(machines::show.layer(read.clone())).put(machines::put.layer(admin.clone())),
-        )
-        .route(
-            "/api/v1/machines/{machine}/readings",
-            get(history::readings.layer(read.clone()))
-                .post(ingest::post_readings.layer(ingest.clone())),
-        )
-        .route(
-            "/api/v1/machines/{machine}/ingest",
-            get(ingest::websocket.layer(ingest)),
-        )
-        .route(
-            "/api/v1/machines/{machine}/live",
-            get(live::websocket.layer(read.clone())),
-        )
-        .route(
-            "/api/v1/machines/{machine}/estimates",
-            get(history::estimates.layer(read.clone())),
-        )
-        .route(
-            "/api/v1/machines/{machine}/model",
-            get(history::model.layer(read.clone())),
-        )
-        .route(
-            "/api/v1/machines/{machine}/alignment",
-            get(alignment::show.layer(read.clone())).put(alignment::put.layer(admin.clone())),
-        )
-        .route("/api/v1/alarms", get(alarms::list.layer(read.clone())))
-        .route(
-            "/api/v1/alarms/live",
-            get(live::alarms_websocket.layer(read.clone())),
-        )
-        .route(
-            "/api/v1/alarms/{id}/ack",
-            axum::routing::post(alarms::ack.layer(read.clone())),
-        )
-        .route(
-            "/api/v1/machines/{machine}/alignment/axis",
-            get(alignment::axis.layer(read.clone())),
-        )
+    api.route("/static/{*path}", get(pages::asset))
+        .route("/api/docs", get(openapi::page))
         .route("/login", get(auth::login_page).post(auth::login))
         .route("/logout", axum::routing::post(auth::logout))
+        .layer(Extension(openapi::Document(json.into())))
         // Unknown routes and methods answer only those who may read.
         .fallback(not_found.layer(read.clone()))
         .method_not_allowed_fallback(method_not_allowed.layer(read))

@@ -214,7 +214,13 @@ fn engine_list(engines: impl Iterator<Item = EngineKind>) -> String {
     engines.map(|e| e.as_str()).collect::<Vec<_>>().join(", ")
 }
 
-/// `GET /`.
+/// The fleet page.
+///
+/// `GET /`: one card per machine. A browser without a token, once tokens
+/// exist, is sent to the sign-in page.
+#[utoipa::path(get, path = "/", operation_id = "fleet_page", tag = "dashboard",
+    responses((status = OK, description = "The fleet page", content_type = "text/html", body = String),
+        (status = SEE_OTHER, description = "A browser without a token: to /login")))]
 pub async fn fleet(State(state): State<SharedState>) -> FleetPage {
     FleetPage {
         machines: state
@@ -239,8 +245,18 @@ pub async fn fleet(State(state): State<SharedState>) -> FleetPage {
     }
 }
 
+/// A machine's live page.
+///
 /// `GET /machines/{machine}`; an HTML 404 for an unknown machine.
-pub async fn machine(State(state): State<SharedState>, Path(id): Path<String>) -> Response {
+#[utoipa::path(get, path = "/machines/{machine}", operation_id = "machine_page", tag = "dashboard",
+    params(super::openapi::MachinePath),
+    responses((status = OK, description = "The machine's live page", content_type = "text/html", body = String),
+        (status = SEE_OTHER, description = "A browser without a token: to /login"),
+        (status = NOT_FOUND, description = "No machine has this id (a page saying so)", content_type = "text/html", body = String)))]
+pub async fn machine(
+    State(state): State<SharedState>,
+    Path(super::openapi::MachinePath { machine: id }): Path<super::openapi::MachinePath>,
+) -> Response {
     let Ok(machine) = state.machine(&id) else {
         let page = NotFoundPage {
             what: format!("There is no machine `{id}`."),
@@ -295,6 +311,21 @@ const ASSETS: &[Asset] = &[
     ),
     asset!("vendor/uplot/uPlot.min.css", "text/css; charset=utf-8"),
     asset!("vendor/uplot/LICENSE", "text/plain; charset=utf-8"),
+    asset!("api-docs.js", "text/javascript; charset=utf-8"),
+    asset!(
+        "vendor/swagger-ui/swagger-ui-bundle.js",
+        "text/javascript; charset=utf-8"
+    ),
+    asset!(
+        "vendor/swagger-ui/swagger-ui.css",
+        "text/css; charset=utf-8"
+    ),
+    asset!("vendor/swagger-ui/LICENSE", "text/plain; charset=utf-8"),
+    asset!("vendor/swagger-ui/NOTICE", "text/plain; charset=utf-8"),
+    asset!(
+        "vendor/swagger-ui/swagger-ui-bundle.js.LICENSE.txt",
+        "text/plain; charset=utf-8"
+    ),
 ];
 
 /// `GET /static/{*path}`: the embedded assets. Ours are revalidated on

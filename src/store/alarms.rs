@@ -36,11 +36,13 @@ impl AlarmRow {
 }
 
 /// A stored alarm, as the API lists it.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct StoredAlarm {
     pub id: i64,
     pub machine: String,
+    #[schema(value_type = crate::fusion::alarms::AlarmKind)]
     pub kind: String,
+    #[schema(value_type = crate::fusion::alarms::Severity)]
     pub severity: String,
     /// What it concerns (a sensor for `stale_sensor`), or empty.
     pub subject: String,

@@ -426,3 +426,37 @@ pub fn spawn_serving(command: &mut Command) -> (Child, String) {
         .to_string();
     (child, base)
 }
+
+/// An attitude machine on a straight axis due north from (1000, 5000),
+/// ±50/100 mm horizontal tolerances .
+pub fn on_an_axis(name: &str) -> serde_json::Value {
+    serde_json::json!({
+        "name": name,
+        "engines": {"attitude": {}},
+        "geometry": {"front_m": [4.0, 0.0, 0.0], "rear_m": [-5.0, 0.0, 0.0]},
+        "tolerances": {"horizontal_mm": {"warn": 50, "alarm": 100},
+                       "vertical_mm": {"warn": 30, "alarm": 60}},
+        "alignment": {"name": "straight",
+                      "start": {"easting_m": 1000.0, "northing_m": 5000.0, "azimuth_deg": 0.0},
+                      "horizontal": [{"type": "line", "length_m": 100.0}],
+                      "vertical": {"start_height_m": 50.0, "end_grade_pct": 0.0}}
+    })
+}
+
+/// Laser readings every 2 s from `from_t`, `count` of them, `east_m` east
+/// of the axis, each followed by an inclinometer reading a second later.
+pub fn laser_pairs(from_t: f64, count: u32, east_m: f64) -> Vec<String> {
+    (0..count)
+        .flat_map(|i| {
+            let t = from_t + 2.0 * f64::from(i);
+            [
+                serde_json::json!({"t": t, "sensor": "laser", "pitch_deg": 0.0, "roll_deg": 0.0,
+                                   "yaw_deg": 0.0, "easting_m": 1000.0 + east_m,
+                                   "northing_m": 5020.0, "height_m": 50.0}),
+                serde_json::json!({"t": t + 1.0, "sensor": "inclinometer",
+                                   "pitch_deg": 0.0, "roll_deg": 0.0}),
+            ]
+        })
+        .map(|reading| reading.to_string())
+        .collect()
+}

@@ -22,26 +22,35 @@ pub use vertical::{Profile, ProfileError, Pvi};
 use crate::fusion::angles::rad;
 
 /// Where the alignment starts, as declared.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct StartPose {
+    #[schema(minimum = -1.0e7, maximum = 1.0e7)]
     pub easting_m: f64,
+    #[schema(minimum = -1.0e7, maximum = 1.0e7)]
     pub northing_m: f64,
+    /// Clockwise from grid north.
+    #[schema(minimum = -360.0, maximum = 360.0)]
     pub azimuth_deg: f64,
 }
 
 /// One horizontal element as declared.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
 pub enum ElementSpec {
     Line {
+        #[schema(exclusive_minimum = 0.0, maximum = 100_000.0)]
         length_m: f64,
     },
+    /// Radius + for a curve to the right looking along increasing station.
     Arc {
+        #[schema(exclusive_minimum = 0.0, maximum = 100_000.0)]
         length_m: f64,
         radius_m: f64,
     },
+    /// From one radius to another (`null`: straight); not equal.
     Spiral {
+        #[schema(exclusive_minimum = 0.0, maximum = 100_000.0)]
         length_m: f64,
         radius_start_m: Option<f64>,
         radius_end_m: Option<f64>,
@@ -49,25 +58,29 @@ pub enum ElementSpec {
 }
 
 /// The vertical profile as declared.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ProfileSpec {
+    #[schema(minimum = -20_000.0, maximum = 20_000.0)]
     pub start_height_m: f64,
     #[serde(default)]
     pub pvis: Vec<Pvi>,
     /// Percent, + rising.
+    #[schema(minimum = -100.0, maximum = 100.0)]
     pub end_grade_pct: f64,
 }
 
 /// An alignment as the protocol declares it.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct AlignmentSpec {
     #[serde(default)]
     pub name: String,
     #[serde(default)]
+    #[schema(minimum = -1.0e7, maximum = 1.0e7)]
     pub start_station_m: f64,
     pub start: StartPose,
+    #[schema(min_items = 1)]
     pub horizontal: Vec<ElementSpec>,
     pub vertical: ProfileSpec,
     /// Where the stationing jumps (tunnelnav extension; LandXML's
@@ -80,7 +93,7 @@ pub struct AlignmentSpec {
 /// A station equation: from `station_internal_m` on, the station reads
 /// `station_ahead_m` plus the distance past it (the station back, before
 /// the equation, is informative only).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct StationEquation {
     pub station_internal_m: f64,
@@ -106,6 +119,8 @@ pub enum AlignmentError {
     Profile(#[from] ProfileError),
     #[error("station equation {index}: {reason}")]
     Equation { index: usize, reason: String },
+    #[error("{0}")]
+    Scale(String),
 }
 
 /// A validated alignment, its elements placed.
@@ -133,7 +148,7 @@ pub struct Deviation {
 }
 
 /// A point of the axis, for drawing it.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct AxisPoint {
     /// As the stationing reads (station equations applied).
     pub station_m: f64,
@@ -143,6 +158,18 @@ pub struct AxisPoint {
     /// Design height at the station.
     pub height_m: f64,
 }
+
+/// Largest magnitude of a project coordinate or station, m (the bound of
+/// a reading's easting and northing).
+pub const MAX_COORDINATE_M: f64 = 1.0e7;
+/// Largest magnitude of a design height, m (the bound of a reading's height).
+pub const MAX_HEIGHT_M: f64 = 20_000.0;
+/// Longest horizontal element or vertical curve, m.
+pub const MAX_ELEMENT_M: f64 = 100_000.0;
+/// Smallest radius of a curve, m.
+pub const MIN_RADIUS_M: f64 = 1.0;
+/// Steepest grade, percent.
+pub const MAX_GRADE_PCT: f64 = 100.0;
 
 /// A curvature from a declared radius: `None` is straight.
 fn curvature(radius_m: Option<f64>) -> Result<f64, String> {
@@ -277,6 +304,87 @@ impl AlignmentSpec {
             profile,
             equations: self.station_equations.clone(),
         })
+    }
+
+    /// Holds a new declaration's numbers to project scale (the bounds
+    /// above), which [`AlignmentSpec::build`] does not: an axis stored by an
+    /// earlier release still opens. Coordinates and stations as a
+    /// reading's easting and northing, heights as its height.
+    pub fn check_scale(&self) -> Result<(), AlignmentError> {
+        let scale = |what: String, value: f64, max_abs: f64, unit: &str| {
+            if value.abs() <= max_abs {
+                Ok(())
+            } else {
+                // Absurd values in short form (1e308, not 309 digits).
+                let value = if value.abs() < 1e12 {
+                    value.to_string()
+                } else {
+                    format!("{value:e}")
+                };
+                Err(AlignmentError::Scale(format!(
+                    "{what} {value} {unit} is beyond ±{max_abs} {unit} (an axis is held to project scale)"
+                )))
+            }
+        };
+        let s = &self.start;
+        let zone_hint = |e: AlignmentError| {
+            AlignmentError::Scale(format!(
+                "{e}; a grid coordinate with its zone number in front? drop the zone number"
+            ))
+        };
+        scale("start easting".into(), s.easting_m, MAX_COORDINATE_M, "m").map_err(zone_hint)?;
+        scale("start northing".into(), s.northing_m, MAX_COORDINATE_M, "m").map_err(zone_hint)?;
+        scale("start azimuth".into(), s.azimuth_deg, 360.0, "°")?;
+        let mut station = self.start_station_m;
+        scale("start station".into(), station, MAX_COORDINATE_M, "m")?;
+        for (index, element) in self.horizontal.iter().enumerate() {
+            let (length_m, radii) = match *element {
+                ElementSpec::Line { length_m } => (length_m, [None, None]),
+                ElementSpec::Arc { length_m, radius_m } => (length_m, [Some(radius_m), None]),
+                ElementSpec::Spiral {
+                    length_m,
+                    radius_start_m,
+                    radius_end_m,
+                } => (length_m, [radius_start_m, radius_end_m]),
+            };
+            let what = |name: &str| format!("horizontal element {index}: {name}");
+            scale(what("length"), length_m, MAX_ELEMENT_M, "m")?;
+            for radius in radii.into_iter().flatten() {
+                if radius.abs() < MIN_RADIUS_M {
+                    return Err(AlignmentError::Scale(format!(
+                        "{} {radius} m is tighter than {MIN_RADIUS_M} m",
+                        what("radius")
+                    )));
+                }
+            }
+            station += length_m;
+            scale(what("end station"), station, MAX_COORDINATE_M, "m")?;
+        }
+        let v = &self.vertical;
+        scale("start height".into(), v.start_height_m, MAX_HEIGHT_M, "m")?;
+        scale("end grade".into(), v.end_grade_pct, MAX_GRADE_PCT, "%")?;
+        for (index, pvi) in v.pvis.iter().enumerate() {
+            let what = |name: &str| format!("PVI {index}: {name}");
+            scale(what("station"), pvi.station_m, MAX_COORDINATE_M, "m")?;
+            scale(what("height"), pvi.height_m, MAX_HEIGHT_M, "m")?;
+            scale(what("curve length"), pvi.curve_length_m, MAX_ELEMENT_M, "m")?;
+        }
+        for (index, e) in self.station_equations.iter().enumerate() {
+            let what = |name: &str| format!("station equation {index}: {name}");
+            scale(
+                what("internal station"),
+                e.station_internal_m,
+                MAX_COORDINATE_M,
+                "m",
+            )?;
+            scale(
+                what("station ahead"),
+                e.station_ahead_m,
+                MAX_COORDINATE_M,
+                "m",
+            )?;
+        }
+        Ok(())
     }
 }
 
@@ -440,6 +548,57 @@ mod tests {
         let last = alignment.elements.last().unwrap().start;
         let turned = 0.05 + 50.0 / 300.0 + 0.05;
         assert!((last.azimuth_rad - (30f64.to_radians() + turned)).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_new_axis_is_held_to_project_scale_and_the_culprit_named() {
+        // A real drive in a UTM zone: northing 5.8e6 m, stations 12+345.
+        let utm = r#"{"start_station_m": 12345.0,
+            "start": {"easting_m": 385000.0, "northing_m": 5800000.0, "azimuth_deg": 350.0},
+            "horizontal": [{"type": "line", "length_m": 800.0},
+                           {"type": "arc", "length_m": 200.0, "radius_m": -450.0}],
+            "vertical": {"start_height_m": -32.0, "end_grade_pct": -3.5,
+                         "pvis": [{"station_m": 12700.0, "height_m": -44.0, "curve_length_m": 120.0}]}}"#;
+        let spec: AlignmentSpec = serde_json::from_str(utm).unwrap();
+        assert_eq!(spec.check_scale(), Ok(()));
+        let refused = |edit: &dyn Fn(&mut AlignmentSpec)| {
+            let mut spec = spec.clone();
+            edit(&mut spec);
+            spec.check_scale().unwrap_err().to_string()
+        };
+        let zone = refused(&|a| a.start.easting_m = 32_385_000.0);
+        assert!(
+            zone.contains("start easting 32385000 m is beyond ±10000000 m"),
+            "{zone}"
+        );
+        assert!(zone.contains("zone number"), "{zone}");
+        let long = refused(&|a| a.horizontal[0] = ElementSpec::Line { length_m: 1e308 });
+        assert!(
+            long.starts_with("horizontal element 0: length 1e308 m"),
+            "{long}"
+        );
+        let tight = refused(&|a| {
+            a.horizontal[1] = ElementSpec::Arc {
+                length_m: 200.0,
+                radius_m: 0.5,
+            }
+        });
+        assert!(
+            tight.contains("element 1: radius 0.5 m is tighter than 1 m"),
+            "{tight}"
+        );
+        let steep = refused(&|a| a.vertical.end_grade_pct = 150.0);
+        assert!(
+            steep.starts_with("end grade 150 % is beyond ±100 %"),
+            "{steep}"
+        );
+        let deep = refused(&|a| a.vertical.pvis[0].height_m = -25_000.0);
+        assert!(deep.starts_with("PVI 0: height -25000 m"), "{deep}");
+        // The structural checks alone (what an axis stored by an earlier
+        // release is opened with) still take an axis beyond scale.
+        let mut old = spec.clone();
+        old.start.easting_m = 32_385_000.0;
+        assert!(old.build().is_ok());
     }
 
     #[test]

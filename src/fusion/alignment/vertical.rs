@@ -10,12 +10,15 @@
 use serde::{Deserialize, Serialize};
 
 /// A point of vertical intersection.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct Pvi {
+    #[schema(minimum = -1.0e7, maximum = 1.0e7)]
     pub station_m: f64,
+    #[schema(minimum = -20_000.0, maximum = 20_000.0)]
     pub height_m: f64,
     /// Length of the parabola about it (0: a sharp change of grade).
     #[serde(default)]
+    #[schema(minimum = 0.0, maximum = 100_000.0)]
     pub curve_length_m: f64,
 }
 

@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 use crate::fusion::estimate::JsonFields;
 
 /// What the `attitude` engine estimates at one inclinometer reading.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct AttitudeEstimate {
     /// Fused pitch at `t` (Eq. 19), nose up positive.
     pub pitch_deg: f64,

@@ -268,7 +268,8 @@ fn placeholder_config() -> AttitudeConfig {
 
 /// The learned pitch-error model and the self-tuned noise as the API
 /// reports them (degrees).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[schema(as = AttitudeModelReport)]
 pub struct ModelReport {
     pub correction: Correction,
     pub memberships: Vec<MembershipReport>,
@@ -293,7 +294,7 @@ pub struct ModelReport {
 }
 
 /// The noise the filters run with, as standard deviations and intensities.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct NoiseReport {
     pub mode: NoiseMode,
     /// The motion phase of the newest reading.
@@ -315,13 +316,13 @@ pub struct NoiseReport {
     pub colour_tau_s: Option<f64>,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct MembershipReport {
     pub centre_deg: f64,
     pub width_deg: f64,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct ConsequentReport {
     /// p_i0 of Eq. 23.
     pub p0_deg: f64,
@@ -329,13 +330,13 @@ pub struct ConsequentReport {
     pub p1_deg_per_deg: f64,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct CurvePoint {
     pub roll_deg: f64,
     pub correction_deg: f64,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct SampleReport {
     pub t: f64,
     pub roll_deg: f64,

@@ -88,7 +88,7 @@ const MIN_SAMPLES: f64 = 4.0;
 const MIN_VARIOGRAM_SAMPLES: f64 = 100.0;
 
 /// What the machine is doing, as the inclinometer's vibration shows it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum Phase {
     /// Standing (ring building): the lower noise level.

@@ -8,7 +8,7 @@ use super::magcal::CalibrationState;
 use crate::fusion::estimate::JsonFields;
 
 /// The `fuzzy` engine's decision of the motion status.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum Motion {
     Static,
@@ -26,7 +26,7 @@ impl Motion {
 }
 
 /// What the `fuzzy` engine estimates at one IMU reading.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct FuzzyEstimate {
     /// `static` when `static_degree` reaches the engine's threshold.
     pub motion: Motion,

@@ -106,7 +106,7 @@ const IMPROVEMENT: f64 = 0.7;
 const MAX_RAW_RMS: f64 = 0.03;
 
 /// How far the calibration has come.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum CalibrationState {
     /// Not enough directions seen: heading from the magnetometer is not used.

@@ -107,7 +107,7 @@ const SPELL_STILLNESS: f64 = 0.9;
 const MIN_FLOOR: f64 = 1e-9;
 
 /// What the engine has done with its readings.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct FuzzyStats {
     pub imu_used: u64,
     /// IMU readings at or before the newest one.
@@ -725,7 +725,7 @@ impl FuzzyEngine {
 
 /// The magnetometer calibration and the learnt noise floors, as the model
 /// endpoint reports them.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct FuzzyModelReport {
     /// Always `fuzzy`: tells this report from the `attitude` one.
     pub engine: super::EngineKind,

@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 use crate::fusion::estimate::JsonFields;
 
 /// What the `zupt` engine estimates at one IMU reading.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct ZuptEstimate {
     /// True where the detector declares zero velocity.
     pub zv: bool,
@@ -52,7 +52,7 @@ pub struct ZuptEstimate {
 }
 
 /// A point of a smoothed track.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct TrackPoint {
     pub t: f64,
     /// North, east, down of the start point.
