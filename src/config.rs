@@ -2,7 +2,7 @@
 //! the server's TOML configuration file, which declares machines the same way.
 
 use std::collections::BTreeMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
@@ -372,6 +372,9 @@ pub struct ServerConfig {
     /// The server's limits (`[limits]`), each optional.
     #[serde(default)]
     pub limits: LimitsConfig,
+    /// The MQTT broker (`[mqtt]`), if any.
+    #[serde(default)]
+    pub mqtt: MqttConfig,
 }
 
 /// A config file, validated.
@@ -381,6 +384,55 @@ pub struct ServerSettings {
     pub webhooks: WebhookConfig,
     /// The server's limits: the defaults with `[limits]` applied.
     pub limits: crate::server::Limits,
+    /// `[mqtt]`, its rate checked; the rest is checked when the broker's
+    /// connection is set up (`server::mqtt::settings`).
+    pub mqtt: MqttConfig,
+}
+
+/// `[mqtt]` of the config file: the broker and how to reach it
+/// (docs/operations.md, "MQTT"). `serve --mqtt URL` (`TUNNELNAV_MQTT`)
+/// names the broker instead of `url`; the rest applies either way.
+#[derive(Debug, Clone, Default, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MqttConfig {
+    /// `mqtt://[user:password@]host[:port]` or `mqtts://` (TLS).
+    pub url: Option<String>,
+    /// The user to sign in as, when the URL names none.
+    pub username: Option<String>,
+    /// A file holding the password (its first line), kept out of the URL
+    /// and the process list.
+    pub password_file: Option<PathBuf>,
+    /// PEM certificates of the CA that signed the broker's certificate
+    /// (a site's own CA); without it, the system's root certificates.
+    pub ca_file: Option<PathBuf>,
+    /// PEM certificate (chain) tunnelnav presents, for a broker that
+    /// requires client certificates; with `client_key_file`.
+    pub client_cert_file: Option<PathBuf>,
+    /// PEM private key of `client_cert_file`.
+    pub client_key_file: Option<PathBuf>,
+    /// The newest estimate of each stream is published this many times a
+    /// second at most (default 10).
+    pub estimates_hz: Option<f64>,
+}
+
+impl MqttConfig {
+    /// Default of `estimates_hz`.
+    pub const DEFAULT_ESTIMATES_HZ: f64 = 10.0;
+    /// Bounds of `estimates_hz`.
+    pub const ESTIMATES_HZ_RANGE: (f64, f64) = (0.01, 1000.0);
+
+    /// How often the newest estimate of a stream is published.
+    pub fn estimates_every(&self) -> Result<std::time::Duration, String> {
+        let hz = self.estimates_hz.unwrap_or(Self::DEFAULT_ESTIMATES_HZ);
+        let (min, max) = Self::ESTIMATES_HZ_RANGE;
+        if hz.is_finite() && (min..=max).contains(&hz) {
+            Ok(std::time::Duration::from_secs_f64(1.0 / hz))
+        } else {
+            Err(format!(
+                "mqtt.estimates_hz must be between {min} and {max}, not {hz}"
+            ))
+        }
+    }
 }
 
 /// `[limits]` of the config file: what clients may send and how long the
@@ -500,6 +552,13 @@ impl ServerConfig {
                 path: String::new(),
                 reason,
             })?;
+        config
+            .mqtt
+            .estimates_every()
+            .map_err(|reason| ConfigError::File {
+                path: String::new(),
+                reason,
+            })?;
         Ok(ServerSettings {
             machines: config
                 .machines
@@ -508,6 +567,7 @@ impl ServerConfig {
                 .collect::<Result<_, _>>()?,
             webhooks: config.webhooks,
             limits,
+            mqtt: config.mqtt,
         })
     }
 }
@@ -544,6 +604,29 @@ mod tests {
         assert!(err.to_string().contains("live_ping_interval_s"), "{err}");
         let err = ServerConfig::parse("[limits]\nmax_bodies = 1\n").unwrap_err();
         assert!(err.to_string().contains("max_bodies"), "{err}");
+    }
+
+    #[test]
+    fn a_config_file_names_the_broker_and_refuses_a_bad_rate() {
+        let settings = ServerConfig::parse(
+            "[mqtt]\nurl = \"mqtts://broker.site\"\nusername = \"tunnelnav\"\n\
+             password_file = \"/run/credentials/mqtt\"\nestimates_hz = 2\n",
+        )
+        .unwrap();
+        assert_eq!(settings.mqtt.url.as_deref(), Some("mqtts://broker.site"));
+        assert_eq!(
+            settings.mqtt.estimates_every(),
+            Ok(std::time::Duration::from_millis(500))
+        );
+        // Absent: 10 a second.
+        assert_eq!(
+            MqttConfig::default().estimates_every(),
+            Ok(std::time::Duration::from_millis(100))
+        );
+        let err = ServerConfig::parse("[mqtt]\nestimates_hz = 0\n").unwrap_err();
+        assert!(err.to_string().contains("mqtt.estimates_hz"), "{err}");
+        let err = ServerConfig::parse("[mqtt]\npassword = \"x\"\n").unwrap_err();
+        assert!(err.to_string().contains("password"), "{err}");
     }
 
     #[test]

@@ -262,6 +262,11 @@ pub struct DemoArgs {
     /// Log lines as text or JSON objects.
     #[arg(long, value_enum, default_value = "text")]
     pub log_format: super::serve::LogFormat,
+    /// An MQTT broker (`mqtt://host:port`): the server takes readings from
+    /// it, and the first TBM's gateway publishes through it instead of
+    /// posting over HTTP.
+    #[arg(long, value_name = "URL")]
+    pub mqtt: Option<String>,
 }
 
 pub fn run(args: DemoArgs) -> Result<(), CliError> {
@@ -273,6 +278,8 @@ pub fn run(args: DemoArgs) -> Result<(), CliError> {
         )));
     }
     let machines = demo_machines()?;
+    let mqtt =
+        super::serve::mqtt_settings(args.mqtt.as_deref(), &crate::config::MqttConfig::default())?;
     let axes: Vec<Option<AxisDriveScenario>> = GATEWAYS
         .iter()
         .map(|gateway| axis_scenario(gateway, &machines))
@@ -297,6 +304,9 @@ pub fn run(args: DemoArgs) -> Result<(), CliError> {
         };
         let (state, listener) = start(options, args.listen, args.allow_no_auth).await?;
         let address = listener.local_addr()?;
+        if let Some(mqtt) = &mqtt {
+            server::mqtt::spawn(state.clone(), mqtt.clone());
+        }
         println!(
             "tunnelnav demo: open http://{address}/ in a browser. Five simulated machines, \
              server clock ×{} (a 1-minute laser period every {:.0} s), data in {}. Ctrl-C stops.",
@@ -307,11 +317,17 @@ pub fn run(args: DemoArgs) -> Result<(), CliError> {
 
         let (stop_gateways, stopping) = watch::channel(false);
         let mut gateways = Vec::new();
-        for (gateway, axis) in GATEWAYS.iter().zip(axes) {
+        for (i, (gateway, axis)) in GATEWAYS.iter().zip(axes).enumerate() {
+            // With a broker, the first gateway publishes through it.
+            let broker = mqtt
+                .as_ref()
+                .filter(|_| i == 0)
+                .map(|settings| settings.options.clone());
             gateways.push(tokio::spawn(run_gateway(
                 gateway,
                 axis,
                 address,
+                broker,
                 clock,
                 resume.aids,
                 stopping.clone(),
@@ -546,6 +562,7 @@ async fn run_gateway(
     gateway: &'static Gateway,
     axis: Option<AxisDriveScenario>,
     address: SocketAddr,
+    broker: Option<rumqttc::MqttOptions>,
     clock: Clock,
     aids: (Option<f64>, Option<f64>),
     mut stop: watch::Receiver<bool>,
@@ -558,7 +575,7 @@ async fn run_gateway(
             return;
         }
     };
-    let mut sender = Sender::new(gateway, address);
+    let mut sender = Sender::new(gateway, address, broker);
     let mut pending: Vec<Reading> = Vec::new();
     let mut tick = tokio::time::interval(SEND_EVERY);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
@@ -601,21 +618,92 @@ struct Sender {
             tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>,
         >,
     >,
+    /// Publishing through a broker instead, when given one.
+    mqtt: Option<BrokerLink>,
+}
+
+/// A gateway's MQTT client: its handle and the broker's PUBACKs.
+struct BrokerLink {
+    client: rumqttc::AsyncClient,
+    acknowledged: tokio::sync::mpsc::UnboundedReceiver<()>,
+    poller: tokio::task::JoinHandle<()>,
+}
+
+impl BrokerLink {
+    /// A persistent session of its own (`demo-{machine}`): what the
+    /// broker acknowledged it delivers, even across a tunnelnav restart.
+    fn connect(machine: &str, mut options: rumqttc::MqttOptions) -> BrokerLink {
+        use rumqttc::{Event, Packet};
+        options.set_client_id(format!("demo-{machine}"));
+        options.set_manual_acks(false);
+        let (client, mut eventloop) = rumqttc::AsyncClient::new(options, 64);
+        let (acked, acknowledged) = tokio::sync::mpsc::unbounded_channel();
+        let poller = tokio::spawn(async move {
+            loop {
+                match eventloop.poll().await {
+                    Ok(Event::Incoming(Packet::PubAck(_))) => {
+                        let _ = acked.send(());
+                    }
+                    Ok(_) => {}
+                    Err(_) => tokio::time::sleep(Duration::from_secs(1)).await,
+                }
+            }
+        });
+        BrokerLink {
+            client,
+            acknowledged,
+            poller,
+        }
+    }
+
+    /// Publishes NDJSON at QoS 1; `Ok` once the broker has it.
+    async fn publish(&mut self, machine: &str, readings: &[Reading]) -> Result<(), String> {
+        let body: String = readings.iter().map(|r| r.to_json() + "\n").collect();
+        self.client
+            .publish(
+                format!("tunnelnav/v1/{machine}/readings"),
+                rumqttc::QoS::AtLeastOnce,
+                false,
+                body.into_bytes(),
+            )
+            .await
+            .map_err(|e| e.to_string())?;
+        tokio::time::timeout(Duration::from_secs(10), self.acknowledged.recv())
+            .await
+            .map_err(|_| "the broker did not acknowledge within 10 s".to_string())?
+            .ok_or_else(|| "the broker link ended".to_string())
+    }
+}
+
+impl Drop for BrokerLink {
+    fn drop(&mut self) {
+        self.poller.abort();
+    }
 }
 
 impl Sender {
-    fn new(gateway: &'static Gateway, address: SocketAddr) -> Sender {
+    fn new(
+        gateway: &'static Gateway,
+        address: SocketAddr,
+        broker: Option<rumqttc::MqttOptions>,
+    ) -> Sender {
         Sender {
             gateway,
             base: format!("{address}/api/v1/machines/{}", gateway.machine),
             http: reqwest::Client::new(),
             socket: None,
+            mqtt: broker.map(|options| BrokerLink::connect(gateway.machine, options)),
         }
     }
 
     /// Sends the readings; `Ok` once the server acknowledged the batch. A
     /// reading the server rejects is logged, not retried.
     async fn send(&mut self, readings: &[Reading]) -> Result<(), String> {
+        // Through the broker: its answers go to the acks topic; what it
+        // rejects is in the server's log and metrics.
+        if let Some(link) = &mut self.mqtt {
+            return link.publish(self.gateway.machine, readings).await;
+        }
         let ack = match self.gateway.transport {
             Transport::Http => self.post(readings).await?,
             Transport::WebSocket => {

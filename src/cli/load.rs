@@ -30,6 +30,11 @@ pub enum LoadMode {
     /// Stores `--estimates` estimates for one machine (1 Hz inclinometer),
     /// then times 2000-point history queries over ranges of it.
     History,
+    /// `batch` over HTTP, then the same through the MQTT broker `--mqtt`
+    /// (one gateway per machine publishing `--batch` readings a message at
+    /// QoS 1, until every reading is answered on the acks topics): both
+    /// rates, in one run.
+    Mqtt,
 }
 
 #[derive(Debug, Args)]
@@ -65,6 +70,10 @@ pub struct LoadArgs {
     /// Estimates to store before querying (`history`).
     #[arg(long, default_value_t = 10_000_000)]
     pub estimates: usize,
+    /// The MQTT broker (`mqtt`): `mqtt://host:port`; a server started for
+    /// the run is given it too.
+    #[arg(long, value_name = "URL")]
+    pub mqtt: Option<String>,
 }
 
 /// A `serve` child process started for the run.
@@ -75,12 +84,13 @@ struct SpawnedServer {
 }
 
 impl SpawnedServer {
-    fn start() -> Result<SpawnedServer, CliError> {
+    fn start(mqtt: Option<&str>) -> Result<SpawnedServer, CliError> {
         let data_dir = std::env::temp_dir().join(format!("tunnelnav-load-{}", std::process::id()));
         let exe = std::env::current_exe()?;
         let mut child = Command::new(exe)
             .args(["serve", "--listen", "127.0.0.1:0", "--data-dir"])
             .arg(&data_dir)
+            .args(mqtt.map(|url| ["--mqtt", url]).into_iter().flatten())
             .env("RUST_LOG", "warn")
             .stdout(Stdio::piped())
             .spawn()?;
@@ -154,7 +164,7 @@ fn readings(machine: usize, count: usize) -> Vec<String> {
 pub fn run(args: LoadArgs) -> Result<(), CliError> {
     let spawned = match &args.url {
         Some(_) => None,
-        None => Some(SpawnedServer::start()?),
+        None => Some(SpawnedServer::start(args.mqtt.as_deref())?),
     };
     let url = args
         .url
@@ -186,9 +196,13 @@ pub fn run(args: LoadArgs) -> Result<(), CliError> {
         } else {
             args.machines
         };
-        let machines: Vec<String> = (0..machine_count)
+        let mut machines: Vec<String> = (0..machine_count)
             .map(|i| format!("load-{run_id}-{i}"))
             .collect();
+        // The broker's gateways feed machines of their own.
+        if args.mode == LoadMode::Mqtt {
+            machines.extend((0..machine_count).map(|i| format!("load-{run_id}-mqtt-{i}")));
+        }
         for machine in &machines {
             let response = client
                 .put(format!("{url}/api/v1/machines/{machine}"))
@@ -205,6 +219,11 @@ pub fn run(args: LoadArgs) -> Result<(), CliError> {
         }
         match args.mode {
             LoadMode::Batch | LoadMode::Single => throughput(&args, &client, &url, &machines).await,
+            LoadMode::Mqtt => {
+                let (http, broker) = machines.split_at(machine_count);
+                throughput(&args, &client, &url, http).await?;
+                through_broker(&args, broker).await
+            }
             LoadMode::Live => live(&args, &client, &headers, &url, &machines).await,
             LoadMode::History => history(&args, &client, &url, &machines[0]).await,
         }
@@ -278,7 +297,11 @@ async fn throughput(
         "mode {:?}: {accepted} readings in {requests} requests over {elapsed:.2} s: \
          {:.0} readings/s, {:.0} requests/s accepted, fused and committed; \
          request latency p50 {:.2} ms, p99 {:.2} ms ({} machines, {} connections, {batch} per request)",
-        args.mode,
+        if args.mode == LoadMode::Mqtt {
+            LoadMode::Batch
+        } else {
+            args.mode
+        },
         accepted as f64 / elapsed,
         requests as f64 / elapsed,
         percentile_ms(&latencies, 0.5),
@@ -493,5 +516,120 @@ async fn history(
             percentile_ms(&times, 1.0)
         );
     }
+    Ok(())
+}
+
+/// `mqtt`: one gateway per machine publishes its readings, `--batch` a
+/// message, at QoS 1 through the broker; the run ends when the acks topics
+/// have answered for every reading.
+async fn through_broker(args: &LoadArgs, machines: &[String]) -> Result<(), CliError> {
+    use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
+    let broker = args
+        .mqtt
+        .as_deref()
+        .ok_or_else(|| CliError::Scenario("--mode mqtt needs --mqtt URL (the broker)".into()))?;
+    let options = |id: String| -> Result<MqttOptions, CliError> {
+        let separator = if broker.contains('?') { '&' } else { '?' };
+        let mut options = MqttOptions::parse_url(format!("{broker}{separator}client_id={id}"))
+            .map_err(|e| CliError::Scenario(format!("--mqtt {broker}: {e}")))?;
+        options.set_max_packet_size(64 << 20, 64 << 20);
+        Ok(options)
+    };
+    let batch = args.batch.max(1);
+    let expected = (args.readings * machines.len()) as u64;
+    eprintln!(
+        "preparing {expected} readings for {} machines...",
+        machines.len()
+    );
+    let bodies: Vec<Vec<String>> = (0..machines.len())
+        .map(|i| {
+            readings(i, args.readings)
+                .chunks(batch)
+                .map(|c| c.join("\n"))
+                .collect()
+        })
+        .collect();
+    let messages: usize = bodies.iter().map(Vec::len).sum();
+
+    // The answers: every machine's acks topic.
+    let (listener, mut answers) =
+        AsyncClient::new(options(format!("load-acks-{}", std::process::id()))?, 64);
+    listener
+        .subscribe("tunnelnav/v1/+/acks", QoS::AtLeastOnce)
+        .await
+        .map_err(|e| CliError::Scenario(e.to_string()))?;
+    let (done, mut finished) = tokio::sync::oneshot::channel::<Result<u64, String>>();
+    let counter = tokio::spawn(async move {
+        let mut accepted = 0u64;
+        loop {
+            match answers.poll().await {
+                Ok(Event::Incoming(Packet::Publish(p))) => {
+                    let ack: serde_json::Value =
+                        serde_json::from_slice(&p.payload).unwrap_or_default();
+                    if let Some(error) = ack["error"].as_str() {
+                        let _ = done.send(Err(format!("{}: {error}", p.topic)));
+                        return;
+                    }
+                    accepted += ack["accepted"].as_u64().unwrap_or(0);
+                    if accepted >= expected {
+                        let _ = done.send(Ok(accepted));
+                        return;
+                    }
+                }
+                Ok(_) => {}
+                Err(e) => {
+                    let _ = done.send(Err(format!("acks subscription: {e}")));
+                    return;
+                }
+            }
+        }
+    });
+    // Give the subscription a moment to be in place at the broker.
+    tokio::time::sleep(Duration::from_millis(300)).await;
+
+    let started = Instant::now();
+    let mut gateways = Vec::new();
+    for (machine, bodies) in machines.iter().zip(bodies) {
+        let (client, mut eventloop) = AsyncClient::new(options(format!("load-gw-{machine}"))?, 64);
+        let poller = tokio::spawn(async move {
+            loop {
+                if eventloop.poll().await.is_err() {
+                    tokio::time::sleep(Duration::from_millis(100)).await;
+                }
+            }
+        });
+        let topic = format!("tunnelnav/v1/{machine}/readings");
+        gateways.push((
+            poller,
+            tokio::spawn(async move {
+                for body in bodies {
+                    client
+                        .publish(topic.as_str(), QoS::AtLeastOnce, false, body.into_bytes())
+                        .await
+                        .map_err(|e| e.to_string())?;
+                }
+                Ok::<_, String>(client)
+            }),
+        ));
+    }
+    let answered = tokio::time::timeout(Duration::from_secs(600), &mut finished)
+        .await
+        .map_err(|_| CliError::Scenario("not every reading answered within 600 s".into()))?
+        .map_err(|_| CliError::Scenario("the acks subscription ended".into()))?
+        .map_err(CliError::Scenario)?;
+    let elapsed = started.elapsed().as_secs_f64();
+    counter.abort();
+    for (poller, publisher) in gateways {
+        let _ = publisher.await;
+        poller.abort();
+    }
+    println!(
+        "mode Mqtt: {answered} readings in {messages} messages over {elapsed:.2} s: \
+         {:.0} readings/s, {:.0} messages/s through the broker, committed and answered \
+         ({} machines, one gateway each, {batch} per message, QoS 1)",
+        answered as f64 / elapsed,
+        messages as f64 / elapsed,
+        machines.len(),
+    );
     Ok(())
 }

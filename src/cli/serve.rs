@@ -48,6 +48,12 @@ pub struct ServeArgs {
         value_name = "SECONDS"
     )]
     pub retention_every_s: f64,
+    /// The MQTT broker to take readings from and publish to:
+    /// `mqtt://[user:password@]host[:port]` or `mqtts://` (TLS), with
+    /// optional `?client_id=` (default `tunnelnav`); instead of the config
+    /// file's `[mqtt] url`, whose other settings apply. docs/operations.md.
+    #[arg(long, env = "TUNNELNAV_MQTT", value_name = "URL")]
+    pub mqtt: Option<String>,
     /// Log lines as text or JSON objects.
     #[arg(long, env = "TUNNELNAV_LOG_FORMAT", value_enum, default_value = "text")]
     pub log_format: LogFormat,
@@ -76,6 +82,7 @@ pub fn run(args: ServeArgs) -> Result<(), CliError> {
     if let Some(mb) = args.max_database_mb {
         limits.max_database_bytes = Some((mb * 1e6) as u64);
     }
+    let mqtt = mqtt_settings(args.mqtt.as_deref(), &settings.mqtt)?;
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()?;
@@ -89,10 +96,25 @@ pub fn run(args: ServeArgs) -> Result<(), CliError> {
             webhooks: settings.webhooks,
         };
         let (state, listener) = start(options, args.listen, args.allow_no_auth).await?;
+        if let Some(mqtt) = mqtt {
+            server::mqtt::spawn(state.clone(), mqtt);
+        }
         server::run(listener, state, shutdown_signal()).await?;
         tracing::info!("stopped");
         Ok(())
     })
+}
+
+/// The broker's settings, if `url` (`--mqtt`) or the config file's
+/// `[mqtt] url` names one (`serve`, `demo`).
+pub fn mqtt_settings(
+    url: Option<&str>,
+    config: &crate::config::MqttConfig,
+) -> Result<Option<server::mqtt::MqttSettings>, CliError> {
+    url.or(config.url.as_deref())
+        .map(|url| server::mqtt::settings(url, config))
+        .transpose()
+        .map_err(|e| CliError::Refused(e.to_string()))
 }
 
 /// Opens the store, restores the machines, binds `listen` and prints

@@ -35,6 +35,11 @@ const HTTP_RESPONSES: &str = "tunnelnav_http_responses_total";
 const LAST_READING: &str = "tunnelnav_last_reading_timestamp_seconds";
 const LASER_DROPOUT: &str = "tunnelnav_laser_dropout";
 const MACHINES: &str = "tunnelnav_machines";
+const MQTT_MESSAGES: &str = "tunnelnav_mqtt_messages_total";
+const MQTT_CONNECTED: &str = "tunnelnav_mqtt_connected";
+const MQTT_RECONNECTS: &str = "tunnelnav_mqtt_reconnects_total";
+/// What becomes of an MQTT readings message.
+const MQTT_OUTCOMES: [&str; 4] = ["received", "acknowledged", "rejected", "refused"];
 
 /// The process-wide recorder (the `metrics` facade has one global recorder;
 /// servers started in one test process share it).
@@ -98,6 +103,20 @@ fn describe() {
         "1 while the machine's attitude engine is in laser dropout"
     );
     metrics::describe_gauge!(MACHINES, "machines declared");
+    metrics::describe_counter!(
+        MQTT_MESSAGES,
+        "MQTT readings messages: received, acknowledged once stored, rejected (answered with an error and acknowledged), refused for now (store or machine queue full: not acknowledged, retried)"
+    );
+    metrics::describe_gauge!(MQTT_CONNECTED, "1 while connected to the MQTT broker");
+    metrics::describe_counter!(
+        MQTT_RECONNECTS,
+        "times the MQTT broker could not be reached or the connection was lost"
+    );
+    for outcome in MQTT_OUTCOMES {
+        metrics::counter!(MQTT_MESSAGES, "outcome" => outcome).absolute(0);
+    }
+    metrics::gauge!(MQTT_CONNECTED).set(0.0);
+    metrics::counter!(MQTT_RECONNECTS).absolute(0);
     metrics::gauge!(BUILD_INFO, "version" => env!("CARGO_PKG_VERSION")).set(1.0);
     for reason in Refusal::ALL {
         metrics::counter!(REFUSALS, "reason" => reason.as_str()).absolute(0);
@@ -105,6 +124,21 @@ fn describe() {
     // An empty histogram is rendered too.
     let _ = metrics::histogram!(INGEST_DURATION);
     process().describe();
+}
+
+/// One MQTT readings message's `outcome` (one of [`MQTT_OUTCOMES`]).
+pub fn mqtt_message(outcome: &'static str) {
+    metrics::counter!(MQTT_MESSAGES, "outcome" => outcome).increment(1);
+}
+
+/// Whether the MQTT broker is connected.
+pub fn mqtt_connected(connected: bool) {
+    metrics::gauge!(MQTT_CONNECTED).set(if connected { 1.0 } else { 0.0 });
+}
+
+/// The MQTT broker was lost or could not be reached.
+pub fn mqtt_reconnect() {
+    metrics::counter!(MQTT_RECONNECTS).increment(1);
 }
 
 /// Installs the recorder (idempotent); call before serving.

@@ -11,6 +11,7 @@ mod ingest;
 mod live;
 mod machines;
 pub mod metrics;
+pub mod mqtt;
 pub mod notify;
 mod openapi;
 pub mod pages;
