@@ -2,6 +2,7 @@
 //! and fuses them as `POST .../readings` would (retrying refusals), then
 //! publishes the answer and acknowledges the message to the broker.
 
+use std::collections::VecDeque;
 use std::time::Duration;
 
 use rumqttc::{AsyncClient, Publish, QoS};
@@ -30,8 +31,22 @@ pub(super) fn machine_of(topic: &str) -> Option<&str> {
     }
 }
 
+/// What a machine's task has handed, or has still to hand, to the client.
+enum Outgoing {
+    /// The answer, published to `tunnelnav/v1/{machine}/acks`.
+    Answer(Vec<u8>),
+    /// The PUBACK of a message whose readings are committed.
+    Puback(Publish, &'static str),
+}
+
 /// Handles one machine's messages in order: ingest (retrying refusals),
 /// publish the answer, then acknowledge to the broker.
+///
+/// The answer and the PUBACK are handed to the client without waiting:
+/// the connection's loop may itself be waiting for room in this task's
+/// inbox, and the client's request queue is drained only by that loop, so
+/// a task that waited for the queue could wait for ever. What the queue
+/// cannot take yet is kept, in order, and handed over as it drains.
 pub(super) async fn serve_machine(
     state: SharedState,
     client: AsyncClient,
@@ -40,7 +55,19 @@ pub(super) async fn serve_machine(
 ) {
     let shutdown = state.shutdown_signal();
     let acks = format!("tunnelnav/v1/{machine}/acks");
-    while let Some(publish) = inbox.recv().await {
+    let mut unsent: VecDeque<Outgoing> = VecDeque::new();
+    loop {
+        hand_over(&client, &acks, &mut unsent);
+        let next = if unsent.is_empty() {
+            inbox.recv().await
+        } else {
+            match tokio::time::timeout(HAND_OVER_RETRY, inbox.recv()).await {
+                Ok(next) => next,
+                Err(_elapsed) if stopping(&shutdown) => return,
+                Err(_elapsed) => continue,
+            }
+        };
+        let Some(publish) = next else { return };
         let mut wait = Duration::from_millis(50);
         let answer = loop {
             match ingest_message(&state, &machine, &publish.payload).await {
@@ -62,22 +89,43 @@ pub(super) async fn serve_machine(
                 serde_json::to_vec(&body)
             }
         };
-        if let Ok(body) = body
-            && let Err(e) = client
-                .publish(acks.as_str(), QoS::AtLeastOnce, false, body)
-                .await
-        {
-            tracing::warn!(%machine, error = %e, "MQTT: cannot publish the ack");
+        match body {
+            Ok(body) => unsent.push_back(Outgoing::Answer(body)),
+            Err(e) => tracing::warn!(%machine, error = %e, "MQTT: cannot write the ack"),
         }
-        if let Err(e) = client.ack(&publish).await {
-            tracing::warn!(%machine, error = %e, "MQTT: cannot acknowledge");
-            return;
-        }
-        metrics::mqtt_message(if answer.is_ok() {
+        let outcome = if answer.is_ok() {
             "acknowledged"
         } else {
             "rejected"
-        });
+        };
+        unsent.push_back(Outgoing::Puback(publish, outcome));
+    }
+}
+
+/// How long a task with something the client's queue could not take waits
+/// for its next message before trying again.
+const HAND_OVER_RETRY: Duration = Duration::from_millis(10);
+
+/// Hands `unsent` to the client in order, as far as its queue takes it.
+fn hand_over(client: &AsyncClient, acks: &str, unsent: &mut VecDeque<Outgoing>) {
+    while let Some(next) = unsent.pop_front() {
+        let handed = match &next {
+            Outgoing::Answer(body) => {
+                client.try_publish(acks, QoS::AtLeastOnce, false, body.clone())
+            }
+            Outgoing::Puback(publish, _) => client.try_ack(publish),
+        };
+        match handed {
+            Ok(()) => {
+                if let Outgoing::Puback(_, outcome) = next {
+                    metrics::mqtt_message(outcome);
+                }
+            }
+            Err(_full) => {
+                unsent.push_front(next);
+                return;
+            }
+        }
     }
 }
 
