@@ -1128,3 +1128,214 @@ async fn a_refused_message_is_kept_by_the_broker_until_it_can_be_stored() {
         lines.len()
     );
 }
+
+/// Node-RED's program: `TUNNELNAV_NODE_RED` (`.ci/run` installs it from
+/// npm) or `node-red` on the PATH; `None` (saying so) where there is
+/// neither, unless `TUNNELNAV_NODE_RED_TEST=required`.
+fn node_red_program() -> Option<PathBuf> {
+    let found = std::env::var_os("TUNNELNAV_NODE_RED")
+        .map(PathBuf::from)
+        .or_else(|| {
+            let path = std::env::var_os("PATH").unwrap_or_default();
+            std::env::split_paths(&path)
+                .map(|dir| dir.join("node-red"))
+                .find(|p| p.is_file())
+        })
+        .filter(|p| p.is_file());
+    if found.is_none() {
+        assert!(
+            std::env::var("TUNNELNAV_NODE_RED_TEST").as_deref() != Ok("required"),
+            "TUNNELNAV_NODE_RED_TEST=required but there is no Node-RED \
+             (npm install node-red; TUNNELNAV_NODE_RED=.../node_modules/.bin/node-red)"
+        );
+        eprintln!("SKIPPED: the Node-RED example needs node-red (TUNNELNAV_NODE_RED)");
+    }
+    found
+}
+
+/// A network link to the broker that can be cut and restored, as a
+/// tunnel's link to the surface is: a TCP relay on a port of its own.
+struct Link {
+    port: u16,
+    up: tokio::sync::watch::Sender<bool>,
+}
+
+impl Link {
+    async fn to(upstream: u16) -> Link {
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let port = listener.local_addr().unwrap().port();
+        let (up, watch) = tokio::sync::watch::channel(true);
+        tokio::spawn(async move {
+            while let Ok((mut inside, _)) = listener.accept().await {
+                let mut state = watch.clone();
+                if !*state.borrow() {
+                    continue; // down: the connection is dropped at once
+                }
+                tokio::spawn(async move {
+                    let Ok(mut outside) =
+                        tokio::net::TcpStream::connect(("127.0.0.1", upstream)).await
+                    else {
+                        return;
+                    };
+                    tokio::select! {
+                        _ = tokio::io::copy_bidirectional(&mut inside, &mut outside) => {}
+                        _ = state.wait_for(|up| !*up) => {}
+                    }
+                });
+            }
+        });
+        Link { port, up }
+    }
+
+    fn cut(&self) {
+        self.up.send_replace(false);
+    }
+
+    fn restore(&self) {
+        self.up.send_replace(true);
+    }
+}
+
+/// A child process killed when dropped.
+struct Killed(Child);
+
+impl Drop for Killed {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// Waits until `log` (a file) has a line containing `text`.
+async fn wait_for_log(log: &Path, text: &str) {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    loop {
+        let written = std::fs::read_to_string(log).unwrap_or_default();
+        if written.contains(text) {
+            return;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "no `{text}` in the log:\n{written}"
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+}
+
+/// The stored readings' times, sorted.
+async fn stored_times(client: &reqwest::Client, base: &str, machine: &str) -> Vec<f64> {
+    let mut times: Vec<f64> = common::exported_readings(client, base, machine)
+        .await
+        .iter()
+        .map(|line| {
+            let reading: Value = serde_json::from_str(line).unwrap();
+            assert_eq!(reading["sensor"], "inclinometer", "{line}");
+            assert_eq!(reading["pitch_deg"], 0.42, "{line}");
+            reading["t"].as_f64().unwrap()
+        })
+        .collect();
+    times.sort_by(f64::total_cmp);
+    times
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_node_red_example_flow_sends_every_reading_through_a_link_that_drops() {
+    let Some(program) = mosquitto_program() else {
+        return;
+    };
+    let Some(node_red) = node_red_program() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let port = free_port();
+    let broker = Broker::start(&program, dir.path(), port);
+    let data = tempfile::tempdir().unwrap();
+    let server = ServerProcess::start_with_args(data.path(), &["--mqtt", &broker.url("tn-red")]);
+    let client = reqwest::Client::new();
+    let base = server.url("");
+    wait_for_metric(&client, &base, "tunnelnav_mqtt_connected 1").await;
+
+    // The shipped flow, as a site imports it, with the broker it names
+    // through the environment.
+    let link = Link::to(port).await;
+    let user_dir = tempfile::tempdir().unwrap();
+    std::fs::copy(
+        "deploy/node-red/gateway-flow.json",
+        user_dir.path().join("flows.json"),
+    )
+    .unwrap();
+    std::fs::write(
+        user_dir.path().join("settings.js"),
+        format!(
+            "module.exports = {{ uiHost: \"127.0.0.1\", uiPort: {}, flowFile: \"flows.json\", \
+             credentialSecret: false, mqttReconnectTime: 1000 }};\n",
+            free_port()
+        ),
+    )
+    .unwrap();
+    let log = user_dir.path().join("node-red.log");
+    let _gateway = Killed(
+        Command::new(&node_red)
+            .arg("--userDir")
+            .arg(user_dir.path())
+            .env("MQTT_BROKER", format!("mqtt://127.0.0.1:{}", link.port))
+            .env("GATEWAY_CLIENT_ID", "gw-tbm-north")
+            .stdout(std::fs::File::create(&log).unwrap())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("node-red starts"),
+    );
+
+    // Before the machine is declared, tunnelnav's answer (an error) comes
+    // back to the flow, which logs it.
+    wait_for_log(
+        &log,
+        "tunnelnav refused a message: unknown machine `tbm-north`",
+    )
+    .await;
+    put_machine(&client, &base, "tbm-north").await;
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while stored_times(&client, &base, "tbm-north").await.len() < 20 {
+        assert!(Instant::now() < deadline, "no readings from Node-RED");
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+
+    // The link drops for 3 s: the flow holds its readings, and sends them
+    // when it is back.
+    let cut_s = tunnelnav::server::wall_clock_s();
+    link.cut();
+    wait_for_log(&log, "Disconnected from broker").await;
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    let restored_s = tunnelnav::server::wall_clock_s();
+    link.restore();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let times = loop {
+        let times = stored_times(&client, &base, "tbm-north").await;
+        if times.last().is_some_and(|&t| t > restored_s + 2.0) {
+            break times;
+        }
+        assert!(Instant::now() < deadline, "nothing after the link is back");
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    };
+    assert!(times[0] < cut_s - 1.0, "{} {cut_s}", times[0]);
+    // One reading every 0.1 s, none missing across the drop (duplicates
+    // would be absorbed by the store).
+    let widest = times
+        .windows(2)
+        .map(|pair| pair[1] - pair[0])
+        .fold(0.0, f64::max);
+    assert!(
+        widest < 0.5,
+        "a gap of {widest:.2} s in {} readings",
+        times.len()
+    );
+    let written = std::fs::read_to_string(&log).unwrap();
+    assert!(
+        !written.contains("tunnelnav rejected reading") && !written.contains("dropped"),
+        "{written}"
+    );
+    eprintln!(
+        "{} readings from Node-RED, widest gap {widest:.3} s across a 3 s drop",
+        times.len()
+    );
+}
