@@ -99,6 +99,26 @@ impl Drop for Broker {
     }
 }
 
+/// A test's own broker on a free port, its sessions in a temporary
+/// directory, with mosquitto's program (to start it again); `None` where
+/// mosquitto is missing and not required.
+fn own_broker() -> Option<(PathBuf, tempfile::TempDir, Broker)> {
+    let program = mosquitto_program()?;
+    let dir = tempfile::tempdir().unwrap();
+    let broker = Broker::start(&program, dir.path(), free_port());
+    Some((program, dir, broker))
+}
+
+/// `serve ARGS` on `data`, once it has connected to its broker: the
+/// server, an HTTP client and the server's base URL.
+async fn serve_connected(data: &Path, args: &[&str]) -> (ServerProcess, reqwest::Client, String) {
+    let server = ServerProcess::start_with_args(data, args);
+    let client = reqwest::Client::new();
+    let base = server.url("");
+    wait_for_metric(&client, &base, "tunnelnav_mqtt_connected 1").await;
+    (server, client, base)
+}
+
 fn free_port() -> u16 {
     std::net::TcpListener::bind("127.0.0.1:0")
         .unwrap()
@@ -215,18 +235,13 @@ async fn poll(
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn readings_published_through_the_broker_are_stored_fused_and_acknowledged() {
-    let Some(program) = mosquitto_program() else {
+    let Some((_program, _dir, broker)) = own_broker() else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
-    let broker = Broker::start(&program, dir.path(), free_port());
     let data = tempfile::tempdir().unwrap();
-    let server = ServerProcess::start_with_args(data.path(), &["--mqtt", &broker.url("tn-e2e")]);
-    let client = reqwest::Client::new();
-    let base = server.url("");
+    let (_server, client, base) =
+        serve_connected(data.path(), &["--mqtt", &broker.url("tn-e2e")]).await;
     put_machine(&client, &base, "tbm-mqtt").await;
-    // The server subscribes once connected.
-    wait_for_metric(&client, &base, "tunnelnav_mqtt_connected 1").await;
 
     let mut control = Peer::connect(broker.port, "control-room", &["tunnelnav/v1/+/acks"]).await;
     let mut gateway = Peer::connect(broker.port, "gateway-1", &[]).await;
@@ -334,11 +349,9 @@ async fn every_reading_is_stored_once_though_the_server_is_killed_ten_times() {
     const MACHINES: [&str; 3] = ["tbm-a", "tbm-b", "tbm-c"];
     const MESSAGES: usize = 150;
     const PER_MESSAGE: usize = 100;
-    let Some(program) = mosquitto_program() else {
+    let Some((_program, _dir, broker)) = own_broker() else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
-    let broker = Broker::start(&program, dir.path(), free_port());
     let data = tempfile::tempdir().unwrap();
     let url = broker.url("tn-crash");
     let mut server = ServerProcess::start_with_args(data.path(), &["--mqtt", &url]);
@@ -418,19 +431,14 @@ async fn every_reading_is_stored_once_though_the_server_is_killed_ten_times() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_server_reconnects_after_a_broker_restart_and_loses_nothing() {
-    let Some(program) = mosquitto_program() else {
+    let Some((program, dir, broker)) = own_broker() else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
-    let port = free_port();
-    let broker = Broker::start(&program, dir.path(), port);
+    let port = broker.port;
     let data = tempfile::tempdir().unwrap();
-    let server =
-        ServerProcess::start_with_args(data.path(), &["--mqtt", &broker.url("tn-restart")]);
-    let client = reqwest::Client::new();
-    let base = server.url("");
+    let (_server, client, base) =
+        serve_connected(data.path(), &["--mqtt", &broker.url("tn-restart")]).await;
     put_machine(&client, &base, "tbm-r").await;
-    wait_for_metric(&client, &base, "tunnelnav_mqtt_connected 1").await;
     let t0 = (tunnelnav::server::wall_clock_s() - 3600.0).floor();
     let topic = "tunnelnav/v1/tbm-r/readings";
     let mut gateway = Peer::connect(port, "gateway-r", &[]).await;
@@ -536,12 +544,9 @@ async fn the_example_broker_configuration_keeps_each_gateway_to_its_own_machine(
 
     let data = tempfile::tempdir().unwrap();
     let url = format!("mqtt://tunnelnav:tn-secret@127.0.0.1:{port}?client_id=tn-acl");
-    let server = ServerProcess::start_with_args(data.path(), &["--mqtt", &url]);
-    let client = reqwest::Client::new();
-    let base = server.url("");
+    let (_server, client, base) = serve_connected(data.path(), &["--mqtt", &url]).await;
     put_machine(&client, &base, "tbm-1").await;
     put_machine(&client, &base, "tbm-2").await;
-    wait_for_metric(&client, &base, "tunnelnav_mqtt_connected 1").await;
 
     let mut scada = Peer::connect_as(
         port,
@@ -619,15 +624,12 @@ async fn the_example_broker_configuration_keeps_each_gateway_to_its_own_machine(
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn estimates_status_and_alarms_are_published() {
-    let Some(program) = mosquitto_program() else {
+    let Some((_program, _dir, broker)) = own_broker() else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
-    let broker = Broker::start(&program, dir.path(), free_port());
     let data = tempfile::tempdir().unwrap();
-    let server = ServerProcess::start_with_args(data.path(), &["--mqtt", &broker.url("tn-pub")]);
-    let client = reqwest::Client::new();
-    let base = server.url("");
+    let (_server, client, base) =
+        serve_connected(data.path(), &["--mqtt", &broker.url("tn-pub")]).await;
     common::declare_machine(
         &client,
         &base,
@@ -635,7 +637,6 @@ async fn estimates_status_and_alarms_are_published() {
         &common::on_an_axis("TBM published").to_string(),
     )
     .await;
-    wait_for_metric(&client, &base, "tunnelnav_mqtt_connected 1").await;
     let mut scada = Peer::connect(
         broker.port,
         "scada",
@@ -769,11 +770,9 @@ async fn estimates_status_and_alarms_are_published() {
 /// benchmark's, docs/operations.md "Load"; here only that it runs).
 #[test]
 fn the_load_generator_measures_the_broker_path_beside_http() {
-    let Some(program) = mosquitto_program() else {
+    let Some((_program, _dir, broker)) = own_broker() else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
-    let broker = Broker::start(&program, dir.path(), free_port());
     let output = Command::new(env!("CARGO_BIN_EXE_tunnelnav"))
         .args(["load", "--mode", "mqtt", "--mqtt"])
         .arg(format!("mqtt://127.0.0.1:{}", broker.port))
@@ -809,11 +808,9 @@ fn the_load_generator_measures_the_broker_path_beside_http() {
 /// its readings are stored (the demo's data dir, read by `serve` after).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_demo_sends_one_gateway_through_the_broker() {
-    let Some(program) = mosquitto_program() else {
+    let Some((_program, _dir, broker)) = own_broker() else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
-    let broker = Broker::start(&program, dir.path(), free_port());
     let data = tempfile::tempdir().unwrap();
     let output = Command::new(env!("CARGO_BIN_EXE_tunnelnav"))
         .args([
@@ -947,11 +944,9 @@ async fn tls_to_a_broker_of_the_sites_own_ca_with_a_client_certificate() {
 
     let data = tempfile::tempdir().unwrap();
     let site = config_file("site.toml", "site", "tn-tls");
-    let server = ServerProcess::start_with_args(data.path(), &["--config", site.to_str().unwrap()]);
-    let client = reqwest::Client::new();
-    let base = server.url("");
+    let (server, client, base) =
+        serve_connected(data.path(), &["--config", site.to_str().unwrap()]).await;
     put_machine(&client, &base, "tbm-tls").await;
-    wait_for_metric(&client, &base, "tunnelnav_mqtt_connected 1").await;
     let mut gateway = Peer::connect_as(
         plain,
         "gw-tls",
@@ -1039,19 +1034,14 @@ async fn tls_to_a_broker_of_the_sites_own_ca_with_a_client_certificate() {
 /// in order, and the estimates are the replay's.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_refused_message_is_kept_by_the_broker_until_it_can_be_stored() {
-    let Some(program) = mosquitto_program() else {
+    let Some((_program, _dir, broker)) = own_broker() else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
-    let broker = Broker::start(&program, dir.path(), free_port());
     let data = tempfile::tempdir().unwrap();
     let url = broker.url("tn-full");
-    let server =
-        ServerProcess::start_with_args(data.path(), &["--mqtt", &url, "--max-database-mb", "1"]);
-    let client = reqwest::Client::new();
-    let base = server.url("");
+    let (server, client, base) =
+        serve_connected(data.path(), &["--mqtt", &url, "--max-database-mb", "1"]).await;
     put_machine(&client, &base, "full").await;
-    wait_for_metric(&client, &base, "tunnelnav_mqtt_connected 1").await;
 
     let lines = drive(6.0, 9, Vec::new());
     let mut acks = Peer::connect(broker.port, "acks-full", &["tunnelnav/v1/full/acks"]).await;
@@ -1240,20 +1230,16 @@ async fn stored_times(client: &reqwest::Client, base: &str, machine: &str) -> Ve
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_node_red_example_flow_sends_every_reading_through_a_link_that_drops() {
-    let Some(program) = mosquitto_program() else {
+    let Some((_program, _dir, broker)) = own_broker() else {
         return;
     };
     let Some(node_red) = node_red_program() else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
-    let port = free_port();
-    let broker = Broker::start(&program, dir.path(), port);
+    let port = broker.port;
     let data = tempfile::tempdir().unwrap();
-    let server = ServerProcess::start_with_args(data.path(), &["--mqtt", &broker.url("tn-red")]);
-    let client = reqwest::Client::new();
-    let base = server.url("");
-    wait_for_metric(&client, &base, "tunnelnav_mqtt_connected 1").await;
+    let (_server, client, base) =
+        serve_connected(data.path(), &["--mqtt", &broker.url("tn-red")]).await;
 
     // The shipped flow, as a site imports it, with the broker it names
     // through the environment.
