@@ -20,6 +20,8 @@
 //! docs/operations.md ("MQTT").
 
 use std::collections::HashMap;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use rumqttc::{AsyncClient, Event, EventLoop, MqttOptions, Packet, Publish, QoS};
@@ -193,16 +195,40 @@ pub fn spawn(state: SharedState, settings: MqttSettings) -> tokio::task::JoinHan
     // many refused readings may be large too.
     options.set_max_packet_size(state.limits.max_body_bytes, state.limits.max_body_bytes);
     let (client, eventloop) = AsyncClient::new(options, 4096);
+    let connected = Connected::default();
     tokio::spawn(publish::machines(
         state.clone(),
         client.clone(),
+        connected.clone(),
         estimates_every,
     ));
     tokio::spawn(publish::alarms(state.clone(), client.clone()));
-    tokio::spawn(serve(state, client, eventloop))
+    tokio::spawn(serve(state, client, eventloop, connected))
 }
 
-async fn serve(state: SharedState, client: AsyncClient, mut eventloop: EventLoop) {
+/// Whether the broker is connected now: estimates and status are not
+/// queued for it while it is away (they would go stale in the queue).
+#[derive(Clone, Default)]
+pub(super) struct Connected(Arc<AtomicBool>);
+
+impl Connected {
+    fn set(&self, connected: bool) {
+        self.0.store(connected, Ordering::Relaxed);
+        metrics::mqtt_connected(connected);
+    }
+
+    /// The broker is connected.
+    pub(super) fn now(&self) -> bool {
+        self.0.load(Ordering::Relaxed)
+    }
+}
+
+async fn serve(
+    state: SharedState,
+    client: AsyncClient,
+    mut eventloop: EventLoop,
+    connected: Connected,
+) {
     let mut shutdown = state.shutdown_signal();
     let mut machines: HashMap<String, mpsc::Sender<Publish>> = HashMap::new();
     let mut wait = Duration::from_millis(500);
@@ -214,7 +240,7 @@ async fn serve(state: SharedState, client: AsyncClient, mut eventloop: EventLoop
         match event {
             Ok(Event::Incoming(Packet::ConnAck(_))) => {
                 tracing::info!("MQTT: connected to the broker");
-                metrics::mqtt_connected(true);
+                connected.set(true);
                 wait = Duration::from_millis(500);
                 // Kept by a persistent session, but a new one has none.
                 if let Err(e) = client.try_subscribe(READINGS_TOPICS, QoS::AtLeastOnce) {
@@ -255,7 +281,7 @@ async fn serve(state: SharedState, client: AsyncClient, mut eventloop: EventLoop
             }
             Ok(_) => {}
             Err(e) => {
-                metrics::mqtt_connected(false);
+                connected.set(false);
                 metrics::mqtt_reconnect();
                 tracing::warn!(error = %e, retry_in_s = wait.as_secs_f64(), "MQTT: broker unreachable");
                 tokio::select! {
@@ -266,7 +292,7 @@ async fn serve(state: SharedState, client: AsyncClient, mut eventloop: EventLoop
             }
         }
     }
-    metrics::mqtt_connected(false);
+    connected.set(false);
     // What was not acknowledged stays with the broker for the next start.
     let _ = client.try_disconnect();
 }

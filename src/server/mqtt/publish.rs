@@ -13,6 +13,7 @@ use tokio::sync::broadcast::error::RecvError;
 use tokio::task::JoinHandle;
 
 use super::super::SharedState;
+use super::Connected;
 use crate::fusion::StreamKind;
 use crate::machine::{LiveEstimate, MachineHandle};
 use crate::store::alarms::{AlarmChange, AlarmFilter, Change};
@@ -22,7 +23,12 @@ pub const STATUS_EVERY: Duration = Duration::from_secs(5);
 
 /// Publishes every machine's estimates and status while the server runs;
 /// a machine declared (or redeclared) later is picked up within a second.
-pub async fn machines(state: SharedState, client: AsyncClient, estimates_every: Duration) {
+pub async fn machines(
+    state: SharedState,
+    client: AsyncClient,
+    connected: Connected,
+    estimates_every: Duration,
+) {
     let mut shutdown = state.shutdown_signal();
     let mut running: HashMap<String, (Arc<MachineHandle>, JoinHandle<()>)> = HashMap::new();
     let mut look = tokio::time::interval(Duration::from_secs(1));
@@ -39,6 +45,7 @@ pub async fn machines(state: SharedState, client: AsyncClient, estimates_every: 
                 let task = tokio::spawn(machine_task(
                     state.clone(),
                     client.clone(),
+                    connected.clone(),
                     machine.clone(),
                     estimates_every,
                 ));
@@ -57,6 +64,7 @@ pub async fn machines(state: SharedState, client: AsyncClient, estimates_every: 
 async fn machine_task(
     state: SharedState,
     client: AsyncClient,
+    connected: Connected,
     machine: Arc<MachineHandle>,
     estimates_every: Duration,
 ) {
@@ -77,10 +85,15 @@ async fn machine_task(
                 Err(RecvError::Lagged(_)) => {}
                 Err(RecvError::Closed) => break,
             },
+            // While the broker is away the newest of each stream waits
+            // here (QoS 0: not queued in the client, where it would go
+            // stale), and goes when it is back.
             _ = estimates.tick() => {
+                if !connected.now() {
+                    continue;
+                }
                 for (stream, estimate) in std::mem::take(&mut pending) {
                     let topic = format!("tunnelnav/v1/{id}/estimates/{stream}");
-                    // QoS 0: while the broker is away, estimates are not kept.
                     let _ = client.try_publish(
                         topic,
                         QoS::AtMostOnce,
@@ -90,6 +103,9 @@ async fn machine_task(
                 }
             }
             _ = status.tick() => {
+                if !connected.now() {
+                    continue;
+                }
                 let now = state.clock.now_s();
                 if let Ok(body) = serde_json::to_vec(&super::super::machines::status(&machine, now)) {
                     let topic = format!("tunnelnav/v1/{id}/status");
