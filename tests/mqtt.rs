@@ -1325,3 +1325,60 @@ async fn the_node_red_example_flow_sends_every_reading_through_a_link_that_drops
         times.len()
     );
 }
+
+/// While tunnelnav cannot reach the broker, nothing is queued for it: when
+/// it is back, the newest estimate of each stream is published, not every
+/// one made while it was away.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn estimates_made_while_the_broker_is_away_are_not_sent_stale() {
+    let Some((_program, _dir, broker)) = own_broker() else {
+        return;
+    };
+    let link = Link::to(broker.port).await;
+    let data = tempfile::tempdir().unwrap();
+    let url = format!("mqtt://127.0.0.1:{}?client_id=tn-away", link.port);
+    let (_server, client, base) = serve_connected(data.path(), &["--mqtt", &url]).await;
+    put_machine(&client, &base, "tbm-away").await;
+    let mut scada = Peer::connect(
+        broker.port,
+        "scada-away",
+        &["tunnelnav/v1/tbm-away/estimates/attitude"],
+    )
+    .await;
+    let post = |lines: String| {
+        let lines: Vec<String> = lines.lines().map(str::to_string).collect();
+        let (client, base) = (client.clone(), base.clone());
+        async move { common::post_ndjson(&client, &base, "tbm-away", &lines).await }
+    };
+    let t0 = (tunnelnav::server::wall_clock_s() - 600.0).floor();
+    post(inclinometer_lines(t0, 0, 10)).await;
+    let (_, first) = scada.next().await;
+    assert!(first["t"].as_f64().is_some(), "{first}");
+
+    link.cut();
+    wait_for_metric(&client, &base, "tunnelnav_mqtt_connected 0").await;
+    // Eight batches, each a new newest estimate, over 2 s (20 ticks of the
+    // 10 Hz publisher).
+    for batch in 1..=8 {
+        post(inclinometer_lines(t0, 10 * batch, 10)).await;
+        tokio::time::sleep(Duration::from_millis(250)).await;
+    }
+    let newest = t0 + 0.1 * 89.0;
+    while scada.received.try_recv().is_ok() {}
+    link.restore();
+    wait_for_metric(&client, &base, "tunnelnav_mqtt_connected 1").await;
+    let (_, estimate) = scada.next().await;
+    assert!(
+        (estimate["t"].as_f64().unwrap() - newest).abs() < 1e-6,
+        "{estimate}"
+    );
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    let mut more = Vec::new();
+    while let Ok((_, body)) = scada.received.try_recv() {
+        more.push(String::from_utf8_lossy(&body).into_owned());
+    }
+    assert!(
+        more.is_empty(),
+        "stale estimates after the newest: {more:?}"
+    );
+}
