@@ -1236,14 +1236,13 @@ async fn the_node_red_example_flow_sends_every_reading_through_a_link_that_drops
     let Some(node_red) = node_red_program() else {
         return;
     };
-    let port = broker.port;
     let data = tempfile::tempdir().unwrap();
     let (_server, client, base) =
         serve_connected(data.path(), &["--mqtt", &broker.url("tn-red")]).await;
 
     // The shipped flow, as a site imports it, with the broker it names
     // through the environment.
-    let link = Link::to(port).await;
+    let link = Link::to(broker.port).await;
     let user_dir = tempfile::tempdir().unwrap();
     std::fs::copy(
         "deploy/node-red/gateway-flow.json",
@@ -1345,13 +1344,16 @@ async fn estimates_made_while_the_broker_is_away_are_not_sent_stale() {
         &["tunnelnav/v1/tbm-away/estimates/attitude"],
     )
     .await;
-    let post = |lines: String| {
-        let lines: Vec<String> = lines.lines().map(str::to_string).collect();
-        let (client, base) = (client.clone(), base.clone());
-        async move { common::post_ndjson(&client, &base, "tbm-away", &lines).await }
-    };
     let t0 = (tunnelnav::server::wall_clock_s() - 600.0).floor();
-    post(inclinometer_lines(t0, 0, 10)).await;
+    // Readings `first..first + 10`, posted over HTTP.
+    let post = async |first: usize| {
+        let lines: Vec<String> = inclinometer_lines(t0, first, 10)
+            .lines()
+            .map(str::to_string)
+            .collect();
+        common::post_ndjson(&client, &base, "tbm-away", &lines).await
+    };
+    post(0).await;
     let (_, first) = scada.next().await;
     assert!(first["t"].as_f64().is_some(), "{first}");
 
@@ -1360,7 +1362,7 @@ async fn estimates_made_while_the_broker_is_away_are_not_sent_stale() {
     // Eight batches, each a new newest estimate, over 2 s (20 ticks of the
     // 10 Hz publisher).
     for batch in 1..=8 {
-        post(inclinometer_lines(t0, 10 * batch, 10)).await;
+        post(10 * batch).await;
         tokio::time::sleep(Duration::from_millis(250)).await;
     }
     let newest = t0 + 0.1 * 89.0;
