@@ -11,6 +11,7 @@ use crate::fusion::SensorKind;
 use crate::sim::pipejack::{
     Case, IMU_RATE_HZ, Machinery, MachineryPattern, PipeJackDrive, PipeJackScenario,
 };
+use crate::sim::pipejack_envelope::PipeJackEnvelope;
 use crate::sim::tbm::{DEFAULT_START_T, Dropout, TbmDrive, TbmEvent, TbmScenario};
 use crate::sim::tbm_envelope::EnvelopeDrive;
 use crate::sim::vehicle::{
@@ -262,6 +263,11 @@ impl PipeJackArgs {
 pub struct PipeJackingArgs {
     #[command(flatten)]
     pub drive: PipeJackArgs,
+    /// Draw the machine, its sensors and the drive at random from the
+    /// envelope the zupt engine must hold over (seeded by --seed; the draw
+    /// goes to stderr as JSON). See `src/sim/pipejack_envelope.rs`.
+    #[arg(long, conflicts_with_all = ["case", "push_s", "rest_s", "machinery", "heading_deg", "slope_deg", "latitude_deg"])]
+    pub envelope: bool,
     /// Write the truth (one NDJSON line per IMU reading) to this file.
     #[arg(long, value_name = "FILE")]
     pub truth: Option<PathBuf>,
@@ -372,7 +378,17 @@ fn write_events<T: serde::Serialize>(
 }
 
 fn run_pipe_jacking(args: &PipeJackingArgs) -> Result<(), CliError> {
-    let drive = PipeJackDrive::new(args.drive.scenario()).map_err(CliError::Scenario)?;
+    let drive = if args.envelope {
+        let mut draw = PipeJackEnvelope::draw(args.drive.seed);
+        draw.start_t = args.drive.start_t;
+        eprintln!(
+            "{}",
+            serde_json::to_string(&draw).map_err(io::Error::other)?
+        );
+        draw.drive()
+    } else {
+        PipeJackDrive::new(args.drive.scenario()).map_err(CliError::Scenario)?
+    };
     let truth = create_truth(&args.truth)?;
     write_events(drive.map(|e| (e.reading, e.truth)), truth)
 }

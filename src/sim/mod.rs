@@ -3,6 +3,7 @@
 
 pub mod axis_drive;
 pub mod pipejack;
+pub mod pipejack_envelope;
 pub mod tbm;
 pub mod tbm_envelope;
 pub mod vehicle;

@@ -119,6 +119,30 @@ impl Machinery {
     }
 }
 
+/// The IMU's error model (1σ per axis where a spread).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SensorGrade {
+    /// Turn-on gyro bias, °/h, and its random walk, °/h/√h.
+    pub gyro_bias_deg_per_h: f64,
+    pub gyro_bias_rw_deg_per_h_per_sqrt_h: f64,
+    /// Angle random walk, °/√h.
+    pub gyro_arw_deg_per_sqrt_h: f64,
+    /// Turn-on accelerometer bias, mg, and white noise, µg/√Hz.
+    pub accel_bias_mg: f64,
+    pub accel_vrw_ug_per_sqrt_hz: f64,
+}
+
+impl SensorGrade {
+    /// The paper's Table 1 FOG IMU (the accelerometer noise is ours).
+    pub const PAPER: SensorGrade = SensorGrade {
+        gyro_bias_deg_per_h: 0.5,
+        gyro_bias_rw_deg_per_h_per_sqrt_h: 0.05,
+        gyro_arw_deg_per_sqrt_h: 0.05,
+        accel_bias_mg: 1.0,
+        accel_vrw_ug_per_sqrt_hz: 50.0,
+    };
+}
+
 /// What to simulate.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PipeJackScenario {
@@ -226,11 +250,11 @@ pub struct PipeJackEvent {
 /// A smooth 0 → 1 → 0 window: sin² rise over `rise_s` from `start`, 1,
 /// sin² fall over `fall_s` to `end`; value and two time derivatives.
 #[derive(Debug, Clone, Copy, PartialEq)]
-struct Window {
-    start: f64,
-    end: f64,
-    rise_s: f64,
-    fall_s: f64,
+pub(super) struct Window {
+    pub start: f64,
+    pub end: f64,
+    pub rise_s: f64,
+    pub fall_s: f64,
 }
 
 impl Window {
@@ -263,7 +287,7 @@ impl Window {
     }
 
     /// ∫ from start to t of the window.
-    fn integral(&self, t: f64) -> f64 {
+    pub(super) fn integral(&self, t: f64) -> f64 {
         use std::f64::consts::PI;
         let t = t.clamp(self.start, self.end);
         let ramp = |x: f64, len: f64| x / 2.0 - len / (2.0 * PI) * (PI * x / len).sin();
@@ -292,12 +316,12 @@ fn product(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
 
 /// A sum of sinusoids: value and two derivatives.
 #[derive(Debug, Clone, PartialEq)]
-struct Tones(Vec<(f64, f64, f64)>);
+pub(super) struct Tones(pub Vec<(f64, f64, f64)>);
 
 impl Tones {
     /// `count` tones of `frequency_hz` range and the given amplitude of
     /// their `derivative`-th derivative (0: displacement, 1: rate, 2: acceleration).
-    fn random(
+    pub(super) fn random(
         rng: &mut ChaCha8Rng,
         count: usize,
         frequency_hz: (f64, f64),
@@ -331,18 +355,21 @@ impl Tones {
 
 /// One push: speed window, peak speed, shaking.
 #[derive(Debug, Clone, PartialEq)]
-struct Push {
+pub(super) struct Push {
     /// The advance: speed = `speed_mps` × window.
-    window: Window,
+    pub window: Window,
     /// When the machine shakes: the trolley while it rolls; the cutter
     /// from 10 s before the advance until 5 s after it.
-    shake: Window,
-    speed_mps: f64,
+    pub shake: Window,
+    pub speed_mps: f64,
     /// Distance travelled before this push.
-    distance_before_m: f64,
+    pub distance_before_m: f64,
     /// Stretches where the accelerations / the wobble drop to a tenth.
-    quiet_accel: Option<Window>,
-    quiet_wobble: Option<Window>,
+    pub quiet_accel: Option<Window>,
+    pub quiet_wobble: Option<Window>,
+    /// Along-track displacement tones (m) that make the speed fluctuate,
+    /// weighted by the square of the speed window so they vanish at rest.
+    pub fluctuation: Option<Tones>,
 }
 
 impl Push {
@@ -365,23 +392,65 @@ impl Push {
 
 /// The shaking of a moving machine, per unit of envelope.
 #[derive(Debug, Clone, PartialEq)]
-struct Shaking {
-    vertical: Tones,
-    sideways: Tones,
-    roll: Tones,
-    pitch: Tones,
-    yaw: Tones,
+pub(super) struct Shaking {
+    pub vertical: Tones,
+    pub sideways: Tones,
+    pub roll: Tones,
+    pub pitch: Tones,
+    pub yaw: Tones,
 }
 
-/// The running machinery's vibration: tones (linear along the NED axes,
-/// angular on roll, pitch, yaw) and when it runs (`None`: never).
+impl Shaking {
+    /// No shaking at all.
+    pub fn none() -> Shaking {
+        let none = || Tones(Vec::new());
+        Shaking {
+            vertical: none(),
+            sideways: none(),
+            roll: none(),
+            pitch: none(),
+            yaw: none(),
+        }
+    }
+}
+
+/// A vibration: tones (linear along the NED axes, m/s² amplitudes, and
+/// angular on roll, pitch, yaw) and when it runs.
 #[derive(Debug, Clone, PartialEq)]
-struct Vibration {
+pub(super) struct Vibration {
     linear: [Tones; 3],
     angular: [Tones; 3],
-    /// On-windows, in order; empty with `always`.
-    on: Vec<Window>,
-    pattern: MachineryPattern,
+    gate: Gate,
+}
+
+/// When a vibration runs: inside any of `during` (`None`: always), times
+/// inside any of `switching` (`None`: always on).
+#[derive(Debug, Clone, PartialEq)]
+pub(super) struct Gate {
+    pub during: Option<Vec<Window>>,
+    pub switching: Option<Vec<Window>>,
+}
+
+impl Gate {
+    /// The envelope at `s`: value and two derivatives.
+    fn at(&self, s: f64) -> [f64; 3] {
+        let inside = |windows: &Option<Vec<Window>>| match windows {
+            None => [1.0, 0.0, 0.0],
+            Some(windows) => {
+                // Windows are in order and do not overlap.
+                let at = windows.partition_point(|w| w.end <= s);
+                windows
+                    .get(at)
+                    .filter(|w| s > w.start)
+                    .map_or([0.0; 3], |w| w.at(s))
+            }
+        };
+        let during = inside(&self.during);
+        if during == [0.0; 3] {
+            return during;
+        }
+        product(during, inside(&self.switching))
+    }
 }
 
 impl Vibration {
@@ -415,30 +484,35 @@ impl Vibration {
                 t += length + rng.random_range(60.0..300.0);
             }
         }
+        let gate = match machinery.pattern {
+            MachineryPattern::Always => Gate {
+                during: None,
+                switching: None,
+            },
+            MachineryPattern::Off | MachineryPattern::Cycling => Gate {
+                during: Some(on),
+                switching: None,
+            },
+        };
         Ok(Vibration {
             linear,
             angular,
-            on,
-            pattern: machinery.pattern,
+            gate,
         })
     }
 
-    /// The envelope at `s` (value and two derivatives).
-    fn envelope(&self, s: f64) -> [f64; 3] {
-        match self.pattern {
-            MachineryPattern::Off => [0.0; 3],
-            MachineryPattern::Always => [1.0, 0.0, 0.0],
-            MachineryPattern::Cycling => self
-                .on
-                .iter()
-                .find(|w| s > w.start && s < w.end)
-                .map_or([0.0; 3], |w| w.at(s)),
+    /// A vibration of the given tones, gated.
+    pub(super) fn new_gated(linear: [Tones; 3], angular: [Tones; 3], gate: Gate) -> Vibration {
+        Vibration {
+            linear,
+            angular,
+            gate,
         }
     }
 
     /// Adds the vibration at `s` to the motion.
     fn shake(&self, s: f64, k: &mut Kinematics) {
-        let envelope = self.envelope(s);
+        let envelope = self.gate.at(s);
         if envelope == [0.0; 3] {
             return;
         }
@@ -454,14 +528,31 @@ impl Vibration {
     }
 }
 
+/// What a drive is made of (the cases' and the envelope's).
+pub(super) struct Parts {
+    pub scenario: PipeJackScenario,
+    pub pushes: Vec<Push>,
+    pub shaking: Shaking,
+    pub vibrations: Vec<Vibration>,
+    /// Length of the drive, s.
+    pub end_t: f64,
+    pub roll0_rad: f64,
+    pub sensors: SensorGrade,
+    pub odometer_scale: Option<f64>,
+}
+
 /// The drive: schedule, shaking and sensor errors, generated from the seed.
 #[derive(Debug, Clone)]
 pub struct PipeJackDrive {
     scenario: PipeJackScenario,
     pushes: Vec<Push>,
     shaking: Shaking,
-    vibration: Vibration,
+    /// Vibrations that do not move the machine (machinery, rolling).
+    vibrations: Vec<Vibration>,
     end_t: f64,
+    sensors: SensorGrade,
+    /// The odometer's scale error (1.002: reads 0.2 % long); `None`: no odometer.
+    odometer_scale: Option<f64>,
     site: Site,
     heading_rad: f64,
     slope_rad: f64,
@@ -540,26 +631,55 @@ impl PipeJackDrive {
             last + final_rest_s,
             &mut vibration_rng,
         )?;
+        let roll0_rad = rad(rng.random_range(-1.0..1.0));
+        Ok(PipeJackDrive::from_parts(Parts {
+            end_t: last + final_rest_s,
+            scenario,
+            pushes,
+            shaking,
+            vibrations: vec![vibration],
+            roll0_rad,
+            sensors: SensorGrade::PAPER,
+            odometer_scale: Some(1.002),
+        }))
+    }
+
+    /// The drive made of `parts`; the sensors' errors are drawn from the
+    /// scenario's seed.
+    pub(super) fn from_parts(parts: Parts) -> PipeJackDrive {
+        let Parts {
+            scenario,
+            pushes,
+            shaking,
+            vibrations,
+            end_t,
+            roll0_rad,
+            sensors,
+            odometer_scale,
+        } = parts;
         let mut imu_rng = ChaCha8Rng::seed_from_u64(scenario.seed);
         imu_rng.set_stream(1);
         let mut aid_rng = ChaCha8Rng::seed_from_u64(scenario.seed);
         aid_rng.set_stream(2);
-        let gyro_bias_sigma = rad(0.5) / 3600.0;
+        let gyro_bias_sigma = rad(sensors.gyro_bias_deg_per_h) / 3600.0;
         let gyro_bias_rad_per_s = V3::from_fn(|_, _| gyro_bias_sigma * normal(&mut imu_rng));
-        let accel_bias_mps2 = V3::from_fn(|_, _| 1e-3 * 9.806_65 * normal(&mut imu_rng));
-        Ok(PipeJackDrive {
+        let accel_bias_mps2 =
+            V3::from_fn(|_, _| sensors.accel_bias_mg * 1e-3 * 9.806_65 * normal(&mut imu_rng));
+        PipeJackDrive {
             site: Site {
                 lat_rad: rad(scenario.latitude_deg),
                 height_m: scenario.start_height_m,
             },
             heading_rad: rad(scenario.heading_deg),
             slope_rad: rad(scenario.slope_deg),
-            roll0_rad: rad(rng.random_range(-1.0..1.0)),
-            end_t: last + final_rest_s,
+            roll0_rad,
+            end_t,
             scenario,
             pushes,
             shaking,
-            vibration,
+            vibrations,
+            sensors,
+            odometer_scale,
             gyro_bias_rad_per_s,
             accel_bias_mps2,
             imu_rng,
@@ -568,7 +688,17 @@ impl PipeJackDrive {
             next_aid_s: 0,
             push: 0,
             queued: Vec::new(),
-        })
+        }
+    }
+
+    /// Whether the drive has an odometer.
+    pub fn has_odometer(&self) -> bool {
+        self.odometer_scale.is_some()
+    }
+
+    /// The IMU's error model.
+    pub fn sensors(&self) -> SensorGrade {
+        self.sensors
     }
 
     /// Length of the drive, s.
@@ -605,7 +735,9 @@ impl PipeJackDrive {
     /// whether the machine stands still.
     fn truth_at(&mut self, s: f64) -> Kinematics {
         let mut k = self.motion_at(s);
-        self.vibration.shake(s, &mut k);
+        for vibration in &self.vibrations {
+            vibration.shake(s, &mut k);
+        }
         k
     }
 
@@ -636,8 +768,14 @@ impl PipeJackDrive {
         k.still = s <= push.window.start || s >= push.window.end;
         let ramp = push.window.at(s);
         k.distance_m = push.distance_before_m + push.speed_mps * push.window.integral(s);
-        let speed = push.speed_mps * ramp[0];
-        let accel = push.speed_mps * ramp[1];
+        let mut speed = push.speed_mps * ramp[0];
+        let mut accel = push.speed_mps * ramp[1];
+        if let Some(tones) = &push.fluctuation {
+            let [d, v, a] = product(product(ramp, ramp), tones.at(s));
+            k.distance_m += d;
+            speed += v;
+            accel += a;
+        }
         let shake_a = push.shaking(s, &push.quiet_accel);
         let shake_g = push.shaking(s, &push.quiet_wobble);
         let vertical = product(shake_a, self.shaking.vertical.at(s));
@@ -686,11 +824,12 @@ impl PipeJackDrive {
         let rate_b = body_rate + attitude.inverse() * (earth + transport);
         // Sensor errors.
         let dt = self.scenario.imu_period_s();
-        let bias_rw = rad(0.05) / 3600.0 / 60.0 * dt.sqrt();
+        let grade = self.sensors;
+        let bias_rw = rad(grade.gyro_bias_rw_deg_per_h_per_sqrt_h) / 3600.0 / 60.0 * dt.sqrt();
         let rng = &mut self.imu_rng;
         self.gyro_bias_rad_per_s += V3::from_fn(|_, _| bias_rw * normal(rng));
-        let arw = rad(0.05) / 60.0 / dt.sqrt();
-        let accel_noise = 50e-6 * 9.806_65 / dt.sqrt();
+        let arw = rad(grade.gyro_arw_deg_per_sqrt_h) / 60.0 / dt.sqrt();
+        let accel_noise = grade.accel_vrw_ug_per_sqrt_hz * 1e-6 * 9.806_65 / dt.sqrt();
         let gyro = rate_b + self.gyro_bias_rad_per_s + V3::from_fn(|_, _| arw * normal(rng));
         let accel = force_b + self.accel_bias_mps2 + V3::from_fn(|_, _| accel_noise * normal(rng));
         let t = self.scenario.start_t + s;
@@ -720,15 +859,19 @@ impl PipeJackDrive {
         let t = self.scenario.start_t + s;
         let height_m =
             self.scenario.start_height_m - k.position_m.z + 0.0005 * normal(&mut self.aid_rng);
-        let distance_m = self.scenario.start_odometer_m
-            + k.distance_m * 1.002
-            + 0.001 * normal(&mut self.aid_rng);
-        self.queued.push(Reading {
-            t,
-            data: SensorData::Odometer {
-                distance_m: (distance_m * 1e4).round() / 1e4,
-            },
-        });
+        // Drawn whether or not there is an odometer: the level's noise
+        // stays the same.
+        let odometer_noise_m = 0.001 * normal(&mut self.aid_rng);
+        if let Some(scale) = self.odometer_scale {
+            let distance_m =
+                self.scenario.start_odometer_m + k.distance_m * scale + odometer_noise_m;
+            self.queued.push(Reading {
+                t,
+                data: SensorData::Odometer {
+                    distance_m: (distance_m * 1e4).round() / 1e4,
+                },
+            });
+        }
         self.queued.push(Reading {
             t,
             data: SensorData::Level {
@@ -835,6 +978,7 @@ fn schedule(scenario: &PipeJackScenario, rng: &mut ChaCha8Rng) -> Vec<Push> {
             distance_before_m: distance,
             quiet_accel,
             quiet_wobble,
+            fluctuation: None,
         };
         distance += push.distance_m();
         pushes.push(push);
