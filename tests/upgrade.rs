@@ -373,7 +373,11 @@ async fn a_database_from_before_issue_19_opens_serves_and_continues() {
         assert_eq!(old_estimates.len(), stored_estimates, "{machine}");
         let mut replayed_old = replay_with_params(machine, engine, &params, &old_lines);
         // Fields added since, which rows stored before carry as null.
-        for (added_engine, field) in [("zupt", "attitude_sigma_deg")] {
+        for (added_engine, field) in [
+            ("zupt", "attitude_sigma_deg"),
+            ("zupt", "pitch_sigma_deg"),
+            ("zupt", "roll_sigma_deg"),
+        ] {
             if engine == added_engine {
                 for e in &mut replayed_old {
                     e[field] = serde_json::Value::Null;

@@ -802,6 +802,8 @@ mod tests {
                     mag_ratio: 0.0,
                     yaw_sigma_deg: Some(0.1),
                     attitude_sigma_deg: Some([0.05, 0.05, 0.1]),
+                    pitch_sigma_deg: None,
+                    roll_sigma_deg: None,
                     smoothed_push: None,
                 }),
             };

@@ -305,6 +305,8 @@ mod tests {
                     mag_ratio: 1e-9,
                     yaw_sigma_deg: Some(0.012),
                     attitude_sigma_deg: Some([0.004, 0.005, 0.012]),
+                    pitch_sigma_deg: None,
+                    roll_sigma_deg: None,
                     smoothed_push: Some(vec![
                         TrackPoint {
                             t: 1.5,

@@ -671,6 +671,8 @@ mod tests {
                 mag_ratio: 0.0,
                 yaw_sigma_deg: None,
                 attitude_sigma_deg: None,
+                pitch_sigma_deg: None,
+                roll_sigma_deg: None,
                 smoothed_push: None,
             }),
         }

@@ -44,6 +44,11 @@ pub struct ZuptEstimate {
     /// filter's covariance, degrees (tilt and heading); `null` before
     /// alignment and in estimates stored before it was reported.
     pub attitude_sigma_deg: Option<[f64; 3]>,
+    /// 1σ of pitch and of roll, degrees: the attitude covariance about the
+    /// machine's level right and forward axes; `null` before alignment and
+    /// in estimates stored before they were reported.
+    pub pitch_sigma_deg: Option<f64>,
+    pub roll_sigma_deg: Option<f64>,
     /// On the estimate at which a push ends (the first epoch decided still
     /// after it): the push's track smoothed over both of its still ends,
     /// from the last still epoch before it, about one point a second;
@@ -65,8 +70,9 @@ pub struct TrackPoint {
 
 /// Stored estimates of this release: postcard of [`ZuptEstimate`].
 /// 1: before the heading σ and the smoothed push ([`ZuptEstimateV1`]);
-/// 2: before the attitude σ ([`ZuptEstimateV2`]).
-pub const CODEC_VERSION: u32 = 3;
+/// 2: before the attitude σ ([`ZuptEstimateV2`]); 3: before the pitch and
+/// roll σ ([`ZuptEstimateV3`]).
+pub const CODEC_VERSION: u32 = 4;
 
 impl ZuptEstimate {
     /// The fields after `"engine"`, as serde_json writes them.
@@ -91,6 +97,8 @@ impl ZuptEstimate {
             Some(sigma) => w.triple("attitude_sigma_deg", sigma),
             None => w.null("attitude_sigma_deg"),
         }
+        w.optional("pitch_sigma_deg", self.pitch_sigma_deg);
+        w.optional("roll_sigma_deg", self.roll_sigma_deg);
         match &self.smoothed_push {
             None => w.null("smoothed_push"),
             Some(points) => w.objects("smoothed_push", points, |point, w| {
@@ -112,11 +120,13 @@ impl ZuptEstimate {
     pub fn decode(version: u32, bytes: &[u8]) -> Result<ZuptEstimate, postcard::Error> {
         let v1 = |bytes| postcard::from_bytes::<ZuptEstimateV1>(bytes).map(ZuptEstimate::from);
         let v2 = |bytes| postcard::from_bytes::<ZuptEstimateV2>(bytes).map(ZuptEstimate::from);
+        let v3 = |bytes| postcard::from_bytes::<ZuptEstimateV3>(bytes).map(ZuptEstimate::from);
         match version {
             0 => v2(bytes).or_else(|_| v1(bytes)),
             1 => v1(bytes),
             2 => v2(bytes),
-            3 => postcard::from_bytes(bytes),
+            3 => v3(bytes),
+            4 => postcard::from_bytes(bytes),
             _ => Err(postcard::Error::DeserializeBadEncoding),
         }
     }
@@ -168,6 +178,8 @@ impl From<ZuptEstimateV1> for ZuptEstimate {
             mag_ratio: v.mag_ratio,
             yaw_sigma_deg: None,
             attitude_sigma_deg: None,
+            pitch_sigma_deg: None,
+            roll_sigma_deg: None,
             smoothed_push: None,
         }
     }
@@ -216,6 +228,59 @@ impl From<ZuptEstimateV2> for ZuptEstimate {
             mag_ratio: v.mag_ratio,
             yaw_sigma_deg: v.yaw_sigma_deg,
             attitude_sigma_deg: None,
+            pitch_sigma_deg: None,
+            roll_sigma_deg: None,
+            smoothed_push: v.smoothed_push,
+        }
+    }
+}
+
+/// A `zupt` estimate as releases before the pitch and roll σ stored it
+/// (codec version 3).
+#[derive(Deserialize)]
+struct ZuptEstimateV3 {
+    zv: bool,
+    position_m: [f64; 3],
+    distance_m: f64,
+    velocity_mps: [f64; 3],
+    pitch_deg: f64,
+    roll_deg: f64,
+    yaw_deg: f64,
+    aligned: bool,
+    position_sigma_m: [f64; 3],
+    height_m: Option<f64>,
+    odometer_m: Option<f64>,
+    mv_ratio: f64,
+    are_ratio: f64,
+    shoe_ratio: f64,
+    mag_ratio: f64,
+    yaw_sigma_deg: Option<f64>,
+    attitude_sigma_deg: Option<[f64; 3]>,
+    smoothed_push: Option<Vec<TrackPoint>>,
+}
+
+impl From<ZuptEstimateV3> for ZuptEstimate {
+    fn from(v: ZuptEstimateV3) -> ZuptEstimate {
+        ZuptEstimate {
+            zv: v.zv,
+            position_m: v.position_m,
+            distance_m: v.distance_m,
+            velocity_mps: v.velocity_mps,
+            pitch_deg: v.pitch_deg,
+            roll_deg: v.roll_deg,
+            yaw_deg: v.yaw_deg,
+            aligned: v.aligned,
+            position_sigma_m: v.position_sigma_m,
+            height_m: v.height_m,
+            odometer_m: v.odometer_m,
+            mv_ratio: v.mv_ratio,
+            are_ratio: v.are_ratio,
+            shoe_ratio: v.shoe_ratio,
+            mag_ratio: v.mag_ratio,
+            yaw_sigma_deg: v.yaw_sigma_deg,
+            attitude_sigma_deg: v.attitude_sigma_deg,
+            pitch_sigma_deg: None,
+            roll_sigma_deg: None,
             smoothed_push: v.smoothed_push,
         }
     }
@@ -276,6 +341,8 @@ mod tests {
         }
         let current = ZuptEstimate {
             attitude_sigma_deg: Some([0.04, 0.05, 0.4]),
+            pitch_sigma_deg: Some(0.045),
+            roll_sigma_deg: Some(0.046),
             ..ZuptEstimate::decode(2, &bytes).unwrap()
         };
         assert_eq!(

@@ -27,6 +27,7 @@ pub mod detectors;
 pub mod eskf;
 pub mod estimate;
 pub mod params;
+pub mod rest_check;
 pub mod smoother;
 pub mod strapdown;
 pub mod zero_velocity;
@@ -43,6 +44,7 @@ use self::eskf::{
 };
 use self::estimate::{TrackPoint, ZuptEstimate};
 pub use self::params::{PARAMS, ZuptConfig, ZuptParams};
+use self::rest_check::{Refusal, RestCheck};
 use self::smoother::{Point, PushRecord};
 use self::strapdown::{Increment, NavState};
 use self::zero_velocity::{Decision, DetectorKind, ZeroVelocityPipeline};
@@ -59,8 +61,8 @@ use crate::fusion::geometry::{
 /// Version of the engine's snapshot. A snapshot of another version is
 /// refused as [`SnapshotError::Outdated`]; the machine is then rebuilt from
 /// its stored readings. 2: integrated detector signals, learned rest
-/// levels, zero-angular-rate updates.
-pub const STATE_VERSION: u32 = 2;
+/// levels, zero-angular-rate updates; 3: the rest check.
+pub const STATE_VERSION: u32 = 3;
 /// Level or odometer readings kept waiting for the navigation time.
 const MAX_PENDING_AIDS: usize = 1024;
 /// Two odometer readings further apart than this give no speed.
@@ -97,6 +99,12 @@ pub struct ZuptStats {
     pub odometer_updates: u64,
     /// Odometer speeds refused by the gate (a slipping wheel, a reset counter).
     pub odometer_refused: u64,
+    /// Readings the detector called still whose rest the check refused:
+    /// for the filter's velocity, and for the odometer's advance.
+    #[serde(default)]
+    pub rests_refused_velocity: u64,
+    #[serde(default)]
+    pub rests_refused_odometer: u64,
     /// Updates skipped because the innovation covariance was singular.
     pub updates_failed: u64,
     /// Level or odometer readings dropped because too many were waiting.
@@ -151,6 +159,8 @@ pub struct ZuptEngine {
     odometers: VecDeque<(f64, f64)>,
     /// The newest odometer reading the navigation time has passed.
     odometer: Option<(f64, f64)>,
+    /// The check of called rests (`rest_check`).
+    rest_check: RestCheck,
     stats: ZuptStats,
     /// Scratch for the pipeline's decisions, kept to spare an allocation
     /// per reading; always empty between calls.
@@ -177,6 +187,7 @@ impl ZuptEngine {
             levels: VecDeque::new(),
             odometers: VecDeque::new(),
             odometer: None,
+            rest_check: RestCheck::default(),
             stats: ZuptStats::default(),
             decided: Vec::new(),
         })
@@ -283,6 +294,43 @@ impl ZuptEngine {
         self.decided = decided;
     }
 
+    /// Feeds a reading with its zero-velocity decision given from outside
+    /// (the evaluation's oracle, which knows the truth): an IMU reading
+    /// skips the detector and is navigated at once; other readings are
+    /// fed as usual.
+    pub fn feed_decided(
+        &mut self,
+        reading: &Reading,
+        zero_velocity: bool,
+        out: &mut Vec<EngineOutput>,
+    ) {
+        let SensorData::Imu {
+            accel_mps2,
+            gyro_dps,
+        } = &reading.data
+        else {
+            return self.feed(reading, out);
+        };
+        if self.newest_imu_t.is_some_and(|newest| reading.t <= newest) {
+            self.stats.imu_dropped += 1;
+            return;
+        }
+        self.newest_imu_t = Some(reading.t);
+        self.stats.imu_used += 1;
+        let sample = ImuSample {
+            t: reading.t,
+            accel_mps2: V3::from(*accel_mps2),
+            gyro_rad_per_s: V3::from(*gyro_dps).map(rad),
+        };
+        let decision = Decision {
+            zv: zero_velocity,
+            still: zero_velocity,
+            statistics: Statistics::default(),
+            thresholds: self.config.pipeline.thresholds,
+        };
+        out.push(self.navigate(sample, decision));
+    }
+
     /// Navigates decided readings in order, leaving `decided` empty.
     fn navigate_all(
         &mut self,
@@ -339,12 +387,27 @@ impl ZuptEngine {
             {
                 nav.pending_odometer_speed_mps = Some((distance_m - prev_m) / (odo_t - prev_t));
             }
+            if let Some(check) = &self.config.rest_check {
+                self.rest_check.odometer(check, odo_t, distance_m);
+            }
             self.odometer = Some((odo_t, distance_m));
         }
     }
 
-    fn navigate(&mut self, sample: ImuSample, decision: Decision) -> EngineOutput {
+    fn navigate(&mut self, sample: ImuSample, mut decision: Decision) -> EngineOutput {
         let config = self.config;
+        // Not aligned yet: only the odometer can veto the rest that aligns.
+        if self.navigation.is_none()
+            && decision.zv
+            && let Some(check) = &config.rest_check
+            && self
+                .rest_check
+                .judge(check, sample.t, None, config.zupt_sigma_mps.powi(2))
+                .is_some()
+        {
+            decision.zv = false;
+            self.stats.rests_refused_odometer += 1;
+        }
         if self.navigation.is_none()
             && (decision.zv || config.pipeline.detector == DetectorKind::None)
         {
@@ -368,6 +431,35 @@ impl ZuptEngine {
             nav.interval_s += dt_s;
             nav.force_integral += force_n * dt_s;
             nav.rate_integral += increment.gyro_rad_per_s * dt_s;
+        }
+        if let Some(check) = &config.rest_check {
+            if decision.zv {
+                let p_v = nav.filter.p.fixed_view::<3, 3>(VEL, VEL).into_owned();
+                let verdict = self.rest_check.judge(
+                    check,
+                    sample.t,
+                    Some((&nav.state.velocity_mps, &p_v)),
+                    config.zupt_sigma_mps.powi(2),
+                );
+                match verdict {
+                    None => {}
+                    Some(Refusal::Odometer) => self.stats.rests_refused_odometer += 1,
+                    Some(Refusal::Velocity | Refusal::StillMoving) => {
+                        self.stats.rests_refused_velocity += 1
+                    }
+                }
+                decision.zv &= verdict.is_none();
+            } else {
+                let p_v = nav.filter.p.fixed_view::<3, 3>(VEL, VEL).into_owned();
+                self.rest_check.moving(
+                    check,
+                    &nav.state.velocity_mps,
+                    &p_v,
+                    config.zupt_sigma_mps.powi(2),
+                );
+            }
+        }
+        if nav.previous.is_some() {
             nav.interval_still &= decision.zv;
         }
         nav.previous = Some(sample);
@@ -390,6 +482,7 @@ impl ZuptEngine {
         let sigma = nav.filter.sigma(POS);
         let attitude_sigma = nav.filter.sigma(ATT);
         let yaw_sigma_deg = deg(attitude_sigma.z);
+        let tilt_sigma_deg = tilt_sigma(&nav.filter.p, yaw).map(deg);
         let velocity = nav.state.velocity_mps;
         EngineOutput {
             t: sample.t,
@@ -408,6 +501,7 @@ impl ZuptEngine {
                     deg(attitude_sigma.y),
                     deg(attitude_sigma.z),
                 ]),
+                Some(tilt_sigma_deg),
                 smoothed_push,
             )),
         }
@@ -430,6 +524,7 @@ impl ZuptEngine {
                 None,
                 None,
                 None,
+                None,
             )),
         }
     }
@@ -447,6 +542,7 @@ impl ZuptEngine {
         height_m: Option<f64>,
         yaw_sigma_deg: Option<f64>,
         attitude_sigma_deg: Option<[f64; 3]>,
+        tilt_sigma_deg: Option<[f64; 2]>,
         smoothed_push: Option<Vec<TrackPoint>>,
     ) -> ZuptEstimate {
         let s = &decision.statistics;
@@ -476,6 +572,8 @@ impl ZuptEngine {
             mag_ratio: ratio(s.mag, g.mag),
             yaw_sigma_deg,
             attitude_sigma_deg,
+            pitch_sigma_deg: tilt_sigma_deg.map(|[pitch, _]| pitch),
+            roll_sigma_deg: tilt_sigma_deg.map(|[_, roll]| roll),
             smoothed_push,
         }
     }
@@ -521,6 +619,20 @@ impl ZuptEngine {
             pending_odometer_speed_mps: None,
         }
     }
+}
+
+/// 1σ of pitch and roll, rad, from the attitude covariance (errors about
+/// north, east, down) at heading `yaw`: pitch turns about the level right
+/// axis (−sin ψ, cos ψ, 0), roll about the level forward axis (cos ψ,
+/// sin ψ, 0); σ² = uᵀ P_φ u for each.
+fn tilt_sigma(p: &eskf::Covariance, yaw: f64) -> [f64; 2] {
+    let p_att = p.fixed_view::<2, 2>(ATT, ATT);
+    let (sin, cos) = yaw.sin_cos();
+    let along = |u: nalgebra::Vector2<f64>| (u.transpose() * p_att * u)[(0, 0)].max(0.0).sqrt();
+    [
+        along(nalgebra::Vector2::new(-sin, cos)),
+        along(nalgebra::Vector2::new(cos, sin)),
+    ]
 }
 
 /// A displacement projected on the body's forward axis.

@@ -5,6 +5,7 @@ use serde::{Deserialize, Serialize};
 
 use super::detectors::{DetectorNoise, Signals};
 use super::eskf::ProcessNoise;
+use super::rest_check::RestCheckConfig;
 use super::strapdown::Site;
 use super::zero_velocity::{Adaptation, DetectorKind, PipelineConfig, Thresholds};
 use crate::fusion::angles::rad;
@@ -198,6 +199,45 @@ param_table! {
             "m/s",
             "noise of the zero-velocity pseudo-measurement",
         ),
+        rest_check: bool = flag(
+            false,
+            "test each rest the detector calls against the filter's velocity and the odometer before its zero-velocity update (rest_check.rs; not yet the default: see docs/engines/zupt.md); false: every called rest is one (the paper)",
+        ),
+        rest_gate_chi2: f64 = real(
+            16.27,
+            1.0,
+            1.0e6,
+            "",
+            "a called rest is refused when the filter's velocity is further than this squared Mahalanobis distance from standing (χ², 3 degrees of freedom: 16.27 refuses 0.1 % of true rests)",
+        ),
+        rest_speed_change: f64 = real(
+            0.3,
+            0.0,
+            10.0,
+            "",
+            "how much a machine's speed may change within a push, as a share of it, for the rest check's \"still moving\" prediction",
+        ),
+        rest_motion_evidence: f64 = real(
+            3.0,
+            0.0,
+            1000.0,
+            "",
+            "a called rest is refused when the log-likelihood ratio of \"still moving as last known\" over \"standing\" exceeds this (3: twenty to one)",
+        ),
+        odometer_rest_m: f64 = real(
+            0.006,
+            0.0,
+            100.0,
+            "m",
+            "a called rest is refused while the odometer advanced more than this over odometer_rest_window_s",
+        ),
+        odometer_rest_window_s: f64 = real(
+            10.0,
+            1.0,
+            600.0,
+            "s",
+            "the window of odometer_rest_m (from the start of the detector's current rest at the earliest)",
+        ),
         zaru: bool = flag(
             true,
             "zero-angular-rate update at every rest: the gyros read the Earth's rotation there, so their biases (heading drift) are estimated",
@@ -267,6 +307,8 @@ pub struct ZuptConfig {
     pub accel_bias_sigma_mps2: f64,
     pub filter_period_s: f64,
     pub zupt_sigma_mps: f64,
+    /// The check of called rests; `None`: off (the paper).
+    pub rest_check: Option<RestCheckConfig>,
     /// Zero-angular-rate updates at rest, and the settling rate allowed, rad/s.
     pub zaru: bool,
     pub zaru_sigma_rad_per_s: f64,
@@ -335,6 +377,13 @@ impl ZuptConfig {
             accel_bias_sigma_mps2: p.accel_bias_sigma_mg * 1e-3 * STANDARD_GRAVITY_MPS2,
             filter_period_s: p.filter_period_s,
             zupt_sigma_mps: p.zupt_sigma_mps,
+            rest_check: p.rest_check.then_some(RestCheckConfig {
+                gate_chi2: p.rest_gate_chi2,
+                odometer_advance_m: p.odometer_rest_m,
+                odometer_window_s: p.odometer_rest_window_s,
+                speed_change: p.rest_speed_change,
+                motion_evidence: p.rest_motion_evidence,
+            }),
             zaru: p.zaru,
             zaru_sigma_rad_per_s: rad_per_s_from_deg_per_h(p.zaru_sigma_deg_per_h),
             smooth_pushes: p.smooth_pushes,
