@@ -9,7 +9,7 @@ use crate::eval::attitude::{
     render_table, summarise,
 };
 use crate::eval::kf3::Kf3Noise;
-use crate::eval::{fuzzy, zupt};
+use crate::eval::{fuzzy, zupt, zupt_envelope};
 use crate::fusion::{EngineKind, Params};
 use crate::sim::tbm::Dropout;
 use crate::sim::tbm_envelope::EnvelopeDrive;
@@ -114,9 +114,16 @@ pub struct FuzzyArgs {
 pub struct ZuptArgs {
     #[command(flatten)]
     pub drive: PipeJackArgs,
+    /// Drives drawn from the whole envelope (`simulate pipe-jacking
+    /// --envelope`) instead of a case: --seeds of them from --seed on, each
+    /// run by the engine, the paper's detector and an oracle fed the true
+    /// zero-velocity flags; a line per drive, the median and worst, the bars.
+    #[arg(long, conflicts_with_all = ["case", "push_s", "rest_s", "machinery"])]
+    pub envelope: bool,
     /// Seeds to run from --seed on (each a separate drive; a table each).
-    #[arg(long, default_value_t = 1)]
-    pub seeds: u64,
+    /// Default: 1, or 40 with --envelope.
+    #[arg(long)]
+    pub seeds: Option<u64>,
     /// An engine parameter as name=value (repeatable).
     #[arg(long = "param", value_name = "NAME=VALUE")]
     pub params: Vec<String>,
@@ -262,16 +269,39 @@ pub fn run(target: EvalTarget) -> Result<(), CliError> {
                 crate::fusion::zupt::PARAMS,
                 args.params.iter().map(String::as_str),
             )?;
-            each_seed(args.drive.seed, args.seeds, args.json, |seed| {
-                let mut scenario = args.drive.scenario();
-                scenario.seed = seed;
-                let evaluation = zupt::evaluate(&zupt::ZuptEvalConfig {
-                    scenario,
-                    params: params.clone(),
-                })?;
-                let table = zupt::render_table(&evaluation);
-                Ok((serde_json::to_value(&evaluation), table))
-            })
+            if args.envelope {
+                let first = args.drive.seed;
+                let seeds: Vec<u64> =
+                    (first..first.saturating_add(args.seeds.unwrap_or(40).max(1))).collect();
+                let threads = std::thread::available_parallelism().map_or(1, usize::from);
+                let drives = zupt_envelope::evaluate_all(&seeds, &params, threads)?;
+                let summary = zupt_envelope::summarise(&drives);
+                if args.json {
+                    let value = serde_json::json!({"summary": summary, "drives": drives});
+                    println!(
+                        "{}",
+                        serde_json::to_string_pretty(&value).map_err(std::io::Error::other)?
+                    );
+                } else {
+                    print!("{}", zupt_envelope::render(&drives, &summary));
+                }
+                return Ok(());
+            }
+            each_seed(
+                args.drive.seed,
+                args.seeds.unwrap_or(1),
+                args.json,
+                |seed| {
+                    let mut scenario = args.drive.scenario();
+                    scenario.seed = seed;
+                    let evaluation = zupt::evaluate(&zupt::ZuptEvalConfig {
+                        scenario,
+                        params: params.clone(),
+                    })?;
+                    let table = zupt::render_table(&evaluation);
+                    Ok((serde_json::to_value(&evaluation), table))
+                },
+            )
         }
         EvalTarget::Attitude(args) => {
             let params = EngineKind::Attitude

@@ -601,32 +601,8 @@ pub fn evaluate_all(
     configs: &[AttitudeEvalConfig],
     threads: usize,
 ) -> Result<Vec<AttitudeEvaluation>, EvalError> {
-    use std::sync::Mutex;
-    use std::sync::atomic::{AtomicUsize, Ordering};
-    let next = AtomicUsize::new(0);
-    let results: Mutex<Vec<Option<Result<AttitudeEvaluation, EvalError>>>> =
-        Mutex::new((0..configs.len()).map(|_| None).collect());
-    std::thread::scope(|scope| {
-        for _ in 0..threads.clamp(1, configs.len().max(1)) {
-            scope.spawn(|| {
-                loop {
-                    let i = next.fetch_add(1, Ordering::Relaxed);
-                    let Some(config) = configs.get(i) else {
-                        break;
-                    };
-                    let result = evaluate(config);
-                    if let Ok(mut slots) = results.lock() {
-                        slots[i] = Some(result);
-                    }
-                }
-            });
-        }
-    });
-    results
-        .into_inner()
-        .unwrap_or_default()
+    super::parallel_map(configs, threads, evaluate)
         .into_iter()
-        .map(|r| r.unwrap_or_else(|| Err(EvalError::Scenario("evaluation did not run".into()))))
         .collect()
 }
 

@@ -1,0 +1,516 @@
+//! `eval zupt --envelope`: the `zupt` engine over drives drawn from the
+//! whole envelope ([`crate::sim::pipejack_envelope`]), beside two
+//! yardsticks run through the same filter on the same drives:
+//!
+//! - `engine`: the parameters given (defaults unless `--param`);
+//! - `paper`: the paper's detector, TCZVD on the raw samples with fixed
+//!   thresholds, every called rest a zero-velocity update
+//!   (`detector_signals=raw`, `threshold_adapt=false`, `rest_check=false`);
+//! - `oracle`: the true zero-velocity flags in place of any detector.
+//!
+//! Every run is told the site's latitude and a start heading whose error
+//! is drawn from the declared `initial_yaw_sigma_deg` (the same error for
+//! the three runs of a drive). The odometer, where the drive has one, is
+//! read by the rest check but not fused (`odometer_aiding` stays as
+//! given): the figures are those of the zero-velocity updates.
+//!
+//! Scores per run: zero-velocity precision and recall per IMU reading
+//! against the truth (not advancing); the final along-track distance error
+//! in % of the distance travelled; the final horizontal position error;
+//! the final heading error; and, over every aligned estimate, how often
+//! |error| ≤ 2σ for north, east, down, heading, pitch and roll.
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::StandardNormal;
+use serde::Serialize;
+
+use super::attitude::Spread;
+use crate::fusion::zupt::{PARAMS, ZuptEngine};
+use crate::fusion::{Engine, EngineOutput, ParamError, ParamValue, Params, Reading};
+use crate::sim::pipejack::PipeJackTruth;
+use crate::sim::pipejack_envelope::PipeJackEnvelope;
+
+/// The runs, in the order they are reported.
+pub const RUNS: [&str; 3] = ["engine", "paper", "oracle"];
+
+/// Components whose 2σ coverage is counted.
+pub const COVERED: [&str; 6] = ["north", "east", "down", "heading", "pitch", "roll"];
+
+/// One run's scores on one drive.
+#[derive(Debug, Clone, Serialize)]
+pub struct RunScores {
+    pub run: String,
+    pub precision: f64,
+    pub recall: f64,
+    /// Seconds declared still while the machine advanced.
+    pub false_zv_s: f64,
+    pub distance_error_pct: f64,
+    pub horizontal_error_m: f64,
+    pub heading_error_deg: f64,
+    /// Per [`COVERED`] component: estimates with |error| ≤ 2σ, and estimates.
+    pub within_2_sigma: [u64; 6],
+    pub estimates: u64,
+}
+
+/// One drive and its runs.
+#[derive(Debug, Clone, Serialize)]
+pub struct DriveScores {
+    pub drive: PipeJackEnvelope,
+    pub duration_s: f64,
+    pub distance_m: f64,
+    pub initial_yaw_error_deg: f64,
+    pub runs: Vec<RunScores>,
+}
+
+impl DriveScores {
+    /// The scores of run `label`.
+    pub fn run(&self, label: &str) -> Option<&RunScores> {
+        self.runs.iter().find(|r| r.run == label)
+    }
+}
+
+/// Runs the three runs on the drive of `seed`, with `params` as the
+/// engine's (site, heading and the runs' own settings are set here).
+pub fn evaluate_drive(seed: u64, params: &Params) -> Result<DriveScores, ParamError> {
+    evaluate_envelope(&PipeJackEnvelope::draw(seed), params)
+}
+
+/// Runs the three runs on the drive `envelope` describes (its seed draws
+/// the start heading's error).
+pub fn evaluate_envelope(
+    envelope: &PipeJackEnvelope,
+    params: &Params,
+) -> Result<DriveScores, ParamError> {
+    let seed = envelope.seed;
+    let envelope = envelope.clone();
+    let drive = envelope.drive();
+    let duration_s = drive.duration_s();
+    let distance_m = drive.total_distance_m();
+    let mut readings = Vec::new();
+    let mut truths = Vec::new();
+    for event in drive {
+        if let Some(truth) = event.truth {
+            truths.push((readings.len(), truth));
+        }
+        readings.push(event.reading);
+    }
+    let yaw_sigma_deg = params.real("initial_yaw_sigma_deg")?;
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    rng.set_stream(20);
+    let initial_yaw_error_deg = yaw_sigma_deg * rng.sample::<f64, _>(StandardNormal);
+    let base = params.with_overrides(
+        PARAMS,
+        [
+            (
+                "latitude_deg".to_string(),
+                ParamValue::Number(envelope.latitude_deg),
+            ),
+            (
+                "initial_yaw_deg".to_string(),
+                ParamValue::Number(envelope.heading_deg + initial_yaw_error_deg),
+            ),
+        ],
+    )?;
+    let set = |assignments: &[(&str, ParamValue)]| {
+        base.with_overrides(
+            PARAMS,
+            assignments
+                .iter()
+                .map(|(name, value)| (name.to_string(), value.clone())),
+        )
+    };
+    let paper = set(&[
+        ("detector_signals", ParamValue::Text("raw".into())),
+        ("threshold_adapt", ParamValue::Bool(false)),
+        ("rest_check", ParamValue::Bool(false)),
+    ])?;
+    let oracle = set(&[("rest_check", ParamValue::Bool(false))])?;
+    let period_s = envelope.scenario().imu_period_s();
+    let mut runs = Vec::new();
+    for (label, params, truth_flags) in [
+        ("engine", base.clone(), false),
+        ("paper", paper, false),
+        ("oracle", oracle, true),
+    ] {
+        let outputs = run(&readings, &truths, params, truth_flags)?;
+        runs.push(score(label, &outputs, &truths, period_s));
+    }
+    Ok(DriveScores {
+        drive: envelope,
+        duration_s,
+        distance_m,
+        initial_yaw_error_deg,
+        runs,
+    })
+}
+
+/// Evaluates the drives of `seeds` on up to `threads` threads.
+pub fn evaluate_all(
+    seeds: &[u64],
+    params: &Params,
+    threads: usize,
+) -> Result<Vec<DriveScores>, ParamError> {
+    super::parallel_map(seeds, threads, |&seed| evaluate_drive(seed, params))
+        .into_iter()
+        .collect()
+}
+
+fn run(
+    readings: &[Reading],
+    truths: &[(usize, PipeJackTruth)],
+    params: Params,
+    truth_flags: bool,
+) -> Result<Vec<EngineOutput>, ParamError> {
+    let mut engine = ZuptEngine::new(params)?;
+    let mut outputs = Vec::with_capacity(truths.len());
+    let mut truth = truths.iter().peekable();
+    for (index, reading) in readings.iter().enumerate() {
+        if truth_flags {
+            while truth.peek().is_some_and(|(i, _)| *i < index) {
+                truth.next();
+            }
+            let zv = truth.peek().is_some_and(|(i, t)| *i == index && t.zv);
+            engine.feed_decided(reading, zv, &mut outputs);
+        } else {
+            engine.feed(reading, &mut outputs);
+        }
+    }
+    engine.flush(&mut outputs);
+    Ok(outputs)
+}
+
+/// The smallest difference between two angles, degrees.
+fn angle_error_deg(a: f64, b: f64) -> f64 {
+    ((a - b + 540.0).rem_euclid(360.0) - 180.0).abs()
+}
+
+fn score(
+    label: &str,
+    outputs: &[EngineOutput],
+    truths: &[(usize, PipeJackTruth)],
+    period_s: f64,
+) -> RunScores {
+    let (mut tp, mut fp, mut fn_) = (0u64, 0u64, 0u64);
+    let mut within = [0u64; 6];
+    let mut estimates = 0u64;
+    let mut last = None;
+    // One estimate per IMU reading, in order.
+    for (output, (_, truth)) in outputs.iter().zip(truths) {
+        let Some(e) = output.values.as_zupt() else {
+            continue;
+        };
+        match (e.zv, truth.zv) {
+            (true, true) => tp += 1,
+            (true, false) => fp += 1,
+            (false, true) => fn_ += 1,
+            (false, false) => {}
+        }
+        if e.aligned {
+            estimates += 1;
+            let sigma = [
+                e.position_sigma_m[0],
+                e.position_sigma_m[1],
+                e.position_sigma_m[2],
+                e.yaw_sigma_deg.unwrap_or(0.0),
+                e.pitch_sigma_deg.unwrap_or(0.0),
+                e.roll_sigma_deg.unwrap_or(0.0),
+            ];
+            let error = [
+                e.position_m[0] - truth.position_m[0],
+                e.position_m[1] - truth.position_m[1],
+                e.position_m[2] - truth.position_m[2],
+                angle_error_deg(e.yaw_deg, truth.yaw_deg),
+                e.pitch_deg - truth.pitch_deg,
+                e.roll_deg - truth.roll_deg,
+            ];
+            for ((count, error), sigma) in within.iter_mut().zip(error).zip(sigma) {
+                if error.abs() <= 2.0 * sigma {
+                    *count += 1;
+                }
+            }
+        }
+        last = Some((e, truth));
+    }
+    let ratio = |a: u64, b: u64| if b == 0 { 0.0 } else { a as f64 / b as f64 };
+    let (distance_error_pct, horizontal_error_m, heading_error_deg) = match last {
+        Some((e, truth)) => (
+            100.0 * (e.distance_m - truth.distance_m).abs() / truth.distance_m.max(1e-9),
+            (e.position_m[0] - truth.position_m[0]).hypot(e.position_m[1] - truth.position_m[1]),
+            angle_error_deg(e.yaw_deg, truth.yaw_deg),
+        ),
+        None => (f64::NAN, f64::NAN, f64::NAN),
+    };
+    RunScores {
+        run: label.to_string(),
+        // No rest called: nothing called wrongly.
+        precision: if tp + fp == 0 {
+            1.0
+        } else {
+            ratio(tp, tp + fp)
+        },
+        recall: ratio(tp, tp + fn_),
+        false_zv_s: fp as f64 * period_s,
+        distance_error_pct,
+        horizontal_error_m,
+        heading_error_deg,
+        within_2_sigma: within,
+        estimates,
+    }
+}
+
+/// One run's figures over the drives.
+#[derive(Debug, Clone, Serialize)]
+pub struct RunSpread {
+    pub run: String,
+    /// Median and lowest.
+    pub precision: Spread,
+    pub recall: Spread,
+    /// Median and largest.
+    pub distance_error_pct: Spread,
+    pub horizontal_error_m: Spread,
+    pub heading_error_deg: Spread,
+    /// Share of all estimates of all drives with |error| ≤ 2σ, per [`COVERED`].
+    pub coverage_2_sigma: [f64; 6],
+}
+
+/// The bars of issue 33, each with what was measured and whether it holds.
+#[derive(Debug, Clone, Serialize)]
+pub struct Bar {
+    pub bar: String,
+    pub measured: String,
+    pub met: bool,
+}
+
+/// Everything over the drives.
+#[derive(Debug, Clone, Serialize)]
+pub struct Summary {
+    pub drives: usize,
+    pub drives_vibrating_at_rest: usize,
+    pub runs: Vec<RunSpread>,
+    pub bars: Vec<Bar>,
+}
+
+/// The spread of every run and the bars.
+pub fn summarise(drives: &[DriveScores]) -> Summary {
+    let values = |label: &str, f: fn(&RunScores) -> f64| -> Vec<f64> {
+        drives.iter().filter_map(|d| d.run(label).map(f)).collect()
+    };
+    let runs: Vec<RunSpread> = RUNS
+        .iter()
+        .map(|&label| {
+            let mut within = [0u64; 6];
+            let mut total = 0u64;
+            for r in drives.iter().filter_map(|d| d.run(label)) {
+                for (sum, count) in within.iter_mut().zip(r.within_2_sigma) {
+                    *sum += count;
+                }
+                total += r.estimates;
+            }
+            RunSpread {
+                run: label.to_string(),
+                precision: Spread::of_lowest(&values(label, |r| r.precision)),
+                recall: Spread::of_lowest(&values(label, |r| r.recall)),
+                distance_error_pct: Spread::of(&values(label, |r| r.distance_error_pct)),
+                horizontal_error_m: Spread::of(&values(label, |r| r.horizontal_error_m)),
+                heading_error_deg: Spread::of(&values(label, |r| r.heading_error_deg)),
+                coverage_2_sigma: within.map(|w| {
+                    if total == 0 {
+                        0.0
+                    } else {
+                        w as f64 / total as f64
+                    }
+                }),
+            }
+        })
+        .collect();
+    let engine = &runs[0];
+    let mut bars = Vec::new();
+    let mut bar = |bar: &str, measured: String, met: bool| {
+        bars.push(Bar {
+            bar: bar.to_string(),
+            measured,
+            met,
+        })
+    };
+    bar(
+        "precision ≥ 0.99 on every drive",
+        format!("lowest {:.4}", engine.precision.worst),
+        engine.precision.worst >= 0.99,
+    );
+    bar(
+        "recall ≥ 0.90 at the median",
+        format!("median {:.4}", engine.recall.median),
+        engine.recall.median >= 0.90,
+    );
+    let oracle_ratio = Spread::of(
+        &drives
+            .iter()
+            .filter_map(|d| {
+                Some(
+                    d.run("engine")?.distance_error_pct
+                        / d.run("oracle")?.distance_error_pct.max(1e-6),
+                )
+            })
+            .collect::<Vec<_>>(),
+    );
+    bar(
+        "distance error ≤ 1.5 × the oracle's at the median",
+        format!(
+            "engine ÷ oracle: median {:.2}, worst {:.2}",
+            oracle_ratio.median, oracle_ratio.worst
+        ),
+        oracle_ratio.median <= 1.5,
+    );
+    let behind_paper: Vec<f64> = drives
+        .iter()
+        .filter_map(|d| {
+            Some(d.run("engine")?.distance_error_pct - d.run("paper")?.distance_error_pct)
+        })
+        .collect();
+    let most_behind = behind_paper
+        .iter()
+        .copied()
+        .fold(f64::NEG_INFINITY, f64::max);
+    let behind_count = behind_paper.iter().filter(|&&x| x > 0.2).count();
+    bar(
+        "never worse than paper's by more than 0.2 % of the distance",
+        format!("largest excess {most_behind:.3} % ({behind_count} drives over)"),
+        behind_count == 0,
+    );
+    let vibrating: Vec<&DriveScores> = drives
+        .iter()
+        .filter(|d| d.drive.vibrates_at_rest())
+        .collect();
+    let paper_over_engine = Spread::of_lowest(
+        &vibrating
+            .iter()
+            .filter_map(|d| {
+                Some(
+                    d.run("paper")?.distance_error_pct
+                        / d.run("engine")?.distance_error_pct.max(1e-6),
+                )
+            })
+            .collect::<Vec<_>>(),
+    );
+    bar(
+        "with vibration at rest, ≥ 1.5 × better than paper (median of paper ÷ engine)",
+        format!(
+            "paper ÷ engine over {} drives: median {:.2}, lowest {:.2}",
+            vibrating.len(),
+            paper_over_engine.median,
+            paper_over_engine.worst
+        ),
+        paper_over_engine.median >= 1.5,
+    );
+    for (k, name) in COVERED.iter().enumerate() {
+        let c = engine.coverage_2_sigma[k];
+        bar(
+            &format!("2σ covers 90–99 % of {name} errors"),
+            format!("{:.1} %", 100.0 * c),
+            (0.90..=0.99).contains(&c),
+        );
+    }
+    Summary {
+        drives: drives.len(),
+        drives_vibrating_at_rest: vibrating.len(),
+        runs,
+        bars,
+    }
+}
+
+/// The drives one line each, then the spread and the bars.
+pub fn render(drives: &[DriveScores], summary: &Summary) -> String {
+    use std::fmt::Write;
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "zupt envelope: {} drives ({} with vibration at rest); distance error % and precision per run",
+        summary.drives, summary.drives_vibrating_at_rest
+    );
+    let _ = writeln!(
+        out,
+        "{:>5} {:>6} {:>8} {:>8} {:>6} {:>5} {:>4} {:>4} | {:>8} {:>8} {:>8} | {:>7} {:>7} {:>7}",
+        "seed",
+        "min",
+        "dist m",
+        "speed",
+        "push s",
+        "rest s",
+        "vibP",
+        "vibR",
+        "engine",
+        "paper",
+        "oracle",
+        "P eng",
+        "P pap",
+        "R eng"
+    );
+    for d in drives {
+        let e = &d.drive;
+        let pct = |label: &str| d.run(label).map_or(f64::NAN, |r| r.distance_error_pct);
+        let precision = |label: &str| d.run(label).map_or(f64::NAN, |r| r.precision);
+        let recall = |label: &str| d.run(label).map_or(f64::NAN, |r| r.recall);
+        let vib = |v: &Option<crate::sim::pipejack_envelope::VibrationDraw>| {
+            v.map_or("–".to_string(), |v| format!("{:.0}", v.amplitude_mg))
+        };
+        let _ = writeln!(
+            out,
+            "{:>5} {:>6.0} {:>8.2} {:>8.4} {:>6.0} {:>5.0} {:>4} {:>4} | {:>8.3} {:>8.3} {:>8.3} | {:>7.4} {:>7.4} {:>7.4}",
+            e.seed,
+            d.duration_s / 60.0,
+            d.distance_m,
+            e.speed_mps,
+            e.push_s,
+            e.rest_s,
+            vib(&e.push_vibration),
+            vib(&e.rest_vibration),
+            pct("engine"),
+            pct("paper"),
+            pct("oracle"),
+            precision("engine"),
+            precision("paper"),
+            recall("engine"),
+        );
+    }
+    let _ = writeln!(
+        out,
+        "\n{:<7} {:>17} {:>17} {:>19} {:>19} {:>19}  2σ coverage N/E/D/heading/pitch/roll %",
+        "run",
+        "precision med/min",
+        "recall med/min",
+        "distance % med/max",
+        "horizontal m med/max",
+        "heading ° med/max"
+    );
+    for r in &summary.runs {
+        let c = r.coverage_2_sigma.map(|x| format!("{:.1}", 100.0 * x));
+        let _ = writeln!(
+            out,
+            "{:<7} {:>8.4}/{:<8.4} {:>8.4}/{:<8.4} {:>9.3}/{:<9.3} {:>9.3}/{:<9.3} {:>9.3}/{:<9.3}  {}",
+            r.run,
+            r.precision.median,
+            r.precision.worst,
+            r.recall.median,
+            r.recall.worst,
+            r.distance_error_pct.median,
+            r.distance_error_pct.worst,
+            r.horizontal_error_m.median,
+            r.horizontal_error_m.worst,
+            r.heading_error_deg.median,
+            r.heading_error_deg.worst,
+            c.join("/")
+        );
+    }
+    let _ = writeln!(out);
+    for b in &summary.bars {
+        let _ = writeln!(
+            out,
+            "{} {}: {}",
+            if b.met { "met    " } else { "NOT MET" },
+            b.bar,
+            b.measured
+        );
+    }
+    out
+}
