@@ -19,14 +19,16 @@ fn envelope_drives_seeds_1_to_12() {
     let drives = evaluate_all(&seeds, &Params::defaults(PARAMS), 2).unwrap();
     let summary = summarise(&drives);
     eprintln!("{}", render(&drives, &summary));
+    assert_eq!(summary.drives, 12);
+    assert_eq!(summary.bars.len(), 11);
     for d in &drives {
         let oracle = d.run("oracle").unwrap();
         // The oracle's flags are the truth.
         assert_eq!(oracle.precision, 1.0, "seed {}", d.drive.seed);
         assert_eq!(oracle.recall, 1.0, "seed {}", d.drive.seed);
-        for r in &d.runs {
-            assert!(r.estimates > 0, "seed {}: {r:?}", d.drive.seed);
-        }
+        // Every drive starts standing, so the oracle aligns at once. (The
+        // paper's detector may find no rest at all: seed 2.)
+        assert!(oracle.estimates > 0, "seed {}: {oracle:?}", d.drive.seed);
     }
 }
 

@@ -1039,7 +1039,7 @@ mod tests {
             ZuptEngine::restore(old),
             Err(SnapshotError::Outdated {
                 found: 1,
-                expected: 2,
+                expected: 3,
                 ..
             })
         ));
