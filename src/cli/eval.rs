@@ -270,22 +270,13 @@ pub fn run(target: EvalTarget) -> Result<(), CliError> {
                 args.params.iter().map(String::as_str),
             )?;
             if args.envelope {
-                let first = args.drive.seed;
                 let seeds: Vec<u64> =
-                    (first..first.saturating_add(args.seeds.unwrap_or(40).max(1))).collect();
-                let threads = std::thread::available_parallelism().map_or(1, usize::from);
-                let drives = zupt_envelope::evaluate_all(&seeds, &params, threads)?;
+                    envelope_seeds(args.drive.seed, args.seeds.unwrap_or(40)).collect();
+                let drives = zupt_envelope::evaluate_all(&seeds, &params, cores())?;
                 let summary = zupt_envelope::summarise(&drives);
-                if args.json {
-                    let value = serde_json::json!({"summary": summary, "drives": drives});
-                    println!(
-                        "{}",
-                        serde_json::to_string_pretty(&value).map_err(std::io::Error::other)?
-                    );
-                } else {
-                    print!("{}", zupt_envelope::render(&drives, &summary));
-                }
-                return Ok(());
+                return print_envelope(args.json, &summary, &drives, || {
+                    zupt_envelope::render(&drives, &summary)
+                });
             }
             each_seed(
                 args.drive.seed,
@@ -315,26 +306,16 @@ pub fn run(target: EvalTarget) -> Result<(), CliError> {
             };
             if args.envelope {
                 let first = args.drive.seed;
-                let configs: Vec<AttitudeEvalConfig> = (first
-                    ..first.saturating_add(args.seeds.max(1)))
+                let configs: Vec<AttitudeEvalConfig> = envelope_seeds(first, args.seeds)
                     .map(|seed| configure(Drive::Envelope(Box::new(EnvelopeDrive::draw(seed)))))
                     .collect();
-                let threads = std::thread::available_parallelism().map_or(1, usize::from);
-                let evaluations = evaluate_all(&configs, threads)?;
+                let evaluations = evaluate_all(&configs, cores())?;
                 let summary = summarise(&evaluations);
-                if args.json {
-                    let value = serde_json::json!({"summary": summary, "drives": evaluations});
-                    println!(
-                        "{}",
-                        serde_json::to_string_pretty(&value).map_err(std::io::Error::other)?
-                    );
-                } else {
-                    for e in &evaluations {
-                        print!("{}", render_table(e));
-                    }
-                    print!("{}", render_summary(&summary, first));
-                }
-                return Ok(());
+                return print_envelope(args.json, &summary, &evaluations, || {
+                    let mut text: String = evaluations.iter().map(render_table).collect();
+                    text.push_str(&render_summary(&summary, first));
+                    text
+                });
             }
             let mut scenario = args.drive.scenario();
             if scenario.dropouts.is_empty() {
@@ -401,6 +382,36 @@ fn run_dta_zupt(args: &DtaArgs) -> Result<(), CliError> {
 
 /// Runs an evaluation for `seeds` seeds from `first`, printing each as a
 /// JSON line or its table.
+/// `count` seeds (at least one) from `first` on.
+fn envelope_seeds(first: u64, count: u64) -> std::ops::Range<u64> {
+    first..first.saturating_add(count.max(1))
+}
+
+/// Threads for the evaluations: one per core.
+fn cores() -> usize {
+    std::thread::available_parallelism().map_or(1, usize::from)
+}
+
+/// An envelope evaluation on stdout: `{"summary", "drives"}` as JSON, or
+/// the text `table` makes.
+fn print_envelope(
+    json: bool,
+    summary: &impl serde::Serialize,
+    drives: &impl serde::Serialize,
+    table: impl FnOnce() -> String,
+) -> Result<(), CliError> {
+    if json {
+        let value = serde_json::json!({"summary": summary, "drives": drives});
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&value).map_err(std::io::Error::other)?
+        );
+    } else {
+        print!("{}", table());
+    }
+    Ok(())
+}
+
 fn each_seed(
     first: u64,
     seeds: u64,

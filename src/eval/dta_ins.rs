@@ -539,7 +539,7 @@ impl<'a> Scorer<'a> {
             .largest_true_horizontal_mm
             .max(1000.0 * front.right_m.abs());
         s.largest_true_vertical_mm = s.largest_true_vertical_mm.max(1000.0 * front.above_m.abs());
-        let yaw_error = ((z.yaw_deg - truth.yaw_deg + 540.0).rem_euclid(360.0) - 180.0).abs();
+        let yaw_error = super::heading_error_deg(z.yaw_deg, truth.yaw_deg);
         s.max_yaw_error_deg = s.max_yaw_error_deg.max(yaw_error);
         s.max_pitch_error_deg = s
             .max_pitch_error_deg

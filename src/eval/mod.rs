@@ -50,6 +50,11 @@ pub fn median(mut values: Vec<f64>) -> f64 {
     values.get(values.len() / 2).copied().unwrap_or(f64::NAN)
 }
 
+/// |estimate − truth| of two headings, degrees, the short way round.
+pub fn heading_error_deg(estimate_deg: f64, truth_deg: f64) -> f64 {
+    ((estimate_deg - truth_deg + 540.0).rem_euclid(360.0) - 180.0).abs()
+}
+
 /// `f` over `items` on up to `threads` threads; results in input order.
 pub fn parallel_map<T: Sync, R: Send>(
     items: &[T],

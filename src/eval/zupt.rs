@@ -183,6 +183,47 @@ pub fn run(readings: &[Reading], params: Params) -> Result<Vec<EngineOutput>, Pa
     Ok(outputs)
 }
 
+/// Zero-velocity decisions per IMU reading against the truth.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct ZeroVelocityTally {
+    /// Called still and still, called still while moving, called moving while still.
+    pub true_still: u64,
+    pub false_still: u64,
+    pub missed_still: u64,
+}
+
+impl ZeroVelocityTally {
+    /// Adds one reading's decision.
+    pub fn add(&mut self, called_still: bool, truly_still: bool) {
+        match (called_still, truly_still) {
+            (true, true) => self.true_still += 1,
+            (true, false) => self.false_still += 1,
+            (false, true) => self.missed_still += 1,
+            (false, false) => {}
+        }
+    }
+
+    /// Share of the still calls that were right; `no_calls` when none was made.
+    pub fn precision_or(&self, no_calls: f64) -> f64 {
+        let calls = self.true_still + self.false_still;
+        if calls == 0 {
+            no_calls
+        } else {
+            self.true_still as f64 / calls as f64
+        }
+    }
+
+    /// Share of the still readings called still (0 when there were none).
+    pub fn recall(&self) -> f64 {
+        let still = self.true_still + self.missed_still;
+        if still == 0 {
+            0.0
+        } else {
+            self.true_still as f64 / still as f64
+        }
+    }
+}
+
 /// Scores one run against the truth (matched by time).
 pub fn score(
     detector: &str,
@@ -192,7 +233,7 @@ pub fn score(
     start_t: f64,
     period_s: f64,
 ) -> DetectorScores {
-    let (mut tp, mut fp, mut fn_, mut within, mut scored) = (0u64, 0u64, 0u64, [0u64; 3], 0u64);
+    let (mut tally, mut within, mut scored) = (ZeroVelocityTally::default(), [0u64; 3], 0u64);
     let mut last: Option<(&PipeJackTruth, &crate::fusion::ZuptEstimate)> = None;
     let mut found = vec![false; rests_s.len()];
     let mut rest = 0;
@@ -209,12 +250,7 @@ pub fn score(
         let Some(truth) = truth_iter.next() else {
             break;
         };
-        match (estimate.zv, truth.zv) {
-            (true, true) => tp += 1,
-            (true, false) => fp += 1,
-            (false, true) => fn_ += 1,
-            (false, false) => {}
-        }
+        tally.add(estimate.zv, truth.zv);
         if estimate.zv {
             let s = output.t - start_t;
             while rest + 1 < rests_s.len() && s > rests_s[rest].1 {
@@ -241,15 +277,15 @@ pub fn score(
     let (track_points, live_track_rms_m, smoothed_track_rms_m) =
         track_errors(outputs, truths, start_t, period_s);
     let ratio = |a: u64, b: u64| if b == 0 { 0.0 } else { a as f64 / b as f64 };
-    let precision = ratio(tp, tp + fp);
-    let recall = ratio(tp, tp + fn_);
+    let precision = tally.precision_or(0.0);
+    let recall = tally.recall();
     let f_half = if precision + recall == 0.0 {
         0.0
     } else {
         1.25 * precision * recall / (0.25 * precision + recall)
     };
     let heading_error_deg = last.map_or(f64::NAN, |(truth, estimate)| {
-        ((estimate.yaw_deg - truth.yaw_deg + 540.0).rem_euclid(360.0) - 180.0).abs()
+        super::heading_error_deg(estimate.yaw_deg, truth.yaw_deg)
     });
     let (distance_error_m, position_error_m, travelled) = match last {
         Some((truth, estimate)) => {
@@ -285,7 +321,7 @@ pub fn score(
         position_error_m,
         position_error_pct: pct(position_error_m),
         within_3_sigma: within.map(|w| ratio(w, scored)),
-        false_zv_s: fp as f64 * period_s,
+        false_zv_s: tally.false_still as f64 * period_s,
         heading_error_deg,
         track_points,
         live_track_rms_m,

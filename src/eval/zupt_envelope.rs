@@ -26,8 +26,10 @@ use rand_distr::StandardNormal;
 use serde::Serialize;
 
 use super::attitude::Spread;
+use super::heading_error_deg;
+use super::zupt::ZeroVelocityTally;
 use crate::fusion::zupt::{PARAMS, ZuptEngine};
-use crate::fusion::{Engine, EngineOutput, ParamError, ParamValue, Params, Reading};
+use crate::fusion::{Engine, EngineOutput, ParamError, ParamValue, Params, Reading, SensorKind};
 use crate::sim::pipejack::PipeJackTruth;
 use crate::sim::pipejack_envelope::PipeJackEnvelope;
 
@@ -87,12 +89,11 @@ pub fn evaluate_envelope(
     let drive = envelope.drive();
     let duration_s = drive.duration_s();
     let distance_m = drive.total_distance_m();
+    let period_s = drive.scenario().imu_period_s();
     let mut readings = Vec::new();
     let mut truths = Vec::new();
     for event in drive {
-        if let Some(truth) = event.truth {
-            truths.push((readings.len(), truth));
-        }
+        truths.extend(event.truth);
         readings.push(event.reading);
     }
     let yaw_sigma_deg = params.real("initial_yaw_sigma_deg")?;
@@ -126,7 +127,6 @@ pub fn evaluate_envelope(
         ("rest_check", ParamValue::Bool(false)),
     ])?;
     let oracle = set(&[("rest_check", ParamValue::Bool(false))])?;
-    let period_s = envelope.scenario().imu_period_s();
     let mut runs = Vec::new();
     for (label, params, truth_flags) in [
         ("engine", base.clone(), false),
@@ -156,21 +156,21 @@ pub fn evaluate_all(
         .collect()
 }
 
+/// Runs the engine over the readings; with `truth_flags`, every IMU
+/// reading's zero-velocity decision is its truth's (one truth per IMU
+/// reading, in order).
 fn run(
     readings: &[Reading],
-    truths: &[(usize, PipeJackTruth)],
+    truths: &[PipeJackTruth],
     params: Params,
     truth_flags: bool,
 ) -> Result<Vec<EngineOutput>, ParamError> {
     let mut engine = ZuptEngine::new(params)?;
     let mut outputs = Vec::with_capacity(truths.len());
-    let mut truth = truths.iter().peekable();
-    for (index, reading) in readings.iter().enumerate() {
-        if truth_flags {
-            while truth.peek().is_some_and(|(i, _)| *i < index) {
-                truth.next();
-            }
-            let zv = truth.peek().is_some_and(|(i, t)| *i == index && t.zv);
+    let mut truth = truths.iter();
+    for reading in readings {
+        if truth_flags && reading.sensor() == SensorKind::Imu {
+            let zv = truth.next().is_some_and(|t| t.zv);
             engine.feed_decided(reading, zv, &mut outputs);
         } else {
             engine.feed(reading, &mut outputs);
@@ -180,32 +180,22 @@ fn run(
     Ok(outputs)
 }
 
-/// The smallest difference between two angles, degrees.
-fn angle_error_deg(a: f64, b: f64) -> f64 {
-    ((a - b + 540.0).rem_euclid(360.0) - 180.0).abs()
-}
-
 fn score(
     label: &str,
     outputs: &[EngineOutput],
-    truths: &[(usize, PipeJackTruth)],
+    truths: &[PipeJackTruth],
     period_s: f64,
 ) -> RunScores {
-    let (mut tp, mut fp, mut fn_) = (0u64, 0u64, 0u64);
+    let mut tally = ZeroVelocityTally::default();
     let mut within = [0u64; 6];
     let mut estimates = 0u64;
     let mut last = None;
     // One estimate per IMU reading, in order.
-    for (output, (_, truth)) in outputs.iter().zip(truths) {
+    for (output, truth) in outputs.iter().zip(truths) {
         let Some(e) = output.values.as_zupt() else {
             continue;
         };
-        match (e.zv, truth.zv) {
-            (true, true) => tp += 1,
-            (true, false) => fp += 1,
-            (false, true) => fn_ += 1,
-            (false, false) => {}
-        }
+        tally.add(e.zv, truth.zv);
         if e.aligned {
             estimates += 1;
             let sigma = [
@@ -220,7 +210,7 @@ fn score(
                 e.position_m[0] - truth.position_m[0],
                 e.position_m[1] - truth.position_m[1],
                 e.position_m[2] - truth.position_m[2],
-                angle_error_deg(e.yaw_deg, truth.yaw_deg),
+                heading_error_deg(e.yaw_deg, truth.yaw_deg),
                 e.pitch_deg - truth.pitch_deg,
                 e.roll_deg - truth.roll_deg,
             ];
@@ -232,25 +222,20 @@ fn score(
         }
         last = Some((e, truth));
     }
-    let ratio = |a: u64, b: u64| if b == 0 { 0.0 } else { a as f64 / b as f64 };
     let (distance_error_pct, horizontal_error_m, heading_error_deg) = match last {
         Some((e, truth)) => (
             100.0 * (e.distance_m - truth.distance_m).abs() / truth.distance_m.max(1e-9),
             (e.position_m[0] - truth.position_m[0]).hypot(e.position_m[1] - truth.position_m[1]),
-            angle_error_deg(e.yaw_deg, truth.yaw_deg),
+            heading_error_deg(e.yaw_deg, truth.yaw_deg),
         ),
         None => (f64::NAN, f64::NAN, f64::NAN),
     };
     RunScores {
         run: label.to_string(),
         // No rest called: nothing called wrongly.
-        precision: if tp + fp == 0 {
-            1.0
-        } else {
-            ratio(tp, tp + fp)
-        },
-        recall: ratio(tp, tp + fn_),
-        false_zv_s: fp as f64 * period_s,
+        precision: tally.precision_or(1.0),
+        recall: tally.recall(),
+        false_zv_s: tally.false_still as f64 * period_s,
         distance_error_pct,
         horizontal_error_m,
         heading_error_deg,
@@ -343,17 +328,8 @@ pub fn summarise(drives: &[DriveScores]) -> Summary {
         format!("median {:.4}", engine.recall.median),
         engine.recall.median >= 0.90,
     );
-    let oracle_ratio = Spread::of(
-        &drives
-            .iter()
-            .filter_map(|d| {
-                Some(
-                    d.run("engine")?.distance_error_pct
-                        / d.run("oracle")?.distance_error_pct.max(1e-6),
-                )
-            })
-            .collect::<Vec<_>>(),
-    );
+    let ratio = |a: f64, b: f64| a / b.max(1e-6);
+    let oracle_ratio = Spread::of(&compare(drives, "engine", "oracle", ratio));
     bar(
         "distance error ≤ 1.5 × the oracle's at the median",
         format!(
@@ -362,12 +338,7 @@ pub fn summarise(drives: &[DriveScores]) -> Summary {
         ),
         oracle_ratio.median <= 1.5,
     );
-    let behind_paper: Vec<f64> = drives
-        .iter()
-        .filter_map(|d| {
-            Some(d.run("engine")?.distance_error_pct - d.run("paper")?.distance_error_pct)
-        })
-        .collect();
+    let behind_paper = compare(drives, "engine", "paper", |a, b| a - b);
     let most_behind = behind_paper
         .iter()
         .copied()
@@ -382,17 +353,12 @@ pub fn summarise(drives: &[DriveScores]) -> Summary {
         .iter()
         .filter(|d| d.drive.vibrates_at_rest())
         .collect();
-    let paper_over_engine = Spread::of_lowest(
-        &vibrating
-            .iter()
-            .filter_map(|d| {
-                Some(
-                    d.run("paper")?.distance_error_pct
-                        / d.run("engine")?.distance_error_pct.max(1e-6),
-                )
-            })
-            .collect::<Vec<_>>(),
-    );
+    let paper_over_engine = Spread::of_lowest(&compare(
+        vibrating.iter().copied(),
+        "paper",
+        "engine",
+        ratio,
+    ));
     bar(
         "with vibration at rest, ≥ 1.5 × better than paper (median of paper ÷ engine)",
         format!(
@@ -417,6 +383,24 @@ pub fn summarise(drives: &[DriveScores]) -> Summary {
         runs,
         bars,
     }
+}
+
+/// `f(a, b)` of runs `a` and `b`'s distance errors on each drive that has both.
+fn compare<'a>(
+    drives: impl IntoIterator<Item = &'a DriveScores>,
+    a: &str,
+    b: &str,
+    f: impl Fn(f64, f64) -> f64,
+) -> Vec<f64> {
+    drives
+        .into_iter()
+        .filter_map(|d| {
+            Some(f(
+                d.run(a)?.distance_error_pct,
+                d.run(b)?.distance_error_pct,
+            ))
+        })
+        .collect()
 }
 
 /// The drives one line each, then the spread and the bars.

@@ -418,9 +418,9 @@ impl Shaking {
 /// angular on roll, pitch, yaw) and when it runs.
 #[derive(Debug, Clone, PartialEq)]
 pub(super) struct Vibration {
-    linear: [Tones; 3],
-    angular: [Tones; 3],
-    gate: Gate,
+    pub linear: [Tones; 3],
+    pub angular: [Tones; 3],
+    pub gate: Gate,
 }
 
 /// When a vibration runs: inside any of `during` (`None`: always), times
@@ -499,15 +499,6 @@ impl Vibration {
             angular,
             gate,
         })
-    }
-
-    /// A vibration of the given tones, gated.
-    pub(super) fn new_gated(linear: [Tones; 3], angular: [Tones; 3], gate: Gate) -> Vibration {
-        Vibration {
-            linear,
-            angular,
-            gate,
-        }
     }
 
     /// Adds the vibration at `s` to the motion.
@@ -691,16 +682,6 @@ impl PipeJackDrive {
         }
     }
 
-    /// Whether the drive has an odometer.
-    pub fn has_odometer(&self) -> bool {
-        self.odometer_scale.is_some()
-    }
-
-    /// The IMU's error model.
-    pub fn sensors(&self) -> SensorGrade {
-        self.sensors
-    }
-
     /// Length of the drive, s.
     pub fn duration_s(&self) -> f64 {
         self.end_t
@@ -859,8 +840,8 @@ impl PipeJackDrive {
         let t = self.scenario.start_t + s;
         let height_m =
             self.scenario.start_height_m - k.position_m.z + 0.0005 * normal(&mut self.aid_rng);
-        // Drawn whether or not there is an odometer: the level's noise
-        // stays the same.
+        // Drawn whether or not there is an odometer, so that the draws
+        // after it do not depend on whether the drive has one.
         let odometer_noise_m = 0.001 * normal(&mut self.aid_rng);
         if let Some(scale) = self.odometer_scale {
             let distance_m =

@@ -174,14 +174,14 @@ impl VibrationDraw {
             }
             windows
         });
-        Vibration::new_gated(
+        Vibration {
             linear,
             angular,
-            Gate {
+            gate: Gate {
                 during: Some(during),
                 switching,
             },
-        )
+        }
     }
 }
 

@@ -76,6 +76,17 @@ pub struct ImuSample {
     pub gyro_rad_per_s: V3,
 }
 
+impl ImuSample {
+    /// An IMU reading's values (m/s², °/s) in working units.
+    fn new(t: f64, accel_mps2: &[f64; 3], gyro_dps: &[f64; 3]) -> ImuSample {
+        ImuSample {
+            t,
+            accel_mps2: V3::from(*accel_mps2),
+            gyro_rad_per_s: V3::from(*gyro_dps).map(rad),
+        }
+    }
+}
+
 /// Counts of what the engine did with its readings.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct ZuptStats {
@@ -260,17 +271,20 @@ impl ZuptEngine {
         attitude.inverse() * earth_rate_n(lat)
     }
 
-    fn on_imu(&mut self, sample: ImuSample, out: &mut Vec<EngineOutput>) {
+    /// Takes an IMU reading's time `t`: false (counted as dropped) for one
+    /// at or before the newest; a gap longer than `max_imu_gap_s` ends the
+    /// stream first.
+    fn admit_imu(&mut self, t: f64, out: &mut Vec<EngineOutput>) -> bool {
         if let Some(newest) = self.newest_imu_t {
-            if sample.t <= newest {
+            if t <= newest {
                 self.stats.imu_dropped += 1;
-                return;
+                return false;
             }
-            if sample.t - newest > self.config.max_imu_gap_s {
+            if t - newest > self.config.max_imu_gap_s {
                 self.stats.imu_gaps += 1;
                 self.end_stream(out);
                 if let Some(nav) = &mut self.navigation {
-                    let gap_s = sample.t - newest;
+                    let gap_s = t - newest;
                     nav.filter.inflate(gap_s);
                     nav.previous = None;
                     // A push across a gap is not smoothed.
@@ -278,8 +292,15 @@ impl ZuptEngine {
                 }
             }
         }
-        self.newest_imu_t = Some(sample.t);
+        self.newest_imu_t = Some(t);
         self.stats.imu_used += 1;
+        true
+    }
+
+    fn on_imu(&mut self, sample: ImuSample, out: &mut Vec<EngineOutput>) {
+        if !self.admit_imu(sample.t, out) {
+            return;
+        }
         let earth_rate_b = self.earth_rate_b(&sample.accel_mps2);
         let mut decided = std::mem::take(&mut self.decided);
         self.pipeline.push(
@@ -311,17 +332,10 @@ impl ZuptEngine {
         else {
             return self.feed(reading, out);
         };
-        if self.newest_imu_t.is_some_and(|newest| reading.t <= newest) {
-            self.stats.imu_dropped += 1;
+        if !self.admit_imu(reading.t, out) {
             return;
         }
-        self.newest_imu_t = Some(reading.t);
-        self.stats.imu_used += 1;
-        let sample = ImuSample {
-            t: reading.t,
-            accel_mps2: V3::from(*accel_mps2),
-            gyro_rad_per_s: V3::from(*gyro_dps).map(rad),
-        };
+        let sample = ImuSample::new(reading.t, accel_mps2, gyro_dps);
         let decision = Decision {
             zv: zero_velocity,
             still: zero_velocity,
@@ -400,10 +414,7 @@ impl ZuptEngine {
         if self.navigation.is_none()
             && decision.zv
             && let Some(check) = &config.rest_check
-            && self
-                .rest_check
-                .judge(check, sample.t, None, config.zupt_sigma_mps.powi(2))
-                .is_some()
+            && self.rest_check.judge(check, sample.t, None).is_some()
         {
             decision.zv = false;
             self.stats.rests_refused_odometer += 1;
@@ -433,14 +444,10 @@ impl ZuptEngine {
             nav.rate_integral += increment.gyro_rad_per_s * dt_s;
         }
         if let Some(check) = &config.rest_check {
+            let p_v = nav.filter.p.fixed_view::<3, 3>(VEL, VEL).into_owned();
+            let velocity = (&nav.state.velocity_mps, &p_v);
             if decision.zv {
-                let p_v = nav.filter.p.fixed_view::<3, 3>(VEL, VEL).into_owned();
-                let verdict = self.rest_check.judge(
-                    check,
-                    sample.t,
-                    Some((&nav.state.velocity_mps, &p_v)),
-                    config.zupt_sigma_mps.powi(2),
-                );
+                let verdict = self.rest_check.judge(check, sample.t, Some(velocity));
                 match verdict {
                     None => {}
                     Some(Refusal::Odometer) => self.stats.rests_refused_odometer += 1,
@@ -450,13 +457,7 @@ impl ZuptEngine {
                 }
                 decision.zv &= verdict.is_none();
             } else {
-                let p_v = nav.filter.p.fixed_view::<3, 3>(VEL, VEL).into_owned();
-                self.rest_check.moving(
-                    check,
-                    &nav.state.velocity_mps,
-                    &p_v,
-                    config.zupt_sigma_mps.powi(2),
-                );
+                self.rest_check.moving(check, velocity);
             }
         }
         if nav.previous.is_some() {
@@ -856,14 +857,7 @@ impl Engine for ZuptEngine {
             SensorData::Imu {
                 accel_mps2,
                 gyro_dps,
-            } => {
-                let sample = ImuSample {
-                    t: reading.t,
-                    accel_mps2: V3::from(*accel_mps2),
-                    gyro_rad_per_s: V3::from(*gyro_dps).map(rad),
-                };
-                self.on_imu(sample, out);
-            }
+            } => self.on_imu(ImuSample::new(reading.t, accel_mps2, gyro_dps), out),
             SensorData::Level { height_m } => {
                 Self::queue_aid(&mut self.levels, &mut self.stats, reading.t, *height_m);
             }

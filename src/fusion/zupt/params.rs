@@ -383,6 +383,7 @@ impl ZuptConfig {
                 odometer_window_s: p.odometer_rest_window_s,
                 speed_change: p.rest_speed_change,
                 motion_evidence: p.rest_motion_evidence,
+                zupt_variance_mps2: p.zupt_sigma_mps.powi(2),
             }),
             zaru: p.zaru,
             zaru_sigma_rad_per_s: rad_per_s_from_deg_per_h(p.zaru_sigma_deg_per_h),

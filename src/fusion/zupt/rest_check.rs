@@ -74,7 +74,19 @@ pub struct RestCheckConfig {
     /// Evidence (natural log of the likelihood ratio) for "still moving"
     /// over "standing" above which a called rest is refused.
     pub motion_evidence: f64,
+    /// R per axis: the variance of the zero-velocity measurement, (m/s)².
+    pub zupt_variance_mps2: f64,
 }
+
+impl RestCheckConfig {
+    /// S = P_v + R.
+    fn innovation(&self, p_v: &Matrix3<f64>) -> Option<Gaussian> {
+        Gaussian::new(&(p_v + Matrix3::identity() * self.zupt_variance_mps2))
+    }
+}
+
+/// The filter's velocity v̂ (NED, m/s) and its covariance P_v.
+pub type Velocity<'a> = (&'a V3, &'a Matrix3<f64>);
 
 /// Why a called rest was refused.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -103,20 +115,12 @@ pub struct RestCheck {
 }
 
 impl RestCheck {
-    /// The detector called the reading at `t` moving; the filter's
-    /// velocity and its covariance then.
-    pub fn moving(
-        &mut self,
-        config: &RestCheckConfig,
-        velocity_mps: &V3,
-        p_v: &Matrix3<f64>,
-        r: f64,
-    ) {
-        let s = p_v + Matrix3::identity() * r;
-        self.reference_is_motion = s
-            .cholesky()
-            .is_some_and(|c| velocity_mps.dot(&c.solve(velocity_mps)) > config.gate_chi2);
-        self.reference_mps = *velocity_mps;
+    /// The detector called a reading moving; the filter's velocity then.
+    pub fn moving(&mut self, config: &RestCheckConfig, (v, p_v): Velocity<'_>) {
+        self.reference_is_motion = config
+            .innovation(p_v)
+            .is_some_and(|s| s.distance(v) > config.gate_chi2);
+        self.reference_mps = *v;
         self.reference_p = *p_v;
         self.run_start_t = None;
     }
@@ -149,22 +153,21 @@ impl RestCheck {
     }
 
     /// The detector called the reading at `t` a rest: the verdict, with
-    /// the filter's velocity v̂ and its covariance `p_v`, and the variance
-    /// of the zero-velocity measurement `r`. `None`: standing.
+    /// the filter's velocity (`None` before alignment: the odometer alone
+    /// decides). `None`: standing.
     pub fn judge(
         &mut self,
         config: &RestCheckConfig,
         t: f64,
-        velocity: Option<(&V3, &Matrix3<f64>)>,
-        r: f64,
+        velocity: Option<Velocity<'_>>,
     ) -> Option<Refusal> {
         self.run_start_t.get_or_insert(t);
         if self.odometer_advanced(config, t) {
             return Some(Refusal::Odometer);
         }
         let (v, p_v) = velocity?;
-        let s0 = p_v + Matrix3::identity() * r;
-        let standing = Gaussian::new(&s0)?;
+        let r = config.zupt_variance_mps2;
+        let standing = config.innovation(p_v)?;
         let d0 = standing.distance(v);
         if d0 > config.gate_chi2 {
             // Plainly moving: this is the motion the filter knows.
@@ -175,8 +178,7 @@ impl RestCheck {
         }
         if self.reference_is_motion {
             // Still moving as before: v̂ − v_ref is the INS drift since then
-            // and a change of speed.
-            // A change of speed is along the motion: c² v_ref v_refᵀ.
+            // and a change of speed, along the motion: c² v_ref v_refᵀ.
             let along = self.reference_mps * config.speed_change;
             let s1 = (p_v - self.reference_p)
                 + Matrix3::identity() * (2.0 * r)
@@ -226,6 +228,7 @@ mod tests {
         odometer_window_s: 10.0,
         speed_change: 0.3,
         motion_evidence: 3.0,
+        zupt_variance_mps2: 4e-6,
     };
 
     fn p(sigma: f64) -> Matrix3<f64> {
@@ -235,48 +238,46 @@ mod tests {
     #[test]
     fn the_velocity_gate() {
         let mut check = RestCheck::default();
-        check.moving(&CONFIG, &V3::zeros(), &p(0.002), 4e-6);
+        check.moving(&CONFIG, (&V3::zeros(), &p(0.002)));
         // σ_v = 5 mm/s, R = (2 mm/s)²: S = 29e-6 per axis. 20 mm/s north:
         // d² = 4e-4 / 29e-6 = 13.8 < 16, standing; 25 mm/s: 21.6, refused.
-        let r = 4e-6;
         let at = |v: f64| V3::new(v, 0.0, 0.0);
         assert_eq!(
-            check.judge(&CONFIG, 0.0, Some((&at(0.020), &p(0.005))), r),
+            check.judge(&CONFIG, 0.0, Some((&at(0.020), &p(0.005)))),
             None
         );
         assert_eq!(
-            check.judge(&CONFIG, 0.1, Some((&at(0.025), &p(0.005))), r),
+            check.judge(&CONFIG, 0.1, Some((&at(0.025), &p(0.005)))),
             Some(Refusal::Velocity)
         );
     }
 
     #[test]
     fn a_glide_at_the_known_speed_is_refused_and_the_stop_after_it_is_not() {
-        let r = 4e-6;
         let mut check = RestCheck::default();
         // Moving at 40 mm/s when the detector last said so, σ_v 2 mm/s:
         // d² = 0.0016 / 8e-6 = 200, plainly motion.
-        check.moving(&CONFIG, &V3::new(0.040, 0.0, 0.0), &p(0.002), r);
+        check.moving(&CONFIG, (&V3::new(0.040, 0.0, 0.0), &p(0.002)));
         // Later σ_v has grown to 12 mm/s: S₀ = 1.48e-4 per axis, and 38
         // mm/s is d₀² = 9.76, inside the gate. Still moving: S₁ = 1.44e-4 −
         // 4e-6 + 8e-6 + (0.3 · 0.04)² = 2.92e-4, d₁² = 0.0137; evidence
         // ½(9.76 − 0.014) + (3/2) ln(1.48 / 2.92) = 3.85 > 3: refused.
         let sigma = p(0.012);
         assert_eq!(
-            check.judge(&CONFIG, 20.0, Some((&V3::new(0.038, 0.0, 0.0), &sigma)), r),
+            check.judge(&CONFIG, 20.0, Some((&V3::new(0.038, 0.0, 0.0), &sigma))),
             Some(Refusal::StillMoving)
         );
         // The INS saw the deceleration: v̂ = 5 mm/s, d₀² = 0.17, d₁² = 4.2:
         // the evidence is negative, standing.
         assert_eq!(
-            check.judge(&CONFIG, 25.0, Some((&V3::new(0.005, 0.0, 0.0), &sigma)), r),
+            check.judge(&CONFIG, 25.0, Some((&V3::new(0.005, 0.0, 0.0), &sigma))),
             None
         );
         // A reference the filter could not tell from standing decides
         // nothing: 10 mm/s at σ_v 12 mm/s is d² = 0.68.
-        check.moving(&CONFIG, &V3::new(0.010, 0.0, 0.0), &sigma, r);
+        check.moving(&CONFIG, (&V3::new(0.010, 0.0, 0.0), &sigma));
         assert_eq!(
-            check.judge(&CONFIG, 30.0, Some((&V3::new(0.010, 0.0, 0.0), &sigma)), r),
+            check.judge(&CONFIG, 30.0, Some((&V3::new(0.010, 0.0, 0.0), &sigma))),
             None
         );
     }
@@ -293,19 +294,16 @@ mod tests {
         // A run called at 5 s: nothing within it yet; at 12 s, 70 mm.
         let mut gliding = RestCheck::default();
         feed(&mut gliding, 0, 5);
-        assert_eq!(gliding.judge(&CONFIG, 5.0, None, 0.0), None);
+        assert_eq!(gliding.judge(&CONFIG, 5.0, None), None);
         feed(&mut gliding, 6, 12);
-        assert_eq!(
-            gliding.judge(&CONFIG, 12.0, None, 0.0),
-            Some(Refusal::Odometer)
-        );
+        assert_eq!(gliding.judge(&CONFIG, 12.0, None), Some(Refusal::Odometer));
         // A run that starts at the stop (20 s) is not vetoed by the push
         // before it, though the last 10 s hold 100 mm.
         let mut stopped = RestCheck::default();
         feed(&mut stopped, 0, 20);
-        assert_eq!(stopped.judge(&CONFIG, 20.0, None, 0.0), None);
+        assert_eq!(stopped.judge(&CONFIG, 20.0, None), None);
         feed(&mut stopped, 21, 22);
-        assert_eq!(stopped.judge(&CONFIG, 22.0, None, 0.0), None);
+        assert_eq!(stopped.judge(&CONFIG, 22.0, None), None);
         // Only one reading at or before the window's start is kept.
         feed(&mut stopped, 23, 40);
         assert_eq!(stopped.odometer.front().map(|&(t, _)| t), Some(30.0));
