@@ -412,12 +412,14 @@ impl ZuptEngine {
         let config = self.config;
         // Not aligned yet: only the odometer can veto the rest that aligns.
         if self.navigation.is_none()
-            && decision.zv
             && let Some(check) = &config.rest_check
-            && self.rest_check.judge(check, sample.t, None).is_some()
         {
-            decision.zv = false;
-            self.stats.rests_refused_odometer += 1;
+            if !decision.zv {
+                self.rest_check.moving(check, None);
+            } else if self.rest_check.judge(check, sample.t, None).is_some() {
+                decision.zv = false;
+                self.stats.rests_refused_odometer += 1;
+            }
         }
         if self.navigation.is_none()
             && (decision.zv || config.pipeline.detector == DetectorKind::None)
@@ -457,7 +459,7 @@ impl ZuptEngine {
                 }
                 decision.zv &= verdict.is_none();
             } else {
-                self.rest_check.moving(check, velocity);
+                self.rest_check.moving(check, Some(velocity));
             }
         }
         if nav.previous.is_some() {

@@ -115,14 +115,19 @@ pub struct RestCheck {
 }
 
 impl RestCheck {
-    /// The detector called a reading moving; the filter's velocity then.
-    pub fn moving(&mut self, config: &RestCheckConfig, (v, p_v): Velocity<'_>) {
+    /// The detector called a reading moving: its run of rest has ended.
+    /// With the filter's velocity then (`None` before alignment), that is
+    /// the motion the filter knows.
+    pub fn moving(&mut self, config: &RestCheckConfig, velocity: Option<Velocity<'_>>) {
+        self.run_start_t = None;
+        let Some((v, p_v)) = velocity else {
+            return;
+        };
         self.reference_is_motion = config
             .innovation(p_v)
             .is_some_and(|s| s.distance(v) > config.gate_chi2);
         self.reference_mps = *v;
         self.reference_p = *p_v;
-        self.run_start_t = None;
     }
 
     /// An odometer reading the navigation time has reached.
@@ -238,7 +243,7 @@ mod tests {
     #[test]
     fn the_velocity_gate() {
         let mut check = RestCheck::default();
-        check.moving(&CONFIG, (&V3::zeros(), &p(0.002)));
+        check.moving(&CONFIG, Some((&V3::zeros(), &p(0.002))));
         // σ_v = 5 mm/s, R = (2 mm/s)²: S = 29e-6 per axis. 20 mm/s north:
         // d² = 4e-4 / 29e-6 = 13.8 < 16, standing; 25 mm/s: 21.6, refused.
         let at = |v: f64| V3::new(v, 0.0, 0.0);
@@ -257,7 +262,7 @@ mod tests {
         let mut check = RestCheck::default();
         // Moving at 40 mm/s when the detector last said so, σ_v 2 mm/s:
         // d² = 0.0016 / 8e-6 = 200, plainly motion.
-        check.moving(&CONFIG, (&V3::new(0.040, 0.0, 0.0), &p(0.002)));
+        check.moving(&CONFIG, Some((&V3::new(0.040, 0.0, 0.0), &p(0.002))));
         // Later σ_v has grown to 12 mm/s: S₀ = 1.48e-4 per axis, and 38
         // mm/s is d₀² = 9.76, inside the gate. Still moving: S₁ = 1.44e-4 −
         // 4e-6 + 8e-6 + (0.3 · 0.04)² = 2.92e-4, d₁² = 0.0137; evidence
@@ -275,7 +280,7 @@ mod tests {
         );
         // A reference the filter could not tell from standing decides
         // nothing: 10 mm/s at σ_v 12 mm/s is d² = 0.68.
-        check.moving(&CONFIG, (&V3::new(0.010, 0.0, 0.0), &sigma));
+        check.moving(&CONFIG, Some((&V3::new(0.010, 0.0, 0.0), &sigma)));
         assert_eq!(
             check.judge(&CONFIG, 30.0, Some((&V3::new(0.010, 0.0, 0.0), &sigma))),
             None
@@ -304,6 +309,15 @@ mod tests {
         assert_eq!(stopped.judge(&CONFIG, 20.0, None), None);
         feed(&mut stopped, 21, 22);
         assert_eq!(stopped.judge(&CONFIG, 22.0, None), None);
+        // Called moving at 23 s (before alignment: no velocity), a new run
+        // at 25 s starts its window there.
+        let mut early = RestCheck::default();
+        feed(&mut early, 0, 3);
+        assert_eq!(early.judge(&CONFIG, 3.0, None), None);
+        feed(&mut early, 4, 23);
+        early.moving(&CONFIG, None);
+        feed(&mut early, 24, 25);
+        assert_eq!(early.judge(&CONFIG, 25.0, None), None);
         // Only one reading at or before the window's start is kept.
         feed(&mut stopped, 23, 40);
         assert_eq!(stopped.odometer.front().map(|&(t, _)| t), Some(30.0));
