@@ -32,18 +32,18 @@ fn envelope_drives_seeds_1_to_12() {
     }
 }
 
-/// The trolley: pushes of about 30 s at 35–45 mm/s carrying a few
-/// mg of steady rolling vibration (5–30 Hz) and a little angular jitter,
-/// quiet rests of 30 s.
-fn rolling_trolley(seed: u64) -> PipeJackEnvelope {
+/// The trolley: pushes of `push_s` at 35–45 mm/s (by seed)
+/// carrying a few mg of steady rolling vibration (5–30 Hz) and a little
+/// angular jitter, quiet rests of `rest_s`.
+fn rolling_trolley(seed: u64, push_s: f64, rest_s: f64) -> PipeJackEnvelope {
     PipeJackEnvelope {
         seed,
         heading_deg: 30.0,
         slope_deg: 0.5,
         latitude_deg: 30.0,
-        push_s: 30.0,
-        rest_s: 30.0,
-        speed_mps: 0.04,
+        push_s,
+        rest_s,
+        speed_mps: [0.035, 0.040, 0.045][(seed % 3) as usize],
         ramp_s: 1.5,
         fluctuation: 0.0,
         push_vibration: Some(VibrationDraw {
@@ -61,22 +61,46 @@ fn rolling_trolley(seed: u64) -> PipeJackEnvelope {
     }
 }
 
-/// The table, first row: the paper's detector holds (precision
-/// 1.000 there); the engine's default does not yet, and says so.
+/// The table, first two rows (push/rest 30/30, 20/40, 40/20 and
+/// 45/15 s, seeds 1–3 each, fixed before the rest check was run on them):
+/// the paper's detector holds, and so does the engine's default, which
+/// calls none of the rolling a rest. (First written with distance ≤ 1.5 %,
+/// which 40/20 seed 3 breaks for both runs: 2.96 and 2.92 %.)
 #[test]
-fn a_rolling_trolley() {
-    for seed in 1..=3 {
-        let d = evaluate_envelope(&rolling_trolley(seed), &Params::defaults(PARAMS)).unwrap();
-        let engine = d.run("engine").unwrap();
-        let paper = d.run("paper").unwrap();
-        eprintln!(
-            "seed {seed}: engine precision {:.4} distance {:.2} %; paper precision {:.4} distance {:.2} %",
-            engine.precision, engine.distance_error_pct, paper.precision, paper.distance_error_pct
-        );
-        if engine.precision < 0.99 {
-            eprintln!("seed {seed}: NOT MET: engine precision ≥ 0.99 on the rolling trolley");
+fn a_rolling_trolley_is_never_standing() {
+    for (push_s, rest_s) in [(30.0, 30.0), (20.0, 40.0), (40.0, 20.0), (45.0, 15.0)] {
+        for seed in 1..=3 {
+            let drive = rolling_trolley(seed, push_s, rest_s);
+            let d = evaluate_envelope(&drive, &Params::defaults(PARAMS)).unwrap();
+            let engine = d.run("engine").unwrap();
+            let paper = d.run("paper").unwrap();
+            eprintln!(
+                "{push_s}/{rest_s} s seed {seed}: engine precision {:.4} recall {:.4} distance {:.2} %; paper precision {:.4} distance {:.2} %",
+                engine.precision,
+                engine.recall,
+                engine.distance_error_pct,
+                paper.precision,
+                paper.distance_error_pct
+            );
+            assert!(
+                engine.precision >= 0.99,
+                "{push_s}/{rest_s} seed {seed}: {engine:?}"
+            );
+            assert!(
+                engine.recall >= 0.90,
+                "{push_s}/{rest_s} seed {seed}: {engine:?}"
+            );
+            // The distance bar is the issue's: never worse than the paper's
+            // by more than 0.2 % (with 40 s pushes the INS alone drifts
+            // ~3 % on seed 3, for both).
+            assert!(
+                engine.distance_error_pct <= paper.distance_error_pct + 0.2,
+                "{push_s}/{rest_s} seed {seed}: {engine:?}"
+            );
+            assert!(
+                paper.precision >= 0.99,
+                "{push_s}/{rest_s} seed {seed}: {paper:?}"
+            );
         }
-        assert!(paper.precision >= 0.99, "seed {seed}: {paper:?}");
-        assert!(paper.distance_error_pct <= 1.5, "seed {seed}: {paper:?}");
     }
 }

@@ -44,7 +44,7 @@ use self::eskf::{
 };
 use self::estimate::{TrackPoint, ZuptEstimate};
 pub use self::params::{PARAMS, ZuptConfig, ZuptParams};
-use self::rest_check::{Refusal, RestCheck};
+use self::rest_check::{Refusal, RestCheck, Velocity};
 use self::smoother::{Point, PushRecord};
 use self::strapdown::{Increment, NavState};
 use self::zero_velocity::{Decision, DetectorKind, ZeroVelocityPipeline};
@@ -62,7 +62,7 @@ use crate::fusion::geometry::{
 /// refused as [`SnapshotError::Outdated`]; the machine is then rebuilt from
 /// its stored readings. 2: integrated detector signals, learned rest
 /// levels, zero-angular-rate updates; 3: the rest check.
-pub const STATE_VERSION: u32 = 3;
+pub const STATE_VERSION: u32 = 4;
 /// Level or odometer readings kept waiting for the navigation time.
 const MAX_PENDING_AIDS: usize = 1024;
 /// Two odometer readings further apart than this give no speed.
@@ -415,7 +415,7 @@ impl ZuptEngine {
             && let Some(check) = &config.rest_check
         {
             if !decision.zv {
-                self.rest_check.moving(check, None);
+                self.rest_check.moving();
             } else if self.rest_check.judge(check, sample.t, None).is_some() {
                 decision.zv = false;
                 self.stats.rests_refused_odometer += 1;
@@ -447,7 +447,12 @@ impl ZuptEngine {
         }
         if let Some(check) = &config.rest_check {
             let p_v = nav.filter.p.fixed_view::<3, 3>(VEL, VEL).into_owned();
-            let velocity = (&nav.state.velocity_mps, &p_v);
+            let forward = nav.state.attitude * V3::x();
+            let velocity = Velocity {
+                velocity_mps: &nav.state.velocity_mps,
+                p_v: &p_v,
+                forward: &forward,
+            };
             if decision.zv {
                 let verdict = self.rest_check.judge(check, sample.t, Some(velocity));
                 match verdict {
@@ -459,7 +464,7 @@ impl ZuptEngine {
                 }
                 decision.zv &= verdict.is_none();
             } else {
-                self.rest_check.moving(check, Some(velocity));
+                self.rest_check.moving();
             }
         }
         if nav.previous.is_some() {
@@ -475,6 +480,7 @@ impl ZuptEngine {
             if !nav.is_finite() {
                 self.navigation = None;
                 self.stats.navigation_resets += 1;
+                self.rest_check.forget_motion();
             }
         }
         let Some(nav) = self.navigation.as_ref() else {
@@ -1035,7 +1041,7 @@ mod tests {
             ZuptEngine::restore(old),
             Err(SnapshotError::Outdated {
                 found: 1,
-                expected: 3,
+                expected: 4,
                 ..
             })
         ));

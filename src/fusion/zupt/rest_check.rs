@@ -1,57 +1,62 @@
 //! The check a rest called by the detector must pass before its
-//! zero-velocity update is made (`rest_check`, issue 33).
+//! zero-velocity update is made (`rest_check`, on by default; issue 33).
 //!
 //! The detector ([`super::zero_velocity`]) looks at one window of IMU
 //! samples. A steady vibration at rest and a steady vibration while the
 //! machine glides at constant speed look alike there: constant velocity
-//! leaves no trace in an accelerometer. What does tell them apart is
-//! evidence from outside the window, and the engine has two sources:
+//! leaves no trace in an accelerometer. What tells them apart is how the
+//! machine got there. It cannot start or stop without accelerating, and an
+//! acceleration changes the velocity within a window, which the detector
+//! calls moving. So the timeline splits into the detector's runs of rest,
+//! separated by motion, and within a run the machine keeps the velocity it
+//! had at the run's start. The check books that velocity u (NED) with a
+//! covariance Σ_u and judges each run **once**, at its first aligned
+//! reading, while the evidence is fresh:
 //!
-//! 1. **The filter's velocity.** The INS integrated the acceleration that
-//!    started the push; the filter carries the velocity v̂ (NED) and its
-//!    covariance P_v. A machine that stands has v = 0, so the zero-velocity
-//!    innovation v̂ must be plausible under S = P_v + R (R = σ_zupt² I):
+//! 1. **What the INS integrated since the previous run.** With v̂, P_v the
+//!    filter's velocity and covariance now and v̂_e, P_e at the last
+//!    reading of the previous run,
 //!
-//!    d₀² = v̂ᵀ S⁻¹ v̂ ≤ γ_χ²   (`rest_gate_chi2`; χ² with 3 degrees of
-//!    freedom, 16.27 refuses 0.1 % of true rests when P_v is honest).
+//!    u = u_prev + (v̂ − v̂_e),  S = Σ_prev + (P_v − P_e) + R (+ c² u_prev u_prevᵀ)
 //!
-//!    And a called rest must be more likely standing than still moving
-//!    as the filter last knew it to: with v_ref the velocity at the newest
-//!    reading the detector called moving or the gate above refused, P_ref
-//!    the covariance then, and v_ref plainly motion then (v_refᵀ S_ref⁻¹
-//!    v_ref > γ_χ²), "still moving" predicts v̂ ~ N(v_ref, S₁) with
+//!    (R = σ_zupt² I; u_prev = 0 and Σ_prev = P_e after an accepted rest;
+//!    after a refused run u_prev is its booked velocity, and the last term,
+//!    with c = `rest_speed_change`, lets its speed drift by that share
+//!    while the detector saw nothing). The drift of the INS *within* a run
+//!    never enters: a push of ten minutes is judged on the few seconds of
+//!    its stop, not on the metres per second an unaided INS gathers.
+//! 2. **A χ² gate**: the run is refused when d₀² = uᵀ S⁻¹ u > γ_χ²
+//!    (`rest_gate_chi2`; χ², 3 degrees of freedom: 16.27 refuses 0.1 % of
+//!    true rests). A machine that just accelerated to 40 mm/s is not
+//!    standing because its vibration is steady.
+//! 3. **Still moving or stopped?** After a refused run, the run is also
+//!    refused when the log-likelihood ratio of "still moving at u_prev"
+//!    over "standing", ½(d₀² − d₁²) with d₁² = (u − u_prev)ᵀ S⁻¹ (u −
+//!    u_prev), exceeds `rest_motion_evidence` (3: twenty to one). A stop
+//!    decelerates the machine by u_prev, the INS sees it, and u ≈ 0.
+//! 4. **Plausible motion only.** The machine advances along its axis, at
+//!    up to `max_speed_mps`. A refusal needs u forward along the axis
+//!    (within 27°) and no faster than that (plus 3σ); anything else is the
+//!    INS gone wrong (a level taken while the machine crept, say), and the
+//!    detector decides: its zero-velocity updates bring the INS back.
+//! 5. **The odometer**, where there is one, vetoes single readings: a
+//!    called rest is refused while the odometer advanced more than
+//!    `odometer_rest_m` over the last `odometer_rest_window_s` (counted
+//!    from the first reading of the detector's current run at the
+//!    earliest, so the end of the push before a true rest does not veto
+//!    it). With a 1 mm counter noise the default 6 mm is 4 standard
+//!    deviations of a difference of two readings.
 //!
-//!    S₁ = (P_v − P_ref) + 2R + c² v_ref v_refᵀ
-//!
-//!    (the INS drift since then, and a change of speed along the motion of
-//!    up to a share c, `rest_speed_change`), "standing" predicts v̂ ~ N(0, S₀ = P_v + R). The
-//!    call is refused when the log-likelihood ratio
-//!
-//!    ½(d₀² − d₁²) + ½ ln(|S₀| / |S₁|),  d₁² = (v̂ − v_ref)ᵀ S₁⁻¹ (v̂ − v_ref),
-//!
-//!    exceeds `rest_motion_evidence` (3: twenty to one). A machine that
-//!    stops decelerates, and the INS sees it: v̂ falls from v_ref to about
-//!    0, and the rest is accepted. A machine still gliding keeps v̂ near
-//!    v_ref (the INS drifts slowly, a speed fluctuates by a fraction), and
-//!    the call is refused however long the detector keeps calling rest,
-//!    even once P_v has grown so large that 0 is inside the gate: v̂ sits
-//!    on the narrow prediction of "still moving". Where the filter cannot
-//!    tell (the drift since v_ref as large as the speed: a long push
-//!    without aiding, a crawl at 1 mm/s), the ratio is near 1 and the
-//!    detector decides.
-//!
-//! 2. **The odometer**, where there is one: a called rest is refused while
-//!    the odometer advanced more than `odometer_rest_m` over the last
-//!    `odometer_rest_window_s` (counted from the first reading of the
-//!    detector's current run at the earliest, so the end of the push before
-//!    a true rest does not veto it). With a 1 mm counter noise the default
-//!    6 mm is 4 standard deviations of a difference of two readings.
-//!
-//! Steady vibration alone therefore neither makes motion "still" (the
-//! velocity and the odometer say it moves) nor rest "moving" (the detector,
-//! on integrated signals with learned rest levels, still finds the rest,
-//! and v̂ ≈ 0 there). `rest_check=false` makes every called rest a
-//! zero-velocity update (the paper).
+//! A verdict holds until the detector calls moving. An accepted run books
+//! the machine standing (u = 0, Σ_u = P_v at its end); a refused one books
+//! u. Before alignment only the odometer decides; a navigation reset
+//! forgets what was booked. Steady vibration alone therefore neither makes
+//! motion "still" (the velocity booked at the run's start says it moves)
+//! nor rest "moving" (the detector, on integrated signals with learned rest
+//! levels, still finds the rest, and u ≈ 0 there). What the check cannot
+//! see: a start or stop too gentle for the detector (below about 2 mm/s
+//! within a window), which leaves the booking as it was. `rest_check=false`
+//! makes every called rest a zero-velocity update (the paper).
 
 use std::collections::VecDeque;
 
@@ -76,20 +81,21 @@ pub struct RestCheckConfig {
     pub motion_evidence: f64,
     /// R per axis: the variance of the zero-velocity measurement, (m/s)².
     pub zupt_variance_mps2: f64,
+    /// The fastest the machine advances, m/s.
+    pub max_speed_mps: f64,
 }
 
-impl RestCheckConfig {
-    /// S = P_v + R.
-    fn innovation(&self, p_v: &Matrix3<f64>) -> Option<Gaussian> {
-        Gaussian::new(&(p_v + Matrix3::identity() * self.zupt_variance_mps2))
-    }
+/// What the filter knows at a reading: its velocity v̂ (NED, m/s), the
+/// covariance P_v, and the machine's forward axis (a unit vector, NED).
+#[derive(Debug, Clone, Copy)]
+pub struct Velocity<'a> {
+    pub velocity_mps: &'a V3,
+    pub p_v: &'a Matrix3<f64>,
+    pub forward: &'a V3,
 }
-
-/// The filter's velocity v̂ (NED, m/s) and its covariance P_v.
-pub type Velocity<'a> = (&'a V3, &'a Matrix3<f64>);
 
 /// Why a called rest was refused.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Refusal {
     /// v̂ is not plausible for a standing machine.
     Velocity,
@@ -99,15 +105,30 @@ pub enum Refusal {
     Odometer,
 }
 
+/// The verdict on one run of rest the detector called.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+enum Verdict {
+    Standing,
+    Refused(Refusal),
+}
+
 /// The check's memory; see the module documentation.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
 pub struct RestCheck {
-    /// v̂ at the newest reading the detector called moving or the gate
-    /// refused, NED m/s, P_v then, and whether it was plainly motion then
-    /// (v_refᵀ S⁻¹ v_ref > γ_χ² with that reading's S).
-    reference_mps: V3,
-    reference_p: Matrix3<f64>,
-    reference_is_motion: bool,
+    /// u: the machine's velocity as the check books it, NED m/s (zero
+    /// over an accepted rest, the velocity found at the start of a refused
+    /// run over that run), and Σ_u, its covariance without the allowance
+    /// for a change of speed.
+    booked_mps: V3,
+    booked_p: Matrix3<f64>,
+    /// Whether the newest run was refused (the machine was moving then).
+    booked_is_motion: bool,
+    /// v̂ and P_v at the newest reading of a run (its end once the detector
+    /// calls moving); `None` until the first aligned reading of a run.
+    anchor: Option<(V3, Matrix3<f64>)>,
+    /// The verdict on the detector's current run, made at its first
+    /// aligned reading and kept until the detector calls moving.
+    verdict: Option<Verdict>,
     /// Time of the first reading of the detector's current run of rest.
     run_start_t: Option<f64>,
     /// Odometer readings (t, m), oldest first, over the last window.
@@ -115,19 +136,26 @@ pub struct RestCheck {
 }
 
 impl RestCheck {
-    /// The detector called a reading moving: its run of rest has ended.
-    /// With the filter's velocity then (`None` before alignment), that is
-    /// the motion the filter knows.
-    pub fn moving(&mut self, config: &RestCheckConfig, velocity: Option<Velocity<'_>>) {
+    /// The detector called a reading moving: its run of rest, if any, has
+    /// ended; a rest it accepted books the machine as standing.
+    pub fn moving(&mut self) {
         self.run_start_t = None;
-        let Some((v, p_v)) = velocity else {
-            return;
+        if self.verdict.take() == Some(Verdict::Standing)
+            && let Some((_, p_end)) = self.anchor
+        {
+            self.booked_mps = V3::zeros();
+            self.booked_p = p_end;
+            self.booked_is_motion = false;
+        }
+    }
+
+    /// The navigation starts again from nothing (a reset): nothing booked.
+    pub fn forget_motion(&mut self) {
+        let odometer = std::mem::take(&mut self.odometer);
+        *self = RestCheck {
+            odometer,
+            ..RestCheck::default()
         };
-        self.reference_is_motion = config
-            .innovation(p_v)
-            .is_some_and(|s| s.distance(v) > config.gate_chi2);
-        self.reference_mps = *v;
-        self.reference_p = *p_v;
     }
 
     /// An odometer reading the navigation time has reached.
@@ -167,52 +195,94 @@ impl RestCheck {
         velocity: Option<Velocity<'_>>,
     ) -> Option<Refusal> {
         self.run_start_t.get_or_insert(t);
-        if self.odometer_advanced(config, t) {
-            return Some(Refusal::Odometer);
-        }
-        let (v, p_v) = velocity?;
-        let r = config.zupt_variance_mps2;
-        let standing = config.innovation(p_v)?;
-        let d0 = standing.distance(v);
-        if d0 > config.gate_chi2 {
-            // Plainly moving: this is the motion the filter knows.
-            self.reference_mps = *v;
-            self.reference_p = *p_v;
-            self.reference_is_motion = true;
-            return Some(Refusal::Velocity);
-        }
-        if self.reference_is_motion {
-            // Still moving as before: v̂ − v_ref is the INS drift since then
-            // and a change of speed, along the motion: c² v_ref v_refᵀ.
-            let along = self.reference_mps * config.speed_change;
-            let s1 = (p_v - self.reference_p)
-                + Matrix3::identity() * (2.0 * r)
-                + along * along.transpose();
-            let moving = Gaussian::new(&s1).unwrap_or(standing);
-            let d1 = moving.distance(&(v - self.reference_mps));
-            let evidence = 0.5 * (d0 - d1) + 0.5 * (standing.log_det - moving.log_det);
-            if evidence > config.motion_evidence {
-                return Some(Refusal::StillMoving);
+        let odometer_advanced = self.odometer_advanced(config, t);
+        let Some(Velocity {
+            velocity_mps: v,
+            p_v,
+            forward,
+        }) = velocity
+        else {
+            return odometer_advanced.then_some(Refusal::Odometer);
+        };
+        let verdict = match self.verdict {
+            Some(verdict) => verdict,
+            None => {
+                let verdict = self.judge_run(config, v, p_v, forward);
+                self.verdict = Some(verdict);
+                verdict
             }
+        };
+        self.anchor = Some((*v, *p_v));
+        match verdict {
+            Verdict::Refused(refusal) => Some(refusal),
+            Verdict::Standing => odometer_advanced.then_some(Refusal::Odometer),
         }
-        None
+    }
+
+    /// The verdict on a run from its first aligned reading (module doc).
+    fn judge_run(
+        &mut self,
+        config: &RestCheckConfig,
+        v: &V3,
+        p_v: &Matrix3<f64>,
+        forward: &V3,
+    ) -> Verdict {
+        // Δ: what the INS integrated since the end of the previous run,
+        // with the drift it gathered meanwhile (P_v − P_v,end).
+        let (anchor_v, anchor_p) = self.anchor.unwrap_or((*v, *p_v));
+        let u = self.booked_mps + (v - anchor_v);
+        let r = Matrix3::identity() * config.zupt_variance_mps2;
+        let mut s = self.booked_p + (p_v - anchor_p) + r;
+        if self.booked_is_motion {
+            let along = self.booked_mps * config.speed_change;
+            s += along * along.transpose();
+        }
+        let Some(gaussian) =
+            Gaussian::new(&s).or_else(|| Gaussian::new(&(self.booked_p + p_v + r)))
+        else {
+            return Verdict::Standing;
+        };
+        let d0 = gaussian.distance(&u);
+        let refusal = if d0 > config.gate_chi2 {
+            Some(Refusal::Velocity)
+        } else if self.booked_is_motion
+            && 0.5 * (d0 - gaussian.distance(&(u - self.booked_mps))) > config.motion_evidence
+        {
+            Some(Refusal::StillMoving)
+        } else {
+            None
+        };
+        // Motion the machine cannot make (backwards, sideways, faster than
+        // it can) is the INS gone wrong: the detector decides, and its
+        // zero-velocity updates bring the INS back.
+        let along = u.dot(forward);
+        let plausible = along > 0.0
+            && (u - forward * along).norm() <= 0.5 * along
+            && along <= config.max_speed_mps + 3.0 * (forward.transpose() * s * forward)[0].sqrt();
+        match refusal.filter(|_| plausible) {
+            Some(refusal) => {
+                self.booked_mps = u;
+                self.booked_p = self.booked_p + (p_v - anchor_p) + r;
+                self.booked_is_motion = true;
+                Verdict::Refused(refusal)
+            }
+            None => Verdict::Standing,
+        }
     }
 }
 
-/// A zero-mean Gaussian of covariance S: its Cholesky factor and ln |S|.
+/// A zero-mean Gaussian of covariance S, by its Cholesky factor.
 #[derive(Clone, Copy)]
 struct Gaussian {
     cholesky: Matrix3<f64>,
-    log_det: f64,
 }
 
 impl Gaussian {
     fn new(s: &Matrix3<f64>) -> Option<Gaussian> {
         let cholesky = s.cholesky()?.l();
-        let log_det = 2.0 * (0..3).map(|i| cholesky[(i, i)].ln()).sum::<f64>();
-        log_det
-            .is_finite()
-            .then_some(Gaussian { cholesky, log_det })
+        (0..3)
+            .all(|i| cholesky[(i, i)] > 0.0)
+            .then_some(Gaussian { cholesky })
     }
 
     /// xᵀ S⁻¹ x.
@@ -234,57 +304,87 @@ mod tests {
         speed_change: 0.3,
         motion_evidence: 3.0,
         zupt_variance_mps2: 4e-6,
+        max_speed_mps: 0.15,
     };
 
     fn p(sigma: f64) -> Matrix3<f64> {
         Matrix3::identity() * sigma * sigma
     }
 
-    #[test]
-    fn the_velocity_gate() {
-        let mut check = RestCheck::default();
-        check.moving(&CONFIG, Some((&V3::zeros(), &p(0.002))));
-        // σ_v = 5 mm/s, R = (2 mm/s)²: S = 29e-6 per axis. 20 mm/s north:
-        // d² = 4e-4 / 29e-6 = 13.8 < 16, standing; 25 mm/s: 21.6, refused.
-        let at = |v: f64| V3::new(v, 0.0, 0.0);
-        assert_eq!(
-            check.judge(&CONFIG, 0.0, Some((&at(0.020), &p(0.005)))),
-            None
-        );
-        assert_eq!(
-            check.judge(&CONFIG, 0.1, Some((&at(0.025), &p(0.005)))),
-            Some(Refusal::Velocity)
-        );
+    const NORTH: V3 = V3::new(1.0, 0.0, 0.0);
+
+    fn at<'a>(v: &'a V3, p_v: &'a Matrix3<f64>) -> Option<Velocity<'a>> {
+        Some(Velocity {
+            velocity_mps: v,
+            p_v,
+            forward: &NORTH,
+        })
     }
 
     #[test]
-    fn a_glide_at_the_known_speed_is_refused_and_the_stop_after_it_is_not() {
+    fn a_run_is_judged_once_on_the_velocity_the_ins_integrated_since_the_last_run() {
         let mut check = RestCheck::default();
-        // Moving at 40 mm/s when the detector last said so, σ_v 2 mm/s:
-        // d² = 0.0016 / 8e-6 = 200, plainly motion.
-        check.moving(&CONFIG, Some((&V3::new(0.040, 0.0, 0.0), &p(0.002))));
-        // Later σ_v has grown to 12 mm/s: S₀ = 1.48e-4 per axis, and 38
-        // mm/s is d₀² = 9.76, inside the gate. Still moving: S₁ = 1.44e-4 −
-        // 4e-6 + 8e-6 + (0.3 · 0.04)² = 2.92e-4, d₁² = 0.0137; evidence
-        // ½(9.76 − 0.014) + (3/2) ln(1.48 / 2.92) = 3.85 > 3: refused.
-        let sigma = p(0.012);
+        // Aligned standing, σ_v 0.6 mm/s: accepted, booked standing.
+        let sigma_rest = p(0.0006);
         assert_eq!(
-            check.judge(&CONFIG, 20.0, Some((&V3::new(0.038, 0.0, 0.0), &sigma))),
+            check.judge(&CONFIG, 0.0, at(&V3::zeros(), &sigma_rest)),
+            None
+        );
+        check.moving();
+        // After a ramp the INS says 40 mm/s north, σ_v 1.4 mm/s: u = 40 mm/s,
+        // S = 3.6e-7 + (1.96e-6 − 3.6e-7) + 4e-6 = 5.96e-6 per axis,
+        // d² = 1.6e-3 / 5.96e-6 = 268 > 16: refused.
+        let v = V3::new(0.040, 0.0, 0.0);
+        assert_eq!(
+            check.judge(&CONFIG, 2.0, at(&v, &p(0.0014))),
+            Some(Refusal::Velocity)
+        );
+        // Later in the same run P_v has grown to (20 mm/s)² and v̂ drifted
+        // to 45 mm/s (d² 5 from standing): the run stays refused.
+        let drifted = V3::new(0.045, 0.0, 0.0);
+        assert_eq!(
+            check.judge(&CONFIG, 30.0, at(&drifted, &p(0.020))),
+            Some(Refusal::Velocity)
+        );
+        check.moving();
+        // A blip of motion changes v̂ by nothing: u stays 40 mm/s. Along
+        // the motion S = 5.96e-6 (booked) + 4e-6 + (0.3 · 0.04)² =
+        // 1.54e-4: d₀² = 10.4, inside the gate, d₁² = 0: evidence 5.2 > 3,
+        // still moving.
+        assert_eq!(
+            check.judge(&CONFIG, 31.0, at(&drifted, &p(0.020))),
             Some(Refusal::StillMoving)
         );
-        // The INS saw the deceleration: v̂ = 5 mm/s, d₀² = 0.17, d₁² = 4.2:
-        // the evidence is negative, standing.
+        check.moving();
+        // The stop: the INS saw −41 mm/s: u = −1 mm/s; S = 9.96e-6 + 4e-6
+        // + 1.44e-4 = 1.58e-4 along: d₀² = 0.006, d₁² = 1.681e-3 / 1.58e-4
+        // = 10.6: standing.
+        let stopped = V3::new(0.004, 0.0, 0.0);
+        assert_eq!(check.judge(&CONFIG, 33.0, at(&stopped, &p(0.020))), None);
+        // The rest is booked standing once the detector calls moving.
+        check.moving();
+        assert_eq!(check.booked_mps, V3::zeros());
+        assert!(!check.booked_is_motion);
+    }
+
+    #[test]
+    fn motion_the_machine_cannot_make_leaves_the_call_to_the_detector() {
+        let mut check = RestCheck::default();
         assert_eq!(
-            check.judge(&CONFIG, 25.0, Some((&V3::new(0.005, 0.0, 0.0), &sigma))),
+            check.judge(&CONFIG, 0.0, at(&V3::zeros(), &p(0.0006))),
             None
         );
-        // A reference the filter could not tell from standing decides
-        // nothing: 10 mm/s at σ_v 12 mm/s is d² = 0.68.
-        check.moving(&CONFIG, Some((&V3::new(0.010, 0.0, 0.0), &sigma)));
-        assert_eq!(
-            check.judge(&CONFIG, 30.0, Some((&V3::new(0.010, 0.0, 0.0), &sigma))),
-            None
-        );
+        check.moving();
+        // Backwards at 40 mm/s, sideways at 40 mm/s, or forward at 0.3
+        // m/s (max 0.15 + 3 · 2.4 mm/s): an INS gone wrong, accepted.
+        for v in [
+            V3::new(-0.040, 0.0, 0.0),
+            V3::new(0.0, 0.040, 0.0),
+            V3::new(0.300, 0.0, 0.0),
+        ] {
+            let mut c = check.clone();
+            assert_eq!(c.judge(&CONFIG, 2.0, at(&v, &p(0.0014))), None, "{v:?}");
+        }
     }
 
     #[test]
@@ -315,7 +415,7 @@ mod tests {
         feed(&mut early, 0, 3);
         assert_eq!(early.judge(&CONFIG, 3.0, None), None);
         feed(&mut early, 4, 23);
-        early.moving(&CONFIG, None);
+        early.moving();
         feed(&mut early, 24, 25);
         assert_eq!(early.judge(&CONFIG, 25.0, None), None);
         // Only one reading at or before the window's start is kept.
