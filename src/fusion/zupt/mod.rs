@@ -44,7 +44,7 @@ use self::eskf::{
 };
 use self::estimate::{TrackPoint, ZuptEstimate};
 pub use self::params::{PARAMS, ZuptConfig, ZuptParams};
-use self::rest_check::{Refusal, RestCheck, Velocity};
+use self::rest_check::{Refusal, RestCheck, RestCheckConfig, Velocity};
 use self::smoother::{Point, PushRecord};
 use self::strapdown::{Increment, NavState};
 use self::zero_velocity::{Decision, DetectorKind, ZeroVelocityPipeline};
@@ -61,7 +61,8 @@ use crate::fusion::geometry::{
 /// Version of the engine's snapshot. A snapshot of another version is
 /// refused as [`SnapshotError::Outdated`]; the machine is then rebuilt from
 /// its stored readings. 2: integrated detector signals, learned rest
-/// levels, zero-angular-rate updates; 3: the rest check.
+/// levels, zero-angular-rate updates; 3: the rest check; 4: the rest
+/// check judges runs of rest, not readings.
 pub const STATE_VERSION: u32 = 4;
 /// Level or odometer readings kept waiting for the navigation time.
 const MAX_PENDING_AIDS: usize = 1024;
@@ -414,12 +415,14 @@ impl ZuptEngine {
         if self.navigation.is_none()
             && let Some(check) = &config.rest_check
         {
-            if !decision.zv {
-                self.rest_check.moving();
-            } else if self.rest_check.judge(check, sample.t, None).is_some() {
-                decision.zv = false;
-                self.stats.rests_refused_odometer += 1;
-            }
+            check_rest(
+                check,
+                &mut self.rest_check,
+                &mut self.stats,
+                sample.t,
+                None,
+                &mut decision,
+            );
         }
         if self.navigation.is_none()
             && (decision.zv || config.pipeline.detector == DetectorKind::None)
@@ -453,19 +456,14 @@ impl ZuptEngine {
                 p_v: &p_v,
                 forward: &forward,
             };
-            if decision.zv {
-                let verdict = self.rest_check.judge(check, sample.t, Some(velocity));
-                match verdict {
-                    None => {}
-                    Some(Refusal::Odometer) => self.stats.rests_refused_odometer += 1,
-                    Some(Refusal::Velocity | Refusal::StillMoving) => {
-                        self.stats.rests_refused_velocity += 1
-                    }
-                }
-                decision.zv &= verdict.is_none();
-            } else {
-                self.rest_check.moving();
-            }
+            check_rest(
+                check,
+                &mut self.rest_check,
+                &mut self.stats,
+                sample.t,
+                Some(velocity),
+                &mut decision,
+            );
         }
         if nav.previous.is_some() {
             nav.interval_still &= decision.zv;
@@ -628,6 +626,30 @@ impl ZuptEngine {
             pending_odometer_speed_mps: None,
         }
     }
+}
+
+/// Passes the decision on the reading at `t` through the rest check: a
+/// called rest it refuses becomes moving, counted by the reason; a reading
+/// called moving ends the check's run. `velocity` is `None` before
+/// alignment.
+fn check_rest(
+    config: &RestCheckConfig,
+    rest_check: &mut RestCheck,
+    stats: &mut ZuptStats,
+    t: f64,
+    velocity: Option<Velocity<'_>>,
+    decision: &mut Decision,
+) {
+    if !decision.zv {
+        rest_check.moving();
+        return;
+    }
+    match rest_check.judge(config, t, velocity) {
+        None => return,
+        Some(Refusal::Odometer) => stats.rests_refused_odometer += 1,
+        Some(Refusal::Velocity | Refusal::StillMoving) => stats.rests_refused_velocity += 1,
+    }
+    decision.zv = false;
 }
 
 /// 1σ of pitch and roll, rad, from the attitude covariance (errors about

@@ -68,7 +68,8 @@ use crate::fusion::geometry::V3;
 /// The check's parameters.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct RestCheckConfig {
-    /// γ_χ²: the largest squared Mahalanobis distance of v̂ from standing.
+    /// γ_χ²: the largest squared Mahalanobis distance of the booked
+    /// velocity u from standing.
     pub gate_chi2: f64,
     /// Largest odometer advance over the window that still counts as standing, m.
     pub odometer_advance_m: f64,
@@ -124,7 +125,7 @@ pub struct RestCheck {
     /// Whether the newest run was refused (the machine was moving then).
     booked_is_motion: bool,
     /// v̂ and P_v at the newest reading of a run (its end once the detector
-    /// calls moving); `None` until the first aligned reading of a run.
+    /// calls moving); `None` before the first aligned reading.
     anchor: Option<(V3, Matrix3<f64>)>,
     /// The verdict on the detector's current run, made at its first
     /// aligned reading and kept until the detector calls moving.
@@ -232,7 +233,9 @@ impl RestCheck {
         let (anchor_v, anchor_p) = self.anchor.unwrap_or((*v, *p_v));
         let u = self.booked_mps + (v - anchor_v);
         let r = Matrix3::identity() * config.zupt_variance_mps2;
-        let mut s = self.booked_p + (p_v - anchor_p) + r;
+        // Σ_u of this run, and S with the allowance for a change of speed.
+        let sigma_u = self.booked_p + (p_v - anchor_p) + r;
+        let mut s = sigma_u;
         if self.booked_is_motion {
             let along = self.booked_mps * config.speed_change;
             s += along * along.transpose();
@@ -262,7 +265,7 @@ impl RestCheck {
         match refusal.filter(|_| plausible) {
             Some(refusal) => {
                 self.booked_mps = u;
-                self.booked_p = self.booked_p + (p_v - anchor_p) + r;
+                self.booked_p = sigma_u;
                 self.booked_is_motion = true;
                 Verdict::Refused(refusal)
             }
