@@ -138,7 +138,9 @@ impl ZuptEstimate {
 }
 
 /// A `zupt` estimate as releases before the heading σ and the smoothed
-/// push stored it (codec version 1).
+/// push stored it (codec version 1). Every later version stores these
+/// fields first, in this order; postcard writes a nested struct as its
+/// fields, so the later layouts below hold it as `core`.
 #[derive(Deserialize)]
 struct ZuptEstimateV1 {
     zv: bool,
@@ -158,30 +160,43 @@ struct ZuptEstimateV1 {
     mag_ratio: f64,
 }
 
-impl From<ZuptEstimateV1> for ZuptEstimate {
-    fn from(v: ZuptEstimateV1) -> ZuptEstimate {
+impl ZuptEstimateV1 {
+    /// The estimate with the fields later versions added (no version
+    /// before 4 stored pitch and roll σ).
+    fn upgrade(
+        self,
+        yaw_sigma_deg: Option<f64>,
+        attitude_sigma_deg: Option<[f64; 3]>,
+        smoothed_push: Option<Vec<TrackPoint>>,
+    ) -> ZuptEstimate {
         ZuptEstimate {
-            zv: v.zv,
-            position_m: v.position_m,
-            distance_m: v.distance_m,
-            velocity_mps: v.velocity_mps,
-            pitch_deg: v.pitch_deg,
-            roll_deg: v.roll_deg,
-            yaw_deg: v.yaw_deg,
-            aligned: v.aligned,
-            position_sigma_m: v.position_sigma_m,
-            height_m: v.height_m,
-            odometer_m: v.odometer_m,
-            mv_ratio: v.mv_ratio,
-            are_ratio: v.are_ratio,
-            shoe_ratio: v.shoe_ratio,
-            mag_ratio: v.mag_ratio,
-            yaw_sigma_deg: None,
-            attitude_sigma_deg: None,
+            zv: self.zv,
+            position_m: self.position_m,
+            distance_m: self.distance_m,
+            velocity_mps: self.velocity_mps,
+            pitch_deg: self.pitch_deg,
+            roll_deg: self.roll_deg,
+            yaw_deg: self.yaw_deg,
+            aligned: self.aligned,
+            position_sigma_m: self.position_sigma_m,
+            height_m: self.height_m,
+            odometer_m: self.odometer_m,
+            mv_ratio: self.mv_ratio,
+            are_ratio: self.are_ratio,
+            shoe_ratio: self.shoe_ratio,
+            mag_ratio: self.mag_ratio,
+            yaw_sigma_deg,
+            attitude_sigma_deg,
             pitch_sigma_deg: None,
             roll_sigma_deg: None,
-            smoothed_push: None,
+            smoothed_push,
         }
+    }
+}
+
+impl From<ZuptEstimateV1> for ZuptEstimate {
+    fn from(v: ZuptEstimateV1) -> ZuptEstimate {
+        v.upgrade(None, None, None)
     }
 }
 
@@ -189,49 +204,14 @@ impl From<ZuptEstimateV1> for ZuptEstimate {
 /// version 2).
 #[derive(Deserialize)]
 struct ZuptEstimateV2 {
-    zv: bool,
-    position_m: [f64; 3],
-    distance_m: f64,
-    velocity_mps: [f64; 3],
-    pitch_deg: f64,
-    roll_deg: f64,
-    yaw_deg: f64,
-    aligned: bool,
-    position_sigma_m: [f64; 3],
-    height_m: Option<f64>,
-    odometer_m: Option<f64>,
-    mv_ratio: f64,
-    are_ratio: f64,
-    shoe_ratio: f64,
-    mag_ratio: f64,
+    core: ZuptEstimateV1,
     yaw_sigma_deg: Option<f64>,
     smoothed_push: Option<Vec<TrackPoint>>,
 }
 
 impl From<ZuptEstimateV2> for ZuptEstimate {
     fn from(v: ZuptEstimateV2) -> ZuptEstimate {
-        ZuptEstimate {
-            zv: v.zv,
-            position_m: v.position_m,
-            distance_m: v.distance_m,
-            velocity_mps: v.velocity_mps,
-            pitch_deg: v.pitch_deg,
-            roll_deg: v.roll_deg,
-            yaw_deg: v.yaw_deg,
-            aligned: v.aligned,
-            position_sigma_m: v.position_sigma_m,
-            height_m: v.height_m,
-            odometer_m: v.odometer_m,
-            mv_ratio: v.mv_ratio,
-            are_ratio: v.are_ratio,
-            shoe_ratio: v.shoe_ratio,
-            mag_ratio: v.mag_ratio,
-            yaw_sigma_deg: v.yaw_sigma_deg,
-            attitude_sigma_deg: None,
-            pitch_sigma_deg: None,
-            roll_sigma_deg: None,
-            smoothed_push: v.smoothed_push,
-        }
+        v.core.upgrade(v.yaw_sigma_deg, None, v.smoothed_push)
     }
 }
 
@@ -239,21 +219,7 @@ impl From<ZuptEstimateV2> for ZuptEstimate {
 /// (codec version 3).
 #[derive(Deserialize)]
 struct ZuptEstimateV3 {
-    zv: bool,
-    position_m: [f64; 3],
-    distance_m: f64,
-    velocity_mps: [f64; 3],
-    pitch_deg: f64,
-    roll_deg: f64,
-    yaw_deg: f64,
-    aligned: bool,
-    position_sigma_m: [f64; 3],
-    height_m: Option<f64>,
-    odometer_m: Option<f64>,
-    mv_ratio: f64,
-    are_ratio: f64,
-    shoe_ratio: f64,
-    mag_ratio: f64,
+    core: ZuptEstimateV1,
     yaw_sigma_deg: Option<f64>,
     attitude_sigma_deg: Option<[f64; 3]>,
     smoothed_push: Option<Vec<TrackPoint>>,
@@ -261,28 +227,8 @@ struct ZuptEstimateV3 {
 
 impl From<ZuptEstimateV3> for ZuptEstimate {
     fn from(v: ZuptEstimateV3) -> ZuptEstimate {
-        ZuptEstimate {
-            zv: v.zv,
-            position_m: v.position_m,
-            distance_m: v.distance_m,
-            velocity_mps: v.velocity_mps,
-            pitch_deg: v.pitch_deg,
-            roll_deg: v.roll_deg,
-            yaw_deg: v.yaw_deg,
-            aligned: v.aligned,
-            position_sigma_m: v.position_sigma_m,
-            height_m: v.height_m,
-            odometer_m: v.odometer_m,
-            mv_ratio: v.mv_ratio,
-            are_ratio: v.are_ratio,
-            shoe_ratio: v.shoe_ratio,
-            mag_ratio: v.mag_ratio,
-            yaw_sigma_deg: v.yaw_sigma_deg,
-            attitude_sigma_deg: v.attitude_sigma_deg,
-            pitch_sigma_deg: None,
-            roll_sigma_deg: None,
-            smoothed_push: v.smoothed_push,
-        }
+        v.core
+            .upgrade(v.yaw_sigma_deg, v.attitude_sigma_deg, v.smoothed_push)
     }
 }
 
