@@ -414,7 +414,7 @@ pub fn render(drives: &[DriveScores], summary: &Summary) -> String {
     );
     let _ = writeln!(
         out,
-        "{:>5} {:>6} {:>8} {:>8} {:>6} {:>5} {:>4} {:>4} | {:>8} {:>8} {:>8} | {:>7} {:>7} {:>7}",
+        "{:>5} {:>6} {:>8} {:>8} {:>6} {:>5} {:>4} {:>4} {:>5} | {:>8} {:>8} {:>8} | {:>7} {:>7} {:>7}",
         "seed",
         "min",
         "dist m",
@@ -423,6 +423,7 @@ pub fn render(drives: &[DriveScores], summary: &Summary) -> String {
         "rest s",
         "vibP",
         "vibR",
+        "odo %",
         "engine",
         "paper",
         "oracle",
@@ -440,7 +441,7 @@ pub fn render(drives: &[DriveScores], summary: &Summary) -> String {
         };
         let _ = writeln!(
             out,
-            "{:>5} {:>6.0} {:>8.2} {:>8.4} {:>6.0} {:>5.0} {:>4} {:>4} | {:>8.3} {:>8.3} {:>8.3} | {:>7.4} {:>7.4} {:>7.4}",
+            "{:>5} {:>6.0} {:>8.2} {:>8.4} {:>6.0} {:>5.0} {:>4} {:>4} {:>5} | {:>8.3} {:>8.3} {:>8.3} | {:>7.4} {:>7.4} {:>7.4}",
             e.seed,
             d.duration_s / 60.0,
             d.distance_m,
@@ -449,6 +450,8 @@ pub fn render(drives: &[DriveScores], summary: &Summary) -> String {
             e.rest_s,
             vib(&e.push_vibration),
             vib(&e.rest_vibration),
+            e.odometer_scale_error
+                .map_or("–".to_string(), |s| format!("{:+.1}", 100.0 * s)),
             pct("engine"),
             pct("paper"),
             pct("oracle"),
