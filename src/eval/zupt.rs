@@ -166,9 +166,10 @@ pub fn run_params(
         ),
         ("detector".to_string(), ParamValue::Text(detector.into())),
     ];
-    if odometer_aiding {
-        overrides.push(("odometer_aiding".to_string(), ParamValue::Bool(true)));
-    }
+    overrides.push((
+        "odometer_aiding".to_string(),
+        ParamValue::Bool(odometer_aiding),
+    ));
     config.params.with_overrides(PARAMS, overrides)
 }
 

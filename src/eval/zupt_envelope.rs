@@ -11,8 +11,8 @@
 //! Every run is told the site's latitude and a start heading whose error
 //! is drawn from the declared `initial_yaw_sigma_deg` (the same error for
 //! the three runs of a drive). The odometer, where the drive has one, is
-//! read by the rest check but not fused (`odometer_aiding` stays as
-//! given): the figures are those of the zero-velocity updates.
+//! read by the rest check and fused as `odometer_aiding` says (on by
+//! default) in all three runs: the same filter, three ways to call rests.
 //!
 //! Scores per run: zero-velocity precision and recall per IMU reading
 //! against the truth (not advancing); the final along-track distance error

@@ -201,7 +201,7 @@ param_table! {
         ),
         rest_check: bool = flag(
             true,
-            "judge each run of rest the detector calls, once at its start, on the velocity the INS integrated since the previous run, and veto readings the odometer saw advance (rest_check.rs); false: every called rest is a zero-velocity update (the paper)",
+            "judge each run of rest the detector calls, once at its start, on the velocity the INS integrated since the previous run; veto readings the odometer saw advance, and accept a refused run once the odometer stood for a whole odometer_rest_window_s (rest_check.rs); false: every called rest is a zero-velocity update (the paper)",
         ),
         rest_gate_chi2: f64 = real(
             16.27,
@@ -243,7 +243,7 @@ param_table! {
             1.0,
             600.0,
             "s",
-            "the window of odometer_rest_m (from the start of the detector's current rest at the earliest)",
+            "the window of odometer_rest_m: a veto counts from the start of the detector's current rest at the earliest; a confirmation needs the whole window",
         ),
         zaru: bool = flag(
             true,
@@ -282,8 +282,8 @@ param_table! {
             "a level height or odometer speed further than this many σ from the prediction is refused (0: no gate)",
         ),
         odometer_aiding: bool = flag(
-            false,
-            "fuse odometer speed (and zero sideways/vertical body speed); off: odometer shown only",
+            true,
+            "fuse the odometer's speed, compared with the INS's mean speed over the odometer's interval (and zero sideways/vertical body speed); off: the odometer only vetoes rests and is shown",
         ),
         odometer_sigma_mps: f64 = real(
             0.005,

@@ -47,6 +47,15 @@
 //!    it). With a 1 mm counter noise the default 6 mm is 4 standard
 //!    deviations of a difference of two readings.
 //!
+//! 6. **The odometer confirms a rest.** A run refused for its velocity
+//!    (2 or 3) becomes a rest once the odometer, read throughout (its
+//!    newest reading within the last fifth of the window), has stayed
+//!    within `odometer_advance_m` over a whole `odometer_window_s`: the
+//!    detector and the odometer then agree the machine stands, whatever
+//!    velocity was booked (a booking the odometer's fusion has since
+//!    corrected, say). Without this a wrong refusal at the start of a rest
+//!    held for all of it.
+//!
 //! A verdict holds until the detector calls moving. An accepted run books
 //! the machine standing (u = 0, Σ_u = P_v at its end); a refused one books
 //! u. Before alignment only the odometer decides; a navigation reset
@@ -173,6 +182,25 @@ impl RestCheck {
         }
     }
 
+    /// Whether the odometer, read within the newest fifth of the window,
+    /// stayed within `odometer_advance_m` over the whole window ending at
+    /// `t`.
+    fn odometer_still(&self, config: &RestCheckConfig, t: f64) -> bool {
+        let window_s = config.odometer_window_s;
+        let (Some(&(oldest_t, _)), Some(&(newest_t, _))) =
+            (self.odometer.front(), self.odometer.back())
+        else {
+            return false;
+        };
+        let (low, high) = self.odometer.iter().fold(
+            (f64::INFINITY, f64::NEG_INFINITY),
+            |(low, high), &(_, d)| (low.min(d), high.max(d)),
+        );
+        oldest_t <= t - window_s
+            && newest_t >= t - 0.2 * window_s
+            && high - low <= config.odometer_advance_m
+    }
+
     /// Whether the odometer advanced over the window ending at `t`.
     fn odometer_advanced(&self, config: &RestCheckConfig, t: f64) -> bool {
         let from = (t - config.odometer_window_s).max(self.run_start_t.unwrap_or(t));
@@ -205,14 +233,21 @@ impl RestCheck {
         else {
             return odometer_advanced.then_some(Refusal::Odometer);
         };
-        let verdict = match self.verdict {
+        let mut verdict = match self.verdict {
             Some(verdict) => verdict,
-            None => {
-                let verdict = self.judge_run(config, v, p_v, forward);
-                self.verdict = Some(verdict);
-                verdict
-            }
+            None => self.judge_run(config, v, p_v, forward),
         };
+        // The detector and the odometer agree the machine stands: a run
+        // refused for its velocity is a rest after all once the odometer,
+        // read throughout, has not advanced over a whole window.
+        if matches!(
+            verdict,
+            Verdict::Refused(Refusal::Velocity | Refusal::StillMoving)
+        ) && self.odometer_still(config, t)
+        {
+            verdict = Verdict::Standing;
+        }
+        self.verdict = Some(verdict);
         self.anchor = Some((*v, *p_v));
         match verdict {
             Verdict::Refused(refusal) => Some(refusal),
@@ -424,5 +459,36 @@ mod tests {
         // Only one reading at or before the window's start is kept.
         feed(&mut stopped, 23, 40);
         assert_eq!(stopped.odometer.front().map(|&(t, _)| t), Some(30.0));
+    }
+
+    #[test]
+    fn a_refused_run_is_a_rest_once_the_odometer_stood_a_whole_window() {
+        let mut check = RestCheck::default();
+        assert_eq!(
+            check.judge(&CONFIG, 0.0, at(&V3::zeros(), &p(0.0006))),
+            None
+        );
+        check.moving();
+        // The INS says 40 mm/s after a ramp (d² = 268, see the first
+        // test): refused, though the odometer, read each second from 1 s,
+        // stays at 5.000 m.
+        let v = V3::new(0.040, 0.0, 0.0);
+        let p_v = p(0.0014);
+        let moving = at(&v, &p_v);
+        for k in 1..=9 {
+            check.odometer(&CONFIG, f64::from(k), 5.0);
+        }
+        assert_eq!(check.judge(&CONFIG, 2.0, moving), Some(Refusal::Velocity));
+        // At 10 s the readings cover [1, 10] s, not the whole window of
+        // 10 s: still refused.
+        check.odometer(&CONFIG, 10.0, 5.0);
+        assert_eq!(check.judge(&CONFIG, 10.0, moving), Some(Refusal::Velocity));
+        // At 11 s they cover [1, 11]: no advance over a whole window, and
+        // the detector calls rest too: standing from here on.
+        check.odometer(&CONFIG, 11.0, 5.0);
+        assert_eq!(check.judge(&CONFIG, 11.0, moving), None);
+        check.moving();
+        assert_eq!(check.booked_mps, V3::zeros());
+        assert!(!check.booked_is_motion);
     }
 }
