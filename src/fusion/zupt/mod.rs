@@ -70,6 +70,8 @@ pub const STATE_VERSION: u32 = 5;
 const MAX_PENDING_AIDS: usize = 1024;
 /// Two odometer readings further apart than this give no speed.
 const ODOMETER_MAX_GAP_S: f64 = 10.0;
+/// The spacing of the INS distance kept to compare with the odometer, s.
+const INS_DISTANCE_STEP_S: f64 = 0.05;
 
 /// One IMU reading in working units.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -135,9 +137,13 @@ struct Navigation {
     /// b̂_a, m/s², and b̂_g, rad/s: subtracted from every reading.
     accel_bias_mps2: V3,
     gyro_bias_rad_per_s: V3,
-    /// Seconds and along-track metres the INS integrated since the
-    /// newest odometer reading: its mean speed over the odometer's interval.
-    odometer_span: (f64, f64),
+    /// Along-track metres the strapdown integrated since alignment (no
+    /// filter corrections), and (t, metres) over the last
+    /// [`ODOMETER_MAX_GAP_S`] at least every [`INS_DISTANCE_STEP_S`]: the
+    /// INS's mean speed over any odometer interval, interpolated at its
+    /// two readings' times.
+    ins_distance_m: f64,
+    ins_distance_history: VecDeque<(f64, f64)>,
     /// The previous IMU reading (the input is averaged over each interval);
     /// `None` right after alignment or a gap.
     previous: Option<ImuSample>,
@@ -301,6 +307,9 @@ impl ZuptEngine {
                     let gap_s = t - newest;
                     nav.filter.inflate(gap_s);
                     nav.previous = None;
+                    // No INS distance across the gap: no odometer interval
+                    // reaching back over it is compared.
+                    nav.ins_distance_history.clear();
                     // A push across a gap is not smoothed.
                     nav.push = None;
                 }
@@ -409,18 +418,21 @@ impl ZuptEngine {
                 break;
             }
             self.odometers.pop_front();
-            if let (Some((prev_t, prev_m)), Some(nav)) = (self.odometer, &mut self.navigation)
-                && odo_t > prev_t
-                && odo_t - prev_t <= ODOMETER_MAX_GAP_S
-            {
-                let (span_s, span_m) = nav.odometer_span;
-                nav.pending_odometer = (span_s > 0.0).then(|| OdometerSpeed {
-                    odometer_mps: (distance_m - prev_m) / (odo_t - prev_t),
-                    ins_mps: span_m / span_s,
-                });
+            // One at or before the newest taken (slotted in too late) is
+            // dropped: the intervals stay in order.
+            if self.odometer.is_some_and(|(prev_t, _)| odo_t <= prev_t) {
+                self.stats.aids_dropped += 1;
+                continue;
             }
-            if let Some(nav) = &mut self.navigation {
-                nav.odometer_span = (0.0, 0.0);
+            if let (Some((prev_t, prev_m)), Some(nav)) = (self.odometer, &mut self.navigation)
+                && odo_t - prev_t <= ODOMETER_MAX_GAP_S
+                && let (Some(from_m), Some(to_m)) =
+                    (nav.ins_distance_at(prev_t), nav.ins_distance_at(odo_t))
+            {
+                nav.pending_odometer = Some(OdometerSpeed {
+                    odometer_mps: (distance_m - prev_m) / (odo_t - prev_t),
+                    ins_mps: (to_m - from_m) / (odo_t - prev_t),
+                });
             }
             if let Some(check) = &self.config.rest_check {
                 self.rest_check.odometer(check, odo_t, distance_m);
@@ -449,8 +461,8 @@ impl ZuptEngine {
         {
             self.navigation = Some(self.align(&decision.statistics, sample));
         }
-        self.take_aids(sample.t);
         let Some(nav) = self.navigation.as_mut() else {
+            self.take_aids(sample.t);
             return self.unaligned_estimate(sample.t, &decision);
         };
         if let Some(previous) = nav.previous {
@@ -465,12 +477,18 @@ impl ZuptEngine {
             let force_n = nav.state.advance(&config.site, &increment);
             let advance_m = along_track(&nav.state, &(nav.state.position_m - before));
             nav.distance_m += advance_m;
-            nav.odometer_span.0 += dt_s;
-            nav.odometer_span.1 += advance_m;
+            nav.ins_distance_m += advance_m;
             nav.interval_s += dt_s;
             nav.force_integral += force_n * dt_s;
             nav.rate_integral += increment.gyro_rad_per_s * dt_s;
         }
+        nav.record_ins_distance(sample.t);
+        // The aids after the step, so an odometer reading up to `sample.t`
+        // finds the INS distance at its time.
+        self.take_aids(sample.t);
+        let Some(nav) = self.navigation.as_mut() else {
+            return self.unaligned_estimate(sample.t, &decision);
+        };
         if let Some(check) = &config.rest_check {
             let p_v = nav.filter.p.fixed_view::<3, 3>(VEL, VEL).into_owned();
             let forward = nav.state.attitude * V3::x();
@@ -637,7 +655,8 @@ impl ZuptEngine {
             filter,
             accel_bias_mps2: V3::zeros(),
             gyro_bias_rad_per_s: V3::zeros(),
-            odometer_span: (0.0, 0.0),
+            ins_distance_m: 0.0,
+            ins_distance_history: VecDeque::from([(sample.t, 0.0)]),
             previous: Some(sample),
             interval_s: 0.0,
             force_integral: V3::zeros(),
@@ -697,6 +716,44 @@ fn along_track(state: &NavState, displacement_m: &V3) -> f64 {
 }
 
 impl Navigation {
+    /// Keeps the INS distance at `t` (every [`INS_DISTANCE_STEP_S`], the
+    /// newest always), over the last [`ODOMETER_MAX_GAP_S`] and a second.
+    fn record_ins_distance(&mut self, t: f64) {
+        let entry = (t, self.ins_distance_m);
+        let history = &mut self.ins_distance_history;
+        // The newest entry moves on until it is a step past the one before.
+        let before_newest_t = history
+            .len()
+            .checked_sub(2)
+            .and_then(|k| history.get(k))
+            .map(|&(before_t, _)| before_t);
+        match history.back_mut() {
+            Some(newest) if before_newest_t.is_some_and(|b| t - b < INS_DISTANCE_STEP_S) => {
+                *newest = entry
+            }
+            _ => history.push_back(entry),
+        }
+        while history
+            .front()
+            .is_some_and(|&(oldest_t, _)| oldest_t < t - ODOMETER_MAX_GAP_S - 1.0)
+        {
+            history.pop_front();
+        }
+    }
+
+    /// The INS distance at `t`, linear between the entries kept; `None`
+    /// outside them (before alignment or a gap, or not integrated yet).
+    fn ins_distance_at(&self, t: f64) -> Option<f64> {
+        let history = &self.ins_distance_history;
+        let after = history.partition_point(|&(entry_t, _)| entry_t < t);
+        let &(t1, d1) = history.get(after)?;
+        if t1 == t {
+            return Some(d1);
+        }
+        let &(t0, d0) = history.get(after.checked_sub(1)?)?;
+        Some(d0 + (d1 - d0) * (t - t0) / (t1 - t0))
+    }
+
     /// True while state and covariance are finite numbers.
     fn is_finite(&self) -> bool {
         self.state.position_m.iter().all(|x| x.is_finite())
@@ -990,8 +1047,7 @@ mod tests {
             ],
         )
         .unwrap();
-        let mut engine = ZuptEngine::new(params).unwrap();
-        let c = engine.config;
+        let c = ZuptEngine::new(params.clone()).unwrap().config;
         let g = normal_gravity_mps2(c.site.lat_rad, c.site.height_m);
         let gyro = earth_rate_n(c.site.lat_rad);
         let accel_at = |t: f64| match t {
@@ -1007,33 +1063,40 @@ mod tests {
         assert!((distance_at(47.0) - 0.40).abs() < 1e-12);
         assert!((distance_at(25.5) - 0.355).abs() < 1e-12);
         assert!((distance_at(26.5) - 0.395).abs() < 1e-12);
-        let t0 = 1.7e9;
-        let mut out = Vec::new();
-        for k in 0..4700 {
-            let t = f64::from(k) * 0.01;
-            let accel = V3::new(accel_at(t), 0.0, -g);
-            engine.feed(&imu(t0 + t, accel, gyro), &mut out);
-            if k % 100 == 50 {
-                let reading = Reading {
-                    t: t0 + t,
-                    data: SensorData::Odometer {
-                        distance_m: distance_at(t),
-                    },
-                };
-                engine.feed(&reading, &mut out);
+        // Each odometer reading sent with the IMU reading of its time, and
+        // each sent 2 s late (after the navigation time has passed it):
+        // either way it is compared over its own interval.
+        for delay_steps in [0_u32, 200] {
+            let mut engine = ZuptEngine::new(params.clone()).unwrap();
+            let t0 = 1.7e9;
+            let mut out = Vec::new();
+            for k in 0..4700_u32 {
+                let t = f64::from(k) * 0.01;
+                let accel = V3::new(accel_at(t), 0.0, -g);
+                engine.feed(&imu(t0 + t, accel, gyro), &mut out);
+                if k >= delay_steps && (k - delay_steps) % 100 == 50 {
+                    let read_t = f64::from(k - delay_steps) * 0.01;
+                    let reading = Reading {
+                        t: t0 + read_t,
+                        data: SensorData::Odometer {
+                            distance_m: distance_at(read_t),
+                        },
+                    };
+                    engine.feed(&reading, &mut out);
+                }
             }
+            engine.flush(&mut out);
+            let EstimateValues::Zupt(last) = &out.last().unwrap().values else {
+                panic!("not a zupt estimate");
+            };
+            assert!(engine.stats.odometer_updates > 0);
+            assert!(last.zv, "{last:?}");
+            assert!(
+                (last.distance_m - 0.40).abs() < 0.0005,
+                "delay {delay_steps}: {}",
+                last.distance_m
+            );
         }
-        engine.flush(&mut out);
-        let EstimateValues::Zupt(last) = &out.last().unwrap().values else {
-            panic!("not a zupt estimate");
-        };
-        assert!(engine.stats.odometer_updates > 0);
-        assert!(last.zv, "{last:?}");
-        assert!(
-            (last.distance_m - 0.40).abs() < 0.0005,
-            "{}",
-            last.distance_m
-        );
     }
 
     #[test]

@@ -283,7 +283,7 @@ param_table! {
         ),
         odometer_aiding: bool = flag(
             true,
-            "fuse the odometer's speed, compared with the INS's mean speed over the odometer's interval (and zero sideways/vertical body speed); off: the odometer only vetoes rests and is shown",
+            "fuse the odometer's speed, compared with the INS's mean speed over the odometer's interval (and zero sideways/vertical body speed); off: the odometer only vetoes and confirms rests (rest_check) and is shown",
         ),
         odometer_sigma_mps: f64 = real(
             0.005,

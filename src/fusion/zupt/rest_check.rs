@@ -48,13 +48,16 @@
 //!    deviations of a difference of two readings.
 //!
 //! 6. **The odometer confirms a rest.** A run refused for its velocity
-//!    (2 or 3) becomes a rest once the odometer, read throughout (its
-//!    newest reading within the last fifth of the window), has stayed
-//!    within `odometer_advance_m` over a whole `odometer_window_s`: the
-//!    detector and the odometer then agree the machine stands, whatever
-//!    velocity was booked (a booking the odometer's fusion has since
-//!    corrected, say). Without this a wrong refusal at the start of a rest
-//!    held for all of it.
+//!    (2 or 3) becomes a rest once the odometer stayed within
+//!    `odometer_rest_m` over a whole `odometer_rest_window_s` (its oldest
+//!    reading kept at or before the window's start, its newest within the
+//!    window's last fifth): the detector and the odometer then agree the
+//!    machine stands, whatever velocity was booked (a booking the
+//!    odometer's fusion has since corrected, say). Without this a wrong
+//!    refusal at the start of a rest held for all of it. A creep slower
+//!    than `odometer_rest_m` per window (0.6 mm/s by default) and an
+//!    odometer that keeps sending one frozen value are taken for standing
+//!    here.
 //!
 //! A verdict holds until the detector calls moving. An accepted run books
 //! the machine standing (u = 0, Σ_u = P_v at its end); a refused one books
