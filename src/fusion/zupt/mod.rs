@@ -63,8 +63,8 @@ use crate::fusion::geometry::{
 /// its stored readings. 2: integrated detector signals, learned rest
 /// levels, zero-angular-rate updates; 3: the rest check; 4: the rest
 /// check judges runs of rest, not readings; 5: the odometer's speed is
-/// compared with the INS's mean over the same interval, and confirms
-/// rests.
+/// compared with the INS's mean over the same interval; the odometer
+/// confirms rests, refuses a run at once, and aligns.
 pub const STATE_VERSION: u32 = 5;
 /// Level or odometer readings kept waiting for the navigation time.
 const MAX_PENDING_AIDS: usize = 1024;
@@ -456,8 +456,16 @@ impl ZuptEngine {
                 &mut decision,
             );
         }
+        // A rest the detector misses (it shakes) aligns the platform too
+        // once the odometer stood for a whole window.
+        let odometer_still = || {
+            config
+                .rest_check
+                .as_ref()
+                .is_some_and(|check| self.rest_check.odometer_still(check, sample.t))
+        };
         if self.navigation.is_none()
-            && (decision.zv || config.pipeline.detector == DetectorKind::None)
+            && (decision.zv || config.pipeline.detector == DetectorKind::None || odometer_still())
         {
             self.navigation = Some(self.align(&decision.statistics, sample));
         }

@@ -44,9 +44,11 @@
 //!    `odometer_rest_m` over the last `odometer_rest_window_s` (counted
 //!    from the first reading of the detector's current run at the
 //!    earliest, so the end of the push before a true rest does not veto
-//!    it). With a 1 mm counter noise the default 6 mm is 4 standard
-//!    deviations of a difference of two readings.
-//!
+//!    it), or between its two newest readings (when both lie within that
+//!    window): a run the detector starts in the middle of a push is then
+//!    refused at once, and a true rest loses at most the one interval
+//!    that spans its stop. With a 1 mm counter noise the default 6 mm is
+//!    4 standard deviations of a difference of two readings.
 //! 6. **The odometer confirms a rest.** A run refused for its velocity
 //!    (2 or 3) becomes a rest once the odometer stayed within
 //!    `odometer_rest_m` over a whole `odometer_rest_window_s` (its oldest
@@ -188,7 +190,7 @@ impl RestCheck {
     /// Whether the odometer, read within the newest fifth of the window,
     /// stayed within `odometer_advance_m` over the whole window ending at
     /// `t`.
-    fn odometer_still(&self, config: &RestCheckConfig, t: f64) -> bool {
+    pub fn odometer_still(&self, config: &RestCheckConfig, t: f64) -> bool {
         let window_s = config.odometer_window_s;
         let (Some(&(oldest_t, _)), Some(&(newest_t, _))) =
             (self.odometer.front(), self.odometer.back())
@@ -204,12 +206,22 @@ impl RestCheck {
             && high - low <= config.odometer_advance_m
     }
 
-    /// Whether the odometer advanced over the window ending at `t`.
+    /// Whether the odometer advanced over the window ending at `t`, or
+    /// between its two newest readings (when they lie within the window):
+    /// a run the detector starts in the middle of a push is refused at
+    /// once, a rest costs at most the one interval that spans the stop.
     fn odometer_advanced(&self, config: &RestCheckConfig, t: f64) -> bool {
         let from = (t - config.odometer_window_s).max(self.run_start_t.unwrap_or(t));
-        let Some(&(_, newest)) = self.odometer.back() else {
+        let Some(&(newest_t, newest)) = self.odometer.back() else {
             return false;
         };
+        if let Some(&(previous_t, previous)) = self.odometer.iter().rev().nth(1)
+            && previous_t >= t - config.odometer_window_s
+            && newest_t > previous_t
+            && (newest - previous).abs() > config.odometer_advance_m
+        {
+            return true;
+        }
         // The oldest reading within the window (at or after `from`).
         match self.odometer.iter().find(|&&(ti, _)| ti >= from) {
             Some(&(_, first)) => (newest - first).abs() > config.odometer_advance_m,
@@ -428,39 +440,44 @@ mod tests {
         }
     }
 
+    /// Odometer readings a second apart from `from` to `to` s, distance
+    /// `distance(t)`.
+    fn feed(check: &mut RestCheck, from: u32, to: u32, distance: impl Fn(f64) -> f64) {
+        for k in from..=to {
+            let t = f64::from(k);
+            check.odometer(&CONFIG, t, distance(t));
+        }
+    }
+
     #[test]
-    fn the_odometer_vetoes_within_the_run_only() {
-        // Advancing 10 mm/s until t = 20 s, then standing; a reading a second.
-        let feed = |check: &mut RestCheck, from: u32, to: u32| {
-            for k in from..=to {
-                let t = f64::from(k);
-                check.odometer(&CONFIG, t, 0.010 * t.min(20.0));
-            }
-        };
-        // A run called at 5 s: nothing within it yet; at 12 s, 70 mm.
+    fn the_odometer_vetoes_runs_in_a_push_at_once_and_spares_rests() {
+        // Advancing 10 mm/s until t = 20 s, then standing (window 10 s,
+        // 6 mm).
+        let push = |t: f64| 0.010 * t.min(20.0);
+        // A run called at 5 s: the newest second advanced 10 mm > 6 mm;
+        // at 12 s the run itself holds 70 mm.
         let mut gliding = RestCheck::default();
-        feed(&mut gliding, 0, 5);
-        assert_eq!(gliding.judge(&CONFIG, 5.0, None), None);
-        feed(&mut gliding, 6, 12);
+        feed(&mut gliding, 0, 5, push);
+        assert_eq!(gliding.judge(&CONFIG, 5.0, None), Some(Refusal::Odometer));
+        feed(&mut gliding, 6, 12, push);
         assert_eq!(gliding.judge(&CONFIG, 12.0, None), Some(Refusal::Odometer));
-        // A run that starts at the stop (20 s) is not vetoed by the push
-        // before it, though the last 10 s hold 100 mm.
+        // A run that starts at the stop (20 s): the second before it still
+        // advanced 10 mm, so 20 s is refused; at 21 s the newest second is
+        // flat, and so is the run: standing, though the last 10 s hold
+        // 90 mm.
         let mut stopped = RestCheck::default();
-        feed(&mut stopped, 0, 20);
-        assert_eq!(stopped.judge(&CONFIG, 20.0, None), None);
-        feed(&mut stopped, 21, 22);
-        assert_eq!(stopped.judge(&CONFIG, 22.0, None), None);
-        // Called moving at 23 s (before alignment: no velocity), a new run
-        // at 25 s starts its window there.
+        feed(&mut stopped, 0, 20, push);
+        assert_eq!(stopped.judge(&CONFIG, 20.0, None), Some(Refusal::Odometer));
+        feed(&mut stopped, 21, 21, push);
+        assert_eq!(stopped.judge(&CONFIG, 21.0, None), None);
+        // Called moving at 23 s, a new run at 25 s: flat since 20 s.
         let mut early = RestCheck::default();
-        feed(&mut early, 0, 3);
-        assert_eq!(early.judge(&CONFIG, 3.0, None), None);
-        feed(&mut early, 4, 23);
+        feed(&mut early, 0, 23, push);
         early.moving();
-        feed(&mut early, 24, 25);
+        feed(&mut early, 24, 25, push);
         assert_eq!(early.judge(&CONFIG, 25.0, None), None);
         // Only one reading at or before the window's start is kept.
-        feed(&mut stopped, 23, 40);
+        feed(&mut stopped, 22, 40, push);
         assert_eq!(stopped.odometer.front().map(|&(t, _)| t), Some(30.0));
     }
 
