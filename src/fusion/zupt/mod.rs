@@ -30,6 +30,7 @@ pub mod params;
 pub mod rest_check;
 pub mod smoother;
 pub mod strapdown;
+pub mod zaru_noise;
 pub mod zero_velocity;
 
 use std::collections::VecDeque;
@@ -47,6 +48,7 @@ pub use self::params::{PARAMS, ZuptConfig, ZuptParams};
 use self::rest_check::{Refusal, RestCheck, RestCheckConfig, Velocity};
 use self::smoother::{Point, PushRecord};
 use self::strapdown::{Increment, NavState};
+use self::zaru_noise::ZaruNoise;
 use self::zero_velocity::{Decision, DetectorKind, ZeroVelocityPipeline};
 use super::angles::{deg, rad};
 use super::estimate::{EngineOutput, EstimateValues, JsonFields};
@@ -64,8 +66,9 @@ use crate::fusion::geometry::{
 /// levels, zero-angular-rate updates; 3: the rest check; 4: the rest
 /// check judges runs of rest, not readings; 5: the odometer's speed is
 /// compared with the INS's mean over the same interval; the odometer
-/// confirms rests, refuses a run at once, and aligns.
-pub const STATE_VERSION: u32 = 5;
+/// confirms rests, refuses a run at once, and aligns; 6: the noise of the
+/// zero-angular-rate update is estimated from the rates.
+pub const STATE_VERSION: u32 = 6;
 /// Level or odometer readings kept waiting for the navigation time.
 const MAX_PENDING_AIDS: usize = 1024;
 /// Two odometer readings further apart than this give no speed.
@@ -153,6 +156,9 @@ struct Navigation {
     force_integral: V3,
     rate_integral: V3,
     interval_still: bool,
+    /// The noise of a still interval's mean rate, from the rates
+    /// ([`zaru_noise`]).
+    zaru_noise: ZaruNoise,
     /// Along-track distance: displacement projected on the body's x axis.
     distance_m: f64,
     /// The push in progress, from the last still epoch (smoothing on);
@@ -670,6 +676,7 @@ impl ZuptEngine {
             force_integral: V3::zeros(),
             rate_integral: V3::zeros(),
             interval_still: true,
+            zaru_noise: ZaruNoise::default(),
             distance_m: 0.0,
             push: None,
             height_datum_m: None,
@@ -816,17 +823,22 @@ impl Navigation {
         }
         if zv && interval_still && config.zaru {
             // The mean rate over the interval: the gyro noise averages to
-            // ARW²/T per axis.
-            let c_bn = self.state.attitude.to_rotation_matrix().into_inner();
-            let earth = dynamics.earth_rate_n;
-            let innovation = mean_rate - c_bn.transpose() * earth;
-            let variance = config.process_noise.gyro_arw.powi(2) / interval_s
-                + config.zaru_sigma_rad_per_s.powi(2);
-            let r = SMatrix::<f64, 3, 3>::identity() * variance;
-            let result = self
-                .filter
-                .update(&zaru_matrix(&c_bn, &earth), &innovation, &r, None);
-            self.apply(result, stats, |s| s.zaru_updates += 1);
+            // ARW²/T per axis, machinery vibration far less; the variance
+            // is estimated from the rates ([`zaru_noise`]).
+            let arw_variance = config.process_noise.gyro_arw.powi(2) / interval_s;
+            if let Some(variance) = self.zaru_noise.still(&mean_rate, arw_variance) {
+                let c_bn = self.state.attitude.to_rotation_matrix().into_inner();
+                let earth = dynamics.earth_rate_n;
+                let innovation = mean_rate - c_bn.transpose() * earth;
+                let settling = config.zaru_sigma_rad_per_s.powi(2);
+                let r = SMatrix::<f64, 3, 3>::from_diagonal(&variance.add_scalar(settling));
+                let result = self
+                    .filter
+                    .update(&zaru_matrix(&c_bn, &earth), &innovation, &r, None);
+                self.apply(result, stats, |s| s.zaru_updates += 1);
+            }
+        } else {
+            self.zaru_noise.interrupted();
         }
         if let Some(measured_m) = self.pending_height_m.take() {
             match self.height_datum_m {
@@ -1233,7 +1245,7 @@ mod tests {
             ZuptEngine::restore(old),
             Err(SnapshotError::Outdated {
                 found: 1,
-                expected: 5,
+                expected: 6,
                 ..
             })
         ));

@@ -254,7 +254,7 @@ param_table! {
             0.0,
             100_000.0,
             "deg/h",
-            "rotation a standing machine may still have (settling), added to the gyro noise of each rest's mean rate",
+            "rotation a standing machine may still have (settling), added to the noise of each rest's mean rate (the larger of the ARW's and the one estimated from the rates)",
         ),
         smooth_pushes: bool = flag(
             true,
