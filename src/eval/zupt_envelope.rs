@@ -8,9 +8,11 @@
 //!   (`detector_signals=raw`, `threshold_adapt=false`, `rest_check=false`);
 //! - `oracle`: the true zero-velocity flags in place of any detector.
 //!
-//! Every run is told the site's latitude and a start heading whose error
+//! Every run is told the site's latitude, a start heading whose error
 //! is drawn from the declared `initial_yaw_sigma_deg` (the same error for
-//! the three runs of a drive). The odometer, where the drive has one, is
+//! the three runs of a drive), and the envelope odometers' calibration
+//! class (`odometer_scale_sigma_pct`, 5/√3 %: their scale errors are drawn
+//! uniformly within ±5 %). The odometer, where the drive has one, is
 //! read by the rest check and fused as `odometer_aiding` says (on by
 //! default) in all three runs: the same filter, three ways to call rests.
 //!
@@ -35,6 +37,10 @@ use crate::sim::pipejack_envelope::PipeJackEnvelope;
 
 /// The runs, in the order they are reported.
 pub const RUNS: [&str; 3] = ["engine", "paper", "oracle"];
+
+/// 1σ of the envelope's odometer scale errors, %: uniform within ±5 %
+/// (`src/sim/pipejack_envelope.rs`), σ = 5/√3.
+pub const ENVELOPE_ODOMETER_SCALE_SIGMA_PCT: f64 = 2.886_751_345_948_129;
 
 /// Components whose 2σ coverage is counted.
 pub const COVERED: [&str; 6] = ["north", "east", "down", "heading", "pitch", "roll"];
@@ -110,6 +116,13 @@ pub fn evaluate_envelope(
             (
                 "initial_yaw_deg".to_string(),
                 ParamValue::Number(envelope.heading_deg + initial_yaw_error_deg),
+            ),
+            // The odometers of the envelope: scale errors drawn uniformly
+            // within ±5 %, σ = 5/√3 %, declared as a site declares its
+            // odometer's calibration class.
+            (
+                "odometer_scale_sigma_pct".to_string(),
+                ParamValue::Number(ENVELOPE_ODOMETER_SCALE_SIGMA_PCT),
             ),
         ],
     )?;

@@ -67,8 +67,9 @@ use crate::fusion::geometry::{
 /// check judges runs of rest, not readings; 5: the odometer's speed is
 /// compared with the INS's mean over the same interval; the odometer
 /// confirms rests, refuses a run at once, and aligns; 6: the noise of the
-/// zero-angular-rate update is estimated from the rates.
-pub const STATE_VERSION: u32 = 6;
+/// zero-angular-rate update is estimated from the rates; 7: the distance
+/// the odometer carried (its scale error in the position σ).
+pub const STATE_VERSION: u32 = 7;
 /// Level or odometer readings kept waiting for the navigation time.
 const MAX_PENDING_AIDS: usize = 1024;
 /// Two odometer readings further apart than this give no speed.
@@ -169,6 +170,9 @@ struct Navigation {
     /// The newest height not yet used, and odometer speed not yet used.
     pending_height_m: Option<f64>,
     pending_odometer: Option<OdometerSpeed>,
+    /// The distance the fused odometer carried, m: its scale error, not
+    /// estimated, enters the reported position σ ([`with_scale_error`]).
+    odometer_carried_m: f64,
 }
 
 /// An odometer interval not yet fused: the odometer's mean speed over
@@ -177,6 +181,8 @@ struct Navigation {
 struct OdometerSpeed {
     odometer_mps: f64,
     ins_mps: f64,
+    /// The odometer's advance over the interval, m.
+    advance_m: f64,
 }
 
 /// The `zupt` engine; see the module documentation.
@@ -438,6 +444,7 @@ impl ZuptEngine {
                 nav.pending_odometer = Some(OdometerSpeed {
                     odometer_mps: (distance_m - prev_m) / (odo_t - prev_t),
                     ins_mps: (to_m - from_m) / (odo_t - prev_t),
+                    advance_m: distance_m - prev_m,
                 });
             }
             if let Some(check) = &self.config.rest_check {
@@ -541,7 +548,12 @@ impl ZuptEngine {
         };
         let (roll, pitch, yaw) = nav.state.euler();
         let position = nav.state.position_m;
-        let sigma = nav.filter.sigma(POS);
+        let sigma = with_scale_error(
+            &nav.filter.sigma(POS),
+            &(nav.state.attitude * V3::x()),
+            nav.odometer_carried_m,
+            config.odometer_scale_sigma,
+        );
         let attitude_sigma = nav.filter.sigma(ATT);
         let yaw_sigma_deg = deg(attitude_sigma.z);
         let tilt_sigma_deg = tilt_sigma(&nav.filter.p, yaw).map(deg);
@@ -682,6 +694,7 @@ impl ZuptEngine {
             height_datum_m: None,
             pending_height_m: None,
             pending_odometer: None,
+            odometer_carried_m: 0.0,
         }
     }
 }
@@ -708,6 +721,15 @@ fn check_rest(
         Some(Refusal::Velocity | Refusal::StillMoving) => stats.rests_refused_velocity += 1,
     }
     decision.zv = false;
+}
+
+/// The position σ (NED, m) with the odometer's scale error, which the
+/// filter does not estimate (a consider term): after the odometer carried
+/// `carried_m`, the position is off by s·carried_m along the machine's
+/// `forward` axis, so σ_i² grows by (σ_s·carried_m·forward_i)².
+fn with_scale_error(sigma: &V3, forward: &V3, carried_m: f64, scale_sigma: f64) -> V3 {
+    let along = forward * (scale_sigma * carried_m);
+    sigma.zip_map(&along, |s, a| (s * s + a * a).sqrt())
 }
 
 /// 1σ of pitch and roll, rad, from the attitude covariance (errors about
@@ -875,6 +897,7 @@ impl Navigation {
             if result == Err(eskf::UpdateError::Gated) {
                 stats.odometer_refused += 1;
             } else {
+                self.odometer_carried_m += odometer.advance_m.abs();
                 self.apply(result, stats, |s| s.odometer_updates += 1);
             }
         }
@@ -1120,6 +1143,25 @@ mod tests {
     }
 
     #[test]
+    fn the_odometer_scale_error_widens_the_position_sigma_along_the_axis() {
+        // σ (0.03, 0.04, 0.01) m, axis (0.6, 0.8, 0) NED, 10 m carried at
+        // 1 %: 0.1 m along it, (0.06, 0.08, 0) per axis, so
+        // √(0.03² + 0.06²) = 0.067082, √(0.04² + 0.08²) = 0.089443, 0.01.
+        let sigma = with_scale_error(
+            &V3::new(0.03, 0.04, 0.01),
+            &V3::new(0.6, 0.8, 0.0),
+            10.0,
+            0.01,
+        );
+        assert!((sigma.x - 0.067082).abs() < 1e-6, "{sigma}");
+        assert!((sigma.y - 0.089443).abs() < 1e-6, "{sigma}");
+        assert_eq!(sigma.z, 0.01);
+        // Nothing carried: the filter's σ.
+        let same = with_scale_error(&V3::new(0.03, 0.04, 0.01), &V3::x(), 0.0, 0.05);
+        assert_eq!(same, V3::new(0.03, 0.04, 0.01));
+    }
+
+    #[test]
     fn one_estimate_per_imu_reading_in_order_with_bounded_latency() {
         let mut engine =
             ZuptEngine::new(Params::from_assignments(PARAMS, ["initial_yaw_deg=40"]).unwrap())
@@ -1245,7 +1287,7 @@ mod tests {
             ZuptEngine::restore(old),
             Err(SnapshotError::Outdated {
                 found: 1,
-                expected: 6,
+                expected: 7,
                 ..
             })
         ));

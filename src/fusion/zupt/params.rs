@@ -292,6 +292,13 @@ param_table! {
             "m/s",
             "noise of the odometer speed (and of the zero sideways speed)",
         ),
+        odometer_scale_sigma_pct: f64 = real(
+            1.0,
+            0.0,
+            50.0,
+            "%",
+            "1σ of the odometer's scale (calibration) error, which the filter does not estimate: the reported position σ along the machine's axis grows by it times the distance the fused odometer carried",
+        ),
         max_imu_gap_s: f64 = real(
             0.5,
             0.001,
@@ -326,6 +333,8 @@ pub struct ZuptConfig {
     pub aid_gate_sigma: f64,
     pub odometer_aiding: bool,
     pub odometer_sigma_mps: f64,
+    /// 1σ of the odometer's scale error, a fraction.
+    pub odometer_scale_sigma: f64,
     pub max_imu_gap_s: f64,
 }
 
@@ -401,6 +410,7 @@ impl ZuptConfig {
             aid_gate_sigma: p.aid_gate_sigma,
             odometer_aiding: p.odometer_aiding,
             odometer_sigma_mps: p.odometer_sigma_mps,
+            odometer_scale_sigma: p.odometer_scale_sigma_pct / 100.0,
             max_imu_gap_s: p.max_imu_gap_s,
         }
     }
