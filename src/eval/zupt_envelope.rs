@@ -12,7 +12,8 @@
 //! is drawn from the declared `initial_yaw_sigma_deg` (the same error for
 //! the three runs of a drive), and the envelope odometers' calibration
 //! class (`odometer_scale_sigma_pct`, 5/√3 %: their scale errors are drawn
-//! uniformly within ±5 %). The odometer, where the drive has one, is
+//! uniformly within ±5 %); these three replace any `--param` given for
+//! them. The odometer, where the drive has one, is
 //! read by the rest check and fused as `odometer_aiding` says (on by
 //! default) in all three runs: the same filter, three ways to call rests.
 //!

@@ -170,9 +170,12 @@ struct Navigation {
     /// The newest height not yet used, and odometer speed not yet used.
     pending_height_m: Option<f64>,
     pending_odometer: Option<OdometerSpeed>,
-    /// The distance the fused odometer carried, m: its scale error, not
-    /// estimated, enters the reported position σ ([`with_scale_error`]).
-    odometer_carried_m: f64,
+    /// Where the fused odometer carried the machine, NED m (each applied
+    /// interval's signed advance along the machine's axis then): its
+    /// scale error, not estimated, enters the reported position σ
+    /// ([`with_scale_error`]). Signed, so the counter's jitter at rest
+    /// cancels.
+    odometer_carried_m: V3,
 }
 
 /// An odometer interval not yet fused: the odometer's mean speed over
@@ -322,6 +325,8 @@ impl ZuptEngine {
                     // No INS distance across the gap: no odometer interval
                     // reaching back over it is compared.
                     nav.ins_distance_history.clear();
+                    // Rates across the gap are not compared.
+                    nav.zaru_noise.interrupted();
                     // A push across a gap is not smoothed.
                     nav.push = None;
                 }
@@ -550,8 +555,7 @@ impl ZuptEngine {
         let position = nav.state.position_m;
         let sigma = with_scale_error(
             &nav.filter.sigma(POS),
-            &(nav.state.attitude * V3::x()),
-            nav.odometer_carried_m,
+            &nav.odometer_carried_m,
             config.odometer_scale_sigma,
         );
         let attitude_sigma = nav.filter.sigma(ATT);
@@ -694,7 +698,7 @@ impl ZuptEngine {
             height_datum_m: None,
             pending_height_m: None,
             pending_odometer: None,
-            odometer_carried_m: 0.0,
+            odometer_carried_m: V3::zeros(),
         }
     }
 }
@@ -725,11 +729,11 @@ fn check_rest(
 
 /// The position σ (NED, m) with the odometer's scale error, which the
 /// filter does not estimate (a consider term): after the odometer carried
-/// `carried_m`, the position is off by s·carried_m along the machine's
-/// `forward` axis, so σ_i² grows by (σ_s·carried_m·forward_i)².
-fn with_scale_error(sigma: &V3, forward: &V3, carried_m: f64, scale_sigma: f64) -> V3 {
-    let along = forward * (scale_sigma * carried_m);
-    sigma.zip_map(&along, |s, a| (s * s + a * a).sqrt())
+/// the machine by `carried_m` (NED), the position is off by s·carried_m,
+/// so σ_i² grows by (σ_s·carried_i)².
+fn with_scale_error(sigma: &V3, carried_m: &V3, scale_sigma: f64) -> V3 {
+    let off = carried_m * scale_sigma;
+    sigma.zip_map(&off, |s, a| (s * s + a * a).sqrt())
 }
 
 /// 1σ of pitch and roll, rad, from the attitude covariance (errors about
@@ -809,6 +813,9 @@ impl Navigation {
         zv: bool,
         stats: &mut ZuptStats,
     ) -> Option<Vec<TrackPoint>> {
+        // The bias subtracted from this interval's rates (updates below
+        // may change it).
+        let gyro_bias_in_interval = self.gyro_bias_rad_per_s;
         let site = &config.site;
         let (lat, height) = site.at(&self.state.position_m);
         let (meridian, transverse) = radii_m(lat);
@@ -848,7 +855,10 @@ impl Navigation {
             // ARW²/T per axis, machinery vibration far less; the variance
             // is estimated from the rates ([`zaru_noise`]).
             let arw_variance = config.process_noise.gyro_arw.powi(2) / interval_s;
-            if let Some(variance) = self.zaru_noise.still(&mean_rate, arw_variance) {
+            // The raw mean (the bias estimate added back), so that the
+            // updates' corrections of the bias are not taken for noise.
+            let raw_mean_rate = mean_rate + gyro_bias_in_interval;
+            if let Some(variance) = self.zaru_noise.still(&raw_mean_rate, arw_variance) {
                 let c_bn = self.state.attitude.to_rotation_matrix().into_inner();
                 let earth = dynamics.earth_rate_n;
                 let innovation = mean_rate - c_bn.transpose() * earth;
@@ -897,7 +907,9 @@ impl Navigation {
             if result == Err(eskf::UpdateError::Gated) {
                 stats.odometer_refused += 1;
             } else {
-                self.odometer_carried_m += odometer.advance_m.abs();
+                if result.is_ok() {
+                    self.odometer_carried_m += self.state.attitude * V3::x() * odometer.advance_m;
+                }
                 self.apply(result, stats, |s| s.odometer_updates += 1);
             }
         }
@@ -1144,20 +1156,15 @@ mod tests {
 
     #[test]
     fn the_odometer_scale_error_widens_the_position_sigma_along_the_axis() {
-        // σ (0.03, 0.04, 0.01) m, axis (0.6, 0.8, 0) NED, 10 m carried at
-        // 1 %: 0.1 m along it, (0.06, 0.08, 0) per axis, so
+        // σ (0.03, 0.04, 0.01) m, carried 10 m along (0.6, 0.8, 0) NED =
+        // (6, 8, 0) m at 1 %: (0.06, 0.08, 0) per axis, so
         // √(0.03² + 0.06²) = 0.067082, √(0.04² + 0.08²) = 0.089443, 0.01.
-        let sigma = with_scale_error(
-            &V3::new(0.03, 0.04, 0.01),
-            &V3::new(0.6, 0.8, 0.0),
-            10.0,
-            0.01,
-        );
+        let sigma = with_scale_error(&V3::new(0.03, 0.04, 0.01), &V3::new(6.0, 8.0, 0.0), 0.01);
         assert!((sigma.x - 0.067082).abs() < 1e-6, "{sigma}");
         assert!((sigma.y - 0.089443).abs() < 1e-6, "{sigma}");
         assert_eq!(sigma.z, 0.01);
-        // Nothing carried: the filter's σ.
-        let same = with_scale_error(&V3::new(0.03, 0.04, 0.01), &V3::x(), 0.0, 0.05);
+        // Nothing carried (or back and forth): the filter's σ.
+        let same = with_scale_error(&V3::new(0.03, 0.04, 0.01), &V3::zeros(), 0.05);
         assert_eq!(same, V3::new(0.03, 0.04, 0.01));
     }
 

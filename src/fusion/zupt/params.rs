@@ -297,7 +297,7 @@ param_table! {
             0.0,
             50.0,
             "%",
-            "1σ of the odometer's scale (calibration) error, which the filter does not estimate: the reported position σ along the machine's axis grows by it times the distance the fused odometer carried",
+            "1σ of the odometer's scale (calibration) error, which the filter does not estimate: the reported position σ grows by it times where the fused odometer carried the machine",
         ),
         max_imu_gap_s: f64 = real(
             0.5,

@@ -35,7 +35,8 @@ use crate::fusion::geometry::V3;
 /// Intervals over which σ̂² is averaged (2 s at the default 0.1 s period).
 pub const MEMORY: f64 = 20.0;
 /// Differences seen before the first update: fewer leave σ̂² too uncertain
-/// (with 10, it is below a third of the truth with probability 2 %).
+/// (with 10, consecutive differences sharing a mean, it is below a third
+/// of the truth with probability about 5 %).
 pub const MIN_DIFFERENCES: u32 = 10;
 
 /// The running estimate; see the module documentation.
@@ -55,7 +56,8 @@ impl ZaruNoise {
         self.previous_mean = None;
     }
 
-    /// A still interval's mean rate m_k, rad/s. Returns the variance per
+    /// A still interval's mean rate m_k, rad/s (raw: the filter's bias
+    /// corrections would otherwise count as noise). Returns the variance per
     /// axis of m_k's noise, (rad/s)², at least `floor` (ARW²/T), when an
     /// update may be made on it.
     pub fn still(&mut self, mean_rate: &V3, floor: f64) -> Option<V3> {
