@@ -298,6 +298,40 @@ async fn a_fuzzy_database_from_before_issue_18_opens_and_continues() {
     server.kill();
 }
 
+/// SHA-256 of the zupt history the release before issue 19 stored for
+/// `jack-19`, as served (canonical JSON, one estimate per line), taken
+/// when this release's replay still reproduced every estimate.
+const JACK_19_ESTIMATES_SHA256: &str =
+    "84449cfa6fbcf602b141e30c43fefdc424da1d990d3536746e52561ac96857f0";
+
+/// SHA-256 (hex) of the values as canonical JSON, one per line: object
+/// keys sorted at every level, numbers as serde_json writes them.
+fn canonical_digest(values: &[Value]) -> String {
+    use sha2::{Digest, Sha256};
+    fn canonical(value: &Value) -> Value {
+        match value {
+            Value::Object(map) => {
+                let mut entries: Vec<(&String, &Value)> = map.iter().collect();
+                entries.sort_by(|a, b| a.0.cmp(b.0));
+                Value::Object(
+                    entries
+                        .into_iter()
+                        .map(|(k, v)| (k.clone(), canonical(v)))
+                        .collect(),
+                )
+            }
+            Value::Array(items) => Value::Array(items.iter().map(canonical).collect()),
+            other => other.clone(),
+        }
+    }
+    let mut hasher = Sha256::new();
+    for value in values {
+        hasher.update(canonical(value).to_string().as_bytes());
+        hasher.update(b"\n");
+    }
+    hex::encode(hasher.finalize())
+}
+
 /// The fixture of the release before issue 19: three machines, one per
 /// engine, each with its readings, estimates and a snapshot of its engine
 /// at the state version this release still runs:
@@ -394,6 +428,13 @@ async fn a_database_from_before_issue_19_opens_serves_and_continues() {
             let mut sampled: Vec<Value> = old_estimates.iter().step_by(100).cloned().collect();
             sampled.extend(old_estimates.last().cloned());
             assert_eq!(sampled, pinned, "{machine}");
+            // And all of them, by a digest of their canonical JSON (keys
+            // sorted), taken at the same time as the sample.
+            assert_eq!(
+                canonical_digest(&old_estimates),
+                JACK_19_ESTIMATES_SHA256,
+                "{machine}"
+            );
         } else {
             // Each equal to what this release's replay makes of the same
             // readings.
