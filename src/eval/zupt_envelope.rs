@@ -34,14 +34,16 @@ use super::zupt::ZeroVelocityTally;
 use crate::fusion::zupt::{PARAMS, ZuptEngine};
 use crate::fusion::{Engine, EngineOutput, ParamError, ParamValue, Params, Reading, SensorKind};
 use crate::sim::pipejack::PipeJackTruth;
-use crate::sim::pipejack_envelope::PipeJackEnvelope;
+use crate::sim::pipejack_envelope::{ODOMETER_SCALE_ERROR_MAX, PipeJackEnvelope};
 
 /// The runs, in the order they are reported.
 pub const RUNS: [&str; 3] = ["engine", "paper", "oracle"];
 
-/// 1σ of the envelope's odometer scale errors, %: uniform within ±5 %
-/// (`src/sim/pipejack_envelope.rs`), σ = 5/√3.
-pub const ENVELOPE_ODOMETER_SCALE_SIGMA_PCT: f64 = 2.886_751_345_948_129;
+/// 1σ of the envelope's odometer scale errors, %: uniform within
+/// ±[`ODOMETER_SCALE_ERROR_MAX`], σ = max/√3 (5/√3 %).
+fn envelope_odometer_scale_sigma_pct() -> f64 {
+    100.0 * ODOMETER_SCALE_ERROR_MAX / 3.0_f64.sqrt()
+}
 
 /// Components whose 2σ coverage is counted.
 pub const COVERED: [&str; 6] = ["north", "east", "down", "heading", "pitch", "roll"];
@@ -123,7 +125,7 @@ pub fn evaluate_envelope(
             // odometer's calibration class.
             (
                 "odometer_scale_sigma_pct".to_string(),
-                ParamValue::Number(ENVELOPE_ODOMETER_SCALE_SIGMA_PCT),
+                ParamValue::Number(envelope_odometer_scale_sigma_pct()),
             ),
         ],
     )?;

@@ -48,6 +48,9 @@ const STANDARD_GRAVITY_MPS2: f64 = 9.806_65;
 const PHASE_RANGE_S: (f64, f64) = (5.0, 600.0);
 /// Largest velocity amplitude of a vibration, m/s.
 const MAX_VIBRATION_VELOCITY_MPS: f64 = 0.005;
+/// The largest odometer scale error drawn (either sign): drawn uniformly
+/// within ±this, on the drives that have an odometer.
+pub const ODOMETER_SCALE_ERROR_MAX: f64 = 0.05;
 
 /// What a vibration's spectrum is made of.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -213,7 +216,9 @@ impl PipeJackEnvelope {
             fluctuation,
             push_vibration: VibrationDraw::draw(&mut rng),
             rest_vibration: VibrationDraw::draw(&mut rng),
-            odometer_scale_error: rng.random_bool(0.5).then(|| rng.random_range(-0.05..0.05)),
+            odometer_scale_error: rng
+                .random_bool(0.5)
+                .then(|| rng.random_range(-ODOMETER_SCALE_ERROR_MAX..ODOMETER_SCALE_ERROR_MAX)),
             sensors: SensorGrade {
                 gyro_bias_deg_per_h: rng.random_range(0.1..0.5),
                 gyro_bias_rw_deg_per_h_per_sqrt_h: rng.random_range(0.01..0.05),

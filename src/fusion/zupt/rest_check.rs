@@ -420,14 +420,21 @@ mod tests {
         assert!(!check.booked_is_motion);
     }
 
-    #[test]
-    fn motion_the_machine_cannot_make_leaves_the_call_to_the_detector() {
+    /// A check whose first run, standing still, was accepted and ended:
+    /// the machine is booked standing.
+    fn after_a_rest() -> RestCheck {
         let mut check = RestCheck::default();
         assert_eq!(
             check.judge(&CONFIG, 0.0, at(&V3::zeros(), &p(0.0006))),
             None
         );
         check.moving();
+        check
+    }
+
+    #[test]
+    fn motion_the_machine_cannot_make_leaves_the_call_to_the_detector() {
+        let check = after_a_rest();
         // Backwards at 40 mm/s, sideways at 40 mm/s, or forward at 0.3
         // m/s (max 0.15 + 3 · 2.4 mm/s): an INS gone wrong, accepted.
         for v in [
@@ -483,12 +490,7 @@ mod tests {
 
     #[test]
     fn a_refused_run_is_a_rest_once_the_odometer_stood_a_whole_window() {
-        let mut check = RestCheck::default();
-        assert_eq!(
-            check.judge(&CONFIG, 0.0, at(&V3::zeros(), &p(0.0006))),
-            None
-        );
-        check.moving();
+        let mut check = after_a_rest();
         // The INS says 40 mm/s after a ramp (d² = 268, see the first
         // test): refused, though the odometer, read each second from 1 s,
         // stays at 5.000 m.
