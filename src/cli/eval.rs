@@ -9,7 +9,7 @@ use crate::eval::attitude::{
     render_table, summarise,
 };
 use crate::eval::kf3::Kf3Noise;
-use crate::eval::{fuzzy, zupt, zupt_envelope};
+use crate::eval::{fuzzy, fuzzy_envelope, zupt, zupt_envelope};
 use crate::fusion::{EngineKind, Params};
 use crate::sim::tbm::Dropout;
 use crate::sim::tbm_envelope::EnvelopeDrive;
@@ -98,14 +98,17 @@ pub struct FuzzyArgs {
     #[command(flatten)]
     pub drive: VehicleDriveArgs,
     /// Seeds to run from --seed on (each a separate drive; a table each,
-    /// then, for more than one, the median and worst over them).
-    #[arg(long, default_value_t = 1)]
-    pub seeds: u64,
+    /// then, for more than one, the median and worst over them). Default:
+    /// 1, or 40 with --envelope (a line per drive beside the baselines,
+    /// the median and worst, the bars).
+    #[arg(long)]
+    pub seeds: Option<u64>,
     /// An engine parameter as name=value (repeatable).
     #[arg(long = "param", value_name = "NAME=VALUE")]
     pub params: Vec<String>,
     /// Print the scores as JSON instead of a table: a line per seed, then
-    /// (for more than one) a line {"summary": ...}.
+    /// (for more than one) a line {"summary": ...}; with --envelope one
+    /// object {"summary", "drives"}.
     #[arg(long)]
     pub json: bool,
 }
@@ -183,19 +186,33 @@ pub fn run(target: EvalTarget) -> Result<(), CliError> {
                 crate::fusion::fuzzy::PARAMS,
                 args.params.iter().map(String::as_str),
             )?;
+            if args.drive.envelope {
+                let seeds: Vec<u64> =
+                    envelope_seeds(args.drive.seed, args.seeds.unwrap_or(40)).collect();
+                let drives = fuzzy_envelope::evaluate_all(&seeds, &params, cores())?;
+                let summary = fuzzy_envelope::summarise(&drives);
+                return print_envelope(args.json, &summary, &drives, || {
+                    fuzzy_envelope::render(&drives, &summary)
+                });
+            }
             let mut evaluations = Vec::new();
-            each_seed(args.drive.seed, args.seeds, args.json, |seed| {
-                let mut scenario = args.drive.scenario();
-                scenario.seed = seed;
-                let evaluation = fuzzy::evaluate(&fuzzy::FuzzyEvalConfig {
-                    scenario,
-                    params: params.clone(),
-                })?;
-                let table = fuzzy::render_table(&evaluation);
-                let value = serde_json::to_value(&evaluation);
-                evaluations.push(evaluation);
-                Ok((value, table))
-            })?;
+            each_seed(
+                args.drive.seed,
+                args.seeds.unwrap_or(1),
+                args.json,
+                |seed| {
+                    let mut scenario = args.drive.scenario();
+                    scenario.seed = seed;
+                    let evaluation = fuzzy::evaluate(&fuzzy::FuzzyEvalConfig {
+                        scenario,
+                        params: params.clone(),
+                    })?;
+                    let table = fuzzy::render_table(&evaluation);
+                    let value = serde_json::to_value(&evaluation);
+                    evaluations.push(evaluation);
+                    Ok((value, table))
+                },
+            )?;
             if evaluations.len() > 1 {
                 let summary = fuzzy::summarise(&evaluations);
                 if args.json {

@@ -17,6 +17,7 @@ use crate::sim::tbm_envelope::EnvelopeDrive;
 use crate::sim::vehicle::{
     DriveProfile, ImuErrors, MagnetDisturbance, VehicleDrive, VehicleScenario,
 };
+use crate::sim::vehicle_envelope::VehicleEnvelope;
 
 #[derive(Debug, Subcommand)]
 pub enum Scenario {
@@ -104,6 +105,16 @@ pub struct VehicleDriveArgs {
     /// The magnet's field at the sensor, µT, fixed in the body frame.
     #[arg(long, value_parser = non_negative, requires = "magnet_at_s")]
     pub magnet_ut: Option<f64>,
+    /// Draw the vehicle, its sensors, the site and the drive at random
+    /// from the envelope the fuzzy engine must hold over (seeded by
+    /// --seed). See `src/sim/vehicle_envelope.rs`.
+    #[arg(long, conflicts_with_all = [
+        "minutes", "heading_deg", "field_ut", "inclination_deg", "declination_deg",
+        "imu_rate_hz", "mag_rate_hz", "hard", "profile", "gyro_bias_dps",
+        "bias_drift_dps_per_min", "gyro_noise_dps", "accel_noise_mps2", "accel_bias_mps2",
+        "vibration_mps2", "vibration_growth_per_mps", "idle_vibration_mps2", "magnet_at_s",
+    ])]
+    pub envelope: bool,
 }
 
 /// A finite number ≥ 0.
@@ -117,6 +128,12 @@ fn non_negative(text: &str) -> Result<f64, String> {
 impl VehicleDriveArgs {
     /// The scenario these arguments describe.
     pub fn scenario(&self) -> VehicleScenario {
+        if self.envelope {
+            return VehicleScenario {
+                start_t: self.start_t,
+                ..VehicleEnvelope::draw(self.seed).scenario
+            };
+        }
         let preset = if self.hard {
             VehicleScenario::hard()
         } else {
@@ -158,6 +175,9 @@ impl VehicleDriveArgs {
             profile: self.profile.unwrap_or(preset.profile),
             imu,
             magnet,
+            manoeuvres: None,
+            iron: None,
+            disturbances: Vec::new(),
         }
     }
 }
@@ -329,7 +349,14 @@ pub fn run(scenario: Scenario) -> Result<(), CliError> {
         Scenario::Tbm(args) => run_tbm(&args),
         Scenario::PipeJacking(args) => run_pipe_jacking(&args),
         Scenario::Vehicle(args) => {
-            let drive = VehicleDrive::new(args.drive.scenario()).map_err(CliError::Scenario)?;
+            let scenario = args.drive.scenario();
+            if args.drive.envelope {
+                eprintln!(
+                    "{}",
+                    serde_json::to_string(&scenario).map_err(io::Error::other)?
+                );
+            }
+            let drive = VehicleDrive::new(scenario).map_err(CliError::Scenario)?;
             let truth = create_truth(&args.truth)?;
             write_events(drive.map(|e| (e.reading, e.truth)), truth)
         }

@@ -7,3 +7,4 @@ pub mod pipejack_envelope;
 pub mod tbm;
 pub mod tbm_envelope;
 pub mod vehicle;
+pub mod vehicle_envelope;

@@ -190,6 +190,92 @@ pub struct VehicleScenario {
     /// A magnet near the sensor for a while.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub magnet: Option<MagnetDisturbance>,
+    /// Manoeuvre ranges an envelope drive is planned from
+    /// ([`super::vehicle_envelope`]); `None`: the `profile`'s plan.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub manoeuvres: Option<Manoeuvres>,
+    /// The magnetometer's hard and soft iron; `None`: drawn from the seed
+    /// (module doc).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub iron: Option<Iron>,
+    /// Further changes of the field at the sensor.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub disturbances: Vec<FieldDisturbance>,
+}
+
+/// The magnetometer's errors: m = S·(Earth's field in the body frame) + b.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Iron {
+    /// b, µT.
+    pub hard_iron_ut: [f64; 3],
+    /// S, rows (symmetric).
+    pub soft_iron: [[f64; 3]; 3],
+}
+
+/// Where a [`FieldDisturbance`]'s field is fixed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum DisturbanceFrame {
+    /// On the vehicle (a tool, a magnet): turns with it.
+    Body,
+    /// In the tunnel (steel passed by), north-east-down.
+    World,
+}
+
+/// `field_ut` added to the magnetometer's readings over [`at_s`,
+/// `at_s + for_s`] from the start, fixed in `frame`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct FieldDisturbance {
+    pub at_s: f64,
+    pub for_s: f64,
+    pub field_ut: [f64; 3],
+    pub frame: DisturbanceFrame,
+}
+
+impl FieldDisturbance {
+    /// True while the disturbance acts, `s` seconds from the start.
+    pub fn is_on(&self, s: f64) -> bool {
+        s >= self.at_s && s <= self.at_s + self.for_s
+    }
+}
+
+/// The ranges an envelope drive's legs are drawn from (uniformly unless
+/// said otherwise); see [`super::vehicle_envelope`] for the envelope.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Manoeuvres {
+    /// Parked at the start, s; 0: rolling at the first reading.
+    pub parked_start_s: f64,
+    /// A calibration circle (370° at walking pace) after the parked start
+    /// (or after the first leg when rolling from the start): its peak
+    /// rate, °/s; `None`: no circle.
+    pub calibration_circle_dps: Option<f64>,
+    /// Top speed of a leg, m/s (log-uniform between).
+    pub speed_mps: (f64, f64),
+    /// Peak acceleration and braking, m/s².
+    pub accel_mps2: (f64, f64),
+    /// Share of the stops reached by coasting (a peak deceleration of
+    /// 0.05–0.2 m/s²) rather than braking.
+    pub coast_share: f64,
+    /// Driving between acceleration and braking, s.
+    pub cruise_s: (f64, f64),
+    /// Turns per leg (the largest included).
+    pub turns_per_leg: (u32, u32),
+    /// A turn's angle, degrees, and its peak rate, °/s (capped at a
+    /// lateral acceleration of 4 m/s²).
+    pub turn_deg: (f64, f64),
+    pub turn_rate_dps: (f64, f64),
+    /// Grade and bank of a leg within ± these, degrees.
+    pub grade_deg: f64,
+    pub bank_deg: f64,
+    /// Bumps (pitch or roll kicks of 0.3–1 s): size, degrees, and the
+    /// time between them, s.
+    pub bump_deg: (f64, f64),
+    pub bump_every_s: (f64, f64),
+    /// A stop's length, s (log-uniform between).
+    pub stop_s: (f64, f64),
+    /// Standing, the body sways (part of the truth, not motion): amplitude,
+    /// degrees, and frequency, Hz, in pitch and in roll; `None`: no sway.
+    pub sway: Option<(f64, f64)>,
 }
 
 impl Default for VehicleScenario {
@@ -207,6 +293,9 @@ impl Default for VehicleScenario {
             profile: DriveProfile::Gentle,
             imu: ImuErrors::default(),
             magnet: None,
+            manoeuvres: None,
+            iron: None,
+            disturbances: Vec::new(),
         }
     }
 }
@@ -310,6 +399,9 @@ pub struct VehicleDrive {
     pulses: Vec<Pulse>,
     pitch_tones: Vec<Tone>,
     roll_tones: Vec<Tone>,
+    /// Sway while standing (empty: none).
+    pitch_sway: Vec<Tone>,
+    roll_sway: Vec<Tone>,
     earth_field_n: V3,
     soft_iron: Matrix3<f64>,
     hard_iron_ut: V3,
@@ -395,6 +487,9 @@ impl BiasDrift {
 
 /// The drive's manoeuvres.
 fn plan(scenario: &VehicleScenario, rng: &mut ChaCha8Rng) -> Vec<Pulse> {
+    if let Some(m) = &scenario.manoeuvres {
+        return plan_envelope(m, scenario.duration_s, rng);
+    }
     match scenario.profile {
         DriveProfile::Gentle => plan_gentle(scenario, rng),
         DriveProfile::Hard => plan_hard(scenario, rng),
@@ -490,6 +585,118 @@ fn plan_hard(scenario: &VehicleScenario, rng: &mut ChaCha8Rng) -> Vec<Pulse> {
         }
         push(Channel::Speed, cruise_end, brake, -speed);
         t = cruise_end + brake + rng.random_range(5.0..60.0);
+    }
+    pulses.sort_by(|a, b| a.start.total_cmp(&b.start));
+    pulses
+}
+
+/// Uniform in a range given as (low, high); the low end when it is empty.
+fn within(rng: &mut ChaCha8Rng, (lo, hi): (f64, f64)) -> f64 {
+    if hi > lo {
+        rng.random_range(lo..hi)
+    } else {
+        lo
+    }
+}
+
+/// Log-uniform in a range of positive values given as (low, high).
+fn log_within(rng: &mut ChaCha8Rng, (lo, hi): (f64, f64)) -> f64 {
+    within(rng, (lo.ln(), hi.ln())).exp()
+}
+
+/// An envelope drive's manoeuvres from its ranges ([`Manoeuvres`]).
+fn plan_envelope(m: &Manoeuvres, duration_s: f64, rng: &mut ChaCha8Rng) -> Vec<Pulse> {
+    /// Largest centripetal acceleration a turn may reach, m/s².
+    const MAX_LATERAL_MPS2: f64 = 4.0;
+    /// Walking pace, m/s: the calibration circle's speed.
+    const WALKING_MPS: f64 = 1.0;
+    let mut pulses = Vec::new();
+    let mut push = |channel, start, duration, change| {
+        pulses.push(Pulse {
+            channel,
+            start,
+            duration,
+            change,
+        })
+    };
+    let circle = |push: &mut dyn FnMut(Channel, f64, f64, f64), t: f64, rng: &mut ChaCha8Rng| {
+        let peak_dps = m.calibration_circle_dps.unwrap_or(10.0);
+        let angle = rad(370.0) * sign(rng);
+        let duration = 2.0 * angle.abs() / rad(peak_dps);
+        push(Channel::Speed, t, 4.0, WALKING_MPS);
+        push(Channel::Heading, t + 4.0, duration, angle);
+        push(Channel::Speed, t + 4.0 + duration, 4.0, -WALKING_MPS);
+        t + 8.0 + duration + within(rng, (5.0, 20.0))
+    };
+    let end = duration_s - 30.0;
+    let mut t = m.parked_start_s;
+    let mut circle_due = m.calibration_circle_dps.is_some();
+    if circle_due && t > 0.0 {
+        t = circle(&mut push, t, rng);
+        circle_due = false;
+    }
+    let (mut grade, mut bank) = (0.0_f64, 0.0_f64);
+    let mut first = true;
+    loop {
+        let speed = log_within(rng, m.speed_mps);
+        // A raised-cosine change of Δv over T peaks at 2Δv/T.
+        let accelerate = 2.0 * speed / within(rng, m.accel_mps2);
+        let cruise = within(rng, m.cruise_s);
+        let brake = if rng.random_bool(m.coast_share.clamp(0.0, 1.0)) {
+            2.0 * speed / within(rng, (0.05, 0.2))
+        } else {
+            2.0 * speed / within(rng, m.accel_mps2)
+        };
+        let stop = log_within(rng, m.stop_s);
+        // Rolling from the first reading: the first acceleration has
+        // ended by then.
+        let start = if first && t == 0.0 { -accelerate } else { t };
+        first = false;
+        if start + accelerate + cruise + brake > end {
+            break;
+        }
+        push(Channel::Speed, start, accelerate, speed);
+        let (cruise_start, cruise_end) = (start + accelerate, start + accelerate + cruise);
+        let mut turn_t = cruise_start + within(rng, (1.0, 8.0));
+        let turns = rng.random_range(m.turns_per_leg.0..=m.turns_per_leg.1.max(m.turns_per_leg.0));
+        for _ in 0..turns {
+            let angle = rad(within(rng, m.turn_deg));
+            let peak = rad(within(rng, m.turn_rate_dps)).min(MAX_LATERAL_MPS2 / speed);
+            let duration = 2.0 * angle / peak;
+            if turn_t + duration > cruise_end {
+                break;
+            }
+            push(Channel::Heading, turn_t, duration, angle * sign(rng));
+            turn_t += duration + within(rng, (2.0, 10.0));
+        }
+        let duration = within(rng, (4.0, 15.0)).min(cruise);
+        let target = rad(within(rng, (-m.grade_deg, m.grade_deg)));
+        push(Channel::Grade, cruise_start, duration, target - grade);
+        grade = target;
+        let target = rad(within(rng, (-m.bank_deg, m.bank_deg)));
+        push(Channel::Bank, cruise_start + 0.5, duration, target - bank);
+        bank = target;
+        let mut bump_t = cruise_start + within(rng, m.bump_every_s);
+        while bump_t + 1.0 < cruise_end {
+            let channel = if rng.random_bool(0.5) {
+                Channel::BumpPitch
+            } else {
+                Channel::BumpRoll
+            };
+            let size = rad(within(rng, m.bump_deg)) * sign(rng);
+            push(channel, bump_t, within(rng, (0.3, 1.0)), size);
+            bump_t += within(rng, m.bump_every_s);
+        }
+        push(Channel::Speed, cruise_end, brake, -speed);
+        t = cruise_end + brake + stop;
+        if circle_due {
+            t = circle(
+                &mut push,
+                cruise_end + brake + within(rng, (2.0, 10.0)),
+                rng,
+            );
+            circle_due = false;
+        }
     }
     pulses.sort_by(|a, b| a.start.total_cmp(&b.start));
     pulses
@@ -645,6 +852,28 @@ impl VehicleDrive {
             15.0 * normal(&mut rng),
             5.0 * normal(&mut rng),
         );
+        let (soft_iron, hard_iron_ut) = match &scenario.iron {
+            Some(iron) => (
+                Matrix3::from_fn(|i, j| iron.soft_iron[i][j]),
+                V3::from(iron.hard_iron_ut),
+            ),
+            None => (soft_iron, hard_iron_ut),
+        };
+        // Drawn from their own generator: the rest of the drive does not
+        // depend on them.
+        let (pitch_sway, roll_sway) = match scenario.manoeuvres.and_then(|m| m.sway) {
+            Some((amplitude_deg, frequency_hz)) => {
+                let mut sway_rng =
+                    ChaCha8Rng::seed_from_u64(scenario.seed.wrapping_mul(43).wrapping_add(17));
+                let tone = |rng: &mut ChaCha8Rng| Tone {
+                    amplitude: rad(amplitude_deg) * rng.random_range(0.5..1.0),
+                    omega: std::f64::consts::TAU * frequency_hz * rng.random_range(0.8..1.25),
+                    phase: rng.random_range(0.0..std::f64::consts::TAU),
+                };
+                (vec![tone(&mut sway_rng)], vec![tone(&mut sway_rng)])
+            }
+            None => (Vec::new(), Vec::new()),
+        };
         let imu = scenario.imu;
         let gyro_bias0 = normal3(&mut rng, rad(imu.gyro_bias_dps));
         let gyro_warmup = normal3(&mut rng, rad(0.05));
@@ -657,6 +886,8 @@ impl VehicleDrive {
             pulses,
             pitch_tones,
             roll_tones,
+            pitch_sway,
+            roll_sway,
             earth_field_n,
             soft_iron,
             hard_iron_ut,
@@ -774,6 +1005,25 @@ impl VehicleDrive {
         };
         let (pitch_wobble, pitch_wobble_rate) = wobble(&self.pitch_tones);
         let (roll_wobble, roll_wobble_rate) = wobble(&self.roll_tones);
+        // Sway while standing: the wobble's complement, 1 − e.
+        let sway = |tones: &[Tone]| -> (f64, f64) {
+            tones.iter().fold((0.0, 0.0), |(a, r), tone| {
+                let x = tone.omega * s + tone.phase;
+                (
+                    a + (1.0 - envelope) * tone.amplitude * x.sin(),
+                    r - envelope_rate * tone.amplitude * x.sin()
+                        + (1.0 - envelope) * tone.amplitude * tone.omega * x.cos(),
+                )
+            })
+        };
+        let (pitch_sway, pitch_sway_rate) = sway(&self.pitch_sway);
+        let (roll_sway, roll_sway_rate) = sway(&self.roll_sway);
+        let (pitch_wobble, pitch_wobble_rate) = (
+            pitch_wobble + pitch_sway,
+            pitch_wobble_rate + pitch_sway_rate,
+        );
+        let (roll_wobble, roll_wobble_rate) =
+            (roll_wobble + roll_sway, roll_wobble_rate + roll_sway_rate);
         State {
             speed,
             speed_rate,
@@ -858,7 +1108,8 @@ impl VehicleDrive {
                 roll_deg: deg(st.roll),
                 heading_deg: deg(st.heading).rem_euclid(360.0),
                 gyro_bias_dps: [deg(bias.x), deg(bias.y), deg(bias.z)],
-                magnet_near: self.scenario.magnet.is_some_and(|m| m.is_near(s)),
+                magnet_near: self.scenario.magnet.is_some_and(|m| m.is_near(s))
+                    || self.scenario.disturbances.iter().any(|d| d.is_on(s)),
             }),
         }
     }
@@ -872,6 +1123,12 @@ impl VehicleDrive {
             && m.is_near(s)
         {
             field += V3::from(MAGNET_DIRECTION) * m.field_ut;
+        }
+        for d in self.scenario.disturbances.iter().filter(|d| d.is_on(s)) {
+            field += match d.frame {
+                DisturbanceFrame::Body => V3::from(d.field_ut),
+                DisturbanceFrame::World => attitude.inverse() * V3::from(d.field_ut),
+            };
         }
         Reading {
             t: self.scenario.start_t + s,
@@ -1111,6 +1368,52 @@ mod tests {
         assert_eq!(near, 601);
         assert_eq!(near_truths, 6001);
         assert!((V3::from(MAGNET_DIRECTION).norm() - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn steel_in_the_tunnel_adds_a_field_fixed_in_the_world() {
+        let steel = FieldDisturbance {
+            at_s: 200.0,
+            for_s: 30.0,
+            field_ut: [5.0, -12.0, 8.0],
+            frame: DisturbanceFrame::World,
+        };
+        let plain = VehicleDrive::new(VehicleScenario::default()).unwrap();
+        let disturbed = VehicleDrive::new(VehicleScenario {
+            disturbances: vec![steel],
+            ..VehicleScenario::default()
+        })
+        .unwrap();
+        let mut attitude = UnitQuaternion::identity();
+        let mut near = 0;
+        for (a, b) in plain.zip(disturbed) {
+            let s = a.reading.t - DEFAULT_START_T;
+            if let Some(truth) = b.truth {
+                assert_eq!(truth.magnet_near, steel.is_on(s));
+                attitude = attitude_from_euler(
+                    rad(truth.roll_deg),
+                    rad(truth.pitch_deg),
+                    rad(truth.heading_deg),
+                );
+            }
+            if let (
+                SensorData::Magnetometer { field_ut: x },
+                SensorData::Magnetometer { field_ut: y },
+            ) = (&a.reading.data, &b.reading.data)
+            {
+                let extra = V3::from(*y) - V3::from(*x);
+                // Taken at the IMU reading just before: the world field
+                // turned into that reading's body frame.
+                let expected = if steel.is_on(s) {
+                    near += 1;
+                    attitude.inverse() * V3::from(steel.field_ut)
+                } else {
+                    V3::zeros()
+                };
+                assert!((extra - expected).norm() < 1e-9, "{s}");
+            }
+        }
+        assert_eq!(near, 301);
     }
 
     #[test]

@@ -36,6 +36,11 @@ pub struct FuzzyEstimate {
     pub roll_deg: f64,
     /// True heading (magnetic plus declination), clockwise from north, [0, 360).
     pub heading_deg: f64,
+    /// One-sigma uncertainty of `pitch_deg`, `roll_deg` and `heading_deg`;
+    /// `null` before alignment (and heading's while nothing has given one).
+    pub pitch_sigma_deg: Option<f64>,
+    pub roll_sigma_deg: Option<f64>,
+    pub heading_sigma_deg: Option<f64>,
     /// Current gyro drift estimate, subtracted from every reading.
     pub gyro_bias_dps: [f64; 3],
     /// False until a still window has levelled the platform and fixed the
@@ -63,8 +68,9 @@ pub struct FuzzyEstimate {
 }
 
 /// Stored estimates of this release: postcard of [`FuzzyEstimate`].
-/// 1: before the bias σ and the disturbance flag ([`FuzzyEstimateV1`]).
-pub const CODEC_VERSION: u32 = 2;
+/// 1: before the bias σ and the disturbance flag ([`FuzzyEstimateV1`]);
+/// 2: before the attitude σ ([`FuzzyEstimateV2`]).
+pub const CODEC_VERSION: u32 = 3;
 
 impl FuzzyEstimate {
     /// The fields after `"engine"`, as serde_json writes them.
@@ -74,6 +80,9 @@ impl FuzzyEstimate {
         w.number("pitch_deg", self.pitch_deg);
         w.number("roll_deg", self.roll_deg);
         w.number("heading_deg", self.heading_deg);
+        w.optional("pitch_sigma_deg", self.pitch_sigma_deg);
+        w.optional("roll_sigma_deg", self.roll_sigma_deg);
+        w.optional("heading_sigma_deg", self.heading_sigma_deg);
         w.triple("gyro_bias_dps", &self.gyro_bias_dps);
         w.flag("aligned", self.aligned);
         w.word("mag_calibration", self.mag_calibration.as_str());
@@ -99,11 +108,18 @@ impl FuzzyEstimate {
     /// before rows carried their version: version 2, or 1 where that fails).
     pub fn decode(version: u32, bytes: &[u8]) -> Result<FuzzyEstimate, postcard::Error> {
         match version {
-            0 => postcard::from_bytes::<FuzzyEstimate>(bytes).or_else(|_| {
-                postcard::from_bytes::<FuzzyEstimateV1>(bytes).map(FuzzyEstimate::from)
-            }),
-            1 => postcard::from_bytes::<FuzzyEstimateV1>(bytes).map(FuzzyEstimate::from),
-            2 => postcard::from_bytes(bytes),
+            0 => postcard::from_bytes::<FuzzyEstimateV2>(bytes)
+                .map(FuzzyEstimate::from)
+                .or_else(|_| {
+                    postcard::from_bytes::<FuzzyEstimateV1>(bytes)
+                        .map(FuzzyEstimateV2::from)
+                        .map(FuzzyEstimate::from)
+                }),
+            1 => postcard::from_bytes::<FuzzyEstimateV1>(bytes)
+                .map(FuzzyEstimateV2::from)
+                .map(FuzzyEstimate::from),
+            2 => postcard::from_bytes::<FuzzyEstimateV2>(bytes).map(FuzzyEstimate::from),
+            3 => postcard::from_bytes(bytes),
             _ => Err(postcard::Error::DeserializeBadEncoding),
         }
     }
@@ -134,9 +150,9 @@ struct FuzzyEstimateV1 {
     gyro_activity_dps: f64,
 }
 
-impl From<FuzzyEstimateV1> for FuzzyEstimate {
-    fn from(v: FuzzyEstimateV1) -> FuzzyEstimate {
-        FuzzyEstimate {
+impl From<FuzzyEstimateV1> for FuzzyEstimateV2 {
+    fn from(v: FuzzyEstimateV1) -> FuzzyEstimateV2 {
+        FuzzyEstimateV2 {
             motion: v.motion,
             static_degree: v.static_degree,
             pitch_deg: v.pitch_deg,
@@ -153,6 +169,54 @@ impl From<FuzzyEstimateV1> for FuzzyEstimate {
             gyro_activity_dps: v.gyro_activity_dps,
             gyro_bias_sigma_dps: None,
             mag_disturbed: false,
+        }
+    }
+}
+
+/// A `fuzzy` estimate as releases before the attitude σ stored it (codec
+/// version 2).
+#[derive(Deserialize)]
+struct FuzzyEstimateV2 {
+    motion: Motion,
+    static_degree: f64,
+    pitch_deg: f64,
+    roll_deg: f64,
+    heading_deg: f64,
+    gyro_bias_dps: [f64; 3],
+    aligned: bool,
+    mag_calibration: CalibrationState,
+    mag_coverage_deg: f64,
+    mag_fit_rms: Option<f64>,
+    mag_heading_deg: Option<f64>,
+    accel_dev_mps2: f64,
+    accel_activity_mps2: f64,
+    gyro_activity_dps: f64,
+    gyro_bias_sigma_dps: Option<[f64; 3]>,
+    mag_disturbed: bool,
+}
+
+impl From<FuzzyEstimateV2> for FuzzyEstimate {
+    fn from(v: FuzzyEstimateV2) -> FuzzyEstimate {
+        FuzzyEstimate {
+            motion: v.motion,
+            static_degree: v.static_degree,
+            pitch_deg: v.pitch_deg,
+            roll_deg: v.roll_deg,
+            heading_deg: v.heading_deg,
+            pitch_sigma_deg: None,
+            roll_sigma_deg: None,
+            heading_sigma_deg: None,
+            gyro_bias_dps: v.gyro_bias_dps,
+            aligned: v.aligned,
+            mag_calibration: v.mag_calibration,
+            mag_coverage_deg: v.mag_coverage_deg,
+            mag_fit_rms: v.mag_fit_rms,
+            mag_heading_deg: v.mag_heading_deg,
+            accel_dev_mps2: v.accel_dev_mps2,
+            accel_activity_mps2: v.accel_activity_mps2,
+            gyro_activity_dps: v.gyro_activity_dps,
+            gyro_bias_sigma_dps: v.gyro_bias_sigma_dps,
+            mag_disturbed: v.mag_disturbed,
         }
     }
 }

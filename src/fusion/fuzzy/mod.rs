@@ -680,7 +680,7 @@ impl FuzzyEngine {
                 s.attitude,
                 s.gyro_bias.bias_rad_per_s,
                 Some(s.gyro_bias.sigma_rad_per_s()),
-                true,
+                Some(s),
             ),
             None => {
                 let (roll, pitch) = tilt_from_accel(&self.window.mean_force());
@@ -689,10 +689,16 @@ impl FuzzyEngine {
                     attitude_from_euler(roll, pitch, yaw),
                     V3::zeros(),
                     None,
-                    false,
+                    None,
                 )
             }
         };
+        let tilt_sigma_deg = aligned.map(|s| deg(s.tilt_sigma_rad));
+        let heading_sigma_deg = aligned
+            .map(|s| s.heading_sigma_rad)
+            .filter(|&sigma| sigma < std::f64::consts::PI)
+            .map(deg);
+        let aligned = aligned.is_some();
         let (roll, pitch, yaw) = attitude.euler_angles();
         let correction = self.calibration.correction();
         EngineOutput {
@@ -707,6 +713,9 @@ impl FuzzyEngine {
                 pitch_deg: deg(pitch),
                 roll_deg: deg(roll),
                 heading_deg: deg(yaw).rem_euclid(360.0),
+                pitch_sigma_deg: tilt_sigma_deg,
+                roll_sigma_deg: tilt_sigma_deg,
+                heading_sigma_deg,
                 gyro_bias_dps: [deg(bias.x), deg(bias.y), deg(bias.z)],
                 aligned,
                 mag_calibration: self.calibration.state(),
