@@ -53,6 +53,7 @@ pub mod motion;
 pub mod noise_floor;
 pub mod orientation;
 pub mod params;
+pub mod rest_rate;
 pub mod tilt;
 pub mod uncertainty;
 
@@ -68,6 +69,7 @@ use self::motion::{MotionSignals, MotionWindow};
 use self::noise_floor::NoiseFloor;
 use self::orientation::{integrate, magnetic_heading, pull_heading, tilt_from_accel};
 pub use self::params::{FuzzyConfig, FuzzyParams, PARAMS, RETIRED};
+use self::rest_rate::RestRate;
 use self::tilt::TiltWindow;
 use super::angles::{deg, rad};
 use super::estimate::{EngineOutput, EstimateValues, JsonFields};
@@ -79,8 +81,9 @@ use crate::fusion::geometry::{V3, attitude_from_euler};
 
 /// Version of the engine's snapshot; a snapshot of another is outdated
 /// and the server rebuilds the engine from the stored readings.
-/// 3: the tilt window holds world-frame forces (issue 18, second step).
-pub const STATE_VERSION: u32 = 3;
+/// 3: the tilt window holds world-frame forces (issue 18, second step);
+/// 4: the bias learns from static blocks (issue 34).
+pub const STATE_VERSION: u32 = 4;
 
 /// Plausibility caps for alignment, whatever the floor says: a MEMS
 /// sensor at rest shows less spread and less mean rate than this (a
@@ -145,7 +148,14 @@ struct Solution {
     /// The bias's random walk as the data show it.
     #[serde(default)]
     bias_walk: WalkLearner,
+    /// Static blocks' mean rates and their wander (rest_rate.rs).
+    #[serde(default)]
+    rest_rate: RestRate,
 }
+
+/// How many σ of the bias and of the wander of the mean rate at rest the
+/// window's mean rate may be off the bias before it counts as a turn.
+const RATE_TOLERANCE_SIGMAS: f64 = 3.0;
 
 /// The `fuzzy` engine; see the module documentation.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -431,13 +441,14 @@ impl FuzzyEngine {
             if let Some(solution) = &mut self.solution {
                 solution.previous_rate_rad_per_s = None;
                 solution.tilt_window.clear();
+                solution.rest_rate.interrupted();
             }
         }
         self.window.push(force, rate);
         if self.window.is_full() {
             let spread = self
                 .window
-                .signals(self.window.mean_force_norm(), &V3::zeros());
+                .signals(self.window.mean_force_norm(), &V3::zeros(), 0.0);
             let rise = self.config.floor_rise_s;
             self.floor
                 .accel
@@ -448,11 +459,18 @@ impl FuzzyEngine {
         if self.solution.is_none() {
             self.try_align(t);
         }
-        let (bias, gravity) = match &self.solution {
-            Some(s) => (s.gyro_bias.bias_rad_per_s, s.static_gravity_mps2),
-            None => (V3::zeros(), self.window.mean_force_norm()),
+        let (bias, gravity, tolerance) = match &self.solution {
+            Some(s) => (
+                s.gyro_bias.bias_rad_per_s,
+                s.static_gravity_mps2,
+                RATE_TOLERANCE_SIGMAS
+                    * (s.gyro_bias.variance.sum() + 3.0 * s.rest_rate.wander_variance())
+                        .max(0.0)
+                        .sqrt(),
+            ),
+            None => (V3::zeros(), self.window.mean_force_norm(), 0.0),
         };
-        let signals = self.window.signals(gravity, &bias);
+        let signals = self.window.signals(gravity, &bias, tolerance);
         let relative = self.relative_signals(&signals);
         let static_degree = motion::decided_by_breakpoints(&self.config.motion, &relative)
             .or_else(|| motion::static_degree(&self.expert, &relative, &mut self.scratch))
@@ -488,7 +506,7 @@ impl FuzzyEngine {
         let m = &self.config.motion;
         let spread = self
             .window
-            .signals(self.window.mean_force_norm(), &V3::zeros())
+            .signals(self.window.mean_force_norm(), &V3::zeros(), 0.0)
             .accel_activity_mps2;
         let rate_spread = self.window.rate_spread();
         let mean_rate = self.window.mean_rate();
@@ -514,9 +532,13 @@ impl FuzzyEngine {
         self.floor.accel.lower_to(spread);
         self.floor.gyro.lower_to(rate_spread);
         // The mean of the window's rates, each with the per-axis noise
-        // variance (spread²/3): variance spread²/(3N).
+        // variance (spread²/3): variance spread²/(3N); and one window
+        // cannot tell a bias from a slow sway or a gentle turn of that
+        // size: the mean itself is added (per axis, ‖ω̄‖²/3), for the
+        // static blocks that follow to settle.
         let n = self.window.len() as f64;
-        let bias_variance = (rate_spread * rate_spread / 3.0 / n).max(MIN_FLOOR * MIN_FLOOR);
+        let bias_variance = (rate_spread * rate_spread / 3.0 / n + mean_rate.norm_squared() / 3.0)
+            .max(MIN_FLOOR * MIN_FLOOR);
         self.solution = Some(Solution {
             attitude: attitude_from_euler(roll, pitch, yaw),
             gyro_bias: GyroBias::new(mean_rate, bias_variance),
@@ -525,6 +547,7 @@ impl FuzzyEngine {
             tilt_window: TiltWindow::new(self.config.window_samples),
             tilt_sigma_rad: 0.0,
             bias_walk: WalkLearner::default(),
+            rest_rate: RestRate::default(),
             heading_sigma_rad: if yaw_known {
                 UNCALIBRATED_HEADING_SIGMA_RAD
             } else {
@@ -600,11 +623,19 @@ impl FuzzyEngine {
         }
 
         let weight = self.stillness(static_degree);
+        let gyro_floor = self.floor.gyro.level().unwrap_or(0.0);
+        // Per-axis noise variance: the floor is a norm over three axes.
+        let white_variance = (gyro_floor * gyro_floor / 3.0).max(MIN_FLOOR * MIN_FLOOR);
+        if let Some(block) =
+            solution
+                .rest_rate
+                .push(&rate, weight, c.window_samples, white_variance)
+        {
+            solution
+                .gyro_bias
+                .update(&block.rate_rad_per_s, block.noise_variance, 1.0);
+        }
         if weight > 0.0 {
-            let gyro_floor = self.floor.gyro.level().unwrap_or(0.0);
-            // Per-axis noise variance: the floor is a norm over three axes.
-            let noise_variance = (gyro_floor * gyro_floor / 3.0).max(MIN_FLOOR * MIN_FLOOR);
-            solution.gyro_bias.update(&rate, noise_variance, weight);
             let gain = (weight * dt_s / GRAVITY_TIME_CONSTANT_S).min(1.0);
             solution.static_gravity_mps2 += (force.norm() - solution.static_gravity_mps2) * gain;
         }

@@ -9,8 +9,11 @@
 //!   against the norm learnt while static (sustained acceleration, braking);
 //! - `accel_activity`: √(mean ‖fᵢ − f̄‖²), the window's specific-force
 //!   spread (vibration, jerk, bumps);
-//! - `gyro_activity`: √(mean ‖ωᵢ − b̂‖²), the bias-compensated angular-rate
-//!   RMS (turns and shaking).
+//! - `gyro_activity`: √(s² + e²), s the rate spread √(mean ‖ωᵢ − ω̄‖²)
+//!   (shaking) and e the mean rate's distance from the bias, ‖ω̄ − b̂‖,
+//!   beyond what the bias's own uncertainty and the wander of the mean
+//!   rate at rest allow (turns; a bias that drifted while driving does not
+//!   make a stop "moving").
 //!
 //! Rules (output `static_degree` with terms `moving`, `uncertain`, `static`):
 //! 1. IF accel_dev is low AND accel_activity is low AND gyro_activity is low
@@ -321,15 +324,18 @@ impl MotionWindow {
             .sqrt()
     }
 
-    /// The expert's inputs, against the static norm `gravity_mps2` and the
-    /// gyro bias `bias`.
-    pub fn signals(&self, gravity_mps2: f64, bias: &V3) -> MotionSignals {
+    /// The expert's inputs, against the static norm `gravity_mps2`, the
+    /// gyro bias `bias` and how far the mean rate may be off it at rest,
+    /// `rate_tolerance` (rad/s): the rate spread and the mean rate's
+    /// excess over the tolerance, √(spread² + max(0, ‖ω̄ − b‖ − tol)²).
+    pub fn signals(&self, gravity_mps2: f64, bias: &V3, rate_tolerance: f64) -> MotionSignals {
         let n = self.samples.len().max(1) as f64;
         let spread_sq = self.sum_force_sq / n - self.mean_force().norm_squared();
+        let excess = ((self.mean_rate() - bias).norm() - rate_tolerance).max(0.0);
         MotionSignals {
             accel_dev_mps2: (self.mean_force_norm() - gravity_mps2).abs(),
             accel_activity_mps2: spread_sq.max(0.0).sqrt(),
-            gyro_activity_rad_per_s: self.rate_rms(bias),
+            gyro_activity_rad_per_s: self.rate_spread().hypot(excess),
         }
     }
 }
@@ -485,9 +491,19 @@ mod tests {
             .sum::<f64>()
             / 7.0)
             .sqrt();
-        let signals = window.signals(9.8, &bias);
+        let signals = window.signals(9.8, &bias, 0.0);
         assert!((signals.accel_dev_mps2 - (mean_norm - 9.8).abs()).abs() < 1e-12);
         assert!((signals.accel_activity_mps2 - spread).abs() < 1e-9);
         assert!((signals.gyro_activity_rad_per_s - rms).abs() < 1e-12);
+        // Within the tolerance the mean rate's offset does not count; past
+        // it, only its excess: rms² = spread² + offset².
+        let mean_w = held.iter().map(|s| s.1).sum::<V3>() / 7.0;
+        let offset = (mean_w - bias).norm();
+        let rate_spread = (rms * rms - offset * offset).sqrt();
+        let loose = window.signals(9.8, &bias, 2.0 * offset);
+        assert!((loose.gyro_activity_rad_per_s - rate_spread).abs() < 1e-12);
+        let half = window.signals(9.8, &bias, 0.5 * offset);
+        let expected = rate_spread.hypot(0.5 * offset);
+        assert!((half.gyro_activity_rad_per_s - expected).abs() < 1e-12);
     }
 }
