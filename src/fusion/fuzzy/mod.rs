@@ -705,6 +705,24 @@ impl FuzzyEngine {
         solution.attitude = pull_heading(&solution.attitude, heading, gain);
     }
 
+    /// The tilt's and the heading's reported 1σ, rad (uncertainty.rs):
+    /// the engine's own σ and what no averaging removes: for tilt, the
+    /// accelerometer bias levelling cannot see (`accel_bias_sigma_mps2`
+    /// over g); for heading, the calibration's residual (its relative
+    /// radius RMS, `fit_rms`, is about the heading error it leaves, in
+    /// rad; before a calibration the compass's hard iron is unknown and so
+    /// is the heading) and the tilt's error turned into heading by the
+    /// tilt compensation, |tan I|·σ_tilt.
+    fn reported_sigmas(&self, s: &Solution, fit_rms: Option<f64>) -> (f64, f64) {
+        let tilt =
+            uncertainty::reported_sigma(s.tilt_sigma_rad, &[self.config.accel_bias_tilt_rad]);
+        let calibration = fit_rms.unwrap_or(uncertainty::UNKNOWN_ANGLE_SIGMA_RAD);
+        let through_tilt = self.config.mag_inclination_rad.tan().abs() * tilt;
+        let heading =
+            uncertainty::reported_sigma(s.heading_sigma_rad, &[calibration, through_tilt]);
+        (tilt, heading)
+    }
+
     fn estimate(&self, t: f64, static_degree: f64, signals: &MotionSignals) -> EngineOutput {
         let (attitude, bias, sigma, aligned) = match &self.solution {
             Some(s) => (
@@ -724,14 +742,16 @@ impl FuzzyEngine {
                 )
             }
         };
-        let tilt_sigma_deg = aligned.map(|s| deg(s.tilt_sigma_rad));
-        let heading_sigma_deg = aligned
-            .map(|s| s.heading_sigma_rad)
-            .filter(|&sigma| sigma < std::f64::consts::PI)
-            .map(deg);
+        let correction = self.calibration.correction();
+        let (tilt_sigma_deg, heading_sigma_deg) = match aligned {
+            Some(s) => {
+                let (tilt, heading) = self.reported_sigmas(s, correction.map(|c| c.fit_rms));
+                (Some(deg(tilt)), Some(deg(heading)))
+            }
+            None => (None, None),
+        };
         let aligned = aligned.is_some();
         let (roll, pitch, yaw) = attitude.euler_angles();
-        let correction = self.calibration.correction();
         EngineOutput {
             t,
             values: EstimateValues::Fuzzy(FuzzyEstimate {

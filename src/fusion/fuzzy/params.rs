@@ -199,6 +199,13 @@ param_table! {
             "s",
             "an older magnetometer reading gives no heading",
         ),
+        accel_bias_sigma_mps2: f64 = real(
+            0.05,
+            0.0,
+            10.0,
+            "m/s²",
+            "the accelerometer's bias (1σ per axis, its data sheet's turn-on bias): levelling at rest cannot see it, so the tilt may be off by about this over g; only the reported σ carries it",
+        ),
         max_imu_gap_s: f64 = real(
             0.5,
             0.001,
@@ -242,6 +249,9 @@ pub const RETIRED: &[Retired] = &[
     },
 ];
 
+/// g, m/s²: what an accelerometer bias is compared with.
+const STANDARD_GRAVITY_MPS2: f64 = 9.806_65;
+
 /// The engine's parameters in working units (SI, radians).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct FuzzyConfig {
@@ -269,6 +279,8 @@ pub struct FuzzyConfig {
     pub mag_refit_every: u32,
     pub mag_disturbance: Tolerances,
     pub max_mag_age_s: f64,
+    /// The tilt an unseen accelerometer bias leaves, rad (1σ): bias / g.
+    pub accel_bias_tilt_rad: f64,
     pub max_imu_gap_s: f64,
 }
 
@@ -338,6 +350,7 @@ impl FuzzyConfig {
                 dip_rad: rad(p.mag_disturbance_dip_deg),
             },
             max_mag_age_s: p.max_mag_age_s,
+            accel_bias_tilt_rad: (p.accel_bias_sigma_mps2 / STANDARD_GRAVITY_MPS2).atan(),
             max_imu_gap_s: p.max_imu_gap_s,
         })
     }

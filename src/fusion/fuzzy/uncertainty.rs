@@ -9,6 +9,21 @@
 //! - a pull by the fraction g leaves σ² ← (1 − g)²σ² + g²σ_ref² (the
 //!   variance of (1 − g)·angle + g·sensor).
 
+/// What the estimate reports as its 1σ, rad: the engine's own σ (the
+/// gyros' drift against the sensor's white noise, above) and the errors
+/// that no averaging of the sensor removes, added in quadrature:
+/// √(σ² + Σ σ_sys²), at most [`UNKNOWN_ANGLE_SIGMA_RAD`].
+pub fn reported_sigma(sigma_rad: f64, systematic_rad: &[f64]) -> f64 {
+    let total = systematic_rad
+        .iter()
+        .fold(sigma_rad * sigma_rad, |sum, s| sum + s * s);
+    total.sqrt().min(UNKNOWN_ANGLE_SIGMA_RAD)
+}
+
+/// σ of an angle known only to lie somewhere in a full turn: π/√3 rad
+/// (103.9°, a uniform distribution over ±180°).
+pub const UNKNOWN_ANGLE_SIGMA_RAD: f64 = 1.813_799_364_234_217_8;
+
 /// The innovation the sensor is believed within, rad.
 pub fn widened_gate(gate_rad: f64, sigma_rad: f64, reference_sigma_rad: f64) -> f64 {
     gate_rad.max(2.0 * (sigma_rad.powi(2) + reference_sigma_rad.powi(2)).sqrt())
@@ -40,5 +55,15 @@ mod tests {
         assert_eq!(sigma_after_pull(3.0, 4.0, 0.5), 2.5);
         assert_eq!(sigma_after_pull(3.0, 4.0, 1.0), 4.0);
         assert_eq!(sigma_after_pull(3.0, 4.0, 0.0), 3.0);
+    }
+
+    #[test]
+    fn the_reported_sigma_adds_what_averaging_cannot_remove() {
+        // √(0.3² + 0.4²) = 0.5; with 1.2 too: √(0.25 + 1.44) = 1.3.
+        assert!((reported_sigma(0.3, &[0.4]) - 0.5).abs() < 1e-12);
+        assert!((reported_sigma(0.3, &[0.4, 1.2]) - 1.3).abs() < 1e-12);
+        // Never more than a uniform angle's: π/√3.
+        assert!((UNKNOWN_ANGLE_SIGMA_RAD - std::f64::consts::PI / 3f64.sqrt()).abs() < 1e-15);
+        assert_eq!(reported_sigma(10.0, &[]), UNKNOWN_ANGLE_SIGMA_RAD);
     }
 }
