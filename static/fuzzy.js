@@ -25,6 +25,15 @@ tn.registerEngine('fuzzy', {
 
     const HISTORY_POINTS = 1500, BACKFILL_POINTS = 5000;
     const CHART_HEIGHT = 220, SMALL_HEIGHT = 160;
+    // What the estimate's `compass` state says to the operator.
+    const COMPASS_STATES = {
+      believed: 'believed',
+      raw: 'uncalibrated, holding the heading',
+      collecting: 'not used: collecting directions',
+      disturbed: 'not used: field disturbed',
+      gated: 'not used: disagrees with the gyros',
+      absent: 'not used: no recent reading',
+    };
     const CALIBRATION_TEXT = {
       collecting: 'collecting directions: turn the vehicle through a full circle',
       raw: 'the raw field is consistent in every direction seen: used as it is (factory-calibrated)',
@@ -97,6 +106,14 @@ tn.registerEngine('fuzzy', {
       if (!e) return;
       setText($('f-heading'), fixed(e.heading_deg, 1));
       setText($('f-compass'), fixed(e.mag_heading_deg, 1));
+      // 1σ of the heading and of the tilt (null before alignment).
+      setText($('f-heading-sigma'), fixed(e.heading_sigma_deg, 1));
+      setText($('f-tilt-sigma'), fixed(e.pitch_sigma_deg, 2));
+      const compass = $('f-compass-state');
+      compass.dataset.state = e.compass || 'unknown';
+      setText(compass, e.compass
+        ? `compass ${COMPASS_STATES[e.compass] || e.compass} since ${tn.timeOfDay(e.compass_since)}`
+        : '—');
       setText($('f-pitch'), fixed(e.pitch_deg, 2));
       setText($('f-pitch-mm'), fixed(tn.mmPerM(e.pitch_deg), 1));
       setText($('f-roll'), fixed(e.roll_deg, 2));

@@ -659,7 +659,10 @@ async fn fuzzy_page_shows_compass_motion_and_calibration() {
            && f.charts.attitude.data[3].some(v => v > 0) \
            && painted > 500 \
            && /^-?\\d+\\.\\d{4}$/.test(document.getElementById('f-bias-z').textContent) \
-           && /^\\d+\\.\\d{4}$/.test(document.getElementById('f-bias-sigma').textContent);",
+           && /^\\d+\\.\\d{4}$/.test(document.getElementById('f-bias-sigma').textContent) \
+           && /^\\d+\\.\\d$/.test(document.getElementById('f-heading-sigma').textContent) \
+           && /^\\d+\\.\\d{2}$/.test(document.getElementById('f-tilt-sigma').textContent) \
+           && /^compass .+ since .*\\d\\d:\\d\\d:\\d\\d$/.test(document.getElementById('f-compass-state').textContent);",
         20,
     )
     .await;

@@ -336,6 +336,7 @@ mod tests {
 
     #[test]
     fn fuzzy_estimates_match_serde_json_byte_for_byte() {
+        use crate::fusion::fuzzy::estimate::CompassState;
         use crate::fusion::fuzzy::magcal::CalibrationState;
         let mut writer = EstimateWriter::new("van-2");
         let states = [
@@ -371,6 +372,8 @@ mod tests {
                     gyro_activity_dps: 1e-7 * f64::from(i),
                     gyro_bias_sigma_dps: (i % 6 != 0).then_some([x * 1e-4, 0.002, 1e-9]),
                     mag_disturbed: i % 7 == 3,
+                    compass: (i % 8 != 0).then_some(CompassState::Gated),
+                    compass_since: (i % 8 != 0).then_some(1.7e9 + f64::from(i)),
                 }),
             };
             let mut ours = Vec::new();

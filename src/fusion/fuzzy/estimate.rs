@@ -25,6 +25,40 @@ impl Motion {
     }
 }
 
+/// Whether the compass steers the heading now, and if not, why.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum CompassState {
+    /// A fresh calibrated reading passed every check: it steers the heading.
+    Believed,
+    /// Not yet calibrated: the raw compass holds the heading it gave at
+    /// alignment while its field is unchanged (its absolute error unknown).
+    Raw,
+    /// Not yet calibrated and the raw field has changed: not used.
+    Collecting,
+    /// The field departs from the site's in magnitude or dip: not used.
+    Disturbed,
+    /// It disagrees with the gyro-carried heading beyond the gate: not
+    /// used (believed again if it keeps disagreeing for `heading_gate_s`).
+    Gated,
+    /// No magnetometer reading young enough.
+    Absent,
+}
+
+impl CompassState {
+    /// The protocol name.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            CompassState::Believed => "believed",
+            CompassState::Raw => "raw",
+            CompassState::Collecting => "collecting",
+            CompassState::Disturbed => "disturbed",
+            CompassState::Gated => "gated",
+            CompassState::Absent => "absent",
+        }
+    }
+}
+
 /// What the `fuzzy` engine estimates at one IMU reading.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct FuzzyEstimate {
@@ -65,11 +99,15 @@ pub struct FuzzyEstimate {
     /// True while the magnetometer field departs from the site's in
     /// magnitude or dip (a magnet, steel nearby): the compass is not used.
     pub mag_disturbed: bool,
+    /// Whether the compass steers the heading now, and since when (Unix
+    /// seconds); `null` in estimates stored before they said so.
+    pub compass: Option<CompassState>,
+    pub compass_since: Option<f64>,
 }
 
 /// Stored estimates of this release: postcard of [`FuzzyEstimate`].
 /// 1: before the bias σ and the disturbance flag ([`FuzzyEstimateV1`]);
-/// 2: before the attitude σ ([`FuzzyEstimateV2`]).
+/// 2: before the attitude σ and the compass state ([`FuzzyEstimateV2`]).
 pub const CODEC_VERSION: u32 = 3;
 
 impl FuzzyEstimate {
@@ -97,6 +135,11 @@ impl FuzzyEstimate {
             None => w.null("gyro_bias_sigma_dps"),
         }
         w.flag("mag_disturbed", self.mag_disturbed);
+        match self.compass {
+            Some(state) => w.word("compass", state.as_str()),
+            None => w.null("compass"),
+        }
+        w.optional("compass_since", self.compass_since);
     }
 
     /// The stored form, of [`CODEC_VERSION`].
@@ -173,8 +216,8 @@ impl From<FuzzyEstimateV1> for FuzzyEstimateV2 {
     }
 }
 
-/// A `fuzzy` estimate as releases before the attitude σ stored it (codec
-/// version 2).
+/// A `fuzzy` estimate as releases before the attitude σ and the compass
+/// state stored it (codec version 2).
 #[derive(Deserialize)]
 struct FuzzyEstimateV2 {
     motion: Motion,
@@ -217,6 +260,8 @@ impl From<FuzzyEstimateV2> for FuzzyEstimate {
             gyro_activity_dps: v.gyro_activity_dps,
             gyro_bias_sigma_dps: v.gyro_bias_sigma_dps,
             mag_disturbed: v.mag_disturbed,
+            compass: None,
+            compass_since: None,
         }
     }
 }

@@ -61,7 +61,7 @@ use nalgebra::UnitQuaternion;
 use serde::{Deserialize, Serialize};
 
 use self::disturbance::{DisturbanceDetector, Tolerances};
-use self::estimate::{FuzzyEstimate, Motion};
+use self::estimate::{CompassState, FuzzyEstimate, Motion};
 use self::gyro_bias::{GyroBias, WalkLearner};
 use self::magcal::{CalibrationState, MagCalibration};
 use self::mamdani::{Mamdani, Scratch};
@@ -195,6 +195,9 @@ pub struct FuzzyEngine {
     /// The newest static degree (the dip check allows for the tilt error
     /// of a moving sensor).
     static_degree: f64,
+    /// Whether the compass steers the heading, and since when.
+    #[serde(default)]
+    compass_state: Option<(CompassState, f64)>,
     #[serde(skip)]
     scratch: Scratch,
 }
@@ -238,6 +241,7 @@ impl FuzzyEngine {
             compass_gated_since: None,
             rehead_turn: None,
             static_degree: 0.0,
+            compass_state: None,
             scratch: Scratch::default(),
         })
     }
@@ -273,6 +277,7 @@ impl FuzzyEngine {
         fresh.compass_gated_since = engine.compass_gated_since;
         fresh.rehead_turn = engine.rehead_turn;
         fresh.static_degree = engine.static_degree;
+        fresh.compass_state = engine.compass_state;
         Ok(fresh)
     }
 
@@ -495,7 +500,34 @@ impl FuzzyEngine {
                 self.window.clear();
             }
         }
+        let state = self.compass_now(t);
+        if self
+            .compass_state
+            .is_none_or(|(previous, _)| previous != state)
+        {
+            self.compass_state = Some((state, t));
+        }
         out.push(self.estimate(t, static_degree, &signals));
+    }
+
+    /// Whether the compass steers the heading at `t`, and if not, why.
+    fn compass_now(&self, t: f64) -> CompassState {
+        let fresh = self
+            .magnetometer
+            .is_some_and(|(mag_t, _)| (t - mag_t).abs() <= self.config.max_mag_age_s);
+        if !fresh {
+            CompassState::Absent
+        } else if self.disturbance.disturbed() && self.calibration.correction().is_some() {
+            CompassState::Disturbed
+        } else if self.compass_gated_since.is_some() {
+            CompassState::Gated
+        } else if self.calibration.correction().is_some() {
+            CompassState::Believed
+        } else if self.fresh_compass(t).is_some() {
+            CompassState::Raw
+        } else {
+            CompassState::Collecting
+        }
     }
 
     /// Aligns on a quiet, plausible full window.
@@ -778,6 +810,8 @@ impl FuzzyEngine {
                 gyro_activity_dps: deg(signals.gyro_activity_rad_per_s),
                 gyro_bias_sigma_dps: sigma.map(|s| [deg(s.x), deg(s.y), deg(s.z)]),
                 mag_disturbed: self.disturbance.disturbed() || self.compass_gated_since.is_some(),
+                compass: self.compass_state.map(|(state, _)| state),
+                compass_since: self.compass_state.map(|(_, since)| since),
             }),
         }
     }
@@ -969,6 +1003,13 @@ mod tests {
             assert!((last.gyro_bias_dps[k] - b).abs() < 1e-9);
         }
         assert_eq!(last.mag_calibration, magcal::CalibrationState::Collecting);
+        // Uncalibrated, and the field's dip (65.6°) is not the site's
+        // (60°, the default): the raw compass is not used (before the
+        // first magnetometer reading, it is absent).
+        assert_eq!(fuzzy(&out[0]).compass, Some(CompassState::Absent));
+        assert_eq!(fuzzy(&out[1]).compass, Some(CompassState::Collecting));
+        assert_eq!(last.compass, Some(CompassState::Collecting));
+        assert_eq!(last.compass_since, Some(1.7e9 + 0.01));
     }
 
     /// Still for 10 s, then carried back and forth without turning for
@@ -1015,12 +1056,20 @@ mod tests {
             held.heading_deg
         );
         assert!(held.mag_heading_deg.is_some());
+        // The site's dip: the raw compass holds the heading from
+        // alignment (half a second in) on.
+        assert_eq!(held.compass, Some(CompassState::Raw));
+        let since = held.compass_since.unwrap() - 1.7e9;
+        assert!((0.4..0.7).contains(&since), "{since}");
         // A steel mass (10 µT, 20 % of the horizontal field) changes the
         // raw field's magnitude: its compass is not used (for less than the
         // 120 s after which a lasting change is the new field), the gyro
         // drifts.
         let refused = carried_without_turning(V3::new(10.0, 0.0, 0.0));
         assert!(refused.mag_heading_deg.is_none());
+        assert_eq!(refused.compass, Some(CompassState::Collecting));
+        let since = refused.compass_since.unwrap() - 1.7e9;
+        assert!((10.0..11.0).contains(&since), "{since}");
         assert!(
             (refused.heading_deg - 40.0).abs() > 8.0,
             "{}",
@@ -1240,8 +1289,21 @@ mod tests {
             assert!(worst < 5.0, "{extra:?}: heading moved {worst}°");
             let during = fuzzy(&disturbed[80 * 100]);
             assert!(during.mag_disturbed, "{extra:?}: {during:?}");
+            // The compass is not believed, and the estimate says since
+            // about when the magnet came (60 s; the first readings near it
+            // may still pass).
+            assert!(
+                matches!(
+                    during.compass,
+                    Some(CompassState::Disturbed | CompassState::Gated)
+                ),
+                "{extra:?}: {during:?}"
+            );
+            let since = during.compass_since.unwrap() - 1.7e9;
+            assert!((60.0..62.0).contains(&since), "{extra:?}: since {since}");
             let after = fuzzy(disturbed.last().unwrap());
             assert!(!after.mag_disturbed);
+            assert_eq!(after.compass, Some(CompassState::Believed), "{extra:?}");
         }
         assert_ne!(
             fuzzy(clean.last().unwrap()).mag_calibration,
