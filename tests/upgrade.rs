@@ -306,7 +306,7 @@ const JACK_19_ESTIMATES_SHA256: &str =
 
 /// The same for the fuzzy history of `van-19`.
 const VAN_19_ESTIMATES_SHA256: &str =
-    "09be503066b25e4bb68efc8fa4b726615d3da3147b447768c054e9f111e70eec";
+    "fe9ec9c098780df0f452a3e06517d09e79629ac00f5846ecdaa2c9ed13b5fb2f";
 
 /// SHA-256 (hex) of the values as canonical JSON, one per line: object
 /// keys sorted at every level, numbers as serde_json writes them.
@@ -430,7 +430,8 @@ async fn a_database_from_before_issue_19_opens_serves_and_continues() {
             // release's replay still equalled them all (the fields added
             // since null: zupt's `attitude_sigma_deg`, `pitch_sigma_deg`
             // and `roll_sigma_deg`, fuzzy's `pitch_sigma_deg`,
-            // `roll_sigma_deg` and `heading_sigma_deg`).
+            // `roll_sigma_deg`, `heading_sigma_deg`, `compass` and
+            // `compass_since`).
             let times = |estimates: &[Value]| -> Vec<f64> {
                 estimates.iter().map(|e| e["t"].as_f64().unwrap()).collect()
             };
