@@ -44,6 +44,7 @@
 //! The Earth's rotation (≤ 0.0042 °/s) is below a MEMS gyro's noise and is
 //! absorbed into the estimated bias while static.
 
+pub mod bias_feedback;
 pub mod disturbance;
 pub mod estimate;
 pub mod gyro_bias;
@@ -92,6 +93,10 @@ const ALIGN_MAX_ACCEL_SPREAD_MPS2: f64 = 0.5;
 const ALIGN_MAX_RATE_SPREAD_RAD_PER_S: f64 = 0.035; // 2 °/s
 const ALIGN_MAX_MEAN_RATE_RAD_PER_S: f64 = 0.087; // 5 °/s: no MEMS bias is larger
 const ALIGN_MAX_GRAVITY_ERROR_MPS2: f64 = 1.0;
+/// Aligning while moving: the tilt's σ is at least this (1°).
+const MIN_MOVING_TILT_SIGMA_RAD: f64 = 0.017;
+/// g, m/s²: the static norm an alignment while moving starts from.
+const STANDARD_GRAVITY_MPS2: f64 = 9.806_65;
 /// Time constant of the static ‖f‖ learnt while static, s: it changes
 /// only with temperature.
 const GRAVITY_TIME_CONSTANT_S: f64 = 5.0;
@@ -170,6 +175,12 @@ pub struct FuzzyEngine {
     window: MotionWindow,
     floor: NoiseFloor,
     newest_imu_t: Option<f64>,
+    /// The first IMU reading's time (alignment without a rest waits from it).
+    #[serde(default)]
+    first_imu_t: Option<f64>,
+    /// The newest interval between IMU readings, s.
+    #[serde(default)]
+    newest_dt_s: f64,
     solution: Option<Solution>,
     calibration: MagCalibration,
     disturbance: DisturbanceDetector,
@@ -225,6 +236,8 @@ impl FuzzyEngine {
             window: MotionWindow::new(config.window_samples),
             floor: NoiseFloor::default(),
             newest_imu_t: None,
+            first_imu_t: None,
+            newest_dt_s: 0.0,
             solution: None,
             calibration: MagCalibration::new(
                 config.mag_min_coverage_deg,
@@ -266,6 +279,8 @@ impl FuzzyEngine {
         fresh.window = engine.window;
         fresh.floor = engine.floor;
         fresh.newest_imu_t = engine.newest_imu_t;
+        fresh.first_imu_t = engine.first_imu_t;
+        fresh.newest_dt_s = engine.newest_dt_s;
         fresh.solution = engine.solution;
         fresh.calibration = engine.calibration;
         fresh.disturbance = engine.disturbance;
@@ -436,8 +451,12 @@ impl FuzzyEngine {
             None => f64::INFINITY,
         };
         self.newest_imu_t = Some(t);
+        self.first_imu_t.get_or_insert(t);
         self.stats.imu_used += 1;
         let continuous = dt_s <= self.config.max_imu_gap_s;
+        if continuous {
+            self.newest_dt_s = dt_s;
+        }
         if !continuous {
             if dt_s.is_finite() {
                 self.stats.imu_gaps += 1;
@@ -477,9 +496,19 @@ impl FuzzyEngine {
         };
         let signals = self.window.signals(gravity, &bias, tolerance);
         let relative = self.relative_signals(&signals);
-        let static_degree = motion::decided_by_breakpoints(&self.config.motion, &relative)
-            .or_else(|| motion::static_degree(&self.expert, &relative, &mut self.scratch))
-            .unwrap_or(0.0);
+        // The floors are the quietest windows seen; a sensor never still
+        // has learnt them while moving, and everything looks "low" against
+        // them. A window no MEMS sensor at rest shows (the alignment's
+        // caps on the spreads) is motion, whatever the floors say.
+        let plausible_at_rest = signals.accel_activity_mps2 <= ALIGN_MAX_ACCEL_SPREAD_MPS2
+            && self.window.rate_spread() <= ALIGN_MAX_RATE_SPREAD_RAD_PER_S;
+        let static_degree = if plausible_at_rest {
+            motion::decided_by_breakpoints(&self.config.motion, &relative)
+                .or_else(|| motion::static_degree(&self.expert, &relative, &mut self.scratch))
+                .unwrap_or(0.0)
+        } else {
+            0.0
+        };
 
         self.static_degree = static_degree;
         if continuous && let Some(solution) = self.solution.take() {
@@ -554,6 +583,7 @@ impl FuzzyEngine {
             && mean_rate.norm() <= ALIGN_MAX_MEAN_RATE_RAD_PER_S
             && (self.window.mean_force_norm() - 9.81).abs() <= ALIGN_MAX_GRAVITY_ERROR_MPS2;
         if !(quiet && plausible) {
+            self.align_while_moving(t, spread, mean_rate);
             return;
         }
         let (roll, pitch) = tilt_from_accel(&self.window.mean_force());
@@ -581,6 +611,48 @@ impl FuzzyEngine {
             bias_walk: WalkLearner::default(),
             rest_rate: RestRate::default(),
             heading_sigma_rad: if yaw_known {
+                UNCALIBRATED_HEADING_SIGMA_RAD
+            } else {
+                std::f64::consts::PI
+            },
+        });
+    }
+
+    /// Aligns without a rest once `align_without_rest_s` has passed since
+    /// the first reading with no quiet window (a sensor that is never
+    /// still): tilt from the window's mean force (its σ from how far that
+    /// force is from gravity, at least 1°), heading from the compass, the
+    /// gyro bias unknown: 0 with σ `gyro_bias_prior_dps`, learnt at the
+    /// first rest (and from the pulls while moving, bias_feedback.rs).
+    /// Only while the window's mean force has gravity's size (within
+    /// 1 m/s²); the window's rates turn the body under it, so its tilt σ
+    /// adds the angle they turn it through, |ω̄|·(window length).
+    fn align_while_moving(&mut self, t: f64, spread_mps2: f64, mean_rate: V3) {
+        let waited = self
+            .first_imu_t
+            .is_some_and(|first| t - first >= self.config.align_without_rest_s);
+        let force = self.window.mean_force();
+        let gravity_error = (force.norm() - STANDARD_GRAVITY_MPS2).abs();
+        if !waited || gravity_error > ALIGN_MAX_GRAVITY_ERROR_MPS2 {
+            return;
+        }
+        let (roll, pitch) = tilt_from_accel(&force);
+        let compass = self.any_compass_heading(t, roll, pitch);
+        let prior = self.config.gyro_bias_prior_rad_per_s;
+        let window_s = self.window.len() as f64 * self.newest_dt_s.max(0.0);
+        let tilt_sigma = (((gravity_error + spread_mps2) / STANDARD_GRAVITY_MPS2).atan()
+            + mean_rate.norm() * window_s)
+            .max(MIN_MOVING_TILT_SIGMA_RAD);
+        self.solution = Some(Solution {
+            attitude: attitude_from_euler(roll, pitch, compass.unwrap_or(0.0)),
+            gyro_bias: GyroBias::new(V3::zeros(), (prior * prior).max(MIN_FLOOR * MIN_FLOOR)),
+            static_gravity_mps2: STANDARD_GRAVITY_MPS2,
+            previous_rate_rad_per_s: None,
+            tilt_window: TiltWindow::new(self.config.window_samples),
+            tilt_sigma_rad: tilt_sigma,
+            bias_walk: WalkLearner::default(),
+            rest_rate: RestRate::default(),
+            heading_sigma_rad: if compass.is_some() {
                 UNCALIBRATED_HEADING_SIGMA_RAD
             } else {
                 std::f64::consts::PI
@@ -648,6 +720,20 @@ impl FuzzyEngine {
                 c.tilt_turn_pull * tilting_rate * dt_s,
             );
             let gain = gain.max((1.0 - still) * turn_gain).min(1.0);
+            // While moving, a residual the pull keeps taking out is the
+            // gyro bias's (bias_feedback.rs).
+            if let Some(axis) = nalgebra::Unit::try_new(measured.cross(&predicted), 1e-12) {
+                let residual = axis.into_inner() * measured.angle(&predicted);
+                solution.gyro_bias.bias_rad_per_s += bias_feedback::bias_step(
+                    &solution.attitude,
+                    &residual,
+                    moving_weight * dt_s / c.tilt_moving_time_constant_s,
+                    dt_s,
+                    1.0 - still,
+                    &solution.gyro_bias.variance,
+                    accel_sigma,
+                );
+            }
             solution.tilt_sigma_rad =
                 uncertainty::sigma_after_pull(solution.tilt_sigma_rad, accel_sigma, gain);
             solution.attitude =
@@ -718,19 +804,44 @@ impl FuzzyEngine {
                 solution.heading_sigma_rad,
                 compass_sigma,
             );
-            if innovation > gate {
+            let within_gate = innovation <= gate;
+            if within_gate {
+                self.compass_gated_since = None;
+            } else {
                 let since = *self.compass_gated_since.get_or_insert(t);
                 if t - since < c.heading_gate_s {
                     return;
                 }
-            } else {
-                self.compass_gated_since = None;
             }
             let still = self.stillness(static_degree);
             let gain = still * dt_s / c.heading_time_constant_s
                 + (1.0 - still) * dt_s / c.heading_moving_time_constant_s;
             // A heading less sure than the compass is pulled harder.
-            (gain * uncertainty::pull_boost(solution.heading_sigma_rad, compass_sigma)).min(1.0)
+            let gain = (gain * uncertainty::pull_boost(solution.heading_sigma_rad, compass_sigma))
+                .min(1.0);
+            // While moving, a heading residual the pull keeps taking out is
+            // the vertical gyro bias's (bias_feedback.rs): only from a
+            // calibrated compass within the gate (an uncalibrated one's
+            // heading is off by its unknown hard iron, and one believed
+            // again after disagreeing says the heading was wrong, not the
+            // bias).
+            let calibrated = self.calibration.correction().is_some();
+            let moving = if calibrated && within_gate {
+                1.0 - still
+            } else {
+                0.0
+            };
+            let residual = V3::new(0.0, 0.0, orientation::angle_difference(heading, yaw));
+            solution.gyro_bias.bias_rad_per_s += bias_feedback::bias_step(
+                &solution.attitude,
+                &residual,
+                dt_s / c.heading_moving_time_constant_s,
+                dt_s,
+                moving,
+                &solution.gyro_bias.variance,
+                compass_sigma,
+            );
+            gain
         };
         solution.heading_sigma_rad =
             uncertainty::sigma_after_pull(solution.heading_sigma_rad, compass_sigma, gain);
@@ -1177,10 +1288,12 @@ mod tests {
 
     #[test]
     fn a_noisy_sensor_aligns_within_two_seconds_of_its_first_still_spell() {
+        // Not aligning while it is waved about (that is the next test).
+        let patient = Params::from_assignments(PARAMS, ["align_without_rest_s=1000000"]).unwrap();
         for seed in 1..=5 {
             let (readings, _) = noisy_readings(10.0, seed);
             let rest_t = 1.7e9 + 5.0;
-            let mut engine = FuzzyEngine::with_defaults();
+            let mut engine = FuzzyEngine::new(patient.clone()).unwrap();
             let mut out = Vec::new();
             for r in &readings {
                 engine.feed(r, &mut out);
@@ -1206,6 +1319,40 @@ mod tests {
             let gyro_floor_dps = deg(gyro_floor.unwrap());
             assert!((0.13..0.18).contains(&accel_floor), "{accel_floor}");
             assert!((0.65..0.9).contains(&gyro_floor_dps), "{gyro_floor_dps}");
+        }
+    }
+
+    #[test]
+    fn a_sensor_waved_about_from_the_start_aligns_while_moving() {
+        for seed in 1..=5 {
+            let (readings, _) = noisy_readings(10.0, seed);
+            let mut engine = FuzzyEngine::with_defaults();
+            let mut out = Vec::new();
+            for r in &readings {
+                engine.feed(r, &mut out);
+            }
+            // Waved for 5 s: aligned once `align_without_rest_s` (2 s) has
+            // passed and a window's mean force has gravity's size, with a
+            // tilt σ of at least 1° and the bias unknown (σ 1 °/s).
+            let first = out
+                .iter()
+                .map(fuzzy)
+                .find(|f| f.aligned)
+                .expect("aligns while moving");
+            let aligned_t = out.iter().find(|o| fuzzy(o).aligned).unwrap().t - 1.7e9;
+            assert!((2.0..5.0).contains(&aligned_t), "seed {seed}: {aligned_t}");
+            assert!(first.pitch_sigma_deg.is_some_and(|s| s >= 1.0), "{first:?}");
+            assert!(
+                first
+                    .gyro_bias_sigma_dps
+                    .is_some_and(|s| (s[0] - 1.0).abs() < 1e-3),
+                "{first:?}"
+            );
+            // The rest that follows learns the bias as before.
+            let last = fuzzy(out.last().unwrap());
+            assert_eq!(last.motion, Motion::Static, "seed {seed}");
+            assert!((last.gyro_bias_dps[0] - 1.0).abs() < 0.05, "{last:?}");
+            assert!(last.gyro_bias_sigma_dps.is_some_and(|s| s[0] < 0.05));
         }
     }
 

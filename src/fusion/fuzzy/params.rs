@@ -199,6 +199,20 @@ param_table! {
             "s",
             "an older magnetometer reading gives no heading",
         ),
+        align_without_rest_s: f64 = real(
+            2.0,
+            0.0,
+            1.0e6,
+            "s",
+            "with no quiet window this long after the first reading, the engine aligns while moving: tilt from the window's mean force, heading from the compass, gyro bias unknown (σ gyro_bias_prior_dps) until a rest",
+        ),
+        gyro_bias_prior_dps: f64 = real(
+            1.0,
+            0.0,
+            100.0,
+            "deg/s",
+            "the gyro's turn-on bias (1σ per axis, its data sheet's): the bias σ of an alignment made while moving",
+        ),
         accel_bias_sigma_mps2: f64 = real(
             0.05,
             0.0,
@@ -281,6 +295,9 @@ pub struct FuzzyConfig {
     pub max_mag_age_s: f64,
     /// The tilt an unseen accelerometer bias leaves, rad (1σ): bias / g.
     pub accel_bias_tilt_rad: f64,
+    pub align_without_rest_s: f64,
+    /// `gyro_bias_prior_dps`, rad/s.
+    pub gyro_bias_prior_rad_per_s: f64,
     pub max_imu_gap_s: f64,
 }
 
@@ -351,6 +368,8 @@ impl FuzzyConfig {
             },
             max_mag_age_s: p.max_mag_age_s,
             accel_bias_tilt_rad: (p.accel_bias_sigma_mps2 / STANDARD_GRAVITY_MPS2).atan(),
+            align_without_rest_s: p.align_without_rest_s,
+            gyro_bias_prior_rad_per_s: rad(p.gyro_bias_prior_dps),
             max_imu_gap_s: p.max_imu_gap_s,
         })
     }
