@@ -32,7 +32,7 @@ use serde::Serialize;
 
 use super::ahrs::{Madgwick, Mahony, initial_attitude};
 use super::attitude::Spread;
-use super::{ErrorStats, parallel_map};
+use super::{Bar, ErrorStats, parallel_map};
 use crate::fusion::angles::{deg, rad};
 use crate::fusion::fuzzy::PARAMS;
 use crate::fusion::fuzzy::orientation::{angle_difference, integrate};
@@ -372,14 +372,6 @@ pub struct MethodSpread {
     pub heading_rmse_deg: Spread,
 }
 
-/// One bar of issue 34, what was measured and whether it holds.
-#[derive(Debug, Clone, Serialize)]
-pub struct Bar {
-    pub bar: String,
-    pub measured: String,
-    pub met: bool,
-}
-
 /// Everything over the drives.
 #[derive(Debug, Clone, Serialize)]
 pub struct Summary {
@@ -597,15 +589,7 @@ pub fn render(drives: &[DriveScores], summary: &Summary) -> String {
         summary.motion_accuracy.worst,
         c.join("/")
     );
-    for b in &summary.bars {
-        let _ = writeln!(
-            out,
-            "{} {}: {}",
-            if b.met { "met    " } else { "NOT MET" },
-            b.bar,
-            b.measured
-        );
-    }
+    Bar::render_all(&summary.bars, &mut out);
     out
 }
 

@@ -90,3 +90,26 @@ pub fn parallel_map<T: Sync, R: Send>(
         .flatten()
         .collect()
 }
+
+/// One bar of an issue, what was measured and whether it holds: the
+/// envelope evaluations print every bar, met or not.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Bar {
+    pub bar: String,
+    pub measured: String,
+    pub met: bool,
+}
+
+impl Bar {
+    /// `met     bar: measured` or `NOT MET bar: measured`, one line each.
+    pub fn render_all(bars: &[Bar], out: &mut String) {
+        for b in bars {
+            out.push_str(if b.met { "met    " } else { "NOT MET" });
+            out.push(' ');
+            out.push_str(&b.bar);
+            out.push_str(": ");
+            out.push_str(&b.measured);
+            out.push('\n');
+        }
+    }
+}

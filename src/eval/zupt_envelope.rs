@@ -29,8 +29,8 @@ use rand_distr::StandardNormal;
 use serde::Serialize;
 
 use super::attitude::Spread;
-use super::heading_error_deg;
 use super::zupt::ZeroVelocityTally;
+use super::{Bar, heading_error_deg};
 use crate::fusion::zupt::{PARAMS, ZuptEngine};
 use crate::fusion::{Engine, EngineOutput, ParamError, ParamValue, Params, Reading, SensorKind};
 use crate::sim::pipejack::PipeJackTruth;
@@ -275,14 +275,6 @@ pub struct RunSpread {
     pub coverage_2_sigma: [f64; 6],
 }
 
-/// The bars of issue 33, each with what was measured and whether it holds.
-#[derive(Debug, Clone, Serialize)]
-pub struct Bar {
-    pub bar: String,
-    pub measured: String,
-    pub met: bool,
-}
-
 /// Everything over the drives.
 #[derive(Debug, Clone, Serialize)]
 pub struct Summary {
@@ -506,14 +498,6 @@ pub fn render(drives: &[DriveScores], summary: &Summary) -> String {
         );
     }
     let _ = writeln!(out);
-    for b in &summary.bars {
-        let _ = writeln!(
-            out,
-            "{} {}: {}",
-            if b.met { "met    " } else { "NOT MET" },
-            b.bar,
-            b.measured
-        );
-    }
+    Bar::render_all(&summary.bars, &mut out);
     out
 }
