@@ -67,7 +67,8 @@ pub const MAHONY_KI: f64 = 0.05;
 #[derive(Debug, Clone)]
 pub struct FuzzyEvalConfig {
     pub scenario: VehicleScenario,
-    /// Parameters of the engine; `declination_deg` is set from the scenario.
+    /// Parameters of the engine; `declination_deg` and `mag_inclination_deg`
+    /// are set from the scenario.
     pub params: Params,
 }
 
@@ -302,12 +303,19 @@ pub enum FuzzyEvalError {
 /// Runs the drive through the engine and the baselines.
 pub fn evaluate(config: &FuzzyEvalConfig) -> Result<FuzzyEvaluation, FuzzyEvalError> {
     let scenario = config.scenario.clone();
+    // What an installer sets for the site: declination and inclination.
     let params = config.params.with_overrides(
         PARAMS,
-        [(
-            "declination_deg".to_string(),
-            ParamValue::Number(scenario.declination_deg),
-        )],
+        [
+            (
+                "declination_deg".to_string(),
+                ParamValue::Number(scenario.declination_deg),
+            ),
+            (
+                "mag_inclination_deg".to_string(),
+                ParamValue::Number(scenario.inclination_deg),
+            ),
+        ],
     )?;
     let drive = VehicleDrive::new(scenario.clone()).map_err(FuzzyEvalError::Scenario)?;
     let mut engine = FuzzyEngine::new(params)?;
