@@ -36,8 +36,12 @@ fn envelope_drives_seeds_41_to_52() {
         let share = summary.coverage_2_sigma[k];
         assert!(share >= 0.85, "{name}: 2σ covers {share}");
     }
-    // A drive is the same every time.
+    // A drive is the same every time (compared as text: a heading never
+    // scored is NaN, which equals nothing).
     let again = evaluate_drive(seeds[0], &params).unwrap();
-    assert_eq!(again.methods, drives[0].methods);
+    assert_eq!(
+        format!("{:?}", again.methods),
+        format!("{:?}", drives[0].methods)
+    );
     assert_eq!(again.motion_accuracy, drives[0].motion_accuracy);
 }

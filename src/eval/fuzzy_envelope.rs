@@ -417,7 +417,9 @@ pub fn summarise(drives: &[DriveScores]) -> Summary {
         |d: &DriveScores, f: fn(&MethodScores) -> f64| d.method("engine").map_or(f64::NAN, f);
     // The same median as the table's (of an even count, the mean of the
     // middle two).
-    let heading = Spread::of(&finite(drives, |d| engine(d, |m| m.heading_rmse_deg)));
+    let headings = finite(drives, |d| engine(d, |m| m.heading_rmse_deg));
+    let heading_scored = headings.len();
+    let heading = Spread::of(&headings);
     let tilt = Spread::of(&finite(drives, |d| engine(d, MethodScores::tilt_rmse_deg)));
     let worse_than_madgwick: Vec<u64> = drives
         .iter()
@@ -443,7 +445,9 @@ pub fn summarise(drives: &[DriveScores]) -> Summary {
         },
         Bar {
             bar: "heading never worse than the calibrated Madgwick".into(),
-            measured: if worse_than_madgwick.is_empty() {
+            measured: if heading_scored == 0 {
+                "no drive turned enough to score heading".into()
+            } else if worse_than_madgwick.is_empty() {
                 "on no drive".into()
             } else {
                 format!(
@@ -456,17 +460,17 @@ pub fn summarise(drives: &[DriveScores]) -> Summary {
                         .join(", ")
                 )
             },
-            met: worse_than_madgwick.is_empty(),
+            met: heading_scored > 0 && worse_than_madgwick.is_empty(),
         },
         Bar {
             bar: "heading RMSE ≤ 2° at the median".into(),
-            measured: format!("{:.3}°", heading.median),
-            met: heading.median <= 2.0,
+            measured: format!("{:.3}° over {heading_scored} drives", heading.median),
+            met: heading_scored > 0 && heading.median <= 2.0,
         },
         Bar {
             bar: "tilt RMSE ≤ 0.5° at the median (the larger of pitch and roll)".into(),
             measured: format!("{:.3}°", tilt.median),
-            met: tilt.median <= 0.5,
+            met: !drives.is_empty() && tilt.median <= 0.5,
         },
     ];
     for (k, name) in ["pitch", "roll", "heading"].iter().enumerate() {

@@ -18,7 +18,7 @@
 //! | turns | 0–4 per leg, 15–180°, peak rate up to 5–60 °/s (capped at 4 m/s² sideways) |
 //! | grade, bank, bumps | within ±0–10° and ±0–4°; bumps of 0.2–3° every 2–15 s |
 //! | stops | log-uniform in 2 s – 10 min, around a typical length drawn log-uniform in that range (each 0.5–2 × it) |
-//! | sway while standing | on half the drives, slow: 0.05–0.5° at 0.1–1 Hz in pitch and in roll (an idling chassis, a person standing: the truth, not motion) |
+//! | sway while standing | on half the drives, slow: an amplitude of 0.05–0.5° at 0.1–1 Hz, in pitch and in roll each 0.5–1 × that amplitude and 0.8–1.25 × that frequency (an idling chassis, a person standing: the truth, not motion) |
 //! | gyro | turn-on bias 0–0.6 °/s (1σ per axis: biases up to about 1 °/s), warm-up drift 0.05 °/s, a drifting bias on two drives in three (new slope every 1–3 min, up to 0–0.1 °/s per minute), white noise 0.01–0.5 °/s log-uniform |
 //! | accelerometer | bias 0.005–0.08 m/s² (1σ per axis), white noise 0.005–0.1 m/s² log-uniform |
 //! | vibration | rolling 0.05–0.8 m/s² log-uniform plus 0–0.1 m/s² per m/s; idling 0.003–0.3 m/s² log-uniform |
@@ -264,7 +264,7 @@ mod tests {
     }
 
     #[test]
-    fn drives_stop_turn_and_stay_within_their_speeds() {
+    fn drives_stop_and_stay_within_their_speeds() {
         for seed in 1..=6 {
             let (scenario, truths) = truths(seed);
             let m = scenario.manoeuvres.unwrap();

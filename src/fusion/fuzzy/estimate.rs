@@ -71,7 +71,8 @@ pub struct FuzzyEstimate {
     /// True heading (magnetic plus declination), clockwise from north, [0, 360).
     pub heading_deg: f64,
     /// One-sigma uncertainty of `pitch_deg`, `roll_deg` and `heading_deg`;
-    /// `null` before alignment (and heading's while nothing has given one).
+    /// `null` before alignment. A heading no calibrated compass has given
+    /// is unknown: 103.9° (π/√3, uniform over a full turn).
     pub pitch_sigma_deg: Option<f64>,
     pub roll_sigma_deg: Option<f64>,
     pub heading_sigma_deg: Option<f64>,

@@ -499,9 +499,11 @@ impl FuzzyEngine {
         // The floors are the quietest windows seen; a sensor never still
         // has learnt them while moving, and everything looks "low" against
         // them. A window no MEMS sensor at rest shows (the alignment's
-        // caps on the spreads) is motion, whatever the floors say.
+        // caps on the spreads, and a mean rate more than 5 °/s off the
+        // bias) is motion, whatever the floors and the bias's σ say.
         let plausible_at_rest = signals.accel_activity_mps2 <= ALIGN_MAX_ACCEL_SPREAD_MPS2
-            && self.window.rate_spread() <= ALIGN_MAX_RATE_SPREAD_RAD_PER_S;
+            && self.window.rate_spread() <= ALIGN_MAX_RATE_SPREAD_RAD_PER_S
+            && (self.window.mean_rate() - bias).norm() <= ALIGN_MAX_MEAN_RATE_RAD_PER_S;
         let static_degree = if plausible_at_rest {
             motion::decided_by_breakpoints(&self.config.motion, &relative)
                 .or_else(|| motion::static_degree(&self.expert, &relative, &mut self.scratch))
@@ -539,6 +541,13 @@ impl FuzzyEngine {
         out.push(self.estimate(t, static_degree, &signals));
     }
 
+    /// True while the compass disagrees with the gyro heading beyond the
+    /// gate and has not yet for `heading_gate_s` (after that it steers).
+    fn gated_now(&self, t: f64) -> bool {
+        self.compass_gated_since
+            .is_some_and(|since| t - since < self.config.heading_gate_s)
+    }
+
     /// Whether the compass steers the heading at `t`, and if not, why.
     fn compass_now(&self, t: f64) -> CompassState {
         let fresh = self
@@ -548,7 +557,7 @@ impl FuzzyEngine {
             CompassState::Absent
         } else if self.disturbance.disturbed() && self.calibration.correction().is_some() {
             CompassState::Disturbed
-        } else if self.compass_gated_since.is_some() {
+        } else if self.gated_now(t) {
             CompassState::Gated
         } else if self.calibration.correction().is_some() {
             CompassState::Believed
@@ -920,7 +929,7 @@ impl FuzzyEngine {
                 accel_activity_mps2: signals.accel_activity_mps2,
                 gyro_activity_dps: deg(signals.gyro_activity_rad_per_s),
                 gyro_bias_sigma_dps: sigma.map(|s| [deg(s.x), deg(s.y), deg(s.z)]),
-                mag_disturbed: self.disturbance.disturbed() || self.compass_gated_since.is_some(),
+                mag_disturbed: self.disturbance.disturbed() || self.gated_now(t),
                 compass: self.compass_state.map(|(state, _)| state),
                 compass_since: self.compass_state.map(|(_, since)| since),
             }),
