@@ -55,6 +55,7 @@ pub mod noise_floor;
 pub mod orientation;
 pub mod params;
 pub mod rest_rate;
+pub mod start_frame;
 pub mod tilt;
 pub mod uncertainty;
 
@@ -71,6 +72,7 @@ use self::noise_floor::NoiseFloor;
 use self::orientation::{integrate, magnetic_heading, pull_heading, tilt_from_accel};
 pub use self::params::{FuzzyConfig, FuzzyParams, PARAMS, RETIRED};
 use self::rest_rate::RestRate;
+use self::start_frame::StartFrame;
 use self::tilt::TiltWindow;
 use super::angles::{deg, rad};
 use super::estimate::{EngineOutput, EstimateValues, JsonFields};
@@ -84,7 +86,7 @@ use crate::fusion::geometry::{V3, attitude_from_euler};
 /// and the server rebuilds the engine from the stored readings.
 /// 3: the tilt window holds world-frame forces (issue 18, second step);
 /// 4: the bias learns from static blocks (issue 34).
-pub const STATE_VERSION: u32 = 4;
+pub const STATE_VERSION: u32 = 5;
 
 /// Plausibility caps for alignment, whatever the floor says: a MEMS
 /// sensor at rest shows less spread and less mean rate than this (a
@@ -175,12 +177,13 @@ pub struct FuzzyEngine {
     window: MotionWindow,
     floor: NoiseFloor,
     newest_imu_t: Option<f64>,
-    /// The first IMU reading's time (alignment without a rest waits from it).
-    #[serde(default)]
-    first_imu_t: Option<f64>,
     /// The newest interval between IMU readings, s.
     #[serde(default)]
     newest_dt_s: f64,
+    /// Before alignment: the forces in the first reading's frame
+    /// (start_frame.rs), for an alignment while moving.
+    #[serde(default)]
+    start_frame: StartFrame,
     solution: Option<Solution>,
     calibration: MagCalibration,
     disturbance: DisturbanceDetector,
@@ -236,8 +239,8 @@ impl FuzzyEngine {
             window: MotionWindow::new(config.window_samples),
             floor: NoiseFloor::default(),
             newest_imu_t: None,
-            first_imu_t: None,
             newest_dt_s: 0.0,
+            start_frame: StartFrame::default(),
             solution: None,
             calibration: MagCalibration::new(
                 config.mag_min_coverage_deg,
@@ -279,7 +282,7 @@ impl FuzzyEngine {
         fresh.window = engine.window;
         fresh.floor = engine.floor;
         fresh.newest_imu_t = engine.newest_imu_t;
-        fresh.first_imu_t = engine.first_imu_t;
+        fresh.start_frame = engine.start_frame;
         fresh.newest_dt_s = engine.newest_dt_s;
         fresh.solution = engine.solution;
         fresh.calibration = engine.calibration;
@@ -451,7 +454,6 @@ impl FuzzyEngine {
             None => f64::INFINITY,
         };
         self.newest_imu_t = Some(t);
-        self.first_imu_t.get_or_insert(t);
         self.stats.imu_used += 1;
         let continuous = dt_s <= self.config.max_imu_gap_s;
         if continuous {
@@ -462,6 +464,7 @@ impl FuzzyEngine {
                 self.stats.imu_gaps += 1;
             }
             self.window.clear();
+            self.start_frame.clear();
             if let Some(solution) = &mut self.solution {
                 solution.previous_rate_rad_per_s = None;
                 solution.tilt_window.clear();
@@ -481,7 +484,12 @@ impl FuzzyEngine {
         }
 
         if self.solution.is_none() {
+            let dt = if continuous { dt_s } else { 0.0 };
+            self.start_frame.push(t, &force, &rate, dt);
             self.try_align(t);
+            if self.solution.is_some() {
+                self.start_frame.clear();
+            }
         }
         let (bias, gravity, tolerance) = match &self.solution {
             Some(s) => (
@@ -592,7 +600,7 @@ impl FuzzyEngine {
             && mean_rate.norm() <= ALIGN_MAX_MEAN_RATE_RAD_PER_S
             && (self.window.mean_force_norm() - 9.81).abs() <= ALIGN_MAX_GRAVITY_ERROR_MPS2;
         if !(quiet && plausible) {
-            self.align_while_moving(t, spread, mean_rate);
+            self.align_while_moving(t);
             return;
         }
         let (roll, pitch) = tilt_from_accel(&self.window.mean_force());
@@ -629,36 +637,32 @@ impl FuzzyEngine {
 
     /// Aligns without a rest once `align_without_rest_s` has passed since
     /// the first reading with no quiet window (a sensor that is never
-    /// still): tilt from the window's mean force (its σ from how far that
-    /// force is from gravity, at least 1°), heading from the compass, the
-    /// gyro bias unknown: 0 with σ `gyro_bias_prior_dps`, learnt at the
-    /// first rest (and from the pulls while moving, bias_feedback.rs).
-    /// Only while the window's mean force has gravity's size (within
-    /// 1 m/s²); the window's rates turn the body under it, so its tilt σ
-    /// adds the angle they turn it through, |ω̄|·(window length).
-    fn align_while_moving(&mut self, t: f64, spread_mps2: f64, mean_rate: V3) {
-        let waited = self
-            .first_imu_t
-            .is_some_and(|first| t - first >= self.config.align_without_rest_s);
-        let force = self.window.mean_force();
-        let gravity_error = (force.norm() - STANDARD_GRAVITY_MPS2).abs();
-        if !waited || gravity_error > ALIGN_MAX_GRAVITY_ERROR_MPS2 {
+    /// still): tilt from the mean force in the first reading's frame, held
+    /// still by the gyros (start_frame.rs, with its σ from the data),
+    /// heading from the compass, the gyro bias unknown: 0 with σ
+    /// `gyro_bias_prior_dps`, learnt at the first rest (and from the pulls
+    /// while moving, bias_feedback.rs). Only while that mean force has
+    /// gravity's size (within 1 m/s²).
+    fn align_while_moving(&mut self, t: f64) {
+        let prior = self.config.gyro_bias_prior_rad_per_s;
+        if self.start_frame.span_s(t) < self.config.align_without_rest_s {
             return;
         }
-        let (roll, pitch) = tilt_from_accel(&force);
+        let Some(found) = self.start_frame.alignment(t, STANDARD_GRAVITY_MPS2, prior) else {
+            return;
+        };
+        if found.gravity_error_mps2 > ALIGN_MAX_GRAVITY_ERROR_MPS2 {
+            return;
+        }
+        let (roll, pitch, _) = found.attitude.euler_angles();
         let compass = self.any_compass_heading(t, roll, pitch);
-        let prior = self.config.gyro_bias_prior_rad_per_s;
-        let window_s = self.window.len() as f64 * self.newest_dt_s.max(0.0);
-        let tilt_sigma = (((gravity_error + spread_mps2) / STANDARD_GRAVITY_MPS2).atan()
-            + mean_rate.norm() * window_s)
-            .max(MIN_MOVING_TILT_SIGMA_RAD);
         self.solution = Some(Solution {
             attitude: attitude_from_euler(roll, pitch, compass.unwrap_or(0.0)),
             gyro_bias: GyroBias::new(V3::zeros(), (prior * prior).max(MIN_FLOOR * MIN_FLOOR)),
             static_gravity_mps2: STANDARD_GRAVITY_MPS2,
             previous_rate_rad_per_s: None,
             tilt_window: TiltWindow::new(self.config.window_samples),
-            tilt_sigma_rad: tilt_sigma,
+            tilt_sigma_rad: found.tilt_sigma_rad.max(MIN_MOVING_TILT_SIGMA_RAD),
             bias_walk: WalkLearner::default(),
             rest_rate: RestRate::default(),
             heading_sigma_rad: if compass.is_some() {
@@ -710,12 +714,22 @@ impl FuzzyEngine {
             // tilt less sure than that widens the gate (two σ of the
             // residual) and takes the accelerometer faster.
             let accel_sigma = 0.5 * c.tilt_gate_rad;
+            // The reference's σ adds the acceleration the window shows
+            // (uncertainty.rs); it sets how fast the tilt takes it and how
+            // sure that leaves the tilt, not the gate (a steady
+            // acceleration shows in neither, only in the residual).
+            let reference_sigma = uncertainty::moving_reference_sigma(
+                accel_sigma,
+                measured.norm() - solution.static_gravity_mps2,
+                solution.tilt_window.halves_apart_mps2(),
+                solution.static_gravity_mps2,
+            );
             let gate_rad =
                 uncertainty::widened_gate(c.tilt_gate_rad, solution.tilt_sigma_rad, accel_sigma);
             let gate_mps2 =
                 solution.static_gravity_mps2 * gate_rad.min(std::f64::consts::FRAC_PI_2).sin();
             let moving_weight = tilt::moving_weight(residual, gate_mps2);
-            let boost = uncertainty::pull_boost(solution.tilt_sigma_rad, accel_sigma);
+            let boost = uncertainty::pull_boost(solution.tilt_sigma_rad, reference_sigma);
             let still = self.stillness(static_degree);
             let gain = still * dt_s / c.tilt_time_constant_s
                 + ((1.0 - still) * moving_weight * dt_s / c.tilt_moving_time_constant_s * boost)
@@ -744,7 +758,7 @@ impl FuzzyEngine {
                 );
             }
             solution.tilt_sigma_rad =
-                uncertainty::sigma_after_pull(solution.tilt_sigma_rad, accel_sigma, gain);
+                uncertainty::sigma_after_pull(solution.tilt_sigma_rad, reference_sigma, gain);
             solution.attitude =
                 tilt::correct_world(&solution.attitude, &measured, &predicted, gain);
         }

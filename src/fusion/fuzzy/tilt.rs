@@ -45,6 +45,10 @@ pub struct TiltWindow {
     older_measured: V3,
     older_predicted: V3,
     older_len: usize,
+    /// Sum of the measured force over every pair held, and of its squared norm.
+    all_measured: V3,
+    #[serde(default)]
+    all_measured_squared: f64,
     pushes_since_refresh: usize,
 }
 
@@ -57,6 +61,8 @@ impl TiltWindow {
             older_measured: V3::zeros(),
             older_predicted: V3::zeros(),
             older_len: 0,
+            all_measured: V3::zeros(),
+            all_measured_squared: 0.0,
             pushes_since_refresh: 0,
         }
     }
@@ -78,8 +84,12 @@ impl TiltWindow {
             self.older_measured -= f;
             self.older_predicted -= p;
             self.older_len -= 1;
+            self.all_measured -= f;
+            self.all_measured_squared -= f.norm_squared();
         }
         self.pairs.push_back((measured, predicted));
+        self.all_measured += measured;
+        self.all_measured_squared += measured.norm_squared();
         // The older half takes readings until it is full; then the reading
         // that crosses from the newer half into it.
         let older = self.older_capacity();
@@ -106,11 +116,34 @@ impl TiltWindow {
             self.older_measured += f;
             self.older_predicted += p;
         }
+        self.all_measured = self.pairs.iter().map(|(f, _)| f).sum();
+        self.all_measured_squared = self.pairs.iter().map(|(f, _)| f.norm_squared()).sum();
     }
 
     /// True once the window is full.
     pub fn is_full(&self) -> bool {
         self.pairs.len() == self.capacity
+    }
+
+    /// How far apart the measured force's means over the older and the
+    /// newer half are beyond what the readings' own scatter explains, m/s²:
+    /// √max(0, ‖F̄_old − F̄_new‖² − v·(1/n_old + 1/n_new)), v the window's
+    /// variance of the force about its mean (summed over the axes). White
+    /// vibration leaves 0; an acceleration that changes within the window
+    /// does not. 0 until both halves hold readings.
+    pub fn halves_apart_mps2(&self) -> f64 {
+        let n = self.pairs.len();
+        let newer = n - self.older_len;
+        if newer == 0 || self.older_len == 0 {
+            return 0.0;
+        }
+        let (n_old, n_new) = (self.older_len as f64, newer as f64);
+        let mean = self.all_measured / n as f64;
+        let variance = (self.all_measured_squared / n as f64 - mean.norm_squared()).max(0.0);
+        let old = self.older_measured / n_old;
+        let new = (self.all_measured - self.older_measured) / n_new;
+        let scatter = variance * (1.0 / n_old + 1.0 / n_new);
+        ((old - new).norm_squared() - scatter).max(0.0).sqrt()
     }
 
     /// Means of the measured and predicted force over the older half.
@@ -175,6 +208,14 @@ mod tests {
         let (measured, predicted) = window.older_means().unwrap();
         assert!((measured.x - 19.0).abs() < 1e-12);
         assert!((predicted.y - 38.0).abs() < 1e-12);
+        // Older 18, 19, 20 (mean 19), newer 21, 22 (21.5): 2.5 apart; the
+        // five have variance 2 about their mean 20, and 2·(1/3 + 1/2) = 5/3
+        // of the 6.25 is scatter: √(6.25 − 5/3).
+        let apart = window.halves_apart_mps2();
+        assert!(
+            (apart - (6.25f64 - 5.0 / 3.0).sqrt()).abs() < 1e-9,
+            "{apart}"
+        );
         // Before it is full the older half fills first.
         let mut young = TiltWindow::new(6);
         young.push(V3::new(1.0, 0.0, 0.0), V3::zeros());

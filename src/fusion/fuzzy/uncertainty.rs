@@ -34,6 +34,22 @@ pub fn pull_boost(sigma_rad: f64, reference_sigma_rad: f64) -> f64 {
     (sigma_rad / reference_sigma_rad).powi(2).max(1.0)
 }
 
+/// The σ, rad, of a reference that is a mean over a window while the
+/// sensor moves: its own `base_sigma_rad` and the acceleration the window
+/// shows, added in quadrature. A force mean whose size is not gravity's,
+/// or an older half that differs from the newer one, is not gravity's
+/// direction alone: their sum over g is the angle it may be off
+/// (`norm_error_mps2` = |‖F̄‖ − g₀|, `halves_apart_mps2` = ‖F̄_old − F̄_new‖).
+pub fn moving_reference_sigma(
+    base_sigma_rad: f64,
+    norm_error_mps2: f64,
+    halves_apart_mps2: f64,
+    gravity_mps2: f64,
+) -> f64 {
+    let shown = ((norm_error_mps2.abs() + halves_apart_mps2.abs()) / gravity_mps2.max(1e-9)).atan();
+    (base_sigma_rad.powi(2) + shown.powi(2)).sqrt()
+}
+
 /// The angle's σ after a pull by the fraction `gain` towards the sensor, rad.
 pub fn sigma_after_pull(sigma_rad: f64, reference_sigma_rad: f64, gain: f64) -> f64 {
     ((1.0 - gain).powi(2) * sigma_rad.powi(2) + gain.powi(2) * reference_sigma_rad.powi(2)).sqrt()
@@ -55,6 +71,15 @@ mod tests {
         assert_eq!(sigma_after_pull(3.0, 4.0, 0.5), 2.5);
         assert_eq!(sigma_after_pull(3.0, 4.0, 1.0), 4.0);
         assert_eq!(sigma_after_pull(3.0, 4.0, 0.0), 3.0);
+    }
+
+    #[test]
+    fn a_moving_reference_is_as_unsure_as_the_acceleration_it_shows() {
+        // Nothing shown: the base σ. 0.3 + 0.4 = 0.7 m/s² of 9.8: atan(1/14).
+        assert_eq!(moving_reference_sigma(0.02, 0.0, 0.0, 9.8), 0.02);
+        let shown = (1.0f64 / 14.0).atan();
+        let sigma = moving_reference_sigma(0.02, -0.3, 0.4, 9.8);
+        assert!((sigma - (0.0004 + shown * shown).sqrt()).abs() < 1e-12);
     }
 
     #[test]
