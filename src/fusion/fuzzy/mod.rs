@@ -129,6 +129,10 @@ pub struct FuzzyStats {
     pub mag_fits: u64,
     /// Magnetometer readings found disturbed (not used).
     pub mag_disturbed: u64,
+    /// Calibrations dropped because the raw field was more consistent on
+    /// the newest readings (magcal.rs: the check).
+    #[serde(default)]
+    pub mag_refuted: u64,
     /// Times the attitude became non-finite and alignment started again.
     pub resets: u64,
 }
@@ -342,6 +346,15 @@ impl FuzzyEngine {
             ..self.config.mag_disturbance
         };
         let level = attitude_from_euler(roll, pitch, 0.0);
+        // A calibration worse than none on the newest readings is dropped
+        // (magcal.rs): the disturbance check starts again from the new
+        // field, and the compass's heading is taken at the next IMU reading.
+        if self.calibration.check(t, field_ut) {
+            self.disturbance
+                .recalibrated(self.calibration.field_magnitude_ut());
+            self.reheading = self.calibration.correction().is_some();
+            self.stats.mag_refuted += 1;
+        }
         let disturbed = self.calibration.correction().is_some_and(|c| {
             self.disturbance.observe(
                 t,
