@@ -48,6 +48,7 @@ pub mod bias_feedback;
 pub mod disturbance;
 pub mod estimate;
 pub mod gyro_bias;
+pub mod heading_drift;
 pub mod magcal;
 pub mod mamdani;
 pub mod motion;
@@ -65,6 +66,7 @@ use serde::{Deserialize, Serialize};
 use self::disturbance::{DisturbanceDetector, Tolerances};
 use self::estimate::{CompassState, FuzzyEstimate, Motion};
 use self::gyro_bias::{GyroBias, WalkLearner};
+use self::heading_drift::Innovations;
 use self::magcal::{CalibrationState, MagCalibration};
 use self::mamdani::{Mamdani, Scratch};
 use self::motion::{MotionSignals, MotionWindow};
@@ -133,6 +135,10 @@ pub struct FuzzyStats {
     /// the newest readings (magcal.rs: the check).
     #[serde(default)]
     pub mag_refuted: u64,
+    /// Times a refused compass showed the gyro's heading drifting
+    /// (heading_drift.rs) and was taken again.
+    #[serde(default)]
+    pub heading_drifts: u64,
     /// Times the attitude became non-finite and alignment started again.
     pub resets: u64,
 }
@@ -207,6 +213,9 @@ pub struct FuzzyEngine {
     reheading: bool,
     /// Since when the compass has disagreed with the heading beyond the gate.
     compass_gated_since: Option<f64>,
+    /// The compass's recent innovations (heading_drift.rs).
+    #[serde(default)]
+    innovations: Innovations,
     /// When the first calibration re-took the heading, and by how much it
     /// turned it (undone if its field proves disturbed at once).
     rehead_turn: Option<(f64, f64)>,
@@ -259,6 +268,7 @@ impl FuzzyEngine {
             stats: FuzzyStats::default(),
             reheading: false,
             compass_gated_since: None,
+            innovations: Innovations::default(),
             rehead_turn: None,
             static_degree: 0.0,
             compass_state: None,
@@ -297,6 +307,7 @@ impl FuzzyEngine {
         fresh.stats = engine.stats;
         fresh.reheading = engine.reheading;
         fresh.compass_gated_since = engine.compass_gated_since;
+        fresh.innovations = engine.innovations;
         fresh.rehead_turn = engine.rehead_turn;
         fresh.static_degree = engine.static_degree;
         fresh.compass_state = engine.compass_state;
@@ -379,6 +390,7 @@ impl FuzzyEngine {
         }
         if disturbed {
             self.stats.mag_disturbed += 1;
+            self.innovations.clear();
             if self.disturbance.departing_for_s(t) >= REHEAD_UNDO_AFTER_S
                 && let (Some((_, turn)), Some(solution)) =
                     (self.rehead_turn.take(), &mut self.solution)
@@ -828,18 +840,43 @@ impl FuzzyEngine {
         let gain = if self.reheading {
             self.reheading = false;
             self.compass_gated_since = None;
+            self.innovations.clear();
             let (_, _, yaw) = solution.attitude.euler_angles();
             self.rehead_turn = Some((t, orientation::angle_difference(heading, yaw)));
             1.0
         } else {
             let (_, _, yaw) = solution.attitude.euler_angles();
-            let innovation = orientation::angle_difference(heading, yaw).abs();
+            let signed_innovation = orientation::angle_difference(heading, yaw);
+            let innovation = signed_innovation.abs();
             // Two σ of the innovation, at least the gate.
-            let gate = uncertainty::widened_gate(
-                c.heading_gate_rad,
-                solution.heading_sigma_rad,
-                compass_sigma,
-            );
+            let gate = |sigma_rad: f64| {
+                uncertainty::widened_gate(c.heading_gate_rad, sigma_rad, compass_sigma)
+            };
+            self.innovations.push(t, signed_innovation, yaw);
+            // Refused, but the disagreement grew from agreement along a
+            // line the compass's own noise fits: the gyro's bias has
+            // walked (heading_drift.rs). Its rate r on the world vertical
+            // joins the bias variance, and the heading error it carried
+            // over the span the heading's σ.
+            if innovation > gate(solution.heading_sigma_rad)
+                && self.calibration.correction().is_some()
+                && let Some(ramp) = self.innovations.ramp()
+                && ramp.turned_rad <= heading_drift::MAX_TURN_RAD
+                && ramp.residual_rad <= compass_sigma
+                && ramp.start_rad.abs() <= gate(solution.heading_sigma_rad)
+                && (ramp.rate_rad_per_s * ramp.span_s).abs() >= c.heading_gate_rad
+            {
+                let vertical = solution.attitude.inverse() * V3::z();
+                solution.gyro_bias.variance +=
+                    vertical.component_mul(&vertical) * ramp.rate_rad_per_s.powi(2);
+                solution.heading_sigma_rad = solution
+                    .heading_sigma_rad
+                    .hypot(ramp.rate_rad_per_s * ramp.span_s)
+                    .min(std::f64::consts::PI);
+                self.stats.heading_drifts += 1;
+                self.innovations.clear();
+            }
+            let gate = gate(solution.heading_sigma_rad);
             let within_gate = innovation <= gate;
             if within_gate {
                 self.compass_gated_since = None;
