@@ -65,9 +65,15 @@ pub struct Innovations {
 
 impl Innovations {
     /// Adds the innovation `innovation_rad` of a fresh, undisturbed
-    /// compass reading at `t`, taken at the gyro-carried `heading_rad`.
+    /// compass reading taken at `t`, against the gyro-carried
+    /// `heading_rad`; a reading not newer than the newest kept is skipped
+    /// (one innovation per compass reading).
     pub fn push(&mut self, t: f64, innovation_rad: f64, heading_rad: f64) {
-        if !t.is_finite() || !innovation_rad.is_finite() || !heading_rad.is_finite() {
+        if !t.is_finite()
+            || !innovation_rad.is_finite()
+            || !heading_rad.is_finite()
+            || self.kept.back().is_some_and(|(newest, _, _)| t <= *newest)
+        {
             return;
         }
         self.kept.push_back((t, innovation_rad, heading_rad));
@@ -172,6 +178,7 @@ mod tests {
         short.push(0.0, 0.0, 0.0);
         short.push(50.0, 0.1, 0.0);
         short.push(55.0, 0.1, 0.0);
+        short.push(55.0, 0.2, 0.0);
         assert!(short.ramp().is_none());
         assert_eq!(short.kept.len(), 2);
     }

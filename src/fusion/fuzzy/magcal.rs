@@ -125,8 +125,9 @@ const MAX_RAW_RMS: f64 = 0.03;
 const CHECK_SPACING_S: f64 = 0.1;
 /// Readings the check keeps (the newest).
 const CHECK_READINGS: usize = 128;
-/// The check judges once it holds this many readings, every this many new ones.
+/// The check judges once it holds this many readings.
 const CHECK_MIN_READINGS: usize = 64;
+/// The check judges every this many new readings.
 const CHECK_EVERY: u32 = 16;
 /// A calibration whose radius spread on the newest readings is more than
 /// this many times the raw field's is dropped (chosen on BROAD's odd
@@ -206,8 +207,10 @@ pub struct MagCalibration {
     /// The newest readings for the check, one per `CHECK_SPACING_S`.
     #[serde(default)]
     checked: VecDeque<V3>,
+    /// When the newest of them was taken, s.
     #[serde(default)]
     checked_t: Option<f64>,
+    /// Readings kept since the check last judged.
     #[serde(default)]
     since_check: u32,
 }
@@ -274,11 +277,18 @@ impl MagCalibration {
             return false;
         };
         let recent: Vec<V3> = self.checked.iter().copied().collect();
-        if direction_span_deg(&current, &recent, false) < MIN_SPAN_DEG {
+        let raw_field = Correction {
+            hard_iron_ut: V3::zeros(),
+            soft_iron: Matrix3::identity(),
+            fit_rms: radius_rms(&recent, |m| m.norm()),
+        };
+        // The directions are judged raw: a calibration wrong by a hard
+        // iron as large as the field would bunch them up through itself.
+        if direction_span_deg(&raw_field, &recent, false) < MIN_SPAN_DEG {
             return false;
         }
         let calibrated = radius_rms(&recent, |m| current.apply(m).norm());
-        let raw = radius_rms(&recent, |m| m.norm());
+        let raw = raw_field.fit_rms;
         if calibrated <= MAX_RAW_RMS || calibrated <= raw * CHECK_WORSE_THAN_RAW {
             return false;
         }
@@ -294,12 +304,9 @@ impl MagCalibration {
             )
         };
         self.checked_t = Some(t);
-        if raw <= MAX_RAW_RMS {
-            self.correction = Some(Correction {
-                hard_iron_ut: V3::zeros(),
-                soft_iron: Matrix3::identity(),
-                fit_rms: raw,
-            });
+        // The raw field passes the gates a fit to it would have to.
+        if raw <= MAX_RAW_RMS && plausible_field(&raw_field, &recent, false) {
+            self.correction = Some(raw_field);
             self.state = CalibrationState::Raw;
         }
         true

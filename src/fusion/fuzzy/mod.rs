@@ -87,7 +87,9 @@ use crate::fusion::geometry::{V3, attitude_from_euler};
 /// Version of the engine's snapshot; a snapshot of another is outdated
 /// and the server rebuilds the engine from the stored readings.
 /// 3: the tilt window holds world-frame forces (issue 18, second step);
-/// 4: the bias learns from static blocks (issue 34).
+/// 4: the bias learns from static blocks (issue 34);
+/// 5: alignment while moving in the first reading's frame, the
+/// calibration's check and the compass's innovations (issue 34).
 pub const STATE_VERSION: u32 = 5;
 
 /// Plausibility caps for alignment, whatever the floor says: a MEMS
@@ -365,6 +367,7 @@ impl FuzzyEngine {
                 .recalibrated(self.calibration.field_magnitude_ut());
             self.reheading = self.calibration.correction().is_some();
             self.stats.mag_refuted += 1;
+            self.innovations.clear();
         }
         let disturbed = self.calibration.correction().is_some_and(|c| {
             self.disturbance.observe(
@@ -402,6 +405,8 @@ impl FuzzyEngine {
             let was_calibrated = self.calibration.correction().is_some();
             if self.calibration.add(field_ut, roll.abs().max(pitch.abs())) {
                 self.stats.mag_fits += 1;
+                // A new calibration moves the compass in one step.
+                self.innovations.clear();
                 // The heading so far rests on the raw compass at alignment:
                 // the first calibration replaces it at the next IMU reading.
                 if !was_calibrated {
@@ -490,6 +495,7 @@ impl FuzzyEngine {
             }
             self.window.clear();
             self.start_frame.clear();
+            self.innovations.clear();
             if let Some(solution) = &mut self.solution {
                 solution.previous_rate_rad_per_s = None;
                 solution.tilt_window.clear();
@@ -510,7 +516,10 @@ impl FuzzyEngine {
 
         if self.solution.is_none() {
             let dt = if continuous { dt_s } else { 0.0 };
-            self.start_frame.push(t, &force, &rate, dt);
+            // The span starts again after at most 30 s, or twice the wait
+            // for an alignment while moving if that is longer.
+            let longest_s = start_frame::MAX_SPAN_S.max(2.0 * self.config.align_without_rest_s);
+            self.start_frame.push(t, &force, &rate, dt, longest_s);
             self.try_align(t);
             if self.solution.is_some() {
                 self.start_frame.clear();
@@ -852,7 +861,10 @@ impl FuzzyEngine {
             let gate = |sigma_rad: f64| {
                 uncertainty::widened_gate(c.heading_gate_rad, sigma_rad, compass_sigma)
             };
-            self.innovations.push(t, signed_innovation, yaw);
+            // Once per compass reading (this runs at the IMU's rate).
+            if let Some((compass_t, _)) = self.compass {
+                self.innovations.push(compass_t, signed_innovation, yaw);
+            }
             // Refused, but the disagreement grew from agreement along a
             // line the compass's own noise fits: the gyro's bias has
             // walked (heading_drift.rs). Its rate r on the world vertical
@@ -1489,6 +1501,66 @@ mod tests {
             }
         }
         out
+    }
+
+    /// Calibrates on a turn, rests, then is shaken on a constant heading
+    /// for 150 s while the gyro's vertical bias jumps by `bias_jump_dps`
+    /// (which the bias filter believes it knows to 0.01 °/s): the
+    /// heading's largest error over the last 90 s, and the engine.
+    fn drifting_gyro(bias_jump_dps: f64) -> (f64, FuzzyEngine) {
+        let earth = V3::new(25.0, 0.0, 43.3);
+        let hard_iron = V3::new(12.0, -8.0, 3.0);
+        let mut engine =
+            FuzzyEngine::new(Params::from_assignments(PARAMS, ["mag_inclination_deg=60"]).unwrap())
+                .unwrap();
+        let mut out = Vec::new();
+        let mut yaw = 0.3_f64;
+        let t0 = 1.7e9;
+        let mut worst_deg: f64 = 0.0;
+        for i in 0..(213 * 100) {
+            let tau = f64::from(i) * 0.01;
+            let t = t0 + tau;
+            // Still 3 s, 40 s of turning, still 20 s, then shaken.
+            let rate = if (3.0..43.0).contains(&tau) {
+                rad(20.0)
+            } else {
+                0.0
+            };
+            yaw += rate * 0.01;
+            let attitude = attitude_from_euler(0.0, 0.0, yaw);
+            let mut force = attitude.inverse() * V3::new(0.0, 0.0, -G);
+            let mut measured_rate = V3::new(0.0, 0.0, deg(rate));
+            if tau >= 63.0 {
+                force.x += if i % 2 == 0 { 2.0 } else { -2.0 };
+                measured_rate.z += bias_jump_dps;
+            }
+            engine.feed(&imu(t, force, measured_rate), &mut out);
+            if i % 10 == 0 {
+                engine.feed(&mag(t, attitude.inverse() * earth + hard_iron), &mut out);
+            }
+            if tau >= 123.0
+                && let Some(estimate) = out.last().and_then(|o| o.values.as_fuzzy())
+            {
+                let error = orientation::angle_difference(rad(estimate.heading_deg), yaw);
+                worst_deg = worst_deg.max(deg(error.abs()));
+            }
+        }
+        (worst_deg, engine)
+    }
+
+    #[test]
+    fn a_compass_refused_while_the_gyro_drifts_is_taken_again() {
+        // 0.3 °/s unknown to the filter: the heading drifts away from the
+        // compass, the gate refuses it, and the ramp of its innovation
+        // shows the drift: the heading is held within 4.3° where, refused
+        // for the gate's 60 s, it drifted 22° away.
+        let (worst_deg, engine) = drifting_gyro(0.3);
+        assert!(engine.stats().heading_drifts >= 1);
+        assert!(worst_deg < 8.0, "{worst_deg}");
+        // No jump: no drift found, and the heading stays on the compass.
+        let (steady_deg, steady) = drifting_gyro(0.0);
+        assert_eq!(steady.stats().heading_drifts, 0);
+        assert!(steady_deg < 1.0, "{steady_deg}");
     }
 
     #[test]

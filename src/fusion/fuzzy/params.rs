@@ -204,7 +204,7 @@ param_table! {
             0.0,
             1.0e6,
             "s",
-            "with no quiet window this long after the first reading, the engine aligns while moving: tilt from the window's mean force, heading from the compass, gyro bias unknown (σ gyro_bias_prior_dps) until a rest",
+            "with no quiet window this long after the first reading, the engine aligns while moving: tilt from the mean force in the first reading's frame (held still by the gyros), heading from the compass, gyro bias unknown (σ gyro_bias_prior_dps) until a rest",
         ),
         gyro_bias_prior_dps: f64 = real(
             1.0,

@@ -21,14 +21,15 @@
 use nalgebra::UnitQuaternion;
 use serde::{Deserialize, Serialize};
 
-use crate::fusion::geometry::V3;
+use crate::fusion::geometry::{V3, attitude_from_euler};
 
 use super::orientation::{integrate, tilt_from_accel};
 
 /// Length of one batch of forces, s.
 pub const BATCH_S: f64 = 0.25;
 /// A span longer than this starts again (the unknown bias would turn the
-/// frame too far), s.
+/// frame too far), s; the engine allows twice `align_without_rest_s` if
+/// that is longer.
 pub const MAX_SPAN_S: f64 = 30.0;
 
 /// The forces since the first reading, summed in its body frame.
@@ -70,10 +71,18 @@ impl StartFrame {
     }
 
     /// Adds a reading: `rate_rad_per_s` turned the body over the `dt_s`
-    /// before `t`, and `force_mps2` is the specific force at `t`.
-    pub fn push(&mut self, t: f64, force_mps2: &V3, rate_rad_per_s: &V3, dt_s: f64) {
+    /// before `t`, and `force_mps2` is the specific force at `t`; a span
+    /// longer than `longest_s` starts again.
+    pub fn push(
+        &mut self,
+        t: f64,
+        force_mps2: &V3,
+        rate_rad_per_s: &V3,
+        dt_s: f64,
+        longest_s: f64,
+    ) {
         match self.start_t {
-            Some(start) if t - start > MAX_SPAN_S => self.clear(),
+            Some(start) if t - start > longest_s => self.clear(),
             Some(_) => self.turn = integrate(&self.turn, rate_rad_per_s, dt_s),
             None => {}
         }
@@ -126,7 +135,7 @@ impl StartFrame {
         let from_force = ((gravity_error + spread / b.sqrt()) / gravity_mps2.max(1e-9)).atan();
         let from_bias = 0.5 * bias_sigma_rad_per_s * span_s;
         let (roll, pitch) = tilt_from_accel(&mean);
-        let start = crate::fusion::geometry::attitude_from_euler(roll, pitch, 0.0);
+        let start = attitude_from_euler(roll, pitch, 0.0);
         Some(Alignment {
             attitude: start * self.turn,
             tilt_sigma_rad: (from_force.powi(2) + from_bias.powi(2)).sqrt(),
@@ -139,7 +148,6 @@ impl StartFrame {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::fusion::geometry::attitude_from_euler;
 
     /// A body spinning at 200 °/s about an axis 17° above its x axis, for
     /// two whole turns, from a start rolled 6° and pitched up 20°: its mean
@@ -161,7 +169,7 @@ mod tests {
             }
             let force = truth.inverse() * V3::new(0.0, 0.0, -g);
             body_sum += force;
-            frame.push(f64::from(k) * dt, &force, &rate, dt);
+            frame.push(f64::from(k) * dt, &force, &rate, dt, MAX_SPAN_S);
         }
         let body_mean = body_sum / f64::from(steps + 1);
         assert!(body_mean.norm() < 0.1 * g, "{}", body_mean.norm());
@@ -184,7 +192,7 @@ mod tests {
         for k in 0..=200 {
             let t = f64::from(k) * dt;
             let shake = 3.0 * (std::f64::consts::TAU * t).sin();
-            frame.push(t, &V3::new(shake, 0.0, -g), &V3::zeros(), dt);
+            frame.push(t, &V3::new(shake, 0.0, -g), &V3::zeros(), dt, MAX_SPAN_S);
         }
         let alignment = frame.alignment(2.0, g, 0.0).unwrap();
         // Eight batches of a quarter second: their means differ by about
@@ -203,8 +211,8 @@ mod tests {
         assert!(biased.tilt_sigma_rad >= 1f64.to_radians() - 1e-12);
         // Too young: one batch.
         let mut young = StartFrame::default();
-        young.push(0.0, &V3::new(0.0, 0.0, -g), &V3::zeros(), dt);
-        young.push(0.3, &V3::new(0.0, 0.0, -g), &V3::zeros(), dt);
+        young.push(0.0, &V3::new(0.0, 0.0, -g), &V3::zeros(), dt, MAX_SPAN_S);
+        young.push(0.3, &V3::new(0.0, 0.0, -g), &V3::zeros(), dt, MAX_SPAN_S);
         assert!(young.alignment(0.3, g, 0.0).is_none());
     }
 }

@@ -46,6 +46,7 @@ pub struct TiltWindow {
     older_predicted: V3,
     older_len: usize,
     /// Sum of the measured force over every pair held, and of its squared norm.
+    #[serde(default)]
     all_measured: V3,
     #[serde(default)]
     all_measured_squared: f64,

@@ -39,7 +39,10 @@ pub fn pull_boost(sigma_rad: f64, reference_sigma_rad: f64) -> f64 {
 /// shows, added in quadrature. A force mean whose size is not gravity's,
 /// or an older half that differs from the newer one, is not gravity's
 /// direction alone: their sum over g is the angle it may be off
-/// (`norm_error_mps2` = |‖F̄‖ − g₀|, `halves_apart_mps2` = ‖F̄_old − F̄_new‖).
+/// (`norm_error_mps2` = |‖F̄‖ − g₀|, `halves_apart_mps2` = how far the
+/// halves' means are apart beyond their scatter,
+/// `TiltWindow::halves_apart_mps2`). A sideways acceleration a changes
+/// ‖F̄‖ by only a²/2g: what this σ misses, the gate's residual sees.
 pub fn moving_reference_sigma(
     base_sigma_rad: f64,
     norm_error_mps2: f64,
