@@ -1470,28 +1470,38 @@ mod tests {
     /// Level turns (a calibration circle at 20 °/s) then a still spell,
     /// with a body-fixed hard iron; `extra` adds a field (a magnet) from
     /// `magnet_from` for `magnet_s` seconds.
+    fn engine_at_inclination_60() -> FuzzyEngine {
+        FuzzyEngine::new(Params::from_assignments(PARAMS, ["mag_inclination_deg=60"]).unwrap())
+            .unwrap()
+    }
+
+    /// Reading `i` at 100 Hz of a level sensor still for 3 s, then turning
+    /// at 20 °/s for 40 s from a yaw of 0.3 rad, then still: seconds from
+    /// the start, attitude, specific force and rate (°/s).
+    fn level_turn(i: u32) -> (f64, UnitQuaternion<f64>, V3, V3) {
+        let tau = f64::from(i) * 0.01;
+        let turned_steps = (i + 1).saturating_sub(300).min(4000);
+        let yaw = 0.3 + rad(20.0) * 0.01 * f64::from(turned_steps);
+        let attitude = attitude_from_euler(0.0, 0.0, yaw);
+        let force = attitude.inverse() * V3::new(0.0, 0.0, -G);
+        let rate_dps = if (3.0..43.0).contains(&tau) {
+            20.0
+        } else {
+            0.0
+        };
+        (tau, attitude, force, V3::new(0.0, 0.0, rate_dps))
+    }
+
     fn turn_then_magnet(magnet_from_s: f64, magnet_s: f64, extra_ut: V3) -> Vec<EngineOutput> {
         let earth = V3::new(25.0, 0.0, 43.3);
         let hard_iron = V3::new(12.0, -8.0, 3.0);
-        let mut engine =
-            FuzzyEngine::new(Params::from_assignments(PARAMS, ["mag_inclination_deg=60"]).unwrap())
-                .unwrap();
+        let mut engine = engine_at_inclination_60();
         let mut out = Vec::new();
-        let mut yaw = 0.3_f64;
         let t0 = 1.7e9;
         for i in 0..(120 * 100) {
-            let tau = f64::from(i) * 0.01;
+            let (tau, attitude, force, rate_dps) = level_turn(i);
             let t = t0 + tau;
-            // Still 3 s, then 40 s of turning, then still.
-            let rate = if (3.0..43.0).contains(&tau) {
-                rad(20.0)
-            } else {
-                0.0
-            };
-            yaw += rate * 0.01;
-            let attitude = attitude_from_euler(0.0, 0.0, yaw);
-            let force = attitude.inverse() * V3::new(0.0, 0.0, -G);
-            engine.feed(&imu(t, force, V3::new(0.0, 0.0, deg(rate))), &mut out);
+            engine.feed(&imu(t, force, rate_dps), &mut out);
             if i % 10 == 0 {
                 let mut field = attitude.inverse() * earth + hard_iron;
                 if (magnet_from_s..magnet_from_s + magnet_s).contains(&tau) {
@@ -1510,26 +1520,15 @@ mod tests {
     fn drifting_gyro(bias_jump_dps: f64) -> (f64, FuzzyEngine) {
         let earth = V3::new(25.0, 0.0, 43.3);
         let hard_iron = V3::new(12.0, -8.0, 3.0);
-        let mut engine =
-            FuzzyEngine::new(Params::from_assignments(PARAMS, ["mag_inclination_deg=60"]).unwrap())
-                .unwrap();
+        let mut engine = engine_at_inclination_60();
         let mut out = Vec::new();
-        let mut yaw = 0.3_f64;
         let t0 = 1.7e9;
         let mut worst_deg: f64 = 0.0;
         for i in 0..(213 * 100) {
-            let tau = f64::from(i) * 0.01;
+            // The turn, still 20 s, then shaken.
+            let (tau, attitude, mut force, mut measured_rate) = level_turn(i);
             let t = t0 + tau;
-            // Still 3 s, 40 s of turning, still 20 s, then shaken.
-            let rate = if (3.0..43.0).contains(&tau) {
-                rad(20.0)
-            } else {
-                0.0
-            };
-            yaw += rate * 0.01;
-            let attitude = attitude_from_euler(0.0, 0.0, yaw);
-            let mut force = attitude.inverse() * V3::new(0.0, 0.0, -G);
-            let mut measured_rate = V3::new(0.0, 0.0, deg(rate));
+            let (_, _, yaw) = attitude.euler_angles();
             if tau >= 63.0 {
                 force.x += if i % 2 == 0 { 2.0 } else { -2.0 };
                 measured_rate.z += bias_jump_dps;
