@@ -1304,25 +1304,44 @@ mod tests {
         assert!((last.pitch_deg - deg(pitch)).abs() < 0.01);
     }
 
-    #[test]
-    fn snapshot_and_restore_continue_exactly() {
-        let readings = still(12.0, V3::new(0.1, 0.2, -0.3));
-        let mut whole = FuzzyEngine::with_defaults();
+    /// Fed whole, and snapshotted through JSON and restored after `split`
+    /// readings: the same estimates.
+    fn continues_exactly(engine: &FuzzyEngine, readings: &[Reading], split: usize) {
+        let mut whole = engine.clone();
         let mut expected = Vec::new();
-        for r in &readings {
+        for r in readings {
             whole.feed(r, &mut expected);
         }
-        let mut first = FuzzyEngine::with_defaults();
+        let mut first = engine.clone();
         let mut got = Vec::new();
-        for r in &readings[..700] {
+        for r in &readings[..split] {
             first.feed(r, &mut got);
         }
         let text = serde_json::to_string(&first.snapshot()).unwrap();
         let mut second = FuzzyEngine::restore(serde_json::from_str(&text).unwrap()).unwrap();
-        for r in &readings[700..] {
+        for r in &readings[split..] {
             second.feed(r, &mut got);
         }
-        assert_eq!(got, expected);
+        assert_eq!(got, expected, "split after {split} readings");
+    }
+
+    #[test]
+    fn snapshot_and_restore_continue_exactly() {
+        let readings = still(12.0, V3::new(0.1, 0.2, -0.3));
+        continues_exactly(&FuzzyEngine::with_defaults(), &readings, 700);
+        // Waved about: before the alignment while moving (the start frame
+        // half built) and after it.
+        let (waved, _) = noisy_readings(3.0, 1);
+        for split in [100, 500] {
+            continues_exactly(&FuzzyEngine::with_defaults(), &waved, split);
+        }
+        // A calibrated compass refused while the gyro drifts: the
+        // innovations half gathered (78 s in, 11 readings a second).
+        let drifting: Vec<Reading> = drifting_gyro_readings(0.3)
+            .into_iter()
+            .map(|(reading, _)| reading)
+            .collect();
+        continues_exactly(&engine_at_inclination_60(), &drifting, 78 * 110);
     }
 
     /// A noisy hand-held-grade sensor (0.1 m/s² and 0.5 °/s per axis at
@@ -1516,14 +1535,12 @@ mod tests {
     /// Calibrates on a turn, rests, then is shaken on a constant heading
     /// for 150 s while the gyro's vertical bias jumps by `bias_jump_dps`
     /// (which the bias filter believes it knows to 0.01 °/s): the
-    /// heading's largest error over the last 90 s, and the engine.
-    fn drifting_gyro(bias_jump_dps: f64) -> (f64, FuzzyEngine) {
+    /// readings, each with the true yaw (rad).
+    fn drifting_gyro_readings(bias_jump_dps: f64) -> Vec<(Reading, f64)> {
         let earth = V3::new(25.0, 0.0, 43.3);
         let hard_iron = V3::new(12.0, -8.0, 3.0);
-        let mut engine = engine_at_inclination_60();
-        let mut out = Vec::new();
         let t0 = 1.7e9;
-        let mut worst_deg: f64 = 0.0;
+        let mut readings = Vec::new();
         for i in 0..(213 * 100) {
             // The turn, still 20 s, then shaken.
             let (tau, attitude, mut force, mut measured_rate) = level_turn(i);
@@ -1533,11 +1550,23 @@ mod tests {
                 force.x += if i % 2 == 0 { 2.0 } else { -2.0 };
                 measured_rate.z += bias_jump_dps;
             }
-            engine.feed(&imu(t, force, measured_rate), &mut out);
+            readings.push((imu(t, force, measured_rate), yaw));
             if i % 10 == 0 {
-                engine.feed(&mag(t, attitude.inverse() * earth + hard_iron), &mut out);
+                readings.push((mag(t, attitude.inverse() * earth + hard_iron), yaw));
             }
-            if tau >= 123.0
+        }
+        readings
+    }
+
+    /// The heading's largest error over the last 90 s of
+    /// [`drifting_gyro_readings`], and the engine after them.
+    fn drifting_gyro(bias_jump_dps: f64) -> (f64, FuzzyEngine) {
+        let mut engine = engine_at_inclination_60();
+        let mut out = Vec::new();
+        let mut worst_deg: f64 = 0.0;
+        for (reading, yaw) in drifting_gyro_readings(bias_jump_dps) {
+            engine.feed(&reading, &mut out);
+            if reading.t >= 1.7e9 + 123.0
                 && let Some(estimate) = out.last().and_then(|o| o.values.as_fuzzy())
             {
                 let error = orientation::angle_difference(rad(estimate.heading_deg), yaw);
