@@ -61,9 +61,10 @@
 //! only undisturbed readings reach the fit, and a wrong ellipsoid (fitted
 //! early in fast motion, or before a magnet was attached) makes every
 //! reading look disturbed, so it would never be refitted. [`check`]
-//! keeps the newest readings, one per 0.1 s, disturbed or not; once they
-//! span 90° of directions through the ellipsoid, its relative radius
-//! spread on them is compared with the raw field's. A calibration more
+//! keeps the newest readings, one per 0.1 s, disturbed or not; once their
+//! raw directions span 90° (not judged through the ellipsoid: a hard iron as
+//! large as the field would bunch them up), the ellipsoid's relative
+//! radius spread on them is compared with the raw field's. A calibration more
 //! than `CHECK_WORSE_THAN_RAW` (2) times worse than no calibration, and
 //! worse than `MAX_RAW_RMS`, is dropped, with its samples: the raw field becomes the
 //! calibration if its own spread is within `MAX_RAW_RMS`, otherwise the
@@ -171,6 +172,16 @@ pub struct Correction {
 }
 
 impl Correction {
+    /// The raw field taken as it is, with its relative radius spread over
+    /// `samples` (horizontal if `planar`) as its residual.
+    fn raw(samples: &[V3], planar: bool) -> Correction {
+        Correction {
+            hard_iron_ut: V3::zeros(),
+            soft_iron: Matrix3::identity(),
+            fit_rms: radius_rms(samples, |m| magnitude(m, planar)),
+        }
+    }
+
     /// The calibrated field, µT.
     pub fn apply(&self, field_ut: &V3) -> V3 {
         self.soft_iron * (field_ut - self.hard_iron_ut)
@@ -277,11 +288,7 @@ impl MagCalibration {
             return false;
         };
         let recent: Vec<V3> = self.checked.iter().copied().collect();
-        let raw_field = Correction {
-            hard_iron_ut: V3::zeros(),
-            soft_iron: Matrix3::identity(),
-            fit_rms: radius_rms(&recent, |m| m.norm()),
-        };
+        let raw_field = Correction::raw(&recent, false);
         // The directions are judged raw: a calibration wrong by a hard
         // iron as large as the field would bunch them up through itself.
         if direction_span_deg(&raw_field, &recent, false) < MIN_SPAN_DEG {
@@ -488,11 +495,7 @@ impl MagCalibration {
         // consistent over directions that span enough, it is the
         // calibration (a factory-calibrated magnetometer).
         if self.correction.is_none() {
-            let raw = Correction {
-                hard_iron_ut: V3::zeros(),
-                soft_iron: Matrix3::identity(),
-                fit_rms: radius_rms(&fitted, |m| magnitude(m, planar)),
-            };
+            let raw = Correction::raw(&fitted, planar);
             if passes_gates(&raw) && raw.fit_rms <= MAX_RAW_RMS {
                 self.correction = Some(raw);
                 self.state = CalibrationState::Raw;

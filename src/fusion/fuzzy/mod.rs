@@ -189,9 +189,6 @@ pub struct FuzzyEngine {
     window: MotionWindow,
     floor: NoiseFloor,
     newest_imu_t: Option<f64>,
-    /// The newest interval between IMU readings, s.
-    #[serde(default)]
-    newest_dt_s: f64,
     /// Before alignment: the forces in the first reading's frame
     /// (start_frame.rs), for an alignment while moving.
     #[serde(default)]
@@ -254,7 +251,6 @@ impl FuzzyEngine {
             window: MotionWindow::new(config.window_samples),
             floor: NoiseFloor::default(),
             newest_imu_t: None,
-            newest_dt_s: 0.0,
             start_frame: StartFrame::default(),
             solution: None,
             calibration: MagCalibration::new(
@@ -299,7 +295,6 @@ impl FuzzyEngine {
         fresh.floor = engine.floor;
         fresh.newest_imu_t = engine.newest_imu_t;
         fresh.start_frame = engine.start_frame;
-        fresh.newest_dt_s = engine.newest_dt_s;
         fresh.solution = engine.solution;
         fresh.calibration = engine.calibration;
         fresh.disturbance = engine.disturbance;
@@ -486,9 +481,6 @@ impl FuzzyEngine {
         self.newest_imu_t = Some(t);
         self.stats.imu_used += 1;
         let continuous = dt_s <= self.config.max_imu_gap_s;
-        if continuous {
-            self.newest_dt_s = dt_s;
-        }
         if !continuous {
             if dt_s.is_finite() {
                 self.stats.imu_gaps += 1;
@@ -870,8 +862,9 @@ impl FuzzyEngine {
             // walked (heading_drift.rs). Its rate r on the world vertical
             // joins the bias variance, and the heading error it carried
             // over the span the heading's σ.
+            let calibrated = self.calibration.correction().is_some();
             if innovation > gate(solution.heading_sigma_rad)
-                && self.calibration.correction().is_some()
+                && calibrated
                 && let Some(ramp) = self.innovations.ramp()
                 && ramp.turned_rad <= heading_drift::MAX_TURN_RAD
                 && ramp.residual_rad <= compass_sigma
@@ -910,13 +903,12 @@ impl FuzzyEngine {
             // heading is off by its unknown hard iron, and one believed
             // again after disagreeing says the heading was wrong, not the
             // bias).
-            let calibrated = self.calibration.correction().is_some();
             let moving = if calibrated && within_gate {
                 1.0 - still
             } else {
                 0.0
             };
-            let residual = V3::new(0.0, 0.0, orientation::angle_difference(heading, yaw));
+            let residual = V3::new(0.0, 0.0, signed_innovation);
             solution.gyro_bias.bias_rad_per_s += bias_feedback::bias_step(
                 &solution.attitude,
                 &residual,
@@ -1436,7 +1428,8 @@ mod tests {
                 engine.feed(r, &mut out);
             }
             // Waved for 5 s: aligned once `align_without_rest_s` (2 s) has
-            // passed and a window's mean force has gravity's size, with a
+            // passed and the mean force in the first reading's frame has
+            // gravity's size, with a
             // tilt σ of at least 1° and the bias unknown (σ 1 °/s).
             let first = out
                 .iter()
@@ -1486,9 +1479,7 @@ mod tests {
         );
     }
 
-    /// Level turns (a calibration circle at 20 °/s) then a still spell,
-    /// with a body-fixed hard iron; `extra` adds a field (a magnet) from
-    /// `magnet_from` for `magnet_s` seconds.
+    /// The default engine at a site whose field dips 60°.
     fn engine_at_inclination_60() -> FuzzyEngine {
         FuzzyEngine::new(Params::from_assignments(PARAMS, ["mag_inclination_deg=60"]).unwrap())
             .unwrap()
@@ -1511,6 +1502,9 @@ mod tests {
         (tau, attitude, force, V3::new(0.0, 0.0, rate_dps))
     }
 
+    /// Level turns (a calibration circle at 20 °/s) then a still spell,
+    /// with a body-fixed hard iron; `extra` adds a field (a magnet) from
+    /// `magnet_from` for `magnet_s` seconds.
     fn turn_then_magnet(magnet_from_s: f64, magnet_s: f64, extra_ut: V3) -> Vec<EngineOutput> {
         let earth = V3::new(25.0, 0.0, 43.3);
         let hard_iron = V3::new(12.0, -8.0, 3.0);
