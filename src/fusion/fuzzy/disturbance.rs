@@ -20,7 +20,12 @@
 //! undisturbed readings, so an odd reading inside it does not restart its
 //! clock. One that lasts (an attached magnet, a new steel structure) is the
 //! calibration's to absorb: after `RELEARN_AFTER_S` of it the references
-//! start again from the readings.
+//! start again from the readings. Such a field is [`relearnt`]: it feeds
+//! the calibration, but a magnet on the vehicle is as steady as the
+//! Earth's field and turns the compass, so it steers the heading only
+//! once a new calibration is fitted or its compass agrees with the gyro.
+//!
+//! [`relearnt`]: DisturbanceDetector::relearnt
 
 use serde::{Deserialize, Serialize};
 
@@ -54,6 +59,17 @@ pub struct DisturbanceDetector {
     /// Since when every reading has departed (none calm in between).
     #[serde(default)]
     departing_since: Option<f64>,
+    /// The references were taken from a lasting disturbance and neither a
+    /// calibration nor the gyro has confirmed them yet.
+    #[serde(default)]
+    relearnt: bool,
+    /// The references the newest calibration set (magnitude µT, dip
+    /// rad): a relearnt field back at them is the calibrated one again.
+    #[serde(default)]
+    calibrated: Option<(f64, f64)>,
+    /// Since when every reading has agreed with those, while relearnt.
+    #[serde(default)]
+    back_since: Option<f64>,
 }
 
 impl DisturbanceDetector {
@@ -66,6 +82,9 @@ impl DisturbanceDetector {
             disturbed_since: None,
             last_disturbed_t: None,
             departing_since: None,
+            relearnt: false,
+            calibrated: None,
+            back_since: None,
         }
     }
 
@@ -74,7 +93,22 @@ impl DisturbanceDetector {
     /// the learned dip is kept and no disturbance is pending.
     pub fn recalibrated(&mut self, magnitude_ut: Option<f64>) {
         self.magnitude_ut = magnitude_ut.filter(|m| m.is_finite() && *m > 0.0);
+        self.relearnt = false;
+        self.back_since = None;
+        self.calibrated = self.magnitude_ut.map(|m| (m, self.dip_rad));
         self.end_disturbance();
+    }
+
+    /// True from a lasting disturbance taken as the field until a new
+    /// calibration or [`confirm`](Self::confirm): the field is steady, but
+    /// a magnet on the vehicle is steady too, and its heading is wrong.
+    pub fn relearnt(&self) -> bool {
+        self.relearnt
+    }
+
+    /// The compass from the relearnt field agrees with the gyro.
+    pub fn confirm(&mut self) {
+        self.relearnt = false;
     }
 
     fn end_disturbance(&mut self) {
@@ -127,6 +161,24 @@ impl DisturbanceDetector {
             .newest_t
             .map_or(0.0, |newest| (t - newest).clamp(0.0, 1.0));
         self.newest_t = Some(t);
+        let agrees = |(reference, reference_dip): (f64, f64)| {
+            (dip - reference_dip).abs() <= tolerances.dip_rad
+                && (magnitude / reference - 1.0).abs() <= tolerances.magnitude
+        };
+        // Back at the calibrated field for `CALM_S` after a relearnt one
+        // (the magnet taken off): the calibrated references again.
+        match self.calibrated.filter(|c| self.relearnt && agrees(*c)) {
+            Some(calibrated) => {
+                let since = *self.back_since.get_or_insert(t);
+                if t - since >= CALM_S {
+                    (self.magnitude_ut, self.dip_rad) = (Some(calibrated.0), calibrated.1);
+                    self.relearnt = false;
+                    self.back_since = None;
+                    self.end_disturbance();
+                }
+            }
+            None => self.back_since = None,
+        }
         let dip_departs = (dip - self.dip_rad).abs() > tolerances.dip_rad;
         let departs = match self.magnitude_ut {
             Some(reference) => {
@@ -140,9 +192,11 @@ impl DisturbanceDetector {
             if t - since <= RELEARN_AFTER_S {
                 return true;
             }
-            // Lasting: the new field is the site's now.
+            // Lasting: the new field is the site's now (for the
+            // calibration to absorb; not yet for the heading).
             self.magnitude_ut = Some(magnitude);
             self.dip_rad = dip;
+            self.relearnt = self.calibrated.is_none_or(|c| !agrees(c));
             self.end_disturbance();
             return false;
         }
@@ -255,6 +309,28 @@ mod tests {
     }
 
     #[test]
+    fn a_magnet_left_on_is_relearnt_and_its_removal_restores_the_calibrated_field() {
+        let mut detector = DisturbanceDetector::new(60.0_f64.to_radians());
+        detector.recalibrated(Some(50.0));
+        let magnet = earth(0.0, Vector3::new(0.0, 0.0, 15.0));
+        // Disturbed for RELEARN_AFTER_S (120 s), then taken as the field:
+        // steady, but unconfirmed.
+        for i in 0..=1210 {
+            detector.observe(f64::from(i) * 0.1, &magnet, false, &TOLERANCES);
+        }
+        assert!(!detector.disturbed());
+        assert!(detector.relearnt());
+        // Taken off: the calibrated field departs from the relearnt one
+        // but is the calibrated one once back for CALM_S (2 s).
+        let earth_field = earth(0.0, Vector3::zeros());
+        assert!(detector.observe(121.1, &earth_field, false, &TOLERANCES));
+        assert!(detector.observe(122.0, &earth_field, false, &TOLERANCES));
+        assert!(!detector.observe(123.2, &earth_field, false, &TOLERANCES));
+        assert!(!detector.relearnt());
+        assert!(!detector.observe(123.3, &earth_field, false, &TOLERANCES));
+    }
+
+    #[test]
     fn a_lasting_disturbance_becomes_the_reference() {
         let mut detector = DisturbanceDetector::new(60.0_f64.to_radians());
         detector.observe(0.0, &earth(0.0, Vector3::zeros()), false, &TOLERANCES);
@@ -267,5 +343,9 @@ mod tests {
             }
         }
         assert!(!last);
+        // Steady, but not yet confirmed: the gyro or a calibration must.
+        assert!(detector.relearnt());
+        detector.confirm();
+        assert!(!detector.relearnt());
     }
 }

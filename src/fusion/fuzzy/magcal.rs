@@ -15,15 +15,19 @@
 //!   over `min_coverage_deg` and at least 5 elevation bands), the general
 //!   quadric mᵀQm + 2uᵀm = 1 is fitted by linear least squares (9
 //!   unknowns); b = −Q⁻¹u, and S = (Q / (1 + bᵀQb))^½ scaled to det S = 1.
-//! - **planar**: a ground vehicle turns about its z axis and barely tilts,
-//!   so the vertical is unobservable. With azimuths over
-//!   `min_coverage_deg` among the samples taken level (tilt within
-//!   `level_tolerance`) in a narrow elevation range, the conic
-//!   [x² y² 2xy 2x 2y]·p = 1 is fitted to them in the body x–y plane: 2-D
-//!   hard and soft iron (det 1). The z axis keeps unit scale; its offset
-//!   is set so that the level samples' mean vertical field is R·tan I, R
-//!   the corrected horizontal radius and I the site's inclination: the
-//!   vertical then has the size the tilt compensation needs.
+//! - **planar** (`planar_fit.rs`): a ground vehicle turns about its z
+//!   axis and barely tilts, so the vertical soft iron is unobservable.
+//!   With azimuths over `min_coverage_deg` among the samples taken level
+//!   (tilt within `level_tolerance`), the conic [x² y² 2xy 2x 2y]·p = 1
+//!   is fitted to them in the body x–y plane: 2-D hard and soft iron
+//!   (det 1). The z axis keeps unit scale; its offset is set so that the
+//!   level samples' mean vertical field is R·tan I, R the corrected
+//!   horizontal radius and I the site's inclination: the vertical then
+//!   has the size the tilt compensation needs. Level samples come first:
+//!   their heading does not rest on the tilt estimate. Without enough of
+//!   them (a graded road, issue 34) every sample is levelled by the roll
+//!   and pitch it was taken at and fitted in the level frame
+//!   ([`fit_levelled`]); the gates then judge the levelled field.
 //!
 //! Level and tilted samples are kept apart (a tilted sample never
 //! replaces a level one), and a level sample gives way only to one at
@@ -36,7 +40,7 @@
 //!   at least `MIN_RADIUS_UT` from the centre, so the noise of a still
 //!   sensor around the middle of its own extremes covers nothing;
 //! - **plausible field**: the corrected field's mean magnitude (horizontal
-//!   for a planar fit) lies in the range of the Earth's field;
+//!   for a planar fit, at most 70 µT) lies in the range of the Earth's field;
 //! - **directions really spread**: the corrected directions span at least
 //!   90° (360° less the widest gap between their azimuths in the body x–y
 //!   plane for a planar fit; about each of the three principal axes of
@@ -77,10 +81,11 @@
 
 use std::collections::VecDeque;
 
-use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, Vector2};
+use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, UnitQuaternion};
 use serde::{Deserialize, Serialize};
 
-use crate::fusion::geometry::V3;
+use super::planar_fit::{fit_levelled, fit_planar};
+use crate::fusion::geometry::{V3, attitude_from_euler};
 
 const AZIMUTH_BINS: usize = 36;
 const ELEVATION_BANDS: usize = 9;
@@ -103,6 +108,10 @@ const MIN_RADIUS_UT: f64 = 5.0;
 /// degenerate quadric) is refused. The horizontal part can be small near
 /// the magnetic poles, hence the lower bound.
 const PLAUSIBLE_FIELD_UT: (f64, f64) = (5.0, 150.0);
+/// The Earth's field is at most about 67 µT, and so is its horizontal
+/// part: a planar fit whose levelled horizontal radius is above this has
+/// fitted a disturbance (a calibration circle next to steel).
+const MAX_HORIZONTAL_UT: f64 = 70.0;
 /// Field directions a fit must span, degrees (module documentation).
 const MIN_SPAN_DEG: f64 = 90.0;
 /// Every this many readings one is held back from the fit to check it.
@@ -174,17 +183,47 @@ pub struct Correction {
 impl Correction {
     /// The raw field taken as it is, with its relative radius spread over
     /// `samples` (horizontal if `planar`) as its residual.
-    fn raw(samples: &[V3], planar: bool) -> Correction {
+    fn raw(samples: &[Tilted], planar: bool) -> Correction {
         Correction {
             hard_iron_ut: V3::zeros(),
             soft_iron: Matrix3::identity(),
-            fit_rms: radius_rms(samples, |m| magnitude(m, planar)),
+            fit_rms: radius_rms(samples, |r| magnitude(r, None, planar)),
         }
     }
 
     /// The calibrated field, µT.
     pub fn apply(&self, field_ut: &V3) -> V3 {
         self.soft_iron * (field_ut - self.hard_iron_ut)
+    }
+}
+
+/// A raw reading with the rotation that levels it: the filter's roll and
+/// pitch when it was taken, undone (heading kept). A planar calibration
+/// is fitted and judged in that level frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Tilted {
+    pub field_ut: V3,
+    pub levelling: UnitQuaternion<f64>,
+}
+
+impl Tilted {
+    /// A reading whose tilt does not matter to the fit (a full one).
+    fn untilted(field_ut: V3) -> Tilted {
+        Tilted {
+            field_ut,
+            levelling: UnitQuaternion::identity(),
+        }
+    }
+
+    /// The field as a fit of this kind sees it: corrected (raw without a
+    /// correction), and levelled if planar.
+    fn seen(&self, correction: Option<&Correction>, planar: bool) -> V3 {
+        let field = correction.map_or(self.field_ut, |c| c.apply(&self.field_ut));
+        if planar {
+            self.levelling * field
+        } else {
+            field
+        }
     }
 }
 
@@ -224,6 +263,10 @@ pub struct MagCalibration {
     /// Readings kept since the check last judged.
     #[serde(default)]
     since_check: u32,
+    /// The planar correction was fitted to levelled readings
+    /// ([`fit_levelled`]), not to level ones alone.
+    #[serde(default)]
+    levelled: bool,
 }
 
 impl MagCalibration {
@@ -256,6 +299,7 @@ impl MagCalibration {
             checked: VecDeque::new(),
             checked_t: None,
             since_check: 0,
+            levelled: false,
         }
     }
 
@@ -287,14 +331,14 @@ impl MagCalibration {
         let Some(current) = self.correction else {
             return false;
         };
-        let recent: Vec<V3> = self.checked.iter().copied().collect();
+        let recent: Vec<Tilted> = self.checked.iter().copied().map(Tilted::untilted).collect();
         let raw_field = Correction::raw(&recent, false);
         // The directions are judged raw: a calibration wrong by a hard
         // iron as large as the field would bunch them up through itself.
         if direction_span_deg(&raw_field, &recent, false) < MIN_SPAN_DEG {
             return false;
         }
-        let calibrated = radius_rms(&recent, |m| current.apply(m).norm());
+        let calibrated = radius_rms(&recent, |r| magnitude(r, Some(&current), false));
         let raw = raw_field.fit_rms;
         if calibrated <= MAX_RAW_RMS || calibrated <= raw * CHECK_WORSE_THAN_RAW {
             return false;
@@ -340,9 +384,9 @@ impl MagCalibration {
     pub fn field_magnitude_ut(&self) -> Option<f64> {
         let c = self.correction.as_ref()?;
         let planar = self.state == CalibrationState::Planar;
-        let mut magnitudes: Vec<f64> = fields(&self.samples, planar)
+        let mut magnitudes: Vec<f64> = fields(&self.samples, planar && !self.levelled)
             .iter()
-            .map(|m| magnitude(&c.apply(m), planar))
+            .map(|r| magnitude(r, Some(c), planar))
             .collect();
         if magnitudes.is_empty() {
             return None;
@@ -351,7 +395,7 @@ impl MagCalibration {
         Some(magnitudes[magnitudes.len() / 2])
     }
 
-    /// Degrees of azimuth seen (10° per occupied azimuth bin), level or not.
+    /// Degrees of azimuth seen (10° per occupied azimuth bin).
     pub fn coverage_deg(&self) -> f64 {
         self.azimuths_seen(false) as f64 * (360.0 / AZIMUTH_BINS as f64)
     }
@@ -382,10 +426,9 @@ impl MagCalibration {
         }
     }
 
-    /// Adds a raw reading (µT) taken at a tilt (the larger of |roll| and
-    /// |pitch|, rad); refits when due. Returns true when the correction
-    /// changed.
-    pub fn add(&mut self, field_ut: V3, tilt_rad: f64) -> bool {
+    /// Adds a raw reading (µT) taken at the filter's roll and pitch
+    /// (rad); refits when due. Returns true when the correction changed.
+    pub fn add(&mut self, field_ut: V3, roll_rad: f64, pitch_rad: f64) -> bool {
         if !field_ut.iter().all(|x| x.is_finite()) {
             return false;
         }
@@ -394,7 +437,12 @@ impl MagCalibration {
             // Held back one per direction bin (the newest), so the ring
             // spans the directions seen rather than the last seconds.
             if let Some(bin) = direction_bin(&self.binned_centre, &field_ut) {
-                let sample = Sample::new(field_ut, bin, tilt_rad, self.level_tolerance_rad);
+                let sample = Sample::new(
+                    field_ut,
+                    bin,
+                    (roll_rad, pitch_rad),
+                    self.level_tolerance_rad,
+                );
                 self.holdout
                     .retain(|s| s.bin != bin || s.level != sample.level);
                 push_newest(&mut self.holdout, sample, HOLDOUT_SAMPLES);
@@ -419,8 +467,13 @@ impl MagCalibration {
         let Some(bin) = direction_bin(&self.binned_centre, &field_ut) else {
             return false;
         };
-        let sample = Sample::new(field_ut, bin, tilt_rad, self.level_tolerance_rad);
-        let (level, tilt_rad) = (sample.level, sample.tilt_rad);
+        let sample = Sample::new(
+            field_ut,
+            bin,
+            (roll_rad, pitch_rad),
+            self.level_tolerance_rad,
+        );
+        let (level, tilt_rad) = (sample.level, sample.tilt_rad());
         let same = |s: &Sample| s.bin == bin && s.level == level;
         if self.correction.is_some() {
             // A level sample gives way only to one about as level or more.
@@ -428,7 +481,7 @@ impl MagCalibration {
                 && self
                     .samples
                     .iter()
-                    .any(|s| same(s) && s.tilt_rad + LEVEL_SLACK_RAD < tilt_rad)
+                    .any(|s| same(s) && s.tilt_rad() + LEVEL_SLACK_RAD < tilt_rad)
             {
                 return false;
             }
@@ -447,28 +500,34 @@ impl MagCalibration {
     /// Fits from the binned samples if they cover enough directions.
     fn refit(&mut self) -> bool {
         self.since_fit = 0;
-        let degrees_per_bin = 360.0 / AZIMUTH_BINS as f64;
-        let (state, fit) = if self.elevations_seen() >= MIN_ELEVATION_BANDS
-            && self.azimuths_seen(false) as f64 * degrees_per_bin >= self.min_coverage_deg
-        {
-            let samples = fields(&self.samples, false);
-            (
-                CalibrationState::Ellipsoid,
-                refit_without_outliers(&samples, false, fit_ellipsoid),
-            )
-        } else if self.azimuths_seen(true) as f64 * degrees_per_bin >= self.min_coverage_deg {
-            let level = fields(&self.samples, true);
-            let inclination = self.inclination_rad;
+        if self.coverage_deg() < self.min_coverage_deg {
+            return false;
+        }
+        let inclination = self.inclination_rad;
+        let level_coverage_deg = self.azimuths_seen(true) as f64 * (360.0 / AZIMUTH_BINS as f64);
+        // Level readings first: their heading does not rest on the tilt
+        // estimate, whose error in a turn (0.3–1°) would tip the field's
+        // large vertical into the horizontal; the levelled fit where they
+        // do not cover enough directions (a graded road).
+        let (state, levelled) = if self.elevations_seen() >= MIN_ELEVATION_BANDS {
+            (CalibrationState::Ellipsoid, false)
+        } else {
             (
                 CalibrationState::Planar,
-                refit_without_outliers(&level, true, |s| fit_planar(s, inclination)),
+                level_coverage_deg < self.min_coverage_deg,
             )
-        } else {
-            return false;
         };
         let planar = state == CalibrationState::Planar;
-        let fitted = fields(&self.samples, planar);
-        let held = fields(&self.holdout, planar);
+        let level_only = planar && !levelled;
+        let fitted = fields(&self.samples, level_only);
+        let held = fields(&self.holdout, level_only);
+        let fit = if !planar {
+            refit_without_outliers(&fitted, false, |s| fit_ellipsoid(&raw_fields(s)))
+        } else if levelled {
+            refit_without_outliers(&fitted, true, |s| fit_levelled(s, inclination))
+        } else {
+            refit_without_outliers(&fitted, true, |s| fit_planar(&raw_fields(s), inclination))
+        };
         let passes_gates = |c: &Correction| {
             c.fit_rms <= MAX_FIT_RMS
                 && plausible_field(c, &fitted, planar)
@@ -488,6 +547,7 @@ impl MagCalibration {
         if let Some(correction) = accepted {
             self.correction = Some(correction);
             self.state = state;
+            self.levelled = levelled;
             return true;
         }
         self.refused += 1;
@@ -499,6 +559,7 @@ impl MagCalibration {
             if passes_gates(&raw) && raw.fit_rms <= MAX_RAW_RMS {
                 self.correction = Some(raw);
                 self.state = CalibrationState::Raw;
+                self.levelled = false;
                 return true;
             }
         }
@@ -506,32 +567,42 @@ impl MagCalibration {
     }
 }
 
-/// The raw fields a fit of this kind uses: the level samples' if planar.
-fn fields(samples: &VecDeque<Sample>, planar: bool) -> Vec<V3> {
+/// The readings a fit takes: every one with its levelling, or (`level_only`)
+/// the level ones as if untilted.
+fn fields(samples: &VecDeque<Sample>, level_only: bool) -> Vec<Tilted> {
     samples
         .iter()
-        .filter(|s| s.level || !planar)
-        .map(|s| s.field_ut)
+        .filter(|s| s.level || !level_only)
+        .map(|s| {
+            if level_only {
+                Tilted::untilted(s.field_ut)
+            } else {
+                s.tilted()
+            }
+        })
         .collect()
 }
 
-/// A field's magnitude as a fit of this kind sees it: horizontal if planar.
-fn magnitude(field_ut: &V3, planar: bool) -> f64 {
+/// The raw fields of readings.
+fn raw_fields(readings: &[Tilted]) -> Vec<V3> {
+    readings.iter().map(|r| r.field_ut).collect()
+}
+
+/// A reading's magnitude through a correction (raw without one) as a fit
+/// of this kind sees it: the levelled horizontal one if planar.
+fn magnitude(reading: &Tilted, correction: Option<&Correction>, planar: bool) -> f64 {
+    let field = reading.seen(correction, planar);
     if planar {
-        field_ut.xy().norm()
+        field.xy().norm()
     } else {
-        field_ut.norm()
+        field.norm()
     }
 }
 
 /// The relative radius spread of held-back readings through a correction
 /// (`None`: the raw field); `None` when too few are held to judge by.
-fn held_spread(held: &[V3], correction: Option<&Correction>, planar: bool) -> Option<f64> {
-    (held.len() >= 8).then(|| {
-        radius_rms(held, |m| {
-            magnitude(&correction.map_or(*m, |c| c.apply(m)), planar)
-        })
-    })
+fn held_spread(held: &[Tilted], correction: Option<&Correction>, planar: bool) -> Option<f64> {
+    (held.len() >= 8).then(|| radius_rms(held, |r| magnitude(r, correction, planar)))
 }
 
 /// Appends `sample`, dropping the oldest beyond `capacity`.
@@ -559,28 +630,33 @@ fn direction_bin(centre: &V3, field_ut: &V3) -> Option<usize> {
 
 /// True when the corrected field's mean magnitude (horizontal if planar)
 /// is one the Earth can have.
-fn plausible_field(c: &Correction, samples: &[V3], planar: bool) -> bool {
+fn plausible_field(c: &Correction, samples: &[Tilted], planar: bool) -> bool {
     if samples.is_empty() {
         return false;
     }
     let mean = samples
         .iter()
-        .map(|m| magnitude(&c.apply(m), planar))
+        .map(|r| magnitude(r, Some(c), planar))
         .sum::<f64>()
         / samples.len() as f64;
-    (PLAUSIBLE_FIELD_UT.0..=PLAUSIBLE_FIELD_UT.1).contains(&mean)
+    let upper = if planar {
+        MAX_HORIZONTAL_UT
+    } else {
+        PLAUSIBLE_FIELD_UT.1
+    };
+    (PLAUSIBLE_FIELD_UT.0..=upper).contains(&mean)
 }
 
-/// The angle the corrected field directions span, degrees: in the body
-/// x–y plane if planar (360° less the widest azimuth gap); for a full
+/// The angle the corrected field directions span, degrees: in the level
+/// frame's x–y plane if planar (360° less the widest azimuth gap); for a full
 /// fit the least such span about the three principal axes of the
 /// directions' second moment, so a narrow band or cap of directions,
 /// however densely sampled, spans little.
-pub fn direction_span_deg(c: &Correction, samples: &[V3], planar: bool) -> f64 {
+pub fn direction_span_deg(c: &Correction, samples: &[Tilted], planar: bool) -> f64 {
     let directions: Vec<V3> = samples
         .iter()
-        .filter_map(|m| {
-            let mut v = c.apply(m);
+        .filter_map(|r| {
+            let mut v = r.seen(Some(c), planar);
             if planar {
                 v.z = 0.0;
             }
@@ -630,32 +706,52 @@ fn azimuth_span_deg(vectors: impl Iterator<Item = (f64, f64)>) -> f64 {
     360.0 - widest
 }
 
-/// A kept reading: the raw field, its direction bin, and whether it was
-/// taken level.
+/// A kept reading: the raw field, its direction bin, the filter's roll
+/// and pitch when it was taken, and whether that was level.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 struct Sample {
     field_ut: V3,
     bin: usize,
     level: bool,
-    tilt_rad: f64,
+    roll_rad: f64,
+    pitch_rad: f64,
 }
 
 impl Sample {
-    /// A reading in direction bin `bin` taken at tilt `tilt_rad` (either
-    /// sign); level when within `level_tolerance_rad`.
-    fn new(field_ut: V3, bin: usize, tilt_rad: f64, level_tolerance_rad: f64) -> Sample {
-        let tilt_rad = tilt_rad.abs();
-        Sample {
+    /// A reading in direction bin `bin` taken at `(roll, pitch)`; level
+    /// when both are within `level_tolerance_rad`.
+    fn new(
+        field_ut: V3,
+        bin: usize,
+        (roll_rad, pitch_rad): (f64, f64),
+        level_tolerance_rad: f64,
+    ) -> Sample {
+        let mut sample = Sample {
             field_ut,
             bin,
-            level: tilt_rad <= level_tolerance_rad,
-            tilt_rad,
+            level: false,
+            roll_rad,
+            pitch_rad,
+        };
+        sample.level = sample.tilt_rad() <= level_tolerance_rad;
+        sample
+    }
+
+    /// The larger of |roll| and |pitch|, rad.
+    fn tilt_rad(&self) -> f64 {
+        self.roll_rad.abs().max(self.pitch_rad.abs())
+    }
+
+    fn tilted(&self) -> Tilted {
+        Tilted {
+            field_ut: self.field_ut,
+            levelling: attitude_from_euler(self.roll_rad, self.pitch_rad, 0.0),
         }
     }
 }
 
 /// Centre and scale for conditioning: the samples' mean and RMS spread.
-fn normaliser(samples: &[V3]) -> (V3, f64) {
+pub(super) fn normaliser(samples: &[V3]) -> (V3, f64) {
     let n = samples.len().max(1) as f64;
     let mean = samples.iter().sum::<V3>() / n;
     let spread = (samples
@@ -681,7 +777,7 @@ fn sqrt_spd3(m: &Matrix3<f64>) -> Option<Matrix3<f64>> {
     Some(eigen.eigenvectors * Matrix3::from_diagonal(&root) * eigen.eigenvectors.transpose())
 }
 
-fn sqrt_spd2(m: &Matrix2<f64>) -> Option<Matrix2<f64>> {
+pub(super) fn sqrt_spd2(m: &Matrix2<f64>) -> Option<Matrix2<f64>> {
     let eigen = nalgebra::SymmetricEigen::new(*m);
     if eigen
         .eigenvalues
@@ -696,7 +792,7 @@ fn sqrt_spd2(m: &Matrix2<f64>) -> Option<Matrix2<f64>> {
 
 /// Each sample's corrected radius over the samples' mean, less one;
 /// `None` when the mean is not positive.
-fn relative_radius_errors(samples: &[V3], radius: impl Fn(&V3) -> f64) -> Option<Vec<f64>> {
+fn relative_radius_errors<T>(samples: &[T], radius: impl Fn(&T) -> f64) -> Option<Vec<f64>> {
     let radii: Vec<f64> = samples.iter().map(radius).collect();
     let mean = radii.iter().sum::<f64>() / radii.len().max(1) as f64;
     if mean <= 0.0 {
@@ -706,7 +802,7 @@ fn relative_radius_errors(samples: &[V3], radius: impl Fn(&V3) -> f64) -> Option
 }
 
 /// RMS of ‖S(m − b)‖ / mean − 1 over the samples, on the chosen axes.
-fn radius_rms(samples: &[V3], correct: impl Fn(&V3) -> f64) -> f64 {
+pub(super) fn radius_rms<T>(samples: &[T], correct: impl Fn(&T) -> f64) -> f64 {
     let n = samples.len().max(1) as f64;
     match relative_radius_errors(samples, correct) {
         Some(errors) => (errors.iter().map(|e| e.powi(2)).sum::<f64>() / n).sqrt(),
@@ -720,24 +816,24 @@ fn radius_rms(samples: &[V3], correct: impl Fn(&V3) -> f64) -> f64 {
 /// taken next to a magnet or a steel mass must not bend the calibration
 /// of every other direction. At least half the readings are kept.
 fn refit_without_outliers(
-    samples: &[V3],
+    samples: &[Tilted],
     planar: bool,
-    fit: impl Fn(&[V3]) -> Option<Correction>,
+    fit: impl Fn(&[Tilted]) -> Option<Correction>,
 ) -> Option<Correction> {
     let mut current = fit(samples)?;
     let mut kept = samples.len();
     for _ in 0..OUTLIER_ROUNDS {
         let Some(errors) =
-            relative_radius_errors(samples, |m| magnitude(&current.apply(m), planar))
+            relative_radius_errors(samples, |r| magnitude(r, Some(&current), planar))
         else {
             break;
         };
         let limit = (3.0 * current.fit_rms).max(MIN_OUTLIER_RADIUS_ERROR);
-        let inliers: Vec<V3> = samples
+        let inliers: Vec<Tilted> = samples
             .iter()
             .zip(&errors)
             .filter(|(_, e)| e.abs() <= limit)
-            .map(|(m, _)| *m)
+            .map(|(r, _)| *r)
             .collect();
         if inliers.len() == kept || inliers.len() < samples.len() / 2 {
             break;
@@ -799,65 +895,6 @@ pub fn fit_ellipsoid(samples: &[V3]) -> Option<Correction> {
     })
 }
 
-/// Least-squares conic fit in the body x–y plane; see the module documentation.
-pub fn fit_planar(samples: &[V3], inclination_rad: f64) -> Option<Correction> {
-    if samples.len() < 5 {
-        return None;
-    }
-    let (mean, _) = normaliser(samples);
-    let n = samples.len() as f64;
-    let scale = (samples
-        .iter()
-        .map(|s| (s.x - mean.x).powi(2) + (s.y - mean.y).powi(2))
-        .sum::<f64>()
-        / n)
-        .sqrt();
-    if scale <= 0.0 {
-        return None;
-    }
-    let mut normal = SMatrix::<f64, 5, 5>::zeros();
-    let mut rhs = SVector::<f64, 5>::zeros();
-    for s in samples {
-        let (x, y) = ((s.x - mean.x) / scale, (s.y - mean.y) / scale);
-        let row = SVector::<f64, 5>::from([x * x, y * y, 2.0 * x * y, 2.0 * x, 2.0 * y]);
-        normal += row * row.transpose();
-        rhs += row;
-    }
-    let v = normal.cholesky()?.solve(&rhs);
-    let q = Matrix2::new(v[0], v[2], v[2], v[1]);
-    let u = Vector2::new(v[3], v[4]);
-    let centre = -(q.try_inverse()? * u);
-    let k = 1.0 + centre.dot(&(q * centre));
-    if k <= 0.0 {
-        return None;
-    }
-    let root = sqrt_spd2(&(q / k))?;
-    let det = root.determinant();
-    if det <= 0.0 {
-        return None;
-    }
-    let root = root / det.sqrt();
-    let mut soft_iron = Matrix3::identity();
-    soft_iron.fixed_view_mut::<2, 2>(0, 0).copy_from(&root);
-    let horizontal = |m: &V3, hard_iron: &V3| {
-        let c = soft_iron * (m - hard_iron);
-        (c.x * c.x + c.y * c.y).sqrt()
-    };
-    let mut hard_iron_ut = V3::new(mean.x + centre.x * scale, mean.y + centre.y * scale, 0.0);
-    let radius = samples
-        .iter()
-        .map(|m| horizontal(m, &hard_iron_ut))
-        .sum::<f64>()
-        / n;
-    hard_iron_ut.z = mean.z - radius * inclination_rad.tan();
-    let fit_rms = radius_rms(samples, |m| horizontal(m, &hard_iron_ut));
-    Some(Correction {
-        hard_iron_ut,
-        soft_iron,
-        fit_rms,
-    })
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -888,7 +925,7 @@ mod tests {
             );
             let body = attitude.inverse() * earth;
             let raw = a * body + b;
-            calibration.add(raw, 0.5);
+            calibration.add(raw, 0.5, 0.0);
             cases.push((body, raw));
         }
         assert_eq!(calibration.state(), CalibrationState::Ellipsoid);
@@ -919,7 +956,9 @@ mod tests {
             samples.push(raw);
         }
         let plain = fit_ellipsoid(&samples).unwrap();
-        let robust = refit_without_outliers(&samples, false, fit_ellipsoid).unwrap();
+        let readings: Vec<Tilted> = samples.iter().copied().map(Tilted::untilted).collect();
+        let robust =
+            refit_without_outliers(&readings, false, |r| fit_ellipsoid(&raw_fields(r))).unwrap();
         // The plain fit's centre is pulled by the magnet; without the
         // outliers it is within a fraction of a µT (a reading the magnet
         // moved along the sphere, radius within 3 %, cannot be told).
@@ -939,7 +978,7 @@ mod tests {
         // A calibration turn of a little over a full circle.
         for i in 0..=380 {
             let attitude = UnitQuaternion::from_euler_angles(0.0, 0.0, f64::from(i).to_radians());
-            calibration.add(a * (attitude.inverse() * earth) + b, 0.0);
+            calibration.add(a * (attitude.inverse() * earth) + b, 0.0, 0.0);
             if i < 290 {
                 assert_eq!(calibration.state(), CalibrationState::Collecting, "{i}");
             }
@@ -980,6 +1019,60 @@ mod tests {
         }
     }
 
+    /// The worst heading error over a full turn at `(roll, pitch)` of a
+    /// field corrected by `c`, degrees.
+    fn worst_heading_error_deg(c: &Correction, (roll, pitch): (f64, f64)) -> f64 {
+        let (a, b) = distortion();
+        let earth = V3::new(20.0, 1.0, 44.0);
+        (0..72)
+            .map(|i| {
+                let yaw = f64::from(i * 5).to_radians();
+                let attitude = UnitQuaternion::from_euler_angles(roll, pitch, yaw);
+                let corrected = c.apply(&(a * (attitude.inverse() * earth) + b));
+                let heading =
+                    crate::fusion::fuzzy::orientation::magnetic_heading(&corrected, roll, pitch)
+                        + earth.y.atan2(earth.x);
+                crate::fusion::fuzzy::orientation::angle_difference(heading, yaw)
+                    .to_degrees()
+                    .abs()
+            })
+            .fold(0.0, f64::max)
+    }
+
+    #[test]
+    fn a_calibration_turn_on_a_grade_is_levelled_by_the_tilt() {
+        let (a, b) = distortion();
+        let earth = V3::new(20.0, 1.0, 44.0);
+        let inclination = earth.z.atan2(earth.xy().norm());
+        // A turn on a 5° slope, banked 2°: no reading is level.
+        let (roll, pitch) = (2.0_f64.to_radians(), 5.0_f64.to_radians());
+        let turn = |told: (f64, f64)| {
+            let mut calibration = MagCalibration::new(300.0, inclination, 0.03, 10);
+            for i in 0..=380 {
+                let yaw = f64::from(i).to_radians();
+                let attitude = UnitQuaternion::from_euler_angles(roll, pitch, yaw);
+                calibration.add(a * (attitude.inverse() * earth) + b, told.0, told.1);
+            }
+            calibration
+        };
+        let levelled = turn((roll, pitch));
+        assert_eq!(levelled.state(), CalibrationState::Planar);
+        assert!(levelled.levelled);
+        let c = levelled.correction().unwrap();
+        // Right on the slope and level, to the soft iron's z coupling.
+        for tilt in [(roll, pitch), (0.0, 0.0), (-roll, -pitch)] {
+            let error = worst_heading_error_deg(c, tilt);
+            assert!(error < 0.8, "{tilt:?}: {error}");
+        }
+        // Told it was level, the same readings fit a circle whose centre
+        // holds the vertical field's share, sin 5° × 44 µT ≈ 3.8 µT of
+        // hard iron that is not there: heading off by degrees.
+        let pretended = turn((0.0, 0.0));
+        assert!(!pretended.levelled);
+        let wrong = pretended.correction().unwrap();
+        assert!(worst_heading_error_deg(wrong, (roll, pitch)) > 3.0);
+    }
+
     #[test]
     fn a_fit_over_less_than_90_degrees_of_directions_is_refused() {
         let (a, b) = distortion();
@@ -990,7 +1083,7 @@ mod tests {
             // A slow swing over 80° of heading, back and forth.
             let yaw = (40.0 * (f64::from(i) * 0.01).sin()).to_radians();
             let attitude = UnitQuaternion::from_euler_angles(0.0, 0.0, yaw);
-            calibration.add(a * (attitude.inverse() * earth) + b, 0.0);
+            calibration.add(a * (attitude.inverse() * earth) + b, 0.0, 0.0);
         }
         assert_eq!(calibration.state(), CalibrationState::Collecting);
         assert!(calibration.refused_fits() > 0);
@@ -999,7 +1092,7 @@ mod tests {
         for i in 0..2000 {
             let yaw = (60.0 * (f64::from(i) * 0.01).sin()).to_radians();
             let attitude = UnitQuaternion::from_euler_angles(0.0, 0.0, yaw);
-            wide.add(a * (attitude.inverse() * earth) + b, 0.0);
+            wide.add(a * (attitude.inverse() * earth) + b, 0.0, 0.0);
         }
         assert_eq!(wide.state(), CalibrationState::Planar);
     }
@@ -1015,7 +1108,7 @@ mod tests {
             };
             // ±1 µT of noise on each axis (a noisy MEMS magnetometer).
             let field = V3::new(20.0 + noise(), 1.0 + noise(), 44.0 + noise());
-            calibration.add(field, 0.0);
+            calibration.add(field, 0.0, 0.0);
         }
         assert_eq!(calibration.coverage_deg(), 0.0);
         assert_eq!(calibration.state(), CalibrationState::Collecting);
@@ -1025,9 +1118,9 @@ mod tests {
     fn too_few_directions_or_bad_data_give_no_calibration() {
         let mut calibration = MagCalibration::new(300.0, 1.0, 0.03, 10);
         for i in 0..200 {
-            calibration.add(V3::new(20.0 + f64::from(i % 7) * 0.01, 1.0, 44.0), 0.0);
+            calibration.add(V3::new(20.0 + f64::from(i % 7) * 0.01, 1.0, 44.0), 0.0, 0.0);
         }
-        calibration.add(V3::new(f64::NAN, 0.0, 0.0), 0.0);
+        calibration.add(V3::new(f64::NAN, 0.0, 0.0), 0.0, 0.0);
         assert_eq!(calibration.state(), CalibrationState::Collecting);
         assert!(calibration.correction().is_none());
         assert!(fit_ellipsoid(&[V3::zeros(); 20]).is_none());

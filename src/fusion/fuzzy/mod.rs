@@ -55,9 +55,11 @@ pub mod motion;
 pub mod noise_floor;
 pub mod orientation;
 pub mod params;
+pub mod planar_fit;
 pub mod rest_rate;
 pub mod start_frame;
 pub mod tilt;
+pub mod turn_check;
 pub mod uncertainty;
 
 use nalgebra::UnitQuaternion;
@@ -76,6 +78,7 @@ pub use self::params::{FuzzyConfig, FuzzyParams, PARAMS, RETIRED};
 use self::rest_rate::RestRate;
 use self::start_frame::StartFrame;
 use self::tilt::TiltWindow;
+use self::turn_check::TurnCheck;
 use super::angles::{deg, rad};
 use super::estimate::{EngineOutput, EstimateValues, JsonFields};
 use super::params::{ParamError, Params, Retired};
@@ -90,7 +93,7 @@ use crate::fusion::geometry::{V3, attitude_from_euler};
 /// 4: the bias learns from static blocks (issue 34);
 /// 5: alignment while moving in the first reading's frame, the
 /// calibration's check and the compass's innovations (issue 34).
-pub const STATE_VERSION: u32 = 5;
+pub const STATE_VERSION: u32 = 6;
 
 /// Plausibility caps for alignment, whatever the floor says: a MEMS
 /// sensor at rest shows less spread and less mean rate than this (a
@@ -170,6 +173,10 @@ struct Solution {
     /// Static blocks' mean rates and their wander (rest_rate.rs).
     #[serde(default)]
     rest_rate: RestRate,
+    /// The bias-compensated rate about the world vertical, integrated
+    /// (no compass in it; unwrapped), rad.
+    #[serde(default)]
+    gyro_yaw_rad: f64,
 }
 
 /// How many σ of the bias and of the wander of the mean rate at rest the
@@ -215,6 +222,9 @@ pub struct FuzzyEngine {
     /// The compass's recent innovations (heading_drift.rs).
     #[serde(default)]
     innovations: Innovations,
+    /// The calibrated compass against the gyro across turns (turn_check.rs).
+    #[serde(default)]
+    turns: TurnCheck,
     /// When the first calibration re-took the heading, and by how much it
     /// turned it (undone if its field proves disturbed at once).
     rehead_turn: Option<(f64, f64)>,
@@ -267,6 +277,7 @@ impl FuzzyEngine {
             reheading: false,
             compass_gated_since: None,
             innovations: Innovations::default(),
+            turns: TurnCheck::default(),
             rehead_turn: None,
             static_degree: 0.0,
             compass_state: None,
@@ -363,6 +374,7 @@ impl FuzzyEngine {
             self.reheading = self.calibration.correction().is_some();
             self.stats.mag_refuted += 1;
             self.innovations.clear();
+            self.turns.clear();
         }
         let disturbed = self.calibration.correction().is_some_and(|c| {
             self.disturbance.observe(
@@ -398,10 +410,11 @@ impl FuzzyEngine {
             }
         } else {
             let was_calibrated = self.calibration.correction().is_some();
-            if self.calibration.add(field_ut, roll.abs().max(pitch.abs())) {
+            if self.calibration.add(field_ut, roll, pitch) {
                 self.stats.mag_fits += 1;
                 // A new calibration moves the compass in one step.
                 self.innovations.clear();
+                self.turns.clear();
                 // The heading so far rests on the raw compass at alignment:
                 // the first calibration replaces it at the next IMU reading.
                 if !was_calibrated {
@@ -423,6 +436,11 @@ impl FuzzyEngine {
                     magnetic_heading(&field, roll, pitch) + self.config.declination_rad,
                 )
             });
+            if let (Some((_, heading)), Some(solution), Some(_)) =
+                (self.compass, &self.solution, self.calibration.correction())
+            {
+                self.turns.push(t, heading, solution.gyro_yaw_rad);
+            }
         }
     }
 
@@ -578,8 +596,9 @@ impl FuzzyEngine {
     /// True while the compass disagrees with the gyro heading beyond the
     /// gate and has not yet for `heading_gate_s` (after that it steers).
     fn gated_now(&self, t: f64) -> bool {
-        self.compass_gated_since
-            .is_some_and(|since| t - since < self.config.heading_gate_s)
+        self.compass_gated_since.is_some_and(|since| {
+            t - since < self.config.heading_gate_s || self.disturbance.relearnt()
+        })
     }
 
     /// Whether the compass steers the heading at `t`, and if not, why.
@@ -653,6 +672,7 @@ impl FuzzyEngine {
             tilt_sigma_rad: 0.0,
             bias_walk: WalkLearner::default(),
             rest_rate: RestRate::default(),
+            gyro_yaw_rad: 0.0,
             heading_sigma_rad: if yaw_known {
                 UNCALIBRATED_HEADING_SIGMA_RAD
             } else {
@@ -691,6 +711,7 @@ impl FuzzyEngine {
             tilt_sigma_rad: found.tilt_sigma_rad.max(MIN_MOVING_TILT_SIGMA_RAD),
             bias_walk: WalkLearner::default(),
             rest_rate: RestRate::default(),
+            gyro_yaw_rad: 0.0,
             heading_sigma_rad: if compass.is_some() {
                 UNCALIBRATED_HEADING_SIGMA_RAD
             } else {
@@ -718,6 +739,7 @@ impl FuzzyEngine {
             None => compensated,
         };
         solution.attitude = integrate(&solution.attitude, &mean_rate, dt_s);
+        solution.gyro_yaw_rad += (solution.attitude * mean_rate).z * dt_s;
         solution.previous_rate_rad_per_s = Some(compensated);
         // Linear growth: the gyro errors are correlated over a turn.
         let bias_sigma = solution.gyro_bias.sigma_rad_per_s().norm();
@@ -838,6 +860,11 @@ impl FuzzyEngine {
         };
         // The compass's own σ: half the gate.
         let compass_sigma = 0.5 * c.heading_gate_rad;
+        // The first calibration's heading is not taken from a field not
+        // yet confirmed (disturbance.rs: relearnt).
+        if self.reheading && self.disturbance.relearnt() {
+            return;
+        }
         let gain = if self.reheading {
             self.reheading = false;
             self.compass_gated_since = None;
@@ -885,10 +912,21 @@ impl FuzzyEngine {
             let within_gate = innovation <= gate;
             if within_gate {
                 self.compass_gated_since = None;
+                // A field taken as the site's after a lasting disturbance
+                // that agrees with the gyro is the Earth's.
+                self.disturbance.confirm();
             } else {
                 let since = *self.compass_gated_since.get_or_insert(t);
-                if t - since < c.heading_gate_s {
+                // Such a field not yet confirmed (a magnet left on the
+                // vehicle) never wins against the gyro.
+                if t - since < c.heading_gate_s || self.disturbance.relearnt() {
                     return;
+                }
+                // A calibrated compass believed again against the gyro:
+                // either was wrong by the innovation (an uncalibrated
+                // one's σ is the unknown hard iron's already).
+                if calibrated {
+                    solution.heading_sigma_rad = solution.heading_sigma_rad.max(0.5 * innovation);
                 }
             }
             let still = self.stillness(static_degree);
@@ -936,7 +974,11 @@ impl FuzzyEngine {
     fn reported_sigmas(&self, s: &Solution, fit_rms: Option<f64>) -> (f64, f64) {
         let tilt =
             uncertainty::reported_sigma(s.tilt_sigma_rad, &[self.config.accel_bias_tilt_rad]);
-        let calibration = fit_rms.unwrap_or(uncertainty::UNKNOWN_ANGLE_SIGMA_RAD);
+        // A calibration is as sure as its residual, or as the turns show
+        // (turn_check.rs) if they show it worse.
+        let calibration = fit_rms.map_or(uncertainty::UNKNOWN_ANGLE_SIGMA_RAD, |rms| {
+            self.turns.sigma_rad().map_or(rms, |turns| turns.max(rms))
+        });
         let through_tilt = self.config.mag_inclination_rad.tan().abs() * tilt;
         let heading =
             uncertainty::reported_sigma(s.heading_sigma_rad, &[calibration, through_tilt]);
@@ -1506,12 +1548,22 @@ mod tests {
     /// with a body-fixed hard iron; `extra` adds a field (a magnet) from
     /// `magnet_from` for `magnet_s` seconds.
     fn turn_then_magnet(magnet_from_s: f64, magnet_s: f64, extra_ut: V3) -> Vec<EngineOutput> {
+        turn_then_magnet_for(120, magnet_from_s, magnet_s, extra_ut)
+    }
+
+    /// [`turn_then_magnet`] over `total_s`.
+    fn turn_then_magnet_for(
+        total_s: u32,
+        magnet_from_s: f64,
+        magnet_s: f64,
+        extra_ut: V3,
+    ) -> Vec<EngineOutput> {
         let earth = V3::new(25.0, 0.0, 43.3);
         let hard_iron = V3::new(12.0, -8.0, 3.0);
         let mut engine = engine_at_inclination_60();
         let mut out = Vec::new();
         let t0 = 1.7e9;
-        for i in 0..(120 * 100) {
+        for i in 0..(total_s * 100) {
             let (tau, attitude, force, rate_dps) = level_turn(i);
             let t = t0 + tau;
             engine.feed(&imu(t, force, rate_dps), &mut out);
@@ -1623,6 +1675,35 @@ mod tests {
             fuzzy(clean.last().unwrap()).mag_calibration,
             magcal::CalibrationState::Collecting
         );
+    }
+
+    #[test]
+    fn a_magnet_left_on_for_minutes_never_turns_the_heading() {
+        // Steady for 200 s from 60 s: past the 120 s after which the
+        // field is relearnt and the 60 s after which a compass outside
+        // the gate would be believed; turned 90° by it.
+        let extra = V3::new(-25.0, 25.0, 0.0);
+        let clean = turn_then_magnet_for(300, 1e9, 0.0, V3::zeros());
+        let disturbed = turn_then_magnet_for(300, 60.0, 200.0, extra);
+        let mut worst = 0.0_f64;
+        for (a, b) in clean.iter().zip(&disturbed) {
+            let (a, b) = (fuzzy(a), fuzzy(b));
+            let d = orientation::angle_difference(rad(a.heading_deg), rad(b.heading_deg));
+            worst = worst.max(deg(d).abs());
+        }
+        assert!(worst < 5.0, "heading moved {worst}°");
+        // Relearnt, the field steers nothing while it disagrees.
+        let late = fuzzy(&disturbed[250 * 100]);
+        assert!(
+            matches!(
+                late.compass,
+                Some(CompassState::Disturbed | CompassState::Gated)
+            ),
+            "{late:?}"
+        );
+        // Taken off, the calibrated field is believed again.
+        let after = fuzzy(disturbed.last().unwrap());
+        assert_eq!(after.compass, Some(CompassState::Believed), "{after:?}");
     }
 
     #[test]

@@ -170,7 +170,7 @@ param_table! {
             0.0,
             90.0,
             "deg",
-            "magnetometer readings tilted less than this count as level (a planar calibration uses only those)",
+            "magnetometer readings tilted less than this count as level (a planar calibration uses only those when they cover enough directions, otherwise every reading levelled by its tilt)",
         ),
         mag_refit_every: usize = integer(
             50,
