@@ -23,7 +23,9 @@
 //! start again from the readings. Such a field is [`relearnt`]: it feeds
 //! the calibration, but a magnet on the vehicle is as steady as the
 //! Earth's field and turns the compass, so it steers the heading only
-//! once a new calibration is fitted or its compass agrees with the gyro.
+//! once a new calibration is fitted, its heading changes agree with the
+//! gyro's across turns (the engine's `turn_check.rs`), or the calibrated
+//! field is back for `CALM_S`.
 //!
 //! [`relearnt`]: DisturbanceDetector::relearnt
 
@@ -106,7 +108,8 @@ impl DisturbanceDetector {
         self.relearnt
     }
 
-    /// The compass from the relearnt field agrees with the gyro.
+    /// The relearnt field's heading changes agree with the gyro's across
+    /// turns: it is the Earth's.
     pub fn confirm(&mut self) {
         self.relearnt = false;
     }

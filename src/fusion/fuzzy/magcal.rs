@@ -524,7 +524,8 @@ impl MagCalibration {
         let fit = if !planar {
             refit_without_outliers(&fitted, false, |s| fit_ellipsoid(&raw_fields(s)))
         } else if levelled {
-            refit_without_outliers(&fitted, true, |s| fit_levelled(s, inclination))
+            // Its own rounds judge the vertical too.
+            fit_levelled(&fitted, inclination)
         } else {
             refit_without_outliers(&fitted, true, |s| fit_planar(&raw_fields(s), inclination))
         };

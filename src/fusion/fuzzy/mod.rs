@@ -92,7 +92,9 @@ use crate::fusion::geometry::{V3, attitude_from_euler};
 /// 3: the tilt window holds world-frame forces (issue 18, second step);
 /// 4: the bias learns from static blocks (issue 34);
 /// 5: alignment while moving in the first reading's frame, the
-/// calibration's check and the compass's innovations (issue 34).
+/// calibration's check and the compass's innovations (issue 34);
+/// 6: samples with roll and pitch (the levelled planar fit), relearnt
+/// fields, the turns (issue 34).
 pub const STATE_VERSION: u32 = 6;
 
 /// Plausibility caps for alignment, whatever the floor says: a MEMS
@@ -225,6 +227,15 @@ pub struct FuzzyEngine {
     /// The calibrated compass against the gyro across turns (turn_check.rs).
     #[serde(default)]
     turns: TurnCheck,
+    /// The same for a relearnt field's compass (disturbance.rs), which
+    /// steers once its turns agree with the gyro.
+    #[serde(default)]
+    relearnt_turns: TurnCheck,
+    /// A calibrated compass was believed again against the gyro: its
+    /// residual says the heading was wrong, not the bias, until it is
+    /// back within the gate.
+    #[serde(default)]
+    reacquired: bool,
     /// When the first calibration re-took the heading, and by how much it
     /// turned it (undone if its field proves disturbed at once).
     rehead_turn: Option<(f64, f64)>,
@@ -278,6 +289,8 @@ impl FuzzyEngine {
             compass_gated_since: None,
             innovations: Innovations::default(),
             turns: TurnCheck::default(),
+            relearnt_turns: TurnCheck::default(),
+            reacquired: false,
             rehead_turn: None,
             static_degree: 0.0,
             compass_state: None,
@@ -439,7 +452,24 @@ impl FuzzyEngine {
             if let (Some((_, heading)), Some(solution), Some(_)) =
                 (self.compass, &self.solution, self.calibration.correction())
             {
-                self.turns.push(t, heading, solution.gyro_yaw_rad);
+                if self.disturbance.relearnt() {
+                    // A relearnt field is the Earth's if its heading
+                    // changes are the gyro's (a magnet on the vehicle
+                    // bends them as hard iron does).
+                    self.relearnt_turns.push(t, heading, solution.gyro_yaw_rad);
+                    if self
+                        .relearnt_turns
+                        .sigma_rad()
+                        .is_some_and(|sigma| sigma <= 0.5 * self.config.heading_gate_rad)
+                    {
+                        self.disturbance.confirm();
+                    }
+                } else {
+                    self.turns.push(t, heading, solution.gyro_yaw_rad);
+                }
+            }
+            if !self.disturbance.relearnt() {
+                self.relearnt_turns.clear();
             }
         }
     }
@@ -506,6 +536,8 @@ impl FuzzyEngine {
             self.window.clear();
             self.start_frame.clear();
             self.innovations.clear();
+            self.turns.clear();
+            self.relearnt_turns.clear();
             if let Some(solution) = &mut self.solution {
                 solution.previous_rate_rad_per_s = None;
                 solution.tilt_window.clear();
@@ -596,9 +628,11 @@ impl FuzzyEngine {
     /// True while the compass disagrees with the gyro heading beyond the
     /// gate and has not yet for `heading_gate_s` (after that it steers).
     fn gated_now(&self, t: f64) -> bool {
-        self.compass_gated_since.is_some_and(|since| {
-            t - since < self.config.heading_gate_s || self.disturbance.relearnt()
-        })
+        // The first calibration's heading waits for a relearnt field.
+        (self.reheading && self.disturbance.relearnt())
+            || self.compass_gated_since.is_some_and(|since| {
+                t - since < self.config.heading_gate_s || self.disturbance.relearnt()
+            })
     }
 
     /// Whether the compass steers the heading at `t`, and if not, why.
@@ -663,6 +697,8 @@ impl FuzzyEngine {
         let n = self.window.len() as f64;
         let bias_variance = (rate_spread * rate_spread / 3.0 / n + mean_rate.norm_squared() / 3.0)
             .max(MIN_FLOOR * MIN_FLOOR);
+        self.turns.clear();
+        self.relearnt_turns.clear();
         self.solution = Some(Solution {
             attitude: attitude_from_euler(roll, pitch, yaw),
             gyro_bias: GyroBias::new(mean_rate, bias_variance),
@@ -702,6 +738,8 @@ impl FuzzyEngine {
         }
         let (roll, pitch, _) = found.attitude.euler_angles();
         let compass = self.any_compass_heading(t, roll, pitch);
+        self.turns.clear();
+        self.relearnt_turns.clear();
         self.solution = Some(Solution {
             attitude: attitude_from_euler(roll, pitch, compass.unwrap_or(0.0)),
             gyro_bias: GyroBias::new(V3::zeros(), (prior * prior).max(MIN_FLOOR * MIN_FLOOR)),
@@ -912,9 +950,6 @@ impl FuzzyEngine {
             let within_gate = innovation <= gate;
             if within_gate {
                 self.compass_gated_since = None;
-                // A field taken as the site's after a lasting disturbance
-                // that agrees with the gyro is the Earth's.
-                self.disturbance.confirm();
             } else {
                 let since = *self.compass_gated_since.get_or_insert(t);
                 // Such a field not yet confirmed (a magnet left on the
@@ -927,6 +962,7 @@ impl FuzzyEngine {
                 // one's σ is the unknown hard iron's already).
                 if calibrated {
                     solution.heading_sigma_rad = solution.heading_sigma_rad.max(0.5 * innovation);
+                    self.reacquired = true;
                 }
             }
             let still = self.stillness(static_degree);
@@ -941,7 +977,10 @@ impl FuzzyEngine {
             // heading is off by its unknown hard iron, and one believed
             // again after disagreeing says the heading was wrong, not the
             // bias).
-            let moving = if calibrated && within_gate {
+            if innovation <= c.heading_gate_rad {
+                self.reacquired = false;
+            }
+            let moving = if calibrated && within_gate && !self.reacquired {
                 1.0 - still
             } else {
                 0.0
@@ -1675,6 +1714,55 @@ mod tests {
             fuzzy(clean.last().unwrap()).mag_calibration,
             magcal::CalibrationState::Collecting
         );
+    }
+
+    #[test]
+    fn the_turns_find_a_right_calibration_right_and_a_wrong_one_wrong() {
+        let earth = V3::new(25.0, 0.0, 43.3);
+        let hard_iron = V3::new(12.0, -8.0, 3.0);
+        let mut engine = engine_at_inclination_60();
+        let mut out = Vec::new();
+        for i in 0..(60 * 100) {
+            let (tau, attitude, force, rate_dps) = level_turn(i);
+            let t = 1.7e9 + tau;
+            engine.feed(&imu(t, force, rate_dps), &mut out);
+            if i % 10 == 0 {
+                engine.feed(&mag(t, attitude.inverse() * earth + hard_iron), &mut out);
+            }
+        }
+        // Calibrated; a second turn of 200° at 20 °/s agrees with the gyro.
+        let (_, end, _, _) = level_turn(60 * 100 - 1);
+        let (_, _, start_yaw) = end.euler_angles();
+        for i in 0..(15 * 100) {
+            let tau = 60.0 + f64::from(i) * 0.01;
+            let turning = i < 10 * 100;
+            let yaw = start_yaw + rad(20.0) * f64::from(i.min(10 * 100)) * 0.01;
+            let attitude = attitude_from_euler(0.0, 0.0, yaw);
+            let rate_dps = V3::new(0.0, 0.0, if turning { 20.0 } else { 0.0 });
+            let t = 1.7e9 + tau;
+            engine.feed(
+                &imu(t, attitude.inverse() * V3::new(0.0, 0.0, -G), rate_dps),
+                &mut out,
+            );
+            if i % 10 == 0 {
+                engine.feed(&mag(t, attitude.inverse() * earth + hard_iron), &mut out);
+            }
+        }
+        let right = engine.turns.sigma_rad().expect("turns seen");
+        assert!(deg(right) < 0.3, "{}", deg(right));
+        // The same headings with a calibration 10 µT off (an error of
+        // ±23° around the turn) disagree with the gyro by about that.
+        let mut wrong = TurnCheck::default();
+        let c = *engine.calibration.correction().unwrap();
+        let mut gyro_yaw = 0.0;
+        for k in 0..200 {
+            let yaw = 0.3 + rad(20.0) * 0.1 * f64::from(k);
+            let field = attitude_from_euler(0.0, 0.0, yaw).inverse() * earth + hard_iron;
+            let heading = magnetic_heading(&c.apply(&(field + V3::new(10.0, 0.0, 0.0))), 0.0, 0.0);
+            wrong.push(f64::from(k) * 0.1 * 5.0, heading, gyro_yaw);
+            gyro_yaw += rad(20.0) * 0.1;
+        }
+        assert!(deg(wrong.sigma_rad().unwrap()) > 10.0);
     }
 
     #[test]

@@ -12,9 +12,12 @@
 //!   each is levelled by the filter's roll and pitch when it was taken,
 //!   l = C (S (m − b)), C = R_y(θ) R_x(φ), and the model asks the levelled
 //!   field to have the horizontal radius H and the vertical H·tan I:
-//!   minimise Σ (‖l_xy‖ − H)² + (l_z − H·tan I)² over the hard iron b (3),
-//!   the soft iron S = diag(exp K, 1) with K symmetric and traceless (2:
-//!   det S = 1) and H, by Levenberg–Marquardt from the conic through the
+//!   minimise Σ (‖l_xy‖ − H)² + (l_z − H·tan I)² over the 3-D hard iron b,
+//!   the soft iron S = [[exp K, 0], [cᵀ, 1]] with K symmetric and
+//!   traceless (det exp K = 1) and c the vertical's coupling to the two
+//!   horizontal axes, and H: eight unknowns, by Levenberg–Marquardt
+//!   (steps (JᵀJ + λ·diag JᵀJ) δ = −Jᵀr, λ divided by 10 after a step
+//!   that lowers the cost, multiplied by 10 until one does) from the conic through the
 //!   levelled raw readings (and from the circle through them: the better
 //!   end is kept). On a graded road (a calibration circle on a
 //!   5° slope) a level-only fit has no readings; a fit that ignored the
@@ -192,9 +195,10 @@ const MIN_OUTLIER_ERROR: f64 = 0.03;
 /// residual (horizontal and vertical together) is over three times the
 /// RMS, at least `MIN_OUTLIER_ERROR` of H: readings taken next to a
 /// magnet before any calibration could tell them must not bend it. At
-/// least half the readings are kept. `fit_rms` is the RMS of that
-/// residual over H on the readings kept. `None` when the conic that
-/// starts it fails or the iteration diverges.
+/// least half the readings are kept. `fit_rms` is the levelled
+/// horizontal radius's relative RMS on the readings kept. `None` when
+/// neither the conic nor the circle starts it, or the result is not
+/// finite or has no positive radius.
 pub fn fit_levelled(readings: &[Tilted], inclination_rad: f64) -> Option<Correction> {
     if readings.len() < 8 {
         return None;

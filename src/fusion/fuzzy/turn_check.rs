@@ -3,7 +3,8 @@
 //! `WINDOW_S`, the compass's heading change should be the gyro's. A
 //! calibration off by hard iron δb has a heading error e(ψ) ≈ (δb/H)·
 //! sin(ψ − φ), so across a turn of 90° the disagreement d = e(ψ₂) − e(ψ₁)
-//! has RMS √2 · RMS(e); the newest heading at least 90° back is taken. The calibration's heading
+//! has RMS √2 · RMS(e); the newest heading at least 90° back is taken
+//! (and used up with the older ones). The calibration's heading
 //! σ is then at least √(mean d² / 2): a fit whose radius residual is small
 //! but whose centre is off (readings taken through a disturbance, a tilt
 //! the levelling got wrong) still says how wrong it is. The gyro's own
@@ -29,39 +30,44 @@ const MIN_PAIRS: u64 = 10;
 pub struct TurnCheck {
     /// (t, compass heading, gyro yaw), oldest first.
     recent: VecDeque<(f64, f64, f64)>,
-    squares: f64,
+    /// Σ d², rad².
+    squares_rad2: f64,
     pairs: u64,
 }
 
 impl TurnCheck {
     /// Takes a calibrated, undisturbed compass heading (rad) at `t` with
-    /// the gyro's integrated yaw (rad, unwrapped).
+    /// the gyro's integrated yaw (rad, unwrapped); one per `SPACING_S`,
+    /// in time order (an older one is ignored).
     pub fn push(&mut self, t: f64, compass_rad: f64, gyro_yaw_rad: f64) {
         if self
             .recent
             .back()
-            .is_some_and(|&(last, _, _)| t >= last && t - last < SPACING_S)
+            .is_some_and(|&(last, _, _)| t < last + SPACING_S)
         {
             return;
         }
         while self
             .recent
             .front()
-            .is_some_and(|&(old, _, _)| t - old > WINDOW_S || old > t)
+            .is_some_and(|&(old, _, _)| t - old > WINDOW_S)
         {
             self.recent.pop_front();
         }
-        // The newest heading the gyro has turned 90° or more from.
-        if let Some(&(_, compass, gyro)) = self
+        // The newest heading the gyro has turned 90° or more from; it and
+        // the older ones are used up, so each comparison has its own
+        // older end.
+        if let Some(index) = self
             .recent
             .iter()
-            .rev()
-            .find(|&&(_, _, gyro)| (gyro_yaw_rad - gyro).abs() >= MIN_TURN_RAD)
+            .rposition(|&(_, _, gyro)| (gyro_yaw_rad - gyro).abs() >= MIN_TURN_RAD)
         {
+            let (_, compass, gyro) = self.recent[index];
             let d = angle_difference(compass_rad - compass, 0.0) - (gyro_yaw_rad - gyro);
             let d = angle_difference(d, 0.0);
-            self.squares += d * d;
+            self.squares_rad2 += d * d;
             self.pairs += 1;
+            self.recent.drain(..=index);
         }
         self.recent.push_back((t, compass_rad, gyro_yaw_rad));
     }
@@ -69,7 +75,7 @@ impl TurnCheck {
     /// The calibration's heading σ the turns show, rad; `None` before
     /// `MIN_PAIRS` comparisons.
     pub fn sigma_rad(&self) -> Option<f64> {
-        (self.pairs >= MIN_PAIRS).then(|| (self.squares / self.pairs as f64 / 2.0).sqrt())
+        (self.pairs >= MIN_PAIRS).then(|| (self.squares_rad2 / self.pairs as f64 / 2.0).sqrt())
     }
 
     /// A new calibration: nothing judged yet.
