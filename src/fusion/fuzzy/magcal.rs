@@ -217,7 +217,7 @@ impl Tilted {
 
     /// The field as a fit of this kind sees it: corrected (raw without a
     /// correction), and levelled if planar.
-    fn seen(&self, correction: Option<&Correction>, planar: bool) -> V3 {
+    pub(super) fn seen(&self, correction: Option<&Correction>, planar: bool) -> V3 {
         let field = correction.map_or(self.field_ut, |c| c.apply(&self.field_ut));
         if planar {
             self.levelling * field
@@ -397,7 +397,13 @@ impl MagCalibration {
 
     /// Degrees of azimuth seen (10° per occupied azimuth bin).
     pub fn coverage_deg(&self) -> f64 {
-        self.azimuths_seen(false) as f64 * (360.0 / AZIMUTH_BINS as f64)
+        self.azimuth_coverage_deg(false)
+    }
+
+    /// Degrees of azimuth seen by the samples (the level ones alone if
+    /// `level_only`).
+    fn azimuth_coverage_deg(&self, level_only: bool) -> f64 {
+        self.azimuths_seen(level_only) as f64 * (360.0 / AZIMUTH_BINS as f64)
     }
 
     fn azimuths_seen(&self, level_only: bool) -> usize {
@@ -504,7 +510,6 @@ impl MagCalibration {
             return false;
         }
         let inclination = self.inclination_rad;
-        let level_coverage_deg = self.azimuths_seen(true) as f64 * (360.0 / AZIMUTH_BINS as f64);
         // Level readings first: their heading does not rest on the tilt
         // estimate, whose error in a turn (0.3–1°) would tip the field's
         // large vertical into the horizontal; the levelled fit where they
@@ -514,7 +519,7 @@ impl MagCalibration {
         } else {
             (
                 CalibrationState::Planar,
-                level_coverage_deg < self.min_coverage_deg,
+                self.azimuth_coverage_deg(true) < self.min_coverage_deg,
             )
         };
         let planar = state == CalibrationState::Planar;
@@ -591,7 +596,7 @@ fn raw_fields(readings: &[Tilted]) -> Vec<V3> {
 
 /// A reading's magnitude through a correction (raw without one) as a fit
 /// of this kind sees it: the levelled horizontal one if planar.
-fn magnitude(reading: &Tilted, correction: Option<&Correction>, planar: bool) -> f64 {
+pub(super) fn magnitude(reading: &Tilted, correction: Option<&Correction>, planar: bool) -> f64 {
     let field = reading.seen(correction, planar);
     if planar {
         field.xy().norm()

@@ -951,10 +951,11 @@ impl FuzzyEngine {
             if within_gate {
                 self.compass_gated_since = None;
             } else {
-                let since = *self.compass_gated_since.get_or_insert(t);
-                // Such a field not yet confirmed (a magnet left on the
-                // vehicle) never wins against the gyro.
-                if t - since < c.heading_gate_s || self.disturbance.relearnt() {
+                self.compass_gated_since.get_or_insert(t);
+                // Gated for `heading_gate_s`, and for good while the field
+                // is a relearnt one not yet confirmed (a magnet left on
+                // the vehicle never wins against the gyro).
+                if self.gated_now(t) {
                     return;
                 }
                 // A calibrated compass believed again against the gyro:

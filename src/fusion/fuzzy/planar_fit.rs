@@ -26,7 +26,7 @@
 
 use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, Vector2};
 
-use super::magcal::{Correction, Tilted, normaliser, radius_rms, sqrt_spd2};
+use super::magcal::{Correction, Tilted, magnitude, normaliser, radius_rms, sqrt_spd2};
 use crate::fusion::geometry::V3;
 
 /// Levenberg–Marquardt iterations at most.
@@ -163,19 +163,24 @@ fn log_traceless(s2: &Matrix2<f64>) -> Option<(f64, f64)> {
     Some((0.5 * (k[(0, 0)] - k[(1, 1)]), k[(0, 1)]))
 }
 
-fn correction(x: &Unknowns) -> (V3, Matrix3<f64>) {
+/// The correction the unknowns stand for (its `fit_rms` not yet known).
+fn correction(x: &Unknowns) -> Correction {
     let mut soft_iron = planar_soft_iron(&exp_traceless(x[3], x[4]));
     soft_iron[(2, 0)] = x[5];
     soft_iron[(2, 1)] = x[6];
-    (V3::new(x[0], x[1], x[2]), soft_iron)
+    Correction {
+        hard_iron_ut: V3::new(x[0], x[1], x[2]),
+        soft_iron,
+        fit_rms: f64::NAN,
+    }
 }
 
 /// The horizontal and vertical residuals of every reading, µT.
 fn residuals(readings: &[Tilted], tan_inclination: f64, x: &Unknowns, out: &mut Vec<f64>) {
-    let (hard_iron, soft_iron) = correction(x);
+    let c = correction(x);
     out.clear();
     for r in readings {
-        let level = r.levelling * (soft_iron * (r.field_ut - hard_iron));
+        let level = r.seen(Some(&c), true);
         out.push(level.xy().norm() - x[RADIUS]);
         out.push(level.z - x[RADIUS] * tan_inclination);
     }
@@ -261,17 +266,9 @@ pub fn fit_levelled(readings: &[Tilted], inclination_rad: f64) -> Option<Correct
     if !x.iter().all(|v| v.is_finite()) || x[RADIUS] <= 0.0 {
         return None;
     }
-    let (hard_iron_ut, soft_iron) = correction(&x);
-    let fit_rms = radius_rms(&kept, |r| {
-        (r.levelling * (soft_iron * (r.field_ut - hard_iron_ut)))
-            .xy()
-            .norm()
-    });
-    Some(Correction {
-        hard_iron_ut,
-        soft_iron,
-        fit_rms,
-    })
+    let mut fitted = correction(&x);
+    fitted.fit_rms = radius_rms(&kept, |r| magnitude(r, Some(&fitted), true));
+    Some(fitted)
 }
 
 /// Each reading's residual, horizontal and vertical together, µT.

@@ -63,8 +63,7 @@ impl TurnCheck {
             .rposition(|&(_, _, gyro)| (gyro_yaw_rad - gyro).abs() >= MIN_TURN_RAD)
         {
             let (_, compass, gyro) = self.recent[index];
-            let d = angle_difference(compass_rad - compass, 0.0) - (gyro_yaw_rad - gyro);
-            let d = angle_difference(d, 0.0);
+            let d = angle_difference(compass_rad - compass, gyro_yaw_rad - gyro);
             self.squares_rad2 += d * d;
             self.pairs += 1;
             self.recent.drain(..=index);
