@@ -47,6 +47,7 @@
 pub mod bias_feedback;
 pub mod disturbance;
 pub mod estimate;
+pub mod fast_spread;
 pub mod gyro_bias;
 pub mod heading_drift;
 pub mod magcal;
@@ -94,8 +95,9 @@ use crate::fusion::geometry::{V3, attitude_from_euler};
 /// 5: alignment while moving in the first reading's frame, the
 /// calibration's check and the compass's innovations (issue 34);
 /// 6: samples with roll and pitch (the levelled planar fit), relearnt
-/// fields, the turns (issue 34).
-pub const STATE_VERSION: u32 = 6;
+/// fields, the turns (issue 34);
+/// 7: the motion window's time moments of the rates (fast_spread.rs).
+pub const STATE_VERSION: u32 = 7;
 
 /// Plausibility caps for alignment, whatever the floor says: a MEMS
 /// sensor at rest shows less spread and less mean rate than this (a
@@ -350,8 +352,8 @@ impl FuzzyEngine {
         &self.calibration
     }
 
-    /// The learnt noise floors: accelerometer spread (m/s²) and gyro
-    /// spread (rad/s) at rest, once seen.
+    /// The learnt noise floors: accelerometer spread (m/s²) and gyro fast
+    /// spread (rad/s, fast_spread.rs) at rest, once seen.
     pub fn noise_floors(&self) -> (Option<f64>, Option<f64>) {
         (self.floor.accel.level(), self.floor.gyro.level())
     }
@@ -508,7 +510,7 @@ impl FuzzyEngine {
             .floor
             .gyro
             .level()
-            .unwrap_or(self.window.rate_spread())
+            .unwrap_or(self.window.fast_rate_spread())
             .max(MIN_FLOOR);
         MotionSignals {
             accel_dev_mps2: signals.accel_dev_mps2 / accel,
@@ -553,7 +555,9 @@ impl FuzzyEngine {
             self.floor
                 .accel
                 .observe(t, spread.accel_activity_mps2, rise);
-            self.floor.gyro.observe(t, self.window.rate_spread(), rise);
+            self.floor
+                .gyro
+                .observe(t, self.window.fast_rate_spread(), rise);
         }
 
         if self.solution.is_none() {
@@ -672,8 +676,9 @@ impl FuzzyEngine {
         else {
             return;
         };
+        let fast_rate_spread = self.window.fast_rate_spread();
         let quiet = spread <= m.accel_activity.still * accel_floor
-            && rate_spread <= m.gyro_activity.still * gyro_floor;
+            && fast_rate_spread <= m.gyro_activity.still * gyro_floor;
         let plausible = spread <= ALIGN_MAX_ACCEL_SPREAD_MPS2
             && rate_spread <= ALIGN_MAX_RATE_SPREAD_RAD_PER_S
             && mean_rate.norm() <= ALIGN_MAX_MEAN_RATE_RAD_PER_S
@@ -688,7 +693,7 @@ impl FuzzyEngine {
         let yaw = compass.unwrap_or(0.0);
         // This window is quiet: the floors are at most its spreads.
         self.floor.accel.lower_to(spread);
-        self.floor.gyro.lower_to(rate_spread);
+        self.floor.gyro.lower_to(fast_rate_spread);
         // The mean of the window's rates, each with the per-axis noise
         // variance (spread²/3): variance spread²/(3N); and one window
         // cannot tell a bias from a slow sway or a gentle turn of that

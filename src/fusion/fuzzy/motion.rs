@@ -9,11 +9,13 @@
 //!   against the norm learnt while static (sustained acceleration, braking);
 //! - `accel_activity`: √(mean ‖fᵢ − f̄‖²), the window's specific-force
 //!   spread (vibration, jerk, bumps);
-//! - `gyro_activity`: √(s² + e²), s the rate spread √(mean ‖ωᵢ − ω̄‖²)
-//!   (shaking) and e the mean rate's distance from the bias, ‖ω̄ − b̂‖,
-//!   beyond what the bias's own uncertainty and the wander of the mean
-//!   rate at rest allow (turns; a bias that drifted while driving does not
-//!   make a stop "moving").
+//! - `gyro_activity`: √(s² + e²), s the rate's fast spread, about a cubic
+//!   in time fitted over the window (shaking; a slow sway of a standing
+//!   body, 0.1–1 Hz, is nearly a cubic over half a second and leaves
+//!   little: fast_spread.rs), and e the mean rate's distance from the
+//!   bias, ‖ω̄ − b̂‖, beyond what the bias's own uncertainty and the wander
+//!   of the mean rate at rest allow (turns; a bias that drifted while
+//!   driving does not make a stop "moving").
 //!
 //! Rules (output `static_degree` with terms `moving`, `uncertain`, `static`):
 //! 1. IF accel_dev is low AND accel_activity is low AND gyro_activity is low
@@ -31,6 +33,7 @@ use std::collections::VecDeque;
 
 use serde::{Deserialize, Serialize};
 
+use super::fast_spread::TrendMoments;
 use super::mamdani::{Antecedent, FuzzyError, Mamdani, Membership, Rule, Scratch, Variable};
 use crate::fusion::geometry::V3;
 
@@ -211,6 +214,8 @@ pub struct MotionWindow {
     sum_force_norm: f64,
     sum_rate: V3,
     sum_rate_sq: f64,
+    /// Σ j^k·ω, k = 1 … 3, of the rates (fast_spread.rs).
+    rate_trend: TrendMoments,
     pushes_since_refresh: usize,
 }
 
@@ -225,6 +230,7 @@ impl MotionWindow {
             sum_force_norm: 0.0,
             sum_rate: V3::zeros(),
             sum_rate_sq: 0.0,
+            rate_trend: TrendMoments::default(),
             pushes_since_refresh: 0,
         }
     }
@@ -264,7 +270,10 @@ impl MotionWindow {
             self.sum_force_norm -= old_f.norm();
             self.sum_rate -= old_w;
             self.sum_rate_sq -= old_w.norm_squared();
+            self.rate_trend.shift(&self.sum_rate);
         }
+        let place = self.samples.len();
+        self.rate_trend.push(place, &rate);
         self.samples.push_back((force, rate));
         self.sum_force += force;
         self.sum_force_sq += force.norm_squared();
@@ -284,6 +293,7 @@ impl MotionWindow {
         self.sum_force_norm = 0.0;
         self.sum_rate = V3::zeros();
         self.sum_rate_sq = 0.0;
+        self.rate_trend = TrendMoments::recompute(self.samples.iter().map(|(_, w)| w));
         for (f, w) in &self.samples {
             self.sum_force += f;
             self.sum_force_sq += f.norm_squared();
@@ -324,6 +334,13 @@ impl MotionWindow {
             .sqrt()
     }
 
+    /// The rate's spread about a cubic in time fitted over the window
+    /// (fast_spread.rs): shaking, not a slow sway, rad/s.
+    pub fn fast_rate_spread(&self) -> f64 {
+        self.rate_trend
+            .fast_spread(self.samples.len(), &self.sum_rate, self.sum_rate_sq)
+    }
+
     /// The expert's inputs, against the static norm `gravity_mps2`, the
     /// gyro bias `bias` and how far the mean rate may be off it at rest,
     /// `rate_tolerance` (rad/s): the rate spread and the mean rate's
@@ -335,7 +352,7 @@ impl MotionWindow {
         MotionSignals {
             accel_dev_mps2: (self.mean_force_norm() - gravity_mps2).abs(),
             accel_activity_mps2: spread_sq.max(0.0).sqrt(),
-            gyro_activity_rad_per_s: self.rate_spread().hypot(excess),
+            gyro_activity_rad_per_s: self.fast_rate_spread().hypot(excess),
         }
     }
 }
@@ -485,25 +502,31 @@ mod tests {
             .sum::<f64>()
             / 7.0)
             .sqrt();
-        let rms = (held
-            .iter()
-            .map(|s| (s.1 - bias).norm_squared())
-            .sum::<f64>()
-            / 7.0)
-            .sqrt();
+        // The rates' fast spread: residuals of a cubic in the reading's
+        // place, fitted per axis by least squares (an SVD, not the
+        // window's moments).
+        let places = nalgebra::DMatrix::from_fn(7, 4, |j, k| (j as f64).powi(k as i32));
+        let svd = places.clone().svd(true, true);
+        let mut residual_sq = 0.0;
+        for axis in 0..3 {
+            let y = nalgebra::DVector::from_iterator(7, held.iter().map(|s| s.1[axis]));
+            let fit = svd.solve(&y, 1e-12).unwrap();
+            residual_sq += (&y - &places * fit).norm_squared();
+        }
+        let fast_spread = (residual_sq / 7.0).sqrt();
+        assert!((window.fast_rate_spread() - fast_spread).abs() < 1e-12);
+        let mean_w = held.iter().map(|s| s.1).sum::<V3>() / 7.0;
+        let offset = (mean_w - bias).norm();
         let signals = window.signals(9.8, &bias, 0.0);
         assert!((signals.accel_dev_mps2 - (mean_norm - 9.8).abs()).abs() < 1e-12);
         assert!((signals.accel_activity_mps2 - spread).abs() < 1e-9);
-        assert!((signals.gyro_activity_rad_per_s - rms).abs() < 1e-12);
+        assert!((signals.gyro_activity_rad_per_s - fast_spread.hypot(offset)).abs() < 1e-12);
         // Within the tolerance the mean rate's offset does not count; past
-        // it, only its excess: rms² = spread² + offset².
-        let mean_w = held.iter().map(|s| s.1).sum::<V3>() / 7.0;
-        let offset = (mean_w - bias).norm();
-        let rate_spread = (rms * rms - offset * offset).sqrt();
+        // it, only its excess.
         let loose = window.signals(9.8, &bias, 2.0 * offset);
-        assert!((loose.gyro_activity_rad_per_s - rate_spread).abs() < 1e-12);
+        assert!((loose.gyro_activity_rad_per_s - fast_spread).abs() < 1e-12);
         let half = window.signals(9.8, &bias, 0.5 * offset);
-        let expected = rate_spread.hypot(0.5 * offset);
+        let expected = fast_spread.hypot(0.5 * offset);
         assert!((half.gyro_activity_rad_per_s - expected).abs() < 1e-12);
     }
 }

@@ -88,7 +88,7 @@ impl Default for Floor {
 pub struct NoiseFloor {
     /// Specific-force spread √(mean ‖fᵢ − f̄‖²), m/s².
     pub accel: Floor,
-    /// Rate spread √(mean ‖ωᵢ − ω̄‖²), rad/s.
+    /// The rate's fast spread about a cubic in time (fast_spread.rs), rad/s.
     pub gyro: Floor,
 }
 
