@@ -62,18 +62,33 @@ impl TrendMoments {
 
     /// √(RSS / n) of the module documentation: the spread about the fitted
     /// cubic, for `n` readings with plain sum `sum` and Σ‖x‖²
-    /// `sum_of_squares`. With fewer than 5 readings the fit leaves nothing
-    /// to judge, and the spread about the mean is returned.
-    pub fn fast_spread(&self, n: usize, sum: &V3, sum_of_squares: f64) -> f64 {
+    /// `sum_of_squares`; `gram_inverse` is [`scaled_gram_inverse`]`(n)`,
+    /// kept by the caller for its full window. With fewer than 5 readings
+    /// the fit leaves nothing to judge, and the spread about the mean is
+    /// returned.
+    pub fn fast_spread(
+        &self,
+        n: usize,
+        sum: &V3,
+        sum_of_squares: f64,
+        gram_inverse: Option<&Matrix4<f64>>,
+    ) -> f64 {
         let count = n as f64;
-        if n < 5 {
-            let mean = sum / count.max(1.0);
-            return (sum_of_squares / count.max(1.0) - mean.norm_squared())
-                .max(0.0)
-                .sqrt();
-        }
-        let Some(cholesky) = scaled_gram(n).cholesky() else {
-            return 0.0;
+        let computed;
+        let inverse = match gram_inverse {
+            Some(inverse) if n >= 5 => inverse,
+            _ => match (n >= 5).then(|| scaled_gram_inverse(n)).flatten() {
+                Some(inverse) => {
+                    computed = inverse;
+                    &computed
+                }
+                None => {
+                    let mean = sum / count.max(1.0);
+                    return (sum_of_squares / count.max(1.0) - mean.norm_squared())
+                        .max(0.0)
+                        .sqrt();
+                }
+            },
         };
         let [m1, m2, m3] = self.moments;
         let mut explained = 0.0;
@@ -84,10 +99,16 @@ impl TrendMoments {
                 m2[axis] / count.powi(2),
                 m3[axis] / count.powi(3),
             );
-            explained += m.dot(&cholesky.solve(&m));
+            explained += m.dot(&(inverse * m));
         }
         ((sum_of_squares - explained) / count).max(0.0).sqrt()
     }
+}
+
+/// G⁻¹ of the module documentation for `n` readings (at least 5), through
+/// its Cholesky factor.
+pub fn scaled_gram_inverse(n: usize) -> Option<Matrix4<f64>> {
+    (n >= 5).then(|| scaled_gram(n).cholesky().map(|c| c.inverse()))?
 }
 
 /// G_kl = Σ_{j<n} (j/n)^(k+l), from the sums of powers of 0 … n − 1.
@@ -116,7 +137,7 @@ mod tests {
     fn spread_of(series: &[V3]) -> f64 {
         let sum: V3 = series.iter().sum();
         let squares: f64 = series.iter().map(|x| x.norm_squared()).sum();
-        TrendMoments::recompute(series.iter()).fast_spread(series.len(), &sum, squares)
+        TrendMoments::recompute(series.iter()).fast_spread(series.len(), &sum, squares, None)
     }
 
     #[test]

@@ -33,7 +33,7 @@ use std::collections::VecDeque;
 
 use serde::{Deserialize, Serialize};
 
-use super::fast_spread::TrendMoments;
+use super::fast_spread::{TrendMoments, scaled_gram_inverse};
 use super::mamdani::{Antecedent, FuzzyError, Mamdani, Membership, Rule, Scratch, Variable};
 use crate::fusion::geometry::V3;
 
@@ -216,6 +216,8 @@ pub struct MotionWindow {
     sum_rate_sq: f64,
     /// Σ j^k·ω, k = 1 … 3, of the rates (fast_spread.rs).
     rate_trend: TrendMoments,
+    /// The fit's G⁻¹ for a full window (fast_spread.rs), if it has one.
+    full_gram_inverse: Option<nalgebra::Matrix4<f64>>,
     pushes_since_refresh: usize,
 }
 
@@ -231,6 +233,7 @@ impl MotionWindow {
             sum_rate: V3::zeros(),
             sum_rate_sq: 0.0,
             rate_trend: TrendMoments::default(),
+            full_gram_inverse: scaled_gram_inverse(capacity.max(1)),
             pushes_since_refresh: 0,
         }
     }
@@ -337,8 +340,12 @@ impl MotionWindow {
     /// The rate's spread about a cubic in time fitted over the window
     /// (fast_spread.rs): shaking, not a slow sway, rad/s.
     pub fn fast_rate_spread(&self) -> f64 {
+        let n = self.samples.len();
+        let full = (n == self.capacity)
+            .then_some(self.full_gram_inverse.as_ref())
+            .flatten();
         self.rate_trend
-            .fast_spread(self.samples.len(), &self.sum_rate, self.sum_rate_sq)
+            .fast_spread(n, &self.sum_rate, self.sum_rate_sq, full)
     }
 
     /// The expert's inputs, against the static norm `gravity_mps2`, the
