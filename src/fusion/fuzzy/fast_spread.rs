@@ -5,10 +5,12 @@
 //! A standing person's sway or a rocking chassis turns the sensor slowly
 //! (0.1–1 Hz): over a window of half a second its rates are nearly a
 //! cubic, and the fit takes them out (a 1 Hz swing keeps 2 % of its
-//! spread, 1.25 Hz 4 %, 0.5 Hz 0.1 %). Road vibration, wheels and engines
-//! shake the sensor faster (a 4 Hz swing keeps 91 %, 6 Hz 95 %), and
-//! white noise of σ per axis keeps σ²·(n − 4)/n of its variance, nearly
-//! all: the noise floors learnt from it keep their meaning.
+//! spread, 1.25 Hz 4 %, 0.5 Hz 0.1 %, 0.1 Hz nothing). Road vibration, wheels and engines
+//! shake the sensor faster (a 4 Hz swing keeps 91 %, 6 Hz 95 %). White
+//! noise of σ per axis leaves a residual sum of squares of 3σ²·(n − 4),
+//! and the fast spread √(RSS·(n − 1)/(n·(n − 4))) has the plain spread's
+//! expectation 3σ²·(n − 1)/n for it, so the noise floors learnt from it
+//! keep their meaning.
 //!
 //! With j = 0 … n − 1 the readings' places in the window, oldest first,
 //! the window keeps the moments M_k = Σ j^k·x_j (k = 0 … 3) per axis and
@@ -60,8 +62,9 @@ impl TrendMoments {
         moments
     }
 
-    /// √(RSS / n) of the module documentation: the spread about the fitted
-    /// cubic, for `n` readings with plain sum `sum` and Σ‖x‖²
+    /// √(RSS·(n − 1)/(n·(n − 4))) of the module documentation: the spread
+    /// about the fitted cubic, on the plain spread's scale for white noise,
+    /// for `n` readings with plain sum `sum` and Σ‖x‖²
     /// `sum_of_squares`; `gram_inverse` is [`scaled_gram_inverse`]`(n)`,
     /// kept by the caller for its full window. With fewer than 5 readings
     /// the fit leaves nothing to judge, and the spread about the mean is
@@ -101,7 +104,10 @@ impl TrendMoments {
             );
             explained += m.dot(&(inverse * m));
         }
-        ((sum_of_squares - explained) / count).max(0.0).sqrt()
+        // White noise of σ per axis leaves E RSS = 3σ²(n − 4); scaled to
+        // the plain spread's 3σ²(n − 1)/n, so the floors keep their meaning.
+        let scale = (count - 1.0) / (count * (count - 4.0));
+        ((sum_of_squares - explained) * scale).max(0.0).sqrt()
     }
 }
 
@@ -163,8 +169,13 @@ mod tests {
         let series: Vec<V3> = (0..100)
             .map(|j| V3::new(if j % 2 == 0 { 1.0 } else { -1.0 }, 0.0, 0.0))
             .collect();
+        // On the plain spread's scale: √(RSS·(n − 1)/(n·(n − 4))) with RSS
+        // just under n = 100: about √(99/96) = 1.0155.
         let spread = spread_of(&series);
-        assert!((spread - 1.0).abs() < 0.01, "{spread}");
+        assert!(
+            (spread - (99.0_f64 / 96.0).sqrt()).abs() < 0.005,
+            "{spread}"
+        );
     }
 
     #[test]

@@ -317,7 +317,7 @@ impl FuzzyEngine {
                 "motion window does not match the parameters".into(),
             ));
         }
-        fresh.window = engine.window;
+        fresh.window = engine.window.prepared();
         fresh.floor = engine.floor;
         fresh.newest_imu_t = engine.newest_imu_t;
         fresh.start_frame = engine.start_frame;
@@ -510,7 +510,7 @@ impl FuzzyEngine {
             .floor
             .gyro
             .level()
-            .unwrap_or(self.window.fast_rate_spread())
+            .unwrap_or_else(|| self.window.fast_rate_spread())
             .max(MIN_FLOOR);
         MotionSignals {
             accel_dev_mps2: signals.accel_dev_mps2 / accel,
@@ -1110,7 +1110,8 @@ pub struct FuzzyModelReport {
     pub fit_rms: Option<f64>,
     /// Fits refused by the plausibility gates.
     pub mag_fits_refused: u64,
-    /// The noise floors learnt at rest: accelerometer m/s², gyro °/s.
+    /// The noise floors learnt at rest: accelerometer m/s² (its spread),
+    /// gyro °/s (its fast spread, fast_spread.rs).
     pub accel_noise_floor_mps2: Option<f64>,
     pub gyro_noise_floor_dps: Option<f64>,
     pub stats: FuzzyStats,

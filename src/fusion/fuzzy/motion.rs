@@ -202,6 +202,11 @@ pub fn static_degree(
         .map(|s| s.clamp(0.0, 1.0))
 }
 
+/// Fewest readings a full window needs for its fast spread (fast_spread.rs):
+/// a cubic through fewer leaves too little to judge (8 degrees of freedom
+/// per axis at 12).
+pub const MIN_FAST_SPREAD_READINGS: usize = 12;
+
 /// Running sums over the newest `capacity` IMU readings, O(1) per reading.
 /// The sums are recomputed from the held readings once per `capacity`
 /// pushes so rounding cannot accumulate over a long run.
@@ -216,7 +221,9 @@ pub struct MotionWindow {
     sum_rate_sq: f64,
     /// Σ j^k·ω, k = 1 … 3, of the rates (fast_spread.rs).
     rate_trend: TrendMoments,
-    /// The fit's G⁻¹ for a full window (fast_spread.rs), if it has one.
+    /// The fit's G⁻¹ for a full window (fast_spread.rs): derived from the
+    /// capacity, not stored ([`MotionWindow::prepared`] after a restore).
+    #[serde(skip)]
     full_gram_inverse: Option<nalgebra::Matrix4<f64>>,
     pushes_since_refresh: usize,
 }
@@ -337,20 +344,32 @@ impl MotionWindow {
             .sqrt()
     }
 
-    /// The rate's spread about a cubic in time fitted over the window
-    /// (fast_spread.rs): shaking, not a slow sway, rad/s.
+    /// The rate's spread about a cubic in time fitted over a full window
+    /// of at least [`MIN_FAST_SPREAD_READINGS`] (fast_spread.rs): shaking,
+    /// not a slow sway, rad/s. Until then, the plain spread: a cubic
+    /// through a few readings takes out nearly everything, fast or slow.
     pub fn fast_rate_spread(&self) -> f64 {
         let n = self.samples.len();
-        let full = (n == self.capacity)
-            .then_some(self.full_gram_inverse.as_ref())
-            .flatten();
-        self.rate_trend
-            .fast_spread(n, &self.sum_rate, self.sum_rate_sq, full)
+        if n < self.capacity || n < MIN_FAST_SPREAD_READINGS {
+            return self.rate_spread();
+        }
+        self.rate_trend.fast_spread(
+            n,
+            &self.sum_rate,
+            self.sum_rate_sq,
+            self.full_gram_inverse.as_ref(),
+        )
+    }
+
+    /// The window after a restore, with what it derives from its capacity.
+    pub fn prepared(mut self) -> MotionWindow {
+        self.full_gram_inverse = scaled_gram_inverse(self.capacity);
+        self
     }
 
     /// The expert's inputs, against the static norm `gravity_mps2`, the
     /// gyro bias `bias` and how far the mean rate may be off it at rest,
-    /// `rate_tolerance` (rad/s): the rate spread and the mean rate's
+    /// `rate_tolerance` (rad/s): the rate's fast spread and the mean rate's
     /// excess over the tolerance, √(spread² + max(0, ‖ω̄ − b‖ − tol)²).
     pub fn signals(&self, gravity_mps2: f64, bias: &V3, rate_tolerance: f64) -> MotionSignals {
         let n = self.samples.len().max(1) as f64;
@@ -489,8 +508,25 @@ mod tests {
     }
 
     #[test]
+    fn a_window_not_yet_full_takes_the_plain_spread() {
+        let mut window = MotionWindow::new(20);
+        for i in 0..10 {
+            let x = f64::from(i);
+            window.push(V3::new(0.0, 0.0, -9.8), V3::new((x * 2.1).sin(), 0.0, 0.0));
+        }
+        assert_eq!(window.fast_rate_spread(), window.rate_spread());
+        // A window of fewer readings than a cubic can judge, full or not.
+        let mut short = MotionWindow::new(MIN_FAST_SPREAD_READINGS - 1);
+        for i in 0..30 {
+            short.push(V3::zeros(), V3::new(f64::from(i % 3), 0.0, 0.0));
+        }
+        assert!(short.is_full());
+        assert_eq!(short.fast_rate_spread(), short.rate_spread());
+    }
+
+    #[test]
     fn window_sums_match_a_direct_computation() {
-        let mut window = MotionWindow::new(7);
+        let mut window = MotionWindow::new(15);
         let mut all = Vec::new();
         for i in 0..50 {
             let x = f64::from(i);
@@ -499,30 +535,31 @@ mod tests {
             window.push(f, w);
             all.push((f, w));
         }
-        let held = &all[all.len() - 7..];
+        let held = &all[all.len() - 15..];
         let bias = V3::new(0.001, -0.01, 0.02);
-        let mean_f = held.iter().map(|s| s.0).sum::<V3>() / 7.0;
-        let mean_norm = held.iter().map(|s| s.0.norm()).sum::<f64>() / 7.0;
+        let mean_f = held.iter().map(|s| s.0).sum::<V3>() / 15.0;
+        let mean_norm = held.iter().map(|s| s.0.norm()).sum::<f64>() / 15.0;
         let spread = (held
             .iter()
             .map(|s| (s.0 - mean_f).norm_squared())
             .sum::<f64>()
-            / 7.0)
+            / 15.0)
             .sqrt();
         // The rates' fast spread: residuals of a cubic in the reading's
         // place, fitted per axis by least squares (an SVD, not the
         // window's moments).
-        let places = nalgebra::DMatrix::from_fn(7, 4, |j, k| (j as f64).powi(k as i32));
+        let places = nalgebra::DMatrix::from_fn(15, 4, |j, k| (j as f64).powi(k as i32));
         let svd = places.clone().svd(true, true);
         let mut residual_sq = 0.0;
         for axis in 0..3 {
-            let y = nalgebra::DVector::from_iterator(7, held.iter().map(|s| s.1[axis]));
+            let y = nalgebra::DVector::from_iterator(15, held.iter().map(|s| s.1[axis]));
             let fit = svd.solve(&y, 1e-12).unwrap();
             residual_sq += (&y - &places * fit).norm_squared();
         }
-        let fast_spread = (residual_sq / 7.0).sqrt();
+        // On the plain spread's scale: RSS·(n − 1)/(n·(n − 4)).
+        let fast_spread = (residual_sq * 14.0 / (15.0 * 11.0)).sqrt();
         assert!((window.fast_rate_spread() - fast_spread).abs() < 1e-12);
-        let mean_w = held.iter().map(|s| s.1).sum::<V3>() / 7.0;
+        let mean_w = held.iter().map(|s| s.1).sum::<V3>() / 15.0;
         let offset = (mean_w - bias).norm();
         let signals = window.signals(9.8, &bias, 0.0);
         assert!((signals.accel_dev_mps2 - (mean_norm - 9.8).abs()).abs() < 1e-12);

@@ -59,14 +59,14 @@ param_table! {
             0.0,
             1000.0,
             "× floor",
-            "bias-compensated rate RMS below this many gyro floors is fully `low`",
+            "gyro activity (fast rate spread ⊕ mean rate beyond the bias's tolerance) below this many gyro floors is fully `low`",
         ),
         gyro_activity_moving_factor: f64 = real(
             3.0,
             0.0,
             1000.0,
             "× floor",
-            "bias-compensated rate RMS above this many gyro floors is fully `high`",
+            "gyro activity (fast rate spread ⊕ mean rate beyond the bias's tolerance) above this many gyro floors is fully `high`",
         ),
         noise_floor_rise_s: f64 = real(
             300.0,
