@@ -75,11 +75,17 @@ tn.registerEngine('attitude', {
             points: { show: false }, value: (u, v) => (v == null ? '—' : `${v.toFixed(3)}°`) },
           pointSeries('inclinometer (raw)', tn.css('--raw'), 3),
           pointSeries('laser', tn.css('--laser'), 8),
+          // The fused value ± 2σ (pitch_sigma_deg, roll_sigma_deg), shaded between.
+          { label: 'fused + 2σ', stroke: tn.css('--fused'), width: 0.5, spanGaps: true, points: { show: false },
+            value: (u, v) => (v == null ? '—' : `${v.toFixed(3)}°`) },
+          { label: 'fused − 2σ', stroke: tn.css('--fused'), width: 0.5, spanGaps: true, points: { show: false },
+            value: (u, v) => (v == null ? '—' : `${v.toFixed(3)}°`) },
         ],
+        bands: [{ series: [5, 6], fill: tn.css('--band') }],
         axes: [axis(), axis({ label: `${name} (°)`, size: 64 })],
         cursor: { drag: { x: false, y: false } },
       };
-      return new uPlot(options, [[], [], [], [], []], el);
+      return new uPlot(options, [[], [], [], [], [], [], []], el);
     }
 
     // Point lists [[x, y], …], one per series, on the union of their x's,
@@ -105,14 +111,19 @@ tn.registerEngine('attitude', {
       for (const [t] of state.estimates) if (t < from) state.estimates.delete(t);
       for (const [t] of state.laser) if (t < from) state.laser.delete(t);
       for (const name of ['pitch', 'roll']) {
-        const fused = [], pred = [], raw = [], laser = [];
+        const fused = [], pred = [], raw = [], laser = [], upper = [], lower = [];
         for (const e of state.estimates.values()) {
           if (num(e[`${name}_deg`])) fused.push([e.t, e[`${name}_deg`]]);
+          const sigma = e[`${name}_sigma_deg`];
+          if (num(e[`${name}_deg`]) && num(sigma)) {
+            upper.push([e.t, e[`${name}_deg`] + 2 * sigma]);
+            lower.push([e.t, e[`${name}_deg`] - 2 * sigma]);
+          }
           if (num(e[`${name}_pred_deg`]) && num(e.pred_t)) pred.push([e.pred_t, e[`${name}_pred_deg`]]);
           if (num(e[`incl_${name}_deg`])) raw.push([e.t, e[`incl_${name}_deg`]]);
         }
         for (const [t, r] of state.laser) if (num(r[`${name}_deg`])) laser.push([t, r[`${name}_deg`]]);
-        charts[name].setData(align([fused, pred, raw, laser]));
+        charts[name].setData(align([fused, pred, raw, laser, upper, lower]));
       }
     }
 
@@ -423,6 +434,8 @@ tn.registerEngine('attitude', {
         setText($(`${name}-value`), fixed(value, 3));
         setText($(`${name}-mm`), fixed(tn.mmPerM(value), 2));
         setText($(`${name}-pred`), fixed(next, 3));
+        const sigma = e[`${name}_sigma_deg`];
+        setText($(`${name}-sigma`), num(sigma) ? fixed(2 * sigma, 3) : '—');
         const change = next - value;
         let trend = '—';
         if (num(change)) {
@@ -449,7 +462,8 @@ tn.registerEngine('attitude', {
           status = 'dropout';
           title = 'LASER DROPOUT';
           detail = `out for ${tn.duration(e.laser_age_s + sinceEstimate)}: pitch now rests on the inclinometer ` +
-            'and the frozen ANFIS error model, roll on the inclinometer alone';
+            'and the frozen ANFIS error model, roll on the inclinometer alone' +
+            (num(e.pitch_sigma_deg) ? `; pitch is now good to ±${fixed(2 * e.pitch_sigma_deg, 3)}° (2σ)` : '');
         } else {
           status = 'none';
           title = 'No laser yet';

@@ -367,6 +367,19 @@ async fn machine_page_shows_live_attitude_dropout_and_model() {
         live_points.as_u64().unwrap_or(0) > 1500,
         "fused pitch points after live: {live_points}"
     );
+    // The ±2σ band around the fused pitch, and the readout's ±2σ.
+    let band = js(
+        &browser,
+        "const d = window.tunnelnav.charts.pitch.data; \
+         const n = d[5].filter((v, i) => v !== null && d[6][i] !== null && v > d[6][i]).length; \
+         return [n, document.getElementById('pitch-sigma').textContent];",
+    )
+    .await;
+    assert!(
+        band[0].as_u64().unwrap_or(0) > 1500
+            && band[1].as_str().is_some_and(|s| s.parse::<f64>().is_ok()),
+        "the pitch band and its readout: {band}"
+    );
     save_screenshot(&browser, "browser-machine.png").await;
 
     // The theme switch redraws the charts in the other palette.
@@ -397,7 +410,8 @@ async fn machine_page_shows_live_attitude_dropout_and_model() {
         "const s = document.getElementById('laser-status'); \
          return s.dataset.state === 'dropout' \
            && /LASER DROPOUT/.test(s.textContent) && /inclinometer/.test(s.textContent) \
-           && /out for \\d+ min/.test(s.textContent);",
+           && /out for \\d+ min/.test(s.textContent) \
+           && /good to ±\\d+\\.\\d{3}° \\(2σ\\)/.test(s.textContent);",
         20,
     )
     .await;

@@ -78,6 +78,7 @@ async fn the_alarm_gauge_is_exported_for_every_kind_and_severity_from_the_start(
         "stale_sensor",
         "ins_uncertainty",
         "engine_reset",
+        "attitude_uncertainty",
     ] {
         for severity in ["warn", "alarm"] {
             let series = format!(

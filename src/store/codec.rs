@@ -212,6 +212,9 @@ mod tests {
             pitch_pred_deg: f64::MIN_POSITIVE,
             roll_pred_deg: 12.345_678_901_234_567,
             pred_t: 1_772_431_200.123_456_7,
+            pitch_sigma_deg: None,
+            roll_sigma_deg: None,
+            pitch_pred_sigma_deg: None,
             laser_ok: false,
             pitch_correction_deg: -0.0,
             laser_age_s: None,
@@ -221,7 +224,8 @@ mod tests {
         });
         let bytes = encode_values(&values);
         assert!(bytes.len() <= 86, "{} bytes", bytes.len());
-        let back = decode_values(StreamKind::Attitude, 1, &bytes).unwrap();
+        let version = StreamKind::Attitude.codec_version();
+        let back = decode_values(StreamKind::Attitude, version, &bytes).unwrap();
         assert_eq!(format!("{back:?}"), format!("{values:?}"));
         let (a, b) = (back.as_attitude().unwrap(), values.as_attitude().unwrap());
         assert_eq!(
@@ -238,6 +242,9 @@ mod tests {
             pitch_pred_deg: 1.0,
             roll_pred_deg: 2.0,
             pred_t: 3.0,
+            pitch_sigma_deg: None,
+            roll_sigma_deg: None,
+            pitch_pred_sigma_deg: None,
             laser_ok: true,
             pitch_correction_deg: 0.5,
             laser_age_s: Some(12.0),
@@ -251,7 +258,9 @@ mod tests {
     fn truncated_bytes_are_reported_corrupt() {
         let values = attitude_values();
         let bytes = encode_values(&values);
-        let err = decode_values(StreamKind::Attitude, 1, &bytes[..bytes.len() - 3]).unwrap_err();
+        let version = StreamKind::Attitude.codec_version();
+        let err =
+            decode_values(StreamKind::Attitude, version, &bytes[..bytes.len() - 3]).unwrap_err();
         assert!(err.to_string().contains("attitude"), "{err}");
     }
 
@@ -266,8 +275,9 @@ mod tests {
             text.contains("attitude") && text.contains(&format!("codec version {newer}")),
             "{text}"
         );
-        // Rows stored before versions existed (0) decode as before.
-        let back = decode_values(StreamKind::Attitude, 0, &bytes).unwrap();
+        // This release's rows decode; rows stored before versions existed
+        // (0) and before the σ (1) are AttitudeEstimate::decode's tests.
+        let back = decode_values(StreamKind::Attitude, newer - 1, &bytes).unwrap();
         assert_eq!(back, values);
     }
 }

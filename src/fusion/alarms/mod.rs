@@ -8,6 +8,9 @@
 //!   learned from its readings ([`period`]); not the laser, whose beam is
 //!   lost routinely for minutes (`laser_dropout` is its rule);
 //! - `ins_uncertainty`: the `zupt` position's horizontal 1σ above a limit;
+//! - `attitude_uncertainty`: the `attitude` engine's pitch 1σ above a
+//!   limit (a long laser dropout, a roll the model has not seen: steer
+//!   with care);
 //! - `engine_reset`: the `zupt` engine lost its solution and re-aligns.
 //!
 //! Values at a limit do not flap: a limit must be undercut by a band
@@ -48,16 +51,18 @@ pub enum AlarmKind {
     StaleSensor,
     InsUncertainty,
     EngineReset,
+    AttitudeUncertainty,
 }
 
 impl AlarmKind {
     /// Every kind.
-    pub const ALL: [AlarmKind; 5] = [
+    pub const ALL: [AlarmKind; 6] = [
         AlarmKind::Deviation,
         AlarmKind::LaserDropout,
         AlarmKind::StaleSensor,
         AlarmKind::InsUncertainty,
         AlarmKind::EngineReset,
+        AlarmKind::AttitudeUncertainty,
     ];
 
     /// The protocol's name.
@@ -68,6 +73,7 @@ impl AlarmKind {
             AlarmKind::StaleSensor => "stale_sensor",
             AlarmKind::InsUncertainty => "ins_uncertainty",
             AlarmKind::EngineReset => "engine_reset",
+            AlarmKind::AttitudeUncertainty => "attitude_uncertainty",
         }
     }
 }
@@ -148,6 +154,9 @@ pub struct AlarmConfig {
     /// The INS's horizontal position 1σ above this: `ins_uncertainty`, mm.
     pub ins_sigma_warn_mm: f64,
     pub ins_sigma_alarm_mm: f64,
+    /// The `attitude` pitch 1σ above this: `attitude_uncertainty`, degrees.
+    pub attitude_sigma_warn_deg: f64,
+    pub attitude_sigma_alarm_deg: f64,
 }
 
 impl Default for AlarmConfig {
@@ -161,6 +170,8 @@ impl Default for AlarmConfig {
             stale_min_s: 10.0,
             ins_sigma_warn_mm: 100.0,
             ins_sigma_alarm_mm: 250.0,
+            attitude_sigma_warn_deg: 0.05,
+            attitude_sigma_alarm_deg: 0.1,
         }
     }
 }
@@ -177,6 +188,8 @@ impl AlarmConfig {
             ("stale_min_s", self.stale_min_s),
             ("ins_sigma_warn_mm", self.ins_sigma_warn_mm),
             ("ins_sigma_alarm_mm", self.ins_sigma_alarm_mm),
+            ("attitude_sigma_warn_deg", self.attitude_sigma_warn_deg),
+            ("attitude_sigma_alarm_deg", self.attitude_sigma_alarm_deg),
         ];
         for (name, value) in fields {
             if !(value.is_finite() && value >= 0.0) {
@@ -188,6 +201,7 @@ impl AlarmConfig {
         }
         if self.laser_dropout_alarm_s < self.laser_dropout_warn_s
             || self.ins_sigma_alarm_mm < self.ins_sigma_warn_mm
+            || self.attitude_sigma_alarm_deg < self.attitude_sigma_warn_deg
         {
             return Err("alarms: each alarm limit must be at or above its warn limit".into());
         }
@@ -216,10 +230,12 @@ impl Level {
 /// What the rules remember (part of the machine's snapshot).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct AlarmState {
-    /// Deviation, laser dropout, INS σ: [warn, alarm] each.
+    /// Deviation, laser dropout, INS σ, attitude σ: [warn, alarm] each.
     deviation: [Level; 2],
     laser: [Level; 2],
     ins: [Level; 2],
+    #[serde(default)]
+    attitude: [Level; 2],
     reset: Debounced,
     was_aligned: bool,
     sensors: BTreeMap<SensorKind, (LearnedPeriod, Debounced)>,
@@ -332,6 +348,12 @@ impl AlarmRules {
         match &estimate.values {
             EstimateValues::Dta(d) => self.deviation(t, d, out),
             EstimateValues::Attitude(a) => {
+                // Once the laser has been seen: before, the pitch is the
+                // inclinometer's as installed, and says so (its σ is the
+                // prior's), which is no news to steer by.
+                if let (Some(sigma_deg), Some(_)) = (a.pitch_sigma_deg, a.laser_age_s) {
+                    self.attitude_uncertainty(t, sigma_deg, out);
+                }
                 let Some(age_s) = a.laser_age_s else { return };
                 let limits = [c.laser_dropout_warn_s, c.laser_dropout_alarm_s];
                 for (i, severity) in SEVERITIES.into_iter().enumerate() {
@@ -394,6 +416,30 @@ impl AlarmRules {
                 }
             }
             _ => {}
+        }
+    }
+
+    fn attitude_uncertainty(&mut self, t: f64, sigma_deg: f64, out: &mut Vec<Transition>) {
+        let c = self.config;
+        let limits = [c.attitude_sigma_warn_deg, c.attitude_sigma_alarm_deg];
+        for (i, severity) in SEVERITIES.into_iter().enumerate() {
+            let limit = Hysteresis {
+                limit: limits[i],
+                band: c.hysteresis_fraction * limits[i],
+            };
+            if let Some(edge) = self.state.attitude[i].update(t, sigma_deg, limit, c.min_duration_s)
+            {
+                push(
+                    out,
+                    key(AlarmKind::AttitudeUncertainty, severity, ""),
+                    edge,
+                    format!(
+                        "pitch 1σ {sigma_deg:.3}°, over {:.3}°: steer with care until the laser is back",
+                        limits[i]
+                    ),
+                    format!("pitch 1σ back under {:.3}°", limits[i]),
+                );
+            }
         }
     }
 
@@ -555,6 +601,9 @@ mod tests {
                 pitch_pred_deg: 0.0,
                 roll_pred_deg: 0.0,
                 pred_t: t,
+                pitch_sigma_deg: None,
+                roll_sigma_deg: None,
+                pitch_pred_sigma_deg: None,
                 laser_ok: laser_age_s.is_some_and(|a| a < 300.0),
                 pitch_correction_deg: 0.0,
                 laser_age_s,
@@ -563,6 +612,67 @@ mod tests {
                 incl_roll_deg: 0.0,
             }),
         }
+    }
+
+    /// An `attitude` estimate with its pitch 1σ, the laser seen at t = 0.
+    fn attitude_sigma(t: f64, sigma_deg: f64) -> EngineOutput {
+        let mut o = attitude(t, Some(t.min(200.0)));
+        if let EstimateValues::Attitude(a) = &mut o.values {
+            a.pitch_sigma_deg = Some(sigma_deg);
+        }
+        o
+    }
+
+    #[test]
+    fn an_uncertain_pitch_warns_alarms_and_clears_with_hysteresis() {
+        let mut r = rules();
+        // Before any laser sample the prior's σ raises nothing.
+        let mut prior = attitude(-10.0, None);
+        if let EstimateValues::Attitude(a) = &mut prior.values {
+            a.pitch_sigma_deg = Some(0.5);
+        }
+        assert!(run(&mut r, [prior]).is_empty());
+        // σ 0.02° for 100 s, then 0.07° (over the 0.05° warn) from t = 100,
+        // then 0.12° (over the 0.1° alarm) from t = 200: each raised once it
+        // has held 10 s, dated when it began.
+        let mut out = run(&mut r, (0..100).map(|i| attitude_sigma(f64::from(i), 0.02)));
+        out.extend(run(
+            &mut r,
+            (100..200).map(|i| attitude_sigma(f64::from(i), 0.07)),
+        ));
+        out.extend(run(
+            &mut r,
+            (200..300).map(|i| attitude_sigma(f64::from(i), 0.12)),
+        ));
+        let raised: Vec<_> = out
+            .iter()
+            .map(|t| (t.key.severity, t.raised, t.t))
+            .collect();
+        assert_eq!(
+            raised,
+            [
+                (Severity::Warn, true, 100.0),
+                (Severity::Alarm, true, 200.0)
+            ]
+        );
+        assert!(
+            out.iter()
+                .all(|t| t.key.kind == AlarmKind::AttitudeUncertainty)
+        );
+        assert!(out[0].message.contains("0.070°"), "{}", out[0].message);
+        // 0.095° is under the alarm limit but not 10 % under it: no clear.
+        let out = run(
+            &mut r,
+            (300..400).map(|i| attitude_sigma(f64::from(i), 0.095)),
+        );
+        assert!(out.is_empty(), "{out:?}");
+        // 0.03°: both clear after 10 s, dated when σ fell.
+        let out = run(
+            &mut r,
+            (400..500).map(|i| attitude_sigma(f64::from(i), 0.03)),
+        );
+        assert_eq!(out.len(), 2);
+        assert!(out.iter().all(|t| !t.raised && t.t == 400.0), "{out:?}");
     }
 
     #[test]

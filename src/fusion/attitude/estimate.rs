@@ -18,6 +18,15 @@ pub struct AttitudeEstimate {
     pub roll_pred_deg: f64,
     /// The time the predictions are for, Unix seconds.
     pub pred_t: f64,
+    /// 1σ of `pitch_deg`: the filter's covariance plus what the laser has
+    /// not yet checked of the correction (time and roll travel since the
+    /// last laser sample, roll beyond the trained range); `null` in
+    /// estimates stored before the engine said so. (tunnelnav extension.)
+    pub pitch_sigma_deg: Option<f64>,
+    /// 1σ of `roll_deg` (the roll filter's covariance); `null` as above.
+    pub roll_sigma_deg: Option<f64>,
+    /// 1σ of `pitch_pred_deg` against the pitch at `pred_t`; `null` as above.
+    pub pitch_pred_sigma_deg: Option<f64>,
     /// False while the laser is in dropout or has not been seen yet.
     pub laser_ok: bool,
     /// The modelled inclinometer pitch error ê_a added to the inclinometer (Eq. 18).
@@ -36,8 +45,8 @@ pub struct AttitudeEstimate {
 }
 
 /// Stored estimates of this release: postcard of [`AttitudeEstimate`].
-/// Version 1 is the only one there has been.
-pub const CODEC_VERSION: u32 = 1;
+/// 1: before the σ ([`AttitudeEstimateV1`]).
+pub const CODEC_VERSION: u32 = 2;
 
 impl AttitudeEstimate {
     /// The fields after `"engine"`, as serde_json writes them.
@@ -47,6 +56,9 @@ impl AttitudeEstimate {
         w.number("pitch_pred_deg", self.pitch_pred_deg);
         w.number("roll_pred_deg", self.roll_pred_deg);
         w.number("pred_t", self.pred_t);
+        w.optional("pitch_sigma_deg", self.pitch_sigma_deg);
+        w.optional("roll_sigma_deg", self.roll_sigma_deg);
+        w.optional("pitch_pred_sigma_deg", self.pitch_pred_sigma_deg);
         w.flag("laser_ok", self.laser_ok);
         w.number("pitch_correction_deg", self.pitch_correction_deg);
         w.optional("laser_age_s", self.laser_age_s);
@@ -64,7 +76,8 @@ impl AttitudeEstimate {
     /// before rows carried their version, which is version 1).
     pub fn decode(version: u32, bytes: &[u8]) -> Result<AttitudeEstimate, postcard::Error> {
         match version {
-            0 | 1 => postcard::from_bytes(bytes),
+            0 | 1 => postcard::from_bytes::<AttitudeEstimateV1>(bytes).map(AttitudeEstimate::from),
+            2 => postcard::from_bytes(bytes),
             _ => Err(postcard::Error::DeserializeBadEncoding),
         }
     }
@@ -72,5 +85,83 @@ impl AttitudeEstimate {
     /// `extreme_a`, `extreme_b` of the stored row: pitch and roll.
     pub fn extremes(&self) -> [f64; 2] {
         [self.pitch_deg, self.roll_deg]
+    }
+}
+
+/// An `attitude` estimate as releases before the σ stored it (codec
+/// version 1).
+#[derive(Deserialize)]
+struct AttitudeEstimateV1 {
+    pitch_deg: f64,
+    roll_deg: f64,
+    pitch_pred_deg: f64,
+    roll_pred_deg: f64,
+    pred_t: f64,
+    laser_ok: bool,
+    pitch_correction_deg: f64,
+    laser_age_s: Option<f64>,
+    model_version: u64,
+    incl_pitch_deg: f64,
+    incl_roll_deg: f64,
+}
+
+impl From<AttitudeEstimateV1> for AttitudeEstimate {
+    fn from(v: AttitudeEstimateV1) -> AttitudeEstimate {
+        AttitudeEstimate {
+            pitch_deg: v.pitch_deg,
+            roll_deg: v.roll_deg,
+            pitch_pred_deg: v.pitch_pred_deg,
+            roll_pred_deg: v.roll_pred_deg,
+            pred_t: v.pred_t,
+            pitch_sigma_deg: None,
+            roll_sigma_deg: None,
+            pitch_pred_sigma_deg: None,
+            laser_ok: v.laser_ok,
+            pitch_correction_deg: v.pitch_correction_deg,
+            laser_age_s: v.laser_age_s,
+            model_version: v.model_version,
+            incl_pitch_deg: v.incl_pitch_deg,
+            incl_roll_deg: v.incl_roll_deg,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_estimate_stored_before_the_sigma_opens_without_it() {
+        // Codec 1 is postcard of the eleven fields in their order; a tuple
+        // of the same types encodes the same bytes.
+        let v1 = postcard::to_allocvec(&(
+            0.25_f64,
+            -1.5_f64,
+            0.26_f64,
+            -1.4_f64,
+            1.0e9_f64,
+            true,
+            0.125_f64,
+            Some(30.0_f64),
+            7_u64,
+            0.3_f64,
+            -1.6_f64,
+        ))
+        .unwrap();
+        let e = AttitudeEstimate::decode(1, &v1).unwrap();
+        assert_eq!((e.pitch_deg, e.roll_deg, e.pred_t), (0.25, -1.5, 1.0e9));
+        assert_eq!(e.laser_age_s, Some(30.0));
+        assert_eq!(e.model_version, 7);
+        assert_eq!(e.incl_roll_deg, -1.6);
+        assert_eq!(
+            (e.pitch_sigma_deg, e.roll_sigma_deg, e.pitch_pred_sigma_deg),
+            (None, None, None)
+        );
+        assert_eq!(AttitudeEstimate::decode(0, &v1).unwrap(), e);
+        // This release's form keeps the σ.
+        let mut now = e.clone();
+        now.pitch_sigma_deg = Some(0.004);
+        let back = AttitudeEstimate::decode(CODEC_VERSION, &now.encode()).unwrap();
+        assert_eq!(back, now);
     }
 }

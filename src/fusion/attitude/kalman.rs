@@ -73,6 +73,19 @@ impl TiltFilter {
         }
     }
 
+    /// Variance of θ + θ̇·`ahead_s` as a prediction of the angle `ahead_s`
+    /// later: [1, ahead, 0] P [1, ahead, 0]ᵀ plus the angle's own motion over
+    /// `ahead_s` (the Q of the module documentation).
+    pub fn predicted_angle_variance(&self, ahead_s: f64, q: &ProcessNoise) -> f64 {
+        let p = &self.p;
+        let a = ahead_s;
+        p[0][0]
+            + 2.0 * a * p[0][1]
+            + a * a * p[1][1]
+            + q.angle * a.abs()
+            + q.rate * a.abs().powi(3) / 3.0
+    }
+
     /// The angle θ̂.
     pub fn angle(&self) -> f64 {
         self.x[0]
@@ -184,6 +197,24 @@ impl TiltFilter {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_prediction_variance_by_hand() {
+        // [1, a, 0] P [1, a, 0]ᵀ + q_θ a + q_θ̇ a³/3 with P = [[4, 1, 0],
+        // [1, 2, 0], [0, 0, 1]], a = 2, q_θ = 0.5, q_θ̇ = 3:
+        // 4 + 2·2·1 + 4·2 + 0.5·2 + 3·8/3 = 25.
+        let f = TiltFilter {
+            x: [0.0; 3],
+            p: [[4.0, 1.0, 0.0], [1.0, 2.0, 0.0], [0.0, 0.0, 1.0]],
+            t: Some(0.0),
+        };
+        let q = ProcessNoise {
+            angle: 0.5,
+            rate: 3.0,
+        };
+        assert!((f.predicted_angle_variance(2.0, &q) - 25.0).abs() < 1e-12);
+        assert_eq!(f.predicted_angle_variance(0.0, &q), 4.0);
+    }
 
     const Q0: ProcessNoise = ProcessNoise {
         angle: 0.0,

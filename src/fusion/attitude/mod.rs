@@ -70,7 +70,8 @@ use super::{Engine, EngineKind, SnapshotError};
 /// Version of the engine's snapshot. A snapshot of another version is
 /// refused as [`SnapshotError::Outdated`]; the machine is then rebuilt from
 /// its stored readings.
-pub const STATE_VERSION: u32 = 2;
+/// 3: the roll's laser innovations and the estimates' σ (issue 35).
+pub const STATE_VERSION: u32 = 3;
 /// Inclinometer readings kept for pairing with laser samples.
 const HISTORY_POINTS: usize = 512;
 /// Laser samples kept waiting for the inclinometer to pass their time.
@@ -251,6 +252,14 @@ pub struct AttitudeEngine {
     last_laser_roll: Option<(f64, f64)>,
     /// Normalised laser innovations ν²/S, averaged over the last few.
     laser_nis: noise::RecentMean,
+    /// The pitch's and the roll's laser innovations beyond what the filter
+    /// expected of them, ν² − S, averaged over the last few: the error the
+    /// laser finds that the filter's variance misses (rad²).
+    pitch_laser_error: noise::RecentMean,
+    roll_laser_error: noise::RecentMean,
+    /// For the model in use (chosen, version): its training roll range
+    /// (lo, hi, rad) and the RMS slope of its correction over it.
+    extrapolation: Option<(usize, u64, f64, f64, f64)>,
     /// Training pairs added since the model was last trained.
     pairs_untrained: u32,
     /// Trainings so far.
@@ -365,6 +374,9 @@ impl AttitudeEngine {
             noise: TunedNoise::from_priors(&config.priors),
             last_laser_roll: None,
             laser_nis: noise::RecentMean::default(),
+            pitch_laser_error: noise::RecentMean::default(),
+            roll_laser_error: noise::RecentMean::default(),
+            extrapolation: None,
             pairs_untrained: 0,
             trainings: 0,
             retuned_t: None,
@@ -540,6 +552,29 @@ impl AttitudeEngine {
         });
         self.pair_pending();
 
+        // σ: what the laser has not checked since its last sample adds to
+        // the pitch filter's own variance (the bias's allowance, applied to
+        // the filter only at the next laser sample).
+        self.refresh_extrapolation();
+        let unchecked = self.unchecked_bias_variance(t, roll_rad);
+        let laser_age = self.laser.age_s(t).unwrap_or(0.0);
+        let held_laser_variance = noise.r_laser + noise.pitch.angle * laser_age;
+        let blend = |k: f64, own: f64| (1.0 - k).powi(2) * own + k * k * held_laser_variance;
+        // The filter's variance, plus what the laser finds beyond it (noise
+        // the filter takes as white but is slow, a model whose residual is
+        // not the filter's), plus what is unchecked.
+        let found = self.pitch_laser_error.mean;
+        let pitch_variance = blend(k_f1, pitch.p[0][0] + found.max(0.0) + unchecked);
+        let pitch_pred_variance = blend(
+            k_f1,
+            pitch.predicted_angle_variance(ahead_s, &noise.pitch) + found.max(0.0) + unchecked,
+        );
+        // The roll filter's variance, plus what the laser finds beyond it
+        // (the laser is the independent check: a roll that turns faster
+        // than the filter's model lags).
+        let roll_own = roll.p[0][0] + self.roll_laser_error.mean.max(0.0);
+        let roll_variance = (1.0 - k_f2).powi(2) * roll_own + k_f2 * k_f2 * noise.r_laser;
+
         Some(EngineOutput {
             t,
             values: EstimateValues::Attitude(AttitudeEstimate {
@@ -548,6 +583,9 @@ impl AttitudeEngine {
                 pitch_pred_deg: deg(pitch_out + pitch.rate() * ahead_s),
                 roll_pred_deg: deg(roll_out + roll.rate() * ahead_s),
                 pred_t: t + ahead_s,
+                pitch_sigma_deg: Some(deg(pitch_variance.max(0.0).sqrt())),
+                roll_sigma_deg: Some(deg(roll_variance.max(0.0).sqrt())),
+                pitch_pred_sigma_deg: Some(deg(pitch_pred_variance.max(0.0).sqrt())),
                 laser_ok,
                 pitch_correction_deg: deg(self.correction_rad),
                 laser_age_s: self.laser.age_s(t),
@@ -556,6 +594,90 @@ impl AttitudeEngine {
                 incl_roll_deg: roll_deg,
             }),
         })
+    }
+
+    /// What the bias's variance would grow by if a laser sample came at
+    /// `t` with the roll at `roll_rad` (the allowance of [`Self::on_laser`]),
+    /// rad²: the part of the correction no laser has checked yet.
+    fn unchecked_bias_variance(&self, t: f64, roll_rad: f64) -> f64 {
+        match self.last_laser_roll {
+            Some((t0, roll_0)) => {
+                let dr = roll_rad - roll_0;
+                let allowance =
+                    self.noise.bias.per_s * (t - t0).abs() + self.noise.bias.per_roll2 * dr * dr;
+                allowance.max(self.model_variance(dr))
+                    + self.extrapolation_variance(roll_0, roll_rad)
+            }
+            None => 0.0,
+        }
+    }
+
+    /// What the model cannot know beyond the roll it was trained on, rad²:
+    /// (s·d)², d how much further outside the training set's roll range
+    /// `roll_rad` lies than `anchor_rad` (the roll at the last laser
+    /// sample, whose error the bias took) and s the RMS slope of the
+    /// model's correction over that range: the error goes on changing at
+    /// about the rate it did where it was seen, while the model is held at
+    /// the edge of its guard or extrapolates a slope that may not hold.
+    fn extrapolation_variance(&self, anchor_rad: f64, roll_rad: f64) -> f64 {
+        let Some(&(_, _, lo, hi, slope)) = self.extrapolation.as_ref() else {
+            return 0.0;
+        };
+        // Signed distance beyond the range: + above, − below, 0 within.
+        let beyond = |x: f64| (x - hi).max(0.0) - (lo - x).max(0.0);
+        (slope * (beyond(roll_rad) - beyond(anchor_rad))).powi(2)
+    }
+
+    /// Recomputes the model's roll range and RMS slope (for
+    /// [`Self::extrapolation_variance`]) when the model in use changed.
+    fn refresh_extrapolation(&mut self) {
+        if self.config.correction != Correction::Anfis {
+            self.extrapolation = None;
+            return;
+        }
+        let key = (self.chosen, self.anfis().version());
+        if self
+            .extrapolation
+            .is_some_and(|(chosen, version, ..)| (chosen, version) == key)
+        {
+            return;
+        }
+        let model = self.anfis();
+        let (lo, hi) = model.roll_range_rad();
+        if !(lo.is_finite() && hi.is_finite()) || hi <= lo || model.rules().is_empty() {
+            self.extrapolation = None;
+            return;
+        }
+        const POINTS: usize = 16;
+        let step = (hi - lo) / POINTS as f64;
+        let mut sum_sq = 0.0;
+        for i in 0..POINTS {
+            let a = lo + step * i as f64;
+            let slope = (model.output(a + step, None) - model.output(a, None)) / step;
+            sum_sq += slope * slope;
+        }
+        let slope = (sum_sq / POINTS as f64).sqrt();
+        self.extrapolation = Some((key.0, key.1, lo, hi, slope));
+    }
+
+    /// What the model's own error adds to the correction after the roll
+    /// has travelled `roll_travel_rad` from where the laser last checked
+    /// it, rad²: the difference of two residuals of the model, each of the
+    /// variance its cross-validation expects (GCV), and independent once
+    /// the roll has moved by a membership's width.
+    fn model_variance(&self, roll_travel_rad: f64) -> f64 {
+        if self.config.correction != Correction::Anfis {
+            return 0.0;
+        }
+        let model = self.anfis();
+        let gcv = model.gcv();
+        let rules = model.rules();
+        if rules.is_empty() || !gcv.is_finite() || gcv >= f64::MAX {
+            return 0.0;
+        }
+        let width = rules.iter().map(|r| r.width_rad).sum::<f64>() / rules.len() as f64;
+        let decorrelated = (roll_travel_rad / width.max(1e-9)).powi(2).min(1.0);
+        2.0 * gcv * decorrelated
     }
 
     fn on_laser(&mut self, t: f64, pitch_deg: f64, roll_deg: f64) {
@@ -580,6 +702,8 @@ impl AttitudeEngine {
             // excess goes to the bias's variance (innovation-based
             // covariance matching of Q_b, Mehra 1972).
             let innovation = f.innovation(h, pitch, r);
+            self.pitch_laser_error
+                .add(innovation.value.powi(2) - innovation.variance);
             let nis = innovation.value.powi(2) / innovation.variance;
             self.laser_nis.add(nis);
             let excess = self.laser_nis.mean - 1.0;
@@ -591,7 +715,9 @@ impl AttitudeEngine {
         self.last_laser_roll = roll_now.map(|r| (t, r));
         if let Some(f) = self.roll.as_mut() {
             let (h, r) = laser_row(f, t, &noise.roll, noise.r_laser);
-            f.update(h, roll, r);
+            let innovation = f.update(h, roll, r);
+            self.roll_laser_error
+                .add(innovation.value.powi(2) - innovation.variance);
         }
         self.tuning
             .curvature
@@ -942,6 +1068,60 @@ mod tests {
         assert_eq!(a.pitch_correction_deg, 0.0);
         assert_eq!(a.laser_age_s, None);
         assert_eq!(a.pred_t, T0);
+    }
+
+    #[test]
+    fn the_first_estimate_carries_the_priors_as_its_sigma() {
+        // θ = z − b with b ~ N(0, (0.5°)²) and the reading's noise r:
+        // σ_pitch = √(0.25 + 0.0001)°, σ_roll = √(0.09 + 0.0001)° (the
+        // roll's mounting-offset prior is 0.3°); nothing is unchecked yet.
+        let mut e = engine(&["noise=fixed", "r_incl_deg2=0.0001"]);
+        let mut out = Vec::new();
+        e.feed(&incl(T0, 0.5, 1.0), &mut out);
+        let a = attitude(&out);
+        let pitch = a.pitch_sigma_deg.unwrap();
+        assert!((pitch - 0.2501_f64.sqrt()).abs() < 1e-12, "{pitch}");
+        let roll = a.roll_sigma_deg.unwrap();
+        assert!((roll - 0.0901_f64.sqrt()).abs() < 1e-12, "{roll}");
+        assert_eq!(a.pitch_pred_sigma_deg, a.pitch_sigma_deg);
+    }
+
+    #[test]
+    fn sigma_grows_as_a_dropout_takes_the_roll_beyond_the_trained_range() {
+        // Two hours with the laser every minute, the roll within 0–2° and an
+        // error that changes with it; then an hour without the laser while
+        // the roll ramps by 4° (from 0.46° to 4.46°), 2.46° past anything the
+        // model has seen; then the laser again, there.
+        let mut e = AttitudeEngine::with_defaults();
+        let mut out = Vec::new();
+        let roll_at = |s: f64| {
+            if s < 7200.0 {
+                1.0 + (s / 600.0).sin()
+            } else {
+                (1.0 + (12.0_f64).sin()) + 4.0 * ((s - 7200.0) / 3600.0).min(1.0)
+            }
+        };
+        let mut sigma_at = |e: &mut AttitudeEngine, from: u32, to: u32, with_laser: bool| {
+            let mut last = 0.0;
+            for s in from..to {
+                let t = T0 + f64::from(s);
+                let roll = roll_at(f64::from(s));
+                let error = 0.1 * (roll / 2.0).sin();
+                if with_laser && s % 60 == 30 {
+                    e.feed(&laser(t, 0.8, roll), &mut out);
+                }
+                e.feed(&incl(t, 0.8 - error, roll), &mut out);
+                last = attitude(&out).pitch_sigma_deg.unwrap();
+            }
+            last
+        };
+        let trained = sigma_at(&mut e, 0, 7200, true);
+        let early = sigma_at(&mut e, 7200, 7320, false);
+        let late = sigma_at(&mut e, 7320, 10_800, false);
+        let back = sigma_at(&mut e, 10_800, 11_400, true);
+        assert!(trained < 0.01, "{trained}");
+        assert!(late > 3.0 * early, "early {early}, late {late}");
+        assert!(back < 0.5 * late, "late {late}, back {back}");
     }
 
     #[test]
@@ -1337,7 +1517,7 @@ mod tests {
             AttitudeEngine::restore(old),
             Err(SnapshotError::Outdated {
                 found: 1,
-                expected: 2,
+                expected: 3,
                 ..
             })
         ));
