@@ -212,9 +212,9 @@ mod tests {
             pitch_pred_deg: f64::MIN_POSITIVE,
             roll_pred_deg: 12.345_678_901_234_567,
             pred_t: 1_772_431_200.123_456_7,
-            pitch_sigma_deg: None,
-            roll_sigma_deg: None,
-            pitch_pred_sigma_deg: None,
+            pitch_sigma_deg: Some(0.004_123),
+            roll_sigma_deg: Some(f64::MIN_POSITIVE),
+            pitch_pred_sigma_deg: Some(1.0e-300),
             laser_ok: false,
             pitch_correction_deg: -0.0,
             laser_age_s: None,
@@ -223,7 +223,8 @@ mod tests {
             incl_roll_deg: -7.25,
         });
         let bytes = encode_values(&values);
-        assert!(bytes.len() <= 86, "{} bytes", bytes.len());
+        // 14 fields, eight of them f64 and three optional ones set.
+        assert!(bytes.len() <= 113, "{} bytes", bytes.len());
         let version = StreamKind::Attitude.codec_version();
         let back = decode_values(StreamKind::Attitude, version, &bytes).unwrap();
         assert_eq!(format!("{back:?}"), format!("{values:?}"));

@@ -434,7 +434,7 @@ impl AlarmRules {
                     key(AlarmKind::AttitudeUncertainty, severity, ""),
                     edge,
                     format!(
-                        "pitch 1σ {sigma_deg:.3}°, over {:.3}°: steer with care until the laser is back",
+                        "pitch 1σ {sigma_deg:.3}°, over {:.3}°: steer with care (laser out, or a roll the model has not seen)",
                         limits[i]
                     ),
                     format!("pitch 1σ back under {:.3}°", limits[i]),

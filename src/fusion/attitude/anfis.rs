@@ -272,6 +272,12 @@ impl Anfis {
             })
     }
 
+    /// Roll range of the training set when the model was last trained
+    /// (what its extrapolation guard holds to), rad.
+    pub fn trained_roll_range_rad(&self) -> (f64, f64) {
+        (self.roll_lo_rad, self.roll_hi_rad)
+    }
+
     /// Recency-weighted mean error of the training set.
     pub fn mean_error_rad(&self) -> f64 {
         self.mean_error_rad

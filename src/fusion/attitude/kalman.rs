@@ -77,10 +77,16 @@ impl TiltFilter {
     /// later: [1, ahead, 0] P [1, ahead, 0]ᵀ plus the angle's own motion over
     /// `ahead_s` (the Q of the module documentation).
     pub fn predicted_angle_variance(&self, ahead_s: f64, q: &ProcessNoise) -> f64 {
+        self.predicted_angle_variance_blended(1.0, ahead_s, q)
+    }
+
+    /// The same for w·θ + θ̇·`ahead_s` (w: the filter's weight in a blend):
+    /// [w, a, 0] P [w, a, 0]ᵀ plus the angle's own motion over `ahead_s`.
+    pub fn predicted_angle_variance_blended(&self, w: f64, ahead_s: f64, q: &ProcessNoise) -> f64 {
         let p = &self.p;
         let a = ahead_s;
-        p[0][0]
-            + 2.0 * a * p[0][1]
+        w * w * p[0][0]
+            + 2.0 * w * a * p[0][1]
             + a * a * p[1][1]
             + q.angle * a.abs()
             + q.rate * a.abs().powi(3) / 3.0

@@ -557,23 +557,21 @@ impl AttitudeEngine {
         // the filter only at the next laser sample).
         self.refresh_extrapolation();
         let unchecked = self.unchecked_bias_variance(t, roll_rad);
+        // With the held laser blended in by k (Eq. 10/11/19; 0 by
+        // default): (1 − k)² of the filter's part, k² of the held sample's
+        // (its noise and the angle's motion since).
         let laser_age = self.laser.age_s(t).unwrap_or(0.0);
-        let held_laser_variance = noise.r_laser + noise.pitch.angle * laser_age;
-        let blend = |k: f64, own: f64| (1.0 - k).powi(2) * own + k * k * held_laser_variance;
-        // The filter's variance, plus what the laser finds beyond it (noise
-        // the filter takes as white but is slow, a model whose residual is
-        // not the filter's), plus what is unchecked.
-        let found = self.pitch_laser_error.mean;
-        let pitch_variance = blend(k_f1, pitch.p[0][0] + found.max(0.0) + unchecked);
-        let pitch_pred_variance = blend(
-            k_f1,
-            pitch.predicted_angle_variance(ahead_s, &noise.pitch) + found.max(0.0) + unchecked,
-        );
-        // The roll filter's variance, plus what the laser finds beyond it
-        // (the laser is the independent check: a roll that turns faster
-        // than the filter's model lags).
+        let held = |q: &ProcessNoise| noise.r_laser + q.angle * laser_age;
+        let own = pitch.p[0][0] + self.pitch_laser_error.mean.max(0.0) + unchecked;
+        let pitch_variance = (1.0 - k_f1).powi(2) * own + k_f1 * k_f1 * held(&noise.pitch);
+        // The prediction adds rate·a to the blend: [1 − k, a, 0] P [1 − k, a, 0]ᵀ
+        // and the angle's motion over a.
+        let pitch_pred_variance =
+            pitch.predicted_angle_variance_blended(1.0 - k_f1, ahead_s, &noise.pitch)
+                + (1.0 - k_f1).powi(2) * (own - pitch.p[0][0])
+                + k_f1 * k_f1 * held(&noise.pitch);
         let roll_own = roll.p[0][0] + self.roll_laser_error.mean.max(0.0);
-        let roll_variance = (1.0 - k_f2).powi(2) * roll_own + k_f2 * k_f2 * noise.r_laser;
+        let roll_variance = (1.0 - k_f2).powi(2) * roll_own + k_f2 * k_f2 * held(&noise.roll);
 
         Some(EngineOutput {
             t,
@@ -628,10 +626,11 @@ impl AttitudeEngine {
         (slope * (beyond(roll_rad) - beyond(anchor_rad))).powi(2)
     }
 
-    /// Recomputes the model's roll range and RMS slope (for
-    /// [`Self::extrapolation_variance`]) when the model in use changed.
+    /// Recomputes the model's trained roll range and RMS slope (for
+    /// [`Self::extrapolation_variance`]) when the model in use changed: a
+    /// function of the model alone, kept with its (chosen, version) key.
     fn refresh_extrapolation(&mut self) {
-        if self.config.correction != Correction::Anfis {
+        if self.config.correction != Correction::Anfis || self.anfis().rules().is_empty() {
             self.extrapolation = None;
             return;
         }
@@ -643,20 +642,20 @@ impl AttitudeEngine {
             return;
         }
         let model = self.anfis();
-        let (lo, hi) = model.roll_range_rad();
-        if !(lo.is_finite() && hi.is_finite()) || hi <= lo || model.rules().is_empty() {
-            self.extrapolation = None;
-            return;
-        }
+        let (lo, hi) = model.trained_roll_range_rad();
         const POINTS: usize = 16;
-        let step = (hi - lo) / POINTS as f64;
-        let mut sum_sq = 0.0;
-        for i in 0..POINTS {
-            let a = lo + step * i as f64;
-            let slope = (model.output(a + step, None) - model.output(a, None)) / step;
-            sum_sq += slope * slope;
-        }
-        let slope = (sum_sq / POINTS as f64).sqrt();
+        let slope = if hi > lo {
+            let step = (hi - lo) / POINTS as f64;
+            let sum_sq: f64 = (0..POINTS)
+                .map(|i| {
+                    let a = lo + step * i as f64;
+                    ((model.output(a + step, None) - model.output(a, None)) / step).powi(2)
+                })
+                .sum();
+            (sum_sq / POINTS as f64).sqrt()
+        } else {
+            0.0
+        };
         self.extrapolation = Some((key.0, key.1, lo, hi, slope));
     }
 
@@ -689,6 +688,7 @@ impl AttitudeEngine {
         self.stats.laser_used += 1;
         let noise = self.noise;
         let roll_now = self.roll.map(|f| f.angle());
+        let unchecked = roll_now.map_or(0.0, |roll| self.unchecked_bias_variance(t, roll));
         if let Some(f) = self.pitch.as_mut() {
             // The bias may have moved since the previous laser sample, by
             // as much as the time and the roll's travel allow.
@@ -702,8 +702,11 @@ impl AttitudeEngine {
             // excess goes to the bias's variance (innovation-based
             // covariance matching of Q_b, Mehra 1972).
             let innovation = f.innovation(h, pitch, r);
+            // Beyond S and what the estimate's σ already counted as
+            // unchecked (the drift since the previous sample, which the
+            // laser row does not see: it has no bias entry).
             self.pitch_laser_error
-                .add(innovation.value.powi(2) - innovation.variance);
+                .add(innovation.value.powi(2) - innovation.variance - unchecked);
             let nis = innovation.value.powi(2) / innovation.variance;
             self.laser_nis.add(nis);
             let excess = self.laser_nis.mean - 1.0;
