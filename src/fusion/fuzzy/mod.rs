@@ -548,13 +548,10 @@ impl FuzzyEngine {
         }
         self.window.push(force, rate);
         if self.window.is_full() {
-            let spread = self
-                .window
-                .signals(self.window.mean_force_norm(), &V3::zeros(), 0.0);
             let rise = self.config.floor_rise_s;
             self.floor
                 .accel
-                .observe(t, spread.accel_activity_mps2, rise);
+                .observe(t, self.window.force_spread(), rise);
             self.floor
                 .gyro
                 .observe(t, self.window.fast_rate_spread(), rise);
@@ -665,10 +662,7 @@ impl FuzzyEngine {
             return;
         }
         let m = &self.config.motion;
-        let spread = self
-            .window
-            .signals(self.window.mean_force_norm(), &V3::zeros(), 0.0)
-            .accel_activity_mps2;
+        let spread = self.window.force_spread();
         let rate_spread = self.window.rate_spread();
         let mean_rate = self.window.mean_rate();
         let (Some(accel_floor), Some(gyro_floor)) =
@@ -1236,6 +1230,16 @@ mod tests {
         output.values.as_fuzzy().unwrap()
     }
 
+    /// The largest heading difference between two runs' estimates, pair by
+    /// pair, degrees.
+    fn largest_heading_difference(a: &[EngineOutput], b: &[EngineOutput]) -> f64 {
+        a.iter().zip(b).fold(0.0, |worst, (a, b)| {
+            let (a, b) = (fuzzy(a), fuzzy(b));
+            let d = orientation::angle_difference(rad(a.heading_deg), rad(b.heading_deg));
+            worst.max(deg(d).abs())
+        })
+    }
+
     /// A still, tilted IMU with a constant gyro bias, and its compass.
     fn still(seconds: f64, bias_dps: V3) -> Vec<Reading> {
         let attitude = attitude_from_euler(rad(1.5), rad(-2.0), rad(40.0));
@@ -1692,12 +1696,7 @@ mod tests {
             V3::new(-6.0, 0.0, 9.0),
         ] {
             let disturbed = turn_then_magnet(60.0, 30.0, extra);
-            let mut worst = 0.0_f64;
-            for (a, b) in clean.iter().zip(&disturbed) {
-                let (a, b) = (fuzzy(a), fuzzy(b));
-                let d = orientation::angle_difference(rad(a.heading_deg), rad(b.heading_deg));
-                worst = worst.max(deg(d).abs());
-            }
+            let worst = largest_heading_difference(&clean, &disturbed);
             assert!(worst < 5.0, "{extra:?}: heading moved {worst}°");
             let during = fuzzy(&disturbed[80 * 100]);
             assert!(during.mag_disturbed, "{extra:?}: {during:?}");
@@ -1780,12 +1779,7 @@ mod tests {
         let extra = V3::new(-25.0, 25.0, 0.0);
         let clean = turn_then_magnet_for(300, 1e9, 0.0, V3::zeros());
         let disturbed = turn_then_magnet_for(300, 60.0, 200.0, extra);
-        let mut worst = 0.0_f64;
-        for (a, b) in clean.iter().zip(&disturbed) {
-            let (a, b) = (fuzzy(a), fuzzy(b));
-            let d = orientation::angle_difference(rad(a.heading_deg), rad(b.heading_deg));
-            worst = worst.max(deg(d).abs());
-        }
+        let worst = largest_heading_difference(&clean, &disturbed);
         assert!(worst < 5.0, "heading moved {worst}°");
         // Relearnt, the field steers nothing while it disagrees.
         let late = fuzzy(&disturbed[250 * 100]);

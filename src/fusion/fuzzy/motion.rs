@@ -328,6 +328,14 @@ impl MotionWindow {
         self.sum_force_norm / self.samples.len().max(1) as f64
     }
 
+    /// √(mean ‖f − f̄‖²): the specific-force spread, m/s².
+    pub fn force_spread(&self) -> f64 {
+        let n = self.samples.len().max(1) as f64;
+        (self.sum_force_sq / n - self.mean_force().norm_squared())
+            .max(0.0)
+            .sqrt()
+    }
+
     /// √(mean ‖ω − b‖²) for a bias `b`, rad/s.
     pub fn rate_rms(&self, bias: &V3) -> f64 {
         let n = self.samples.len().max(1) as f64;
@@ -372,12 +380,10 @@ impl MotionWindow {
     /// `rate_tolerance` (rad/s): the rate's fast spread and the mean rate's
     /// excess over the tolerance, √(spread² + max(0, ‖ω̄ − b‖ − tol)²).
     pub fn signals(&self, gravity_mps2: f64, bias: &V3, rate_tolerance: f64) -> MotionSignals {
-        let n = self.samples.len().max(1) as f64;
-        let spread_sq = self.sum_force_sq / n - self.mean_force().norm_squared();
         let excess = ((self.mean_rate() - bias).norm() - rate_tolerance).max(0.0);
         MotionSignals {
             accel_dev_mps2: (self.mean_force_norm() - gravity_mps2).abs(),
-            accel_activity_mps2: spread_sq.max(0.0).sqrt(),
+            accel_activity_mps2: self.force_spread(),
             gyro_activity_rad_per_s: self.fast_rate_spread().hypot(excess),
         }
     }
