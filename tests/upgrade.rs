@@ -308,6 +308,11 @@ const JACK_19_ESTIMATES_SHA256: &str =
 const VAN_19_ESTIMATES_SHA256: &str =
     "fe9ec9c098780df0f452a3e06517d09e79629ac00f5846ecdaa2c9ed13b5fb2f";
 
+/// The same for the attitude history of `tbm-19` (taken when replay
+/// reproduced every estimate but the σ fields issue 35 added).
+const TBM_19_ESTIMATES_SHA256: &str =
+    "5458e18b349f52d096cb6fd375a0717204bb63c3528b27ad043fe364fd9a1146";
+
 /// SHA-256 (hex) of the values as canonical JSON, one per line: object
 /// keys sorted at every level, numbers as serde_json writes them.
 fn canonical_digest(values: &[Value]) -> String {
@@ -409,67 +414,48 @@ async fn a_database_from_before_issue_19_opens_serves_and_continues() {
         let old_estimates = all_estimates(&client, &base, machine).await;
         assert_eq!(old_estimates.len(), stored_estimates, "{machine}");
         let replayed_old = replay_with_params(machine, engine, &params, &old_lines);
-        let pinned = match machine {
-            "jack-19" => Some((
+        let (pinned, digest) = match machine {
+            "tbm-19" => (
+                include_str!("fixtures/tbm-19-estimates-every-100th.json"),
+                TBM_19_ESTIMATES_SHA256,
+            ),
+            "jack-19" => (
                 include_str!("fixtures/jack-19-estimates-every-100th.json"),
                 JACK_19_ESTIMATES_SHA256,
-            )),
-            "van-19" => Some((
+            ),
+            "van-19" => (
                 include_str!("fixtures/van-19-estimates-every-100th.json"),
                 VAN_19_ESTIMATES_SHA256,
-            )),
-            _ => None,
+            ),
+            other => panic!("no pinned history for {other}"),
         };
-        if let Some((pinned, digest)) = pinned {
-            // zupt and fuzzy have changed since (issue 33: the noise of
-            // zupt's zero-angular-rate update; issue 34: fuzzy's bias
-            // learnt from static blocks), so their history is no longer
-            // what replay makes of it: every estimate is served at the
-            // time replay makes one, and every 100th (and the last) as the
-            // fixture holds it, pinned in a file written when this
-            // release's replay still equalled them all (the fields added
-            // since null: zupt's `attitude_sigma_deg`, `pitch_sigma_deg`
-            // and `roll_sigma_deg`, fuzzy's `pitch_sigma_deg`,
-            // `roll_sigma_deg`, `heading_sigma_deg`, `compass` and
-            // `compass_since`).
-            let times = |estimates: &[Value]| -> Vec<f64> {
-                estimates.iter().map(|e| e["t"].as_f64().unwrap()).collect()
-            };
-            assert_eq!(
-                times(&old_estimates),
-                times(&replayed_old[..old_estimates.len()]),
-                "{machine}"
-            );
-            let pinned: Vec<Value> = serde_json::from_str(pinned).unwrap();
-            let mut sampled: Vec<Value> = old_estimates.iter().step_by(100).cloned().collect();
-            sampled.extend(old_estimates.last().cloned());
-            assert_eq!(sampled, pinned, "{machine}");
-            // And all of them, by a digest of their canonical JSON (keys
-            // sorted), taken at the same time as the sample.
-            assert_eq!(canonical_digest(&old_estimates), digest, "{machine}");
-        } else {
-            // Each equal to what this release's replay makes of the same
-            // readings, but for the fields added since, null in the stored
-            // ones (attitude's `pitch_sigma_deg`, `roll_sigma_deg` and
-            // `pitch_pred_sigma_deg`, issue 35).
-            let added = ["pitch_sigma_deg", "roll_sigma_deg", "pitch_pred_sigma_deg"];
-            for e in &old_estimates {
-                for field in added {
-                    assert_eq!(e[field], Value::Null, "{machine}: {field} in {e}");
-                }
-            }
-            let without_added: Vec<Value> = replayed_old[..old_estimates.len()]
-                .iter()
-                .map(|e| {
-                    let mut e = e.clone();
-                    for field in added {
-                        e[field] = Value::Null;
-                    }
-                    e
-                })
-                .collect();
-            assert_eq!(old_estimates[..], without_added[..], "{machine}");
-        }
+        // Every engine has changed since (issue 33: the noise of zupt's
+        // zero-angular-rate update; issue 34: fuzzy's bias learnt from
+        // static blocks; issue 35: attitude's smoothed residuals and its
+        // tangent beyond the seen roll), so the history is no longer what
+        // replay makes of it: every estimate is served at the time replay
+        // makes one, and every 100th (and the last) as the fixture holds
+        // it, pinned in a file written when this release's replay still
+        // equalled them all (the fields added since null: zupt's
+        // `attitude_sigma_deg`, `pitch_sigma_deg` and `roll_sigma_deg`,
+        // fuzzy's `pitch_sigma_deg`, `roll_sigma_deg`, `heading_sigma_deg`,
+        // `compass` and `compass_since`, attitude's `pitch_sigma_deg`,
+        // `roll_sigma_deg` and `pitch_pred_sigma_deg`).
+        let times = |estimates: &[Value]| -> Vec<f64> {
+            estimates.iter().map(|e| e["t"].as_f64().unwrap()).collect()
+        };
+        assert_eq!(
+            times(&old_estimates),
+            times(&replayed_old[..old_estimates.len()]),
+            "{machine}"
+        );
+        let pinned: Vec<Value> = serde_json::from_str(pinned).unwrap();
+        let mut sampled: Vec<Value> = old_estimates.iter().step_by(100).cloned().collect();
+        sampled.extend(old_estimates.last().cloned());
+        assert_eq!(sampled, pinned, "{machine}");
+        // And all of them, by a digest of their canonical JSON (keys
+        // sorted), taken at the same time as the sample.
+        assert_eq!(canonical_digest(&old_estimates), digest, "{machine}");
         let downsampled = get_json(
             &client,
             &base,

@@ -1,8 +1,17 @@
 //! The Takagi–Sugeno ANFIS that models the inclinometer's pitch error as a
 //! function of roll (He et al. 2021, Sec. 3.2, Eq. 20–25), with a
-//! temperature term fitted jointly with the consequents:
+//! temperature term fitted jointly with the consequents and the residuals
+//! smoothed along the roll ([`super::residual`]) added:
 //!
-//! ê(β, T) = Σ ρ̄_i(β) (p_i0 + p_i1 β) + c_T (T − T_ref)      (Eq. 24 + c_T)
+//! ê(β, T) = Σ ρ̄_i(β) (p_i0 + p_i1 β) + m(β) + c_T (T − T_ref)   (Eq. 24 + m + c_T)
+//!
+//! Beyond the roll range it was trained on, the model goes on along its
+//! tangent at the edge (the slope over the last `min_width_rad` inside it)
+//! up to the extrapolation guard, where it is held: the error is a smooth
+//! function of roll, and its local slope at the edge is the best evidence
+//! of where it goes next. (The Gaussian rules alone would go on along the
+//! edge rule's consequent, a line fitted over that rule's whole support,
+//! which on a curved error is the wrong slope.)
 //!
 //! The temperature enters linearly and alike in every rule (a datasheet's
 //! temperature coefficient): a second fuzzy input would multiply the rules
@@ -15,9 +24,9 @@
 //! consequents, then a gradient step on centres and widths with an adaptive
 //! step length, warm-started from the current model. The set is stratified
 //! by roll (each bin keeps its newest pairs), so regions visited long ago are
-//! remembered; each rule is shrunk towards the set's global line, which sets
-//! how the model extrapolates. Each laser sample costs `epochs` passes over
-//! at most `window` samples, however long the drive.
+//! remembered; each rule is shrunk towards the set's global line (which
+//! matters where a rule has few pairs). Each laser sample costs `epochs`
+//! passes over at most `window` samples, however long the drive.
 //!
 //! All angles here are radians.
 
@@ -26,6 +35,7 @@ use std::collections::VecDeque;
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
+use super::residual::{Residual, ResidualTable};
 pub use super::training_set::TrainingSample;
 use super::training_set::TrainingSet;
 
@@ -72,16 +82,16 @@ pub struct AnfisConfig {
     /// Samples needed before the rules are fitted; until then the output is
     /// the weighted mean error (a constant offset).
     pub min_samples: usize,
-    /// Smallest membership width σ.
+    /// Smallest membership width σ; also how far inside the edge of the
+    /// trained roll range the tangent beyond it is taken.
     pub min_width_rad: f64,
     /// Smallest roll span the memberships are spread over.
     pub min_span_rad: f64,
-    /// How far beyond the trained roll range the input may go before it is
-    /// held at the edge (extrapolation guard).
+    /// How far beyond the trained roll range the correction goes on along
+    /// its tangent before it is held (extrapolation guard).
     pub extrapolation_rad: f64,
     /// Ridge weight pulling each consequent towards the global weighted line
-    /// through the training set; matters for rules with little data and so
-    /// sets how the model extrapolates.
+    /// through the training set; matters for rules with little data.
     pub ridge: f64,
 }
 
@@ -130,6 +140,9 @@ pub struct Anfis {
     gcv: f64,
     /// Times the model has been trained.
     version: u64,
+    /// The rules' residuals smoothed along the roll, when leave-one-out
+    /// finds them worth adding.
+    residual: Option<ResidualTable>,
     #[serde(skip)]
     cache: FiringCache,
 }
@@ -194,6 +207,7 @@ impl Anfis {
             fit_rmse_rad: 0.0,
             gcv: f64::MAX,
             version: 0,
+            residual: None,
             cache: FiringCache::default(),
         }
     }
@@ -231,6 +245,18 @@ impl Anfis {
         }) || !(self.temp_coefficient.is_finite() && self.temp_ref_c.is_finite())
         {
             return Err("a training pair or the temperature term is not finite".to_string());
+        }
+        let range_ok = self.roll_lo_rad.is_finite()
+            && self.roll_hi_rad.is_finite()
+            && self.roll_lo_rad <= self.roll_hi_rad;
+        if !range_ok {
+            return Err(format!(
+                "trained roll range {}…{} rad is not usable",
+                self.roll_lo_rad, self.roll_hi_rad
+            ));
+        }
+        if self.residual.as_ref().is_some_and(|r| !r.is_valid()) {
+            return Err("the smoothed residuals are not usable".to_string());
         }
         self.config = config;
         self.cache = FiringCache::default();
@@ -297,10 +323,39 @@ impl Anfis {
             return self.mean_error_rad + temp;
         }
         let x = self.guard(roll_rad);
+        let edge = x.clamp(self.roll_lo_rad, self.roll_hi_rad);
+        if x == edge {
+            return self.roll_term(x) + temp;
+        }
+        // Beyond the trained range: along the tangent at the edge.
+        let span = self.roll_hi_rad - self.roll_lo_rad;
+        let inward = if x > edge { -1.0 } else { 1.0 };
+        let inner = edge + inward * self.config.min_width_rad.min(span);
+        let residual = self.residual_at(edge);
+        let at_edge = self.rules_at(edge);
+        if inner == edge {
+            return at_edge + residual + temp;
+        }
+        let slope = (at_edge + residual - self.roll_term(inner)) / (edge - inner);
+        at_edge + residual + slope * (x - edge) + temp
+    }
+
+    /// The rules' blend (Eq. 24) plus the smoothed residual at `x`.
+    fn roll_term(&self, x: f64) -> f64 {
+        self.rules_at(x) + self.residual_at(x)
+    }
+
+    /// The rules' blend, Eq. 24, at `x`.
+    fn rules_at(&self, x: f64) -> f64 {
         let mut firing = [0.0; MAX_MEMBERSHIPS];
         let firing = &mut firing[..self.rules.len()];
         fire_into(&self.rules, x, firing);
-        blend(&self.rules, firing, x) + temp
+        blend(&self.rules, firing, x)
+    }
+
+    /// The smoothed residual m at `x` (0 without a table).
+    fn residual_at(&self, x: f64) -> f64 {
+        self.residual.as_ref().map_or(0.0, |r| r.at(x))
     }
 
     /// T − T_ref, 0 without a temperature (or while c_T is not fitted).
@@ -398,12 +453,18 @@ impl Anfis {
                 self.temp_coefficient = fit.temp_coefficient;
                 (fit.cost, fit.dof)
             }
-            None => return,
+            None => {
+                // The rules may have just been spread afresh: the old
+                // table smoothed another model's residuals.
+                self.residual = None;
+                return;
+            }
         };
         for _ in 0..self.config.epochs {
             (firings, cost, dof) = self.premise_step(firings, &weights, cost, dof);
         }
         self.fit_rmse_rad = self.rmse(&firings);
+        self.residual = self.smooth_residuals(&firings, &weights);
         // Generalised cross-validation (Golub, Heath & Wahba 1979): the
         // weighted mean squared residual over (1 − df/n)², with df the
         // consequents' degrees of freedom plus the two premise parameters
@@ -419,8 +480,35 @@ impl Anfis {
         self.cache = FiringCache(Some(firings));
     }
 
+    /// The rules' residuals at the training pairs, smoothed along the roll
+    /// ([`ResidualTable::fit`]).
+    fn smooth_residuals(&self, firings: &Firings, weights: &[f64]) -> Option<ResidualTable> {
+        let residuals: Vec<Residual> = self
+            .samples
+            .iter()
+            .zip(weights)
+            .enumerate()
+            .map(|(j, (s, &weight))| Residual {
+                roll_rad: s.roll_rad,
+                weight,
+                residual_rad: self.rule_target(s) - blend(&self.rules, firings.row(j), s.roll_rad),
+            })
+            .collect();
+        let mean_width_rad =
+            self.rules.iter().map(|r| r.width_rad).sum::<f64>() / self.rules.len() as f64;
+        ResidualTable::fit(
+            &residuals,
+            self.roll_lo_rad,
+            self.roll_hi_rad,
+            mean_width_rad,
+        )
+    }
+
     /// The generalised cross-validation score of the last training
-    /// (`f64::MAX` before the rules exist): lower generalises better.
+    /// (`f64::MAX` before the rules exist): lower generalises better. It
+    /// scores the rules alone, before the smoothed residual is added
+    /// (which only lowers the error where leave-one-out finds it does), so
+    /// as the model's error it errs on the large side.
     pub fn gcv(&self) -> f64 {
         self.gcv
     }
@@ -839,16 +927,86 @@ mod tests {
         assert!((model.output(2.0, None) - expected).abs() < 1e-15);
     }
 
-    #[test]
-    fn far_inputs_neither_underflow_nor_explode() {
+    /// The hand-set [`rules`], trained over a roll range of −1…1 rad.
+    fn hand_set_model() -> Anfis {
         let mut model = Anfis::new(config());
         model.rules = rules();
         model.roll_lo_rad = -1.0;
         model.roll_hi_rad = 1.0;
+        model
+    }
+
+    #[test]
+    fn far_inputs_neither_underflow_nor_explode() {
+        let model = hand_set_model();
         // Held at the edge of the guarded range, not extrapolated to 1000.
         let edge = model.output(1.0 + model.config.extrapolation_rad, None);
         assert_eq!(model.output(1000.0, None), edge);
         assert!(model.output(-1000.0, None).is_finite());
+    }
+
+    #[test]
+    fn beyond_the_trained_roll_it_goes_on_along_the_tangent_then_holds() {
+        // Hand-set rules over a trained range of −1…1 rad, no residual
+        // table: beyond each edge the output is the value at the edge plus
+        // the secant slope over the last min_width (0.1° here) inside it
+        // times the distance, up to the guard (0.5°), then held.
+        let mut model = hand_set_model();
+        let w = model.config.min_width_rad;
+        let guard = model.config.extrapolation_rad;
+        for (edge, outward) in [(1.0, 1.0), (-1.0, -1.0)] {
+            let at_edge = model.output(edge, None);
+            let slope = (at_edge - model.output(edge - outward * w, None)) / (outward * w);
+            for beyond in [0.1 * guard, 0.5 * guard, guard] {
+                let x = edge + outward * beyond;
+                let expected = at_edge + slope * outward * beyond;
+                assert!(
+                    (model.output(x, None) - expected).abs() < 1e-12,
+                    "{x}: {} against {expected}",
+                    model.output(x, None)
+                );
+            }
+            // Continuous at the edge, held past the guard.
+            let just_outside = model.output(edge + outward * 1e-9, None);
+            assert!((just_outside - at_edge).abs() < 1e-8);
+            let at_guard = model.output(edge + outward * guard, None);
+            assert_eq!(model.output(edge + outward * (guard + 0.3), None), at_guard);
+        }
+        // A single trained roll (lo = hi) has no slope: the value is held.
+        model.roll_lo_rad = 0.2;
+        model.roll_hi_rad = 0.2;
+        assert_eq!(model.output(0.25, None), model.output(0.2, None));
+        assert_eq!(model.output(0.1, None), model.output(0.2, None));
+    }
+
+    #[test]
+    fn a_restored_model_with_an_unusable_range_or_table_is_refused() {
+        // A ripple three rules cannot follow leaves residuals worth
+        // smoothing.
+        let mut model = Anfis::new(config());
+        for i in 0..300 {
+            let roll_deg = -1.5 + 3.0 * i as f64 / 300.0;
+            let error_deg = 0.1 * (std::f64::consts::TAU * roll_deg / 2.0).sin();
+            model.add_sample(TrainingSample {
+                t: i as f64,
+                roll_rad: rad(roll_deg),
+                error_rad: rad(error_deg),
+                temp_c: None,
+                seq: 0,
+            });
+        }
+        model.train();
+        assert!(model.residual.is_some(), "no residual table");
+        let config = model.config;
+        assert!(model.clone().reconfigure(config).is_ok());
+        let mut reversed = model.clone();
+        (reversed.roll_lo_rad, reversed.roll_hi_rad) = (model.roll_hi_rad, model.roll_lo_rad);
+        assert!(reversed.reconfigure(config).is_err());
+        let mut bad_table = model.clone();
+        if let Some(table) = bad_table.residual.as_mut() {
+            table.width_rad = -1.0;
+        }
+        assert!(bad_table.reconfigure(config).is_err());
     }
 
     #[test]

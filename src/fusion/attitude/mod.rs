@@ -47,6 +47,7 @@ pub mod estimate;
 pub mod kalman;
 pub mod noise;
 pub mod params;
+pub mod residual;
 pub mod training_set;
 
 use serde::{Deserialize, Serialize};
@@ -71,7 +72,8 @@ use super::{Engine, EngineKind, SnapshotError};
 /// refused as [`SnapshotError::Outdated`]; the machine is then rebuilt from
 /// its stored readings.
 /// 3: the roll's laser innovations and the estimates' σ (issue 35).
-pub const STATE_VERSION: u32 = 3;
+/// 4: the model's smoothed residuals ([`residual`]).
+pub const STATE_VERSION: u32 = 4;
 /// Inclinometer readings kept for pairing with laser samples.
 const HISTORY_POINTS: usize = 512;
 /// Laser samples kept waiting for the inclinometer to pass their time.
@@ -615,8 +617,8 @@ impl AttitudeEngine {
     /// `roll_rad` lies than `anchor_rad` (the roll at the last laser
     /// sample, whose error the bias took) and s the RMS slope of the
     /// model's correction over that range: the error goes on changing at
-    /// about the rate it did where it was seen, while the model is held at
-    /// the edge of its guard or extrapolates a slope that may not hold.
+    /// about the rate it did where it was seen, while the model goes on
+    /// along its tangent at the edge, which may not hold.
     fn extrapolation_variance(&self, anchor_rad: f64, roll_rad: f64) -> f64 {
         let Some(&(_, _, lo, hi, slope)) = self.extrapolation.as_ref() else {
             return 0.0;
@@ -1520,7 +1522,7 @@ mod tests {
             AttitudeEngine::restore(old),
             Err(SnapshotError::Outdated {
                 found: 1,
-                expected: 3,
+                expected: 4,
                 ..
             })
         ));

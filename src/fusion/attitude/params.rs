@@ -172,7 +172,7 @@ param_table! {
             1.0e-3,
             90.0,
             "deg",
-            "smallest membership width σ",
+            "smallest membership width σ; also how far inside the edge of the seen roll the tangent beyond it is taken",
         ),
         anfis_min_span_deg: f64 = real(
             1.0,
@@ -186,14 +186,14 @@ param_table! {
             0.0,
             90.0,
             "deg",
-            "beyond the trained roll range by more than this, the correction is held",
+            "beyond the trained roll range the correction goes on along its tangent at the edge; beyond it by more than this, it is held",
         ),
         anfis_ridge: f64 = real(
             1.0e-3,
             1.0e-6,
             1.0,
             "",
-            "weight pulling each rule towards the global plane through the training pairs (sets extrapolation)",
+            "weight pulling each rule towards the global plane through the training pairs",
         ),
         pair_window_s: f64 = real(
             60.0,
