@@ -182,30 +182,46 @@ impl SelfTuning {
         let level = self.phase.level();
         let floor = rad2(MIN_Q_RATE_DEG2_PER_S3);
         let laser = self.curvature.rate_noise(priors.r_laser);
-        let axis = |variogram: &Variogram, q_a: Option<f64>, prior: ProcessNoise| {
-            let rate = q_a.map_or(prior.rate, |q| q.max(floor));
-            let fit = variogram.fit(rate);
-            // N2b: the noise over as many readings as the filter averages,
-            // in proportion to each phase's own one-lag level.
-            let r = [Phase::Quiet, Phase::Vibrating].map(|p| {
-                let one_lag = variogram.one_lag(p).or(level);
-                clamp(match (one_lag, fit) {
-                    (Some(v), Some(fit)) if fit.one_lag > 0.0 => {
-                        let n = fit.readings_averaged(rate, period_s);
-                        v * fit.effective(n, period_s) / fit.one_lag
-                    }
-                    (Some(v), _) => v,
-                    (None, _) => priors.r_incl,
-                })
-            });
-            let q = ProcessNoise {
-                angle: fit.map_or(prior.angle, |f| f.q_w),
-                rate,
+        let walk_max = self.curvature.angle_walk_max(priors.r_laser);
+        let axis =
+            |variogram: &Variogram, q_a: Option<f64>, q_w_max: Option<f64>, prior: ProcessNoise| {
+                let rate = q_a.map_or(prior.rate, |q| q.max(floor));
+                let mut fit = variogram.fit(rate);
+                // N3b: no more walk than the laser's second differences allow.
+                if let (Some(fit), Some(max)) = (fit.as_mut(), q_w_max) {
+                    fit.q_w = fit.q_w.min(max);
+                }
+                // N2b: the noise over as many readings as the filter averages,
+                // in proportion to each phase's own one-lag level.
+                let r = [Phase::Quiet, Phase::Vibrating].map(|p| {
+                    let one_lag = variogram.one_lag(p).or(level);
+                    clamp(match (one_lag, fit) {
+                        (Some(v), Some(fit)) if fit.one_lag > 0.0 => {
+                            let n = fit.readings_averaged(rate, period_s);
+                            v * fit.effective(n, period_s) / fit.one_lag
+                        }
+                        (Some(v), _) => v,
+                        (None, _) => priors.r_incl,
+                    })
+                });
+                let q = ProcessNoise {
+                    angle: fit.map_or(prior.angle, |f| f.q_w),
+                    rate,
+                };
+                (r, q, fit)
             };
-            (r, q, fit)
-        };
-        let (r_pitch, pitch, pitch_fit) = axis(&self.pitch, laser.map(|l| l.0), priors.pitch);
-        let (r_roll, roll, _) = axis(&self.roll, laser.map(|l| l.1), priors.roll);
+        let (r_pitch, pitch, pitch_fit) = axis(
+            &self.pitch,
+            laser.map(|l| l.0),
+            walk_max.map(|w| w.0),
+            priors.pitch,
+        );
+        let (r_roll, roll, _) = axis(
+            &self.roll,
+            laser.map(|l| l.1),
+            walk_max.map(|w| w.1),
+            priors.roll,
+        );
         TunedNoise {
             r_pitch,
             r_roll,

@@ -39,6 +39,21 @@
 //! which gives q_a for pitch and roll. σ_L² is the engine's prior
 //! `r_laser_deg2`: a few laser samples per hour cannot part it from q_a.
 //!
+//! **The laser bounds the angle's white steps (N3b).** A random walk of
+//! the angle, q_w, adds 2 q_w h to the same E[D²], so
+//! q_w ≤ (E[D²] − 6 σ_L²) / (2h)                                        (N3b)
+//! (equal spacing; q_a taken as 0, so it bounds and does not apportion),
+//! with E[D²] at its upper 2σ confidence bound, and N2's q_w is held to
+//! it. The inclinometer's lags span seconds, where
+//! coloured noise of a time constant between N2's grid points (or beyond
+//! them), or a shift of the reading when the vibration changes, grows like
+//! a walk; over minutes the laser sees whether the angle really wanders.
+//! Motion that reverts within minutes (τ below the lag) shows less at the
+//! laser's lag than at the inclinometer's: the confidence bound leaves it
+//! room, but a walk the laser cannot see can still be cut. Without the bound a walk taken from the
+//! noise makes the filter follow the noise (a filter averaging 6 readings
+//! where the oracle averages hundreds).
+//!
 //! The inclinometer bias's process noise is not estimated here: the engine
 //! grows the bias's variance at each laser sample by the excess of the
 //! normalised innovations over their expectation ([`RecentMean`] of ν²/S,
@@ -83,6 +98,9 @@ pub const CURVATURE_LAG_S: f64 = 240.0;
 const CURVATURE_SAMPLES: usize = 24;
 /// Estimates are used once they rest on this many differences.
 const MIN_SAMPLES: f64 = 4.0;
+/// The angle walk's bound (N3b) takes the laser's E[D²] this many standard
+/// errors above its estimate.
+const WALK_BOUND_SIGMAS: f64 = 2.0;
 /// A lag enters the variogram's fit once it has this many differences (a
 /// colour's time constant from a few dozen is a guess).
 const MIN_VARIOGRAM_SAMPLES: f64 = 100.0;
@@ -144,6 +162,15 @@ impl LogVariance {
 
     pub fn count(&self) -> f64 {
         self.0.count
+    }
+
+    /// An upper confidence bound on the variance, `sigmas` standard errors
+    /// of the mean log above it: ln χ²₁ has variance π²/2, and the running
+    /// mean rests on at most [`MEMORY`] samples' worth.
+    pub fn upper(&self, min_count: f64, sigmas: f64) -> Option<f64> {
+        let n = self.0.count.min(MEMORY);
+        let spread = (std::f64::consts::PI * std::f64::consts::PI / 2.0 / n).sqrt();
+        self.get(min_count).map(|v| v * (sigmas * spread).exp())
     }
 }
 
@@ -584,6 +611,21 @@ impl LaserCurvature {
         }
     }
 
+    /// The most angle random walk (q_w, white steps of the angle) pitch and
+    /// roll can have, given the laser's noise variance (N3b): a walk adds
+    /// 2 q_w h to E[D²] at lag h (equal spacing), so
+    /// q_w ≤ (E[D²] − 6 σ_L²) / (2h), with E[D²] taken at its upper
+    /// confidence bound ([`WALK_BOUND_SIGMAS`] standard errors above the
+    /// estimate): a bound, not an estimate, it must not cut a walk the
+    /// laser's few samples happened to show less of.
+    pub fn angle_walk_max(&self, laser_var: f64) -> Option<(f64, f64)> {
+        let pitch = self.pitch.upper(MIN_SAMPLES, WALK_BOUND_SIGMAS)?;
+        let roll = self.roll.upper(MIN_SAMPLES, WALK_BOUND_SIGMAS)?;
+        let h = self.lag_s.mean;
+        let q = |e: f64| ((e - 6.0 * laser_var) / (2.0 * h)).max(0.0);
+        Some((q(pitch), q(roll)))
+    }
+
     /// The rate random-walk intensities (q_a) of pitch and roll, given the
     /// laser's noise variance: E[D²] = (2/3) q_a h³ + 6 σ_L² for samples h
     /// apart (the second difference of an integrated random walk).
@@ -708,6 +750,42 @@ mod tests {
         );
         // The roll stood still: nothing beyond the laser's noise.
         assert!(roll < 0.1 * q_a, "{roll:e}");
+    }
+
+    /// An angle that random-walks with q_w, seen by a laser every 60 s
+    /// with 0.003° of noise. At the 240 s lag E[D²] = 2 q_w h + 6σ² =
+    /// 4.8e-8 + 1.65e-8 rad²; its upper bound (×e^{2√(π²/80)} ≈ 2.0) less
+    /// 6σ², over 2h, is about 2.4 q_w: the bound covers the walk without
+    /// being loose by an order of magnitude. A roll standing still leaves
+    /// only the laser's noise (about 0.35 q_w, often 0). Means over
+    /// snapshots every 100 samples (geometric for the pitch), so the test
+    /// does not rest on one.
+    #[test]
+    fn the_laser_bounds_the_angle_walk() {
+        let mut rng = ChaCha8Rng::seed_from_u64(4);
+        let mut curvature = LaserCurvature::default();
+        let (q_w, sigma) = (1e-10_f64, 0.003_f64.to_radians());
+        let mut angle = 0.0;
+        let (mut pitch_log, mut roll_sum, mut snapshots) = (0.0, 0.0, 0.0);
+        for k in 0..20_000 {
+            let w: f64 = rng.sample(StandardNormal);
+            angle += (q_w * 60.0).sqrt() * w;
+            let n: [f64; 2] = [rng.sample(StandardNormal), rng.sample(StandardNormal)];
+            curvature.observe(60.0 * k as f64, angle + sigma * n[0], sigma * n[1], 60.0);
+            if k >= 1000 && k % 100 == 0 {
+                let (pitch, roll) = curvature.angle_walk_max(sigma * sigma).unwrap();
+                pitch_log += pitch.ln();
+                roll_sum += roll;
+                snapshots += 1.0;
+            }
+        }
+        let pitch = (pitch_log / snapshots).exp();
+        let roll = roll_sum / snapshots;
+        assert!(
+            pitch > 1.5 * q_w && pitch < 4.0 * q_w,
+            "{pitch:e} vs {q_w:e}"
+        );
+        assert!(roll < 0.6 * q_w, "{roll:e} vs {q_w:e}");
     }
 
     #[test]
