@@ -308,8 +308,10 @@ const JACK_19_ESTIMATES_SHA256: &str =
 const VAN_19_ESTIMATES_SHA256: &str =
     "fe9ec9c098780df0f452a3e06517d09e79629ac00f5846ecdaa2c9ed13b5fb2f";
 
-/// The same for the attitude history of `tbm-19` (taken when replay
-/// reproduced every estimate but the σ fields issue 35 added).
+/// The same for the attitude history of `tbm-19`: the stored rows as
+/// served, hashed in the commit that changed the engine (issue 35's
+/// smoothed residuals); the commit before it asserted that replay
+/// reproduced every one of them but the σ fields issue 35 added.
 const TBM_19_ESTIMATES_SHA256: &str =
     "5458e18b349f52d096cb6fd375a0717204bb63c3528b27ad043fe364fd9a1146";
 
@@ -343,7 +345,8 @@ fn canonical_digest(values: &[Value]) -> String {
 
 /// The fixture of the release before issue 19: three machines, one per
 /// engine, each with its readings, estimates and a snapshot of its engine
-/// at the state version this release still runs:
+/// at the state version that release ran (every engine's has moved on
+/// since, so each is refused as outdated and rebuilt from the readings):
 /// - `tbm-19` (attitude, `fusion_gain_pitch = 0.03`): `simulate tbm
 ///   --hours 0.25 --laser-period-s 30 --seed 11`, all 930 lines;
 /// - `jack-19` (zupt, `initial_yaw_deg = 45`): `simulate pipe-jacking
@@ -435,8 +438,10 @@ async fn a_database_from_before_issue_19_opens_serves_and_continues() {
         // tangent beyond the seen roll), so the history is no longer what
         // replay makes of it: every estimate is served at the time replay
         // makes one, and every 100th (and the last) as the fixture holds
-        // it, pinned in a file written when this release's replay still
-        // equalled them all (the fields added since null: zupt's
+        // it, pinned in a file of the stored rows as served, written when
+        // (zupt, fuzzy) or just after (attitude: the test of the commit
+        // before asserted it) this release's replay equalled them all
+        // (the fields added since null: zupt's
         // `attitude_sigma_deg`, `pitch_sigma_deg` and `roll_sigma_deg`,
         // fuzzy's `pitch_sigma_deg`, `roll_sigma_deg`, `heading_sigma_deg`,
         // `compass` and `compass_since`, attitude's `pitch_sigma_deg`,
@@ -465,8 +470,9 @@ async fn a_database_from_before_issue_19_opens_serves_and_continues() {
         assert_eq!(downsampled["downsampled"], true, "{machine}");
         assert!(!downsampled["estimates"].as_array().unwrap().is_empty());
 
-        // It continues from its stored snapshot as a replay of every
-        // reading does.
+        // It continues (its snapshot refused as outdated, the engine
+        // rebuilt from the stored readings) as a replay of every reading
+        // does.
         let lines = before_issue_19_drive(machine, old_lines.len() + more_lines);
         assert_eq!(lines[..old_lines.len()], old_lines[..], "{machine}");
         for chunk in lines[old_lines.len()..].chunks(1000) {

@@ -50,9 +50,9 @@
 //! a walk; over minutes the laser sees whether the angle really wanders.
 //! Motion that reverts within minutes (τ below the lag) shows less at the
 //! laser's lag than at the inclinometer's: the confidence bound leaves it
-//! room, but a walk the laser cannot see can still be cut. Without the bound a walk taken from the
-//! noise makes the filter follow the noise (a filter averaging 6 readings
-//! where the oracle averages hundreds).
+//! room, but a walk the laser cannot see can still be cut. Without the
+//! bound a walk taken from the noise makes the filter follow the noise (a
+//! filter averaging 6 readings where the oracle averages hundreds).
 //!
 //! The inclinometer bias's process noise is not estimated here: the engine
 //! grows the bias's variance at each laser sample by the excess of the
@@ -165,12 +165,17 @@ impl LogVariance {
     }
 
     /// An upper confidence bound on the variance, `sigmas` standard errors
-    /// of the mean log above it: ln χ²₁ has variance π²/2, and the running
-    /// mean rests on at most [`MEMORY`] samples' worth.
+    /// of the mean log above it, once `min_count` samples are in. ln χ²₁
+    /// has variance π²/2; the running mean forgets with weight 1/[`MEMORY`]
+    /// (about 2·MEMORY samples' worth), and overlapping differences (the
+    /// laser's lag spans several periods) share readings, so it is taken
+    /// to rest on at most MEMORY independent samples.
     pub fn upper(&self, min_count: f64, sigmas: f64) -> Option<f64> {
-        let n = self.0.count.min(MEMORY);
-        let spread = (std::f64::consts::PI * std::f64::consts::PI / 2.0 / n).sqrt();
-        self.get(min_count).map(|v| v * (sigmas * spread).exp())
+        self.get(min_count).map(|v| {
+            let n = self.0.count.clamp(1.0, MEMORY);
+            let spread = (std::f64::consts::PI * std::f64::consts::PI / 2.0 / n).sqrt();
+            v * (sigmas * spread).exp()
+        })
     }
 }
 
@@ -618,11 +623,11 @@ impl LaserCurvature {
     /// confidence bound ([`WALK_BOUND_SIGMAS`] standard errors above the
     /// estimate): a bound, not an estimate, it must not cut a walk the
     /// laser's few samples happened to show less of.
-    pub fn angle_walk_max(&self, laser_var: f64) -> Option<(f64, f64)> {
+    pub fn angle_walk_max(&self, laser_var_rad2: f64) -> Option<(f64, f64)> {
         let pitch = self.pitch.upper(MIN_SAMPLES, WALK_BOUND_SIGMAS)?;
         let roll = self.roll.upper(MIN_SAMPLES, WALK_BOUND_SIGMAS)?;
         let h = self.lag_s.mean;
-        let q = |e: f64| ((e - 6.0 * laser_var) / (2.0 * h)).max(0.0);
+        let q = |e: f64| ((e - 6.0 * laser_var_rad2) / (2.0 * h)).max(0.0);
         Some((q(pitch), q(roll)))
     }
 
