@@ -298,6 +298,11 @@ impl Anfis {
             })
     }
 
+    /// Mean width σ of the memberships, rad (NaN before the rules exist).
+    pub fn mean_width_rad(&self) -> f64 {
+        self.rules.iter().map(|r| r.width_rad).sum::<f64>() / self.rules.len() as f64
+    }
+
     /// Roll range of the training set when the model was last trained
     /// (what its extrapolation guard holds to), rad.
     pub fn trained_roll_range_rad(&self) -> (f64, f64) {
@@ -331,31 +336,20 @@ impl Anfis {
         let span = self.roll_hi_rad - self.roll_lo_rad;
         let inward = if x > edge { -1.0 } else { 1.0 };
         let inner = edge + inward * self.config.min_width_rad.min(span);
-        let residual = self.residual_at(edge);
-        let at_edge = self.rules_at(edge);
+        let at_edge = self.roll_term(edge);
         if inner == edge {
-            return at_edge + residual + temp;
+            return at_edge + temp;
         }
-        let slope = (at_edge + residual - self.roll_term(inner)) / (edge - inner);
-        at_edge + residual + slope * (x - edge) + temp
+        let slope = (at_edge - self.roll_term(inner)) / (edge - inner);
+        at_edge + slope * (x - edge) + temp
     }
 
     /// The rules' blend (Eq. 24) plus the smoothed residual at `x`.
     fn roll_term(&self, x: f64) -> f64 {
-        self.rules_at(x) + self.residual_at(x)
-    }
-
-    /// The rules' blend, Eq. 24, at `x`.
-    fn rules_at(&self, x: f64) -> f64 {
         let mut firing = [0.0; MAX_MEMBERSHIPS];
         let firing = &mut firing[..self.rules.len()];
         fire_into(&self.rules, x, firing);
-        blend(&self.rules, firing, x)
-    }
-
-    /// The smoothed residual m at `x` (0 without a table).
-    fn residual_at(&self, x: f64) -> f64 {
-        self.residual.as_ref().map_or(0.0, |r| r.at(x))
+        blend(&self.rules, firing, x) + self.residual.as_ref().map_or(0.0, |r| r.at(x))
     }
 
     /// T − T_ref, 0 without a temperature (or while c_T is not fitted).
@@ -494,13 +488,11 @@ impl Anfis {
                 residual_rad: self.rule_target(s) - blend(&self.rules, firings.row(j), s.roll_rad),
             })
             .collect();
-        let mean_width_rad =
-            self.rules.iter().map(|r| r.width_rad).sum::<f64>() / self.rules.len() as f64;
         ResidualTable::fit(
             &residuals,
             self.roll_lo_rad,
             self.roll_hi_rad,
-            mean_width_rad,
+            self.mean_width_rad(),
         )
     }
 

@@ -73,16 +73,11 @@ impl TiltFilter {
         }
     }
 
-    /// Variance of θ + θ̇·`ahead_s` as a prediction of the angle `ahead_s`
-    /// later: [1, ahead, 0] P [1, ahead, 0]ᵀ plus the angle's own motion over
-    /// `ahead_s` (the Q of the module documentation).
-    pub fn predicted_angle_variance(&self, ahead_s: f64, q: &ProcessNoise) -> f64 {
-        self.predicted_angle_variance_blended(1.0, ahead_s, q)
-    }
-
-    /// The same for w·θ + θ̇·`ahead_s` (w: the filter's weight in a blend):
-    /// [w, a, 0] P [w, a, 0]ᵀ plus the angle's own motion over `ahead_s`.
-    pub fn predicted_angle_variance_blended(&self, w: f64, ahead_s: f64, q: &ProcessNoise) -> f64 {
+    /// Variance of w·θ + θ̇·`ahead_s` (w: the filter's weight in a blend
+    /// with the held laser, 1 without) as a prediction of the angle
+    /// `ahead_s` later: [w, a, 0] P [w, a, 0]ᵀ plus the angle's own motion
+    /// over `ahead_s` (the Q of the module documentation).
+    pub fn predicted_angle_variance(&self, w: f64, ahead_s: f64, q: &ProcessNoise) -> f64 {
         let p = &self.p;
         let a = ahead_s;
         w * w * p[0][0]
@@ -218,8 +213,8 @@ mod tests {
             angle: 0.5,
             rate: 3.0,
         };
-        assert!((f.predicted_angle_variance(2.0, &q) - 25.0).abs() < 1e-12);
-        assert_eq!(f.predicted_angle_variance(0.0, &q), 4.0);
+        assert!((f.predicted_angle_variance(1.0, 2.0, &q) - 25.0).abs() < 1e-12);
+        assert_eq!(f.predicted_angle_variance(1.0, 0.0, &q), 4.0);
     }
 
     const Q0: ProcessNoise = ProcessNoise {

@@ -234,6 +234,20 @@ impl SelfTuning {
     }
 }
 
+/// The model in use's trained roll range and the RMS slope of its
+/// correction over it ([`AttitudeEngine::extrapolation_variance`]), kept
+/// with the model it was computed from.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+struct Extrapolation {
+    /// The model: its index among the candidates and its version.
+    chosen: usize,
+    version: u64,
+    lo_rad: f64,
+    hi_rad: f64,
+    /// rad of correction per rad of roll.
+    slope: f64,
+}
+
 /// The fused attitude of the newest inclinometer reading.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 struct Newest {
@@ -275,9 +289,8 @@ pub struct AttitudeEngine {
     /// laser finds that the filter's variance misses (rad²).
     pitch_laser_error: noise::RecentMean,
     roll_laser_error: noise::RecentMean,
-    /// For the model in use (chosen, version): its training roll range
-    /// (lo, hi, rad) and the RMS slope of its correction over it.
-    extrapolation: Option<(usize, u64, f64, f64, f64)>,
+    /// What the model in use knows of its roll range, for the σ beyond it.
+    extrapolation: Option<Extrapolation>,
     /// Training pairs added since the model was last trained.
     pairs_untrained: u32,
     /// Trainings so far.
@@ -584,10 +597,9 @@ impl AttitudeEngine {
         let pitch_variance = (1.0 - k_f1).powi(2) * own + k_f1 * k_f1 * held(&noise.pitch);
         // The prediction adds rate·a to the blend: [1 − k, a, 0] P [1 − k, a, 0]ᵀ
         // and the angle's motion over a.
-        let pitch_pred_variance =
-            pitch.predicted_angle_variance_blended(1.0 - k_f1, ahead_s, &noise.pitch)
-                + (1.0 - k_f1).powi(2) * (own - pitch.p[0][0])
-                + k_f1 * k_f1 * held(&noise.pitch);
+        let pitch_pred_variance = pitch.predicted_angle_variance(1.0 - k_f1, ahead_s, &noise.pitch)
+            + (1.0 - k_f1).powi(2) * (own - pitch.p[0][0])
+            + k_f1 * k_f1 * held(&noise.pitch);
         let roll_own = roll.p[0][0] + self.roll_laser_error.mean.max(0.0);
         let roll_variance = (1.0 - k_f2).powi(2) * roll_own + k_f2 * k_f2 * held(&noise.roll);
 
@@ -612,20 +624,28 @@ impl AttitudeEngine {
         })
     }
 
+    /// How far the bias may have moved since the previous laser sample,
+    /// rad², at `t` with the roll at `roll_rad`: as much as the time and
+    /// the roll's travel allow (q_b Δt + q_β Δβ²). `None` before a laser
+    /// sample.
+    fn bias_allowance(&self, t: f64, roll_rad: f64) -> Option<f64> {
+        let (t0, roll_0) = self.last_laser_roll?;
+        let dr = roll_rad - roll_0;
+        Some(self.noise.bias.per_s * (t - t0).abs() + self.noise.bias.per_roll2 * dr * dr)
+    }
+
     /// What the bias's variance would grow by if a laser sample came at
-    /// `t` with the roll at `roll_rad` (the allowance of [`Self::on_laser`]),
-    /// rad²: the part of the correction no laser has checked yet.
+    /// `t` with the roll at `roll_rad` (the allowance of [`Self::on_laser`],
+    /// or the model's own error if larger), rad²: the part of the
+    /// correction no laser has checked yet.
     fn unchecked_bias_variance(&self, t: f64, roll_rad: f64) -> f64 {
-        match self.last_laser_roll {
-            Some((t0, roll_0)) => {
-                let dr = roll_rad - roll_0;
-                let allowance =
-                    self.noise.bias.per_s * (t - t0).abs() + self.noise.bias.per_roll2 * dr * dr;
-                allowance.max(self.model_variance(dr))
-                    + self.extrapolation_variance(roll_0, roll_rad)
-            }
-            None => 0.0,
-        }
+        let (Some(allowance), Some((_, roll_0))) =
+            (self.bias_allowance(t, roll_rad), self.last_laser_roll)
+        else {
+            return 0.0;
+        };
+        allowance.max(self.model_variance(roll_rad - roll_0))
+            + self.extrapolation_variance(roll_0, roll_rad)
     }
 
     /// What the model cannot know beyond the roll it was trained on, rad²:
@@ -636,7 +656,13 @@ impl AttitudeEngine {
     /// about the rate it did where it was seen, while the model goes on
     /// along its tangent at the edge, which may not hold.
     fn extrapolation_variance(&self, anchor_rad: f64, roll_rad: f64) -> f64 {
-        let Some(&(_, _, lo, hi, slope)) = self.extrapolation.as_ref() else {
+        let Some(Extrapolation {
+            lo_rad: lo,
+            hi_rad: hi,
+            slope,
+            ..
+        }) = self.extrapolation
+        else {
             return 0.0;
         };
         // Signed distance beyond the range: + above, − below, 0 within.
@@ -646,16 +672,16 @@ impl AttitudeEngine {
 
     /// Recomputes the model's trained roll range and RMS slope (for
     /// [`Self::extrapolation_variance`]) when the model in use changed: a
-    /// function of the model alone, kept with its (chosen, version) key.
+    /// function of the model alone, kept with the model it is for.
     fn refresh_extrapolation(&mut self) {
         if self.config.correction != Correction::Anfis || self.anfis().rules().is_empty() {
             self.extrapolation = None;
             return;
         }
-        let key = (self.chosen, self.anfis().version());
+        let (chosen, version) = (self.chosen, self.anfis().version());
         if self
             .extrapolation
-            .is_some_and(|(chosen, version, ..)| (chosen, version) == key)
+            .is_some_and(|e| (e.chosen, e.version) == (chosen, version))
         {
             return;
         }
@@ -674,7 +700,13 @@ impl AttitudeEngine {
         } else {
             0.0
         };
-        self.extrapolation = Some((key.0, key.1, lo, hi, slope));
+        self.extrapolation = Some(Extrapolation {
+            chosen,
+            version,
+            lo_rad: lo,
+            hi_rad: hi,
+            slope,
+        });
     }
 
     /// What the model's own error adds to the correction after the roll
@@ -692,7 +724,7 @@ impl AttitudeEngine {
         if rules.is_empty() || !gcv.is_finite() || gcv >= f64::MAX {
             return 0.0;
         }
-        let width = rules.iter().map(|r| r.width_rad).sum::<f64>() / rules.len() as f64;
+        let width = model.mean_width_rad();
         let decorrelated = (roll_travel_rad / width.max(1e-9)).powi(2).min(1.0);
         2.0 * gcv * decorrelated
     }
@@ -707,12 +739,11 @@ impl AttitudeEngine {
         let noise = self.noise;
         let roll_now = self.roll.map(|f| f.angle());
         let unchecked = roll_now.map_or(0.0, |roll| self.unchecked_bias_variance(t, roll));
+        let allowance = roll_now.and_then(|roll| self.bias_allowance(t, roll));
         if let Some(f) = self.pitch.as_mut() {
-            // The bias may have moved since the previous laser sample, by
-            // as much as the time and the roll's travel allow.
-            if let (Some((t0, roll_0)), Some(roll)) = (self.last_laser_roll, roll_now) {
-                let dr = roll - roll_0;
-                f.inflate_bias(noise.bias.per_s * (t - t0).abs() + noise.bias.per_roll2 * dr * dr);
+            // The bias may have moved since the previous laser sample.
+            if let Some(allowance) = allowance {
+                f.inflate_bias(allowance);
             }
             let (h, r) = laser_row(f, t, &noise.pitch, noise.r_laser);
             // Laser samples further off than the filter allows, on average

@@ -5,12 +5,12 @@
 //! A standing person's sway or a rocking chassis turns the sensor slowly
 //! (0.1–1 Hz): over a window of half a second its rates are nearly a
 //! cubic, and the fit takes them out (a 1 Hz swing keeps 2 % of its
-//! spread, 1.25 Hz 4 %, 0.5 Hz 0.1 %, 0.1 Hz nothing). Road vibration, wheels and engines
-//! shake the sensor faster (a 4 Hz swing keeps 91 %, 6 Hz 95 %). White
-//! noise of σ per axis leaves a residual sum of squares of 3σ²·(n − 4),
-//! and the fast spread √(RSS·(n − 1)/(n·(n − 4))) has the plain spread's
-//! expectation 3σ²·(n − 1)/n for it, so the noise floors learnt from it
-//! keep their meaning.
+//! spread, 1.25 Hz 4 %, 0.5 Hz 0.1 %, 0.1 Hz nothing). Road vibration,
+//! wheels and engines shake the sensor faster (a 4 Hz swing keeps 91 %,
+//! 6 Hz 95 %). White noise of σ per axis leaves a residual sum of
+//! squares of 3σ²·(n − 4), and the fast spread √(RSS·(n − 1)/(n·(n − 4)))
+//! has the plain spread's expectation 3σ²·(n − 1)/n for it, so the noise
+//! floors learnt from it keep their meaning.
 //!
 //! With j = 0 … n − 1 the readings' places in the window, oldest first,
 //! the window keeps the moments M_k = Σ j^k·x_j (k = 0 … 3) per axis and
