@@ -2,25 +2,31 @@
 //! place of the paper's four scalar random walks. One filter runs per tilt
 //! axis (pitch, roll); its states are
 //!
-//! x = [θ, θ̇, b]: the angle, its rate, and the inclinometer's residual
+//! x = [θ, θ̇, b, s]: the angle, its rate, the inclinometer's residual
 //! bias — what the error model has not explained (pitch) or the mounting
-//! offset (roll).
+//! offset (roll) — and, beyond the roll the error model was trained on,
+//! by how much the error's slope there differs from the model's tangent
+//! at the edge (pitch only; the roll's inclinometer row never reaches it).
 //!
 //! Motion over dt (Eq. 3–4 with Φ, Γ Q Γᵀ below): θ ← θ + θ̇·dt; θ̇ is a
-//! random walk; θ may also take white steps; b is constant:
+//! random walk; θ may also take white steps; b and s are constant:
 //!
-//! Φ = [[1, dt, 0], [0, 1, 0], [0, 0, 1]],
-//! Q = [[q_θ dt + q_θ̇ dt³/3, q_θ̇ dt²/2, 0], [q_θ̇ dt²/2, q_θ̇ dt, 0], [0, 0, 0]].
+//! Φ = I + dt·e_θ e_θ̇ᵀ; Q has q_θ dt + q_θ̇ dt³/3, q_θ̇ dt²/2 and q_θ̇ dt
+//! in the (θ, θ̇) block and 0 elsewhere.
 //!
 //! The bias moves only where something can see it move: the engine grows
 //! its variance just before each laser sample ([`TiltFilter::inflate_bias`])
 //! by what the roll and the time since the previous one allow. Between
 //! laser samples — and through a dropout — a change of the inclinometer is
-//! therefore a change of the angle, never a drift of the bias.
+//! therefore a change of the angle or, where the roll is d beyond the
+//! trained range, of the error by s·d: the filter weighs the two by θ̇'s
+//! random walk against s's prior, and tells them apart where the roll
+//! moves back and forth faster than the angle turns.
 //!
-//! Measurements (Eq. 5–7, scalar): the corrected inclinometer z = θ + b
-//! (H = [1, 0, 1]), the laser y = θ (H = [1, 0, 0]). Eq. 7 is used as
-//! corrected in NOTES.md: P = (I − K H) P⁻.
+//! Measurements (Eq. 5–7, scalar): the corrected inclinometer
+//! z = θ + b + s·d (H = [1, 0, 1, d], [`inclinometer_row`]; d = 0 within
+//! the trained roll range), the laser y = θ (H = [1, 0, 0, 0]). Eq. 7 is
+//! used as corrected in NOTES.md: P = (I − K H) P⁻.
 //!
 //! Units are the caller's (radians and seconds in the engine).
 
@@ -35,15 +41,26 @@ pub struct ProcessNoise {
     pub rate: f64,
 }
 
-/// Measurement rows H.
-pub const H_INCLINOMETER: [f64; 3] = [1.0, 0.0, 1.0];
-pub const H_LASER: [f64; 3] = [1.0, 0.0, 0.0];
+/// The number of states: θ, θ̇, b, s.
+pub const N: usize = 4;
+const BIAS: usize = 2;
+const SLOPE: usize = 3;
+
+/// Measurement rows H: the inclinometer within the trained roll range, the laser.
+pub const H_INCLINOMETER: [f64; N] = [1.0, 0.0, 1.0, 0.0];
+pub const H_LASER: [f64; N] = [1.0, 0.0, 0.0, 0.0];
+
+/// The inclinometer's row with the roll `beyond_rad` past the range the
+/// error model was trained on (signed; 0 within it): [1, 0, 1, d].
+pub fn inclinometer_row(beyond_rad: f64) -> [f64; N] {
+    [1.0, 0.0, 1.0, beyond_rad]
+}
 
 /// One axis's filter: state and covariance (symmetric, stored whole).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct TiltFilter {
-    pub x: [f64; 3],
-    pub p: [[f64; 3]; 3],
+    pub x: [f64; N],
+    pub p: [[f64; N]; N],
     /// Time of the state; `None` until the first inclinometer reading.
     pub t: Option<f64>,
 }
@@ -59,24 +76,33 @@ pub struct Innovation {
 
 impl TiltFilter {
     /// A filter that starts at the first inclinometer reading `z`: θ = z − b
-    /// with b ~ N(0, `bias_sd`²), θ̇ ~ N(0, `rate_sd`²).
+    /// with b ~ N(0, `bias_sd`²), θ̇ ~ N(0, `rate_sd`²); s = 0 with no
+    /// variance until a model gives it one ([`Self::restart_slope`]).
     pub fn start(t: f64, z: f64, r: f64, bias_sd: f64, rate_sd: f64) -> TiltFilter {
         let vb = bias_sd * bias_sd;
         TiltFilter {
-            x: [z, 0.0, 0.0],
-            p: [
-                [vb + r, 0.0, -vb],
-                [0.0, rate_sd * rate_sd, 0.0],
-                [-vb, 0.0, vb],
-            ],
+            x: {
+                let mut x = [0.0; N];
+                x[0] = z;
+                x
+            },
+            p: {
+                let mut p = [[0.0; N]; N];
+                p[0][0] = vb + r;
+                p[0][BIAS] = -vb;
+                p[BIAS][0] = -vb;
+                p[1][1] = rate_sd * rate_sd;
+                p[BIAS][BIAS] = vb;
+                p
+            },
             t: Some(t),
         }
     }
 
     /// Variance of w·θ + θ̇·`ahead_s` (w: the filter's weight in a blend
     /// with the held laser, 1 without) as a prediction of the angle
-    /// `ahead_s` later: [w, a, 0] P [w, a, 0]ᵀ plus the angle's own motion
-    /// over `ahead_s` (the Q of the module documentation).
+    /// `ahead_s` later: [w, a, 0, 0] P [w, a, 0, 0]ᵀ plus the angle's
+    /// own motion over `ahead_s` (the Q of the module documentation).
     pub fn predicted_angle_variance(&self, w: f64, ahead_s: f64, q: &ProcessNoise) -> f64 {
         let p = &self.p;
         let a = ahead_s;
@@ -115,30 +141,34 @@ impl TiltFilter {
         }
         let p = &mut self.p;
         let dt2 = dt * dt;
-        // Φ P Φᵀ, written out for Φ = [[1, dt, 0], [0, 1, 0], [0, 0, 1]].
+        // Φ P Φᵀ, written out for Φ = I + dt·e₀e₁ᵀ (θ takes dt·θ̇).
         let p00 = p[0][0] + 2.0 * dt * p[0][1] + dt2 * p[1][1];
         let p01 = p[0][1] + dt * p[1][1];
-        let p02 = p[0][2] + dt * p[1][2];
+        // θ's covariance with b and s takes dt times θ̇'s.
+        let rate_row = p[1];
+        for (k, rate_k) in rate_row.iter().enumerate().skip(BIAS) {
+            let v = p[0][k] + dt * rate_k;
+            p[0][k] = v;
+            p[k][0] = v;
+        }
         p[0][0] = p00 + q.angle * dt + q.rate * dt2 * dt / 3.0;
         p[0][1] = p01 + q.rate * dt2 / 2.0;
         p[1][0] = p[0][1];
-        p[0][2] = p02;
-        p[2][0] = p02;
         p[1][1] += q.rate * dt;
         self.x[0] += self.x[1] * dt;
         self.t = Some(t);
     }
 
     /// The innovation a measurement would have, without taking it.
-    pub fn innovation(&self, h: [f64; 3], z: f64, r: f64) -> Innovation {
+    pub fn innovation(&self, h: [f64; N], z: f64, r: f64) -> Innovation {
         let p = &self.p;
         let mut s = r;
-        for i in 0..3 {
-            for j in 0..3 {
+        for i in 0..N {
+            for j in 0..N {
                 s += h[i] * p[i][j] * h[j];
             }
         }
-        let predicted = h[0] * self.x[0] + h[1] * self.x[1] + h[2] * self.x[2];
+        let predicted: f64 = (0..N).map(|i| h[i] * self.x[i]).sum();
         Innovation {
             value: z - predicted,
             variance: s,
@@ -147,16 +177,12 @@ impl TiltFilter {
 
     /// Eq. 5–7 for a scalar measurement `z` = h·x + noise of variance `r`.
     #[inline]
-    pub fn update(&mut self, h: [f64; 3], z: f64, r: f64) -> Innovation {
+    pub fn update(&mut self, h: [f64; N], z: f64, r: f64) -> Innovation {
         let p = &self.p;
         // P Hᵀ
-        let ph = [
-            p[0][0] * h[0] + p[0][1] * h[1] + p[0][2] * h[2],
-            p[1][0] * h[0] + p[1][1] * h[1] + p[1][2] * h[2],
-            p[2][0] * h[0] + p[2][1] * h[1] + p[2][2] * h[2],
-        ];
-        let s = h[0] * ph[0] + h[1] * ph[1] + h[2] * ph[2] + r;
-        let predicted = h[0] * self.x[0] + h[1] * self.x[1] + h[2] * self.x[2];
+        let ph: [f64; N] = std::array::from_fn(|i| (0..N).map(|j| p[i][j] * h[j]).sum());
+        let s = (0..N).map(|i| h[i] * ph[i]).sum::<f64>() + r;
+        let predicted: f64 = (0..N).map(|i| h[i] * self.x[i]).sum();
         let value = z - predicted;
         if !(s > 0.0 && s.is_finite()) {
             return Innovation { value, variance: s };
@@ -166,14 +192,14 @@ impl TiltFilter {
             *x += phi * inv_s * value; // Eq. 6 with K = P Hᵀ / S (Eq. 5)
         }
         // Eq. 7 (corrected): P − K H P = P − P Hᵀ H P / S, kept symmetric.
-        for i in 0..3 {
-            for j in i..3 {
+        for i in 0..N {
+            for j in i..N {
                 let v = self.p[i][j] - ph[i] * ph[j] * inv_s;
                 self.p[i][j] = v;
                 self.p[j][i] = v;
             }
         }
-        for i in 0..3 {
+        for i in 0..N {
             self.p[i][i] = self.p[i][i].max(0.0);
         }
         Innovation { value, variance: s }
@@ -193,20 +219,59 @@ impl TiltFilter {
         self.x[2] += delta;
         self.p[2][2] += delta * delta;
     }
+
+    /// By how much the error's slope beyond the trained roll differs
+    /// from the model's tangent there, ŝ.
+    pub fn slope(&self) -> f64 {
+        self.x[SLOPE]
+    }
+
+    /// A new model with its own trained range, the roll now `beyond_rad`
+    /// past the old one: what s took up there goes to the bias (b ← b + s·d:
+    /// θ and what the inclinometer is expected to read stay), and s starts
+    /// again from 0 with the variance `slope_var`, uncorrelated.
+    pub fn restart_slope(&mut self, beyond_rad: f64, slope_var: f64) {
+        let d = beyond_rad;
+        let p = &mut self.p;
+        // x ← T x with T = I + d e_b e_sᵀ; P ← T P Tᵀ.
+        self.x[BIAS] += d * self.x[SLOPE];
+        for row in p.iter_mut() {
+            row[BIAS] += d * row[SLOPE];
+        }
+        let from = p[SLOPE];
+        for (to, v) in p[BIAS].iter_mut().zip(from) {
+            *to += d * v;
+        }
+        self.x[SLOPE] = 0.0;
+        for row in p.iter_mut() {
+            row[SLOPE] = 0.0;
+        }
+        p[SLOPE] = [0.0; N];
+        p[SLOPE][SLOPE] = slope_var;
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
+    /// A diagonal covariance.
+    fn diag(v: [f64; N]) -> [[f64; N]; N] {
+        std::array::from_fn(|i| std::array::from_fn(|j| if i == j { v[i] } else { 0.0 }))
+    }
+
     #[test]
     fn the_prediction_variance_by_hand() {
-        // [1, a, 0] P [1, a, 0]ᵀ + q_θ a + q_θ̇ a³/3 with P = [[4, 1, 0],
-        // [1, 2, 0], [0, 0, 1]], a = 2, q_θ = 0.5, q_θ̇ = 3:
+        // [1, a, 0, 0] P [1, a, 0, 0]ᵀ + q_θ a + q_θ̇ a³/3 with P = diag(4,
+        // 2, 1, 1) and p_θθ̇ = 1, a = 2, q_θ = 0.5, q_θ̇ = 3:
         // 4 + 2·2·1 + 4·2 + 0.5·2 + 3·8/3 = 25.
         let f = TiltFilter {
-            x: [0.0; 3],
-            p: [[4.0, 1.0, 0.0], [1.0, 2.0, 0.0], [0.0, 0.0, 1.0]],
+            x: [0.0; N],
+            p: {
+                let mut p = diag([4.0, 2.0, 1.0, 1.0]);
+                (p[0][1], p[1][0]) = (1.0, 1.0);
+                p
+            },
             t: Some(0.0),
         };
         let q = ProcessNoise {
@@ -224,11 +289,16 @@ mod tests {
 
     #[test]
     fn prediction_matches_hand_computation() {
-        // P = I, dt = 2: Φ P Φᵀ = [[1 + 4, 2, 0], [2, 1, 0], [0, 0, 1]],
-        // Q adds q_θ̇ [8/3, 2, 2] on the rate block and q_θ·2; b stays.
+        // P = I plus p_θ̇s = 0.5, dt = 2: Φ P Φᵀ adds 4 to p_θθ, 2 to p_θθ̇
+        // and 2·0.5 to p_θs; Q adds q_θ̇ [8/3, 2, 2] on the rate block and
+        // q_θ·2; b and s stay.
         let mut f = TiltFilter {
-            x: [1.0, 0.5, 0.1],
-            p: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            x: [1.0, 0.5, 0.1, 0.2],
+            p: {
+                let mut p = diag([1.0; N]);
+                (p[1][3], p[3][1]) = (0.5, 0.5);
+                p
+            },
             t: Some(10.0),
         };
         let q = ProcessNoise {
@@ -236,24 +306,28 @@ mod tests {
             rate: 3.0,
         };
         f.predict_to(12.0, &q);
-        assert_eq!(f.x, [2.0, 0.5, 0.1]);
+        assert_eq!(f.x, [2.0, 0.5, 0.1, 0.2]);
         assert_eq!(f.p[0][0], 5.0 + 0.5 + 8.0);
         assert_eq!(f.p[0][1], 2.0 + 6.0);
         assert_eq!(f.p[1][0], f.p[0][1]);
         assert_eq!(f.p[1][1], 1.0 + 6.0);
         assert_eq!(f.p[2][2], 1.0);
         assert_eq!(f.p[0][2], 0.0);
+        assert_eq!(
+            (f.p[0][3], f.p[3][0], f.p[1][3], f.p[3][3]),
+            (1.0, 1.0, 0.5, 1.0)
+        );
         f.inflate_bias(0.5);
         assert_eq!(f.p[2][2], 1.5);
     }
 
     #[test]
     fn update_matches_hand_computation() {
-        // P = diag(4, 1, 1), inclinometer H = [1, 0, 1], r = 2:
+        // P = diag(4, 1, 1, 0), inclinometer H = [1, 0, 1, 0], r = 2:
         // S = 4 + 1 + 2 = 7, K = [4, 0, 1] / 7, innovation 3 − (1 + 0.5) = 1.5.
         let mut f = TiltFilter {
-            x: [1.0, 0.0, 0.5],
-            p: [[4.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            x: [1.0, 0.0, 0.5, 0.0],
+            p: diag([4.0, 1.0, 1.0, 0.0]),
             t: Some(0.0),
         };
         let innovation = f.update(H_INCLINOMETER, 3.0, 2.0);
@@ -316,5 +390,119 @@ mod tests {
         assert_eq!(f.bias(), before.bias() + 0.05);
         assert_eq!(f.p[2][2], before.p[2][2] + 0.05 * 0.05);
         assert_eq!(f.p[0], before.p[0]);
+    }
+    #[test]
+    fn beyond_the_trained_roll_the_row_reaches_the_slope() {
+        // P = diag(4, 1, 1, 9), z = θ + b + s·d with d = 0.5, r = 2:
+        // H P Hᵀ = 4 + 1 + 0.25·9 = 7.25, S = 9.25, and s takes
+        // 0.5·9 / 9.25 of the innovation 1, θ 4 / 9.25.
+        let mut f = TiltFilter {
+            x: [0.0; N],
+            p: diag([4.0, 1.0, 1.0, 9.0]),
+            t: Some(0.0),
+        };
+        let innovation = f.update(inclinometer_row(0.5), 1.0, 2.0);
+        assert_eq!(innovation.variance, 9.25);
+        assert!((f.slope() - 4.5 / 9.25).abs() < 1e-15);
+        assert!((f.angle() - 4.0 / 9.25).abs() < 1e-15);
+        // Within the range the row is the plain inclinometer's.
+        assert_eq!(inclinometer_row(0.0), H_INCLINOMETER);
+    }
+
+    #[test]
+    fn restarting_the_slope_hands_what_it_took_to_the_bias() {
+        // At d = 2 with s = 0.3: b ← 0.1 + 2·0.3 = 0.7, and P ← T P Tᵀ for
+        // T = I + 2 e_b e_sᵀ (multiplied out below, independently of the
+        // in-place form), then s's row and column cleared and its variance
+        // set anew. Hand values: P_bb ← P_bb + 4 P_bs + 4 P_ss = 1 + 0.8 + 2
+        // = 3.8; P_θb ← P_θb + 2 P_θs = 0.2; P_θ̇b ← 0 + 2·0.3 = 0.6.
+        let mut p = diag([2.0, 1.0, 1.0, 0.5]);
+        (p[0][2], p[2][0]) = (0.1, 0.1);
+        (p[0][3], p[3][0]) = (0.05, 0.05);
+        (p[1][3], p[3][1]) = (0.3, 0.3);
+        (p[2][3], p[3][2]) = (0.2, 0.2);
+        let mut f = TiltFilter {
+            x: [1.0, 0.0, 0.1, 0.3],
+            p,
+            t: Some(0.0),
+        };
+        let read = |f: &TiltFilter, h: [f64; N]| (0..N).map(|i| h[i] * f.x[i]).sum::<f64>();
+        let before = read(&f, inclinometer_row(2.0));
+        f.restart_slope(2.0, 7.0);
+        let mut t = diag([1.0; N]);
+        t[2][3] = 2.0;
+        let product = |a: &[[f64; N]; N], b: &[[f64; N]; N]| -> [[f64; N]; N] {
+            std::array::from_fn(|i| {
+                std::array::from_fn(|j| (0..N).map(|k| a[i][k] * b[k][j]).sum())
+            })
+        };
+        let transposed: [[f64; N]; N] = std::array::from_fn(|i| std::array::from_fn(|j| t[j][i]));
+        let mut expected = product(&product(&t, &p), &transposed);
+        for row in expected.iter_mut() {
+            row[3] = 0.0;
+        }
+        expected[3] = [0.0, 0.0, 0.0, 7.0];
+        for (i, (row, expected_row)) in f.p.iter().zip(expected).enumerate() {
+            for (j, (v, e)) in row.iter().zip(expected_row).enumerate() {
+                assert!((v - e).abs() < 1e-12, "P[{i}][{j}] {v}, expected {e}");
+            }
+        }
+        assert!((f.p[2][2] - 3.8).abs() < 1e-12);
+        assert!((f.p[0][2] - 0.2).abs() < 1e-12);
+        assert!((f.p[1][2] - 0.6).abs() < 1e-12);
+        assert!((f.bias() - 0.7).abs() < 1e-15);
+        assert_eq!(f.slope(), 0.0);
+        assert_eq!((f.p[0][0], f.x[0]), (2.0, 1.0));
+        // What the inclinometer is expected to read there is unchanged.
+        assert!((read(&f, inclinometer_row(2.0)) - before).abs() < 1e-15);
+    }
+
+    #[test]
+    fn a_roll_swinging_beyond_the_range_reveals_the_slope_without_a_laser() {
+        // The angle climbs at 1e-5 /s, known from the laser, and then, with
+        // the laser gone, twice as fast (q_θ̇ lets its rate wander that
+        // much); the error beyond the trained range is 0.05·d where the
+        // model says 0. Where the roll swings 0–1 beyond the range every
+        // 600 s the swing can only be the error: s finds it and the angle
+        // stays right. Where the roll runs one way at a steady rate
+        // (d = t/3600) the error's growth and the faster climb look alike:
+        // s takes some of the climb, and neither is found.
+        let angle_at = |t: f64| 0.3 + 1e-5 * t + 1e-5 * (t - 600.0).max(0.0);
+        let run = |d_at: &dyn Fn(f64) -> f64| {
+            let q = ProcessNoise {
+                angle: 0.0,
+                rate: 1e-12,
+            };
+            let mut f = TiltFilter::start(0.0, 0.3, 1e-6, 1e-3, 1e-5);
+            for i in 0..600 {
+                let t = f64::from(i);
+                f.predict_to(t, &q);
+                f.update(H_INCLINOMETER, angle_at(t), 1e-6);
+                if i % 60 == 0 {
+                    f.update(H_LASER, angle_at(t), 1e-8);
+                }
+            }
+            f.restart_slope(0.0, 0.01);
+            for i in 600..4200 {
+                let t = f64::from(i);
+                let d = d_at(t - 600.0);
+                f.predict_to(t, &q);
+                f.update(inclinometer_row(d), angle_at(t) + 0.05 * d, 1e-6);
+            }
+            (f.slope(), f.angle() - angle_at(4199.0))
+        };
+        let swing = |t: f64| 0.5 - 0.5 * (std::f64::consts::TAU * t / 600.0).cos();
+        let (slope, angle_error) = run(&swing);
+        assert!((slope - 0.05).abs() < 2e-3, "swinging: s {slope}");
+        assert!(
+            angle_error.abs() < 2e-3,
+            "swinging: angle off by {angle_error}"
+        );
+        let (slope, angle_error) = run(&|t| t / 3600.0);
+        assert!((slope - 0.05).abs() > 0.01, "one way: s {slope}");
+        assert!(
+            angle_error.abs() > 0.01,
+            "one way: angle off by {angle_error}"
+        );
     }
 }
