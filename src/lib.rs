@@ -11,16 +11,29 @@
 //!   recorded trials with optical truth (BROAD), and scores them against
 //!   the truth.
 //! - [`replay`]: streams an NDJSON file of readings through an engine.
-//! - [`config`]: machine declarations (`PUT` bodies, the TOML config file).
+//! - [`config`]: machine declarations (`PUT` bodies and the config file's
+//!   `[machines]`), validated.
+//! - [`clock`]: the service's clock (possibly accelerated, in the demo).
+//! - [`auth`]: access tokens, hashed in the store.
 //! - [`store`]: the SQLite store; one writer thread with group commit,
 //!   pooled readers.
 //! - [`machine`]: one task per machine owning its engines; the only bridge
-//!   from async code to the fusion core.
-//! - [`server`]: axum routes, shared state, errors, live stream, metrics.
+//!   from async code to the fusion core. It hands committed alarm changes
+//!   to a [`machine::AlarmSink`] it defines.
+//! - [`server`]: axum routes (the router and `run` in its `mod.rs`), shared
+//!   state (`server::state`), settings and the config file
+//!   (`server::settings`), errors, live stream, MQTT, metrics, alarm
+//!   notifications (the sink's subscriber).
 //! - [`cli`]: one file per subcommand; `main.rs` only parses and dispatches.
+//!
+//! Imports run downwards only: nothing below `server` (the fusion core,
+//! `sim`, `eval`, `replay`, `config`, `clock`, `auth`, `store`, `machine`)
+//! imports it or `cli`, and `server` does not import `cli`
+//! (`tests/layering.rs`).
 
 pub mod auth;
 pub mod cli;
+pub mod clock;
 pub mod config;
 pub mod eval;
 pub mod fusion;

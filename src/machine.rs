@@ -17,6 +17,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use serde::{Deserialize, Serialize};
 use tokio::sync::{broadcast, mpsc, oneshot, watch};
 
+use crate::clock::Clock;
 use crate::config::MachineSpec;
 use crate::fusion::alarms::{AlarmRules, AlarmState, Transition};
 use crate::fusion::estimate::EstimateWriter;
@@ -26,9 +27,7 @@ use crate::fusion::{
     EngineKind, EngineModel, EngineOutput, ParamError, Reading, SensorKind, SnapshotError,
     StreamKind,
 };
-use crate::server::Clock;
-use crate::server::notify::AlarmNotifier;
-use crate::store::alarms::AlarmRow;
+use crate::store::alarms::{AlarmChange, AlarmRow};
 use crate::store::{EstimateRow, ReadingRow, Store, StoreError, Write, WriteOutcome};
 
 /// Most readings the reorder buffer holds per machine.
@@ -423,6 +422,14 @@ pub fn recover(store: &Store, spec: &MachineSpec, db_id: i64) -> Result<MachineC
     Ok(core)
 }
 
+/// Where a machine hands the alarm changes its writes committed, in
+/// order: the server's notifier (live sockets, webhooks) subscribes here.
+pub trait AlarmSink: Send + Sync + 'static {
+    /// Takes committed changes; must not block (it runs on the store's
+    /// writer thread).
+    fn publish(&self, changes: Vec<AlarmChange>);
+}
+
 /// What a machine's task shares with the server.
 #[derive(Clone)]
 pub struct Surroundings {
@@ -432,7 +439,7 @@ pub struct Surroundings {
     /// The server clock, for sensors gone silent.
     pub clock: Clock,
     /// Where committed alarm changes go.
-    pub alarm_changes: AlarmNotifier,
+    pub alarm_changes: Arc<dyn AlarmSink>,
 }
 
 /// Starts the task that owns `core`.
@@ -492,7 +499,7 @@ struct Actor {
     /// The server clock, for sensors gone silent.
     clock: Clock,
     /// Where the alarms this machine's writes changed go once committed.
-    alarm_changes: AlarmNotifier,
+    alarm_changes: Arc<dyn AlarmSink>,
 }
 
 /// Real time between the checks for silent sensors.

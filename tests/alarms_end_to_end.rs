@@ -15,8 +15,8 @@ use futures_util::StreamExt;
 use serde_json::{Value, json};
 use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::tungstenite::client::IntoClientRequest;
+use tunnelnav::clock::wall_clock_s;
 use tunnelnav::fusion::alignment::AlignmentSpec;
-use tunnelnav::server::wall_clock_s;
 use tunnelnav::sim::axis_drive::{AxisDrive, AxisDriveScenario, AxisEvent};
 
 type Socket =

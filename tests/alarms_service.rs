@@ -6,7 +6,7 @@ mod common;
 
 use common::{TestServer, declare_machine, post_ndjson};
 use serde_json::{Value, json};
-use tunnelnav::server::wall_clock_s;
+use tunnelnav::clock::wall_clock_s;
 
 /// An attitude machine on a straight axis due north from (1000, 5000),
 /// level at 50 m, ±50/100 mm horizontal tolerances.
@@ -246,7 +246,7 @@ async fn receiver(
 async fn webhooks_get_each_transition_once_per_severity_retried_after_a_500() {
     let (hooks, seen, receiving) = receiver(1).await;
     let dir = tempfile::tempdir().unwrap();
-    let webhooks = tunnelnav::config::WebhookConfig {
+    let webhooks = tunnelnav::server::settings::WebhookConfig {
         warn: Some(format!("{hooks}/warn")),
         alarm: Some(format!("{hooks}/alarm")),
         first_retry_s: 0.2,
@@ -254,7 +254,7 @@ async fn webhooks_get_each_transition_once_per_severity_retried_after_a_500() {
     };
     let server = common::TestServer::start_configured(
         dir.path(),
-        tunnelnav::server::Limits::default(),
+        tunnelnav::server::settings::Limits::default(),
         webhooks,
     )
     .await;

@@ -8,7 +8,7 @@ use common::{
     server_with_machine,
 };
 use serde_json::{Value, json};
-use tunnelnav::server::Limits;
+use tunnelnav::server::settings::Limits;
 use tunnelnav::sim::tbm::Dropout;
 
 const INCL: &str = r#"{"t":1772431200,"sensor":"inclinometer","pitch_deg":0.5,"roll_deg":1}"#;
@@ -500,7 +500,7 @@ async fn readings_posted_while_the_machine_is_redeclared_are_all_stored() {
     let base = server.url("");
     let declaration = |name: &str| json!({"name": name, "engines": {"attitude": {}}}).to_string();
     common::declare_machine(&client, &base, "tbm-r", &declaration("A")).await;
-    let t0 = tunnelnav::server::wall_clock_s().floor() - 1000.0;
+    let t0 = tunnelnav::clock::wall_clock_s().floor() - 1000.0;
     let posting = {
         let (client, base) = (client.clone(), base.clone());
         tokio::spawn(async move {

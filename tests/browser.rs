@@ -167,7 +167,7 @@ async fn save_screenshot(browser: &Client, name: &str) -> PathBuf {
 
 /// A 40-minute drive ending now: 1 Hz inclinometer, 60 s laser.
 fn drive_ending_now() -> Vec<tunnelnav::fusion::Reading> {
-    let now = tunnelnav::server::wall_clock_s();
+    let now = tunnelnav::clock::wall_clock_s();
     TbmDrive::new(TbmScenario {
         seed: 5,
         start_t: (now - 2400.0).floor(),
@@ -503,7 +503,7 @@ async fn zupt_page_shows_the_drive_and_the_detector() {
     )
     .await;
     // Seven minutes of the trolley run, ending now.
-    let now = tunnelnav::server::wall_clock_s();
+    let now = tunnelnav::clock::wall_clock_s();
     let drive = PipeJackDrive::new(PipeJackScenario {
         start_t: (now - 420.0).floor(),
         ..PipeJackScenario::default()
@@ -619,7 +619,7 @@ async fn fuzzy_page_shows_compass_motion_and_calibration() {
     )
     .await;
     // Five minutes of the vehicle drive, ending now.
-    let now = tunnelnav::server::wall_clock_s();
+    let now = tunnelnav::clock::wall_clock_s();
     let start_t = (now - 300.0).floor();
     let drive = VehicleDrive::new(VehicleScenario {
         start_t,
@@ -787,7 +787,7 @@ async fn the_dashboard_signs_in_when_tokens_are_required() {
         let conn = tunnelnav::store::Store::connect(dir.path()).unwrap();
         let tokens = tunnelnav::auth::list(&conn).unwrap();
         let id = tokens.iter().find(|t| t.name == "control room").unwrap().id;
-        tunnelnav::auth::revoke(&conn, id, tunnelnav::server::wall_clock_s()).unwrap();
+        tunnelnav::auth::revoke(&conn, id, tunnelnav::clock::wall_clock_s()).unwrap();
     }
     wait_for(
         &browser,
@@ -910,7 +910,7 @@ async fn dta_panel_draws_moves_and_shows_warn_and_alarm_colours() {
 
     // Ten minutes ending now: 1 Hz inclinometer, the laser every 30 s. The
     // machine pitches with the 0.5 % grade and advances 10 → 19 m.
-    let now = tunnelnav::server::wall_clock_s();
+    let now = tunnelnav::clock::wall_clock_s();
     let t0 = (now - 600.0).floor();
     let (azimuth, grade) = (30f64.to_radians(), 0.005f64);
     let pitch_deg = grade.atan().to_degrees();
@@ -1114,7 +1114,7 @@ async fn the_alarm_bar_rings_is_acknowledged_and_the_page_says_when_the_server_i
     // Seconds `from..to` before now: 1 Hz inclinometer and a laser every
     // 2 s, `right_mm` right of the axis.
     let readings = |from: i32, to: i32, right_mm: f64| -> Vec<String> {
-        let now = tunnelnav::server::wall_clock_s().floor();
+        let now = tunnelnav::clock::wall_clock_s().floor();
         (from..to)
             .flat_map(|s| {
                 let t = now + f64::from(s);

@@ -8,7 +8,7 @@ use std::time::Duration;
 
 use common::{TestServer, get_json, get_text, post_ndjson, put_machine, send_ndjson};
 use serde_json::{Value, json};
-use tunnelnav::server::Limits;
+use tunnelnav::server::settings::Limits;
 
 const T0: i64 = 1_772_431_200;
 

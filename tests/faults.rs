@@ -12,7 +12,7 @@ use std::collections::BTreeMap;
 use std::time::Duration;
 
 use common::{TestServer, declare_machine, exported_readings, send_ndjson};
-use tunnelnav::server::Limits;
+use tunnelnav::server::settings::Limits;
 
 const MACHINE: &str = "tbm-busy";
 

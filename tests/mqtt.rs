@@ -363,7 +363,7 @@ async fn every_reading_is_stored_once_though_the_server_is_killed_ten_times() {
 
     // Three gateways publish at QoS 1, each message acknowledged by the
     // broker, whatever the server is doing.
-    let t0 = (tunnelnav::server::wall_clock_s() - 3600.0).floor();
+    let t0 = (tunnelnav::clock::wall_clock_s() - 3600.0).floor();
     let mut gateways = Vec::new();
     for (g, machine) in MACHINES.into_iter().enumerate() {
         let port = broker.port;
@@ -439,7 +439,7 @@ async fn the_server_reconnects_after_a_broker_restart_and_loses_nothing() {
     let (_server, client, base) =
         serve_connected(data.path(), &["--mqtt", &broker.url("tn-restart")]).await;
     put_machine(&client, &base, "tbm-r").await;
-    let t0 = (tunnelnav::server::wall_clock_s() - 3600.0).floor();
+    let t0 = (tunnelnav::clock::wall_clock_s() - 3600.0).floor();
     let topic = "tunnelnav/v1/tbm-r/readings";
     let mut gateway = Peer::connect(port, "gateway-r", &[]).await;
     gateway
@@ -562,7 +562,7 @@ async fn the_example_broker_configuration_keeps_each_gateway_to_its_own_machine(
         &["tunnelnav/v1/tbm-1/acks", "tunnelnav/v1/tbm-2/acks"],
     )
     .await;
-    let t0 = (tunnelnav::server::wall_clock_s() - 3600.0).floor();
+    let t0 = (tunnelnav::clock::wall_clock_s() - 3600.0).floor();
     // Its own machine's readings: stored, answered to it and to SCADA.
     assert_eq!(
         gateway
@@ -651,7 +651,7 @@ async fn estimates_status_and_alarms_are_published() {
 
     // 42 s off the axis (70 mm: a deviation warning), ending 18 s ago, in
     // one request: a burst of estimates.
-    let from_t = (tunnelnav::server::wall_clock_s() - 60.0).floor();
+    let from_t = (tunnelnav::clock::wall_clock_s() - 60.0).floor();
     common::post_ndjson(
         &client,
         &base,
@@ -954,7 +954,7 @@ async fn tls_to_a_broker_of_the_sites_own_ca_with_a_client_certificate() {
         &["tunnelnav/v1/tbm-tls/acks"],
     )
     .await;
-    let t0 = (tunnelnav::server::wall_clock_s() - 3600.0).floor();
+    let t0 = (tunnelnav::clock::wall_clock_s() - 3600.0).floor();
     assert_eq!(
         gateway
             .readings_accepted("tbm-tls", inclinometer_lines(t0, 0, 5))
@@ -1287,11 +1287,11 @@ async fn the_node_red_example_flow_sends_every_reading_through_a_link_that_drops
 
     // The link drops for 3 s: the flow holds its readings, and sends them
     // when it is back.
-    let cut_s = tunnelnav::server::wall_clock_s();
+    let cut_s = tunnelnav::clock::wall_clock_s();
     link.cut();
     wait_for_log(&log, "Disconnected from broker").await;
     tokio::time::sleep(Duration::from_secs(3)).await;
-    let restored_s = tunnelnav::server::wall_clock_s();
+    let restored_s = tunnelnav::clock::wall_clock_s();
     link.restore();
     let deadline = Instant::now() + Duration::from_secs(30);
     let times = loop {
@@ -1344,7 +1344,7 @@ async fn estimates_made_while_the_broker_is_away_are_not_sent_stale() {
         &["tunnelnav/v1/tbm-away/estimates/attitude"],
     )
     .await;
-    let t0 = (tunnelnav::server::wall_clock_s() - 600.0).floor();
+    let t0 = (tunnelnav::clock::wall_clock_s() - 600.0).floor();
     // Readings `first..first + 10`, posted over HTTP.
     let post = async |first: usize| {
         let lines: Vec<String> = inclinometer_lines(t0, first, 10)

@@ -13,7 +13,7 @@ use std::process::Command;
 
 use common::{ServerProcess, TestServer, declare_machine, post_ndjson};
 use serde_json::{Value, json};
-use tunnelnav::server::wall_clock_s;
+use tunnelnav::clock::wall_clock_s;
 
 const METHODS: [&str; 5] = ["get", "put", "post", "delete", "patch"];
 

@@ -8,7 +8,7 @@ use common::{TestServer, drive, post_ndjson, put_machine, server_with_machine};
 use futures_util::{SinkExt, StreamExt};
 use serde_json::Value;
 use tokio_tungstenite::tungstenite::Message;
-use tunnelnav::server::Limits;
+use tunnelnav::server::settings::Limits;
 
 type Socket =
     tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
@@ -236,7 +236,7 @@ async fn an_ingest_socket_goes_on_across_a_redeclaration() {
         |name: &str| serde_json::json!({"name": name, "engines": {"attitude": {}}}).to_string();
     common::declare_machine(&client, &base, "tbm-ws", &declare("before")).await;
     let mut socket = connect(server.ws_url("/api/v1/machines/tbm-ws/ingest")).await;
-    let t0 = tunnelnav::server::wall_clock_s().floor() - 100.0;
+    let t0 = tunnelnav::clock::wall_clock_s().floor() - 100.0;
     // A reading, a redeclaration, a reading, another, a last reading.
     for (i, redeclared) in [Some("after"), Some("after again"), None]
         .into_iter()

@@ -30,10 +30,11 @@ use tokio_tungstenite::tungstenite::Message;
 use super::CliError;
 use super::load::post_ndjson;
 use super::serve::{init_tracing, shutdown_signal, start};
+use crate::clock::{Clock, wall_clock_s};
 use crate::config::MachineSpec;
-use crate::config::ServerConfig;
 use crate::fusion::{Reading, SensorData, SensorKind};
-use crate::server::{self, Clock, Limits, ServerOptions, wall_clock_s};
+use crate::server::settings::{Limits, MqttConfig, ServerConfig};
+use crate::server::{self, ServerOptions};
 use crate::sim::axis_drive::{AxisDrive, AxisDriveScenario};
 use crate::sim::pipejack::{Case, PipeJackDrive, PipeJackScenario};
 use crate::sim::vehicle::{VehicleDrive, VehicleScenario};
@@ -278,8 +279,7 @@ pub fn run(args: DemoArgs) -> Result<(), CliError> {
         )));
     }
     let machines = demo_machines()?;
-    let mqtt =
-        super::serve::mqtt_settings(args.mqtt.as_deref(), &crate::config::MqttConfig::default())?;
+    let mqtt = super::serve::mqtt_settings(args.mqtt.as_deref(), &MqttConfig::default())?;
     let axes: Vec<Option<AxisDriveScenario>> = GATEWAYS
         .iter()
         .map(|gateway| axis_scenario(gateway, &machines))

@@ -70,6 +70,8 @@ pub enum CliError {
     #[error(transparent)]
     Config(#[from] crate::config::ConfigError),
     #[error(transparent)]
+    Settings(#[from] crate::server::settings::SettingsError),
+    #[error(transparent)]
     Server(#[from] crate::server::ServerError),
     #[error(transparent)]
     Store(#[from] crate::store::StoreError),

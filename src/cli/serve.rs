@@ -6,8 +6,9 @@ use std::path::PathBuf;
 use clap::Args;
 
 use super::CliError;
-use crate::config::{ServerConfig, ServerSettings};
-use crate::server::{self, AppState, Clock, ServerOptions, SharedState};
+use crate::clock::Clock;
+use crate::server::settings::{ServerConfig, ServerSettings};
+use crate::server::{self, AppState, ServerOptions, SharedState};
 
 /// Every flag can also come from the environment variable named in its
 /// help (`TUNNELNAV_*`, for containers and systemd units); a flag given on
@@ -80,7 +81,7 @@ pub fn run(args: ServeArgs) -> Result<(), CliError> {
     // The config file's limits, then the command line's database cap.
     let mut limits = settings.limits;
     if let Some(mb) = args.max_database_mb {
-        limits.max_database_bytes = Some((mb * 1e6) as u64);
+        limits.max_database_bytes = Some(crate::server::settings::database_cap_bytes(mb)?);
     }
     let mqtt = mqtt_settings(args.mqtt.as_deref(), &settings.mqtt)?;
     let runtime = tokio::runtime::Builder::new_multi_thread()
@@ -109,7 +110,7 @@ pub fn run(args: ServeArgs) -> Result<(), CliError> {
 /// `[mqtt] url` names one (`serve`, `demo`).
 pub fn mqtt_settings(
     url: Option<&str>,
-    config: &crate::config::MqttConfig,
+    config: &crate::server::settings::MqttConfig,
 ) -> Result<Option<server::mqtt::MqttSettings>, CliError> {
     url.or(config.url.as_deref())
         .map(|url| server::mqtt::settings(url, config))

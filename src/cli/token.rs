@@ -8,7 +8,7 @@ use clap::{Args, Subcommand};
 
 use super::CliError;
 use crate::auth::{self, Scope};
-use crate::server::wall_clock_s;
+use crate::clock::wall_clock_s;
 use crate::store::Store;
 
 #[derive(Debug, Subcommand)]

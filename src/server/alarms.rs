@@ -7,9 +7,10 @@ use axum::extract::rejection::QueryRejection;
 use axum::extract::{Extension, Path, Query, State};
 use serde::{Deserialize, Serialize};
 
-use super::SharedState;
 use super::auth::Caller;
 use super::error::ApiError;
+use super::state::SharedState;
+use crate::machine::AlarmSink;
 use crate::store::alarms::{AlarmFilter, StoredAlarm};
 
 /// Who acknowledged, while access is open (no tokens exist).

@@ -12,9 +12,9 @@ use axum::extract::{Path, Query, State};
 use axum::http::{HeaderMap, header};
 use serde::{Deserialize, Serialize};
 
-use super::SharedState;
 use super::error::ApiError;
 use super::openapi::MachinePath;
+use super::state::SharedState;
 use crate::fusion::alignment::{AlignmentSpec, AxisPoint, ElementKind, landxml};
 
 /// One element of the summary.

@@ -24,8 +24,8 @@ use axum::middleware::Next;
 use axum::response::{Html, IntoResponse, Redirect, Response};
 use serde::Deserialize;
 
-use super::SharedState;
 use super::error::ApiError;
+use super::state::SharedState;
 use crate::auth::{self, Need, Token};
 use crate::store::Store;
 

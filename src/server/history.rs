@@ -10,9 +10,9 @@ use serde::{Deserialize, Serialize};
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
 
-use super::SharedState;
 use super::error::ApiError;
 use super::openapi::{Estimate, MachinePath, query_time};
+use super::state::SharedState;
 use crate::fusion::reading::{EARLIEST_T_S, LATEST_T_S};
 use crate::fusion::{
     EngineKind, EngineModel, EstimateRef, Reading, SensorData, SensorKind, StreamKind,

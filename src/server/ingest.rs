@@ -17,8 +17,11 @@ use serde::Serialize;
 use serde_json::value::RawValue;
 
 use super::error::{ApiError, Rejected};
+use super::metrics;
 use super::openapi::{MachinePath, ReadingsBody};
-use super::{AppState, Clock, Limits, SharedState, metrics};
+use super::settings::Limits;
+use super::state::{AppState, SharedState};
+use crate::clock::Clock;
 use crate::fusion::{Reading, SensorKind, parse_reading};
 
 /// The readings of one request, valid ones and refused ones.

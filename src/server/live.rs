@@ -34,7 +34,8 @@ use tokio::sync::broadcast::error::RecvError;
 
 use super::error::{ApiError, Refusal};
 use super::openapi::MachinePath;
-use super::{Clock, SharedState};
+use super::state::SharedState;
+use crate::clock::Clock;
 use crate::fusion::{EngineKind, StreamKind};
 use crate::machine::{LiveEstimate, MachineHandle};
 use crate::store::alarms::{AlarmChange, AlarmFilter, StoredAlarm};

@@ -11,9 +11,9 @@ use std::collections::BTreeMap;
 use serde::{Deserialize, Serialize};
 use serde_json::value::RawValue;
 
-use super::SharedState;
 use super::error::ApiError;
 use super::openapi::MachinePath;
+use super::state::SharedState;
 use crate::config::{MachineDeclaration, valid_machine_id};
 use crate::fusion::{EngineKind, SensorKind, StreamKind};
 use crate::machine::MachineHandle;

@@ -16,8 +16,8 @@ use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use metrics_exporter_prometheus::{Matcher, PrometheusBuilder, PrometheusHandle};
 
-use super::SharedState;
 use super::error::{Refusal, Rejected};
+use super::state::SharedState;
 use crate::config::MachineSpec;
 use crate::fusion::alarms::{AlarmKind, Severity};
 use crate::fusion::{Reading, SensorKind};

@@ -8,9 +8,10 @@
 use std::sync::Arc;
 use std::time::Duration;
 
-use serde::Deserialize;
 use tokio::sync::{broadcast, mpsc};
 
+use super::settings::WebhookConfig;
+use crate::machine::AlarmSink;
 use crate::store::alarms::AlarmChange;
 
 /// Alarm changes a live client may fall behind by before it is told to
@@ -19,121 +20,6 @@ pub const ALARM_BUFFER: usize = 1024;
 /// Changes waiting for one webhook URL; beyond (a receiver down for long
 /// while alarms keep changing), new changes are dropped and logged.
 pub const WEBHOOK_QUEUE: usize = 1000;
-
-/// Webhooks, one URL per severity (`[webhooks]` in the server config).
-#[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct WebhookConfig {
-    /// Receives the changes of `warn` alarms.
-    pub warn: Option<String>,
-    /// Receives the changes of `alarm` alarms.
-    pub alarm: Option<String>,
-    /// Attempts per change before it is given up (logged).
-    #[serde(default = "default_attempts")]
-    pub attempts: u32,
-    /// Wait before the first retry; doubled after each failure.
-    #[serde(default = "default_first_retry_s")]
-    pub first_retry_s: f64,
-    /// Longest wait between attempts.
-    #[serde(default = "default_max_retry_s")]
-    pub max_retry_s: f64,
-    /// How long one attempt may take.
-    #[serde(default = "default_timeout_s")]
-    pub timeout_s: f64,
-}
-
-fn default_attempts() -> u32 {
-    8
-}
-fn default_first_retry_s() -> f64 {
-    1.0
-}
-fn default_max_retry_s() -> f64 {
-    60.0
-}
-fn default_timeout_s() -> f64 {
-    10.0
-}
-
-impl Default for WebhookConfig {
-    fn default() -> Self {
-        WebhookConfig {
-            warn: None,
-            alarm: None,
-            attempts: default_attempts(),
-            first_retry_s: default_first_retry_s(),
-            max_retry_s: default_max_retry_s(),
-            timeout_s: default_timeout_s(),
-        }
-    }
-}
-
-/// Why a webhook configuration is refused.
-#[derive(Debug, thiserror::Error, PartialEq)]
-pub enum WebhookError {
-    #[error("webhooks.{severity}: `{url}` is not an http:// URL ({reason})")]
-    Url {
-        severity: &'static str,
-        url: String,
-        reason: String,
-    },
-    #[error("webhooks.{field} must be {rule}, not {value}")]
-    Range {
-        field: &'static str,
-        rule: &'static str,
-        value: f64,
-    },
-}
-
-impl WebhookConfig {
-    /// Checks the URLs (plain `http://`: this build has no TLS client; put
-    /// a relay or the proxy in front for `https`) and the timings.
-    pub fn validate(&self) -> Result<(), WebhookError> {
-        for (severity, url) in [("warn", &self.warn), ("alarm", &self.alarm)] {
-            let Some(url) = url else { continue };
-            let parsed = reqwest::Url::parse(url).map_err(|e| WebhookError::Url {
-                severity,
-                url: url.clone(),
-                reason: e.to_string(),
-            })?;
-            if parsed.scheme() != "http" || parsed.host_str().is_none() {
-                return Err(WebhookError::Url {
-                    severity,
-                    url: url.clone(),
-                    reason: "only http:// with a host is supported".into(),
-                });
-            }
-        }
-        if self.attempts == 0 || self.attempts > 100 {
-            return Err(WebhookError::Range {
-                field: "attempts",
-                rule: "1 to 100",
-                value: f64::from(self.attempts),
-            });
-        }
-        for (field, value) in [
-            ("first_retry_s", self.first_retry_s),
-            ("max_retry_s", self.max_retry_s),
-            ("timeout_s", self.timeout_s),
-        ] {
-            if !(value.is_finite() && value > 0.0 && value <= 3600.0) {
-                return Err(WebhookError::Range {
-                    field,
-                    rule: "above 0 and at most 3600 seconds",
-                    value,
-                });
-            }
-        }
-        Ok(())
-    }
-
-    /// The wait after failed attempt `attempt` (1-based): doubling from
-    /// `first_retry_s`, at most `max_retry_s`.
-    pub fn backoff(&self, attempt: u32) -> Duration {
-        let doubled = self.first_retry_s * 2f64.powi(attempt.saturating_sub(1).min(30) as i32);
-        Duration::from_secs_f64(doubled.min(self.max_retry_s))
-    }
-}
 
 /// Hands stored alarm changes to live clients and webhooks.
 #[derive(Clone)]
@@ -166,8 +52,15 @@ impl AlarmNotifier {
         }
     }
 
+    /// Changes from now on.
+    pub fn subscribe(&self) -> broadcast::Receiver<Arc<AlarmChange>> {
+        self.live.subscribe()
+    }
+}
+
+impl AlarmSink for AlarmNotifier {
     /// Publishes stored changes, in order.
-    pub fn publish(&self, changes: Vec<AlarmChange>) {
+    fn publish(&self, changes: Vec<AlarmChange>) {
         for change in changes {
             let change = Arc::new(change);
             let webhook = match change.alarm.severity.as_str() {
@@ -185,11 +78,6 @@ impl AlarmNotifier {
             // No live client is fine.
             let _ = self.live.send(change);
         }
-    }
-
-    /// Changes from now on.
-    pub fn subscribe(&self) -> broadcast::Receiver<Arc<AlarmChange>> {
-        self.live.subscribe()
     }
 }
 
@@ -250,62 +138,5 @@ async fn deliver(
             tracing::warn!(%url, key, attempt, reason = %why, retry_in_s = wait.as_secs_f64(), "alarm webhook failed; retrying");
             tokio::time::sleep(wait).await;
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn back_off_doubles_up_to_its_cap() {
-        let config = WebhookConfig {
-            first_retry_s: 0.5,
-            max_retry_s: 3.0,
-            ..WebhookConfig::default()
-        };
-        let waits: Vec<f64> = (1..=5).map(|a| config.backoff(a).as_secs_f64()).collect();
-        assert_eq!(waits, [0.5, 1.0, 2.0, 3.0, 3.0]);
-    }
-
-    #[test]
-    fn webhook_urls_and_timings_are_checked() {
-        let ok = WebhookConfig {
-            alarm: Some("http://127.0.0.1:9000/hook".into()),
-            ..WebhookConfig::default()
-        };
-        assert_eq!(ok.validate(), Ok(()));
-        let https = WebhookConfig {
-            warn: Some("https://example.org/hook".into()),
-            ..WebhookConfig::default()
-        };
-        assert!(matches!(
-            https.validate(),
-            Err(WebhookError::Url {
-                severity: "warn",
-                ..
-            })
-        ));
-        let nonsense = WebhookConfig {
-            alarm: Some("not a url".into()),
-            ..WebhookConfig::default()
-        };
-        assert!(nonsense.validate().is_err());
-        let zero = WebhookConfig {
-            attempts: 0,
-            ..WebhookConfig::default()
-        };
-        assert!(matches!(
-            zero.validate(),
-            Err(WebhookError::Range {
-                field: "attempts",
-                ..
-            })
-        ));
-        let negative = WebhookConfig {
-            timeout_s: -1.0,
-            ..WebhookConfig::default()
-        };
-        assert!(negative.validate().is_err());
     }
 }

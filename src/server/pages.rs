@@ -9,7 +9,7 @@ use axum::extract::{Path, State};
 use axum::http::{StatusCode, header};
 use axum::response::{IntoResponse, Response};
 
-use super::SharedState;
+use super::state::SharedState;
 use crate::config::MachineSpec;
 use crate::fusion::zupt::ZuptConfig;
 use crate::fusion::{EngineKind, Params, StageKind};

@@ -9,7 +9,9 @@ use std::path::Path;
 use std::process::{Child, Command, Stdio};
 
 use tokio::sync::oneshot;
-use tunnelnav::server::{self, AppState, Clock, Limits, ServerOptions, SharedState};
+use tunnelnav::clock::Clock;
+use tunnelnav::server::settings::Limits;
+use tunnelnav::server::{self, AppState, ServerOptions, SharedState};
 use tunnelnav::sim::tbm::{Dropout, TbmDrive, TbmScenario};
 
 /// A server running in this process.
@@ -33,7 +35,7 @@ impl TestServer {
     pub async fn start_configured(
         data_dir: &Path,
         limits: Limits,
-        webhooks: tunnelnav::config::WebhookConfig,
+        webhooks: tunnelnav::server::settings::WebhookConfig,
     ) -> TestServer {
         let any_port = "127.0.0.1:0".parse().unwrap();
         Self::launch(data_dir, limits, webhooks, any_port).await
@@ -47,7 +49,7 @@ impl TestServer {
     async fn launch(
         data_dir: &Path,
         limits: Limits,
-        webhooks: tunnelnav::config::WebhookConfig,
+        webhooks: tunnelnav::server::settings::WebhookConfig,
         address: std::net::SocketAddr,
     ) -> TestServer {
         server::metrics::install();

@@ -27,9 +27,9 @@ use std::time::Duration;
 use rumqttc::{AsyncClient, Event, EventLoop, MqttOptions, Packet, Publish, QoS};
 use tokio::sync::mpsc;
 
-use super::SharedState;
 use super::metrics;
-use crate::config::MqttConfig;
+use crate::server::settings::MqttConfig;
+use crate::server::state::SharedState;
 
 mod publish;
 mod readings;
@@ -156,7 +156,9 @@ pub fn settings(url: &str, config: &MqttConfig) -> Result<MqttSettings, MqttErro
     if tls {
         options.set_transport(tls::transport(config)?);
     }
-    let estimates_every = config.estimates_every().map_err(MqttError::Settings)?;
+    let estimates_every = config
+        .estimates_every()
+        .map_err(|e| MqttError::Settings(e.to_string()))?;
     Ok(MqttSettings {
         options,
         estimates_every,

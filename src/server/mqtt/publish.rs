@@ -12,10 +12,10 @@ use rumqttc::{AsyncClient, QoS};
 use tokio::sync::broadcast::error::RecvError;
 use tokio::task::JoinHandle;
 
-use super::super::SharedState;
 use super::Connected;
 use crate::fusion::StreamKind;
 use crate::machine::{LiveEstimate, MachineHandle};
+use crate::server::state::SharedState;
 use crate::store::alarms::{AlarmChange, AlarmFilter, Change};
 
 /// How often each machine's status is published.
@@ -107,7 +107,7 @@ async fn machine_task(
                     continue;
                 }
                 let now = state.clock.now_s();
-                if let Ok(body) = serde_json::to_vec(&super::super::machines::status(&machine, now)) {
+                if let Ok(body) = serde_json::to_vec(&crate::server::machines::status(&machine, now)) {
                     let topic = format!("tunnelnav/v1/{id}/status");
                     let _ = client.try_publish(topic, QoS::AtLeastOnce, true, body);
                 }
@@ -163,7 +163,7 @@ async fn republish_active(state: &SharedState, client: &AsyncClient) {
         machine: None,
         active_only: true,
     };
-    let Ok(active) = super::super::alarms::stored(state, filter).await else {
+    let Ok(active) = crate::server::alarms::stored(state, filter).await else {
         return;
     };
     for alarm in active {

@@ -8,10 +8,10 @@ use std::time::Duration;
 use rumqttc::{AsyncClient, Publish, QoS};
 use tokio::sync::{mpsc, watch};
 
-use super::super::SharedState;
-use super::super::error::ApiError;
-use super::super::ingest::{Ack, BatchRules, ingest, parse_batch};
-use super::super::metrics;
+use crate::server::error::ApiError;
+use crate::server::ingest::{Ack, BatchRules, ingest, parse_batch};
+use crate::server::metrics;
+use crate::server::state::SharedState;
 
 /// The longest wait before retrying a refused message.
 const MAX_RETRY_WAIT: Duration = Duration::from_secs(5);

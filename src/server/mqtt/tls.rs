@@ -11,7 +11,7 @@ use rustls::pki_types::{CertificateDer, PrivateKeyDer};
 use rustls::{ClientConfig, RootCertStore};
 
 use super::MqttError;
-use crate::config::MqttConfig;
+use crate::server::settings::MqttConfig;
 
 /// The TLS transport `config` asks for.
 pub(super) fn transport(config: &MqttConfig) -> Result<Transport, MqttError> {

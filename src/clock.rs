@@ -1,6 +1,7 @@
-//! The server's clock: how old a sensor's last reading is, and how far in
-//! the future a reading may be. Engines never see it; their time comes with
-//! the readings.
+//! The service's clock: how old a sensor's last reading is (the machine
+//! layer's silent-sensor alarms) and how far in the future a reading may be
+//! (the server's ingest). Engines never see it; their time comes with the
+//! readings.
 //!
 //! Normally the system clock. The demo runs an accelerated clock (a
 //! 2-minute laser period every few seconds) and gives the same clock to

@@ -1,0 +1,837 @@
+//! The server's settings: its limits, the MQTT broker and the alarm
+//! webhooks, as the config file (`serve --config`) sets them, and the file
+//! itself, which also declares machines ([`crate::config`]).
+//!
+//! Every number of `[limits]`, `[mqtt]` and `[webhooks]` is one row of
+//! [`SETTINGS`]: its section and name in the file, unit, default and range.
+//! The defaults of [`Limits`], [`MqttConfig`] and [`WebhookConfig`] are
+//! taken from it, every value read is checked against it, and
+//! docs/operations.md shows it (a test checks the copy).
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use serde::Deserialize;
+
+use crate::config::{ConfigError, MachineDeclaration, MachineSpec};
+
+/// Which values of a setting's range are allowed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Bounds {
+    /// Any real number within [min, max].
+    Closed,
+    /// Any real number above min, at most max.
+    AboveMin,
+    /// A whole number within [min, max].
+    Whole,
+}
+
+/// One number of the config file's server sections.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Setting {
+    /// `[section]` of the file.
+    pub section: &'static str,
+    /// Its key within the section.
+    pub name: &'static str,
+    /// Unit of the value in the file (`MB`, `s`, `Hz`, or empty for a count).
+    pub unit: &'static str,
+    /// The value when the file does not set it; `None`: no limit.
+    pub default: Option<f64>,
+    /// Smallest and largest value allowed (see `bounds`).
+    pub min: f64,
+    pub max: f64,
+    pub bounds: Bounds,
+}
+
+/// A setting refused, naming it.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SettingsError {
+    /// A number outside its range.
+    #[error("{section}.{name} must be {rule}, not {value}")]
+    Range {
+        section: &'static str,
+        name: &'static str,
+        /// What is allowed, as [`Setting::rule`] says it.
+        rule: String,
+        value: f64,
+    },
+    /// A webhook URL this build cannot post to.
+    #[error("webhooks.{severity}: `{url}` is not an http:// URL ({reason})")]
+    Url {
+        severity: &'static str,
+        url: String,
+        reason: String,
+    },
+}
+
+impl Setting {
+    /// What is allowed, in words (`between 1 and 15 s`).
+    pub fn rule(&self) -> String {
+        let (min, max) = (self.min, self.max);
+        let unit = if self.unit.is_empty() {
+            String::new()
+        } else {
+            format!(" {}", self.unit)
+        };
+        match self.bounds {
+            Bounds::Closed => format!("between {min} and {max}{unit}"),
+            Bounds::AboveMin => format!("above {min} and at most {max}{unit}"),
+            Bounds::Whole => format!("a whole number between {min} and {max}"),
+        }
+    }
+
+    /// `value` if it is allowed, else why not.
+    pub fn check(&self, value: f64) -> Result<f64, SettingsError> {
+        let allowed = value.is_finite()
+            && value <= self.max
+            && match self.bounds {
+                Bounds::Closed => value >= self.min,
+                Bounds::AboveMin => value > self.min,
+                Bounds::Whole => value >= self.min && value.fract() == 0.0,
+            };
+        if allowed {
+            return Ok(value);
+        }
+        Err(SettingsError::Range {
+            section: self.section,
+            name: self.name,
+            rule: self.rule(),
+            value,
+        })
+    }
+
+    /// The default of a setting that has one (a table row without one is
+    /// a programming error, caught by the defaults' unit test).
+    const fn fixed(&self) -> f64 {
+        match self.default {
+            Some(v) => v,
+            None => panic!("a setting without a default"),
+        }
+    }
+}
+
+const fn setting(
+    section: &'static str,
+    name: &'static str,
+    unit: &'static str,
+    default: Option<f64>,
+    (min, max): (f64, f64),
+    bounds: Bounds,
+) -> Setting {
+    Setting {
+        section,
+        name,
+        unit,
+        default,
+        min,
+        max,
+        bounds,
+    }
+}
+
+use Bounds::{AboveMin, Closed, Whole};
+
+/// 16 MiB, in MB.
+const MAX_BODY_MB: Setting = setting(
+    "limits",
+    "max_body_mb",
+    "MB",
+    Some(16.777216),
+    (0.001, 4096.0),
+    Closed,
+);
+const MAX_READINGS_PER_REQUEST: Setting = setting(
+    "limits",
+    "max_readings_per_request",
+    "",
+    Some(100_000.0),
+    (1.0, 1e7),
+    Whole,
+);
+/// 4 MiB, in MB.
+const MAX_FRAME_MB: Setting = setting(
+    "limits",
+    "max_frame_mb",
+    "MB",
+    Some(4.194304),
+    (0.001, 1024.0),
+    Closed,
+);
+const MAX_POINTS_LIMIT: Setting = setting(
+    "limits",
+    "max_points_limit",
+    "",
+    Some(100_000.0),
+    (1.0, 1e7),
+    Whole,
+);
+const LIVE_PING_INTERVAL_S: Setting = setting(
+    "limits",
+    "live_ping_interval_s",
+    "s",
+    Some(10.0),
+    (1.0, 15.0),
+    Closed,
+);
+const MAX_FUTURE_S: Setting = setting(
+    "limits",
+    "max_future_s",
+    "s",
+    Some(600.0),
+    (0.0, 86_400.0),
+    Closed,
+);
+const MACHINE_QUEUE: Setting = setting(
+    "limits",
+    "machine_queue",
+    "",
+    Some(64.0),
+    (1.0, 100_000.0),
+    Whole,
+);
+const MAX_LIVE_CLIENTS_PER_MACHINE: Setting = setting(
+    "limits",
+    "max_live_clients_per_machine",
+    "",
+    Some(100.0),
+    (1.0, 100_000.0),
+    Whole,
+);
+const MAX_ALARM_CLIENTS: Setting = setting(
+    "limits",
+    "max_alarm_clients",
+    "",
+    Some(1000.0),
+    (1.0, 100_000.0),
+    Whole,
+);
+const REQUEST_TIMEOUT_S: Setting = setting(
+    "limits",
+    "request_timeout_s",
+    "s",
+    Some(30.0),
+    (1.0, 3600.0),
+    Closed,
+);
+/// No default: the disk's size.
+const MAX_DATABASE_MB: Setting =
+    setting("limits", "max_database_mb", "MB", None, (1.0, 1e9), Closed);
+const ESTIMATES_HZ: Setting = setting(
+    "mqtt",
+    "estimates_hz",
+    "Hz",
+    Some(10.0),
+    (0.01, 1000.0),
+    Closed,
+);
+const ATTEMPTS: Setting = setting("webhooks", "attempts", "", Some(8.0), (1.0, 100.0), Whole);
+const FIRST_RETRY_S: Setting = setting(
+    "webhooks",
+    "first_retry_s",
+    "s",
+    Some(1.0),
+    (0.0, 3600.0),
+    AboveMin,
+);
+const MAX_RETRY_S: Setting = setting(
+    "webhooks",
+    "max_retry_s",
+    "s",
+    Some(60.0),
+    (0.0, 3600.0),
+    AboveMin,
+);
+const TIMEOUT_S: Setting = setting(
+    "webhooks",
+    "timeout_s",
+    "s",
+    Some(10.0),
+    (0.0, 3600.0),
+    AboveMin,
+);
+
+/// Every number of the config file's `[limits]`, `[mqtt]` and `[webhooks]`.
+pub const SETTINGS: [Setting; 16] = [
+    MAX_BODY_MB,
+    MAX_READINGS_PER_REQUEST,
+    MAX_FRAME_MB,
+    MAX_POINTS_LIMIT,
+    LIVE_PING_INTERVAL_S,
+    MAX_FUTURE_S,
+    MACHINE_QUEUE,
+    MAX_LIVE_CLIENTS_PER_MACHINE,
+    MAX_ALARM_CLIENTS,
+    REQUEST_TIMEOUT_S,
+    MAX_DATABASE_MB,
+    ESTIMATES_HZ,
+    ATTEMPTS,
+    FIRST_RETRY_S,
+    MAX_RETRY_S,
+    TIMEOUT_S,
+];
+
+fn megabytes(mb: f64) -> usize {
+    (mb * 1e6) as usize
+}
+
+fn database_bytes(mb: f64) -> u64 {
+    (mb * 1e6) as u64
+}
+
+/// `--max-database-mb`: the cap in bytes, checked as `limits.max_database_mb` is.
+pub fn database_cap_bytes(mb: f64) -> Result<u64, SettingsError> {
+    MAX_DATABASE_MB.check(mb).map(database_bytes)
+}
+
+/// Limits on what clients may send.
+#[derive(Debug, Clone, Copy)]
+pub struct Limits {
+    /// Largest request body (413 beyond).
+    pub max_body_bytes: usize,
+    /// Most readings in one request or WebSocket frame (413 beyond).
+    pub max_readings_per_request: usize,
+    /// Largest WebSocket message.
+    pub max_frame_bytes: usize,
+    /// Most points a history query returns.
+    pub max_points_limit: usize,
+    /// Interval between `ping` events on live sockets (at most 15 s).
+    pub live_ping_interval: Duration,
+    /// How far ahead of the server clock a reading's time may be.
+    pub max_future_s: f64,
+    /// Ingest requests waiting for one machine; beyond, 503 with
+    /// `Retry-After` instead of buffering.
+    pub machine_queue: usize,
+    /// Live sockets per machine (503 beyond).
+    pub max_live_clients_per_machine: usize,
+    /// Fleet alarm sockets (every dashboard page opens one; 503 beyond).
+    pub max_alarm_clients: usize,
+    /// Longest a request may take to be answered (beyond: 408 if its body
+    /// had not arrived, else 503); streamed
+    /// bodies and open WebSockets are not cut.
+    pub request_timeout: Duration,
+    /// Cap on the database file (a small card on a site computer): beyond
+    /// it ingest answers 503 as on a full disk. `None`: the disk's size.
+    pub max_database_bytes: Option<u64>,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Limits {
+            max_body_bytes: megabytes(MAX_BODY_MB.fixed()),
+            max_readings_per_request: MAX_READINGS_PER_REQUEST.fixed() as usize,
+            max_frame_bytes: megabytes(MAX_FRAME_MB.fixed()),
+            max_points_limit: MAX_POINTS_LIMIT.fixed() as usize,
+            live_ping_interval: Duration::from_secs_f64(LIVE_PING_INTERVAL_S.fixed()),
+            max_future_s: MAX_FUTURE_S.fixed(),
+            machine_queue: MACHINE_QUEUE.fixed() as usize,
+            max_live_clients_per_machine: MAX_LIVE_CLIENTS_PER_MACHINE.fixed() as usize,
+            max_alarm_clients: MAX_ALARM_CLIENTS.fixed() as usize,
+            request_timeout: Duration::from_secs_f64(REQUEST_TIMEOUT_S.fixed()),
+            max_database_bytes: MAX_DATABASE_MB.default.map(database_bytes),
+        }
+    }
+}
+
+/// `[limits]` of the config file: what clients may send and how long the
+/// server waits; each absent one keeps its default ([`SETTINGS`]; the
+/// counts are read as numbers and must be whole).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LimitsConfig {
+    pub max_body_mb: Option<f64>,
+    pub max_readings_per_request: Option<f64>,
+    pub max_frame_mb: Option<f64>,
+    pub max_points_limit: Option<f64>,
+    pub live_ping_interval_s: Option<f64>,
+    pub max_future_s: Option<f64>,
+    pub machine_queue: Option<f64>,
+    pub max_live_clients_per_machine: Option<f64>,
+    pub max_alarm_clients: Option<f64>,
+    pub request_timeout_s: Option<f64>,
+    pub max_database_mb: Option<f64>,
+}
+
+impl LimitsConfig {
+    /// The defaults with each limit the file sets, checked.
+    pub fn limits(&self) -> Result<Limits, SettingsError> {
+        let mut limits = Limits::default();
+        let set =
+            |value: Option<f64>, setting: Setting| value.map(|v| setting.check(v)).transpose();
+        let count = |v: f64| v as usize;
+        if let Some(v) = set(self.max_body_mb, MAX_BODY_MB)? {
+            limits.max_body_bytes = megabytes(v);
+        }
+        if let Some(v) = set(self.max_readings_per_request, MAX_READINGS_PER_REQUEST)? {
+            limits.max_readings_per_request = count(v);
+        }
+        if let Some(v) = set(self.max_frame_mb, MAX_FRAME_MB)? {
+            limits.max_frame_bytes = megabytes(v);
+        }
+        if let Some(v) = set(self.max_points_limit, MAX_POINTS_LIMIT)? {
+            limits.max_points_limit = count(v);
+        }
+        if let Some(v) = set(self.live_ping_interval_s, LIVE_PING_INTERVAL_S)? {
+            limits.live_ping_interval = Duration::from_secs_f64(v);
+        }
+        if let Some(v) = set(self.max_future_s, MAX_FUTURE_S)? {
+            limits.max_future_s = v;
+        }
+        if let Some(v) = set(self.machine_queue, MACHINE_QUEUE)? {
+            limits.machine_queue = count(v);
+        }
+        if let Some(v) = set(
+            self.max_live_clients_per_machine,
+            MAX_LIVE_CLIENTS_PER_MACHINE,
+        )? {
+            limits.max_live_clients_per_machine = count(v);
+        }
+        if let Some(v) = set(self.max_alarm_clients, MAX_ALARM_CLIENTS)? {
+            limits.max_alarm_clients = count(v);
+        }
+        if let Some(v) = set(self.request_timeout_s, REQUEST_TIMEOUT_S)? {
+            limits.request_timeout = Duration::from_secs_f64(v);
+        }
+        if let Some(v) = set(self.max_database_mb, MAX_DATABASE_MB)? {
+            limits.max_database_bytes = Some(database_bytes(v));
+        }
+        Ok(limits)
+    }
+}
+
+/// `[mqtt]` of the config file: the broker and how to reach it
+/// (docs/operations.md, "MQTT"). `serve --mqtt URL` (`TUNNELNAV_MQTT`)
+/// names the broker instead of `url`; the rest applies either way.
+#[derive(Debug, Clone, Default, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MqttConfig {
+    /// `mqtt://[user:password@]host[:port]` or `mqtts://` (TLS).
+    pub url: Option<String>,
+    /// The user to sign in as, when the URL names none.
+    pub username: Option<String>,
+    /// A file holding the password (its first line), kept out of the URL
+    /// and the process list.
+    pub password_file: Option<PathBuf>,
+    /// PEM certificates of the CA that signed the broker's certificate
+    /// (a site's own CA); without it, the system's root certificates.
+    pub ca_file: Option<PathBuf>,
+    /// PEM certificate (chain) tunnelnav presents, for a broker that
+    /// requires client certificates; with `client_key_file`.
+    pub client_cert_file: Option<PathBuf>,
+    /// PEM private key of `client_cert_file`.
+    pub client_key_file: Option<PathBuf>,
+    /// The newest estimate of each stream is published this many times a
+    /// second at most ([`SETTINGS`]: 10 by default).
+    pub estimates_hz: Option<f64>,
+}
+
+impl MqttConfig {
+    /// How often the newest estimate of a stream is published.
+    pub fn estimates_every(&self) -> Result<Duration, SettingsError> {
+        let hz = ESTIMATES_HZ.check(self.estimates_hz.unwrap_or(ESTIMATES_HZ.fixed()))?;
+        Ok(Duration::from_secs_f64(1.0 / hz))
+    }
+}
+
+/// Webhooks, one URL per severity (`[webhooks]` in the server config).
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct WebhookConfig {
+    /// Receives the changes of `warn` alarms.
+    pub warn: Option<String>,
+    /// Receives the changes of `alarm` alarms.
+    pub alarm: Option<String>,
+    /// Attempts per change before it is given up (logged).
+    pub attempts: u32,
+    /// Wait before the first retry; doubled after each failure.
+    pub first_retry_s: f64,
+    /// Longest wait between attempts.
+    pub max_retry_s: f64,
+    /// How long one attempt may take.
+    pub timeout_s: f64,
+}
+
+impl Default for WebhookConfig {
+    fn default() -> Self {
+        WebhookConfig {
+            warn: None,
+            alarm: None,
+            attempts: ATTEMPTS.fixed() as u32,
+            first_retry_s: FIRST_RETRY_S.fixed(),
+            max_retry_s: MAX_RETRY_S.fixed(),
+            timeout_s: TIMEOUT_S.fixed(),
+        }
+    }
+}
+
+impl WebhookConfig {
+    /// Checks the URLs (plain `http://`: this build has no TLS client; put
+    /// a relay or the proxy in front for `https`) and the timings.
+    pub fn validate(&self) -> Result<(), SettingsError> {
+        for (severity, url) in [("warn", &self.warn), ("alarm", &self.alarm)] {
+            let Some(url) = url else { continue };
+            let parsed = reqwest::Url::parse(url).map_err(|e| SettingsError::Url {
+                severity,
+                url: url.clone(),
+                reason: e.to_string(),
+            })?;
+            if parsed.scheme() != "http" || parsed.host_str().is_none() {
+                return Err(SettingsError::Url {
+                    severity,
+                    url: url.clone(),
+                    reason: "only http:// with a host is supported".into(),
+                });
+            }
+        }
+        ATTEMPTS.check(f64::from(self.attempts))?;
+        FIRST_RETRY_S.check(self.first_retry_s)?;
+        MAX_RETRY_S.check(self.max_retry_s)?;
+        TIMEOUT_S.check(self.timeout_s)?;
+        Ok(())
+    }
+
+    /// The wait after failed attempt `attempt` (1-based): doubling from
+    /// `first_retry_s`, at most `max_retry_s`.
+    pub fn backoff(&self, attempt: u32) -> Duration {
+        let doubled = self.first_retry_s * 2f64.powi(attempt.saturating_sub(1).min(30) as i32);
+        Duration::from_secs_f64(doubled.min(self.max_retry_s))
+    }
+}
+
+/// The server's config file.
+///
+/// ```toml
+/// [machines.tbm-1]
+/// name = "TBM 1, north drive"
+/// [machines.tbm-1.engines.attitude]
+/// fusion_gain_pitch = 0.4
+/// ```
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ServerConfig {
+    /// Machine id → declaration.
+    #[serde(default)]
+    pub machines: BTreeMap<String, MachineDeclaration>,
+    /// Where alarm changes are posted (`[webhooks]`: `warn`, `alarm`).
+    #[serde(default)]
+    pub webhooks: WebhookConfig,
+    /// The server's limits (`[limits]`), each optional.
+    #[serde(default)]
+    pub limits: LimitsConfig,
+    /// The MQTT broker (`[mqtt]`), if any.
+    #[serde(default)]
+    pub mqtt: MqttConfig,
+}
+
+/// A config file, validated.
+#[derive(Debug, Clone, Default)]
+pub struct ServerSettings {
+    pub machines: Vec<MachineSpec>,
+    pub webhooks: WebhookConfig,
+    /// The server's limits: the defaults with `[limits]` applied.
+    pub limits: Limits,
+    /// `[mqtt]`, its rate checked; the rest is checked when the broker's
+    /// connection is set up (`server::mqtt::settings`).
+    pub mqtt: MqttConfig,
+}
+
+impl ServerConfig {
+    /// Reads and validates a config file.
+    pub fn load(path: &Path) -> Result<ServerSettings, ConfigError> {
+        let file_error = |reason: String| ConfigError::File {
+            path: path.display().to_string(),
+            reason,
+        };
+        let text = std::fs::read_to_string(path).map_err(|e| file_error(e.to_string()))?;
+        Self::parse(&text).map_err(|e| match e {
+            ConfigError::File { reason, .. } => file_error(reason),
+            other => file_error(other.to_string()),
+        })
+    }
+
+    /// Parses and validates config text.
+    pub fn parse(text: &str) -> Result<ServerSettings, ConfigError> {
+        let file_error = |reason: String| ConfigError::File {
+            path: String::new(),
+            reason,
+        };
+        let config: ServerConfig = toml::from_str(text).map_err(|e| file_error(e.to_string()))?;
+        config
+            .webhooks
+            .validate()
+            .map_err(|e| file_error(e.to_string()))?;
+        let limits = config
+            .limits
+            .limits()
+            .map_err(|e| file_error(e.to_string()))?;
+        config
+            .mqtt
+            .estimates_every()
+            .map_err(|e| file_error(e.to_string()))?;
+        Ok(ServerSettings {
+            machines: config
+                .machines
+                .into_iter()
+                .map(|(id, declaration)| declaration.validate(&id))
+                .collect::<Result<_, _>>()?,
+            webhooks: config.webhooks,
+            limits,
+            mqtt: config.mqtt,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fusion::EngineKind;
+
+    #[test]
+    fn a_config_file_sets_limits_and_refuses_bad_ones() {
+        let settings = ServerConfig::parse(
+            "[limits]\nmax_body_mb = 2\nmachine_queue = 8\nrequest_timeout_s = 5\n",
+        )
+        .unwrap();
+        let limits = settings.limits;
+        assert_eq!(limits.max_body_bytes, 2_000_000);
+        assert_eq!(limits.machine_queue, 8);
+        assert_eq!(limits.request_timeout, std::time::Duration::from_secs(5));
+        // Untouched ones keep their defaults.
+        assert_eq!(limits.max_readings_per_request, 100_000);
+        let err = ServerConfig::parse("[limits]\nmachine_queue = 0\n").unwrap_err();
+        assert!(err.to_string().contains("limits.machine_queue"), "{err}");
+        let err = ServerConfig::parse("[limits]\nlive_ping_interval_s = 60\n").unwrap_err();
+        assert!(err.to_string().contains("live_ping_interval_s"), "{err}");
+        let err = ServerConfig::parse("[limits]\nmax_bodies = 1\n").unwrap_err();
+        assert!(err.to_string().contains("max_bodies"), "{err}");
+    }
+
+    #[test]
+    fn a_config_file_names_the_broker_and_refuses_a_bad_rate() {
+        let settings = ServerConfig::parse(
+            "[mqtt]\nurl = \"mqtts://broker.site\"\nusername = \"tunnelnav\"\n\
+             password_file = \"/run/credentials/mqtt\"\nestimates_hz = 2\n",
+        )
+        .unwrap();
+        assert_eq!(settings.mqtt.url.as_deref(), Some("mqtts://broker.site"));
+        assert_eq!(
+            settings.mqtt.estimates_every(),
+            Ok(std::time::Duration::from_millis(500))
+        );
+        // Absent: 10 a second.
+        assert_eq!(
+            MqttConfig::default().estimates_every(),
+            Ok(std::time::Duration::from_millis(100))
+        );
+        let err = ServerConfig::parse("[mqtt]\nestimates_hz = 0\n").unwrap_err();
+        assert!(err.to_string().contains("mqtt.estimates_hz"), "{err}");
+        let err = ServerConfig::parse("[mqtt]\npassword = \"x\"\n").unwrap_err();
+        assert!(err.to_string().contains("password"), "{err}");
+    }
+
+    #[test]
+    fn a_config_file_names_webhooks_and_refuses_bad_ones() {
+        let settings = ServerConfig::parse(
+            "[webhooks]\nalarm = \"http://127.0.0.1:9000/alarm\"\nattempts = 3\n",
+        )
+        .unwrap();
+        assert_eq!(
+            settings.webhooks.alarm.as_deref(),
+            Some("http://127.0.0.1:9000/alarm")
+        );
+        assert_eq!(
+            (settings.webhooks.warn, settings.webhooks.attempts),
+            (None, 3)
+        );
+        let err = ServerConfig::parse("[webhooks]\nwarn = \"ftp://x/\"\n").unwrap_err();
+        assert!(err.to_string().contains("webhooks.warn"), "{err}");
+        let err = ServerConfig::parse("[webhooks]\nwarm = \"http://x/\"\n").unwrap_err();
+        assert!(err.to_string().contains("warm"), "{err}");
+    }
+
+    #[test]
+    fn a_config_file_declares_machines_with_parameters() {
+        let specs = ServerConfig::parse(
+            r#"
+            [machines.tbm-1]
+            name = "TBM 1"
+            [machines.tbm-1.engines.attitude]
+            fusion_gain_pitch = 0.4
+            [machines.tbm-2.engines.attitude]
+            "#,
+        )
+        .unwrap()
+        .machines;
+        assert_eq!(specs.len(), 2);
+        assert_eq!(specs[0].name, "TBM 1");
+        assert_eq!(specs[1].name, "tbm-2");
+        let params = &specs[0].engines[&EngineKind::Attitude];
+        assert_eq!(params.real("fusion_gain_pitch").unwrap(), 0.4);
+    }
+
+    #[test]
+    fn errors_name_the_machine_engine_and_parameter() {
+        let err = ServerConfig::parse("[machines.m.engines.attitude]\nfusion_gain_pitch = 7\n")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("machine `m`, engine `attitude`"), "{err}");
+        assert!(err.contains("fusion_gain_pitch"), "{err}");
+        let err = ServerConfig::parse("[machines.m.engines.gps]\n")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("unknown engine `gps`"), "{err}");
+        let err = ServerConfig::parse("[machines.\"a b\".engines.attitude]\n")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("`a b` is not valid"), "{err}");
+        let err = ServerConfig::parse("[machines.m]\nengines = {}\n")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("declares no engine"), "{err}");
+        let err = ServerConfig::parse("[machines.m]\nengine = {}\n")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("unknown field `engine`"), "{err}");
+    }
+
+    #[test]
+    fn back_off_doubles_up_to_its_cap() {
+        let config = WebhookConfig {
+            first_retry_s: 0.5,
+            max_retry_s: 3.0,
+            ..WebhookConfig::default()
+        };
+        let waits: Vec<f64> = (1..=5).map(|a| config.backoff(a).as_secs_f64()).collect();
+        assert_eq!(waits, [0.5, 1.0, 2.0, 3.0, 3.0]);
+    }
+
+    #[test]
+    fn webhook_urls_and_timings_are_checked() {
+        let ok = WebhookConfig {
+            alarm: Some("http://127.0.0.1:9000/hook".into()),
+            ..WebhookConfig::default()
+        };
+        assert_eq!(ok.validate(), Ok(()));
+        let https = WebhookConfig {
+            warn: Some("https://example.org/hook".into()),
+            ..WebhookConfig::default()
+        };
+        assert!(matches!(
+            https.validate(),
+            Err(SettingsError::Url {
+                severity: "warn",
+                ..
+            })
+        ));
+        let nonsense = WebhookConfig {
+            alarm: Some("not a url".into()),
+            ..WebhookConfig::default()
+        };
+        assert!(nonsense.validate().is_err());
+        let zero = WebhookConfig {
+            attempts: 0,
+            ..WebhookConfig::default()
+        };
+        assert!(matches!(
+            zero.validate(),
+            Err(SettingsError::Range {
+                name: "attempts",
+                ..
+            })
+        ));
+        let negative = WebhookConfig {
+            timeout_s: -1.0,
+            ..WebhookConfig::default()
+        };
+        assert!(negative.validate().is_err());
+    }
+    #[test]
+    fn the_defaults_are_what_they_were() {
+        // The values each default had before the table (hand-written).
+        let l = Limits::default();
+        assert_eq!(l.max_body_bytes, 16 * 1024 * 1024);
+        assert_eq!(l.max_frame_bytes, 4 * 1024 * 1024);
+        assert_eq!(
+            (l.max_readings_per_request, l.max_points_limit),
+            (100_000, 100_000)
+        );
+        assert_eq!(l.live_ping_interval, Duration::from_secs(10));
+        assert_eq!(l.max_future_s, 600.0);
+        assert_eq!(
+            (
+                l.machine_queue,
+                l.max_live_clients_per_machine,
+                l.max_alarm_clients
+            ),
+            (64, 100, 1000)
+        );
+        assert_eq!(l.request_timeout, Duration::from_secs(30));
+        assert_eq!(l.max_database_bytes, None);
+        let w = WebhookConfig::default();
+        assert_eq!(
+            (w.attempts, w.first_retry_s, w.max_retry_s, w.timeout_s),
+            (8, 1.0, 60.0, 10.0)
+        );
+        assert_eq!(
+            MqttConfig::default().estimates_every(),
+            Ok(Duration::from_millis(100))
+        );
+        // Every default is within its own range.
+        for s in SETTINGS {
+            if let Some(v) = s.default {
+                assert_eq!(s.check(v), Ok(v), "{}.{}", s.section, s.name);
+            }
+        }
+    }
+
+    #[test]
+    fn every_row_is_a_key_of_its_section() {
+        // Each row set alone to its default (or its minimum) parses and
+        // validates: the table names nothing the file would refuse.
+        for s in SETTINGS {
+            let value = s.default.unwrap_or(s.min.max(1.0));
+            let text = format!("[{}]\n{} = {value}\n", s.section, s.name);
+            assert!(ServerConfig::parse(&text).is_ok(), "{text}");
+        }
+    }
+
+    #[test]
+    fn ranges_are_checked_and_named() {
+        assert_eq!(MACHINE_QUEUE.check(8.0), Ok(8.0));
+        for refused in [0.0, 8.5, 100_001.0, f64::NAN] {
+            let err = MACHINE_QUEUE.check(refused).unwrap_err().to_string();
+            assert!(
+                err.starts_with("limits.machine_queue must be a whole number between 1 and 100000"),
+                "{err}"
+            );
+        }
+        assert!(TIMEOUT_S.check(0.0).is_err());
+        assert_eq!(TIMEOUT_S.check(3600.0), Ok(3600.0));
+        assert_eq!(MAX_FUTURE_S.check(0.0), Ok(0.0));
+        assert!(LIVE_PING_INTERVAL_S.check(15.5).is_err());
+    }
+
+    #[test]
+    fn the_operations_guide_shows_the_table() {
+        // docs/operations.md, "Settings", is this table as markdown.
+        let rows: Vec<String> = SETTINGS
+            .iter()
+            .map(|s| {
+                let default = s.default.map_or("none".to_string(), |v| v.to_string());
+                let unit = if s.unit.is_empty() { "–" } else { s.unit };
+                format!(
+                    "| `[{}]` | `{}` | {unit} | {default} | {} |",
+                    s.section,
+                    s.name,
+                    s.rule()
+                )
+            })
+            .collect();
+        let guide = include_str!("../../docs/operations.md");
+        let table = rows.join("\n");
+        assert!(
+            guide.contains(&table),
+            "docs/operations.md does not show the settings as they are:\n{table}"
+        );
+    }
+}
