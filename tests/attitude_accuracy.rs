@@ -160,7 +160,7 @@ fn unseen_roll_bounds_the_extrapolation() {
 /// whose roll runs 1.5° below anything seen during the dropout: the model
 /// extrapolates. Run with `--ignored`.
 #[test]
-#[ignore = "issue 3 unseen-roll bars: seed 1 misses them since issue 16, see the issue note"]
+#[ignore = "issue 3 unseen-roll bars: seed 1 misses them since issue 16 (docs/evaluation.md)"]
 fn unseen_roll_keeps_rmse_under_the_bars() {
     let mut failures = Vec::new();
     for seed in SEEDS {
@@ -214,7 +214,7 @@ fn roll_follows_the_laser_after_offset_correction() {
 /// share (0.016–0.03°), and nothing can be 5× under that; against the laser
 /// hold alone the margin is 4.1–11×. Run with `--ignored`.
 #[test]
-#[ignore = "issue 3 dropout bar vs the constant-offset baseline: not met, see the issue note"]
+#[ignore = "issue 3 dropout bar vs the constant-offset baseline: not met (see the comment above)"]
 fn dropout_max_error_five_times_under_the_best_baseline() {
     let mut failures = Vec::new();
     for seed in SEEDS {

@@ -1,11 +1,7 @@
 //! Recorded trials (BROAD): the loader's frame conventions checked against
-//! the optical truth on a committed 9 s excerpt (`tests/fixtures/broad/`),
-//! and, ignored by default, the evaluation of a whole converted directory:
-//!
-//! ```text
-//! TUNNELNAV_BROAD_DIR=/work/data/broad [TUNNELNAV_PARAMS="name=value ..."] \
-//!   [TUNNELNAV_BROAD_JSON=out.json] cargo test --test recordings -- --ignored --nocapture
-//! ```
+//! the optical truth on a committed 9 s excerpt (`tests/fixtures/broad/`).
+//! A whole converted directory is evaluated by the command line, not here:
+//! `tunnelnav eval recording --dir DIR [--param name=value] [--json]`.
 
 use std::path::{Path, PathBuf};
 
@@ -160,24 +156,4 @@ fn the_fixture_evaluates() {
     let gyro = trial.errors["gyro only, rest bias"];
     assert!(gyro.total_deg < 3.0, "{gyro:?}");
     serde_json::to_string(&e).expect("the evaluation serialises");
-}
-
-/// The whole converted BROAD directory; prints the table.
-#[test]
-#[ignore]
-fn broad_directory() {
-    let Ok(dir) = std::env::var("TUNNELNAV_BROAD_DIR") else {
-        eprintln!("set TUNNELNAV_BROAD_DIR to a directory made by tools/broad_to_csv.py");
-        return;
-    };
-    let dir = PathBuf::from(dir);
-    let extra = std::env::var("TUNNELNAV_PARAMS").unwrap_or_default();
-    let assignments: Vec<&str> = extra.split_whitespace().collect();
-    let rate = recording_rate_hz(&dir).expect("rate");
-    let params = installer_params(rate, &assignments).expect("params");
-    let e = evaluate_recording(&dir, &params).expect("evaluation");
-    println!("{}", render_table(&e));
-    if let Ok(path) = std::env::var("TUNNELNAV_BROAD_JSON") {
-        std::fs::write(&path, serde_json::to_string_pretty(&e).expect("json")).expect("write");
-    }
 }

@@ -1,4 +1,4 @@
-//! Estimates of the wire protocol (`shared/protocol.md`, "Estimates").
+//! Estimates of the wire protocol (docs/protocol.md, "Estimates").
 
 use serde::{Deserialize, Serialize};
 

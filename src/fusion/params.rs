@@ -427,7 +427,7 @@ pub trait TypedParams: Sized {
 /// The typed struct of a choice parameter's words: an enum with one
 /// variant per word, parsed once, never defaulted.
 ///
-/// ```ignore
+/// ```text
 /// choice_enum! {
 ///     /// Where the noise comes from.
 ///     pub enum NoiseMode { Adaptive = "adaptive", Fixed = "fixed" }

@@ -1,4 +1,4 @@
-//! Sensor readings of the wire protocol (`shared/protocol.md`, "Readings").
+//! Sensor readings of the wire protocol (docs/protocol.md, "Readings").
 //!
 //! Parsing has a fast path (serde straight into a flat struct) and, only when
 //! that fails, a slow diagnostic path that re-reads the JSON to say which

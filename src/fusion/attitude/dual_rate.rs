@@ -6,7 +6,7 @@
 //!
 //! The paper assumes the laser arrives every m inclinometer periods. Real
 //! readings arrive on their own clocks, so both sensors' periods are
-//! observed rather than assumed (NOTES.md).
+//! observed rather than assumed (docs/papers.md).
 
 use std::collections::VecDeque;
 

@@ -26,7 +26,7 @@
 //! Measurements (Eq. 5–7, scalar): the corrected inclinometer
 //! z = θ + b + s·d (H = [1, 0, 1, d], [`inclinometer_row`]; d = 0 within
 //! the trained roll range), the laser y = θ (H = [1, 0, 0, 0]). Eq. 7 is
-//! used as corrected in NOTES.md: P = (I − K H) P⁻.
+//! used as corrected (docs/papers.md): P = (I − K H) P⁻.
 //!
 //! Units are the caller's (radians and seconds in the engine).
 

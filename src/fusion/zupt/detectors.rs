@@ -1,11 +1,11 @@
 //! Zero-velocity test statistics over a window of W IMU samples. The
 //! extracted paper (Zhang et al. 2024, Sec. 3) lost the formulas; these are
-//! the standard forms it cites (Skog et al. 2010), as NOTES.md gives them.
+//! the standard forms it cites (Skog et al. 2010; docs/papers.md).
 //! Each is stationary where T < γ.
 //!
 //! FOG gyros at rest read the Earth's rotation. ARE and SHOE here subtract
 //! it, projected into the body frame (`earth_rate_b`), before squaring: we
-//! implement the first of NOTES.md's two options, so σ_g can stay at the
+//! take the first of the two ways out (docs/papers.md), so σ_g can stay at the
 //! gyro's own noise.
 //!
 //! Each test is a plain function over a slice (the reference, used in the

@@ -5,7 +5,8 @@
 //!
 //! Conventions: δp = p̂ − p, δv = v̂ − v, Ĉ = (I − [φ×])·C (φ is the
 //! attitude error in the navigation frame), δb = b − b̂. The paper's F
-//! leaves out the Earth and transport rates; NOTES.md asks for them, so
+//! leaves out the Earth and transport rates, larger than a 0.5 °/h bias
+//! (docs/papers.md), so
 //! the error dynamics here are the full local-level ones (gravity gradient
 //! included):
 //! - δṗ = δv

@@ -1,5 +1,5 @@
 //! Strapdown mechanisation in a local NED frame with the Earth's rotation
-//! and WGS84 normal gravity (Zhang et al. 2024, Sec. 2; NOTES.md: the
+//! and WGS84 normal gravity (Zhang et al. 2024, Sec. 2; docs/papers.md: the
 //! paper's simplified model leaves out the Earth rate, which a 0.5 °/h
 //! gyro cannot ignore).
 //!
