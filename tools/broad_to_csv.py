@@ -15,7 +15,7 @@ is licensed CC BY 4.0. Each trial holds a MEMS IMU (myon aktos-t) sampled at
   movement (N,)    true for the samples BROAD scores (the movement phase)
 
 Output (nothing is rotated or rescaled here; the Rust loader
-src/eval/recording.rs maps the frames):
+src/eval/recording/frames.rs maps the frames):
 
   OUT/<trial>.csv      header, then t_s,ax,ay,az,gx,gy,gz,mx,my,mz,qw,qx,qy,qz
                        with t_s = index / sampling_rate and "nan" truth
