@@ -26,6 +26,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
+use super::noise::Ou;
 use crate::fusion::{Reading, SensorData};
 
 /// 2026-03-02T06:00:00Z: the default start of a simulated drive.
@@ -161,21 +162,6 @@ pub fn incl_pitch_error_deg(roll_deg: f64, temp_c: f64) -> f64 {
 /// Inclinometer roll offset (reads this much low).
 const INCL_ROLL_OFFSET_DEG: f64 = 0.12;
 const RING_LENGTH_M: f64 = 1.5;
-
-/// An Ornstein–Uhlenbeck process, stepped exactly over any interval.
-#[derive(Debug, Clone, Copy)]
-struct Ou {
-    x: f64,
-    tau_s: f64,
-}
-
-impl Ou {
-    fn step(&mut self, dt_s: f64, sigma: f64, rng: &mut ChaCha8Rng) {
-        let a = (-dt_s / self.tau_s).exp();
-        let n: f64 = rng.sample(StandardNormal);
-        self.x = self.x * a + sigma * (1.0 - a * a).sqrt() * n;
-    }
-}
 
 /// The machine's true motion.
 #[derive(Debug, Clone)]

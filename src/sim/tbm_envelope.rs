@@ -31,6 +31,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
+use super::noise::Ou;
 use super::tbm::{DEFAULT_START_T, Dropout, Phase, TbmEvent, TbmTruth};
 use crate::fusion::{Reading, SensorData};
 
@@ -442,21 +443,6 @@ fn with_offset(shape: ErrorShape, add: f64) -> ErrorShape {
             centre_deg,
             width_deg,
         },
-    }
-}
-
-/// An Ornstein–Uhlenbeck process stepped exactly over any interval.
-#[derive(Debug, Clone, Copy)]
-struct Ou {
-    x: f64,
-    tau_s: f64,
-}
-
-impl Ou {
-    fn step(&mut self, dt_s: f64, sigma: f64, rng: &mut ChaCha8Rng) {
-        let a = (-dt_s / self.tau_s).exp();
-        let n: f64 = rng.sample(StandardNormal);
-        self.x = self.x * a + sigma * (1.0 - a * a).sqrt() * n;
     }
 }
 
