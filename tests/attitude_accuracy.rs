@@ -156,9 +156,9 @@ fn unseen_roll_bounds_the_extrapolation() {
 /// Issue 3's bars on the unseen-roll drive: RMSE ≤ 0.01° and under 0.06°
 /// through the dropout. Since issue 16 (noise measured, not tuned to this
 /// simulator) met on seeds 2–8 (0.0043–0.0087°, 0.015–0.039°) but not on
-/// seed 1 (0.0121°, 0.067°; the engine before issue 16: 0.0091°, 0.055°),
-/// whose roll runs 1.5° below anything seen during the dropout: the model
-/// extrapolates. Run with `--ignored`.
+/// seed 1 (after issue 35: 0.0103°, 0.058°; the engine before issue 16:
+/// 0.0091°, 0.055°), whose roll runs 1.5° below anything seen during the
+/// dropout: the model extrapolates. Run with `--ignored`.
 #[test]
 #[ignore = "issue 3 unseen-roll bars: seed 1 misses them since issue 16 (docs/evaluation.md)"]
 fn unseen_roll_keeps_rmse_under_the_bars() {

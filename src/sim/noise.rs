@@ -8,7 +8,7 @@ use rand_distr::StandardNormal;
 /// stationary standard deviation σ and time constant τ), stepped exactly
 /// over any interval: x ← a·x + σ·√(1 − a²)·n, a = e^(−Δt/τ), n ~ N(0, 1).
 #[derive(Debug, Clone, Copy)]
-pub(crate) struct Ou {
+pub(super) struct Ou {
     pub x: f64,
     pub tau_s: f64,
 }

@@ -5,9 +5,9 @@
 //!
 //! Conventions: δp = p̂ − p, δv = v̂ − v, Ĉ = (I − [φ×])·C (φ is the
 //! attitude error in the navigation frame), δb = b − b̂. The paper's F
-//! leaves out the Earth and transport rates, larger than a 0.5 °/h bias
-//! (docs/papers.md), so
-//! the error dynamics here are the full local-level ones (gravity gradient
+//! leaves out the Earth and transport rates; the Earth-rate terms are
+//! larger than a 0.5 °/h bias (docs/papers.md), so the error dynamics
+//! here are the full local-level ones (gravity gradient
 //! included):
 //! - δṗ = δv
 //! - δv̇ = [fⁿ×]·φ − [(2ω_ie + ω_en)×]·δv + Ĉ·δb_a + (2g/R)·δp_D·e_D + Ĉ·w_a
