@@ -316,20 +316,12 @@ pub struct Limits {
 }
 
 impl Default for Limits {
+    /// The defaults of [`SETTINGS`] (each within its range: a unit test
+    /// checks every row).
     fn default() -> Self {
-        Limits {
-            max_body_bytes: megabytes(MAX_BODY_MB.fixed()),
-            max_readings_per_request: MAX_READINGS_PER_REQUEST.fixed() as usize,
-            max_frame_bytes: megabytes(MAX_FRAME_MB.fixed()),
-            max_points_limit: MAX_POINTS_LIMIT.fixed() as usize,
-            live_ping_interval: Duration::from_secs_f64(LIVE_PING_INTERVAL_S.fixed()),
-            max_future_s: MAX_FUTURE_S.fixed(),
-            machine_queue: MACHINE_QUEUE.fixed() as usize,
-            max_live_clients_per_machine: MAX_LIVE_CLIENTS_PER_MACHINE.fixed() as usize,
-            max_alarm_clients: MAX_ALARM_CLIENTS.fixed() as usize,
-            request_timeout: Duration::from_secs_f64(REQUEST_TIMEOUT_S.fixed()),
-            max_database_bytes: MAX_DATABASE_MB.default.map(database_bytes),
-        }
+        LimitsConfig::default()
+            .limits()
+            .expect("the defaults of SETTINGS are within their ranges")
     }
 }
 
@@ -355,47 +347,32 @@ pub struct LimitsConfig {
 impl LimitsConfig {
     /// The defaults with each limit the file sets, checked.
     pub fn limits(&self) -> Result<Limits, SettingsError> {
-        let mut limits = Limits::default();
-        let set =
-            |value: Option<f64>, setting: Setting| value.map(|v| setting.check(v)).transpose();
-        let count = |v: f64| v as usize;
-        if let Some(v) = set(self.max_body_mb, MAX_BODY_MB)? {
-            limits.max_body_bytes = megabytes(v);
-        }
-        if let Some(v) = set(self.max_readings_per_request, MAX_READINGS_PER_REQUEST)? {
-            limits.max_readings_per_request = count(v);
-        }
-        if let Some(v) = set(self.max_frame_mb, MAX_FRAME_MB)? {
-            limits.max_frame_bytes = megabytes(v);
-        }
-        if let Some(v) = set(self.max_points_limit, MAX_POINTS_LIMIT)? {
-            limits.max_points_limit = count(v);
-        }
-        if let Some(v) = set(self.live_ping_interval_s, LIVE_PING_INTERVAL_S)? {
-            limits.live_ping_interval = Duration::from_secs_f64(v);
-        }
-        if let Some(v) = set(self.max_future_s, MAX_FUTURE_S)? {
-            limits.max_future_s = v;
-        }
-        if let Some(v) = set(self.machine_queue, MACHINE_QUEUE)? {
-            limits.machine_queue = count(v);
-        }
-        if let Some(v) = set(
-            self.max_live_clients_per_machine,
-            MAX_LIVE_CLIENTS_PER_MACHINE,
-        )? {
-            limits.max_live_clients_per_machine = count(v);
-        }
-        if let Some(v) = set(self.max_alarm_clients, MAX_ALARM_CLIENTS)? {
-            limits.max_alarm_clients = count(v);
-        }
-        if let Some(v) = set(self.request_timeout_s, REQUEST_TIMEOUT_S)? {
-            limits.request_timeout = Duration::from_secs_f64(v);
-        }
-        if let Some(v) = set(self.max_database_mb, MAX_DATABASE_MB)? {
-            limits.max_database_bytes = Some(database_bytes(v));
-        }
-        Ok(limits)
+        // The value the file sets, or the setting's default, checked.
+        let value =
+            |set: Option<f64>, setting: Setting| setting.check(set.unwrap_or(setting.fixed()));
+        let count = |set: Option<f64>, setting: Setting| value(set, setting).map(|v| v as usize);
+        let seconds =
+            |set: Option<f64>, setting: Setting| value(set, setting).map(Duration::from_secs_f64);
+        Ok(Limits {
+            max_body_bytes: megabytes(value(self.max_body_mb, MAX_BODY_MB)?),
+            max_readings_per_request: count(
+                self.max_readings_per_request,
+                MAX_READINGS_PER_REQUEST,
+            )?,
+            max_frame_bytes: megabytes(value(self.max_frame_mb, MAX_FRAME_MB)?),
+            max_points_limit: count(self.max_points_limit, MAX_POINTS_LIMIT)?,
+            live_ping_interval: seconds(self.live_ping_interval_s, LIVE_PING_INTERVAL_S)?,
+            max_future_s: value(self.max_future_s, MAX_FUTURE_S)?,
+            machine_queue: count(self.machine_queue, MACHINE_QUEUE)?,
+            max_live_clients_per_machine: count(
+                self.max_live_clients_per_machine,
+                MAX_LIVE_CLIENTS_PER_MACHINE,
+            )?,
+            max_alarm_clients: count(self.max_alarm_clients, MAX_ALARM_CLIENTS)?,
+            request_timeout: seconds(self.request_timeout_s, REQUEST_TIMEOUT_S)?,
+            // No default: the disk's size.
+            max_database_bytes: self.max_database_mb.map(database_cap_bytes).transpose()?,
+        })
     }
 }
 

@@ -159,19 +159,24 @@ impl TiltFilter {
         self.t = Some(t);
     }
 
-    /// The innovation a measurement would have, without taking it.
-    pub fn innovation(&self, h: [f64; N], z: f64, r: f64) -> Innovation {
+    /// The combination h·x of the states and its variance h P hᵀ.
+    pub fn combination(&self, h: [f64; N]) -> (f64, f64) {
         let p = &self.p;
-        let mut s = r;
+        let mut variance = 0.0;
         for i in 0..N {
             for j in 0..N {
-                s += h[i] * p[i][j] * h[j];
+                variance += h[i] * p[i][j] * h[j];
             }
         }
-        let predicted: f64 = (0..N).map(|i| h[i] * self.x[i]).sum();
+        ((0..N).map(|i| h[i] * self.x[i]).sum(), variance)
+    }
+
+    /// The innovation a measurement would have, without taking it.
+    pub fn innovation(&self, h: [f64; N], z: f64, r: f64) -> Innovation {
+        let (predicted, variance) = self.combination(h);
         Innovation {
             value: z - predicted,
-            variance: s,
+            variance: variance + r,
         }
     }
 

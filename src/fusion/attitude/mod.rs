@@ -1024,11 +1024,7 @@ impl AttitudeEngine {
         let missed = self.pitch.filter(|_| laser_seen).map(|f| {
             let mut h = inclinometer_row(beyond);
             h[0] = 0.0;
-            let value: f64 = h.iter().zip(f.x).map(|(h, x)| h * x).sum();
-            let var: f64 = (0..N)
-                .map(|i| (0..N).map(|j| h[i] * f.p[i][j] * h[j]).sum::<f64>())
-                .sum();
-            (value, var)
+            f.combination(h)
         });
         let n = &self.noise;
         let sd = |v: f64| deg(v.sqrt());
