@@ -25,6 +25,8 @@
 //!   (`server::settings`), errors, live stream, MQTT, metrics, alarm
 //!   notifications (the sink's subscriber).
 //! - [`cli`]: one file per subcommand; `main.rs` only parses and dispatches.
+//! - `toy_engine` (unit tests only): a toy engine proving what adding an
+//!   engine touches (docs/development.md).
 //!
 //! Imports run downwards only: nothing below `server` (the fusion core,
 //! `sim`, `eval`, `replay`, `config`, `clock`, `auth`, `store`, `machine`)
@@ -42,3 +44,5 @@ pub mod replay;
 pub mod server;
 pub mod sim;
 pub mod store;
+#[cfg(test)]
+mod toy_engine;

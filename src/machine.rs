@@ -24,7 +24,7 @@ use crate::fusion::estimate::EstimateWriter;
 use crate::fusion::pipeline::{Pipeline, PipelineState};
 use crate::fusion::reorder::{Admission, ReorderBuffer};
 use crate::fusion::{
-    EngineKind, EngineModel, EngineOutput, ParamError, Reading, SensorKind, SnapshotError,
+    EngineKind, EngineModel, EngineOutput, ParamError, Reading, SensorKind, Signals, SnapshotError,
     StreamKind,
 };
 use crate::store::alarms::{AlarmChange, AlarmRow};
@@ -63,6 +63,8 @@ pub struct FusedEstimate {
     /// The engine or stage that made it.
     pub engine: StreamKind,
     pub t: f64,
+    /// What the alarm rules and the status watch in it.
+    pub signals: Signals,
     /// The protocol JSON, one object, no newline.
     pub json: Arc<str>,
 }
@@ -150,7 +152,7 @@ impl MachineCore {
         MachineCore {
             pipeline,
             reorder,
-            alarms: AlarmRules::new(spec.alarms, spec.tolerances, alarms),
+            alarms: AlarmRules::new(spec.alarms, spec.tolerances, &spec.streams(), alarms),
             transitions: Vec::new(),
             writer: EstimateWriter::new(&spec.id),
             ready: Vec::new(),
@@ -178,14 +180,18 @@ impl MachineCore {
             self.alarms.reading(&reading, &mut self.transitions);
             self.pipeline.feed(&reading, &mut self.outputs);
             for output in &self.outputs {
-                self.alarms.estimate(output, &mut self.transitions);
+                let stream = output.values.stream();
+                let signals = output.values.signals();
+                self.alarms
+                    .signals(output.t, stream, &signals, &mut self.transitions);
                 self.line.clear();
                 self.writer.write_line(output, &mut self.line);
                 let json = std::str::from_utf8(self.line.trim_ascii_end()).unwrap_or("{}");
                 out.push(Emitted {
                     live: FusedEstimate {
-                        engine: output.values.stream(),
+                        engine: stream,
                         t: output.t,
+                        signals,
                         json: Arc::from(json),
                     },
                     row: EstimateRow::new(output),
@@ -330,6 +336,7 @@ pub fn stored_status(
             Arc::new(FusedEstimate {
                 engine,
                 t: output.t,
+                signals: output.values.signals(),
                 json: Arc::from(json),
             }),
         );

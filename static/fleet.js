@@ -42,8 +42,7 @@
     let laser = '\u00a0', laserCls = '';
     if (m.laser) {
       if (m.laser.dropout) {
-        const latestT = m.latest && m.latest.attitude ? m.latest.attitude.t : now;
-        laser = `LASER DROPOUT · out for ${tn.duration(m.laser.age_s + (now - latestT))}`;
+        laser = `LASER DROPOUT · out for ${tn.duration(m.laser.age_s + (now - m.laser.t))}`;
         laserCls = 'bad';
       } else if (m.laser.ok) {
         laser = 'laser OK';

@@ -120,8 +120,17 @@ fn a_snapshot_continues_exactly_and_estimates_write_and_store_exactly() {
         assert_eq!(second.params(), whole.params());
 
         let mut writer = EstimateWriter::new("reg-1");
+        let mut told = Vec::new();
         for output in &expected {
             assert_eq!(output.values.stream(), StreamKind::from(kind));
+            // It tells only the signals it declares.
+            for signal in output.values.signals().kinds() {
+                assert!(
+                    StreamKind::from(kind).signals().contains(&signal),
+                    "{kind} tells {signal:?}"
+                );
+                told.push(signal);
+            }
             // The NDJSON writer is serde_json, byte for byte.
             let mut ours = Vec::new();
             writer.write_line(output, &mut ours);
@@ -136,7 +145,7 @@ fn a_snapshot_continues_exactly_and_estimates_write_and_store_exactly() {
             let bytes = output.values.encode();
             let back = tunnelnav::fusion::EstimateValues::decode(
                 kind.into(),
-                kind.codec_version(),
+                StreamKind::from(kind).codec_version(),
                 &bytes,
             )
             .unwrap();
@@ -145,6 +154,10 @@ fn a_snapshot_continues_exactly_and_estimates_write_and_store_exactly() {
                 format!("{:?}", output.values),
                 "{kind}"
             );
+        }
+        // ... and, on its drive, every signal it declares.
+        for signal in StreamKind::from(kind).signals() {
+            assert!(told.contains(signal), "{kind} never tells {signal:?}");
         }
         // A model, if the engine has one, serialises.
         if let Some(model) = whole.model() {

@@ -17,10 +17,12 @@ use serde::{Deserialize, Serialize};
 
 use super::alignment::Alignment;
 use super::angles::rad;
-use super::estimate::{EngineOutput, EstimateValues, JsonFields};
+use super::descriptor::{DeviationSignal, SignalKind, Signals, StageDescriptor, StreamValues};
+use super::estimate::{EngineOutput, EstimateValues};
 use super::geometry::{V3, attitude_from_euler};
+use super::json_fields::JsonFields;
 use super::reading::{ProjectPoint, Reading, SensorData};
-use super::registry::{EngineKind, StageDescriptor, StageKind};
+use super::registry::{EngineKind, StageKind};
 use super::stage::{Declaration, Stage};
 use super::{SnapshotError, StreamKind};
 
@@ -153,9 +155,11 @@ pub struct DtaEstimate {
     pub status: Option<DtaStatus>,
 }
 
-impl DtaEstimate {
-    /// The fields after `"engine"`, as serde_json writes them.
-    pub fn write_fields(&self, w: &mut JsonFields<'_>) {
+impl StreamValues for DtaEstimate {
+    const CODEC_VERSION: u32 = CODEC_VERSION;
+    const SIGNALS: &'static [SignalKind] = &[SignalKind::Deviation];
+
+    fn write_fields(&self, w: &mut JsonFields<'_>) {
         w.word("source", self.source.as_str());
         w.number("station_m", self.station_m);
         for (key, p) in [("front", &self.front), ("rear", &self.rear)] {
@@ -178,6 +182,31 @@ impl DtaEstimate {
         match self.status {
             Some(status) => w.word("status", status.as_str()),
             None => w.null("status"),
+        }
+    }
+
+    fn decode(version: u32, bytes: &[u8]) -> Result<DtaEstimate, postcard::Error> {
+        match version {
+            0 | 1 => postcard::from_bytes::<DtaEstimateV1>(bytes).map(DtaEstimate::from),
+            CODEC_VERSION => postcard::from_bytes(bytes),
+            _ => Err(postcard::Error::DeserializeBadEncoding),
+        }
+    }
+
+    /// The front's horizontal and vertical deviation.
+    fn extremes(&self) -> [f64; 2] {
+        [self.front.horizontal_mm, self.front.vertical_mm]
+    }
+
+    /// The front's and rear's deviations.
+    fn signals(&self) -> Signals {
+        let mm = |p: &PointDeviation| [p.horizontal_mm, p.vertical_mm];
+        Signals {
+            deviation: Some(DeviationSignal {
+                front_mm: mm(&self.front),
+                rear_mm: mm(&self.rear),
+            }),
+            ..Signals::default()
         }
     }
 }
@@ -455,7 +484,6 @@ pub struct Dta;
 
 impl StageDescriptor for Dta {
     const SUMMARY: &'static str = "deviation from the designed tunnel axis at the machine's front and rear, for machines with an alignment";
-    const CODEC_VERSION: u32 = CODEC_VERSION;
     type Stage = DtaStage;
     type Output = DtaEstimate;
 
@@ -478,19 +506,6 @@ impl StageDescriptor for Dta {
             "a dta snapshot for a machine without an alignment and geometry".into(),
         ))?;
         Ok(DtaStage { setup, state })
-    }
-    fn write_fields(output: &DtaEstimate, fields: &mut JsonFields<'_>) {
-        output.write_fields(fields);
-    }
-    fn decode(version: u32, bytes: &[u8]) -> Result<DtaEstimate, postcard::Error> {
-        match version {
-            0 | 1 => postcard::from_bytes::<DtaEstimateV1>(bytes).map(DtaEstimate::from),
-            CODEC_VERSION => postcard::from_bytes(bytes),
-            _ => Err(postcard::Error::DeserializeBadEncoding),
-        }
-    }
-    fn extremes(output: &DtaEstimate) -> [f64; 2] {
-        [output.front.horizontal_mm, output.front.vertical_mm]
     }
 }
 
@@ -733,13 +748,13 @@ mod tests {
             Some(DtaStatus::Ok),
         ))
         .unwrap();
-        let d = Dta::decode(1, &bytes).unwrap();
+        let d = DtaEstimate::decode(1, &bytes).unwrap();
         assert_eq!(d.front.horizontal_mm, 20.0);
         assert_eq!(d.rear.vertical_mm, -2.0);
         assert_eq!(d.front.sigma_horizontal_mm, None);
         assert_eq!(d.status, Some(DtaStatus::Ok));
-        assert!(Dta::decode(CODEC_VERSION + 1, &bytes).is_err());
+        assert!(DtaEstimate::decode(CODEC_VERSION + 1, &bytes).is_err());
         // This release's form round-trips.
-        assert_eq!(Dta::decode(CODEC_VERSION, &Dta::encode(&d)).unwrap(), d);
+        assert_eq!(DtaEstimate::decode(CODEC_VERSION, &d.encode()).unwrap(), d);
     }
 }

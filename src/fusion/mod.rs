@@ -7,10 +7,12 @@ pub mod alarms;
 pub mod alignment;
 pub mod angles;
 pub mod attitude;
+pub mod descriptor;
 pub mod dta;
 pub mod estimate;
 pub mod fuzzy;
 pub mod geometry;
+pub mod json_fields;
 pub mod params;
 pub mod pipeline;
 pub mod pushes;
@@ -20,16 +22,16 @@ pub mod reorder;
 pub mod stage;
 pub mod zupt;
 
+pub use descriptor::{
+    EngineDescriptor, ModelReport, NoModel, Signals, StageDescriptor, StreamValues,
+};
 pub use estimate::{
     AttitudeEstimate, EngineOutput, Estimate, EstimateRef, EstimateValues, FuzzyEstimate, Motion,
     ZuptEstimate,
 };
 pub use params::{ParamError, ParamKind, ParamSpec, ParamValue, Params, Retired};
 pub use reading::{Reading, ReadingError, SensorData, SensorKind, parse_reading};
-pub use registry::{
-    CodecError, EngineDescriptor, EngineKind, EngineModel, NoModel, StageDescriptor, StageKind,
-    StreamKind, UnknownEngine,
-};
+pub use registry::{CodecError, EngineKind, EngineModel, StageKind, StreamKind, UnknownEngine};
 pub use stage::{Declaration, Stage};
 
 /// A fusion method that turns a machine's readings into estimates.

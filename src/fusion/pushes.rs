@@ -10,8 +10,10 @@
 use serde::{Deserialize, Serialize};
 
 use super::angles::deg;
-use super::estimate::{EngineOutput, EstimateValues, JsonFields, TrackPoint};
-use super::registry::{EngineKind, StageDescriptor, StageKind};
+use super::descriptor::{SignalKind, Signals, StageDescriptor, StreamValues};
+use super::estimate::{EngineOutput, EstimateValues, TrackPoint};
+use super::json_fields::JsonFields;
+use super::registry::{EngineKind, StageKind};
 use super::stage::{Declaration, Stage};
 use super::{SnapshotError, StreamKind};
 
@@ -78,9 +80,13 @@ impl PushRecord {
             end_position_sigma_m: last.position_sigma_m,
         })
     }
+}
 
-    /// The fields after `"engine"`, as serde_json writes them.
-    pub fn write_fields(&self, w: &mut JsonFields<'_>) {
+impl StreamValues for PushRecord {
+    const CODEC_VERSION: u32 = CODEC_VERSION;
+    const SIGNALS: &'static [SignalKind] = &[];
+
+    fn write_fields(&self, w: &mut JsonFields<'_>) {
         w.integer("push", self.push);
         w.number("start_t", self.start_t);
         w.number("end_t", self.end_t);
@@ -91,6 +97,25 @@ impl PushRecord {
         w.optional("grade_pct", self.grade_pct);
         w.triple("end_position_m", &self.end_position_m);
         w.triple("end_position_sigma_m", &self.end_position_sigma_m);
+    }
+
+    /// A form that has never changed.
+    fn decode(version: u32, bytes: &[u8]) -> Result<PushRecord, postcard::Error> {
+        if version <= CODEC_VERSION {
+            postcard::from_bytes(bytes)
+        } else {
+            Err(postcard::Error::DeserializeBadEncoding)
+        }
+    }
+
+    /// Length and speed.
+    fn extremes(&self) -> [f64; 2] {
+        [self.length_m, self.speed_mm_per_s]
+    }
+
+    /// None: no alarm rule watches the jacking log.
+    fn signals(&self) -> Signals {
+        Signals::default()
     }
 }
 
@@ -152,7 +177,6 @@ pub struct Pushes;
 impl StageDescriptor for Pushes {
     const SUMMARY: &'static str =
         "the jacking log: one record per completed push of a machine running zupt";
-    const CODEC_VERSION: u32 = CODEC_VERSION;
     type Stage = PushLog;
     type Output = PushRecord;
 
@@ -162,12 +186,6 @@ impl StageDescriptor for Pushes {
     fn restore(_: &Declaration, snapshot: serde_json::Value) -> Result<PushLog, SnapshotError> {
         SnapshotError::check_version(StreamKind::Pushes, &snapshot, STATE_VERSION)?;
         SnapshotError::parse(StreamKind::Pushes, snapshot)
-    }
-    fn write_fields(output: &PushRecord, fields: &mut JsonFields<'_>) {
-        output.write_fields(fields);
-    }
-    fn extremes(output: &PushRecord) -> [f64; 2] {
-        [output.length_m, output.speed_mm_per_s]
     }
 }
 

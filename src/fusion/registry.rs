@@ -1,106 +1,27 @@
-//! The engines tunnelnav knows, listed once.
+//! The engines and stages tunnelnav knows, listed once.
 //!
-//! Each engine module describes itself by implementing [`EngineDescriptor`]
-//! in one place: its sensors, parameter table, how it is created and
-//! restored, its estimate type (with that type's NDJSON writer and stored
-//! codec) and its model report. Each stage after the engines does the same
-//! with [`StageDescriptor`]. The [`registry!`] list at the bottom of this
-//! file turns the descriptors into [`EngineKind`] (a `clap::ValueEnum`),
-//! [`StageKind`], [`StreamKind`] (engines and stages: what the estimates'
-//! `engine` field names), [`EstimateValues`] and [`EngineModel`], whose
-//! dispatch the compiler keeps complete. Adding an engine: its module, one
-//! line in that list, and its page section and script
-//! (`src/server/pages.rs` says where).
+//! Each engine module describes itself in one place by implementing
+//! [`EngineDescriptor`] (`src/fusion/descriptor.rs`) and [`StreamValues`]
+//! for its estimate; each stage with [`StageDescriptor`]. The `registry!`
+//! list at the bottom of this file turns the descriptors into
+//! [`EngineKind`] (a `clap::ValueEnum`), [`StageKind`], [`StreamKind`]
+//! (engines and stages: what the estimates' `engine` field names),
+//! [`EstimateValues`] and [`EngineModel`], whose dispatch (NDJSON, codec,
+//! OpenAPI schemas, alarm signals, model reports) the compiler keeps
+//! complete. Adding an engine: docs/development.md lists every file it
+//! touches.
 
 use serde::{Deserialize, Serialize};
 
-use super::estimate::JsonFields;
+use super::descriptor::{
+    EngineDescriptor, ModelReport, SchemaComponent, SignalKind, Signals, StageDescriptor,
+    StreamValues,
+};
+use super::json_fields::JsonFields;
 use super::params::{ParamError, ParamSpec, ParamValue, Params, Retired, TypedParams};
 use super::reading::SensorKind;
 use super::stage::{Declaration, Stage};
 use super::{Engine, SnapshotError, attitude, dta, fuzzy, pushes, zupt};
-
-/// What an engine module declares about itself.
-pub trait EngineDescriptor {
-    /// One line on the method, for help texts.
-    const SUMMARY: &'static str;
-    /// The sensors the engine consumes; it ignores the others.
-    const SENSORS: &'static [SensorKind];
-    /// Parameters earlier releases had: stored machines that name them
-    /// still load, new declarations that do are refused with the reason.
-    const RETIRED: &'static [Retired];
-    /// The version of [`EngineDescriptor::Estimate`]'s stored form this
-    /// release writes; [`EngineDescriptor::decode`] reads it and every
-    /// earlier one.
-    const CODEC_VERSION: u32;
-
-    /// The parameters, typed; its table is the engine's parameter specs.
-    type Params: TypedParams;
-    /// The engine itself.
-    type Engine: Engine + 'static;
-    /// What the engine emits per estimate.
-    type Estimate: Serialize + serde::de::DeserializeOwned + Clone + PartialEq + std::fmt::Debug;
-    /// What the model endpoint reports (an uninhabited type if nothing).
-    type Model: Serialize + Clone + PartialEq + std::fmt::Debug;
-
-    /// A fresh engine with validated parameters.
-    fn create(params: Params) -> Result<Self::Engine, ParamError>;
-    /// An engine continuing from its [`Engine::snapshot`].
-    fn restore(snapshot: serde_json::Value) -> Result<Self::Engine, SnapshotError>;
-    /// The estimate's fields after `"engine"`, byte for byte as serde_json
-    /// writes them.
-    fn write_fields(estimate: &Self::Estimate, fields: &mut JsonFields<'_>);
-    /// The stored form of [`EngineDescriptor::CODEC_VERSION`].
-    fn encode(estimate: &Self::Estimate) -> Vec<u8>;
-    /// An estimate stored with codec `version` (0: stored before rows
-    /// carried a version).
-    fn decode(version: u32, bytes: &[u8]) -> Result<Self::Estimate, postcard::Error>;
-    /// The two quantities whose extremes history downsampling keeps.
-    fn extremes(estimate: &Self::Estimate) -> [f64; 2];
-}
-
-/// What a stage module declares about itself (see [`Stage`]).
-pub trait StageDescriptor {
-    /// One line on what the stage derives.
-    const SUMMARY: &'static str;
-    /// The version of [`StageDescriptor::Output`]'s stored form.
-    const CODEC_VERSION: u32;
-    /// The stage itself.
-    type Stage: Stage + 'static;
-    /// What the stage emits per estimate.
-    type Output: Serialize + serde::de::DeserializeOwned + Clone + PartialEq + std::fmt::Debug;
-
-    /// The stage for a machine so declared; `None` when the declaration
-    /// does not call for it.
-    fn create(declaration: &Declaration) -> Option<Self::Stage>;
-    /// A stage of a machine so declared continuing from its [`Stage::snapshot`].
-    fn restore(
-        declaration: &Declaration,
-        snapshot: serde_json::Value,
-    ) -> Result<Self::Stage, SnapshotError>;
-    /// The output's fields after `"engine"`, as serde_json writes them.
-    fn write_fields(output: &Self::Output, fields: &mut JsonFields<'_>);
-    /// The stored form of [`StageDescriptor::CODEC_VERSION`]: postcard.
-    fn encode(output: &Self::Output) -> Vec<u8> {
-        super::estimate::postcard_bytes(output)
-    }
-    /// An output stored with codec `version`. The default reads a stage
-    /// whose stored form has never changed; one that changes keeps its
-    /// earlier forms readable here.
-    fn decode(version: u32, bytes: &[u8]) -> Result<Self::Output, postcard::Error> {
-        if version <= Self::CODEC_VERSION {
-            postcard::from_bytes(bytes)
-        } else {
-            Err(postcard::Error::DeserializeBadEncoding)
-        }
-    }
-    /// The two quantities whose extremes history downsampling keeps.
-    fn extremes(output: &Self::Output) -> [f64; 2];
-}
-
-/// A model report for engines that have none.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-pub enum NoModel {}
 
 /// Why a stored estimate could not be read.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -129,10 +50,21 @@ pub struct UnknownEngine {
     pub known: String,
 }
 
+/// Turns the list of engines and stages into the kinds and their dispatch.
+/// An engine may carry `#[cfg(...)]` after its doc comment: every variant,
+/// arm and list entry it makes carries it too (the toy engine of the unit
+/// tests is listed so).
 macro_rules! registry {
     (
-        engines { $( $(#[$doc:meta])* $Variant:ident = $name:literal => $Descriptor:ty ),+ $(,)? }
-        stages { $( $(#[$sdoc:meta])* $Stage:ident = $sname:literal => $SDescriptor:ty ),+ $(,)? }
+        engines { $(
+            $(#[doc = $doc:literal])*
+            $(#[cfg($cfg:meta)])?
+            $Variant:ident = $name:literal => $Descriptor:ty
+        ),+ $(,)? }
+        stages { $(
+            $(#[doc = $sdoc:literal])*
+            $Stage:ident = $sname:literal => $SDescriptor:ty
+        ),+ $(,)? }
     ) => {
         /// The engines tunnelnav knows.
         #[derive(
@@ -140,50 +72,47 @@ macro_rules! registry {
             Serialize, Deserialize, clap::ValueEnum,
         )]
         pub enum EngineKind {
-            $( $(#[$doc])* #[serde(rename = $name)] #[value(name = $name)] $Variant ),+
+            $( $(#[doc = $doc])* $(#[cfg($cfg)])?
+               #[serde(rename = $name)] #[value(name = $name)] $Variant ),+
         }
 
         impl EngineKind {
             /// Every engine, in registry order.
-            pub const ALL: &'static [EngineKind] = &[$(EngineKind::$Variant),+];
+            pub const ALL: &'static [EngineKind] = &[$( $(#[cfg($cfg)])? EngineKind::$Variant ),+];
 
             /// The protocol name.
             pub fn as_str(self) -> &'static str {
-                match self { $( EngineKind::$Variant => $name ),+ }
+                match self { $( $(#[cfg($cfg)])? EngineKind::$Variant => $name ),+ }
             }
 
             /// One line on the method.
             pub fn summary(self) -> &'static str {
-                match self { $( EngineKind::$Variant => <$Descriptor>::SUMMARY ),+ }
+                match self { $( $(#[cfg($cfg)])? EngineKind::$Variant => <$Descriptor>::SUMMARY ),+ }
             }
 
             /// The parameters the engine accepts.
             pub fn specs(self) -> &'static [ParamSpec] {
                 match self {
-                    $( EngineKind::$Variant =>
+                    $( $(#[cfg($cfg)])? EngineKind::$Variant =>
                         <<$Descriptor as EngineDescriptor>::Params as TypedParams>::SPECS ),+
                 }
             }
 
             /// Parameters earlier releases had (see [`EngineDescriptor::RETIRED`]).
             pub fn retired(self) -> &'static [Retired] {
-                match self { $( EngineKind::$Variant => <$Descriptor>::RETIRED ),+ }
+                match self { $( $(#[cfg($cfg)])? EngineKind::$Variant => <$Descriptor>::RETIRED ),+ }
             }
 
             /// The sensors the engine consumes.
             pub fn sensors(self) -> &'static [SensorKind] {
-                match self { $( EngineKind::$Variant => <$Descriptor>::SENSORS ),+ }
-            }
-
-            /// The codec version of the estimates this release stores.
-            pub fn codec_version(self) -> u32 {
-                match self { $( EngineKind::$Variant => <$Descriptor>::CODEC_VERSION ),+ }
+                match self { $( $(#[cfg($cfg)])? EngineKind::$Variant => <$Descriptor>::SENSORS ),+ }
             }
 
             /// A fresh engine with these parameters.
             pub fn create(self, params: Params) -> Result<Box<dyn Engine>, ParamError> {
                 match self {
-                    $( EngineKind::$Variant => Ok(Box::new(<$Descriptor>::create(params)?)) ),+
+                    $( $(#[cfg($cfg)])? EngineKind::$Variant =>
+                        Ok(Box::new(<$Descriptor>::create(params)?)) ),+
                 }
             }
 
@@ -193,7 +122,8 @@ macro_rules! registry {
                 snapshot: serde_json::Value,
             ) -> Result<Box<dyn Engine>, SnapshotError> {
                 match self {
-                    $( EngineKind::$Variant => Ok(Box::new(<$Descriptor>::restore(snapshot)?)) ),+
+                    $( $(#[cfg($cfg)])? EngineKind::$Variant =>
+                        Ok(Box::new(<$Descriptor>::restore(snapshot)?)) ),+
                 }
             }
 
@@ -202,15 +132,23 @@ macro_rules! registry {
             /// value it is given.
             pub fn read_params(self, params: &Params) -> Result<Params, ParamError> {
                 match self {
-                    $( EngineKind::$Variant =>
+                    $( $(#[cfg($cfg)])? EngineKind::$Variant =>
                         <<$Descriptor as EngineDescriptor>::Params as TypedParams>::from_params(params)
                             .map(|typed| typed.to_params()) ),+
                 }
             }
 
+            /// The OpenAPI schema of the engine's model report, if it has one.
+            pub fn model_schema(self) -> Option<SchemaComponent> {
+                match self {
+                    $( $(#[cfg($cfg)])? EngineKind::$Variant =>
+                        <<$Descriptor as EngineDescriptor>::Model as ModelReport>::schema() ),+
+                }
+            }
+
             /// Every protocol name, comma separated (for messages).
             pub fn names() -> String {
-                [$($name),+].join(", ")
+                [$( $(#[cfg($cfg)])? $name ),+].join(", ")
             }
         }
 
@@ -221,7 +159,7 @@ macro_rules! registry {
             Serialize, Deserialize,
         )]
         pub enum StageKind {
-            $( $(#[$sdoc])* #[serde(rename = $sname)] $Stage ),+
+            $( $(#[doc = $sdoc])* #[serde(rename = $sname)] $Stage ),+
         }
 
         impl StageKind {
@@ -268,19 +206,19 @@ macro_rules! registry {
             Serialize, Deserialize,
         )]
         pub enum StreamKind {
-            $( #[serde(rename = $name)] $Variant, )+
+            $( $(#[cfg($cfg)])? #[serde(rename = $name)] $Variant, )+
             $( #[serde(rename = $sname)] $Stage, )+
         }
 
         impl StreamKind {
             /// Every stream, engines first, in registry order.
             pub const ALL: &'static [StreamKind] =
-                &[$(StreamKind::$Variant,)+ $(StreamKind::$Stage,)+];
+                &[$( $(#[cfg($cfg)])? StreamKind::$Variant, )+ $(StreamKind::$Stage,)+];
 
             /// The protocol name.
             pub fn as_str(self) -> &'static str {
                 match self {
-                    $( StreamKind::$Variant => $name, )+
+                    $( $(#[cfg($cfg)])? StreamKind::$Variant => $name, )+
                     $( StreamKind::$Stage => $sname, )+
                 }
             }
@@ -288,28 +226,50 @@ macro_rules! registry {
             /// The codec version of the estimates this release stores.
             pub fn codec_version(self) -> u32 {
                 match self {
-                    $( StreamKind::$Variant => <$Descriptor>::CODEC_VERSION, )+
-                    $( StreamKind::$Stage => <$SDescriptor>::CODEC_VERSION, )+
+                    $( $(#[cfg($cfg)])? StreamKind::$Variant =>
+                        <<$Descriptor as EngineDescriptor>::Estimate as StreamValues>::CODEC_VERSION, )+
+                    $( StreamKind::$Stage =>
+                        <<$SDescriptor as StageDescriptor>::Output as StreamValues>::CODEC_VERSION, )+
+                }
+            }
+
+            /// The signals its estimates tell the alarm rules and the status.
+            pub fn signals(self) -> &'static [SignalKind] {
+                match self {
+                    $( $(#[cfg($cfg)])? StreamKind::$Variant =>
+                        <<$Descriptor as EngineDescriptor>::Estimate as StreamValues>::SIGNALS, )+
+                    $( StreamKind::$Stage =>
+                        <<$SDescriptor as StageDescriptor>::Output as StreamValues>::SIGNALS, )+
+                }
+            }
+
+            /// The OpenAPI schema of the stream's values.
+            pub fn schema(self) -> SchemaComponent {
+                match self {
+                    $( $(#[cfg($cfg)])? StreamKind::$Variant =>
+                        SchemaComponent::of::<<$Descriptor as EngineDescriptor>::Estimate>(), )+
+                    $( StreamKind::$Stage =>
+                        SchemaComponent::of::<<$SDescriptor as StageDescriptor>::Output>(), )+
                 }
             }
 
             /// The engine, if an engine produces this stream.
             pub fn engine(self) -> Option<EngineKind> {
                 match self {
-                    $( StreamKind::$Variant => Some(EngineKind::$Variant), )+
+                    $( $(#[cfg($cfg)])? StreamKind::$Variant => Some(EngineKind::$Variant), )+
                     _ => None,
                 }
             }
 
             /// Every protocol name, comma separated (for messages).
             pub fn names() -> String {
-                [$($name,)+ $($sname,)+].join(", ")
+                [$( $(#[cfg($cfg)])? $name, )+ $($sname,)+].join(", ")
             }
         }
 
         impl From<EngineKind> for StreamKind {
             fn from(engine: EngineKind) -> StreamKind {
-                match engine { $( EngineKind::$Variant => StreamKind::$Variant ),+ }
+                match engine { $( $(#[cfg($cfg)])? EngineKind::$Variant => StreamKind::$Variant ),+ }
             }
         }
 
@@ -323,7 +283,8 @@ macro_rules! registry {
         #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
         #[serde(tag = "engine")]
         pub enum EstimateValues {
-            $( #[serde(rename = $name)] $Variant(<$Descriptor as EngineDescriptor>::Estimate), )+
+            $( $(#[cfg($cfg)])? #[serde(rename = $name)]
+               $Variant(<$Descriptor as EngineDescriptor>::Estimate), )+
             $( #[serde(rename = $sname)] $Stage(<$SDescriptor as StageDescriptor>::Output), )+
         }
 
@@ -331,7 +292,7 @@ macro_rules! registry {
             /// The stream these values belong to.
             pub fn stream(&self) -> StreamKind {
                 match self {
-                    $( EstimateValues::$Variant(_) => StreamKind::$Variant, )+
+                    $( $(#[cfg($cfg)])? EstimateValues::$Variant(_) => StreamKind::$Variant, )+
                     $( EstimateValues::$Stage(_) => StreamKind::$Stage, )+
                 }
             }
@@ -340,24 +301,32 @@ macro_rules! registry {
             /// so a spike stays visible at any zoom.
             pub fn extremes(&self) -> [f64; 2] {
                 match self {
-                    $( EstimateValues::$Variant(e) => <$Descriptor>::extremes(e), )+
-                    $( EstimateValues::$Stage(e) => <$SDescriptor>::extremes(e), )+
+                    $( $(#[cfg($cfg)])? EstimateValues::$Variant(e) => e.extremes(), )+
+                    $( EstimateValues::$Stage(e) => e.extremes(), )+
+                }
+            }
+
+            /// What the alarm rules and the status watch in these values.
+            pub fn signals(&self) -> Signals {
+                match self {
+                    $( $(#[cfg($cfg)])? EstimateValues::$Variant(e) => e.signals(), )+
+                    $( EstimateValues::$Stage(e) => e.signals(), )+
                 }
             }
 
             /// The fields after `"engine"`, as serde_json writes them.
             pub fn write_fields(&self, fields: &mut JsonFields<'_>) {
                 match self {
-                    $( EstimateValues::$Variant(e) => <$Descriptor>::write_fields(e, fields), )+
-                    $( EstimateValues::$Stage(e) => <$SDescriptor>::write_fields(e, fields), )+
+                    $( $(#[cfg($cfg)])? EstimateValues::$Variant(e) => e.write_fields(fields), )+
+                    $( EstimateValues::$Stage(e) => e.write_fields(fields), )+
                 }
             }
 
             /// The stored form, of the stream's [`StreamKind::codec_version`].
             pub fn encode(&self) -> Vec<u8> {
                 match self {
-                    $( EstimateValues::$Variant(e) => <$Descriptor>::encode(e), )+
-                    $( EstimateValues::$Stage(e) => <$SDescriptor>::encode(e), )+
+                    $( $(#[cfg($cfg)])? EstimateValues::$Variant(e) => e.encode(), )+
+                    $( EstimateValues::$Stage(e) => e.encode(), )+
                 }
             }
 
@@ -377,12 +346,14 @@ macro_rules! registry {
                     reason: e.to_string(),
                 };
                 match stream {
-                    $( StreamKind::$Variant => <$Descriptor>::decode(version, bytes)
-                        .map(EstimateValues::$Variant)
-                        .map_err(corrupt), )+
-                    $( StreamKind::$Stage => <$SDescriptor>::decode(version, bytes)
-                        .map(EstimateValues::$Stage)
-                        .map_err(corrupt), )+
+                    $( $(#[cfg($cfg)])? StreamKind::$Variant =>
+                        <<$Descriptor as EngineDescriptor>::Estimate as StreamValues>::decode(version, bytes)
+                            .map(EstimateValues::$Variant)
+                            .map_err(corrupt), )+
+                    $( StreamKind::$Stage =>
+                        <<$SDescriptor as StageDescriptor>::Output as StreamValues>::decode(version, bytes)
+                            .map(EstimateValues::$Stage)
+                            .map_err(corrupt), )+
                 }
             }
         }
@@ -391,7 +362,7 @@ macro_rules! registry {
         #[derive(Debug, Clone, PartialEq, Serialize)]
         #[serde(untagged)]
         pub enum EngineModel {
-            $( $Variant(<$Descriptor as EngineDescriptor>::Model) ),+
+            $( $(#[cfg($cfg)])? $Variant(<$Descriptor as EngineDescriptor>::Model) ),+
         }
     };
 }
@@ -404,6 +375,9 @@ registry! {
         Zupt = "zupt" => zupt::Zupt,
         /// MEMS IMU + magnetometer fused by a fuzzy expert's motion status (Wang 2005).
         Fuzzy = "fuzzy" => fuzzy::Fuzzy,
+        /// A toy engine for the unit tests: what adding an engine touches.
+        #[cfg(test)]
+        Toy = "toy" => crate::toy_engine::Toy,
     }
     stages {
         /// The jacking log: one record per completed push of a `zupt` machine.
@@ -505,13 +479,13 @@ mod tests {
             let possible = kind.to_possible_value().unwrap();
             assert_eq!(possible.get_name(), name);
             assert!(!kind.sensors().is_empty() && !kind.specs().is_empty());
-            assert!(kind.codec_version() >= 1);
+            assert!(StreamKind::from(kind).codec_version() >= 1);
         }
         assert_eq!(EngineKind::value_variants(), EngineKind::ALL);
         let err = "kalman".parse::<EngineKind>().unwrap_err();
         assert_eq!(
             err.to_string(),
-            "unknown engine `kalman` (known: attitude, zupt, fuzzy)"
+            "unknown engine `kalman` (known: attitude, zupt, fuzzy, toy)"
         );
     }
 }

@@ -479,8 +479,7 @@ pub struct ModelQuery {
 ///
 /// `GET /api/v1/machines/{machine}/model[?engine=]`: the model report of
 /// the named engine, or of the machine's first engine (in registry order)
-/// that has one: `attitude`, the learned pitch error and the self-tuned
-/// noise; `fuzzy`, the magnetometer calibration and the noise floors.
+/// that has one: what it has learned (docs/engines/).
 #[utoipa::path(get, path = "/api/v1/machines/{machine}/model", operation_id = "get_model", tag = "estimates",
     params(MachinePath, ModelQuery),
     responses((status = OK, description = "The engine's model report, with `machine`", body = ModelBody),

@@ -8,7 +8,7 @@ use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
 use std::collections::BTreeMap;
 
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 use serde_json::value::RawValue;
 
 use super::error::ApiError;
@@ -16,7 +16,7 @@ use super::openapi::MachinePath;
 use super::state::SharedState;
 use crate::config::{MachineDeclaration, valid_machine_id};
 use crate::fusion::{EngineKind, SensorKind, StreamKind};
-use crate::machine::MachineHandle;
+use crate::machine::{LiveEstimate, MachineHandle};
 
 /// A sensor's last reading, as the status reports it.
 #[derive(Debug, Serialize, utoipa::ToSchema)]
@@ -29,19 +29,16 @@ pub struct SensorReport {
     pub readings: u64,
 }
 
-/// The laser's state, from the newest `attitude` estimate.
+/// The laser's state, from the newest estimate of an engine that reads
+/// the laser (`attitude`).
 #[derive(Debug, Serialize, utoipa::ToSchema)]
 pub struct LaserReport {
     pub ok: bool,
+    /// Seconds since the newest laser sample at `t`; `null` before the first.
     pub age_s: Option<f64>,
     pub dropout: bool,
-}
-
-/// The fields of an `attitude` estimate the laser report reads.
-#[derive(Deserialize)]
-struct LaserFields {
-    laser_ok: bool,
-    laser_age_s: Option<f64>,
+    /// Time of the estimate this report is from, Unix seconds.
+    pub t: f64,
 }
 
 /// A machine's status: sensors' last readings and their age at `now`
@@ -55,7 +52,8 @@ pub struct MachineStatusBody {
     /// The newest reading of any sensor; `null` before the first.
     pub last_reading_t: Option<f64>,
     pub sensors: BTreeMap<SensorKind, SensorReport>,
-    /// `null` for a machine without `attitude`.
+    /// `null` for a machine none of whose engines reads the laser, and
+    /// before their first estimate.
     pub laser: Option<LaserReport>,
     /// Readings stored but too late to be fused, since the server started.
     pub late_readings: u64,
@@ -89,6 +87,19 @@ pub struct Declared {
     pub config: MachineDeclaration,
 }
 
+/// The laser's state from the newest estimates of each stream: the first
+/// (in registry order) that tells it, as the alarm rules watch it.
+pub(crate) fn laser_report(latest: &BTreeMap<StreamKind, LiveEstimate>) -> Option<LaserReport> {
+    latest.values().find_map(|e| {
+        e.signals.laser.map(|laser| LaserReport {
+            ok: laser.ok,
+            age_s: laser.age_s,
+            dropout: !laser.ok,
+            t: e.t,
+        })
+    })
+}
+
 /// The status of `machine` at `now`.
 pub(super) fn status(machine: &MachineHandle, now: f64) -> MachineStatusBody {
     let status = machine.status();
@@ -111,14 +122,7 @@ pub(super) fn status(machine: &MachineHandle, now: f64) -> MachineStatusBody {
         .iter()
         .filter_map(|(&stream, e)| Some((stream, RawValue::from_string(e.json.to_string()).ok()?)))
         .collect();
-    let laser = latest
-        .get(&StreamKind::Attitude)
-        .and_then(|a| serde_json::from_str::<LaserFields>(a.get()).ok())
-        .map(|a| LaserReport {
-            ok: a.laser_ok,
-            age_s: a.laser_age_s,
-            dropout: !a.laser_ok,
-        });
+    let laser = laser_report(&status.latest);
     let last_reading_t = status
         .sensors
         .values()

@@ -20,6 +20,7 @@ use super::error::{Refusal, Rejected};
 use super::state::SharedState;
 use crate::config::MachineSpec;
 use crate::fusion::alarms::{AlarmKind, Severity};
+use crate::fusion::descriptor::SignalKind;
 use crate::fusion::{Reading, SensorKind};
 use crate::store::alarms::AlarmFilter;
 
@@ -100,7 +101,7 @@ fn describe() {
     );
     metrics::describe_gauge!(
         LASER_DROPOUT,
-        "1 while the machine's attitude engine is in laser dropout"
+        "1 while the machine's laser is in dropout (machines whose engines read the laser)"
     );
     metrics::describe_gauge!(MACHINES, "machines declared");
     metrics::describe_counter!(
@@ -170,8 +171,9 @@ pub fn register_machine(spec: &MachineSpec) {
     }
     metrics::gauge!(LIVE_CLIENTS, "machine" => machine.clone()).increment(0.0);
     if spec
-        .engines
-        .contains_key(&crate::fusion::EngineKind::Attitude)
+        .streams()
+        .iter()
+        .any(|stream| stream.signals().contains(&SignalKind::Laser))
     {
         metrics::gauge!(LASER_DROPOUT, "machine" => machine).increment(0.0);
     }

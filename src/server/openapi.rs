@@ -309,42 +309,6 @@ impl PartialSchema for StreamKind {
 
 impl ToSchema for StreamKind {}
 
-/// The values of each stream's estimates, by the stream's name.
-fn stream_schema(stream: StreamKind) -> Component {
-    use crate::fusion::{AttitudeEstimate, FuzzyEstimate, ZuptEstimate};
-    use crate::fusion::{dta::DtaEstimate, pushes::PushRecord};
-    match stream {
-        StreamKind::Attitude => Component::of::<AttitudeEstimate>(),
-        StreamKind::Zupt => Component::of::<ZuptEstimate>(),
-        StreamKind::Fuzzy => Component::of::<FuzzyEstimate>(),
-        StreamKind::Pushes => Component::of::<PushRecord>(),
-        StreamKind::Dta => Component::of::<DtaEstimate>(),
-    }
-}
-
-/// A named schema and how to collect the schemas it refers to.
-struct Component {
-    name: Cow<'static, str>,
-    schema: RefOr<Schema>,
-    referred: fn(&mut Vec<(String, RefOr<Schema>)>),
-}
-
-impl Component {
-    fn of<T: ToSchema>() -> Component {
-        Component {
-            name: T::name(),
-            schema: T::schema(),
-            referred: T::schemas,
-        }
-    }
-
-    /// Adds it, and what it refers to, to `schemas`.
-    fn collect(self, schemas: &mut Vec<(String, RefOr<Schema>)>) {
-        schemas.push((self.name.into(), self.schema));
-        (self.referred)(schemas);
-    }
-}
-
 /// An estimate's stream-specific part, tagged by `engine` (the stream's
 /// name): one of the engines' or stages' estimates.
 pub struct EstimateValues;
@@ -355,7 +319,7 @@ impl PartialSchema for EstimateValues {
             "The stream's fields, tagged by `engine` (docs/protocol.md, \"Estimates\")",
         ));
         for &stream in StreamKind::ALL {
-            let name = stream_schema(stream).name;
+            let name = stream.schema().name;
             union = union.item(
                 AllOfBuilder::new()
                     .item(
@@ -379,19 +343,8 @@ impl PartialSchema for EstimateValues {
 impl ToSchema for EstimateValues {
     fn schemas(schemas: &mut Vec<(String, RefOr<Schema>)>) {
         for &stream in StreamKind::ALL {
-            stream_schema(stream).collect(schemas);
+            stream.schema().collect(schemas);
         }
-    }
-}
-
-/// The schema of engine `engine`'s model report, if it has one.
-fn model_schema(engine: EngineKind) -> Option<Component> {
-    use crate::fusion::attitude::ModelReport;
-    use crate::fusion::fuzzy::FuzzyModelReport;
-    match engine {
-        EngineKind::Attitude => Some(Component::of::<ModelReport>()),
-        EngineKind::Fuzzy => Some(Component::of::<FuzzyModelReport>()),
-        EngineKind::Zupt => None,
     }
 }
 
@@ -401,10 +354,10 @@ pub struct EngineModelReport;
 impl PartialSchema for EngineModelReport {
     fn schema() -> RefOr<Schema> {
         let mut union = OneOfBuilder::new().description(Some(
-            "The engine's model report (docs/engines/): attitude's learned pitch error and self-tuned noise, fuzzy's magnetometer calibration and noise floors",
+            "The engine's model report: what it has learned (docs/engines/)",
         ));
         for &engine in EngineKind::ALL {
-            if let Some(model) = model_schema(engine) {
+            if let Some(model) = engine.model_schema() {
                 union = union.item(Ref::from_schema_name(model.name));
             }
         }
@@ -414,7 +367,7 @@ impl PartialSchema for EngineModelReport {
 
 impl ToSchema for EngineModelReport {
     fn schemas(schemas: &mut Vec<(String, RefOr<Schema>)>) {
-        for component in EngineKind::ALL.iter().filter_map(|&e| model_schema(e)) {
+        for component in EngineKind::ALL.iter().filter_map(|&e| e.model_schema()) {
             component.collect(schemas);
         }
     }
@@ -590,7 +543,7 @@ mod tests {
         let mut schemas = Vec::new();
         EstimateValues::schemas(&mut schemas);
         for &stream in StreamKind::ALL {
-            let name = stream_schema(stream).name;
+            let name = stream.schema().name;
             assert!(schemas.iter().any(|(n, _)| *n == name), "{stream}");
         }
     }

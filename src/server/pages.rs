@@ -15,10 +15,10 @@ use crate::fusion::zupt::ZuptConfig;
 use crate::fusion::{EngineKind, Params, StageKind};
 
 /// One embedded file.
-struct Asset {
-    path: &'static str,
-    content_type: &'static str,
-    bytes: &'static [u8],
+pub(crate) struct Asset {
+    pub(crate) path: &'static str,
+    pub(crate) content_type: &'static str,
+    pub(crate) bytes: &'static [u8],
 }
 
 macro_rules! asset {
@@ -138,6 +138,8 @@ pub fn engine_section(engine: EngineKind, params: &Params) -> Result<EngineSecti
             .render()
         }
         EngineKind::Fuzzy => FuzzySection.render(),
+        #[cfg(test)]
+        EngineKind::Toy => crate::toy_engine::ToySection.render(),
     }
     .map_err(|source| SectionError::Render { engine, source })?;
     Ok(EngineSection {
@@ -156,6 +158,8 @@ fn engine_script(engine: EngineKind) -> &'static Asset {
         EngineKind::Attitude => &ATTITUDE,
         EngineKind::Zupt => &ZUPT,
         EngineKind::Fuzzy => &FUZZY,
+        #[cfg(test)]
+        EngineKind::Toy => &crate::toy_engine::TOY_SCRIPT,
     }
 }
 

@@ -1,17 +1,22 @@
 //! Alarm rules: pure functions of a machine's readings, estimates and the
 //! server clock's ticks, deciding when an alarm is raised and when it
-//! clears (the shell stores, acknowledges, notifies). Kinds:
-//! - `deviation`: the `dta` stream beyond the warn or alarm tolerance;
-//! - `laser_dropout`: the `attitude` engine's laser sample older than a
-//!   limit;
+//! clears (the shell stores, acknowledges, notifies).
+//!
+//! The rules read the [`Signals`] each stream's estimates tell
+//! (`src/fusion/descriptor.rs`), not the streams themselves: today
+//! `attitude` tells the laser and its pitch σ, `zupt` its navigation
+//! solution, `dta` the deviation. Where several of a machine's streams
+//! tell one signal, the first in registry order is watched. Kinds:
+//! - `deviation`: the deviation beyond the warn or alarm tolerance;
+//! - `laser_dropout`: the laser sample older than a limit;
 //! - `stale_sensor`: a sensor silent for more than N of its own periods,
 //!   learned from its readings ([`period`]); not the laser, whose beam is
 //!   lost routinely for minutes (`laser_dropout` is its rule);
-//! - `ins_uncertainty`: the `zupt` position's horizontal 1σ above a limit;
-//! - `attitude_uncertainty`: the `attitude` engine's pitch 1σ above a
-//!   limit (a long laser dropout, a roll the model has not seen: steer
-//!   with care);
-//! - `engine_reset`: the `zupt` engine lost its solution and re-aligns.
+//! - `ins_uncertainty`: the inertial position's horizontal 1σ above a limit;
+//! - `attitude_uncertainty`: the pitch 1σ above a limit (a long laser
+//!   dropout, a roll the model has not seen: steer with care);
+//! - `engine_reset`: an INS lost its solution and re-aligns (the engine is
+//!   the alarm's subject).
 //!
 //! Values at a limit do not flap: a limit must be undercut by a band
 //! before it counts as cleared, and a condition must hold (or be gone) for
@@ -26,8 +31,10 @@ use serde::{Deserialize, Serialize};
 
 use self::debounce::{Debounced, Edge, Hysteresis};
 use self::period::LearnedPeriod;
-use super::dta::{DtaEstimate, Tolerances};
-use super::estimate::{EngineOutput, EstimateValues};
+use super::StreamKind;
+use super::descriptor::{DeviationSignal, Navigation, SignalKind, Signals};
+use super::dta::Tolerances;
+use super::estimate::EngineOutput;
 use super::reading::{Reading, SensorKind};
 
 /// What an alarm is about.
@@ -247,6 +254,9 @@ pub struct AlarmRules {
     config: AlarmConfig,
     tolerances: Option<Tolerances>,
     state: AlarmState,
+    /// The stream each signal is watched from: of the machine's streams
+    /// that tell it, the first in registry order.
+    watched: BTreeMap<SignalKind, StreamKind>,
 }
 
 const SEVERITIES: [Severity; 2] = [Severity::Warn, Severity::Alarm];
@@ -278,16 +288,27 @@ fn push(out: &mut Vec<Transition>, key: AlarmKey, edge: Edge, raised: String, cl
 
 impl AlarmRules {
     /// Rules with `config` for a machine with `tolerances` (none: no
-    /// deviation alarms), from a fresh state or a snapshot's.
+    /// deviation alarms) whose engines and stages make `streams`, from a
+    /// fresh state or a snapshot's.
     pub fn new(
         config: AlarmConfig,
         tolerances: Option<Tolerances>,
+        streams: &[StreamKind],
         state: AlarmState,
     ) -> AlarmRules {
+        let mut sorted = streams.to_vec();
+        sorted.sort();
+        let mut watched = BTreeMap::new();
+        for stream in sorted {
+            for &signal in stream.signals() {
+                watched.entry(signal).or_insert(stream);
+            }
+        }
         AlarmRules {
             config,
             tolerances,
             state,
+            watched,
         }
     }
 
@@ -341,81 +362,120 @@ impl AlarmRules {
         }
     }
 
-    /// An engine's or stage's estimate.
+    /// An engine's or stage's estimate: the rules read its
+    /// [`Signals`], whichever stream tells them.
     pub fn estimate(&mut self, estimate: &EngineOutput, out: &mut Vec<Transition>) {
-        let t = estimate.t;
+        self.signals(
+            estimate.t,
+            estimate.values.stream(),
+            &estimate.values.signals(),
+            out,
+        );
+    }
+
+    /// The signals of an estimate of `stream` at `t` (those it is
+    /// watched for).
+    pub fn signals(
+        &mut self,
+        t: f64,
+        stream: StreamKind,
+        signals: &Signals,
+        out: &mut Vec<Transition>,
+    ) {
+        let watched = |kind| self.watched.get(&kind) == Some(&stream);
+        let deviation = signals.deviation.filter(|_| watched(SignalKind::Deviation));
+        let pitch_sigma_deg = signals
+            .pitch_sigma_deg
+            .filter(|_| watched(SignalKind::PitchSigma));
+        let laser = signals.laser.filter(|_| watched(SignalKind::Laser));
+        let navigation = signals
+            .navigation
+            .filter(|_| watched(SignalKind::Navigation));
+        if let Some(deviation) = &deviation {
+            self.deviation(t, deviation, out);
+        }
+        if let Some(sigma_deg) = pitch_sigma_deg {
+            self.attitude_uncertainty(t, sigma_deg, out);
+        }
+        if let Some(age_s) = laser.and_then(|laser| laser.age_s) {
+            self.laser_dropout(t, age_s, out);
+        }
+        if let Some(navigation) = navigation {
+            self.navigation(t, stream, navigation, out);
+        }
+    }
+
+    fn laser_dropout(&mut self, t: f64, age_s: f64, out: &mut Vec<Transition>) {
         let c = self.config;
-        match &estimate.values {
-            EstimateValues::Dta(d) => self.deviation(t, d, out),
-            EstimateValues::Attitude(a) => {
-                // Once the laser has been seen: before, the pitch is the
-                // inclinometer's as installed, and says so (its σ is the
-                // prior's), which is no news to steer by.
-                if let (Some(sigma_deg), Some(_)) = (a.pitch_sigma_deg, a.laser_age_s) {
-                    self.attitude_uncertainty(t, sigma_deg, out);
-                }
-                let Some(age_s) = a.laser_age_s else { return };
-                let limits = [c.laser_dropout_warn_s, c.laser_dropout_alarm_s];
+        let limits = [c.laser_dropout_warn_s, c.laser_dropout_alarm_s];
+        for (i, severity) in SEVERITIES.into_iter().enumerate() {
+            // Time is the quantity itself: no minimum on top.
+            let limit = Hysteresis {
+                limit: limits[i],
+                band: 0.0,
+            };
+            if let Some(edge) = self.state.laser[i].update(t, age_s, limit, 0.0) {
+                push(
+                    out,
+                    key(AlarmKind::LaserDropout, severity, ""),
+                    edge,
+                    format!("no laser sample for over {:.0} min", limits[i] / 60.0),
+                    "laser samples again".into(),
+                );
+            }
+        }
+    }
+
+    /// `ins_uncertainty` while aligned; `engine_reset` (about `stream`)
+    /// from losing the solution until aligned again.
+    fn navigation(
+        &mut self,
+        t: f64,
+        stream: StreamKind,
+        navigation: Navigation,
+        out: &mut Vec<Transition>,
+    ) {
+        let c = self.config;
+        let aligned = match navigation {
+            Navigation::Aligned {
+                horizontal_sigma_mm: sigma_mm,
+            } => {
+                let limits = [c.ins_sigma_warn_mm, c.ins_sigma_alarm_mm];
                 for (i, severity) in SEVERITIES.into_iter().enumerate() {
-                    // Time is the quantity itself: no minimum on top.
                     let limit = Hysteresis {
                         limit: limits[i],
-                        band: 0.0,
+                        band: c.hysteresis_fraction * limits[i],
                     };
-                    if let Some(edge) = self.state.laser[i].update(t, age_s, limit, 0.0) {
+                    if let Some(edge) =
+                        self.state.ins[i].update(t, sigma_mm, limit, c.min_duration_s)
+                    {
                         push(
                             out,
-                            key(AlarmKind::LaserDropout, severity, ""),
+                            key(AlarmKind::InsUncertainty, severity, ""),
                             edge,
-                            format!("no laser sample for over {:.0} min", limits[i] / 60.0),
-                            "laser samples again".into(),
+                            format!(
+                                "INS horizontal position 1σ {sigma_mm:.0} mm, over {:.0} mm: a check survey is due",
+                                limits[i]
+                            ),
+                            format!("INS horizontal position 1σ back under {:.0} mm", limits[i]),
                         );
                     }
                 }
+                true
             }
-            EstimateValues::Zupt(z) => {
-                if z.aligned {
-                    let sigma_mm = z.position_sigma_m[0].hypot(z.position_sigma_m[1]) * 1000.0;
-                    let limits = [c.ins_sigma_warn_mm, c.ins_sigma_alarm_mm];
-                    for (i, severity) in SEVERITIES.into_iter().enumerate() {
-                        let limit = Hysteresis {
-                            limit: limits[i],
-                            band: c.hysteresis_fraction * limits[i],
-                        };
-                        if let Some(edge) =
-                            self.state.ins[i].update(t, sigma_mm, limit, c.min_duration_s)
-                        {
-                            push(
-                                out,
-                                key(AlarmKind::InsUncertainty, severity, ""),
-                                edge,
-                                format!(
-                                    "INS horizontal position 1σ {sigma_mm:.0} mm, over {:.0} mm: a check survey is due",
-                                    limits[i]
-                                ),
-                                format!(
-                                    "INS horizontal position 1σ back under {:.0} mm",
-                                    limits[i]
-                                ),
-                            );
-                        }
-                    }
-                }
-                let reset = self.state.was_aligned && !z.aligned;
-                self.state.was_aligned = z.aligned;
-                let holds = reset || (self.state.reset.active && !z.aligned);
-                if let Some(edge) = self.state.reset.update(t, holds, 0.0) {
-                    push(
-                        out,
-                        key(AlarmKind::EngineReset, Severity::Warn, "zupt"),
-                        edge,
-                        "the INS lost its navigation solution and is re-aligning: positions restart"
-                            .into(),
-                        "the INS is aligned again".into(),
-                    );
-                }
-            }
-            _ => {}
+            Navigation::Aligning => false,
+        };
+        let reset = self.state.was_aligned && !aligned;
+        self.state.was_aligned = aligned;
+        let holds = reset || (self.state.reset.active && !aligned);
+        if let Some(edge) = self.state.reset.update(t, holds, 0.0) {
+            push(
+                out,
+                key(AlarmKind::EngineReset, Severity::Warn, stream.as_str()),
+                edge,
+                "the INS lost its navigation solution and is re-aligning: positions restart".into(),
+                "the INS is aligned again".into(),
+            );
         }
     }
 
@@ -443,20 +503,17 @@ impl AlarmRules {
         }
     }
 
-    fn deviation(&mut self, t: f64, d: &DtaEstimate, out: &mut Vec<Transition>) {
+    fn deviation(&mut self, t: f64, d: &DeviationSignal, out: &mut Vec<Transition>) {
         let Some(tol) = self.tolerances else { return };
         let c = self.config;
-        let points = [("front", &d.front), ("rear", &d.rear)];
+        let points = [("front", d.front_mm), ("rear", d.rear_mm)];
         for (i, severity) in SEVERITIES.into_iter().enumerate() {
             let limit = |l: super::dta::Limits| if i == 0 { l.warn } else { l.alarm };
             let (h, v) = (limit(tol.horizontal_mm), limit(tol.vertical_mm));
             // The worst of the four against its own limit, as a ratio.
             let mut worst = (0.0, String::new());
             for (name, p) in points {
-                for (axis, value, lim) in [
-                    ("horizontal", p.horizontal_mm, h),
-                    ("vertical", p.vertical_mm, v),
-                ] {
+                for (axis, value, lim) in [("horizontal", p[0], h), ("vertical", p[1], v)] {
                     let ratio = if lim > 0.0 { value.abs() / lim } else { 0.0 };
                     if ratio > worst.0 {
                         worst = (
@@ -491,7 +548,8 @@ impl AlarmRules {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::fusion::dta::{DtaSource, Limits, PointDeviation};
+    use crate::fusion::EstimateValues;
+    use crate::fusion::dta::{DtaEstimate, DtaSource, Limits, PointDeviation};
     use crate::fusion::reading::SensorData;
     use crate::fusion::{AttitudeEstimate, ZuptEstimate};
 
@@ -509,6 +567,7 @@ mod tests {
         AlarmRules::new(
             AlarmConfig::default(),
             Some(tolerances),
+            StreamKind::ALL,
             AlarmState::default(),
         )
     }
@@ -588,7 +647,12 @@ mod tests {
 
     #[test]
     fn without_tolerances_there_is_no_deviation_alarm() {
-        let mut r = AlarmRules::new(AlarmConfig::default(), None, AlarmState::default());
+        let mut r = AlarmRules::new(
+            AlarmConfig::default(),
+            None,
+            StreamKind::ALL,
+            AlarmState::default(),
+        );
         assert!(run(&mut r, (0..100).map(|i| dta(f64::from(i), 500.0, 500.0))).is_empty());
     }
 
@@ -828,7 +892,8 @@ mod tests {
         run(&mut r, (0..=20).map(|i| dta(f64::from(i), 55.0, 0.0)));
         let json = serde_json::to_value(r.state()).unwrap();
         let state: AlarmState = serde_json::from_value(json).unwrap();
-        let mut restored = AlarmRules::new(AlarmConfig::default(), r.tolerances, state);
+        let mut restored =
+            AlarmRules::new(AlarmConfig::default(), r.tolerances, StreamKind::ALL, state);
         assert_eq!(restored, r);
         // Still active: no second raise.
         assert!(

@@ -3,7 +3,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::fusion::estimate::JsonFields;
+use crate::fusion::descriptor::{LaserSignal, SignalKind, Signals, StreamValues};
+use crate::fusion::json_fields::JsonFields;
 
 /// What the `attitude` engine estimates at one inclinometer reading.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
@@ -48,9 +49,11 @@ pub struct AttitudeEstimate {
 /// 1: before the σ ([`AttitudeEstimateV1`]).
 pub const CODEC_VERSION: u32 = 2;
 
-impl AttitudeEstimate {
-    /// The fields after `"engine"`, as serde_json writes them.
-    pub fn write_fields(&self, w: &mut JsonFields<'_>) {
+impl StreamValues for AttitudeEstimate {
+    const CODEC_VERSION: u32 = CODEC_VERSION;
+    const SIGNALS: &'static [SignalKind] = &[SignalKind::Laser, SignalKind::PitchSigma];
+
+    fn write_fields(&self, w: &mut JsonFields<'_>) {
         w.number("pitch_deg", self.pitch_deg);
         w.number("roll_deg", self.roll_deg);
         w.number("pitch_pred_deg", self.pitch_pred_deg);
@@ -67,14 +70,8 @@ impl AttitudeEstimate {
         w.number("incl_roll_deg", self.incl_roll_deg);
     }
 
-    /// The stored form, of [`CODEC_VERSION`].
-    pub fn encode(&self) -> Vec<u8> {
-        crate::fusion::estimate::postcard_bytes(self)
-    }
-
-    /// The estimate stored as `bytes` with codec `version` (0: stored
-    /// before rows carried their version, which is version 1).
-    pub fn decode(version: u32, bytes: &[u8]) -> Result<AttitudeEstimate, postcard::Error> {
+    /// 0: stored before rows carried their version, which is version 1.
+    fn decode(version: u32, bytes: &[u8]) -> Result<AttitudeEstimate, postcard::Error> {
         match version {
             0 | 1 => postcard::from_bytes::<AttitudeEstimateV1>(bytes).map(AttitudeEstimate::from),
             2 => postcard::from_bytes(bytes),
@@ -82,9 +79,23 @@ impl AttitudeEstimate {
         }
     }
 
-    /// `extreme_a`, `extreme_b` of the stored row: pitch and roll.
-    pub fn extremes(&self) -> [f64; 2] {
+    /// Pitch and roll.
+    fn extremes(&self) -> [f64; 2] {
         [self.pitch_deg, self.roll_deg]
+    }
+
+    /// The laser, and the pitch's σ once the laser has been seen: before,
+    /// the pitch is the inclinometer's as installed, and says so (its σ is
+    /// the prior's), which is no news to steer by.
+    fn signals(&self) -> Signals {
+        Signals {
+            laser: Some(LaserSignal {
+                ok: self.laser_ok,
+                age_s: self.laser_age_s,
+            }),
+            pitch_sigma_deg: self.pitch_sigma_deg.filter(|_| self.laser_age_s.is_some()),
+            ..Signals::default()
+        }
     }
 }
 

@@ -64,10 +64,11 @@ pub use self::params::{
     PARAMS, RETIRED,
 };
 use super::angles::{deg, rad, rad2};
-use super::estimate::{EngineOutput, EstimateValues, JsonFields};
+use super::descriptor::EngineDescriptor;
+use super::estimate::{EngineOutput, EstimateValues};
 use super::params::{ParamError, Params, Retired};
 use super::reading::{Reading, SensorData, SensorKind};
-use super::registry::{EngineDescriptor, EngineModel};
+use super::registry::EngineModel;
 use super::{Engine, EngineKind, SnapshotError};
 
 /// Version of the engine's snapshot. A snapshot of another version is
@@ -1113,7 +1114,6 @@ impl EngineDescriptor for Attitude {
         "laser + inclinometer: pitch and roll, the inclinometer's pitch error learnt by an ANFIS";
     const SENSORS: &'static [SensorKind] = &[SensorKind::Laser, SensorKind::Inclinometer];
     const RETIRED: &'static [Retired] = RETIRED;
-    const CODEC_VERSION: u32 = estimate::CODEC_VERSION;
     type Params = AttitudeParams;
     type Engine = AttitudeEngine;
     type Estimate = AttitudeEstimate;
@@ -1124,18 +1124,6 @@ impl EngineDescriptor for Attitude {
     }
     fn restore(snapshot: serde_json::Value) -> Result<AttitudeEngine, SnapshotError> {
         AttitudeEngine::restore(snapshot)
-    }
-    fn write_fields(estimate: &AttitudeEstimate, fields: &mut JsonFields<'_>) {
-        estimate.write_fields(fields);
-    }
-    fn encode(estimate: &AttitudeEstimate) -> Vec<u8> {
-        estimate.encode()
-    }
-    fn decode(version: u32, bytes: &[u8]) -> Result<AttitudeEstimate, postcard::Error> {
-        AttitudeEstimate::decode(version, bytes)
-    }
-    fn extremes(estimate: &AttitudeEstimate) -> [f64; 2] {
-        estimate.extremes()
     }
 }
 

@@ -5,7 +5,8 @@
 use serde::{Deserialize, Serialize};
 
 use super::magcal::CalibrationState;
-use crate::fusion::estimate::JsonFields;
+use crate::fusion::descriptor::{SignalKind, Signals, StreamValues};
+use crate::fusion::json_fields::JsonFields;
 
 /// The `fuzzy` engine's decision of the motion status.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
@@ -111,9 +112,11 @@ pub struct FuzzyEstimate {
 /// 2: before the attitude σ and the compass state ([`FuzzyEstimateV2`]).
 pub const CODEC_VERSION: u32 = 3;
 
-impl FuzzyEstimate {
-    /// The fields after `"engine"`, as serde_json writes them.
-    pub fn write_fields(&self, w: &mut JsonFields<'_>) {
+impl StreamValues for FuzzyEstimate {
+    const CODEC_VERSION: u32 = CODEC_VERSION;
+    const SIGNALS: &'static [SignalKind] = &[];
+
+    fn write_fields(&self, w: &mut JsonFields<'_>) {
         w.word("motion", self.motion.as_str());
         w.number("static_degree", self.static_degree);
         w.number("pitch_deg", self.pitch_deg);
@@ -143,14 +146,9 @@ impl FuzzyEstimate {
         w.optional("compass_since", self.compass_since);
     }
 
-    /// The stored form, of [`CODEC_VERSION`].
-    pub fn encode(&self) -> Vec<u8> {
-        crate::fusion::estimate::postcard_bytes(self)
-    }
-
-    /// The estimate stored as `bytes` with codec `version` (0: stored
-    /// before rows carried their version: version 2, or 1 where that fails).
-    pub fn decode(version: u32, bytes: &[u8]) -> Result<FuzzyEstimate, postcard::Error> {
+    /// 0: stored before rows carried their version: version 2, or 1
+    /// where that fails.
+    fn decode(version: u32, bytes: &[u8]) -> Result<FuzzyEstimate, postcard::Error> {
         match version {
             0 => postcard::from_bytes::<FuzzyEstimateV2>(bytes)
                 .map(FuzzyEstimate::from)
@@ -168,9 +166,15 @@ impl FuzzyEstimate {
         }
     }
 
-    /// `extreme_a`, `extreme_b` of the stored row: pitch and roll.
-    pub fn extremes(&self) -> [f64; 2] {
+    /// Pitch and roll.
+    fn extremes(&self) -> [f64; 2] {
         [self.pitch_deg, self.roll_deg]
+    }
+
+    /// None: no alarm rule watches this engine (its tilt and heading σ
+    /// are in the estimate itself).
+    fn signals(&self) -> Signals {
+        Signals::default()
     }
 }
 

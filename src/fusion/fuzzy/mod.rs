@@ -81,10 +81,11 @@ use self::start_frame::StartFrame;
 use self::tilt::TiltWindow;
 use self::turn_check::TurnCheck;
 use super::angles::{deg, rad};
-use super::estimate::{EngineOutput, EstimateValues, JsonFields};
+use super::descriptor::EngineDescriptor;
+use super::estimate::{EngineOutput, EstimateValues};
 use super::params::{ParamError, Params, Retired};
 use super::reading::{Reading, SensorData, SensorKind};
-use super::registry::{EngineDescriptor, EngineModel};
+use super::registry::EngineModel;
 use super::{Engine, EngineKind, SnapshotError};
 use crate::fusion::geometry::{V3, attitude_from_euler};
 
@@ -1118,7 +1119,6 @@ impl EngineDescriptor for Fuzzy {
     const SUMMARY: &'static str = "MEMS IMU + compass: a fuzzy expert decides static or moving; tilt and compass while static, the gyro while moving";
     const SENSORS: &'static [SensorKind] = &[SensorKind::Imu, SensorKind::Magnetometer];
     const RETIRED: &'static [Retired] = RETIRED;
-    const CODEC_VERSION: u32 = estimate::CODEC_VERSION;
     type Params = FuzzyParams;
     type Engine = FuzzyEngine;
     type Estimate = FuzzyEstimate;
@@ -1129,18 +1129,6 @@ impl EngineDescriptor for Fuzzy {
     }
     fn restore(snapshot: serde_json::Value) -> Result<FuzzyEngine, SnapshotError> {
         FuzzyEngine::restore(snapshot)
-    }
-    fn write_fields(estimate: &FuzzyEstimate, fields: &mut JsonFields<'_>) {
-        estimate.write_fields(fields);
-    }
-    fn encode(estimate: &FuzzyEstimate) -> Vec<u8> {
-        estimate.encode()
-    }
-    fn decode(version: u32, bytes: &[u8]) -> Result<FuzzyEstimate, postcard::Error> {
-        FuzzyEstimate::decode(version, bytes)
-    }
-    fn extremes(estimate: &FuzzyEstimate) -> [f64; 2] {
-        estimate.extremes()
     }
 }
 

@@ -4,7 +4,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::fusion::estimate::JsonFields;
+use crate::fusion::descriptor::{Navigation, SignalKind, Signals, StreamValues};
+use crate::fusion::json_fields::JsonFields;
 
 /// What the `zupt` engine estimates at one IMU reading.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
@@ -74,9 +75,11 @@ pub struct TrackPoint {
 /// roll σ ([`ZuptEstimateV3`]).
 pub const CODEC_VERSION: u32 = 4;
 
-impl ZuptEstimate {
-    /// The fields after `"engine"`, as serde_json writes them.
-    pub fn write_fields(&self, w: &mut JsonFields<'_>) {
+impl StreamValues for ZuptEstimate {
+    const CODEC_VERSION: u32 = CODEC_VERSION;
+    const SIGNALS: &'static [SignalKind] = &[SignalKind::Navigation];
+
+    fn write_fields(&self, w: &mut JsonFields<'_>) {
         w.flag("zv", self.zv);
         w.triple("position_m", &self.position_m);
         w.number("distance_m", self.distance_m);
@@ -110,14 +113,9 @@ impl ZuptEstimate {
         }
     }
 
-    /// The stored form, of [`CODEC_VERSION`].
-    pub fn encode(&self) -> Vec<u8> {
-        crate::fusion::estimate::postcard_bytes(self)
-    }
-
-    /// The estimate stored as `bytes` with codec `version` (0: stored
-    /// before rows carried their version: version 2, or 1 where that fails).
-    pub fn decode(version: u32, bytes: &[u8]) -> Result<ZuptEstimate, postcard::Error> {
+    /// 0: stored before rows carried their version: version 2, or 1
+    /// where that fails.
+    fn decode(version: u32, bytes: &[u8]) -> Result<ZuptEstimate, postcard::Error> {
         let v1 = |bytes| postcard::from_bytes::<ZuptEstimateV1>(bytes).map(ZuptEstimate::from);
         let v2 = |bytes| postcard::from_bytes::<ZuptEstimateV2>(bytes).map(ZuptEstimate::from);
         let v3 = |bytes| postcard::from_bytes::<ZuptEstimateV3>(bytes).map(ZuptEstimate::from);
@@ -131,9 +129,25 @@ impl ZuptEstimate {
         }
     }
 
-    /// `extreme_a`, `extreme_b` of the stored row: distance and depth.
-    pub fn extremes(&self) -> [f64; 2] {
+    /// Distance and depth.
+    fn extremes(&self) -> [f64; 2] {
         [self.distance_m, self.position_m[2]]
+    }
+
+    /// The navigation solution: aligned with its horizontal 1σ, or aligning.
+    fn signals(&self) -> Signals {
+        let navigation = if self.aligned {
+            Navigation::Aligned {
+                horizontal_sigma_mm: self.position_sigma_m[0].hypot(self.position_sigma_m[1])
+                    * 1000.0,
+            }
+        } else {
+            Navigation::Aligning
+        };
+        Signals {
+            navigation: Some(navigation),
+            ..Signals::default()
+        }
     }
 }
 

@@ -51,10 +51,10 @@ use self::strapdown::{Increment, NavState};
 use self::zaru_noise::ZaruNoise;
 use self::zero_velocity::{Decision, DetectorKind, ZeroVelocityPipeline};
 use super::angles::{deg, rad};
-use super::estimate::{EngineOutput, EstimateValues, JsonFields};
+use super::descriptor::{EngineDescriptor, NoModel};
+use super::estimate::{EngineOutput, EstimateValues};
 use super::params::{ParamError, Params, Retired};
 use super::reading::{Reading, SensorData, SensorKind};
-use super::registry::{EngineDescriptor, NoModel};
 use super::{Engine, EngineKind, SnapshotError};
 use crate::fusion::geometry::{
     V3, attitude_from_euler, earth_rate_n, level, normal_gravity_mps2, radii_m,
@@ -994,7 +994,6 @@ impl EngineDescriptor for Zupt {
     const SENSORS: &'static [SensorKind] =
         &[SensorKind::Imu, SensorKind::Level, SensorKind::Odometer];
     const RETIRED: &'static [Retired] = &[];
-    const CODEC_VERSION: u32 = estimate::CODEC_VERSION;
     type Params = ZuptParams;
     type Engine = ZuptEngine;
     type Estimate = ZuptEstimate;
@@ -1005,18 +1004,6 @@ impl EngineDescriptor for Zupt {
     }
     fn restore(snapshot: serde_json::Value) -> Result<ZuptEngine, SnapshotError> {
         ZuptEngine::restore(snapshot)
-    }
-    fn write_fields(estimate: &ZuptEstimate, fields: &mut JsonFields<'_>) {
-        estimate.write_fields(fields);
-    }
-    fn encode(estimate: &ZuptEstimate) -> Vec<u8> {
-        estimate.encode()
-    }
-    fn decode(version: u32, bytes: &[u8]) -> Result<ZuptEstimate, postcard::Error> {
-        ZuptEstimate::decode(version, bytes)
-    }
-    fn extremes(estimate: &ZuptEstimate) -> [f64; 2] {
-        estimate.extremes()
     }
 }
 
