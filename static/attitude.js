@@ -264,17 +264,11 @@ tn.registerEngine('attitude', {
       drawAnfis();
     }
 
-    let redrawTimer = null;
-    function scheduleRedraw() {
-      if (redrawTimer === null) {
-        redrawTimer = setTimeout(() => {
-          redrawTimer = null;
-          compactIfLarge();
-          drawTimeCharts();
-          if (charts.anfis) charts.anfis.redraw(false);
-        }, 200);
-      }
-    }
+    const scheduleRedraw = tn.debounce(() => {
+      compactIfLarge();
+      drawTimeCharts();
+      if (charts.anfis) charts.anfis.redraw(false);
+    }, 200);
 
     // ---- data ---------------------------------------------------------------
     function addEstimate(e) {
@@ -486,20 +480,22 @@ tn.registerEngine('attitude', {
         drawTimeCharts();
         loadHistory();
       });
-      window.addEventListener('tn-theme', createCharts);
-      new ResizeObserver(() => {
-        for (const [name, chart] of Object.entries(charts)) {
-          const el = $(`${name}-chart`);
-          if (el.clientWidth && Math.abs(chart.width - el.clientWidth) > 2) chart.setSize({ width: el.clientWidth, height: CHART_HEIGHT });
-        }
-      }).observe(root);
-      setInterval(showLaser, 250);
-      setInterval(scheduleRedraw, 1000); // the window slides even when nothing arrives
-      await loadHistory();
-      fetchModel();
-      // The noise is re-estimated between trainings: refetch now and then.
-      setInterval(fetchModel, 60000);
-      connect();
+      await tn.runSection({
+        root,
+        charts,
+        onTheme: createCharts,
+        every: [
+          [showLaser, 250],
+          [scheduleRedraw, 1000], // the window slides even when nothing arrives
+        ],
+        load: async () => {
+          await loadHistory();
+          fetchModel();
+          // The noise is re-estimated between trainings: refetch now and then.
+          setInterval(fetchModel, 60000);
+        },
+        connect,
+      });
     }
 
     start();

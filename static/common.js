@@ -380,6 +380,46 @@ const tn = (function () {
       value: (u, v) => (v == null ? '—' : `${v.toFixed(digits)} ${unit}`) }, extra || {});
   }
 
+  // `draw` debounced: however often the function returned is called, draw
+  // runs once, `delayMs` after the first call.
+  function debounce(draw, delayMs) {
+    let timer = null;
+    return () => {
+      if (timer !== null) return;
+      timer = setTimeout(() => {
+        timer = null;
+        draw();
+      }, delayMs);
+    };
+  }
+
+  // Each uPlot chart of `charts` fitted to its element's width (its
+  // height kept).
+  function fitCharts(charts) {
+    for (const chart of Object.values(charts)) {
+      const el = chart && chart.root ? chart.root.parentElement : null;
+      if (el && el.clientWidth && Math.abs(chart.width - el.clientWidth) > 2) {
+        chart.setSize({ width: el.clientWidth, height: chart.height });
+      }
+    }
+  }
+
+  // The life of an engine's or stage's section of a machine page, once
+  // its charts exist: on a theme change `onTheme()` (the charts made in
+  // the new colours); when `root` changes size, each chart of `charts`
+  // fitted and `resized()`; each [job, ms] of `every` run every ms; then
+  // `load()` (the history) awaited and `connect()` (the live socket).
+  async function runSection({ root, charts, onTheme, resized, every = [], load, connect }) {
+    window.addEventListener('tn-theme', onTheme);
+    new ResizeObserver(() => {
+      fitCharts(charts);
+      if (resized) resized();
+    }).observe(root);
+    for (const [job, ms] of every) setInterval(job, ms);
+    if (load) await load();
+    connect();
+  }
+
   // Each engine's script registers its part of the dashboard by the
   // engine's protocol name: `card(latest)` gives the fleet card's rows
   // ([label, text] pairs) from its newest estimate, `page()` runs its
@@ -392,6 +432,6 @@ const tn = (function () {
   return {
     clock, link, silenceWatchdog, latestOnly, fixed, mmPerM, duration, timeOfDay, json, ndjson, setText, css,
     showConnection, follow, showSensors, pollStatus, windowButtons, axis, num,
-    shadeSpans, line, followEngine, engines, registerEngine,
+    shadeSpans, line, followEngine, debounce, runSection, engines, registerEngine,
   };
 })();

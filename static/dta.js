@@ -861,16 +861,11 @@ tn.registerEngine('dta', {
       drawProfile();
     }
 
-    let redrawTimer = null;
-    function redraw() {
-      if (redrawTimer !== null) return;
-      redrawTimer = setTimeout(() => {
-        redrawTimer = null;
-        showReadouts();
-        drawStationCharts();
-        drawCanvases();
-      }, 150);
-    }
+    const redraw = tn.debounce(() => {
+      showReadouts();
+      drawStationCharts();
+      drawCanvases();
+    }, 150);
 
     // ---- live ---------------------------------------------------------------
     function connect() {
@@ -883,25 +878,23 @@ tn.registerEngine('dta', {
     async function start() {
       createCharts();
       drawCanvases();
-      window.addEventListener('tn-theme', () => {
-        createCharts();
-        drawStationCharts();
-        drawCanvases();
+      await tn.runSection({
+        root: section,
+        charts,
+        onTheme: () => {
+          createCharts();
+          drawStationCharts();
+          drawCanvases();
+        },
+        resized: drawCanvases,
+        every: [[showAge, 1000]],
+        load: async () => {
+          await Promise.all([loadAxis(), loadDrive()]);
+          drawAxisNote();
+          redraw();
+        },
+        connect,
       });
-      new ResizeObserver(() => {
-        for (const comp of COMPONENTS) {
-          const el = $(`dta-${comp}-chart`), chart = charts[comp];
-          if (chart && el.clientWidth && Math.abs(chart.width - el.clientWidth) > 2) {
-            chart.setSize({ width: el.clientWidth, height: CHART_HEIGHT });
-          }
-        }
-        drawCanvases();
-      }).observe(section);
-      setInterval(showAge, 1000);
-      await Promise.all([loadAxis(), loadDrive()]);
-      drawAxisNote();
-      redraw();
-      connect();
     }
 
     start();

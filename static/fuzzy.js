@@ -257,15 +257,10 @@ tn.registerEngine('fuzzy', {
       charts.bias.setData([ts, points.map((p) => p.bx), points.map((p) => p.by), points.map((p) => p.bz)]);
     }
 
-    let redrawTimer = null;
-    function redraw() {
-      if (redrawTimer !== null) return;
-      redrawTimer = setTimeout(() => {
-        redrawTimer = null;
-        showReadouts();
-        if (charts.attitude) drawCharts();
-      }, 200);
-    }
+    const redraw = tn.debounce(() => {
+      showReadouts();
+      if (charts.attitude) drawCharts();
+    }, 200);
 
     // ---- live ---------------------------------------------------------------
     function connect() {
@@ -280,18 +275,18 @@ tn.registerEngine('fuzzy', {
         state.windowS = seconds;
         loadHistory();
       });
-      window.addEventListener('tn-theme', createCharts);
-      new ResizeObserver(() => {
-        for (const [name, chart] of Object.entries(charts)) {
-          const el = $(`${name}-chart`);
-          if (el.clientWidth && Math.abs(chart.width - el.clientWidth) > 2) chart.setSize({ width: el.clientWidth, height: CHARTS[name] });
-        }
-        if (state.latest) drawCompass(state.latest);
-      }).observe(root);
-      setInterval(redraw, 1000); // the window slides even when nothing arrives
-      setInterval(() => { if (state.points.size > 4 * HISTORY_POINTS + 3000) loadHistory(); }, 5000);
-      await loadHistory();
-      connect();
+      await tn.runSection({
+        root,
+        charts,
+        onTheme: createCharts,
+        resized: () => { if (state.latest) drawCompass(state.latest); },
+        every: [
+          [redraw, 1000], // the window slides even when nothing arrives
+          [() => { if (state.points.size > 4 * HISTORY_POINTS + 3000) loadHistory(); }, 5000],
+        ],
+        load: loadHistory,
+        connect,
+      });
     }
 
     start();

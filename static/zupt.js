@@ -284,16 +284,11 @@ tn.registerEngine('zupt', {
         : 'no aligned position yet');
     }
 
-    let redrawTimer = null;
-    function redraw() {
-      if (redrawTimer !== null) return;
-      redrawTimer = setTimeout(() => {
-        redrawTimer = null;
-        showReadouts();
-        if (charts.distance) drawTimeCharts();
-        drawXY();
-      }, 200);
-    }
+    const redraw = tn.debounce(() => {
+      showReadouts();
+      if (charts.distance) drawTimeCharts();
+      drawXY();
+    }, 200);
 
     // ---- live ---------------------------------------------------------------
     function connect() {
@@ -308,20 +303,19 @@ tn.registerEngine('zupt', {
         state.windowS = seconds;
         loadHistory();
       });
-      window.addEventListener('tn-theme', createCharts);
-      new ResizeObserver(() => {
-        for (const [name, chart] of Object.entries(charts)) {
-          const el = $(`${name}-chart`);
-          const height = name === 'sigma' ? SIGMA_HEIGHT : CHART_HEIGHT;
-          if (el.clientWidth && Math.abs(chart.width - el.clientWidth) > 2) chart.setSize({ width: el.clientWidth, height });
-        }
-        drawXY();
-      }).observe(root);
-      setInterval(redraw, 1000); // the window slides even when nothing arrives
-      setInterval(() => { if (state.points.size > 4 * HISTORY_POINTS + 3000) loadHistory(); }, 5000);
-      setInterval(loadTrack, 60000);
-      await Promise.all([loadHistory(), loadTrack()]);
-      connect();
+      await tn.runSection({
+        root,
+        charts,
+        onTheme: createCharts,
+        resized: drawXY,
+        every: [
+          [redraw, 1000], // the window slides even when nothing arrives
+          [() => { if (state.points.size > 4 * HISTORY_POINTS + 3000) loadHistory(); }, 5000],
+          [loadTrack, 60000],
+        ],
+        load: () => Promise.all([loadHistory(), loadTrack()]),
+        connect,
+      });
     }
 
     start();
