@@ -5,6 +5,12 @@
 pub enum StoreError {
     #[error("database: {0}")]
     Sqlite(#[from] rusqlite::Error),
+    #[error("PostgreSQL: {0}")]
+    Postgres(#[from] tokio_postgres::Error),
+    #[error("the database {0}")]
+    Location(String),
+    #[error("no database connection: {0}")]
+    Unavailable(String),
     #[error("cannot create data dir {path}: {source}")]
     DataDir {
         path: String,
@@ -18,6 +24,27 @@ pub enum StoreError {
     Corrupt(String),
     #[error("the machine's engines could not be rebuilt after a failed write ({0})")]
     Unrebuilt(String),
+}
+
+/// A PostgreSQL failure that may pass: the connection lost or refused,
+/// the server shutting down or out of room, a conflict to retry.
+fn postgres_transient(e: &tokio_postgres::Error) -> bool {
+    use tokio_postgres::error::SqlState;
+    let Some(code) = e.code() else {
+        // No SQLSTATE: the connection itself (refused, reset, closed).
+        return true;
+    };
+    let class = &code.code()[..2];
+    // 08: connection exception; 53: insufficient resources (disk full,
+    // out of memory, too many connections); 57P: operator intervention
+    // (shutdown); 40: a serialization failure or deadlock to retry.
+    matches!(class, "08" | "53" | "40")
+        || [
+            SqlState::ADMIN_SHUTDOWN,
+            SqlState::CRASH_SHUTDOWN,
+            SqlState::CANNOT_CONNECT_NOW,
+        ]
+        .contains(code)
 }
 
 impl StoreError {
@@ -35,7 +62,8 @@ impl StoreError {
                     | ErrorCode::SystemIoFailure
                     | ErrorCode::CannotOpen
             ),
-            StoreError::Unrebuilt(_) => true,
+            StoreError::Unrebuilt(_) | StoreError::Unavailable(_) => true,
+            StoreError::Postgres(e) => postgres_transient(e),
             _ => false,
         }
     }

@@ -12,6 +12,7 @@
 pub mod alarms;
 pub mod codec;
 mod error;
+pub mod postgres;
 pub mod queries;
 mod read_pool;
 pub mod retention;
@@ -36,11 +37,11 @@ use crate::fusion::{EngineOutput, Reading, SensorKind, StreamKind};
 /// The database file inside the data dir.
 pub const DB_FILE: &str = "tunnelnav.sqlite3";
 /// Most requests committed in one transaction.
-const MAX_GROUP: usize = 512;
+pub(crate) const MAX_GROUP: usize = 512;
 /// Interval between write-ahead-log checkpoints.
 const CHECKPOINT_EVERY: std::time::Duration = std::time::Duration::from_millis(500);
 /// Requests waiting for the writer before senders wait (backpressure).
-const QUEUE_LEN: usize = 1024;
+pub(crate) const QUEUE_LEN: usize = 1024;
 
 /// A reading to store: its time, sensor and data.
 #[derive(Debug, Clone)]
@@ -90,7 +91,7 @@ impl EstimateRow {
 
 /// Called once the write it belongs to is committed — with the alarms it
 /// changed — or has failed (`None`).
-pub type AfterCommit = Box<dyn FnOnce(Option<Vec<alarms::AlarmChange>>) + Send>;
+pub type AfterCommit = Box<dyn FnOnce(Option<Vec<alarms::AlarmChange>>) + Send + Sync>;
 
 /// One machine's readings and the estimates and snapshot they led to,
 /// committed together.
@@ -129,6 +130,16 @@ pub struct StoredMachine {
 pub struct StoredSnapshot {
     pub last_reading_id: i64,
     pub state: String,
+}
+
+/// A stored machine from its row: the spec parsed and made current.
+fn stored_machine(db_id: i64, spec: String) -> Result<StoredMachine, StoreError> {
+    let spec: MachineSpec = serde_json::from_str(&spec)
+        .map_err(|e| StoreError::Corrupt(format!("machine {db_id} spec: {e}")))?;
+    let spec = spec
+        .upgraded()
+        .map_err(|e| StoreError::Corrupt(format!("machine {db_id} spec: {e}")))?;
+    Ok(StoredMachine { db_id, spec })
 }
 
 /// Cheap, cloneable handle to the store.
@@ -322,12 +333,7 @@ impl Store {
             let mut machines = Vec::new();
             for row in rows {
                 let (db_id, spec) = row?;
-                let spec: MachineSpec = serde_json::from_str(&spec)
-                    .map_err(|e| StoreError::Corrupt(format!("machine {db_id} spec: {e}")))?;
-                let spec = spec
-                    .upgraded()
-                    .map_err(|e| StoreError::Corrupt(format!("machine {db_id} spec: {e}")))?;
-                machines.push(StoredMachine { db_id, spec });
+                machines.push(stored_machine(db_id, spec)?);
             }
             Ok(machines)
         })

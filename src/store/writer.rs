@@ -14,19 +14,21 @@ use super::{
 use crate::config::MachineSpec;
 use crate::fusion::StreamKind;
 
-/// What the writer's queue carries.
 /// A job for the writing connection (see [`super::Store::maintain`]).
 pub(super) type Job = Box<dyn FnOnce(&mut Connection) + Send>;
 
-pub(super) enum Queued {
+/// What a writer's queue carries; `J`, the backend's maintenance job.
+pub(super) enum Queued<J = Job> {
     Request(Request),
-    /// Checkpoint the log into the database and stop writing.
+    /// Commit what is queued and stop writing (SQLite: checkpoint the
+    /// log into the database first).
     Close(oneshot::Sender<()>),
     /// Work on the writing connection outside any group (retention): run
     /// after the group gathered before it is committed.
-    Job(Job),
+    Job(J),
 }
 
+/// A request the writer commits in a group.
 pub(super) enum Request {
     Write(Write),
     PutMachine {
@@ -125,13 +127,16 @@ fn commit(conn: &mut Connection, group: &mut Vec<Request>) {
     }
 }
 
-enum Outcome {
+/// What a committed request did.
+pub(super) enum Outcome {
     /// What a write stored and the alarms it changed.
     Write(WriteOutcome, Vec<super::alarms::AlarmChange>),
     Put(i64),
 }
 
-fn answer(request: Request, result: Result<Outcome, StoreError>) {
+/// Answers `request` with `result`: a write's `after_commit`, then its
+/// reply; a declaration's reply.
+pub(super) fn answer(request: Request, result: Result<Outcome, StoreError>) {
     match request {
         Request::Write(write) => {
             let result = result.map(|o| match o {
@@ -181,7 +186,23 @@ fn apply_group(conn: &mut Connection, group: &[Request]) -> Result<Vec<Outcome>,
 }
 
 /// Extremes per (machine, engine, bucket width, bucket).
-type Buckets = BTreeMap<(i64, StreamKind, i64, i64), Extremes>;
+pub(super) type Buckets = BTreeMap<(i64, StreamKind, i64, i64), Extremes>;
+
+/// Folds the extremes of `write`'s estimates into `buckets`. A recomputed
+/// estimate is the stored one again (same time, same values), so folding
+/// it in changes nothing.
+pub(super) fn fold_buckets(write: &Write, buckets: &mut Buckets) {
+    for estimate in &write.estimates {
+        let point = Extremes::point(estimate.t, estimate.extremes);
+        for width_s in BUCKET_WIDTHS_S {
+            let bucket = (estimate.t / width_s as f64).floor() as i64;
+            buckets
+                .entry((write.machine_id, estimate.engine, width_s, bucket))
+                .and_modify(|b| b.merge(&point))
+                .or_insert(point);
+        }
+    }
+}
 
 fn apply_write(
     tx: &rusqlite::Transaction,
@@ -221,18 +242,7 @@ fn apply_write(
             stmt.raw_bind_parameter(i + 6, estimate.codec)
         },
     )?;
-    // Extremes per stored bucket. A recomputed estimate is the stored one
-    // again (same time, same values), so folding it in changes nothing.
-    for estimate in &write.estimates {
-        let point = Extremes::point(estimate.t, estimate.extremes);
-        for width_s in BUCKET_WIDTHS_S {
-            let bucket = (estimate.t / width_s as f64).floor() as i64;
-            buckets
-                .entry((machine_id, estimate.engine, width_s, bucket))
-                .and_modify(|b| b.merge(&point))
-                .or_insert(point);
-        }
-    }
+    fold_buckets(write, buckets);
     let alarms = super::alarms::apply(tx, machine_id, &write.alarms)?;
     if let Some(state) = &write.snapshot {
         save_snapshot(tx, write.machine_id, state)?;

@@ -1,0 +1,331 @@
+//! The office store: PostgreSQL, for a company's many machines on one
+//! database that several tunnelnav nodes share (issue 37). The semantics
+//! are the SQLite store's (`store/mod.rs`): one writer connection with
+//! group commit answering each request only after the commit; readings
+//! stored once per (machine, sensor, time) with their arrival order;
+//! estimates with their codec version; snapshots after a known reading.
+//!
+//! The driver is `tokio-postgres` (async) with a `deadpool-postgres` pool
+//! for reads. Reads are blocking calls, as on SQLite (async callers run
+//! them with `spawn_blocking`): they run on the runtime the store was
+//! opened on. This first step stores and reads what a machine needs to
+//! run and restart; the rest of the store's operations follow.
+
+mod schema;
+mod writer;
+
+pub use schema::{PARTITION_S, SCHEMA_VERSION};
+
+use std::path::Path;
+use std::str::FromStr;
+
+use deadpool_postgres::{Manager, ManagerConfig, Pool, RecyclingMethod};
+use tokio::sync::{mpsc, oneshot};
+use tokio_postgres::{GenericClient, NoTls};
+
+use super::alarms::{AlarmFilter, StoredAlarm};
+use super::writer::{Queued, Request};
+use super::{QUEUE_LEN, StoreError, StoredMachine, StoredSnapshot, Write};
+use crate::config::MachineSpec;
+use crate::fusion::{EngineOutput, Reading, SensorKind, StreamKind};
+
+/// Connections the read pool keeps.
+const READERS: usize = 4;
+
+/// Where the office database is: a `postgres://USER@HOST:PORT/DB` URL and,
+/// if the password is not in it, the file holding it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PgLocation {
+    pub url: String,
+    pub password_file: Option<std::path::PathBuf>,
+}
+
+impl PgLocation {
+    /// The driver's configuration: the URL parsed, the password read.
+    fn config(&self) -> Result<tokio_postgres::Config, StoreError> {
+        let mut config = tokio_postgres::Config::from_str(&self.url)
+            .map_err(|e| StoreError::Location(format!("{}: {e}", redacted(&self.url))))?;
+        if let Some(file) = &self.password_file {
+            config.password(read_password(file)?);
+        }
+        config.application_name("tunnelnav");
+        Ok(config)
+    }
+}
+
+/// The URL without its password, for messages.
+fn redacted(url: &str) -> String {
+    match url::Url::parse(url) {
+        Ok(mut parsed) if parsed.password().is_some() => {
+            let _ = parsed.set_password(Some("***"));
+            parsed.to_string()
+        }
+        _ => url.to_string(),
+    }
+}
+
+/// The first line of `file`, the password.
+fn read_password(file: &Path) -> Result<String, StoreError> {
+    let text = std::fs::read_to_string(file)
+        .map_err(|e| StoreError::Location(format!("password file {}: {e}", file.display())))?;
+    Ok(text.lines().next().unwrap_or("").to_string())
+}
+
+/// Cheap, cloneable handle to the PostgreSQL store.
+#[derive(Clone)]
+pub struct PgStore {
+    requests: mpsc::Sender<Queued<writer::Job>>,
+    readers: Pool,
+    runtime: tokio::runtime::Handle,
+}
+
+impl PgStore {
+    /// Connects to the database at `location`, brings its schema to this
+    /// release's (under an advisory lock: nodes may start together) and
+    /// starts the writer. Call within a Tokio runtime: reads and the writer
+    /// run on it.
+    pub async fn open(location: &PgLocation) -> Result<PgStore, StoreError> {
+        let config = location.config()?;
+        let mut migrator = connect(&config).await?;
+        schema::migrate(&mut migrator).await?;
+        drop(migrator);
+        let writer_client = connect(&config).await?;
+        let manager = Manager::from_config(
+            config,
+            NoTls,
+            ManagerConfig {
+                recycling_method: RecyclingMethod::Fast,
+            },
+        );
+        let readers = Pool::builder(manager)
+            .max_size(READERS)
+            .build()
+            .map_err(|e| StoreError::Location(e.to_string()))?;
+        let (requests, queue) = mpsc::channel(QUEUE_LEN);
+        tokio::spawn(writer::writer(writer_client, queue));
+        Ok(PgStore {
+            requests,
+            readers,
+            runtime: tokio::runtime::Handle::current(),
+        })
+    }
+
+    /// Queues a write; its `reply` is answered after the commit.
+    pub async fn write(&self, write: Write) -> Result<(), StoreError> {
+        self.requests
+            .send(Queued::Request(Request::Write(write)))
+            .await
+            .map_err(|_| StoreError::Closed)
+    }
+
+    /// Like [`PgStore::write`], from a blocking thread.
+    pub fn write_blocking(&self, write: Write) -> Result<(), StoreError> {
+        self.requests
+            .blocking_send(Queued::Request(Request::Write(write)))
+            .map_err(|_| StoreError::Closed)
+    }
+
+    /// Commits what is queued and stops the writer: later writes fail
+    /// with [`StoreError::Closed`]. Reads still work.
+    pub async fn close(&self) {
+        let (reply, done) = oneshot::channel();
+        if self.requests.send(Queued::Close(reply)).await.is_ok() {
+            let _ = done.await;
+        }
+    }
+
+    /// Creates or replaces a machine with a fresh engine snapshot; returns
+    /// its id.
+    pub async fn put_machine(
+        &self,
+        spec: MachineSpec,
+        snapshot: String,
+    ) -> Result<i64, StoreError> {
+        let (reply, answer) = oneshot::channel();
+        self.requests
+            .send(Queued::Request(Request::PutMachine {
+                spec: Box::new(spec),
+                snapshot,
+                reply,
+            }))
+            .await
+            .map_err(|_| StoreError::Closed)?;
+        answer.await.map_err(|_| StoreError::Closed)?
+    }
+
+    /// Runs `read` with a pooled connection, blocking this thread (not a
+    /// runtime worker: call from `spawn_blocking` or a plain thread).
+    fn read<R>(
+        &self,
+        read: impl AsyncFnOnce(&deadpool_postgres::Client) -> Result<R, StoreError>,
+    ) -> Result<R, StoreError> {
+        self.runtime.block_on(async {
+            let client = self
+                .readers
+                .get()
+                .await
+                .map_err(|e| StoreError::Unavailable(e.to_string()))?;
+            read(&client).await
+        })
+    }
+
+    /// Every stored machine, its parameters made current.
+    pub fn machines(&self) -> Result<Vec<StoredMachine>, StoreError> {
+        self.read(async |client| {
+            let rows = client
+                .query("SELECT id, spec FROM machines ORDER BY machine", &[])
+                .await?;
+            rows.iter()
+                .map(|row| super::stored_machine(row.get(0), row.get(1)))
+                .collect()
+        })
+    }
+
+    /// A machine's latest snapshot.
+    pub fn snapshot(&self, machine_id: i64) -> Result<Option<StoredSnapshot>, StoreError> {
+        self.read(async |client| {
+            Ok(client
+                .query_opt(
+                    "SELECT last_reading_id, state FROM snapshots WHERE machine_id = $1",
+                    &[&machine_id],
+                )
+                .await?
+                .map(|row| StoredSnapshot {
+                    last_reading_id: row.get(0),
+                    state: row.get(1),
+                }))
+        })
+    }
+
+    /// Calls `f` with each reading of the machine that arrived after
+    /// `after_id`, in arrival order, a batch at a time.
+    pub fn readings_since(
+        &self,
+        machine_id: i64,
+        after_id: i64,
+        mut f: impl FnMut(Reading) -> Result<(), StoreError>,
+    ) -> Result<u64, StoreError> {
+        const BATCH: i64 = 10_000;
+        let mut after = after_id;
+        let mut count = 0;
+        loop {
+            let rows = self.read(async |client| {
+                Ok(client
+                    .query(
+                        "SELECT id, t, sensor, body FROM readings WHERE machine_id = $1 AND id > $2 \
+                         ORDER BY id LIMIT $3",
+                        &[&machine_id, &after, &BATCH],
+                    )
+                    .await?)
+            })?;
+            for row in &rows {
+                after = row.get(0);
+                f(reading(row.get(1), row.get(2), row.get(3))?)?;
+                count += 1;
+            }
+            if (rows.len() as i64) < BATCH {
+                return Ok(count);
+            }
+        }
+    }
+
+    /// The newest stored estimate of a stream.
+    pub fn latest_estimate(
+        &self,
+        machine_id: i64,
+        engine: StreamKind,
+    ) -> Result<Option<EngineOutput>, StoreError> {
+        self.read(async |client| {
+            client
+                .query_opt(
+                    "SELECT t, body, codec FROM estimates WHERE machine_id = $1 AND engine = $2 \
+                     ORDER BY t DESC LIMIT 1",
+                    &[&machine_id, &engine.as_str()],
+                )
+                .await?
+                .map(|row| output(engine, &row))
+                .transpose()
+        })
+    }
+
+    /// Time of the newest stored reading of a sensor.
+    pub fn last_reading_t(
+        &self,
+        machine_id: i64,
+        sensor: SensorKind,
+    ) -> Result<Option<f64>, StoreError> {
+        self.read(async |client| {
+            Ok(client
+                .query_opt(
+                    "SELECT t FROM readings WHERE machine_id = $1 AND sensor = $2 \
+                     ORDER BY t DESC LIMIT 1",
+                    &[&machine_id, &(sensor as i16)],
+                )
+                .await?
+                .map(|row| row.get(0)))
+        })
+    }
+
+    /// The alarms `filter` asks for, newest first.
+    pub fn alarms(&self, filter: &AlarmFilter) -> Result<Vec<StoredAlarm>, StoreError> {
+        self.read(async |client| {
+            let sql = format!(
+                "SELECT {ALARM_COLUMNS} FROM alarms a JOIN machines m ON m.id = a.machine_id \
+                 WHERE ($1::text IS NULL OR m.machine = $1) AND (NOT $2 OR a.cleared_t IS NULL) \
+                 ORDER BY a.raised_t DESC, a.id DESC"
+            );
+            let rows = client
+                .query(&sql, &[&filter.machine, &filter.active_only])
+                .await?;
+            Ok(rows.iter().map(writer::stored_alarm).collect())
+        })
+    }
+}
+
+/// The columns of a stored alarm, `a` the alarm and `m` its machine.
+const ALARM_COLUMNS: &str = "a.id, m.machine, a.kind, a.severity, a.subject, a.message, \
+                             a.raised_t, a.cleared_t, a.acked_t, a.acked_by";
+
+/// The alarm with this id.
+async fn alarm_by_id(
+    client: &impl GenericClient,
+    id: i64,
+) -> Result<Option<StoredAlarm>, StoreError> {
+    let sql = format!(
+        "SELECT {ALARM_COLUMNS} FROM alarms a JOIN machines m ON m.id = a.machine_id WHERE a.id = $1"
+    );
+    Ok(client
+        .query_opt(&sql, &[&id])
+        .await?
+        .map(|row| writer::stored_alarm(&row)))
+}
+
+/// A connection, its driver task spawned on the current runtime.
+async fn connect(config: &tokio_postgres::Config) -> Result<tokio_postgres::Client, StoreError> {
+    let (client, connection) = config.connect(NoTls).await?;
+    tokio::spawn(async move {
+        if let Err(e) = connection.await {
+            tracing::warn!(error = %e, "PostgreSQL connection ended");
+        }
+    });
+    Ok(client)
+}
+
+/// A stored reading's row.
+fn reading(t: f64, sensor: i16, body: Vec<u8>) -> Result<Reading, StoreError> {
+    let sensor = usize::try_from(sensor)
+        .ok()
+        .and_then(|i| SensorKind::ALL.get(i).copied())
+        .ok_or_else(|| StoreError::Corrupt(format!("sensor number {sensor}")))?;
+    super::codec::decode_reading(t, sensor, &body)
+}
+
+/// A stored estimate's row (`t`, `body`, `codec`).
+fn output(engine: StreamKind, row: &tokio_postgres::Row) -> Result<EngineOutput, StoreError> {
+    let body: Vec<u8> = row.get(1);
+    let codec: i32 = row.get(2);
+    Ok(EngineOutput {
+        t: row.get(0),
+        values: super::codec::decode_values(engine, codec as u32, &body)?,
+    })
+}

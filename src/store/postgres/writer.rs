@@ -1,0 +1,345 @@
+//! The PostgreSQL writer: one task and one connection that take every
+//! request waiting in the queue, apply them in one transaction (group
+//! commit) and answer each only after the commit — the SQLite writer's
+//! semantics (`store/writer.rs`), in SQL that moves a whole write in a few
+//! statements (arrays unnested server-side).
+
+use std::collections::BTreeSet;
+
+use tokio::sync::mpsc;
+use tokio_postgres::{Client, Transaction};
+
+use super::schema;
+use crate::config::MachineSpec;
+use crate::store::alarms::{AlarmChange, AlarmRow, Change, StoredAlarm};
+use crate::store::writer::{Buckets, Outcome, Queued, Request, answer, fold_buckets};
+use crate::store::{MAX_GROUP, StoreError, Write, WriteOutcome};
+
+/// The maintenance jobs this writer takes: none yet.
+pub(super) type Job = std::convert::Infallible;
+
+/// The writer task: takes every waiting request, commits them together,
+/// then answers each. Ends when closed or when every handle is gone.
+pub(super) async fn writer(mut client: Client, mut queue: mpsc::Receiver<Queued<Job>>) {
+    let mut partitions = match schema::partitions(&client).await {
+        Ok(found) => found.into_iter().collect::<BTreeSet<_>>(),
+        Err(e) => {
+            tracing::error!(error = %e, "cannot list the partitions; making them as needed");
+            BTreeSet::new()
+        }
+    };
+    let mut group = Vec::with_capacity(MAX_GROUP);
+    let mut close = None;
+    while close.is_none() {
+        let Some(first) = queue.recv().await else {
+            break;
+        };
+        let mut next = Some(first);
+        while let Some(request) = next.take() {
+            match request {
+                Queued::Close(reply) => close = Some(reply),
+                Queued::Job(job) => match job {},
+                Queued::Request(request) => {
+                    group.push(request);
+                    if group.len() < MAX_GROUP {
+                        next = queue.try_recv().ok();
+                    }
+                }
+            }
+        }
+        commit(&mut client, &mut partitions, &mut group).await;
+    }
+    queue.close();
+    if let Some(reply) = close {
+        let _ = reply.send(());
+    }
+}
+
+/// Commits `group` in one transaction and answers each request (emptying
+/// the group); if the transaction fails, each request alone.
+async fn commit(
+    client: &mut Client,
+    partitions: &mut BTreeSet<(String, i64)>,
+    group: &mut Vec<Request>,
+) {
+    if group.is_empty() {
+        return;
+    }
+    let result = match ensure_partitions(client, partitions, group).await {
+        Ok(()) => apply_group(client, group).await,
+        Err(e) => Err(e),
+    };
+    match result {
+        Ok(outcomes) => {
+            for (request, outcome) in group.drain(..).zip(outcomes) {
+                answer(request, Ok(outcome));
+            }
+        }
+        Err(e) => {
+            tracing::warn!(error = %e, requests = group.len(), "group commit failed; retrying one by one");
+            for request in group.drain(..) {
+                let alone = std::slice::from_ref(&request);
+                let result = match ensure_partitions(client, partitions, alone).await {
+                    Ok(()) => apply_group(client, alone)
+                        .await
+                        .map(|mut outcomes| outcomes.pop().unwrap_or(Outcome::Put(0))),
+                    Err(e) => Err(e),
+                };
+                if let Err(e) = &result {
+                    tracing::error!(error = %e, "write failed");
+                }
+                answer(request, result);
+            }
+        }
+    }
+}
+
+/// Makes the day partitions the group's rows fall in, each in its own
+/// short transaction before the group's (a partition is made once).
+async fn ensure_partitions(
+    client: &Client,
+    known: &mut BTreeSet<(String, i64)>,
+    group: &[Request],
+) -> Result<(), StoreError> {
+    let mut needed = BTreeSet::new();
+    for request in group {
+        if let Request::Write(write) = request {
+            for reading in &write.readings {
+                needed.insert(("readings", schema::partition("readings", reading.t).0));
+            }
+            for estimate in &write.estimates {
+                needed.insert(("estimates", schema::partition("estimates", estimate.t).0));
+            }
+        }
+    }
+    for (table, day) in needed {
+        let key = (table.to_string(), day);
+        if !known.contains(&key) {
+            schema::create_partition(client, table, day).await?;
+            known.insert(key);
+        }
+    }
+    Ok(())
+}
+
+async fn apply_group(client: &mut Client, group: &[Request]) -> Result<Vec<Outcome>, StoreError> {
+    let tx = client.transaction().await?;
+    let mut outcomes = Vec::with_capacity(group.len());
+    let mut buckets = Buckets::new();
+    for request in group {
+        outcomes.push(match request {
+            Request::Write(write) => {
+                let (outcome, alarms) = apply_write(&tx, write, &mut buckets).await?;
+                Outcome::Write(outcome, alarms)
+            }
+            Request::PutMachine { spec, snapshot, .. } => {
+                Outcome::Put(apply_put_machine(&tx, spec, snapshot).await?)
+            }
+        });
+    }
+    upsert_buckets(&tx, buckets).await?;
+    tx.commit().await?;
+    Ok(outcomes)
+}
+
+async fn apply_write(
+    tx: &Transaction<'_>,
+    write: &Write,
+    buckets: &mut Buckets,
+) -> Result<(WriteOutcome, Vec<AlarmChange>), StoreError> {
+    let machine_id = write.machine_id;
+    let mut outcome = WriteOutcome::default();
+    if !write.readings.is_empty() {
+        let t: Vec<f64> = write.readings.iter().map(|r| r.t).collect();
+        let sensor: Vec<i16> = write.readings.iter().map(|r| r.sensor as i16).collect();
+        let body: Vec<&[u8]> = write.readings.iter().map(|r| r.data.as_slice()).collect();
+        // In the order given: the ids are the arrival order.
+        let stored = tx
+            .execute(
+                "INSERT INTO readings (machine_id, t, sensor, body) \
+                 SELECT $1, r.t, r.sensor, r.body \
+                 FROM unnest($2::float8[], $3::int2[], $4::bytea[]) WITH ORDINALITY AS r(t, sensor, body, n) \
+                 ORDER BY r.n ON CONFLICT DO NOTHING",
+                &[&machine_id, &t, &sensor, &body],
+            )
+            .await? as usize;
+        outcome.stored = stored;
+        outcome.duplicates = write.readings.len() - stored;
+    }
+    if !write.estimates.is_empty() {
+        let engine: Vec<&str> = write.estimates.iter().map(|e| e.engine.as_str()).collect();
+        let t: Vec<f64> = write.estimates.iter().map(|e| e.t).collect();
+        let a: Vec<f64> = write.estimates.iter().map(|e| e.extremes[0]).collect();
+        let b: Vec<f64> = write.estimates.iter().map(|e| e.extremes[1]).collect();
+        let body: Vec<&[u8]> = write
+            .estimates
+            .iter()
+            .map(|e| e.values.as_slice())
+            .collect();
+        let codec: Vec<i32> = write.estimates.iter().map(|e| e.codec as i32).collect();
+        // Estimates are a function of the readings: one recomputed after a
+        // restart is the same estimate, stored once.
+        tx.execute(
+            "INSERT INTO estimates (machine_id, engine, t, extreme_a, extreme_b, body, codec) \
+             SELECT $1, e.* FROM unnest($2::text[], $3::float8[], $4::float8[], $5::float8[], \
+             $6::bytea[], $7::int4[]) AS e ON CONFLICT DO NOTHING",
+            &[&machine_id, &engine, &t, &a, &b, &body, &codec],
+        )
+        .await?;
+    }
+    fold_buckets(write, buckets);
+    let alarms = apply_alarms(tx, machine_id, &write.alarms).await?;
+    if let Some(state) = &write.snapshot {
+        save_snapshot(tx, machine_id, state).await?;
+    }
+    Ok((outcome, alarms))
+}
+
+/// Folds a group's bucket extremes into `estimate_buckets`, in one statement.
+async fn upsert_buckets(tx: &Transaction<'_>, buckets: Buckets) -> Result<(), StoreError> {
+    if buckets.is_empty() {
+        return Ok(());
+    }
+    let mut columns: [Vec<f64>; 8] = Default::default();
+    let (mut machine, mut engine, mut width, mut bucket) = (vec![], vec![], vec![], vec![]);
+    for ((machine_id, stream, width_s, number), e) in buckets {
+        machine.push(machine_id);
+        engine.push(stream.as_str());
+        width.push(width_s);
+        bucket.push(number);
+        let values = [
+            e.min_a.0, e.min_a.1, e.max_a.0, e.max_a.1, e.min_b.0, e.min_b.1, e.max_b.0, e.max_b.1,
+        ];
+        for (column, value) in columns.iter_mut().zip(values) {
+            column.push(value);
+        }
+    }
+    let [
+        min_a,
+        t_min_a,
+        max_a,
+        t_max_a,
+        min_b,
+        t_min_b,
+        max_b,
+        t_max_b,
+    ] = &columns;
+    tx.execute(
+        "INSERT INTO estimate_buckets AS old \
+         SELECT * FROM unnest($1::int8[], $2::text[], $3::int8[], $4::int8[], $5::float8[], \
+         $6::float8[], $7::float8[], $8::float8[], $9::float8[], $10::float8[], $11::float8[], \
+         $12::float8[]) \
+         ON CONFLICT (machine_id, engine, width_s, bucket) DO UPDATE SET \
+         t_min_a = CASE WHEN excluded.min_a < old.min_a THEN excluded.t_min_a ELSE old.t_min_a END, \
+         min_a = least(old.min_a, excluded.min_a), \
+         t_max_a = CASE WHEN excluded.max_a > old.max_a THEN excluded.t_max_a ELSE old.t_max_a END, \
+         max_a = greatest(old.max_a, excluded.max_a), \
+         t_min_b = CASE WHEN excluded.min_b < old.min_b THEN excluded.t_min_b ELSE old.t_min_b END, \
+         min_b = least(old.min_b, excluded.min_b), \
+         t_max_b = CASE WHEN excluded.max_b > old.max_b THEN excluded.t_max_b ELSE old.t_max_b END, \
+         max_b = greatest(old.max_b, excluded.max_b)",
+        &[
+            &machine, &engine, &width, &bucket, min_a, t_min_a, max_a, t_max_a, min_b, t_min_b,
+            max_b, t_max_b,
+        ],
+    )
+    .await?;
+    Ok(())
+}
+
+/// Writes alarm transitions as `store/alarms.rs` does: a raise inserts
+/// (once), a clear closes the open alarm of its key. Returns the alarms
+/// that changed, each as this row left it.
+async fn apply_alarms(
+    tx: &Transaction<'_>,
+    machine_id: i64,
+    rows: &[AlarmRow],
+) -> Result<Vec<AlarmChange>, StoreError> {
+    let mut changed = Vec::new();
+    for row in rows {
+        let (transition, ids): (Change, Vec<i64>) = if row.raised {
+            let inserted = tx
+                .query(
+                    "INSERT INTO alarms (machine_id, kind, severity, subject, message, raised_t) \
+                     VALUES ($1, $2, $3, $4, $5, $6) ON CONFLICT DO NOTHING RETURNING id",
+                    &[
+                        &machine_id,
+                        &row.kind,
+                        &row.severity,
+                        &row.subject,
+                        &row.message,
+                        &row.t,
+                    ],
+                )
+                .await?;
+            (Change::Raised, inserted.iter().map(|r| r.get(0)).collect())
+        } else {
+            let cleared = tx
+                .query(
+                    "UPDATE alarms SET cleared_t = $5 WHERE machine_id = $1 AND kind = $2 \
+                     AND severity = $3 AND subject = $4 AND cleared_t IS NULL AND raised_t <= $5 \
+                     RETURNING id",
+                    &[&machine_id, &row.kind, &row.severity, &row.subject, &row.t],
+                )
+                .await?;
+            (Change::Cleared, cleared.iter().map(|r| r.get(0)).collect())
+        };
+        for id in ids {
+            if let Some(alarm) = super::alarm_by_id(tx, id).await? {
+                changed.push(AlarmChange { transition, alarm });
+            }
+        }
+    }
+    Ok(changed)
+}
+
+/// Records `state` as the machine's state after every reading stored so far.
+async fn save_snapshot(
+    tx: &Transaction<'_>,
+    machine_id: i64,
+    state: &str,
+) -> Result<(), StoreError> {
+    tx.execute(
+        "INSERT INTO snapshots (machine_id, last_reading_id, state) \
+         SELECT $1, coalesce(max(id), 0), $2 FROM readings WHERE machine_id = $1 \
+         ON CONFLICT (machine_id) DO UPDATE SET last_reading_id = excluded.last_reading_id, \
+         state = excluded.state",
+        &[&machine_id, &state],
+    )
+    .await?;
+    Ok(())
+}
+
+async fn apply_put_machine(
+    tx: &Transaction<'_>,
+    spec: &MachineSpec,
+    snapshot: &str,
+) -> Result<i64, StoreError> {
+    let json = serde_json::to_string(spec).map_err(|e| StoreError::Corrupt(e.to_string()))?;
+    let id: i64 = tx
+        .query_one(
+            "INSERT INTO machines (machine, spec) VALUES ($1, $2) \
+             ON CONFLICT (machine) DO UPDATE SET spec = excluded.spec RETURNING id",
+            &[&spec.id, &json],
+        )
+        .await?
+        .get(0);
+    save_snapshot(tx, id, snapshot).await?;
+    Ok(id)
+}
+
+/// A stored alarm from a row of [`super::ALARM_COLUMNS`].
+pub(super) fn stored_alarm(row: &tokio_postgres::Row) -> StoredAlarm {
+    StoredAlarm {
+        id: row.get(0),
+        machine: row.get(1),
+        kind: row.get(2),
+        severity: row.get(3),
+        subject: row.get(4),
+        message: row.get(5),
+        raised_t: row.get(6),
+        cleared_t: row.get(7),
+        acked_t: row.get(8),
+        acked_by: row.get(9),
+    }
+}
