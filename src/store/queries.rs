@@ -141,16 +141,203 @@ impl Downsample {
     }
 }
 
+/// What [`estimates_page`] reads, of one machine's estimates of one stream
+/// (each store answers in its own SQL).
+pub(super) trait HistorySource {
+    /// How many estimates in `[from_t, to_t]`, counting no further than `limit`.
+    fn count_upto(&mut self, from_t: f64, to_t: f64, limit: i64) -> Result<i64, StoreError>;
+    /// Every estimate in `[from_t, to_t]`, in time order.
+    fn all(&mut self, from_t: f64, to_t: f64) -> Result<Vec<EngineOutput>, StoreError>;
+    /// The first (or last) estimate's time in `[from_t, to_t]`.
+    fn end(&mut self, from_t: f64, to_t: f64, last: bool) -> Result<f64, StoreError>;
+    /// Each estimate's kept quantities in `[lo, hi)`, as points.
+    fn points(&mut self, lo: f64, hi: f64, out: &mut dyn FnMut(Extremes))
+    -> Result<(), StoreError>;
+    /// The stored extreme buckets of width `width_s`, `first..end`.
+    fn buckets(
+        &mut self,
+        width_s: i64,
+        first: i64,
+        end: i64,
+        out: &mut dyn FnMut(Extremes),
+    ) -> Result<(), StoreError>;
+    /// The estimate at `t`.
+    fn at(&mut self, t: f64) -> Result<Option<EngineOutput>, StoreError>;
+}
+
+/// A machine's estimates of one stream in `[from_t, to_t]`. Above
+/// `max_points` the range is cut into `max_points / 4` equal buckets and
+/// each keeps the estimates holding the minimum and maximum of the
+/// engine's two kept quantities (attitude: pitch, roll), so spikes stay
+/// visible. Long ranges read the stored extreme buckets
+/// ([`BUCKET_WIDTHS_S`]) instead of every estimate; an extreme is then
+/// filed under the output bucket of its own time, so a stored bucket
+/// straddling two output buckets can hide the lesser extreme of one of
+/// them, never the range's own extremes.
+pub(super) fn estimates_page(
+    source: &mut impl HistorySource,
+    from_t: f64,
+    to_t: f64,
+    max_points: usize,
+) -> Result<EstimatesPage, StoreError> {
+    let mut page = EstimatesPage::default();
+    // Count no further than needed to know whether to downsample.
+    if source.count_upto(from_t, to_t, max_points as i64 + 1)? <= max_points as i64 {
+        page.estimates = source.all(from_t, to_t)?;
+        return Ok(page);
+    }
+    page.downsampled = true;
+    let (first_t, last_t) = (
+        source.end(from_t, to_t, false)?,
+        source.end(from_t, to_t, true)?,
+    );
+    let buckets = (max_points / POINTS_PER_BUCKET).max(1);
+    let width_s = ((last_t - first_t) / buckets as f64).max(f64::MIN_POSITIVE);
+    let mut out = Downsample {
+        first_t,
+        width_s,
+        buckets: vec![None; buckets],
+    };
+    let stored_width = BUCKET_WIDTHS_S
+        .iter()
+        .rev()
+        .copied()
+        .find(|&w| w as f64 <= width_s);
+    let after_last = f64::from_bits(last_t.to_bits() + 1);
+    let mut offer = |e: Extremes| out.offer(&e);
+    match stored_width {
+        None => source.points(first_t, after_last, &mut offer)?,
+        Some(w) => {
+            // Whole stored buckets inside the range; raw at the edges.
+            let first_bucket = (first_t / w as f64).ceil() as i64;
+            let end_bucket = (after_last / w as f64).floor() as i64;
+            if first_bucket >= end_bucket {
+                source.points(first_t, after_last, &mut offer)?;
+            } else {
+                source.points(first_t, (first_bucket * w) as f64, &mut offer)?;
+                source.buckets(w, first_bucket, end_bucket, &mut offer)?;
+                source.points((end_bucket * w) as f64, after_last, &mut offer)?;
+            }
+        }
+    }
+    for t in out.times() {
+        let estimate = source.at(t)?.ok_or_else(|| {
+            StoreError::Corrupt(format!("bucket extreme at t = {t} has no estimate"))
+        })?;
+        page.estimates.push(estimate);
+    }
+    Ok(page)
+}
+
+/// One machine's estimates of one stream in the SQLite store.
+struct SqliteHistory<'c> {
+    conn: &'c rusqlite::Connection,
+    machine_id: i64,
+    engine: StreamKind,
+}
+
+impl HistorySource for SqliteHistory<'_> {
+    fn count_upto(&mut self, from_t: f64, to_t: f64, limit: i64) -> Result<i64, StoreError> {
+        Ok(self
+            .conn
+            .prepare_cached(
+                "SELECT count(*) FROM (SELECT 1 FROM estimates \
+                 WHERE machine_id = ?1 AND engine = ?2 AND t >= ?3 AND t <= ?4 LIMIT ?5)",
+            )?
+            .query_row(
+                params![self.machine_id, self.engine.as_str(), from_t, to_t, limit],
+                |row| row.get(0),
+            )?)
+    }
+
+    fn all(&mut self, from_t: f64, to_t: f64) -> Result<Vec<EngineOutput>, StoreError> {
+        let mut stmt = self.conn.prepare_cached(
+            "SELECT t, body, codec FROM estimates \
+             WHERE machine_id = ?1 AND engine = ?2 AND t >= ?3 AND t <= ?4 ORDER BY t",
+        )?;
+        let mut rows = stmt.query(params![self.machine_id, self.engine.as_str(), from_t, to_t])?;
+        let mut out = Vec::new();
+        while let Some(row) = rows.next()? {
+            out.push(output_row(self.engine, row)?);
+        }
+        Ok(out)
+    }
+
+    fn end(&mut self, from_t: f64, to_t: f64, last: bool) -> Result<f64, StoreError> {
+        let order = if last { "DESC" } else { "ASC" };
+        Ok(self
+            .conn
+            .prepare_cached(&format!(
+                "SELECT t FROM estimates WHERE machine_id = ?1 AND engine = ?2 \
+                 AND t >= ?3 AND t <= ?4 ORDER BY t {order} LIMIT 1"
+            ))?
+            .query_row(
+                params![self.machine_id, self.engine.as_str(), from_t, to_t],
+                |row| row.get(0),
+            )?)
+    }
+
+    fn points(
+        &mut self,
+        lo: f64,
+        hi: f64,
+        out: &mut dyn FnMut(Extremes),
+    ) -> Result<(), StoreError> {
+        let mut stmt = self.conn.prepare_cached(
+            "SELECT t, extreme_a, extreme_b FROM estimates \
+             WHERE machine_id = ?1 AND engine = ?2 AND t >= ?3 AND t < ?4",
+        )?;
+        let mut rows = stmt.query(params![self.machine_id, self.engine.as_str(), lo, hi])?;
+        while let Some(row) = rows.next()? {
+            out(Extremes::point(row.get(0)?, [row.get(1)?, row.get(2)?]));
+        }
+        Ok(())
+    }
+
+    fn buckets(
+        &mut self,
+        width_s: i64,
+        first: i64,
+        end: i64,
+        out: &mut dyn FnMut(Extremes),
+    ) -> Result<(), StoreError> {
+        let mut stmt = self.conn.prepare_cached(
+            "SELECT min_a, t_min_a, max_a, t_max_a, min_b, t_min_b, max_b, t_max_b \
+             FROM estimate_buckets WHERE machine_id = ?1 AND engine = ?2 \
+             AND width_s = ?3 AND bucket >= ?4 AND bucket < ?5",
+        )?;
+        let mut rows = stmt.query(params![
+            self.machine_id,
+            self.engine.as_str(),
+            width_s,
+            first,
+            end
+        ])?;
+        while let Some(row) = rows.next()? {
+            out(Extremes {
+                min_a: (row.get(0)?, row.get(1)?),
+                max_a: (row.get(2)?, row.get(3)?),
+                min_b: (row.get(4)?, row.get(5)?),
+                max_b: (row.get(6)?, row.get(7)?),
+            });
+        }
+        Ok(())
+    }
+
+    fn at(&mut self, t: f64) -> Result<Option<EngineOutput>, StoreError> {
+        let mut stmt = self.conn.prepare_cached(
+            "SELECT t, body, codec FROM estimates WHERE machine_id = ?1 AND engine = ?2 AND t = ?3",
+        )?;
+        let mut rows = stmt.query(params![self.machine_id, self.engine.as_str(), t])?;
+        rows.next()?
+            .map(|row| output_row(self.engine, row))
+            .transpose()
+    }
+}
+
 impl Store {
-    /// A machine's estimates of one engine in `[from_t, to_t]`. Above
-    /// `max_points` the range is cut into `max_points / 4` equal buckets and
-    /// each keeps the estimates holding the minimum and maximum of the
-    /// engine's two kept quantities (attitude: pitch, roll), so spikes stay
-    /// visible. Long ranges read the stored extreme buckets
-    /// ([`BUCKET_WIDTHS_S`]) instead of every estimate; an extreme is then
-    /// filed under the output bucket of its own time, so a stored bucket
-    /// straddling two output buckets can hide the lesser extreme of one of
-    /// them, never the range's own extremes.
+    /// A machine's estimates of one engine in `[from_t, to_t]`, downsampled
+    /// above `max_points` (see [`estimates_page`]).
     pub fn estimates_page(
         &self,
         machine_id: i64,
@@ -160,109 +347,12 @@ impl Store {
         max_points: usize,
     ) -> Result<EstimatesPage, StoreError> {
         self.read(|conn| {
-            let engine_name = engine.as_str();
-            let range = params![machine_id, engine_name, from_t, to_t];
-            let mut page = EstimatesPage::default();
-            // Count no further than needed to know whether to downsample.
-            let count: i64 = conn
-                .prepare_cached(
-                    "SELECT count(*) FROM (SELECT 1 FROM estimates \
-                     WHERE machine_id = ?1 AND engine = ?2 AND t >= ?3 AND t <= ?4 LIMIT ?5)",
-                )?
-                .query_row(
-                    params![machine_id, engine_name, from_t, to_t, max_points as i64 + 1],
-                    |row| row.get(0),
-                )?;
-            if count <= max_points as i64 {
-                let mut stmt = conn.prepare_cached(
-                    "SELECT t, body, codec FROM estimates \
-                     WHERE machine_id = ?1 AND engine = ?2 AND t >= ?3 AND t <= ?4 ORDER BY t",
-                )?;
-                let mut rows = stmt.query(range)?;
-                while let Some(row) = rows.next()? {
-                    page.estimates.push(output_row(engine, row)?);
-                }
-                return Ok(page);
-            }
-            page.downsampled = true;
-            let end = |order: &str| -> Result<f64, StoreError> {
-                Ok(conn
-                    .prepare_cached(&format!(
-                        "SELECT t FROM estimates WHERE machine_id = ?1 AND engine = ?2 \
-                         AND t >= ?3 AND t <= ?4 ORDER BY t {order} LIMIT 1"
-                    ))?
-                    .query_row(range, |row| row.get(0))?)
+            let mut source = SqliteHistory {
+                conn,
+                machine_id,
+                engine,
             };
-            let (first_t, last_t) = (end("ASC")?, end("DESC")?);
-            let buckets = (max_points / POINTS_PER_BUCKET).max(1);
-            let width_s = ((last_t - first_t) / buckets as f64).max(f64::MIN_POSITIVE);
-            let mut out = Downsample {
-                first_t,
-                width_s,
-                buckets: vec![None; buckets],
-            };
-            let stored_width = BUCKET_WIDTHS_S
-                .iter()
-                .rev()
-                .copied()
-                .find(|&w| w as f64 <= width_s);
-            let raw = |lo: f64, hi: f64, out: &mut Downsample| -> Result<(), StoreError> {
-                let mut stmt = conn.prepare_cached(
-                    "SELECT t, extreme_a, extreme_b FROM estimates \
-                     WHERE machine_id = ?1 AND engine = ?2 AND t >= ?3 AND t < ?4",
-                )?;
-                let mut rows = stmt.query(params![machine_id, engine_name, lo, hi])?;
-                while let Some(row) = rows.next()? {
-                    out.offer(&Extremes::point(row.get(0)?, [row.get(1)?, row.get(2)?]));
-                }
-                Ok(())
-            };
-            let after_last = f64::from_bits(last_t.to_bits() + 1);
-            match stored_width {
-                None => raw(first_t, after_last, &mut out)?,
-                Some(w) => {
-                    // Whole stored buckets inside the range; raw at the edges.
-                    let first_bucket = (first_t / w as f64).ceil() as i64;
-                    let end_bucket = (after_last / w as f64).floor() as i64;
-                    if first_bucket >= end_bucket {
-                        raw(first_t, after_last, &mut out)?;
-                    } else {
-                        raw(first_t, (first_bucket * w) as f64, &mut out)?;
-                        let mut stmt = conn.prepare_cached(
-                            "SELECT min_a, t_min_a, max_a, t_max_a, min_b, t_min_b, max_b, t_max_b \
-                             FROM estimate_buckets WHERE machine_id = ?1 AND engine = ?2 \
-                             AND width_s = ?3 AND bucket >= ?4 AND bucket < ?5",
-                        )?;
-                        let mut rows = stmt.query(params![
-                            machine_id,
-                            engine_name,
-                            w,
-                            first_bucket,
-                            end_bucket
-                        ])?;
-                        while let Some(row) = rows.next()? {
-                            out.offer(&Extremes {
-                                min_a: (row.get(0)?, row.get(1)?),
-                                max_a: (row.get(2)?, row.get(3)?),
-                                min_b: (row.get(4)?, row.get(5)?),
-                                max_b: (row.get(6)?, row.get(7)?),
-                            });
-                        }
-                        raw((end_bucket * w) as f64, after_last, &mut out)?;
-                    }
-                }
-            }
-            let mut stmt = conn.prepare_cached(
-                "SELECT t, body, codec FROM estimates WHERE machine_id = ?1 AND engine = ?2 AND t = ?3",
-            )?;
-            for t in out.times() {
-                let mut rows = stmt.query(params![machine_id, engine_name, t])?;
-                let row = rows.next()?.ok_or_else(|| {
-                    StoreError::Corrupt(format!("bucket extreme at t = {t} has no estimate"))
-                })?;
-                page.estimates.push(output_row(engine, row)?);
-            }
-            Ok(page)
+            estimates_page(&mut source, from_t, to_t, max_points)
         })
     }
 
