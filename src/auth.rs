@@ -104,6 +104,21 @@ pub enum TokenError {
     NoSuchToken(i64),
     #[error(transparent)]
     Sql(#[from] rusqlite::Error),
+    #[error(transparent)]
+    Store(#[from] crate::store::StoreError),
+}
+
+/// Whether a token of `scope` for `machine` may be made: an ingest token
+/// names one machine, the others none.
+pub fn check_new(scope: Scope, machine: Option<&str>) -> Result<(), TokenError> {
+    match (scope, machine) {
+        (Scope::Ingest, None) => Err(TokenError::MachineMissing),
+        (Scope::Read | Scope::Admin, Some(_)) => Err(TokenError::MachineNotAllowed(scope)),
+        (_, Some(m)) if !crate::config::valid_machine_id(m) => {
+            Err(TokenError::MachineId(m.to_string()))
+        }
+        _ => Ok(()),
+    }
 }
 
 /// Stores a new token; returns its id and the token text (shown once).
@@ -114,14 +129,7 @@ pub fn create(
     machine: Option<&str>,
     now_t: f64,
 ) -> Result<(i64, String), TokenError> {
-    match (scope, machine) {
-        (Scope::Ingest, None) => return Err(TokenError::MachineMissing),
-        (Scope::Read | Scope::Admin, Some(_)) => return Err(TokenError::MachineNotAllowed(scope)),
-        (_, Some(m)) if !crate::config::valid_machine_id(m) => {
-            return Err(TokenError::MachineId(m.to_string()));
-        }
-        _ => {}
-    }
+    check_new(scope, machine)?;
     let (token, hash) = generate();
     conn.execute(
         "INSERT INTO tokens (name, scope, machine, hash, created_t) VALUES (?1, ?2, ?3, ?4, ?5)",

@@ -131,7 +131,7 @@ async fn a_stalled_server_answers_503_not_408() {
     let base = server.url("");
     put_machine(&client, &base, "tbm-stall").await;
     // The store's writer is held up for 3 s (as by a stuck disk).
-    let store = server.state.store.clone();
+    let store = server.state.store.sqlite().unwrap().clone();
     let stuck = tokio::spawn(async move {
         store
             .maintain(|_| {

@@ -61,25 +61,14 @@ impl Gate {
     }
 
     /// The tokens in force (hash → token), reread when stale.
-    fn current(&self, store: &Store) -> Result<Tokens, ApiError> {
+    async fn current(&self, store: &Store) -> Result<Tokens, ApiError> {
         if let Ok(guard) = self.tokens.read()
             && let Some((read_at, tokens)) = guard.as_ref()
             && read_at.elapsed() < REFRESH
         {
             return Ok(tokens.clone());
         }
-        let tokens: Tokens = Arc::new(
-            store
-                .read(|conn| {
-                    auth::active(conn).map_err(|e| match e {
-                        // A busy database stays a (transient) SQLite error.
-                        auth::TokenError::Sql(e) => crate::store::StoreError::Sqlite(e),
-                        other => crate::store::StoreError::Corrupt(other.to_string()),
-                    })
-                })?
-                .into_iter()
-                .collect(),
-        );
+        let tokens: Tokens = Arc::new(store.active_tokens().await?.into_iter().collect());
         if let Ok(mut guard) = self.tokens.write() {
             *guard = Some((Instant::now(), tokens.clone()));
         }
@@ -88,7 +77,7 @@ impl Gate {
 
     /// Whether `presented` (a token text, if any) may do `need`: the
     /// token's name if it was checked, `None` while access is open.
-    fn check(
+    async fn check(
         &self,
         store: &Store,
         presented: Option<&str>,
@@ -97,7 +86,7 @@ impl Gate {
         if *need == Need::Nothing {
             return Ok(None);
         }
-        let tokens = self.current(store)?;
+        let tokens = self.current(store).await?;
         if tokens.is_empty() && !self.insist.load(Ordering::Relaxed) {
             return Ok(None);
         }
@@ -199,7 +188,11 @@ pub struct Caller(pub Option<String>);
 /// handler who it is ([`Caller`]).
 async fn require(state: &SharedState, need: Need, mut request: Request, next: Next) -> Response {
     let token = presented(request.headers());
-    match state.gate.check(&state.store, token.as_deref(), &need) {
+    match state
+        .gate
+        .check(&state.store, token.as_deref(), &need)
+        .await
+    {
         Ok(name) => {
             request.extensions_mut().insert(Caller(name));
             next.run(request).await
@@ -265,7 +258,11 @@ pub struct LoginForm {
 /// HttpOnly, SameSite=Strict cookie and goes to the fleet page.
 pub async fn login(State(state): State<SharedState>, Form(form): Form<LoginForm>) -> Response {
     let token = form.token.trim();
-    if let Err(e) = state.gate.check(&state.store, Some(token), &Need::Read) {
+    if let Err(e) = state
+        .gate
+        .check(&state.store, Some(token), &Need::Read)
+        .await
+    {
         return login_refused(&e);
     }
     let cookie = format!("{COOKIE}={token}; Path=/; HttpOnly; SameSite=Strict");

@@ -277,7 +277,10 @@ pub async fn render(State(state): State<SharedState>) -> impl IntoResponse {
             });
         }
     }
-    metrics::gauge!(STORE_BYTES).set(state.store.size_bytes() as f64);
+    match state.store.size_bytes().await {
+        Ok(bytes) => metrics::gauge!(STORE_BYTES).set(bytes as f64),
+        Err(e) => tracing::warn!(error = %e, "store size unknown"),
+    }
     set_active_alarms(&state).await;
     process().collect();
     let text = handle().map(|h| h.render()).unwrap_or_default();

@@ -322,7 +322,7 @@ fn fresh_snapshot(spec: &MachineSpec) -> Result<String, ServerError> {
 /// planned on a read connection and done step by step on the store's
 /// writer between its commits (see `store::retention`).
 async fn apply_retention(store: Store, policy: crate::store::retention::Retention, clock: Clock) {
-    use crate::store::retention::{Pruned, plan};
+    use crate::store::retention::Pruned;
     let every = std::time::Duration::from_secs_f64(policy.every_s.max(1.0));
     let mut tick = tokio::time::interval(every);
     loop {
@@ -330,15 +330,16 @@ async fn apply_retention(store: Store, policy: crate::store::retention::Retentio
         let now_t = clock.now_s();
         let pass = async {
             let planner = store.clone();
-            let steps = tokio::task::spawn_blocking(move || {
-                planner.read(|conn| plan(conn, now_t, &policy, 5000))
-            })
-            .await
-            .map_err(|e| crate::store::StoreError::Corrupt(format!("retention plan: {e}")))??;
+            let steps =
+                tokio::task::spawn_blocking(move || planner.retention_plan(now_t, &policy, 5000))
+                    .await
+                    .map_err(|e| {
+                        crate::store::StoreError::Corrupt(format!("retention plan: {e}"))
+                    })??;
             let mut pruned = Pruned::default();
             for step in steps {
                 loop {
-                    let done = store.maintain(move |conn| step.apply(conn)).await?;
+                    let done = store.retention_step(step).await?;
                     pruned.add(done);
                     if !step.again(&done) {
                         break;

@@ -7,7 +7,7 @@
 use rusqlite::{Connection, OptionalExtension, Row, params};
 use serde::Serialize;
 
-use super::{Store, StoreError};
+use super::{SqliteStore, StoreError};
 use crate::fusion::alarms::Transition;
 
 /// A raised or cleared alarm to write with its machine's readings.
@@ -173,7 +173,7 @@ fn by_id(conn: &Connection, id: i64) -> Result<Option<StoredAlarm>, StoreError> 
     Ok(conn.query_row(&sql, [id], stored).optional()?)
 }
 
-impl Store {
+impl SqliteStore {
     /// The alarms `filter` asks for, newest first.
     pub fn alarms(&self, filter: &AlarmFilter) -> Result<Vec<StoredAlarm>, StoreError> {
         self.read(|conn| list(conn, filter))
@@ -215,6 +215,7 @@ impl Store {
 mod tests {
     use super::*;
     use crate::config::MachineDeclaration;
+    use crate::store::Store;
     use crate::store::Write;
     use tokio::sync::oneshot;
 

@@ -2,7 +2,7 @@
 //! machines, readings, estimates and engine snapshots.
 //!
 //! One thread owns the writing connection. The rest of the program holds a
-//! cheap [`Store`] handle: writes are typed requests sent to that thread,
+//! cheap [`SqliteStore`] handle: writes are typed requests sent to that thread,
 //! which takes every request waiting in its queue, applies them in one
 //! transaction (group commit) and answers each only after the commit.
 //! Reads use a small pool of read-only connections (WAL lets them run
@@ -12,6 +12,7 @@
 pub mod alarms;
 pub mod codec;
 mod error;
+mod handle;
 pub mod postgres;
 pub mod queries;
 mod read_pool;
@@ -20,6 +21,7 @@ pub mod schema;
 mod writer;
 
 pub use error::StoreError;
+pub use handle::Store;
 use read_pool::ReadPool;
 use writer::{Queued, Request, checkpoints};
 
@@ -144,23 +146,23 @@ fn stored_machine(db_id: i64, spec: String) -> Result<StoredMachine, StoreError>
 
 /// Cheap, cloneable handle to the store.
 #[derive(Clone)]
-pub struct Store {
+pub struct SqliteStore {
     requests: mpsc::Sender<Queued>,
     readers: Arc<ReadPool>,
     path: PathBuf,
 }
 
-impl Store {
+impl SqliteStore {
     /// Opens (creating and migrating) the database in `data_dir` and starts
     /// the writer thread.
-    pub fn open(data_dir: &Path) -> Result<Store, StoreError> {
-        Store::open_capped(data_dir, None)
+    pub fn open(data_dir: &Path) -> Result<SqliteStore, StoreError> {
+        SqliteStore::open_capped(data_dir, None)
     }
 
-    /// [`Store::open`] with the database file capped at `max_bytes`: beyond
+    /// [`SqliteStore::open`] with the database file capped at `max_bytes`: beyond
     /// it writes fail as on a full disk (`SQLITE_FULL`), and the server
     /// answers 503 until space is made (retention, a larger cap).
-    pub fn open_capped(data_dir: &Path, max_bytes: Option<u64>) -> Result<Store, StoreError> {
+    pub fn open_capped(data_dir: &Path, max_bytes: Option<u64>) -> Result<SqliteStore, StoreError> {
         std::fs::create_dir_all(data_dir).map_err(|source| StoreError::DataDir {
             path: data_dir.display().to_string(),
             source,
@@ -209,7 +211,7 @@ impl Store {
                 path: data_dir.display().to_string(),
                 source,
             })?;
-        Ok(Store {
+        Ok(SqliteStore {
             requests,
             readers: Arc::new(ReadPool {
                 path: path.clone(),
@@ -268,7 +270,7 @@ impl Store {
         }
     }
 
-    /// Like [`Store::write`], from a blocking thread.
+    /// Like [`SqliteStore::write`], from a blocking thread.
     pub fn write_blocking(&self, write: Write) -> Result<(), StoreError> {
         self.requests
             .blocking_send(Queued::Request(Request::Write(write)))
@@ -319,6 +321,16 @@ impl Store {
         f: impl FnOnce(&Connection) -> Result<R, StoreError>,
     ) -> Result<R, StoreError> {
         self.readers.with(f)
+    }
+
+    /// The tokens in force, with their hashes.
+    pub fn active_tokens(&self) -> Result<Vec<(String, crate::auth::Token)>, StoreError> {
+        self.read(|conn| {
+            crate::auth::active(conn).map_err(|e| match e {
+                crate::auth::TokenError::Sql(e) => StoreError::Sqlite(e),
+                other => StoreError::Corrupt(other.to_string()),
+            })
+        })
     }
 
     /// Every stored machine, its parameters made current (a machine
@@ -383,6 +395,7 @@ impl Store {
 mod tests {
     use super::*;
     use crate::config::MachineDeclaration;
+    use crate::store::Store;
 
     fn spec(id: &str) -> MachineSpec {
         serde_json::from_value::<MachineDeclaration>(
@@ -463,7 +476,7 @@ mod tests {
         assert_eq!(after, vec![r#"{"t":4.0,"sensor":"level","height_m":4.0}"#]);
         // Closing leaves no log behind and refuses later writes.
         store.close().await;
-        let wal = store.path().with_extension("sqlite3-wal");
+        let wal = store.sqlite().unwrap().path().with_extension("sqlite3-wal");
         assert_eq!(std::fs::metadata(&wal).map(|m| m.len()).unwrap_or(0), 0);
         let (reply, _answer) = oneshot::channel();
         let late = store

@@ -3,7 +3,7 @@
 use rusqlite::{OptionalExtension, params};
 
 use super::codec::{decode_reading, decode_values};
-use super::{Store, StoreError};
+use super::{SqliteStore, StoreError};
 use crate::fusion::{EngineOutput, Reading, SensorKind, StreamKind};
 
 /// Estimates of a time range, possibly downsampled.
@@ -335,7 +335,7 @@ impl HistorySource for SqliteHistory<'_> {
     }
 }
 
-impl Store {
+impl SqliteStore {
     /// A machine's estimates of one engine in `[from_t, to_t]`, downsampled
     /// above `max_points` (see [`estimates_page`]).
     pub fn estimates_page(
@@ -384,7 +384,7 @@ impl Store {
     }
 }
 
-impl Store {
+impl SqliteStore {
     /// Every stored estimate of `engine` in `[from_t, to_t]`, in time
     /// order, to `f` until it answers false (blocking).
     pub fn export_estimates(
@@ -449,6 +449,7 @@ mod tests {
     use super::*;
     use crate::config::MachineDeclaration;
     use crate::fusion::{AttitudeEstimate, EstimateValues};
+    use crate::store::Store;
     use crate::store::{EstimateRow, Write};
 
     /// Stores `n` estimates at 1 Hz with values from `f`; returns the store.

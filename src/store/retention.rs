@@ -57,7 +57,7 @@ pub struct Pruned {
 /// Width of the windows estimates are thinned in, s.
 const THIN_WINDOW_S: f64 = 600.0;
 /// One estimate kept per this many seconds.
-const THIN_TO_S: f64 = 60.0;
+pub(super) const THIN_TO_S: f64 = 60.0;
 
 /// One unit of a pass, its own short transaction.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -82,6 +82,28 @@ pub fn plan(
     policy: &Retention,
     batch: usize,
 ) -> Result<Vec<Step>, StoreError> {
+    let machines: Vec<i64> = conn
+        .prepare("SELECT id FROM machines")?
+        .query_map([], |row| row.get(0))?
+        .collect::<Result<_, _>>()?;
+    plan_steps(now_t, policy, batch, &machines, |machine, stream| {
+        Ok(conn.query_row(
+            "SELECT MIN(t) FROM estimates WHERE machine_id = ?1 AND engine = ?2",
+            params![machine, stream.as_str()],
+            |row| row.get(0),
+        )?)
+    })
+}
+
+/// The steps of a pass of `policy` at `now_t` over `machines`, `oldest`
+/// answering the time of a machine's oldest estimate of a stream.
+pub(super) fn plan_steps(
+    now_t: f64,
+    policy: &Retention,
+    batch: usize,
+    machines: &[i64],
+    mut oldest: impl FnMut(i64, StreamKind) -> Result<Option<f64>, StoreError>,
+) -> Result<Vec<Step>, StoreError> {
     let mut steps = Vec::new();
     if let Some(keep_s) = policy.keep_readings_s {
         steps.push(Step::Readings {
@@ -91,18 +113,9 @@ pub fn plan(
     }
     if let Some(full_s) = policy.full_estimates_s {
         let cut = now_t - full_s;
-        let machines: Vec<i64> = conn
-            .prepare("SELECT id FROM machines")?
-            .query_map([], |row| row.get(0))?
-            .collect::<Result<_, _>>()?;
-        for machine in machines {
+        for &machine in machines {
             for &stream in StreamKind::ALL {
-                let oldest: Option<f64> = conn.query_row(
-                    "SELECT MIN(t) FROM estimates WHERE machine_id = ?1 AND engine = ?2",
-                    params![machine, stream.as_str()],
-                    |row| row.get(0),
-                )?;
-                let Some(oldest) = oldest else {
+                let Some(oldest) = oldest(machine, stream)? else {
                     continue;
                 };
                 let mut from = (oldest / THIN_WINDOW_S).floor() * THIN_WINDOW_S;
@@ -164,7 +177,7 @@ impl Step {
 impl Step {
     /// Whether the step has more to do after deleting `pruned`.
     pub fn again(&self, pruned: &Pruned) -> bool {
-        matches!(*self, Step::Readings { batch, .. } if pruned.readings == batch as u64)
+        matches!(*self, Step::Readings { batch, .. } if pruned.readings >= batch as u64)
     }
 }
 

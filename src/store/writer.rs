@@ -14,7 +14,7 @@ use super::{
 use crate::config::MachineSpec;
 use crate::fusion::StreamKind;
 
-/// A job for the writing connection (see [`super::Store::maintain`]).
+/// A job for the writing connection (see [`super::SqliteStore::maintain`]).
 pub(super) type Job = Box<dyn FnOnce(&mut Connection) + Send>;
 
 /// What a writer's queue carries; `J`, the backend's maintenance job.

@@ -23,10 +23,12 @@ use deadpool_postgres::{Manager, ManagerConfig, Pool, RecyclingMethod};
 use tokio::sync::{mpsc, oneshot};
 use tokio_postgres::{GenericClient, NoTls};
 
-use super::alarms::{AlarmFilter, StoredAlarm};
+use super::alarms::{AlarmChange, AlarmFilter, Change, StoredAlarm};
 use super::queries::{self, EstimatesPage, Extremes, HistorySource};
+use super::retention::{self, Pruned, Retention, Step};
 use super::writer::{Queued, Request};
 use super::{QUEUE_LEN, StoreError, StoredMachine, StoredSnapshot, Write};
+use crate::auth::{Scope, Token, TokenError};
 use crate::config::MachineSpec;
 use crate::fusion::{EngineOutput, Reading, SensorKind, StreamKind};
 
@@ -389,6 +391,274 @@ impl PgStore {
                 return Ok(());
             }
         }
+    }
+}
+
+impl PgStore {
+    /// Runs `job` on the writer's connection between two group commits.
+    async fn maintain<R: Send + 'static>(
+        &self,
+        job: impl for<'c> FnOnce(
+            &'c mut tokio_postgres::Client,
+        ) -> futures_util::future::BoxFuture<'c, Result<R, StoreError>>
+        + Send
+        + 'static,
+    ) -> Result<R, StoreError> {
+        let (reply, answer) = oneshot::channel();
+        let job: writer::Job = Box::new(move |client| {
+            Box::pin(async move {
+                let _ = reply.send(job(client).await);
+            })
+        });
+        self.requests
+            .send(Queued::Job(job))
+            .await
+            .map_err(|_| StoreError::Closed)?;
+        answer.await.map_err(|_| StoreError::Closed)?
+    }
+
+    /// Acknowledges alarm `id` by `by` at `t`, as
+    /// [`Store::ack_alarm`](super::Store::ack_alarm) does.
+    pub async fn ack_alarm(
+        &self,
+        id: i64,
+        by: String,
+        t: f64,
+        announce: impl FnOnce(AlarmChange) + Send + 'static,
+    ) -> Result<Option<(StoredAlarm, bool)>, StoreError> {
+        self.maintain(move |client| {
+            Box::pin(async move {
+                let acked = client
+                    .execute(
+                        "UPDATE alarms SET acked_t = $2, acked_by = $3 WHERE id = $1 AND acked_t IS NULL",
+                        &[&id, &t, &by],
+                    )
+                    .await?
+                    == 1;
+                let alarm = alarm_by_id(&*client, id).await?;
+                if let (true, Some(alarm)) = (acked, &alarm) {
+                    announce(AlarmChange {
+                        transition: Change::Acknowledged,
+                        alarm: alarm.clone(),
+                    });
+                }
+                Ok(alarm.map(|alarm| (alarm, acked)))
+            })
+        })
+        .await
+    }
+
+    /// The database's size on disk, bytes.
+    pub async fn size_bytes(&self) -> Result<u64, StoreError> {
+        let client = self.pooled().await?;
+        let bytes: i64 = client
+            .query_one("SELECT pg_database_size(current_database())", &[])
+            .await?
+            .get(0);
+        Ok(bytes.max(0) as u64)
+    }
+
+    /// The tokens in force, with their hashes.
+    pub async fn active_tokens(&self) -> Result<Vec<(String, Token)>, StoreError> {
+        let client = self.pooled().await?;
+        let rows = client
+            .query(
+                "SELECT id, name, scope, machine, created_t, revoked_t, hash FROM tokens \
+                 WHERE revoked_t IS NULL",
+                &[],
+            )
+            .await?;
+        Ok(rows.iter().map(|row| (row.get(6), token(row))).collect())
+    }
+
+    /// Stores a new token; its id and text (shown once), as
+    /// [`crate::auth::create`] does on SQLite.
+    pub async fn create_token(
+        &self,
+        name: &str,
+        scope: Scope,
+        machine: Option<&str>,
+        now_t: f64,
+    ) -> Result<(i64, String), TokenError> {
+        crate::auth::check_new(scope, machine)?;
+        let (token, hash) = crate::auth::generate();
+        let client = self.pooled().await?;
+        let id: i64 = client
+            .query_one(
+                "INSERT INTO tokens (name, scope, machine, hash, created_t) \
+                 VALUES ($1, $2, $3, $4, $5) RETURNING id",
+                &[&name, &scope.as_str(), &machine, &hash, &now_t],
+            )
+            .await
+            .map_err(StoreError::from)?
+            .get(0);
+        Ok((id, token))
+    }
+
+    /// Every token, revoked ones included, oldest first.
+    pub async fn tokens(&self) -> Result<Vec<Token>, StoreError> {
+        let client = self.pooled().await?;
+        let rows = client
+            .query(
+                "SELECT id, name, scope, machine, created_t, revoked_t FROM tokens ORDER BY id",
+                &[],
+            )
+            .await?;
+        Ok(rows.iter().map(token).collect())
+    }
+
+    /// Revokes a token.
+    pub async fn revoke_token(&self, id: i64, now_t: f64) -> Result<Token, TokenError> {
+        let client = self.pooled().await?;
+        client
+            .execute(
+                "UPDATE tokens SET revoked_t = $2 WHERE id = $1 AND revoked_t IS NULL",
+                &[&id, &now_t],
+            )
+            .await
+            .map_err(StoreError::from)?;
+        client
+            .query_opt(
+                "SELECT id, name, scope, machine, created_t, revoked_t FROM tokens WHERE id = $1",
+                &[&id],
+            )
+            .await
+            .map_err(StoreError::from)?
+            .map(|row| token(&row))
+            .ok_or(TokenError::NoSuchToken(id))
+    }
+
+    /// A pooled connection (async).
+    async fn pooled(&self) -> Result<deadpool_postgres::Client, StoreError> {
+        self.readers
+            .get()
+            .await
+            .map_err(|e| StoreError::Unavailable(e.to_string()))
+    }
+
+    /// The steps of a retention pass of `policy` at `now_t` (blocking).
+    pub fn retention_plan(
+        &self,
+        now_t: f64,
+        policy: &Retention,
+        batch: usize,
+    ) -> Result<Vec<Step>, StoreError> {
+        let client = self.reader()?;
+        let oldest = |machine: i64, stream: StreamKind| -> Result<Option<f64>, StoreError> {
+            Ok(self
+                .runtime
+                .block_on(client.query_one(
+                    "SELECT min(t) FROM estimates WHERE machine_id = $1 AND engine = $2",
+                    &[&machine, &stream.as_str()],
+                ))?
+                .get(0))
+        };
+        let machines: Vec<i64> = self
+            .runtime
+            .block_on(client.query("SELECT id FROM machines", &[]))?
+            .iter()
+            .map(|row| row.get(0))
+            .collect();
+        retention::plan_steps(now_t, policy, batch, &machines, oldest)
+    }
+
+    /// Does one step of a pass on the writer's connection. Readings go by
+    /// whole day partitions where every reading in them is older than the
+    /// cut and covered by its machine's snapshot, then row by row.
+    pub async fn retention_step(&self, step: Step) -> Result<Pruned, StoreError> {
+        self.maintain(move |client| Box::pin(async move { apply_step(client, step).await }))
+            .await
+    }
+}
+
+/// One retention step on PostgreSQL.
+async fn apply_step(client: &mut tokio_postgres::Client, step: Step) -> Result<Pruned, StoreError> {
+    match step {
+        Step::Readings { cut, batch } => {
+            let mut readings = 0;
+            // Whole partitions first: their end at or before the cut, none
+            // of their readings after its machine's snapshot.
+            let days: Vec<i64> = schema::partitions(client)
+                .await?
+                .into_iter()
+                .filter(|(table, day)| {
+                    table == "readings" && (*day + 1) as f64 * PARTITION_S <= cut
+                })
+                .map(|(_, day)| day)
+                .collect();
+            for day in days {
+                let (_, name) = schema::partition("readings", day as f64 * PARTITION_S);
+                let uncovered: i64 = client
+                    .query_one(
+                        &format!(
+                            "SELECT count(*) FROM {name} r LEFT JOIN snapshots s \
+                             ON s.machine_id = r.machine_id \
+                             WHERE s.last_reading_id IS NULL OR r.id > s.last_reading_id"
+                        ),
+                        &[],
+                    )
+                    .await?
+                    .get(0);
+                if uncovered > 0 {
+                    continue;
+                }
+                let tx = client.transaction().await?;
+                let rows: i64 = tx
+                    .query_one(&format!("SELECT count(*) FROM {name}"), &[])
+                    .await?
+                    .get(0);
+                tx.batch_execute(&format!("DROP TABLE {name}")).await?;
+                tx.commit().await?;
+                readings += rows as u64;
+            }
+            // Then what is left, a batch at a time.
+            readings += client
+                    .execute(
+                        "DELETE FROM readings WHERE id IN ( \
+                         SELECT r.id FROM readings r JOIN snapshots s ON s.machine_id = r.machine_id \
+                         WHERE r.t < $1 AND r.id <= s.last_reading_id LIMIT $2)",
+                        &[&cut, &(batch as i64)],
+                    )
+                    .await?;
+            Ok(Pruned {
+                readings,
+                estimates: 0,
+            })
+        }
+        Step::Thin {
+            machine,
+            stream,
+            from,
+            to,
+        } => {
+            let estimates = client
+                .execute(
+                    "DELETE FROM estimates WHERE machine_id = $1 AND engine = $2 AND t >= $3 AND t < $4 \
+                     AND t NOT IN (SELECT min(t) FROM estimates \
+                     WHERE machine_id = $1 AND engine = $2 AND t >= $3 AND t < $4 \
+                     GROUP BY floor(t / $5))",
+                    &[&machine, &stream.as_str(), &from, &to, &retention::THIN_TO_S],
+                )
+                .await?;
+            Ok(Pruned {
+                readings: 0,
+                estimates,
+            })
+        }
+    }
+}
+
+/// A token from a row of (id, name, scope, machine, created_t, revoked_t).
+fn token(row: &tokio_postgres::Row) -> Token {
+    let scope: String = row.get(2);
+    Token {
+        id: row.get(0),
+        name: row.get(1),
+        // The table's CHECK constraint admits only the three names.
+        scope: Scope::from_name(&scope).unwrap_or(Scope::Read),
+        machine: row.get(3),
+        created_t: row.get(4),
+        revoked_t: row.get(5),
     }
 }
 

@@ -15,8 +15,10 @@ use crate::store::alarms::{AlarmChange, AlarmRow, Change, StoredAlarm};
 use crate::store::writer::{Buckets, Outcome, Queued, Request, answer, fold_buckets};
 use crate::store::{MAX_GROUP, StoreError, Write, WriteOutcome};
 
-/// The maintenance jobs this writer takes: none yet.
-pub(super) type Job = std::convert::Infallible;
+/// Work on the writer's connection between two group commits
+/// (acknowledgements, retention), so it is ordered with the commits.
+pub(super) type Job =
+    Box<dyn for<'c> FnOnce(&'c mut Client) -> futures_util::future::BoxFuture<'c, ()> + Send>;
 
 /// The writer task: takes every waiting request, commits them together,
 /// then answers each. Ends when closed or when every handle is gone.
@@ -35,10 +37,11 @@ pub(super) async fn writer(mut client: Client, mut queue: mpsc::Receiver<Queued<
             break;
         };
         let mut next = Some(first);
+        let mut job = None;
         while let Some(request) = next.take() {
             match request {
                 Queued::Close(reply) => close = Some(reply),
-                Queued::Job(job) => match job {},
+                Queued::Job(queued) => job = Some(queued),
                 Queued::Request(request) => {
                     group.push(request);
                     if group.len() < MAX_GROUP {
@@ -48,6 +51,9 @@ pub(super) async fn writer(mut client: Client, mut queue: mpsc::Receiver<Queued<
             }
         }
         commit(&mut client, &mut partitions, &mut group).await;
+        if let Some(job) = job {
+            job(&mut client).await;
+        }
     }
     queue.close();
     if let Some(reply) = close {

@@ -1,0 +1,252 @@
+//! [`Store`]: the one store interface the rest of tunnelnav uses, over
+//! either backend — SQLite in the data dir (the default: one site, one
+//! file) or PostgreSQL (an office: many machines, several nodes). Both
+//! keep the same semantics; `tests/store_conformance.rs` holds them to it.
+
+use std::path::Path;
+
+use rusqlite::Connection;
+
+use super::alarms::{AlarmChange, AlarmFilter, StoredAlarm};
+use super::postgres::{PgLocation, PgStore};
+use super::queries::EstimatesPage;
+use super::retention::{Pruned, Retention, Step};
+use super::{SqliteStore, StoreError, StoredMachine, StoredSnapshot, Write};
+use crate::auth::Token;
+use crate::config::MachineSpec;
+use crate::fusion::{EngineOutput, Reading, SensorKind, StreamKind};
+
+/// Cheap, cloneable handle to the store. Writes are async and answered
+/// after their commit; reads are blocking calls (async callers run them
+/// with `spawn_blocking`).
+#[derive(Clone)]
+pub struct Store {
+    backend: Backend,
+}
+
+#[derive(Clone)]
+enum Backend {
+    Sqlite(SqliteStore),
+    Postgres(PgStore),
+}
+
+/// The same call on whichever backend the store has.
+macro_rules! on_backend {
+    ($store:expr, $b:ident => $call:expr) => {
+        match &$store.backend {
+            Backend::Sqlite($b) => $call,
+            Backend::Postgres($b) => $call,
+        }
+    };
+}
+
+impl Store {
+    /// The SQLite store in `data_dir` (created and migrated).
+    pub fn open(data_dir: &Path) -> Result<Store, StoreError> {
+        Store::open_capped(data_dir, None)
+    }
+
+    /// [`Store::open`] with the database file capped at `max_bytes`.
+    pub fn open_capped(data_dir: &Path, max_bytes: Option<u64>) -> Result<Store, StoreError> {
+        Ok(Store {
+            backend: Backend::Sqlite(SqliteStore::open_capped(data_dir, max_bytes)?),
+        })
+    }
+
+    /// The PostgreSQL store at `location` (migrated). Call within a Tokio
+    /// runtime.
+    pub async fn open_postgres(location: &PgLocation) -> Result<Store, StoreError> {
+        Ok(Store {
+            backend: Backend::Postgres(PgStore::open(location).await?),
+        })
+    }
+
+    /// A plain connection to the SQLite store in `data_dir`, for commands
+    /// that run beside a server (`tunnelnav token`, `backup`).
+    pub fn connect(data_dir: &Path) -> Result<Connection, StoreError> {
+        SqliteStore::connect(data_dir)
+    }
+
+    /// `sqlite` or `postgres`.
+    pub fn backend_name(&self) -> &'static str {
+        match self.backend {
+            Backend::Sqlite(_) => "sqlite",
+            Backend::Postgres(_) => "postgres",
+        }
+    }
+
+    /// The SQLite store, if this is one.
+    pub fn sqlite(&self) -> Option<&SqliteStore> {
+        match &self.backend {
+            Backend::Sqlite(s) => Some(s),
+            Backend::Postgres(_) => None,
+        }
+    }
+
+    /// Queues a write; its `reply` is answered after the commit.
+    pub async fn write(&self, write: Write) -> Result<(), StoreError> {
+        on_backend!(self, b => b.write(write).await)
+    }
+
+    /// Like [`Store::write`], from a blocking thread.
+    pub fn write_blocking(&self, write: Write) -> Result<(), StoreError> {
+        on_backend!(self, b => b.write_blocking(write))
+    }
+
+    /// Commits what is queued and stops writing; later writes fail with
+    /// [`StoreError::Closed`]. Reads still work.
+    pub async fn close(&self) {
+        on_backend!(self, b => b.close().await)
+    }
+
+    /// Creates or replaces a machine with a fresh engine snapshot: readings
+    /// stored before are kept but not fed to the new engines. Returns its id.
+    pub async fn put_machine(
+        &self,
+        spec: MachineSpec,
+        snapshot: String,
+    ) -> Result<i64, StoreError> {
+        on_backend!(self, b => b.put_machine(spec, snapshot).await)
+    }
+
+    /// Every stored machine, its parameters made current.
+    pub fn machines(&self) -> Result<Vec<StoredMachine>, StoreError> {
+        on_backend!(self, b => b.machines())
+    }
+
+    /// A machine's latest snapshot.
+    pub fn snapshot(&self, machine_id: i64) -> Result<Option<StoredSnapshot>, StoreError> {
+        on_backend!(self, b => b.snapshot(machine_id))
+    }
+
+    /// Calls `f` with each reading of the machine that arrived after
+    /// `after_id`, in arrival order, without holding them all in memory.
+    pub fn readings_since(
+        &self,
+        machine_id: i64,
+        after_id: i64,
+        f: impl FnMut(Reading) -> Result<(), StoreError>,
+    ) -> Result<u64, StoreError> {
+        on_backend!(self, b => b.readings_since(machine_id, after_id, f))
+    }
+
+    /// A machine's estimates of one stream in `[from_t, to_t]`, downsampled
+    /// above `max_points` keeping each bucket's extremes.
+    pub fn estimates_page(
+        &self,
+        machine_id: i64,
+        engine: StreamKind,
+        from_t: f64,
+        to_t: f64,
+        max_points: usize,
+    ) -> Result<EstimatesPage, StoreError> {
+        on_backend!(self, b => b.estimates_page(machine_id, engine, from_t, to_t, max_points))
+    }
+
+    /// Each stored reading in `[from_t, to_t]` (of one sensor, or all), in
+    /// time order, to `f` until it answers false.
+    pub fn export_readings(
+        &self,
+        machine_id: i64,
+        sensor: Option<SensorKind>,
+        from_t: f64,
+        to_t: f64,
+        f: impl FnMut(&Reading) -> bool,
+    ) -> Result<(), StoreError> {
+        on_backend!(self, b => b.export_readings(machine_id, sensor, from_t, to_t, f))
+    }
+
+    /// Each stored estimate of `engine` in `[from_t, to_t]`, in time order,
+    /// to `f` until it answers false.
+    pub fn export_estimates(
+        &self,
+        machine_id: i64,
+        engine: StreamKind,
+        from_t: f64,
+        to_t: f64,
+        f: impl FnMut(&EngineOutput) -> bool,
+    ) -> Result<(), StoreError> {
+        on_backend!(self, b => b.export_estimates(machine_id, engine, from_t, to_t, f))
+    }
+
+    /// The newest stored estimate of a stream.
+    pub fn latest_estimate(
+        &self,
+        machine_id: i64,
+        engine: StreamKind,
+    ) -> Result<Option<EngineOutput>, StoreError> {
+        on_backend!(self, b => b.latest_estimate(machine_id, engine))
+    }
+
+    /// Time of the newest stored reading of a sensor.
+    pub fn last_reading_t(
+        &self,
+        machine_id: i64,
+        sensor: SensorKind,
+    ) -> Result<Option<f64>, StoreError> {
+        on_backend!(self, b => b.last_reading_t(machine_id, sensor))
+    }
+
+    /// The alarms `filter` asks for, newest first.
+    pub fn alarms(&self, filter: &AlarmFilter) -> Result<Vec<StoredAlarm>, StoreError> {
+        on_backend!(self, b => b.alarms(filter))
+    }
+
+    /// Acknowledges alarm `id` by `by` at `t` (the first acknowledgement
+    /// stands); the alarm as it now is and whether this call acknowledged
+    /// it, or `None` if there is no such alarm. `announce` gets the
+    /// acknowledged alarm on the writer, ordered with the alarm changes
+    /// commits report.
+    pub async fn ack_alarm(
+        &self,
+        id: i64,
+        by: String,
+        t: f64,
+        announce: impl FnOnce(AlarmChange) + Send + 'static,
+    ) -> Result<Option<(StoredAlarm, bool)>, StoreError> {
+        on_backend!(self, b => b.ack_alarm(id, by, t, announce).await)
+    }
+
+    /// Bytes the store takes on disk (SQLite: the file and its log;
+    /// PostgreSQL: the database).
+    pub async fn size_bytes(&self) -> Result<u64, StoreError> {
+        match &self.backend {
+            Backend::Sqlite(s) => Ok(s.size_bytes()),
+            Backend::Postgres(p) => p.size_bytes().await,
+        }
+    }
+
+    /// The tokens in force, with their hashes.
+    pub async fn active_tokens(&self) -> Result<Vec<(String, Token)>, StoreError> {
+        match &self.backend {
+            Backend::Sqlite(s) => {
+                let s = s.clone();
+                tokio::task::spawn_blocking(move || s.active_tokens())
+                    .await
+                    .map_err(|e| StoreError::Corrupt(format!("token read: {e}")))?
+            }
+            Backend::Postgres(p) => p.active_tokens().await,
+        }
+    }
+
+    /// The steps of a retention pass of `policy` at `now_t` (blocking).
+    pub fn retention_plan(
+        &self,
+        now_t: f64,
+        policy: &Retention,
+        batch: usize,
+    ) -> Result<Vec<Step>, StoreError> {
+        match &self.backend {
+            Backend::Sqlite(s) => s.read(|conn| super::retention::plan(conn, now_t, policy, batch)),
+            Backend::Postgres(p) => p.retention_plan(now_t, policy, batch),
+        }
+    }
+
+    /// Does one step of a pass on the writer, between its group commits.
+    pub async fn retention_step(&self, step: Step) -> Result<Pruned, StoreError> {
+        match &self.backend {
+            Backend::Sqlite(s) => s.maintain(move |conn| step.apply(conn)).await,
+            Backend::Postgres(p) => p.retention_step(step).await,
+        }
+    }
+}
