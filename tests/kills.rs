@@ -1,4 +1,5 @@
-//! The real binary killed with SIGKILL 25 times at random moments while
+//! The real binary killed with SIGKILL 25 times (20 on the PostgreSQL
+//! store) at random moments while
 //! four gateways post concurrently, restarted each time on the same data
 //! dir. Each gateway resends what was not acknowledged (as a real one
 //! does). At the end: every acknowledged reading is stored exactly once,
@@ -15,7 +16,6 @@ use std::time::Duration;
 
 use common::{ServerProcess, drive, exported_readings, put_machine, replay_engine, send_ndjson};
 
-const KILLS: usize = 25;
 const MACHINES: [&str; 4] = ["k0", "k1", "k2", "k3"];
 
 /// The key of a reading line: its time and sensor.
@@ -69,6 +69,25 @@ async fn estimates_in_windows(
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn twenty_five_sigkills_under_load_lose_nothing_and_change_nothing() {
     let dir = tempfile::tempdir().unwrap();
+    sigkills_under_load(25, dir.path(), &[]).await;
+}
+
+/// The same on the PostgreSQL store (issue 37): 20 SIGKILLs of the server
+/// (PostgreSQL itself keeps running, as an office database does).
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn twenty_sigkills_under_load_on_postgres_lose_nothing_and_change_nothing() {
+    let Some(cluster) = common::postgres::PgCluster::start() else {
+        return;
+    };
+    let url = cluster.database("kills");
+    let dir = tempfile::tempdir().unwrap();
+    sigkills_under_load(20, dir.path(), &["--store", &url]).await;
+}
+
+/// `kills` SIGKILLs at random moments while four gateways post, the
+/// server started with `args` each time; then every acknowledged reading
+/// is stored once and the estimates equal replay.
+async fn sigkills_under_load(kills_wanted: usize, dir: &std::path::Path, args: &[&str]) {
     let client = reqwest::Client::new();
     let lines = Arc::new(drive(48.0, 21, vec![]));
     // How far each gateway's acknowledged readings reach (in its lines).
@@ -85,15 +104,15 @@ async fn twenty_five_sigkills_under_load_lose_nothing_and_change_nothing() {
 
     let mut kills = 0;
     let mut load_ms = 0;
-    for cycle in 0..=KILLS {
-        let server = ServerProcess::start(dir.path());
+    for cycle in 0..=kills_wanted {
+        let server = ServerProcess::start_with_args(dir, args);
         let base = server.url("");
         if cycle == 0 {
             for machine in MACHINES {
                 put_machine(&client, &base, machine).await;
             }
         }
-        if cycle == KILLS {
+        if cycle == kills_wanted {
             // The last start: check everything.
             let mut total = 0;
             for (g, machine) in MACHINES.into_iter().enumerate() {
@@ -165,7 +184,7 @@ async fn twenty_five_sigkills_under_load_lose_nothing_and_change_nothing() {
             gateway.await.unwrap();
         }
     }
-    assert_eq!(kills, KILLS);
+    assert_eq!(kills, kills_wanted);
     let reached: usize = acknowledged.iter().map(|a| a.load(Ordering::SeqCst)).sum();
     assert!(reached > 4 * 20_000, "the load ran: {reached} readings");
     assert!(reached < 4 * lines.len(), "the kills came before the end");

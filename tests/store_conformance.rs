@@ -600,6 +600,49 @@ async fn postgres_refuses_a_newer_schema_and_reports_a_refused_connection_as_tra
     let err = PgStore::open(&location).await.err().unwrap();
     assert!(matches!(err, StoreError::NewerSchema { .. }), "{err}");
 
+    // The database goes away under a running store and comes back: writes
+    // in between fail as transient (503), later ones go in.
+    let store = Store::open_postgres(&location).await;
+    assert!(matches!(store, Err(StoreError::NewerSchema { .. })));
+    client
+        .execute("UPDATE tunnelnav_schema SET version = version - 1", &[])
+        .await
+        .unwrap();
+    drop(client);
+    let store = Store::open_postgres(&location).await.unwrap();
+    let id = store
+        .put_machine(spec("tbm-gone"), "fresh".into())
+        .await
+        .unwrap();
+    cluster.stop();
+    let write = |t: f64| {
+        let store = store.clone();
+        async move {
+            let (reply, answer) = oneshot::channel();
+            store
+                .write(Write {
+                    machine_id: id,
+                    readings: vec![level(t)],
+                    estimates: vec![],
+                    alarms: vec![],
+                    snapshot: None,
+                    after_commit: None,
+                    reply: Some(reply),
+                })
+                .await
+                .unwrap();
+            answer.await.unwrap()
+        }
+    };
+    let err = write(1.0).await.unwrap_err();
+    assert!(err.is_transient(), "{err}");
+    cluster.start_again();
+    assert_eq!(write(2.0).await.unwrap().stored, 1);
+    assert_eq!(
+        read(&store, move |s| readings_since(s, id, 0)).await.len(),
+        1
+    );
+
     // Nothing listens on the cluster's port once it is stopped.
     let port = cluster.port;
     drop(cluster);

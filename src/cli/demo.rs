@@ -295,6 +295,7 @@ pub fn run(args: DemoArgs) -> Result<(), CliError> {
             .map_or(wall_clock_s(), |t| wall_clock_s().max(t + 1.0));
         let clock = Clock::accelerated(args.rate, start_t).map_err(CliError::Scenario)?;
         let options = ServerOptions {
+            postgres: None,
             data_dir: args.data_dir.clone(),
             machines,
             limits: Limits::default(),

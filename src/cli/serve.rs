@@ -21,6 +21,14 @@ pub struct ServeArgs {
     /// Directory holding the database (created if missing).
     #[arg(long, env = "TUNNELNAV_DATA_DIR", default_value = "data")]
     pub data_dir: PathBuf,
+    /// The PostgreSQL store, `postgres://USER@HOST:PORT/DB`, instead of
+    /// SQLite in --data-dir (also the config file's `[store] url`).
+    #[arg(long, env = "TUNNELNAV_STORE", value_name = "URL")]
+    pub store: Option<String>,
+    /// A file whose first line is the store's password (also `[store]
+    /// password_file`).
+    #[arg(long, env = "TUNNELNAV_STORE_PASSWORD_FILE", value_name = "FILE")]
+    pub store_password_file: Option<PathBuf>,
     /// TOML file declaring machines, webhooks and limits (docs/operations.md).
     #[arg(long, env = "TUNNELNAV_CONFIG")]
     pub config: Option<PathBuf>,
@@ -84,12 +92,18 @@ pub fn run(args: ServeArgs) -> Result<(), CliError> {
         limits.max_database_bytes = Some(crate::server::settings::database_cap_bytes(mb)?);
     }
     let mqtt = mqtt_settings(args.mqtt.as_deref(), &settings.mqtt)?;
+    let postgres = crate::server::settings::store_location(
+        args.store.as_deref(),
+        args.store_password_file.as_deref(),
+        &settings.store,
+    )?;
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()?;
     runtime.block_on(async {
         let options = ServerOptions {
             data_dir: args.data_dir.clone(),
+            postgres,
             machines: settings.machines,
             limits,
             clock: Clock::system(),
@@ -133,17 +147,20 @@ pub async fn start(
 ) -> Result<(SharedState, tokio::net::TcpListener), CliError> {
     server::metrics::install();
     let data_dir = options.data_dir.clone();
+    let where_tokens = match &options.postgres {
+        Some(location) => format!("--store {}", location.url),
+        None => format!("--data-dir {}", data_dir.display()),
+    };
+    let state = AppState::start(options).await?;
     if !listen.ip().is_loopback() {
-        let conn = crate::store::Store::connect(&data_dir)?;
-        let tokens = crate::auth::active(&conn)?;
+        let tokens = state.store.active_tokens().await?;
         if tokens.is_empty() && !allow_no_auth {
             return Err(CliError::Refused(format!(
                 "refusing to serve on {listen} without access tokens: anyone who can reach \
                  the port could read, post readings and declare machines. Create tokens \
-                 (`tunnelnav token create --data-dir {} --scope admin`, one `--scope ingest \
+                 (`tunnelnav token create {where_tokens} --scope admin`, one `--scope ingest \
                  --machine ID` per gateway), serve on 127.0.0.1 behind a reverse proxy, or pass \
-                 --allow-no-auth to serve openly anyway",
-                data_dir.display()
+                 --allow-no-auth to serve openly anyway"
             )));
         }
         if tokens.is_empty() {
@@ -153,7 +170,6 @@ pub async fn start(
             );
         }
     }
-    let state = AppState::start(options).await?;
     if !listen.ip().is_loopback() && !allow_no_auth {
         state.gate.insist();
     }
@@ -164,7 +180,7 @@ pub async fn start(
             source,
         })?;
     let address = listener.local_addr()?;
-    tracing::info!(%address, data_dir = %data_dir.display(), "tunnelnav serving");
+    tracing::info!(%address, data_dir = %data_dir.display(), store = state.store.backend_name(), "tunnelnav serving");
     println!("listening on http://{address}");
     Ok((state, listener))
 }

@@ -1,6 +1,6 @@
-//! `tunnelnav token create|list|revoke --data-dir DIR`: access tokens,
-//! stored hashed in the server's database (a running server picks changes
-//! up within 2 s).
+//! `tunnelnav token create|list|revoke --data-dir DIR | --store URL`:
+//! access tokens, stored hashed in the server's database (a running server
+//! picks changes up within 2 s).
 
 use std::path::PathBuf;
 
@@ -10,6 +10,7 @@ use super::CliError;
 use crate::auth::{self, Scope};
 use crate::clock::wall_clock_s;
 use crate::store::Store;
+use crate::store::postgres::PgStore;
 
 #[derive(Debug, Subcommand)]
 pub enum TokenCommand {
@@ -23,9 +24,72 @@ pub enum TokenCommand {
 
 #[derive(Debug, Args)]
 pub struct DataDir {
-    /// The server's data directory.
+    /// The server's data directory (its SQLite store).
     #[arg(long, default_value = "data")]
     pub data_dir: PathBuf,
+    /// The server's PostgreSQL store instead, `postgres://USER@HOST:PORT/DB`.
+    #[arg(long, env = "TUNNELNAV_STORE", value_name = "URL")]
+    pub store: Option<String>,
+    /// A file whose first line is the store's password.
+    #[arg(long, env = "TUNNELNAV_STORE_PASSWORD_FILE", value_name = "FILE")]
+    pub store_password_file: Option<PathBuf>,
+}
+
+/// Where the tokens are: the SQLite file (a plain connection beside a
+/// running server) or the PostgreSQL store.
+enum Tokens {
+    Sqlite(rusqlite::Connection),
+    Postgres(PgStore, tokio::runtime::Runtime),
+}
+
+impl Tokens {
+    fn open(dir: &DataDir) -> Result<Tokens, CliError> {
+        let location = crate::server::settings::store_location(
+            dir.store.as_deref(),
+            dir.store_password_file.as_deref(),
+            &Default::default(),
+        )?;
+        Ok(match location {
+            None => Tokens::Sqlite(Store::connect(&dir.data_dir)?),
+            Some(location) => {
+                let runtime = tokio::runtime::Builder::new_current_thread()
+                    .enable_all()
+                    .build()?;
+                let store = runtime.block_on(PgStore::open(&location))?;
+                Tokens::Postgres(store, runtime)
+            }
+        })
+    }
+
+    fn create(
+        &self,
+        name: &str,
+        scope: Scope,
+        machine: Option<&str>,
+    ) -> Result<(i64, String), CliError> {
+        let now = wall_clock_s();
+        Ok(match self {
+            Tokens::Sqlite(conn) => auth::create(conn, name, scope, machine, now)?,
+            Tokens::Postgres(store, runtime) => {
+                runtime.block_on(store.create_token(name, scope, machine, now))?
+            }
+        })
+    }
+
+    fn list(&self) -> Result<Vec<auth::Token>, CliError> {
+        Ok(match self {
+            Tokens::Sqlite(conn) => auth::list(conn)?,
+            Tokens::Postgres(store, runtime) => runtime.block_on(store.tokens())?,
+        })
+    }
+
+    fn revoke(&self, id: i64) -> Result<auth::Token, CliError> {
+        let now = wall_clock_s();
+        Ok(match self {
+            Tokens::Sqlite(conn) => auth::revoke(conn, id, now)?,
+            Tokens::Postgres(store, runtime) => runtime.block_on(store.revoke_token(id, now))?,
+        })
+    }
 }
 
 #[derive(Debug, Args)]
@@ -58,7 +122,7 @@ fn parse_scope(text: &str) -> Result<Scope, String> {
 pub fn run(command: TokenCommand) -> Result<(), CliError> {
     match command {
         TokenCommand::Create(args) => {
-            let conn = Store::connect(&args.dir.data_dir)?;
+            let tokens = Tokens::open(&args.dir)?;
             let name = if args.name.is_empty() {
                 match &args.machine {
                     Some(machine) => format!("{} {machine}", args.scope.as_str()),
@@ -67,13 +131,7 @@ pub fn run(command: TokenCommand) -> Result<(), CliError> {
             } else {
                 args.name.clone()
             };
-            let (id, token) = auth::create(
-                &conn,
-                &name,
-                args.scope,
-                args.machine.as_deref(),
-                wall_clock_s(),
-            )?;
+            let (id, token) = tokens.create(&name, args.scope, args.machine.as_deref())?;
             eprintln!(
                 "token {id} `{name}` ({}) created; it is shown only now:",
                 args.scope.as_str()
@@ -82,12 +140,12 @@ pub fn run(command: TokenCommand) -> Result<(), CliError> {
             Ok(())
         }
         TokenCommand::List(dir) => {
-            let conn = Store::connect(&dir.data_dir)?;
+            let tokens = Tokens::open(&dir)?;
             println!(
                 "{:>4}  {:<8} {:<20} {:<24} state",
                 "id", "scope", "machine", "name"
             );
-            for t in auth::list(&conn)? {
+            for t in tokens.list()? {
                 println!(
                     "{:>4}  {:<8} {:<20} {:<24} {}",
                     t.id,
@@ -104,8 +162,7 @@ pub fn run(command: TokenCommand) -> Result<(), CliError> {
             Ok(())
         }
         TokenCommand::Revoke(args) => {
-            let conn = Store::connect(&args.dir.data_dir)?;
-            let token = auth::revoke(&conn, args.id, wall_clock_s())?;
+            let token = Tokens::open(&args.dir)?.revoke(args.id)?;
             eprintln!("token {} `{}` revoked", token.id, token.name);
             Ok(())
         }

@@ -376,6 +376,45 @@ impl LimitsConfig {
     }
 }
 
+/// `[store]` of the config file: the PostgreSQL store instead of SQLite in
+/// the data dir (docs/operations.md, "PostgreSQL"). `serve --store URL`
+/// (`TUNNELNAV_STORE`) names it instead of `url`.
+#[derive(Debug, Clone, Default, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StoreConfig {
+    /// `postgres://USER@HOST:PORT/DB`.
+    pub url: Option<String>,
+    /// A file holding the password (its first line), kept out of the URL
+    /// and the process list.
+    pub password_file: Option<PathBuf>,
+}
+
+/// Where the store is: PostgreSQL if `url` (a flag, else the config
+/// file's `[store] url`) names it, else `None` (SQLite in the data dir).
+pub fn store_location(
+    url: Option<&str>,
+    password_file: Option<&Path>,
+    config: &StoreConfig,
+) -> Result<Option<crate::store::postgres::PgLocation>, ConfigError> {
+    let Some(url) = url.or(config.url.as_deref()) else {
+        return Ok(None);
+    };
+    if !(url.starts_with("postgres://") || url.starts_with("postgresql://")) {
+        return Err(ConfigError::File {
+            path: String::new(),
+            reason: format!(
+                "store `{url}`: expected postgres://USER@HOST:PORT/DB (SQLite, the default, needs no URL: it lives in --data-dir)"
+            ),
+        });
+    }
+    Ok(Some(crate::store::postgres::PgLocation {
+        url: url.to_string(),
+        password_file: password_file
+            .map(Path::to_path_buf)
+            .or_else(|| config.password_file.clone()),
+    }))
+}
+
 /// `[mqtt]` of the config file: the broker and how to reach it
 /// (docs/operations.md, "MQTT"). `serve --mqtt URL` (`TUNNELNAV_MQTT`)
 /// names the broker instead of `url`; the rest applies either way.
@@ -498,6 +537,9 @@ pub struct ServerConfig {
     /// The MQTT broker (`[mqtt]`), if any.
     #[serde(default)]
     pub mqtt: MqttConfig,
+    /// The PostgreSQL store (`[store]`), if any.
+    #[serde(default)]
+    pub store: StoreConfig,
 }
 
 /// A config file, validated.
@@ -510,6 +552,8 @@ pub struct ServerSettings {
     /// `[mqtt]`, its rate checked; the rest is checked when the broker's
     /// connection is set up (`server::mqtt::settings`).
     pub mqtt: MqttConfig,
+    /// `[store]`.
+    pub store: StoreConfig,
 }
 
 impl ServerConfig {
@@ -554,6 +598,7 @@ impl ServerConfig {
             webhooks: config.webhooks,
             limits,
             mqtt: config.mqtt,
+            store: config.store,
         })
     }
 }

@@ -21,6 +21,8 @@ use crate::store::{Store, StoreError};
 #[derive(Debug, Clone)]
 pub struct ServerOptions {
     pub data_dir: PathBuf,
+    /// The PostgreSQL store; `None`: SQLite in `data_dir`.
+    pub postgres: Option<crate::store::postgres::PgLocation>,
     /// Machines declared by the config file: created, or replaced where the
     /// stored declaration differs.
     pub machines: Vec<MachineSpec>,
@@ -83,7 +85,10 @@ impl AppState {
     /// Opens the store, applies the configured machines, restores every
     /// machine from its snapshot and starts their tasks.
     pub async fn start(options: ServerOptions) -> Result<SharedState, ServerError> {
-        let store = Store::open_capped(&options.data_dir, options.limits.max_database_bytes)?;
+        let store = match &options.postgres {
+            Some(location) => Store::open_postgres(location).await?,
+            None => Store::open_capped(&options.data_dir, options.limits.max_database_bytes)?,
+        };
         let stored = {
             let store = store.clone();
             tokio::task::spawn_blocking(move || store.machines())

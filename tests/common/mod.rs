@@ -56,6 +56,7 @@ impl TestServer {
     ) -> TestServer {
         server::metrics::install();
         let state = AppState::start(ServerOptions {
+            postgres: None,
             data_dir: data_dir.to_path_buf(),
             machines: Vec::new(),
             limits,

@@ -14,6 +14,8 @@ pub struct PgCluster {
     bin: PathBuf,
     pub port: u16,
     run_as_postgres: bool,
+    /// The server's options (`pg_ctl -o`).
+    options: String,
 }
 
 /// Where PostgreSQL's programs are: `TUNNELNAV_PG_BIN`, else the newest
@@ -84,11 +86,16 @@ impl PgCluster {
             .local_addr()
             .unwrap()
             .port();
+        let options = format!(
+            "-p {port} -k {} -c listen_addresses=127.0.0.1 -c fsync=off -c max_connections=200",
+            dir.path().display()
+        );
         let cluster = PgCluster {
             dir,
             bin,
             port,
             run_as_postgres,
+            options,
         };
         let data = cluster.data_dir();
         cluster.run(
@@ -106,24 +113,7 @@ impl PgCluster {
                 "--no-instructions",
             ],
         );
-        let options = format!(
-            "-p {port} -k {} -c listen_addresses=127.0.0.1 -c fsync=off -c max_connections=200",
-            cluster.dir.path().display()
-        );
-        let log = cluster.dir.path().join("log");
-        cluster.run(
-            "pg_ctl",
-            &[
-                "-D",
-                data.to_str().unwrap(),
-                "-o",
-                &options,
-                "-l",
-                log.to_str().unwrap(),
-                "-w",
-                "start",
-            ],
-        );
+        cluster.start_again();
         Some(cluster)
     }
 
@@ -155,6 +145,34 @@ impl PgCluster {
             "{program} failed: {}{}",
             String::from_utf8_lossy(&out.stdout),
             String::from_utf8_lossy(&out.stderr)
+        );
+    }
+
+    /// Stops the server (fast shutdown: connections are cut).
+    pub fn stop(&self) {
+        let data = self.data_dir();
+        self.run(
+            "pg_ctl",
+            &["-D", data.to_str().unwrap(), "-m", "fast", "-w", "stop"],
+        );
+    }
+
+    /// Starts the (stopped) server, on its port.
+    pub fn start_again(&self) {
+        let data = self.data_dir();
+        let log = self.dir.path().join("log");
+        self.run(
+            "pg_ctl",
+            &[
+                "-D",
+                data.to_str().unwrap(),
+                "-o",
+                &self.options,
+                "-l",
+                log.to_str().unwrap(),
+                "-w",
+                "start",
+            ],
         );
     }
 

@@ -93,6 +93,7 @@ impl PgStore {
         schema::migrate(&mut migrator).await?;
         drop(migrator);
         let writer_client = connect(&config).await?;
+        let writer_config = config.clone();
         let manager = Manager::from_config(
             config,
             NoTls,
@@ -105,7 +106,7 @@ impl PgStore {
             .build()
             .map_err(|e| StoreError::Location(e.to_string()))?;
         let (requests, queue) = mpsc::channel(QUEUE_LEN);
-        tokio::spawn(writer::writer(writer_client, queue));
+        tokio::spawn(writer::writer(writer_client, writer_config, queue));
         Ok(PgStore {
             requests,
             readers,

@@ -21,8 +21,15 @@ pub(super) type Job =
     Box<dyn for<'c> FnOnce(&'c mut Client) -> futures_util::future::BoxFuture<'c, ()> + Send>;
 
 /// The writer task: takes every waiting request, commits them together,
-/// then answers each. Ends when closed or when every handle is gone.
-pub(super) async fn writer(mut client: Client, mut queue: mpsc::Receiver<Queued<Job>>) {
+/// then answers each. A lost connection is made again (with `config`)
+/// before the next group; while it cannot be, each group is answered
+/// with the reason (transient: the server answers 503). Ends when closed
+/// or when every handle is gone.
+pub(super) async fn writer(
+    mut client: Client,
+    config: tokio_postgres::Config,
+    mut queue: mpsc::Receiver<Queued<Job>>,
+) {
     let mut partitions = match schema::partitions(&client).await {
         Ok(found) => found.into_iter().collect::<BTreeSet<_>>(),
         Err(e) => {
@@ -47,6 +54,26 @@ pub(super) async fn writer(mut client: Client, mut queue: mpsc::Receiver<Queued<
                     if group.len() < MAX_GROUP {
                         next = queue.try_recv().ok();
                     }
+                }
+            }
+        }
+        if client.is_closed() {
+            match super::connect(&config).await {
+                Ok(fresh) => {
+                    tracing::info!("PostgreSQL connection made again");
+                    client = fresh;
+                }
+                Err(e) => {
+                    tracing::warn!(error = %e, "PostgreSQL unreachable");
+                    for request in group.drain(..) {
+                        answer(request, Err(StoreError::Unavailable(e.to_string())));
+                    }
+                    // A job runs on the closed connection and fails with
+                    // it (transient), answering its caller.
+                    if let Some(job) = job {
+                        job(&mut client).await;
+                    }
+                    continue;
                 }
             }
         }
