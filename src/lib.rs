@@ -15,8 +15,10 @@
 //!   `[machines]`), validated.
 //! - [`clock`]: the service's clock (possibly accelerated, in the demo).
 //! - [`auth`]: access tokens, hashed in the store.
-//! - [`store`]: the SQLite store; one writer thread with group commit,
-//!   pooled readers.
+//! - [`store`]: one `Store` over two backends, SQLite (the default: one
+//!   writer thread with group commit, pooled readers) and PostgreSQL
+//!   (`store::postgres`: a writer task with the same group commit, day
+//!   partitions, `tunnelnav migrate`).
 //! - [`machine`]: one task per machine owning its engines; the only bridge
 //!   from async code to the fusion core. It hands committed alarm changes
 //!   to a [`machine::AlarmSink`] it defines.

@@ -113,6 +113,24 @@ async fn tokens_made_on_postgres_guard_a_server_on_postgres() {
         "nothing written to the data dir"
     );
 
+    // Tokens are managed beside a running server: within the gate's 2 s
+    // refresh a new one is honoured and a revoked one refused (another
+    // stays in force, so the gate does not open for want of tokens).
+    let (mut child, base) = spawn_serving(
+        tunnelnav()
+            .args(["serve", "--listen", "127.0.0.1:0", "--config"])
+            .arg(&config)
+            .arg("--data-dir")
+            .arg(empty.path()),
+    );
+    let out = tunnelnav()
+        .args([
+            "token", "create", "--store", &url, "--scope", "read", "--name", "night",
+        ])
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let night = String::from_utf8_lossy(&out.stdout).trim().to_string();
     let revoked = tunnelnav()
         .args(["token", "revoke", "--store", &url, "1"])
         .output()
@@ -122,4 +140,147 @@ async fn tokens_made_on_postgres_guard_a_server_on_postgres() {
         "{}",
         String::from_utf8_lossy(&revoked.stderr)
     );
+    tokio::time::sleep(std::time::Duration::from_millis(2500)).await;
+    let refused = client
+        .get(format!("{base}/api/v1/machines/tbm-pg"))
+        .bearer_auth(&token)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(refused.status(), 401);
+    let honoured = client
+        .get(format!("{base}/api/v1/machines/tbm-pg"))
+        .bearer_auth(&night)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(honoured.status(), 200);
+
+    // One server writes a database: a second is refused, saying why.
+    let second = tunnelnav()
+        .args([
+            "serve",
+            "--listen",
+            "127.0.0.1:0",
+            "--store",
+            &url,
+            "--data-dir",
+        ])
+        .arg(empty.path())
+        .output()
+        .unwrap();
+    assert!(!second.status.success());
+    let said = String::from_utf8_lossy(&second.stderr);
+    assert!(said.contains("another tunnelnav server writing"), "{said}");
+    child.kill().unwrap();
+    child.wait().unwrap();
+}
+
+/// A site's SQLite store moved into PostgreSQL by `tunnelnav migrate`:
+/// every table verified; the office then serves the same readings and
+/// estimates, honours the site's token, and carries the machine on exactly
+/// (its estimates equal `replay` of everything stored); a second migration
+/// into the now full database is refused.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_site_moves_to_postgres_whole_and_verified() {
+    let Some(cluster) = PgCluster::start() else {
+        return;
+    };
+    let url = cluster.database("moved");
+    let site = tempfile::tempdir().unwrap();
+    let client = reqwest::Client::new();
+    let lines = drive(2.0, 5, vec![]);
+    let (at_site, at_office) = lines.split_at(lines.len() * 7 / 10);
+
+    let server = ServerProcess::start(site.path());
+    let base = server.url("");
+    put_machine(&client, &base, "tbm-site").await;
+    let sent = send_ndjson(&client, &base, "tbm-site", at_site)
+        .await
+        .unwrap();
+    assert_eq!(sent.status(), 200);
+    let readings_before = common::exported_readings(&client, &base, "tbm-site").await;
+    let estimates_before = common::all_estimates(&client, &base, "tbm-site").await;
+    assert!(!estimates_before.is_empty());
+    server.terminate();
+    let made = tunnelnav()
+        .args([
+            "token",
+            "create",
+            "--scope",
+            "admin",
+            "--name",
+            "site admin",
+            "--data-dir",
+        ])
+        .arg(site.path())
+        .output()
+        .unwrap();
+    assert!(made.status.success());
+    let token = String::from_utf8_lossy(&made.stdout).trim().to_string();
+
+    let moved = tunnelnav()
+        .args(["migrate", "--to", &url, "--from"])
+        .arg(site.path())
+        .output()
+        .unwrap();
+    let report = String::from_utf8_lossy(&moved.stdout);
+    assert!(
+        moved.status.success(),
+        "{}",
+        String::from_utf8_lossy(&moved.stderr)
+    );
+    let rows = |table: &str| -> u64 {
+        report
+            .lines()
+            .find(|l| l.starts_with(&format!("{table} ")))
+            .and_then(|l| l.split_whitespace().nth(1))
+            .and_then(|n| n.parse().ok())
+            .unwrap_or_else(|| panic!("{table} in {report}"))
+    };
+    assert_eq!(rows("machines"), 1);
+    assert_eq!(rows("readings"), readings_before.len() as u64);
+    assert_eq!(rows("estimates"), estimates_before.len() as u64);
+    assert_eq!(rows("tokens"), 1);
+
+    // The office: the site's token, the same history, and on from there.
+    let office = tempfile::tempdir().unwrap();
+    let server = ServerProcess::start_with_args(office.path(), &["--store", &url]);
+    let base = server.url("");
+    let mut headers = reqwest::header::HeaderMap::new();
+    headers.insert(
+        reqwest::header::AUTHORIZATION,
+        format!("Bearer {token}").parse().unwrap(),
+    );
+    let authed = reqwest::Client::builder()
+        .default_headers(headers)
+        .build()
+        .unwrap();
+    assert_eq!(
+        common::exported_readings(&authed, &base, "tbm-site").await,
+        readings_before
+    );
+    assert_eq!(
+        common::all_estimates(&authed, &base, "tbm-site").await,
+        estimates_before
+    );
+    let sent = send_ndjson(&authed, &base, "tbm-site", at_office)
+        .await
+        .unwrap();
+    assert_eq!(sent.status(), 200);
+    let stored = common::exported_readings(&authed, &base, "tbm-site").await;
+    assert_eq!(stored.len(), lines.len());
+    let served = common::all_estimates(&authed, &base, "tbm-site").await;
+    assert_eq!(served, common::replay("tbm-site", &stored));
+    server.terminate();
+
+    // Into a database that holds machines: refused.
+    let again = tunnelnav()
+        .args(["migrate", "--to", &url, "--from"])
+        .arg(site.path())
+        .output()
+        .unwrap();
+    assert!(!again.status.success());
+    let said = String::from_utf8_lossy(&again.stderr);
+    assert!(said.contains("holds 1 machines already"), "{said}");
 }

@@ -532,6 +532,11 @@ async fn retention(store: Store) -> Vec<String> {
     assert_eq!(pruned.readings, 36);
     let left = read(&store, move |s| readings_since(s, id, 0)).await;
     assert_eq!(left.len(), 3 * 24 + 24 - 36);
+    let left = left.clone();
+    // A pruned reading resent is stored again (PostgreSQL: its day's
+    // partition made anew), as a late one.
+    let (outcome, _) = commit(&store, id, vec![level(day)], vec![], vec![], None).await;
+    assert_eq!(outcome.stored, 1);
     // Thinned to one a minute: 1440 of day 1's 12,343.
     let estimates = read(&store, move |s| {
         export_estimates(s, id, 0.0, 10.0 * day, usize::MAX)

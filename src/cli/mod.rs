@@ -4,6 +4,7 @@ pub mod backup;
 pub mod demo;
 pub mod eval;
 pub mod load;
+pub mod migrate;
 pub mod params;
 pub mod replay;
 pub mod serve;
@@ -43,6 +44,8 @@ pub enum Command {
     /// Access tokens: create, list, revoke.
     #[command(subcommand)]
     Token(token::TokenCommand),
+    /// Move a site's SQLite store into an empty PostgreSQL database, verified.
+    Migrate(migrate::MigrateArgs),
 }
 
 /// Why a command failed.
@@ -93,5 +96,6 @@ pub fn run(cli: Cli) -> Result<(), CliError> {
         Command::Demo(args) => demo::run(args),
         Command::Token(command) => token::run(command),
         Command::Backup(args) => backup::run(args),
+        Command::Migrate(args) => migrate::run(args),
     }
 }

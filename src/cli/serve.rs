@@ -148,7 +148,7 @@ pub async fn start(
     server::metrics::install();
     let data_dir = options.data_dir.clone();
     let where_tokens = match &options.postgres {
-        Some(location) => format!("--store {}", location.url),
+        Some(location) => format!("--store {}", location.redacted_url()),
         None => format!("--data-dir {}", data_dir.display()),
     };
     let state = AppState::start(options).await?;

@@ -55,7 +55,7 @@ impl Tokens {
                 let runtime = tokio::runtime::Builder::new_current_thread()
                     .enable_all()
                     .build()?;
-                let store = runtime.block_on(PgStore::open(&location))?;
+                let store = runtime.block_on(PgStore::open_client(&location))?;
                 Tokens::Postgres(store, runtime)
             }
         })

@@ -395,17 +395,15 @@ pub fn store_location(
     url: Option<&str>,
     password_file: Option<&Path>,
     config: &StoreConfig,
-) -> Result<Option<crate::store::postgres::PgLocation>, ConfigError> {
+) -> Result<Option<crate::store::postgres::PgLocation>, crate::store::StoreError> {
     let Some(url) = url.or(config.url.as_deref()) else {
         return Ok(None);
     };
     if !(url.starts_with("postgres://") || url.starts_with("postgresql://")) {
-        return Err(ConfigError::File {
-            path: String::new(),
-            reason: format!(
-                "store `{url}`: expected postgres://USER@HOST:PORT/DB (SQLite, the default, needs no URL: it lives in --data-dir)"
-            ),
-        });
+        return Err(crate::store::StoreError::Location(format!(
+            "`{}` is not PostgreSQL's: expected postgres://USER@HOST:PORT/DB (SQLite, the default, needs no URL: it lives in --data-dir)",
+            crate::store::postgres::redacted(url)
+        )));
     }
     Ok(Some(crate::store::postgres::PgLocation {
         url: url.to_string(),

@@ -31,8 +31,11 @@ pub enum StoreError {
 fn postgres_transient(e: &tokio_postgres::Error) -> bool {
     use tokio_postgres::error::SqlState;
     let Some(code) = e.code() else {
-        // No SQLSTATE: the connection itself (refused, reset, closed).
-        return true;
+        // No SQLSTATE: the connection closed, or an I/O failure reaching
+        // the server (refused, reset, timed out); not a client-side error
+        // (a type that does not convert, a row count) that would fail again.
+        return e.is_closed()
+            || std::error::Error::source(e).is_some_and(|s| s.is::<std::io::Error>());
     };
     let class = &code.code()[..2];
     // 08: connection exception; 53: insufficient resources (disk full,

@@ -11,6 +11,7 @@
 //! opened on. This first step stores and reads what a machine needs to
 //! run and restart; the rest of the store's operations follow.
 
+pub mod migrate;
 mod schema;
 mod writer;
 
@@ -34,6 +35,8 @@ use crate::fusion::{EngineOutput, Reading, SensorKind, StreamKind};
 
 /// Connections the read pool keeps.
 const READERS: usize = 4;
+/// How long a starting server waits for a previous writer's lock.
+const WRITER_LOCK_WAIT: std::time::Duration = std::time::Duration::from_secs(10);
 
 /// Where the office database is: a `postgres://USER@HOST:PORT/DB` URL and,
 /// if the password is not in it, the file holding it.
@@ -44,6 +47,11 @@ pub struct PgLocation {
 }
 
 impl PgLocation {
+    /// The URL without its password, for messages.
+    pub fn redacted_url(&self) -> String {
+        redacted(&self.url)
+    }
+
     /// The driver's configuration: the URL parsed, the password read.
     fn config(&self) -> Result<tokio_postgres::Config, StoreError> {
         let mut config = tokio_postgres::Config::from_str(&self.url)
@@ -52,18 +60,26 @@ impl PgLocation {
             config.password(read_password(file)?);
         }
         config.application_name("tunnelnav");
+        // A host that drops packets is given up on, not waited for.
+        config.connect_timeout(std::time::Duration::from_secs(10));
+        config.keepalives_idle(std::time::Duration::from_secs(30));
+        config.tcp_user_timeout(std::time::Duration::from_secs(30));
         Ok(config)
     }
 }
 
-/// The URL without its password, for messages.
-fn redacted(url: &str) -> String {
-    match url::Url::parse(url) {
-        Ok(mut parsed) if parsed.password().is_some() => {
-            let _ = parsed.set_password(Some("***"));
-            parsed.to_string()
-        }
-        _ => url.to_string(),
+/// The URL without its password, for messages (also a URL that does not
+/// parse: whatever stands between `user:` and `@` is hidden).
+pub fn redacted(url: &str) -> String {
+    let Some((scheme, rest)) = url.split_once("://") else {
+        return url.to_string();
+    };
+    match rest.rsplit_once('@') {
+        Some((userinfo, host)) => match userinfo.split_once(':') {
+            Some((user, _)) => format!("{scheme}://{user}:***@{host}"),
+            None => url.to_string(),
+        },
+        None => url.to_string(),
     }
 }
 
@@ -93,23 +109,43 @@ impl PgStore {
         schema::migrate(&mut migrator).await?;
         drop(migrator);
         let writer_client = connect(&config).await?;
+        // A server killed a moment ago may still hold it: PostgreSQL ends
+        // its session when it sees the socket close.
+        let mut waited = std::time::Duration::ZERO;
+        while !writer::hold_writer_lock(&writer_client).await? {
+            if waited >= WRITER_LOCK_WAIT {
+                return Err(StoreError::Location(
+                    "has another tunnelnav server writing to it: run one server per database \
+                     (several nodes on one database are not supported yet)"
+                        .into(),
+                ));
+            }
+            tokio::time::sleep(std::time::Duration::from_millis(250)).await;
+            waited += std::time::Duration::from_millis(250);
+        }
         let writer_config = config.clone();
-        let manager = Manager::from_config(
-            config,
-            NoTls,
-            ManagerConfig {
-                recycling_method: RecyclingMethod::Fast,
-            },
-        );
-        let readers = Pool::builder(manager)
-            .max_size(READERS)
-            .build()
-            .map_err(|e| StoreError::Location(e.to_string()))?;
+        let readers = pool(config)?;
         let (requests, queue) = mpsc::channel(QUEUE_LEN);
         tokio::spawn(writer::writer(writer_client, writer_config, queue));
         Ok(PgStore {
             requests,
             readers,
+            runtime: tokio::runtime::Handle::current(),
+        })
+    }
+
+    /// The database at `location` for commands beside a running server
+    /// (`tunnelnav token`): its schema brought current and a read pool, no
+    /// writer (writes fail with [`StoreError::Closed`]).
+    pub async fn open_client(location: &PgLocation) -> Result<PgStore, StoreError> {
+        let config = location.config()?;
+        let mut migrator = connect(&config).await?;
+        schema::migrate(&mut migrator).await?;
+        drop(migrator);
+        let (requests, _) = mpsc::channel(1);
+        Ok(PgStore {
+            requests,
+            readers: pool(config)?,
             runtime: tokio::runtime::Handle::current(),
         })
     }
@@ -325,11 +361,12 @@ impl PgStore {
         to_t: f64,
         mut f: impl FnMut(&Reading) -> bool,
     ) -> Result<(), StoreError> {
-        let client = self.reader()?;
         let sensor = sensor.map(|s| s as i16);
         // Resume after the last (t, sensor) sent.
         let mut after: (f64, i16) = (f64::NEG_INFINITY, -1);
         loop {
+            // A connection per batch: a slow reader holds none between them.
+            let client = self.reader()?;
             let rows = self.runtime.block_on(client.query(
                 "SELECT t, sensor, body FROM readings WHERE machine_id = $1 AND t >= $2 \
                  AND t <= $3 AND ($4::int2 IS NULL OR sensor = $4) AND (t, sensor) > ($5, $6) \
@@ -344,6 +381,7 @@ impl PgStore {
                     &EXPORT_BATCH,
                 ],
             ))?;
+            drop(client);
             for row in &rows {
                 after = (row.get(0), row.get(1));
                 if !f(&reading(row.get(0), row.get(1), row.get(2))?) {
@@ -366,9 +404,9 @@ impl PgStore {
         to_t: f64,
         mut f: impl FnMut(&EngineOutput) -> bool,
     ) -> Result<(), StoreError> {
-        let client = self.reader()?;
         let mut after = f64::NEG_INFINITY;
         loop {
+            let client = self.reader()?;
             let rows = self.runtime.block_on(client.query(
                 "SELECT t, body, codec FROM estimates WHERE machine_id = $1 AND engine = $2 \
                  AND t >= $3 AND t <= $4 AND t > $5 ORDER BY t LIMIT $6",
@@ -381,6 +419,7 @@ impl PgStore {
                     &EXPORT_BATCH,
                 ],
             ))?;
+            drop(client);
             for row in &rows {
                 let estimate = output(engine, row)?;
                 after = estimate.t;
@@ -614,13 +653,14 @@ async fn apply_step(client: &mut tokio_postgres::Client, step: Step) -> Result<P
             }
             // Then what is left, a batch at a time.
             readings += client
-                    .execute(
-                        "DELETE FROM readings WHERE id IN ( \
-                         SELECT r.id FROM readings r JOIN snapshots s ON s.machine_id = r.machine_id \
+                .execute(
+                    "DELETE FROM readings WHERE t < $1 AND (machine_id, id) IN ( \
+                         SELECT r.machine_id, r.id FROM readings r \
+                         JOIN snapshots s ON s.machine_id = r.machine_id \
                          WHERE r.t < $1 AND r.id <= s.last_reading_id LIMIT $2)",
-                        &[&cut, &(batch as i64)],
-                    )
-                    .await?;
+                    &[&cut, &(batch as i64)],
+                )
+                .await?;
             Ok(Pruned {
                 readings,
                 estimates: 0,
@@ -800,9 +840,35 @@ async fn alarm_by_id(
         .map(|row| writer::stored_alarm(&row)))
 }
 
-/// A connection, its driver task spawned on the current runtime.
+/// The pool of reading connections.
+fn pool(config: tokio_postgres::Config) -> Result<Pool, StoreError> {
+    let manager = Manager::from_config(
+        config,
+        NoTls,
+        ManagerConfig {
+            recycling_method: RecyclingMethod::Fast,
+        },
+    );
+    Pool::builder(manager)
+        .max_size(READERS)
+        .runtime(deadpool_postgres::Runtime::Tokio1)
+        .wait_timeout(Some(std::time::Duration::from_secs(10)))
+        .create_timeout(Some(std::time::Duration::from_secs(10)))
+        .build()
+        .map_err(|e| StoreError::Location(e.to_string()))
+}
+
+/// A connection, its driver task spawned on the current runtime. Not
+/// reaching the server (refused, timed out) is [`StoreError::Unavailable`];
+/// what the server answers (a wrong password, no such database) is its error.
 async fn connect(config: &tokio_postgres::Config) -> Result<tokio_postgres::Client, StoreError> {
-    let (client, connection) = config.connect(NoTls).await?;
+    let (client, connection) = config.connect(NoTls).await.map_err(|e| {
+        if e.code().is_some() {
+            StoreError::Postgres(e)
+        } else {
+            StoreError::Unavailable(format!("cannot reach PostgreSQL: {e}"))
+        }
+    })?;
     tokio::spawn(async move {
         if let Err(e) = connection.await {
             tracing::warn!(error = %e, "PostgreSQL connection ended");

@@ -166,7 +166,11 @@ pub fn partition(table: &str, t: f64) -> (i64, String) {
 }
 
 /// Makes the partition of `table` for `day` if no node has made it yet.
-pub async fn create_partition(client: &Client, table: &str, day: i64) -> Result<(), StoreError> {
+pub async fn create_partition(
+    client: &impl tokio_postgres::GenericClient,
+    table: &str,
+    day: i64,
+) -> Result<(), StoreError> {
     let (_, name) = partition(table, day as f64 * PARTITION_S);
     let from = day as f64 * PARTITION_S;
     let to = (day + 1) as f64 * PARTITION_S;

@@ -58,7 +58,17 @@ pub(super) async fn writer(
             }
         }
         if client.is_closed() {
-            match super::connect(&config).await {
+            let fresh = match super::connect(&config).await {
+                Ok(fresh) => match hold_writer_lock(&fresh).await {
+                    Ok(true) => Ok(fresh),
+                    Ok(false) => Err(StoreError::Unavailable(
+                        "another tunnelnav server took over writing to the database".into(),
+                    )),
+                    Err(e) => Err(e),
+                },
+                Err(e) => Err(e),
+            };
+            match fresh {
                 Ok(fresh) => {
                     tracing::info!("PostgreSQL connection made again");
                     client = fresh;
@@ -80,9 +90,20 @@ pub(super) async fn writer(
         commit(&mut client, &mut partitions, &mut group).await;
         if let Some(job) = job {
             job(&mut client).await;
+            // A job may drop partitions (retention): know them afresh.
+            if let Ok(found) = schema::partitions(&client).await {
+                partitions = found.into_iter().collect();
+            }
         }
     }
     queue.close();
+    // The next server may take over at once.
+    if let Err(e) = client
+        .batch_execute("SELECT pg_advisory_unlock_all()")
+        .await
+    {
+        tracing::warn!(error = %e, "could not release the writer's lock");
+    }
     if let Some(reply) = close {
         let _ = reply.send(());
     }
@@ -110,6 +131,9 @@ async fn commit(
         }
         Err(e) => {
             tracing::warn!(error = %e, requests = group.len(), "group commit failed; retrying one by one");
+            // A partition may have gone (another node's retention): the
+            // retries make what they need again.
+            partitions.clear();
             for request in group.drain(..) {
                 let alone = std::slice::from_ref(&request);
                 let result = match ensure_partitions(client, partitions, alone).await {
@@ -125,6 +149,19 @@ async fn commit(
             }
         }
     }
+}
+
+/// Any constant the nodes agree on: the advisory lock the one writing
+/// connection of a database holds for its session.
+const WRITER_LOCK: i64 = 0x7475_6e6e_656c_7772; // "tunnelwr"
+
+/// Takes the writer's lock on this connection's session; false if another
+/// server's writer holds it.
+pub(super) async fn hold_writer_lock(client: &Client) -> Result<bool, StoreError> {
+    Ok(client
+        .query_one("SELECT pg_try_advisory_lock($1)", &[&WRITER_LOCK])
+        .await?
+        .get(0))
 }
 
 /// Makes the day partitions the group's rows fall in, each in its own
