@@ -550,6 +550,90 @@ async fn retention(store: Store) -> Vec<String> {
     ]
 }
 
+/// Large writes of two machines queued together (one group commit; on
+/// PostgreSQL one `COPY` each for readings and estimates), then resent
+/// with new rows among them: each row stored once, in the order given.
+async fn large_batches(store: Store) -> Vec<String> {
+    let mut seen = Vec::new();
+    let x = store.put_machine(spec("tbm-x"), "x".into()).await.unwrap();
+    let y = store.put_machine(spec("tbm-y"), "y".into()).await.unwrap();
+    // Not in time order: arrival order is what the ids keep.
+    let first: Vec<f64> = (0..100).map(|i| f64::from((i * 37) % 100 + 1)).collect();
+    let mut resent: Vec<f64> = Vec::new();
+    for (i, t) in first.iter().enumerate() {
+        resent.push(*t);
+        if i % 2 == 0 {
+            resent.push(101.0 + (i / 2) as f64);
+        }
+    }
+    for times in [&first, &resent] {
+        let mut answers = Vec::new();
+        for machine_id in [x, y] {
+            let (reply, answer) = oneshot::channel();
+            store
+                .write(Write {
+                    machine_id,
+                    readings: times.iter().map(|&t| level(t)).collect(),
+                    estimates: times.iter().map(|&t| estimate(t, t / 100.0)).collect(),
+                    alarms: vec![],
+                    snapshot: None,
+                    after_commit: None,
+                    reply: Some(reply),
+                })
+                .await
+                .unwrap();
+            answers.push(answer);
+        }
+        for answer in answers {
+            seen.push(format!("{:?}", answer.await.unwrap().unwrap()));
+        }
+    }
+    assert_eq!(
+        seen[2..],
+        [
+            "WriteOutcome { stored: 50, duplicates: 100 }",
+            "WriteOutcome { stored: 50, duplicates: 100 }"
+        ]
+    );
+    for machine_id in [x, y] {
+        let stored = read(&store, move |s| readings_since(s, machine_id, 0)).await;
+        let expected: Vec<String> = first
+            .iter()
+            .chain(resent.iter().filter(|&&t| t > 100.0))
+            .map(|&t| {
+                Reading {
+                    t,
+                    data: SensorData::Level { height_m: t / 10.0 },
+                }
+                .to_json()
+            })
+            .collect();
+        assert_eq!(stored, expected);
+        let estimates = read(&store, move |s| {
+            export_estimates(s, machine_id, 0.0, 1000.0, usize::MAX)
+        })
+        .await;
+        assert_eq!(estimates.len(), 150);
+        seen.extend(estimates);
+    }
+    seen
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn both_stores_take_large_batches_alike() {
+    let dir = tempfile::tempdir().unwrap();
+    let sqlite = large_batches(Store::open(dir.path()).unwrap()).await;
+    let Some(cluster) = PgCluster::start() else {
+        return;
+    };
+    let location = PgLocation {
+        url: cluster.database("large"),
+        password_file: None,
+    };
+    let postgres = large_batches(Store::open_postgres(&location).await.unwrap()).await;
+    assert_eq!(postgres, sqlite);
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn both_stores_keep_alike() {
     let dir = tempfile::tempdir().unwrap();

@@ -19,6 +19,7 @@ pub use schema::{PARTITION_S, SCHEMA_VERSION};
 
 use std::path::Path;
 use std::str::FromStr;
+use std::sync::Arc;
 
 use deadpool_postgres::{Manager, ManagerConfig, Pool, RecyclingMethod};
 use tokio::sync::{mpsc, oneshot};
@@ -37,6 +38,13 @@ use crate::fusion::{EngineOutput, Reading, SensorKind, StreamKind};
 const READERS: usize = 4;
 /// How long a starting server waits for a previous writer's lock.
 const WRITER_LOCK_WAIT: std::time::Duration = std::time::Duration::from_secs(10);
+
+/// Writing connections, each committing its machines' groups: as many as
+/// this host has cores, up to four (one PostgreSQL backend inserting is
+/// one core busy; more writers than cores only contend).
+fn writer_count() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get().clamp(1, 4))
+}
 
 /// Where the office database is: a `postgres://USER@HOST:PORT/DB` URL and,
 /// if the password is not in it, the file holding it.
@@ -93,7 +101,9 @@ fn read_password(file: &Path) -> Result<String, StoreError> {
 /// Cheap, cloneable handle to the PostgreSQL store.
 #[derive(Clone)]
 pub struct PgStore {
-    requests: mpsc::Sender<Queued<writer::Job>>,
+    /// The writers' queues: a machine's writes go to one of them (by its
+    /// id), jobs and declarations to the first.
+    writers: Arc<[mpsc::Sender<Queued<writer::Job>>]>,
     readers: Pool,
     runtime: tokio::runtime::Handle,
 }
@@ -123,12 +133,20 @@ impl PgStore {
             tokio::time::sleep(std::time::Duration::from_millis(250)).await;
             waited += std::time::Duration::from_millis(250);
         }
-        let writer_config = config.clone();
+        let mut writers = Vec::with_capacity(writer_count());
+        let mut client = Some(writer_client);
+        for shard in 0..writer_count() {
+            let client = match client.take() {
+                Some(first) => first,
+                None => connect(&config).await?,
+            };
+            let (requests, queue) = mpsc::channel(QUEUE_LEN);
+            tokio::spawn(writer::writer(client, config.clone(), queue, shard == 0));
+            writers.push(requests);
+        }
         let readers = pool(config)?;
-        let (requests, queue) = mpsc::channel(QUEUE_LEN);
-        tokio::spawn(writer::writer(writer_client, writer_config, queue));
         Ok(PgStore {
-            requests,
+            writers: writers.into(),
             readers,
             runtime: tokio::runtime::Handle::current(),
         })
@@ -144,7 +162,7 @@ impl PgStore {
         drop(migrator);
         let (requests, _) = mpsc::channel(1);
         Ok(PgStore {
-            requests,
+            writers: Arc::new([requests]),
             readers: pool(config)?,
             runtime: tokio::runtime::Handle::current(),
         })
@@ -152,7 +170,7 @@ impl PgStore {
 
     /// Queues a write; its `reply` is answered after the commit.
     pub async fn write(&self, write: Write) -> Result<(), StoreError> {
-        self.requests
+        self.writer_of(write.machine_id)
             .send(Queued::Request(Request::Write(write)))
             .await
             .map_err(|_| StoreError::Closed)
@@ -160,7 +178,7 @@ impl PgStore {
 
     /// Like [`PgStore::write`], from a blocking thread.
     pub fn write_blocking(&self, write: Write) -> Result<(), StoreError> {
-        self.requests
+        self.writer_of(write.machine_id)
             .blocking_send(Queued::Request(Request::Write(write)))
             .map_err(|_| StoreError::Closed)
     }
@@ -168,10 +186,18 @@ impl PgStore {
     /// Commits what is queued and stops the writer: later writes fail
     /// with [`StoreError::Closed`]. Reads still work.
     pub async fn close(&self) {
-        let (reply, done) = oneshot::channel();
-        if self.requests.send(Queued::Close(reply)).await.is_ok() {
-            let _ = done.await;
+        for writer in self.writers.iter() {
+            let (reply, done) = oneshot::channel();
+            if writer.send(Queued::Close(reply)).await.is_ok() {
+                let _ = done.await;
+            }
         }
+    }
+
+    /// The writer of machine `machine_id`: always the same one, so its
+    /// writes commit in the order made.
+    fn writer_of(&self, machine_id: i64) -> &mpsc::Sender<Queued<writer::Job>> {
+        &self.writers[machine_id.unsigned_abs() as usize % self.writers.len()]
     }
 
     /// Creates or replaces a machine with a fresh engine snapshot; returns
@@ -182,7 +208,7 @@ impl PgStore {
         snapshot: String,
     ) -> Result<i64, StoreError> {
         let (reply, answer) = oneshot::channel();
-        self.requests
+        self.writers[0]
             .send(Queued::Request(Request::PutMachine {
                 spec: Box::new(spec),
                 snapshot,
@@ -450,7 +476,7 @@ impl PgStore {
                 let _ = reply.send(job(client).await);
             })
         });
-        self.requests
+        self.writers[0]
             .send(Queued::Job(job))
             .await
             .map_err(|_| StoreError::Closed)?;

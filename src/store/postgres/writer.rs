@@ -1,5 +1,5 @@
-//! The PostgreSQL writer: one task and one connection that take every
-//! request waiting in the queue, apply them in one transaction (group
+//! A PostgreSQL writer: a task and its connection that take every
+//! request waiting in its queue, apply them in one transaction (group
 //! commit) and answer each only after the commit — the SQLite writer's
 //! semantics (`store/writer.rs`), in SQL that moves a whole write in a few
 //! statements (arrays unnested server-side).
@@ -7,6 +7,9 @@
 use std::collections::BTreeSet;
 
 use tokio::sync::mpsc;
+use tokio_postgres::binary_copy::BinaryCopyInWriter;
+use tokio_postgres::error::SqlState;
+use tokio_postgres::types::{ToSql, Type};
 use tokio_postgres::{Client, Transaction};
 
 use super::schema;
@@ -29,6 +32,7 @@ pub(super) async fn writer(
     mut client: Client,
     config: tokio_postgres::Config,
     mut queue: mpsc::Receiver<Queued<Job>>,
+    holds_lock: bool,
 ) {
     let mut partitions = match schema::partitions(&client).await {
         Ok(found) => found.into_iter().collect::<BTreeSet<_>>(),
@@ -59,6 +63,7 @@ pub(super) async fn writer(
         }
         if client.is_closed() {
             let fresh = match super::connect(&config).await {
+                Ok(fresh) if !holds_lock => Ok(fresh),
                 Ok(fresh) => match hold_writer_lock(&fresh).await {
                     Ok(true) => Ok(fresh),
                     Ok(false) => Err(StoreError::Unavailable(
@@ -193,13 +198,23 @@ async fn ensure_partitions(
 }
 
 async fn apply_group(client: &mut Client, group: &[Request]) -> Result<Vec<Outcome>, StoreError> {
-    let tx = client.transaction().await?;
+    let mut tx = client.transaction().await?;
+    let writes = || {
+        group.iter().filter_map(|request| match request {
+            Request::Write(write) => Some(write),
+            Request::PutMachine { .. } => None,
+        })
+    };
+    let copied = Copied {
+        readings: copy_readings(&mut tx, writes()).await?,
+        estimates: copy_estimates(&mut tx, writes()).await?,
+    };
     let mut outcomes = Vec::with_capacity(group.len());
     let mut buckets = Buckets::new();
     for request in group {
         outcomes.push(match request {
             Request::Write(write) => {
-                let (outcome, alarms) = apply_write(&tx, write, &mut buckets).await?;
+                let (outcome, alarms) = apply_write(&tx, write, copied, &mut buckets).await?;
                 Outcome::Write(outcome, alarms)
             }
             Request::PutMachine { spec, snapshot, .. } => {
@@ -212,14 +227,142 @@ async fn apply_group(client: &mut Client, group: &[Request]) -> Result<Vec<Outco
     Ok(outcomes)
 }
 
+/// A group's rows below this go in by `INSERT` alone: a `COPY` and its
+/// savepoint cost more round trips than they save.
+const COPY_FROM_ROWS: usize = 64;
+
+/// Which of a group's rows its `COPY`s already stored (all of that kind).
+#[derive(Clone, Copy)]
+struct Copied {
+    readings: bool,
+    estimates: bool,
+}
+
+/// Stores every reading of the group's writes by one binary `COPY`, in
+/// their order (the ids are the arrival order), if none is already
+/// stored; `false` (nothing stored, the transaction usable) when one is,
+/// or when the group is small: each write then goes in by `INSERT ... ON
+/// CONFLICT DO NOTHING`, stored once.
+async fn copy_readings<'w>(
+    tx: &mut Transaction<'_>,
+    writes: impl Iterator<Item = &'w Write> + Clone,
+) -> Result<bool, StoreError> {
+    let rows: usize = writes.clone().map(|w| w.readings.len()).sum();
+    if rows < COPY_FROM_ROWS {
+        return Ok(false);
+    }
+    let savepoint = tx.savepoint("copy_readings").await?;
+    let sink = savepoint
+        .copy_in("COPY readings (machine_id, t, sensor, body) FROM STDIN (FORMAT binary)")
+        .await?;
+    let types = [Type::INT8, Type::FLOAT8, Type::INT2, Type::BYTEA];
+    let mut copy = std::pin::pin!(BinaryCopyInWriter::new(sink, &types));
+    let mut sent = Ok(());
+    'rows: for write in writes {
+        for reading in &write.readings {
+            let sensor = reading.sensor as i16;
+            let row: [&(dyn ToSql + Sync); 4] = [
+                &write.machine_id,
+                &reading.t,
+                &sensor,
+                &reading.data.as_slice(),
+            ];
+            sent = copy.as_mut().write(&row).await;
+            if sent.is_err() {
+                break 'rows;
+            }
+        }
+    }
+    let finished = match sent {
+        Ok(()) => copy.finish().await.map(|_| ()),
+        Err(e) => Err(e),
+    };
+    settle(savepoint, finished).await
+}
+
+/// [`copy_readings`] for the group's estimates: `false` when one is
+/// already stored (recomputed after a restart) or the group is small.
+async fn copy_estimates<'w>(
+    tx: &mut Transaction<'_>,
+    writes: impl Iterator<Item = &'w Write> + Clone,
+) -> Result<bool, StoreError> {
+    let rows: usize = writes.clone().map(|w| w.estimates.len()).sum();
+    if rows < COPY_FROM_ROWS {
+        return Ok(false);
+    }
+    let savepoint = tx.savepoint("copy_estimates").await?;
+    let sink = savepoint
+        .copy_in(
+            "COPY estimates (machine_id, engine, t, extreme_a, extreme_b, body, codec) \
+             FROM STDIN (FORMAT binary)",
+        )
+        .await?;
+    let types = [
+        Type::INT8,
+        Type::TEXT,
+        Type::FLOAT8,
+        Type::FLOAT8,
+        Type::FLOAT8,
+        Type::BYTEA,
+        Type::INT4,
+    ];
+    let mut copy = std::pin::pin!(BinaryCopyInWriter::new(sink, &types));
+    let mut sent = Ok(());
+    'rows: for write in writes {
+        for estimate in &write.estimates {
+            let codec = estimate.codec as i32;
+            let row: [&(dyn ToSql + Sync); 7] = [
+                &write.machine_id,
+                &estimate.engine.as_str(),
+                &estimate.t,
+                &estimate.extremes[0],
+                &estimate.extremes[1],
+                &estimate.values.as_slice(),
+                &codec,
+            ];
+            sent = copy.as_mut().write(&row).await;
+            if sent.is_err() {
+                break 'rows;
+            }
+        }
+    }
+    let finished = match sent {
+        Ok(()) => copy.finish().await.map(|_| ()),
+        Err(e) => Err(e),
+    };
+    settle(savepoint, finished).await
+}
+
+/// Ends a `COPY`'s savepoint: kept if it stored everything, rolled back
+/// (`false`) if a row was already there; any other error is the group's.
+async fn settle(
+    savepoint: Transaction<'_>,
+    copied: Result<(), tokio_postgres::Error>,
+) -> Result<bool, StoreError> {
+    match copied {
+        Ok(()) => {
+            savepoint.commit().await?;
+            Ok(true)
+        }
+        Err(e) if e.code() == Some(&SqlState::UNIQUE_VIOLATION) => {
+            savepoint.rollback().await?;
+            Ok(false)
+        }
+        Err(e) => Err(e.into()),
+    }
+}
+
 async fn apply_write(
     tx: &Transaction<'_>,
     write: &Write,
+    copied: Copied,
     buckets: &mut Buckets,
 ) -> Result<(WriteOutcome, Vec<AlarmChange>), StoreError> {
     let machine_id = write.machine_id;
     let mut outcome = WriteOutcome::default();
-    if !write.readings.is_empty() {
+    if copied.readings {
+        outcome.stored = write.readings.len();
+    } else if !write.readings.is_empty() {
         let t: Vec<f64> = write.readings.iter().map(|r| r.t).collect();
         let sensor: Vec<i16> = write.readings.iter().map(|r| r.sensor as i16).collect();
         let body: Vec<&[u8]> = write.readings.iter().map(|r| r.data.as_slice()).collect();
@@ -236,7 +379,7 @@ async fn apply_write(
         outcome.stored = stored;
         outcome.duplicates = write.readings.len() - stored;
     }
-    if !write.estimates.is_empty() {
+    if !copied.estimates && !write.estimates.is_empty() {
         let engine: Vec<&str> = write.estimates.iter().map(|e| e.engine.as_str()).collect();
         let t: Vec<f64> = write.estimates.iter().map(|e| e.t).collect();
         let a: Vec<f64> = write.estimates.iter().map(|e| e.extremes[0]).collect();
