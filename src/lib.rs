@@ -17,8 +17,8 @@
 //! - [`auth`]: access tokens, hashed in the store.
 //! - [`store`]: one `Store` over two backends, SQLite (the default: one
 //!   writer thread with group commit, pooled readers) and PostgreSQL
-//!   (`store::postgres`: a writer task with the same group commit, day
-//!   partitions, `tunnelnav migrate`).
+//!   (`store::postgres`: writer tasks with the same group commit, day
+//!   partitions, several nodes by leases, `tunnelnav migrate`).
 //! - [`machine`]: one task per machine owning its engines; the only bridge
 //!   from async code to the fusion core. It hands committed alarm changes
 //!   to a [`machine::AlarmSink`] it defines.

@@ -256,6 +256,8 @@ enum Command {
 pub struct MachineHandle {
     pub spec: Arc<MachineSpec>,
     pub db_id: i64,
+    /// The lease epoch it runs under here (several nodes).
+    pub lease_epoch: Option<i64>,
     commands: mpsc::Sender<Command>,
     live: broadcast::Sender<LiveEstimate>,
     status: watch::Receiver<Arc<MachineStatus>>,
@@ -357,8 +359,15 @@ pub fn stored_status(
 
 /// Restores the machine from its latest snapshot, re-feeds the readings
 /// stored after it (writing the estimates they give, which are usually
-/// already stored), and stores a fresh snapshot. Blocking.
-pub fn recover(store: &Store, spec: &MachineSpec, db_id: i64) -> Result<MachineCore, MachineError> {
+/// already stored), and stores a fresh snapshot. Blocking. `lease_epoch`:
+/// the lease this node holds the machine under (several nodes), checked
+/// by each of these writes.
+pub fn recover(
+    store: &Store,
+    spec: &MachineSpec,
+    db_id: i64,
+    lease_epoch: Option<i64>,
+) -> Result<MachineCore, MachineError> {
     let snapshot = store.snapshot(db_id)?;
     let (mut core, after_id) = match &snapshot {
         Some(s) => match MachineCore::restore(spec, &s.state) {
@@ -400,6 +409,7 @@ pub fn recover(store: &Store, spec: &MachineSpec, db_id: i64) -> Result<MachineC
                 snapshot,
                 after_commit: None,
                 reply: Some(reply),
+                lease_epoch,
             })?;
             answer.blocking_recv().map_err(|_| StoreError::Closed)??;
             Ok::<_, MachineError>(())
@@ -454,6 +464,7 @@ pub fn spawn(
     surroundings: Surroundings,
     spec: MachineSpec,
     db_id: i64,
+    lease_epoch: Option<i64>,
     core: MachineCore,
     current: MachineStatus,
 ) -> MachineHandle {
@@ -471,6 +482,7 @@ pub fn spawn(
         store,
         spec: spec.clone(),
         db_id,
+        lease_epoch,
         core,
         write_failed: Arc::default(),
         live: live.clone(),
@@ -484,6 +496,7 @@ pub fn spawn(
     MachineHandle {
         spec,
         db_id,
+        lease_epoch,
         commands,
         live,
         status,
@@ -494,6 +507,8 @@ struct Actor {
     store: Store,
     spec: Arc<MachineSpec>,
     db_id: i64,
+    /// The lease this node runs the machine under (several nodes).
+    lease_epoch: Option<i64>,
     core: MachineCore,
     /// Set by the store when one of this machine's writes failed: the
     /// engines have seen readings that are not stored, so they are rebuilt
@@ -560,6 +575,7 @@ impl Actor {
                         snapshot: Some(self.core.snapshot()),
                         after_commit: None,
                         reply: Some(done),
+                        lease_epoch: self.lease_epoch,
                     };
                     if self.store.write(write).await.is_ok() {
                         let _ = committed.await;
@@ -594,6 +610,7 @@ impl Actor {
                 None => write_failed.store(true, Ordering::SeqCst),
             })),
             reply: None,
+            lease_epoch: self.lease_epoch,
         };
         if let Err(e) = self.store.write(write).await {
             tracing::error!(error = %e, "store closed");
@@ -606,8 +623,13 @@ impl Actor {
     /// themselves are what the store holds.
     /// `None` when the engines match the store again, else why not.
     async fn rebuild(&mut self) -> Option<String> {
-        let (store, spec, db_id) = (self.store.clone(), self.spec.clone(), self.db_id);
-        match tokio::task::spawn_blocking(move || recover(&store, &spec, db_id)).await {
+        let (store, spec, db_id, epoch) = (
+            self.store.clone(),
+            self.spec.clone(),
+            self.db_id,
+            self.lease_epoch,
+        );
+        match tokio::task::spawn_blocking(move || recover(&store, &spec, db_id, epoch)).await {
             Ok(Ok(core)) => {
                 self.core = core;
                 self.since_snapshot = 0;
@@ -684,6 +706,7 @@ impl Actor {
                 None => write_failed.store(true, Ordering::SeqCst),
             })),
             reply: Some(reply),
+            lease_epoch: self.lease_epoch,
         };
         if let Err(e) = self.store.write(write).await {
             tracing::error!(error = %e, "store closed");

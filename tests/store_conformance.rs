@@ -170,6 +170,7 @@ async fn commit(
                 let _ = changed_tx.send(changes.map_or(0, |c| c.len()));
             })),
             reply: Some(reply),
+            lease_epoch: None,
         })
         .await
         .unwrap();
@@ -458,6 +459,7 @@ async fn conformance(open: impl AsyncFn() -> Store) -> Vec<String> {
                 snapshot: None,
                 after_commit: None,
                 reply: None,
+                lease_epoch: None,
             })
             .await,
         Err(StoreError::Closed)
@@ -579,6 +581,7 @@ async fn large_batches(store: Store) -> Vec<String> {
                     snapshot: None,
                     after_commit: None,
                     reply: Some(reply),
+                    lease_epoch: None,
                 })
                 .await
                 .unwrap();
@@ -717,6 +720,7 @@ async fn postgres_refuses_a_newer_schema_and_reports_a_refused_connection_as_tra
                     snapshot: None,
                     after_commit: None,
                     reply: Some(reply),
+                    lease_epoch: None,
                 })
                 .await
                 .unwrap();

@@ -302,8 +302,15 @@ pub fn run(args: DemoArgs) -> Result<(), CliError> {
             clock,
             retention: crate::store::retention::Retention::default(),
             webhooks: Default::default(),
+            cluster: None,
         };
-        let (state, listener) = start(options, args.listen, args.allow_no_auth).await?;
+        let (state, listener) = start(
+            options,
+            args.listen,
+            args.allow_no_auth,
+            super::serve::NodeArgs::default(),
+        )
+        .await?;
         let address = listener.local_addr()?;
         if let Some(mqtt) = &mqtt {
             server::mqtt::spawn(state.clone(), mqtt.clone());

@@ -29,6 +29,14 @@ pub struct ServeArgs {
     /// password_file`).
     #[arg(long, env = "TUNNELNAV_STORE_PASSWORD_FILE", value_name = "FILE")]
     pub store_password_file: Option<PathBuf>,
+    /// This node's name among several serving one PostgreSQL store
+    /// (default: the host's name; `NAME-2`, ... if a live server has it).
+    #[arg(long, env = "TUNNELNAV_NODE", value_name = "NAME")]
+    pub node: Option<String>,
+    /// Where the other nodes reach this one, `http://HOST:PORT` (default:
+    /// the address listened on, the host's name for 0.0.0.0).
+    #[arg(long, env = "TUNNELNAV_ADVERTISE", value_name = "URL")]
+    pub advertise: Option<String>,
     /// TOML file declaring machines, webhooks and limits (docs/operations.md).
     #[arg(long, env = "TUNNELNAV_CONFIG")]
     pub config: Option<PathBuf>,
@@ -97,6 +105,17 @@ pub fn run(args: ServeArgs) -> Result<(), CliError> {
         args.store_password_file.as_deref(),
         &settings.store,
     )?;
+    if postgres.is_none() && (args.node.is_some() || args.advertise.is_some()) {
+        return Err(CliError::Refused(
+            "--node and --advertise are for several nodes on one PostgreSQL store: \
+             give --store postgres://... too"
+                .into(),
+        ));
+    }
+    let node = NodeArgs {
+        node: args.node.clone(),
+        advertise: args.advertise.clone(),
+    };
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()?;
@@ -109,8 +128,9 @@ pub fn run(args: ServeArgs) -> Result<(), CliError> {
             clock: Clock::system(),
             retention: args.retention(),
             webhooks: settings.webhooks,
+            cluster: None,
         };
-        let (state, listener) = start(options, args.listen, args.allow_no_auth).await?;
+        let (state, listener) = start(options, args.listen, args.allow_no_auth, node).await?;
         if let Some(mqtt) = mqtt {
             server::mqtt::spawn(state.clone(), mqtt);
         }
@@ -141,9 +161,10 @@ pub fn mqtt_settings(
 /// `allow_no_auth` off it keeps demanding a token even if every token is
 /// later revoked.
 pub async fn start(
-    options: ServerOptions,
+    mut options: ServerOptions,
     listen: SocketAddr,
     allow_no_auth: bool,
+    node: NodeArgs,
 ) -> Result<(SharedState, tokio::net::TcpListener), CliError> {
     server::metrics::install();
     let data_dir = options.data_dir.clone();
@@ -151,6 +172,37 @@ pub async fn start(
         Some(location) => format!("--store {}", location.redacted_url()),
         None => format!("--data-dir {}", data_dir.display()),
     };
+    // Bound first: the other nodes are told the address.
+    let listener = tokio::net::TcpListener::bind(listen)
+        .await
+        .map_err(|source| CliError::File {
+            context: format!("cannot listen on {listen}"),
+            source,
+        })?;
+    let address = listener.local_addr()?;
+    if options.postgres.is_some() {
+        let host = host_name();
+        if let Some(name) = &node.node
+            && !valid_node_name(name)
+        {
+            return Err(CliError::Refused(format!(
+                "--node `{name}` is not a node name: use 1 to 64 letters, digits, `.`, `-` or `_`"
+            )));
+        }
+        options.cluster = Some(server::cluster::ClusterOptions {
+            node: node.node.unwrap_or_else(|| host.clone()),
+            advertise: node
+                .advertise
+                .map(|url| url.trim_end_matches('/').to_string())
+                .unwrap_or_else(|| {
+                    if address.ip().is_unspecified() {
+                        format!("http://{host}:{}", address.port())
+                    } else {
+                        format!("http://{address}")
+                    }
+                }),
+        });
+    }
     let state = AppState::start(options).await?;
     if !listen.ip().is_loopback() {
         let tokens = state.store.active_tokens().await?;
@@ -173,16 +225,35 @@ pub async fn start(
     if !listen.ip().is_loopback() && !allow_no_auth {
         state.gate.insist();
     }
-    let listener = tokio::net::TcpListener::bind(listen)
-        .await
-        .map_err(|source| CliError::File {
-            context: format!("cannot listen on {listen}"),
-            source,
-        })?;
-    let address = listener.local_addr()?;
     tracing::info!(%address, data_dir = %data_dir.display(), store = state.store.backend_name(), "tunnelnav serving");
     println!("listening on http://{address}");
     Ok((state, listener))
+}
+
+/// How this server names itself among several nodes (`serve --node`,
+/// `--advertise`); unset: the host's name and the address listened on.
+#[derive(Debug, Clone, Default)]
+pub struct NodeArgs {
+    pub node: Option<String>,
+    pub advertise: Option<String>,
+}
+
+/// A node name: 1 to 64 letters, digits, `.`, `-` or `_` (it travels in
+/// a header).
+fn valid_node_name(name: &str) -> bool {
+    (1..=64).contains(&name.len())
+        && name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || matches!(c, '.' | '-' | '_'))
+}
+
+/// This host's name (`node` if the kernel does not say).
+fn host_name() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .ok()
+        .map(|name| name.trim().to_string())
+        .filter(|name| !name.is_empty())
+        .unwrap_or_else(|| "node".to_string())
 }
 
 /// Resolves on Ctrl-C or SIGTERM.

@@ -76,8 +76,10 @@ pub async fn list(
             )));
         }
     };
-    if let Some(machine) = &query.machine {
-        state.machine(machine)?;
+    if let Some(machine) = &query.machine
+        && !state.knows(machine).await
+    {
+        return Err(ApiError::UnknownMachine(machine.clone()));
     }
     let filter = AlarmFilter {
         machine: query.machine,

@@ -187,6 +187,17 @@ pub struct Caller(pub Option<String>);
 /// Lets the request through if its token grants `need`, telling the
 /// handler who it is ([`Caller`]).
 async fn require(state: &SharedState, need: Need, mut request: Request, next: Next) -> Response {
+    // Another node checked the caller's token before forwarding.
+    if let Some(cluster) = &state.cluster {
+        match cluster.forwarded_caller(request.headers()).await {
+            Ok(Some(caller)) => {
+                request.extensions_mut().insert(caller);
+                return next.run(request).await;
+            }
+            Ok(None) => {}
+            Err(e) => return e.into_response(),
+        }
+    }
     let token = presented(request.headers());
     match state
         .gate

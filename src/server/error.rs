@@ -11,7 +11,7 @@ use crate::machine::MachineError;
 use crate::store::StoreError;
 
 /// One reading refused, by its position in the request.
-#[derive(Debug, Clone, Serialize, PartialEq, utoipa::ToSchema)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize, PartialEq, utoipa::ToSchema)]
 pub struct Rejected {
     /// 0-based position in the array, or among the non-blank NDJSON lines.
     pub index: usize,
@@ -37,17 +37,20 @@ pub enum Refusal {
     TooManyClients,
     /// The request was not answered in time though it had arrived whole.
     Stalled,
+    /// The machine is changing hands between server nodes.
+    MachineMoving,
 }
 
 impl Refusal {
     /// Every reason, for registering the counter's series.
-    pub const ALL: [Refusal; 6] = [
+    pub const ALL: [Refusal; 7] = [
         Refusal::ShuttingDown,
         Refusal::StoreUnavailable,
         Refusal::MachineRestarting,
         Refusal::MachineBusy,
         Refusal::TooManyClients,
         Refusal::Stalled,
+        Refusal::MachineMoving,
     ];
 
     /// The metric label.
@@ -59,6 +62,7 @@ impl Refusal {
             Refusal::MachineBusy => "machine_busy",
             Refusal::TooManyClients => "too_many_clients",
             Refusal::Stalled => "stalled",
+            Refusal::MachineMoving => "machine_moving",
         }
     }
 }

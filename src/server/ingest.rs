@@ -32,7 +32,7 @@ pub struct ParsedBatch {
 }
 
 /// The answer to an ingest request or frame.
-#[derive(Debug, Serialize, utoipa::ToSchema)]
+#[derive(Debug, Serialize, serde::Deserialize, utoipa::ToSchema)]
 pub struct Ack {
     /// Valid readings, now stored (including duplicates).
     pub accepted: usize,
@@ -180,6 +180,18 @@ pub(super) async fn ingest(
             rejected: batch.rejected,
         });
     }
+    if state.machine(id).is_err()
+        && let Some(cluster) = &state.cluster
+    {
+        return match cluster.route(id).await {
+            super::cluster::Route::Forward(url) => {
+                let ack = cluster.post_readings(&url, id, &batch.readings).await?;
+                Ok(merge_forwarded(batch.rejected, ack))
+            }
+            super::cluster::Route::Unknown => Err(ApiError::UnknownMachine(id.to_string())),
+            _ => Err(super::cluster::moving(id, "no node runs it this moment")),
+        };
+    }
     let counts = metrics::count_by_sensor(&batch.readings);
     let accepted = batch.readings.len();
     let outcome = state
@@ -194,6 +206,41 @@ pub(super) async fn ingest(
         duplicates: outcome.duplicates,
         rejected: batch.rejected,
     })
+}
+
+/// The answer to a batch whose valid readings (those not in `rejected`)
+/// went on to another node: what that node refused, by its index among
+/// them, is put back at its index in the batch.
+fn merge_forwarded(rejected: Vec<Rejected>, forwarded: Ack) -> Ack {
+    let refused_here: std::collections::BTreeSet<usize> =
+        rejected.iter().map(|r| r.index).collect();
+    let mut positions = (0..).filter(|i| !refused_here.contains(i));
+    let mut there: Vec<(usize, Rejected)> = forwarded
+        .rejected
+        .into_iter()
+        .map(|r| (r.index, r))
+        .collect();
+    there.sort_by_key(|(i, _)| *i);
+    let mut next = 0;
+    let mut all = rejected;
+    for (index, mut refused) in there {
+        // The `index`-th valid reading's place in the batch.
+        let mut place = None;
+        while next <= index {
+            place = positions.next();
+            next += 1;
+        }
+        if let Some(place) = place {
+            refused.index = place;
+            all.push(refused);
+        }
+    }
+    all.sort_by_key(|r| r.index);
+    Ack {
+        accepted: forwarded.accepted,
+        duplicates: forwarded.duplicates,
+        rejected: all,
+    }
 }
 
 /// Send readings.
@@ -245,7 +292,9 @@ pub async fn websocket(
     Path(MachinePath { machine }): Path<MachinePath>,
     upgrade: Result<WebSocketUpgrade, WebSocketUpgradeRejection>,
 ) -> Result<Response, ApiError> {
-    state.machine(&machine)?;
+    if !state.knows(&machine).await {
+        return Err(ApiError::UnknownMachine(machine));
+    }
     let upgrade = upgrade.map_err(ApiError::from)?;
     Ok(upgrade
         .max_message_size(state.limits.max_frame_bytes)
@@ -288,6 +337,31 @@ async fn serve_ingest(mut socket: WebSocket, state: SharedState, machine: String
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn refused(index: usize) -> Rejected {
+        Rejected {
+            index,
+            error: format!("#{index}"),
+            sensor: None,
+        }
+    }
+
+    #[test]
+    fn what_another_node_refused_keeps_its_place_in_the_batch() {
+        // Of six readings, 1 and 4 refused here; the other node refused
+        // the 0th and 2nd of the four it got: batch places 0 and 3.
+        let ack = merge_forwarded(
+            vec![refused(1), refused(4)],
+            Ack {
+                accepted: 2,
+                duplicates: 0,
+                rejected: vec![refused(2), refused(0)],
+            },
+        );
+        let places: Vec<usize> = ack.rejected.iter().map(|r| r.index).collect();
+        assert_eq!(places, [0, 1, 3, 4]);
+        assert_eq!(ack.accepted, 2);
+    }
 
     const GOOD: &str = r#"{"t":1772431200,"sensor":"inclinometer","pitch_deg":0.5,"roll_deg":1}"#;
 

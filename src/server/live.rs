@@ -33,11 +33,12 @@ use tokio::sync::broadcast;
 use tokio::sync::broadcast::error::RecvError;
 
 use super::error::{ApiError, Refusal};
+use super::feeds::Followed;
 use super::openapi::MachinePath;
 use super::state::SharedState;
 use crate::clock::Clock;
 use crate::fusion::{EngineKind, StreamKind};
-use crate::machine::{LiveEstimate, MachineHandle};
+use crate::machine::LiveEstimate;
 use crate::store::alarms::{AlarmChange, AlarmFilter, StoredAlarm};
 
 /// Follow a machine (WebSocket).
@@ -54,24 +55,58 @@ pub async fn websocket(
     Path(MachinePath { machine }): Path<MachinePath>,
     upgrade: Result<WebSocketUpgrade, WebSocketUpgradeRejection>,
 ) -> Result<Response, ApiError> {
-    let machine = state.machine(&machine)?;
+    let followed = follow(&state, &machine).await?;
     let upgrade = upgrade.map_err(ApiError::from)?;
-    let most = state.limits.max_live_clients_per_machine;
-    if machine.live_clients() >= most {
-        return Err(ApiError::Unavailable {
-            reason: Refusal::TooManyClients,
-            message: format!(
-                "machine `{}` already has {most} live clients, the most allowed",
-                machine.spec.id
-            ),
-        });
-    }
-    let (channels, active) = Channels::open(&state, Some(machine.spec.id.clone())).await?;
+    let (channels, active) = Channels::open(&state, Some(machine)).await?;
     let guard = state.live_socket();
     Ok(upgrade.on_upgrade(move |socket| async move {
-        serve_live(socket, machine, active, channels).await;
+        serve_live(socket, followed, active, channels).await;
         drop(guard);
     }))
+}
+
+/// The machine's estimates as they are made: from its task here, or (a
+/// machine another node fuses) from the store as that node commits them.
+async fn follow(state: &SharedState, id: &str) -> Result<Followed, ApiError> {
+    let most = state.limits.max_live_clients_per_machine;
+    let too_many = || ApiError::Unavailable {
+        reason: Refusal::TooManyClients,
+        message: format!("machine `{id}` already has {most} live clients, the most allowed"),
+    };
+    let remote = match (state.machine(id), &state.cluster) {
+        (Ok(machine), _) => {
+            if machine.live_clients() >= most {
+                return Err(too_many());
+            }
+            // Subscribed before the latest is read, so nothing falls
+            // between the two (an estimate may come twice; `t` tells).
+            let estimates = machine.subscribe();
+            return Ok(Followed {
+                spec: machine.spec.clone(),
+                estimates,
+                latest: (*machine.status()).clone(),
+            });
+        }
+        (Err(e), None) => return Err(e),
+        (Err(e), Some(cluster)) => {
+            let store = state.store.clone();
+            let stored = tokio::task::spawn_blocking(move || store.machines())
+                .await
+                .map_err(|e| ApiError::Internal(e.to_string()))??;
+            let Some(stored) = stored.into_iter().find(|m| m.spec.id == id) else {
+                return Err(e);
+            };
+            (cluster.clone(), stored)
+        }
+    };
+    let (cluster, stored) = remote;
+    if cluster.feeds.clients(stored.db_id) >= most {
+        return Err(too_many());
+    }
+    cluster
+        .feeds
+        .follow(&state.store, stored.spec, stored.db_id)
+        .await
 }
 
 /// Follow every machine's alarms (WebSocket).
@@ -183,18 +218,19 @@ fn text(event: Event<'_>) -> Message {
 
 async fn serve_live(
     socket: WebSocket,
-    machine: Arc<MachineHandle>,
+    followed: Followed,
     alarms: Vec<StoredAlarm>,
     channels: Channels,
 ) {
-    // Subscribe before reading the latest state, so nothing falls between
-    // the two (an estimate may come twice; `t` tells).
-    let estimates = machine.subscribe();
-    let status = machine.status();
+    let Followed {
+        spec,
+        estimates,
+        latest: status,
+    } = followed;
     let hello = text(Event::Hello {
-        machine: &machine.spec.id,
-        name: &machine.spec.name,
-        engines: machine.spec.engines.keys().copied().collect(),
+        machine: &spec.id,
+        name: &spec.name,
+        engines: spec.engines.keys().copied().collect(),
         latest: status
             .latest
             .iter()
@@ -206,7 +242,7 @@ async fn serve_live(
         server_t: channels.clock.now_s(),
         clock_rate: channels.clock.rate(),
     });
-    serve(socket, hello, Some((&machine.spec.id, estimates)), channels).await;
+    serve(socket, hello, Some((&spec.id, estimates)), channels).await;
 }
 
 async fn serve_alarms(socket: WebSocket, alarms: Vec<StoredAlarm>, channels: Channels) {

@@ -102,7 +102,22 @@ pub(crate) fn laser_report(latest: &BTreeMap<StreamKind, LiveEstimate>) -> Optio
 
 /// The status of `machine` at `now`.
 pub(super) fn status(machine: &MachineHandle, now: f64) -> MachineStatusBody {
-    let status = machine.status();
+    status_of(
+        &machine.spec,
+        &machine.status(),
+        machine.live_clients(),
+        now,
+    )
+}
+
+/// The status body of a machine declared as `spec` that looks like
+/// `status`.
+fn status_of(
+    spec: &crate::config::MachineSpec,
+    status: &crate::machine::MachineStatus,
+    live_clients: usize,
+    now: f64,
+) -> MachineStatusBody {
     let sensors = status
         .sensors
         .iter()
@@ -131,14 +146,14 @@ pub(super) fn status(machine: &MachineHandle, now: f64) -> MachineStatusBody {
             Some(acc.map_or(t, |a| a.max(t)))
         });
     MachineStatusBody {
-        machine: machine.spec.id.clone(),
-        name: machine.spec.name.clone(),
-        engines: machine.spec.engines.keys().copied().collect(),
+        machine: spec.id.clone(),
+        name: spec.name.clone(),
+        engines: spec.engines.keys().copied().collect(),
         last_reading_t,
         sensors,
         laser,
         late_readings: status.late,
-        live_clients: machine.live_clients(),
+        live_clients,
         latest,
         config: None,
         server_t: None,
@@ -157,17 +172,36 @@ fn clock(state: &SharedState) -> (f64, f64) {
 /// `GET /api/v1/machines`.
 #[utoipa::path(get, path = "/api/v1/machines", operation_id = "list_machines", tag = "machines",
     responses((status = OK, description = "Every machine's status and the server clock", body = MachineList)))]
-pub async fn list(State(state): State<SharedState>) -> Json<MachineList> {
+pub async fn list(State(state): State<SharedState>) -> Result<Json<MachineList>, ApiError> {
     let (now, rate) = clock(&state);
-    Json(MachineList {
-        machines: state
-            .all_machines()
-            .iter()
-            .map(|m| status(m, now))
-            .collect(),
+    let mut machines: Vec<MachineStatusBody> = state
+        .all_machines()
+        .iter()
+        .map(|m| status(m, now))
+        .collect();
+    // Machines other nodes fuse: as their newest stored estimates and
+    // readings show them.
+    let store = state.store.clone();
+    let elsewhere = state.elsewhere().await?;
+    let others = tokio::task::spawn_blocking(move || {
+        elsewhere
+            .into_iter()
+            .map(|m| {
+                let status = crate::machine::stored_status(&store, &m.spec, m.db_id)?;
+                Ok(status_of(&m.spec, &status, 0, now))
+            })
+            .collect::<Result<Vec<_>, crate::machine::MachineError>>()
+    })
+    .await
+    .map_err(|e| ApiError::Internal(e.to_string()))?
+    .map_err(|e| ApiError::Internal(e.to_string()))?;
+    machines.extend(others);
+    machines.sort_by(|a, b| a.machine.cmp(&b.machine));
+    Ok(Json(MachineList {
+        machines,
         server_t: now,
         clock_rate: rate,
-    })
+    }))
 }
 
 /// A machine's status and declaration.

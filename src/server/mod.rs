@@ -6,7 +6,9 @@
 mod alarms;
 mod alignment;
 pub mod auth;
+pub mod cluster;
 mod error;
+mod feeds;
 mod history;
 mod ingest;
 mod live;
@@ -73,6 +75,12 @@ fn guarded(
         }
     }
     let state = state.clone();
+    // The token is checked here, then a machine fused by another node is
+    // forwarded there.
+    let routes = routes.layer(axum::middleware::from_fn_with_state(
+        state.clone(),
+        cluster::forward,
+    ));
     let routes = match role {
         Role::Read => routes.layer(axum::middleware::from_fn_with_state(state, auth::read)),
         Role::Ingest => routes.layer(axum::middleware::from_fn_with_state(state, auth::ingest)),
@@ -106,6 +114,7 @@ fn api_routes(state: &SharedState) -> OpenApiRouter<SharedState> {
         .routes(guard(Read, routes!(alarms::list)))
         .routes(guard(Read, routes!(live::alarms_websocket)))
         .routes(guard(Read, routes!(alarms::ack)))
+        .routes(guard(Read, routes!(cluster::show)))
 }
 
 /// The application's routes (used by `serve` and by the tests).

@@ -25,6 +25,8 @@ pub const WEBHOOK_QUEUE: usize = 1000;
 #[derive(Clone)]
 pub struct AlarmNotifier {
     live: broadcast::Sender<Arc<AlarmChange>>,
+    /// The changes this node made (not those relayed from other nodes).
+    own: broadcast::Sender<Arc<AlarmChange>>,
     warn: Option<(String, mpsc::Sender<Arc<AlarmChange>>)>,
     alarm: Option<(String, mpsc::Sender<Arc<AlarmChange>>)>,
 }
@@ -49,12 +51,27 @@ impl AlarmNotifier {
             warn: spawn(&webhooks.warn),
             alarm: spawn(&webhooks.alarm),
             live,
+            own: broadcast::channel(ALARM_BUFFER).0,
         }
     }
 
     /// Changes from now on.
     pub fn subscribe(&self) -> broadcast::Receiver<Arc<AlarmChange>> {
         self.live.subscribe()
+    }
+
+    /// The changes this node made, for what only one node may publish (the
+    /// MQTT alarm topics).
+    pub fn subscribe_own(&self) -> broadcast::Receiver<Arc<AlarmChange>> {
+        self.own.subscribe()
+    }
+}
+
+impl AlarmNotifier {
+    /// An alarm change another node made (and posts the webhooks of): to
+    /// this node's live sockets only.
+    pub fn relay(&self, change: AlarmChange) {
+        let _ = self.live.send(Arc::new(change));
     }
 }
 
@@ -76,6 +93,7 @@ impl AlarmSink for AlarmNotifier {
                 );
             }
             // No live client is fine.
+            let _ = self.own.send(change.clone());
             let _ = self.live.send(change);
         }
     }

@@ -9,6 +9,7 @@ use axum::extract::{Path, State};
 use axum::http::{StatusCode, header};
 use axum::response::{IntoResponse, Response};
 
+use super::error::ApiError;
 use super::state::SharedState;
 use crate::config::MachineSpec;
 use crate::fusion::zupt::ZuptConfig;
@@ -225,17 +226,24 @@ fn engine_list(engines: impl Iterator<Item = EngineKind>) -> String {
 #[utoipa::path(get, path = "/", operation_id = "fleet_page", tag = "dashboard",
     responses((status = OK, description = "The fleet page", content_type = "text/html", body = String),
         (status = SEE_OTHER, description = "A browser without a token: to /login")))]
-pub async fn fleet(State(state): State<SharedState>) -> FleetPage {
-    FleetPage {
-        machines: state
-            .all_machines()
-            .iter()
-            .map(|m| MachineCard {
-                id: m.spec.id.clone(),
-                name: m.spec.name.clone(),
-                engines: engine_list(m.spec.engines.keys().copied()),
-            })
-            .collect(),
+pub async fn fleet(State(state): State<SharedState>) -> Result<FleetPage, ApiError> {
+    let specs: Vec<crate::config::MachineSpec> = state
+        .all_machines()
+        .iter()
+        .map(|m| (*m.spec).clone())
+        .chain(state.elsewhere().await?.into_iter().map(|m| m.spec))
+        .collect();
+    let mut machines: Vec<MachineCard> = specs
+        .iter()
+        .map(|spec| MachineCard {
+            id: spec.id.clone(),
+            name: spec.name.clone(),
+            engines: engine_list(spec.engines.keys().copied()),
+        })
+        .collect();
+    machines.sort_by(|a, b| a.id.cmp(&b.id));
+    Ok(FleetPage {
+        machines,
         engine_scripts: EngineKind::ALL
             .iter()
             .map(|&engine| engine_script(engine).path)
@@ -246,7 +254,7 @@ pub async fn fleet(State(state): State<SharedState>) -> FleetPage {
                     .map(|a| a.path),
             )
             .collect(),
-    }
+    })
 }
 
 /// A machine's live page.

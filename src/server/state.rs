@@ -9,6 +9,7 @@ use std::sync::{Arc, RwLock};
 
 use tokio::sync::watch;
 
+use super::cluster::Cluster;
 use super::error::ApiError;
 use super::settings::{Limits, WebhookConfig};
 use super::{auth, metrics, notify};
@@ -33,6 +34,9 @@ pub struct ServerOptions {
     pub retention: crate::store::retention::Retention,
     /// Where alarm changes are posted.
     pub webhooks: WebhookConfig,
+    /// How this node joins the others on the PostgreSQL store (`None` on
+    /// SQLite: one server).
+    pub cluster: Option<super::cluster::ClusterOptions>,
 }
 
 /// Why the server could not start.
@@ -47,6 +51,8 @@ pub enum ServerError {
     },
     #[error("{0}")]
     Io(#[from] std::io::Error),
+    #[error("joining the other nodes: {0}")]
+    Cluster(String),
 }
 
 /// What every handler shares.
@@ -68,6 +74,8 @@ pub struct AppState {
     live_sockets: Arc<std::sync::atomic::AtomicUsize>,
     /// Fleet alarm sockets open now (at most `Limits::max_alarm_clients`).
     alarm_sockets: Arc<std::sync::atomic::AtomicUsize>,
+    /// This node's part among several on one PostgreSQL store.
+    pub cluster: Option<Arc<Cluster>>,
 }
 
 /// Counts an open live socket while it lives.
@@ -83,11 +91,23 @@ pub type SharedState = Arc<AppState>;
 
 impl AppState {
     /// Opens the store, applies the configured machines, restores every
-    /// machine from its snapshot and starts their tasks.
+    /// machine from its snapshot and starts their tasks (on PostgreSQL: the
+    /// machines this node holds, see [`super::cluster`]).
     pub async fn start(options: ServerOptions) -> Result<SharedState, ServerError> {
         let store = match &options.postgres {
             Some(location) => Store::open_postgres(location).await?,
             None => Store::open_capped(&options.data_dir, options.limits.max_database_bytes)?,
+        };
+        let cluster = match (&options.cluster, store.postgres()) {
+            (Some(joining), Some(_)) => Some(Arc::new(Cluster::join(&store, joining).await?)),
+            (None, Some(_)) => {
+                return Err(ServerError::Cluster(
+                    "a server on the PostgreSQL store is a node: it needs a name and the URL \
+                     the other nodes reach it at"
+                        .into(),
+                ));
+            }
+            _ => None,
         };
         let stored = {
             let store = store.clone();
@@ -95,52 +115,25 @@ impl AppState {
                 .await
                 .map_err(std::io::Error::other)??
         };
-        let mut specs: BTreeMap<String, (i64, MachineSpec)> = stored
+        let specs: BTreeMap<String, MachineSpec> = stored
             .into_iter()
-            .map(|m| (m.spec.id.clone(), (m.db_id, m.spec)))
+            .map(|m| (m.spec.id.clone(), m.spec))
             .collect();
         for spec in options.machines {
-            let unchanged = specs.get(&spec.id).is_some_and(|(_, s)| *s == spec);
-            if !unchanged {
-                let fresh = fresh_snapshot(&spec)?;
-                let id = store.put_machine(spec.clone(), fresh).await?;
-                tracing::info!(machine = %spec.id, "machine declared by the config file");
-                specs.insert(spec.id.clone(), (id, spec));
+            if specs.get(&spec.id).is_some_and(|s| *s == spec) {
+                continue;
             }
+            if let Some(cluster) = &cluster
+                && let super::cluster::Route::Forward(url) = cluster.route(&spec.id).await
+            {
+                tracing::warn!(machine = %spec.id, node = %url, "the config file declares a machine another node runs: declare it there (PUT), this node leaves it as it is");
+                continue;
+            }
+            let fresh = fresh_snapshot(&spec)?;
+            store.put_machine(spec.clone(), fresh).await?;
+            tracing::info!(machine = %spec.id, "machine declared by the config file");
         }
         let alarms = notify::AlarmNotifier::start(&options.webhooks);
-        let mut machines = BTreeMap::new();
-        for (id, (db_id, spec)) in specs {
-            metrics::register_machine(&spec);
-            let (core, status) = {
-                let (store, spec) = (store.clone(), spec.clone());
-                tokio::task::spawn_blocking(move || {
-                    let core = machine::recover(&store, &spec, db_id)?;
-                    Ok((core, machine::stored_status(&store, &spec, db_id)?))
-                })
-                .await
-                .map_err(std::io::Error::other)?
-                .map_err(|source| ServerError::Machine {
-                    machine: id.clone(),
-                    source,
-                })?
-            };
-            machines.insert(
-                id,
-                Arc::new(machine::spawn(
-                    machine::Surroundings {
-                        store: store.clone(),
-                        queue_len: options.limits.machine_queue,
-                        clock: options.clock,
-                        alarm_changes: Arc::new(alarms.clone()),
-                    },
-                    spec,
-                    db_id,
-                    core,
-                    status,
-                )),
-            );
-        }
         if !options.retention.keeps_everything() {
             tokio::spawn(apply_retention(
                 store.clone(),
@@ -148,9 +141,9 @@ impl AppState {
                 options.clock,
             ));
         }
-        Ok(Arc::new(AppState {
+        let state = Arc::new(AppState {
             store,
-            machines: RwLock::new(machines),
+            machines: RwLock::new(BTreeMap::new()),
             admin: tokio::sync::Mutex::new(()),
             limits: options.limits,
             clock: options.clock,
@@ -159,7 +152,145 @@ impl AppState {
             alarms,
             live_sockets: Arc::default(),
             alarm_sockets: Arc::default(),
-        }))
+            cluster: cluster.clone(),
+        });
+        match cluster {
+            Some(cluster) => {
+                if let Some(postgres) = state.store.postgres() {
+                    tokio::spawn(super::feeds::relay(state.clone(), postgres.listen()));
+                }
+                super::cluster::start(&state, cluster)
+                    .await
+                    .map_err(|e| ServerError::Cluster(e.to_string()))?;
+            }
+            None => {
+                let ids: Vec<i64> = {
+                    let store = state.store.clone();
+                    tokio::task::spawn_blocking(move || store.machines())
+                        .await
+                        .map_err(std::io::Error::other)??
+                        .into_iter()
+                        .map(|m| m.db_id)
+                        .collect()
+                };
+                for id in ids {
+                    state.start_machine(id, None).await?;
+                }
+            }
+        }
+        Ok(state)
+    }
+
+    /// Restores stored machine `db_id` from its snapshot and the readings
+    /// after it, and starts its task (already running under this lease:
+    /// nothing). `lease_epoch`: the lease it runs under (several nodes).
+    pub async fn start_machine(
+        &self,
+        db_id: i64,
+        lease_epoch: Option<i64>,
+    ) -> Result<(), ServerError> {
+        let _admin = self.admin.lock().await;
+        if *self.shutdown.borrow() {
+            return Err(ServerError::Cluster("the server is stopping".into()));
+        }
+        if self
+            .all_machines()
+            .iter()
+            .any(|m| m.db_id == db_id && m.lease_epoch == lease_epoch)
+        {
+            return Ok(());
+        }
+        let store = self.store.clone();
+        let (spec, core, status) = tokio::task::spawn_blocking(move || {
+            let Some(stored) = store
+                .machines()
+                .map_err(|e| (String::new(), MachineError::from(e)))?
+                .into_iter()
+                .find(|m| m.db_id == db_id)
+            else {
+                return Err((
+                    format!("#{db_id}"),
+                    MachineError::from(StoreError::Corrupt(format!(
+                        "machine {db_id} is not stored"
+                    ))),
+                ));
+            };
+            let spec = stored.spec;
+            let core = machine::recover(&store, &spec, db_id, lease_epoch)
+                .map_err(|e| (spec.id.clone(), e))?;
+            let status =
+                machine::stored_status(&store, &spec, db_id).map_err(|e| (spec.id.clone(), e))?;
+            Ok((spec, core, status))
+        })
+        .await
+        .map_err(std::io::Error::other)?
+        .map_err(|(machine, source)| ServerError::Machine { machine, source })?;
+        metrics::register_machine(&spec);
+        let handle = machine::spawn(
+            self.surroundings(),
+            spec.clone(),
+            db_id,
+            lease_epoch,
+            core,
+            status,
+        );
+        let replaced = self
+            .machines
+            .write()
+            .ok()
+            .and_then(|mut machines| machines.insert(spec.id, Arc::new(handle)));
+        // One under an older lease: what it still had queued is refused.
+        if let Some(old) = replaced {
+            old.stop().await;
+        }
+        Ok(())
+    }
+
+    /// Stops machine `id` here (its final snapshot stored, if this node
+    /// may still write it) and forgets it: another node runs it next.
+    pub async fn stop_machine(&self, id: &str) {
+        let _admin = self.admin.lock().await;
+        let handle = self.machines.write().ok().and_then(|mut m| m.remove(id));
+        if let Some(handle) = handle {
+            handle.stop().await;
+        }
+    }
+
+    /// What a machine's task is given.
+    fn surroundings(&self) -> machine::Surroundings {
+        machine::Surroundings {
+            store: self.store.clone(),
+            queue_len: self.limits.machine_queue,
+            clock: self.clock,
+            alarm_changes: Arc::new(self.alarms.clone()),
+        }
+    }
+
+    /// The stored machines other nodes run (none on SQLite).
+    pub async fn elsewhere(&self) -> Result<Vec<crate::store::StoredMachine>, ApiError> {
+        if self.cluster.is_none() {
+            return Ok(Vec::new());
+        }
+        let store = self.store.clone();
+        let stored = tokio::task::spawn_blocking(move || store.machines())
+            .await
+            .map_err(|e| ApiError::Internal(e.to_string()))??;
+        Ok(stored
+            .into_iter()
+            .filter(|m| self.machine(&m.spec.id).is_err())
+            .collect())
+    }
+
+    /// Whether machine `id` is declared: running here, or (several
+    /// nodes) anywhere.
+    pub async fn knows(&self, id: &str) -> bool {
+        if self.machine(id).is_ok() {
+            return true;
+        }
+        match &self.cluster {
+            Some(cluster) => cluster.knows(id).await,
+            None => false,
+        }
     }
 
     /// Counts a live socket until the guard drops.
@@ -180,13 +311,19 @@ impl AppState {
         Some(LiveSocketGuard(self.alarm_sockets.clone()))
     }
 
-    /// A running machine.
+    /// A machine running here; one another node runs (or that is changing
+    /// hands) answers 503 `machine_moving`, one never declared 404.
     pub fn machine(&self, id: &str) -> Result<Arc<MachineHandle>, ApiError> {
-        self.machines
-            .read()
-            .ok()
-            .and_then(|m| m.get(id).cloned())
-            .ok_or_else(|| ApiError::UnknownMachine(id.to_string()))
+        if let Some(machine) = self.machines.read().ok().and_then(|m| m.get(id).cloned()) {
+            return Ok(machine);
+        }
+        match &self.cluster {
+            Some(cluster) if cluster.knows_cached(id) => Err(super::cluster::moving(
+                id,
+                "it is not running on this node this moment",
+            )),
+            _ => Err(ApiError::UnknownMachine(id.to_string())),
+        }
     }
 
     /// Runs `op` on machine `id`; if a redeclaration stopped that machine
@@ -209,7 +346,16 @@ impl AppState {
                 Err(MachineError::Stopped(_)) if !*self.shutdown.borrow() => {
                     // A redeclaration holds this until its successor runs.
                     drop(self.admin.lock().await);
-                    let successor = self.machine(id)?;
+                    let successor = match self.machine(id) {
+                        Ok(successor) => successor,
+                        Err(_) if self.cluster.is_some() => {
+                            return Err(super::cluster::moving(
+                                id,
+                                "it was handed to another node",
+                            ));
+                        }
+                        Err(e) => return Err(e),
+                    };
                     if Arc::ptr_eq(&successor, &machine) {
                         break;
                     }
@@ -264,6 +410,19 @@ impl AppState {
             .store
             .put_machine(spec.clone(), core.snapshot())
             .await?;
+        let lease_epoch = match (&existing, &self.cluster) {
+            (Some(existing), _) => existing.lease_epoch,
+            (None, Some(cluster)) => match super::cluster::claim(cluster, db_id).await? {
+                Some(epoch) => Some(epoch),
+                None => {
+                    return Err(super::cluster::moving(
+                        &spec.id,
+                        "another node took it as it was declared",
+                    ));
+                }
+            },
+            (None, None) => None,
+        };
         metrics::register_machine(&spec);
         // A redeclared machine keeps its history, so its status too.
         let status = existing
@@ -271,14 +430,10 @@ impl AppState {
             .map(|m| (*m.status()).clone())
             .unwrap_or_default();
         let handle = Arc::new(machine::spawn(
-            machine::Surroundings {
-                store: self.store.clone(),
-                queue_len: self.limits.machine_queue,
-                clock: self.clock,
-                alarm_changes: Arc::new(self.alarms.clone()),
-            },
+            self.surroundings(),
             spec.clone(),
             db_id,
+            lease_epoch,
             core,
             status,
         ));
@@ -309,6 +464,9 @@ impl AppState {
         self.shutdown.send_replace(true);
         for machine in self.all_machines() {
             machine.stop().await;
+        }
+        if let Some(cluster) = &self.cluster {
+            cluster.leave().await;
         }
         self.store.close().await;
     }

@@ -36,7 +36,7 @@ impl AlarmRow {
 }
 
 /// A stored alarm, as the API lists it.
-#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize, utoipa::ToSchema)]
 pub struct StoredAlarm {
     pub id: i64,
     pub machine: String,
@@ -55,7 +55,7 @@ pub struct StoredAlarm {
 }
 
 /// What happened to a stored alarm: the live event's `transition`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Change {
     Raised,
@@ -65,7 +65,7 @@ pub enum Change {
 
 /// A stored alarm as one transition left it (for live clients and
 /// webhooks).
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
 pub struct AlarmChange {
     pub transition: Change,
     #[serde(flatten)]
@@ -250,6 +250,7 @@ mod tests {
                     let _ = report.send(changes);
                 })),
                 reply: Some(reply),
+                lease_epoch: None,
             })
             .await
             .unwrap();

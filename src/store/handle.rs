@@ -83,6 +83,14 @@ impl Store {
         }
     }
 
+    /// The PostgreSQL store, if this is one (several nodes may share it).
+    pub fn postgres(&self) -> Option<&PgStore> {
+        match &self.backend {
+            Backend::Sqlite(_) => None,
+            Backend::Postgres(p) => Some(p),
+        }
+    }
+
     /// Queues a write; its `reply` is answered after the commit.
     pub async fn write(&self, write: Write) -> Result<(), StoreError> {
         on_backend!(self, b => b.write(write).await)

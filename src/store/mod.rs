@@ -109,6 +109,10 @@ pub struct Write {
     /// Runs on the writer thread right after the commit (live broadcast).
     pub after_commit: Option<AfterCommit>,
     pub reply: Option<oneshot::Sender<Result<WriteOutcome, StoreError>>>,
+    /// The lease epoch the machine's node runs it under (several nodes on
+    /// PostgreSQL): the commit fails unless the node still holds the lease
+    /// with this epoch. `None` with one server.
+    pub lease_epoch: Option<i64>,
 }
 
 /// What a committed [`Write`] stored.
@@ -429,6 +433,7 @@ mod tests {
                 snapshot: snapshot.map(str::to_string),
                 after_commit: None,
                 reply: Some(reply),
+                lease_epoch: None,
             })
             .await
             .unwrap();
@@ -488,6 +493,7 @@ mod tests {
                 snapshot: None,
                 after_commit: None,
                 reply: Some(reply),
+                lease_epoch: None,
             })
             .await;
         assert!(matches!(late, Err(StoreError::Closed)), "{late:?}");

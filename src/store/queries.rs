@@ -502,6 +502,7 @@ mod tests {
                     snapshot: None,
                     after_commit: None,
                     reply: Some(reply),
+                    lease_epoch: None,
                 })
                 .await
                 .unwrap();

@@ -63,6 +63,7 @@ impl TestServer {
             clock: Clock::system(),
             retention: tunnelnav::store::retention::Retention::default(),
             webhooks,
+            cluster: None,
         })
         .await
         .expect("server starts");

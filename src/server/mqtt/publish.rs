@@ -37,7 +37,16 @@ pub async fn machines(
             _ = look.tick() => {}
             _ = shutdown.changed() => break,
         }
-        for machine in state.all_machines() {
+        let machines = state.all_machines();
+        // A machine stopped here (handed to another node): its task goes.
+        running.retain(|id, (_, task)| {
+            let here = machines.iter().any(|m| m.spec.id == *id);
+            if !here {
+                task.abort();
+            }
+            here
+        });
+        for machine in machines {
             let current = running
                 .get(&machine.spec.id)
                 .is_some_and(|(handle, task)| Arc::ptr_eq(handle, &machine) && !task.is_finished());
@@ -127,7 +136,7 @@ fn alarm_topic(machine: &str, id: i64) -> String {
 /// changes were missed, every active alarm is published again.
 pub async fn alarms(state: SharedState, client: AsyncClient) {
     let mut shutdown = state.shutdown_signal();
-    let mut changes = state.alarms.subscribe();
+    let mut changes = state.alarms.subscribe_own();
     republish_active(&state, &client).await;
     loop {
         let change = tokio::select! {

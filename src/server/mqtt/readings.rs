@@ -136,8 +136,12 @@ fn stopping(shutdown: &watch::Receiver<bool>) -> bool {
 /// A message's readings, stored and fused as `POST .../readings` would.
 /// With no content type in MQTT 3.1.1, a body that is not one JSON value is
 /// read as NDJSON.
+/// A machine another node fuses goes on to it (`ingest`), so a message
+/// is acknowledged only once some node stored it.
 async fn ingest_message(state: &SharedState, machine: &str, body: &[u8]) -> Result<Ack, ApiError> {
-    state.machine(machine)?;
+    if !state.knows(machine).await {
+        return Err(ApiError::UnknownMachine(machine.to_string()));
+    }
     let rules = BatchRules::now(&state.limits, &state.clock);
     let batch = match parse_batch(body, false, &rules) {
         Err(ApiError::BadRequest(_)) if body.contains(&b'\n') => parse_batch(body, true, &rules),

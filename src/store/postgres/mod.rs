@@ -11,6 +11,7 @@
 //! opened on. This first step stores and reads what a machine needs to
 //! run and restart; the rest of the store's operations follow.
 
+pub mod cluster;
 pub mod migrate;
 mod schema;
 mod writer;
@@ -36,8 +37,6 @@ use crate::fusion::{EngineOutput, Reading, SensorKind, StreamKind};
 
 /// Connections the read pool keeps.
 const READERS: usize = 4;
-/// How long a starting server waits for a previous writer's lock.
-const WRITER_LOCK_WAIT: std::time::Duration = std::time::Duration::from_secs(10);
 
 /// Writing connections, each committing its machines' groups: as many as
 /// this host has cores, up to four (one PostgreSQL backend inserting is
@@ -104,6 +103,11 @@ pub struct PgStore {
     /// The writers' queues: a machine's writes go to one of them (by its
     /// id), jobs and declarations to the first.
     writers: Arc<[mpsc::Sender<Queued<writer::Job>>]>,
+    config: Arc<tokio_postgres::Config>,
+    /// Set when this store serves a node of several: the node's name. The
+    /// writers then commit a machine's rows only while the node holds its
+    /// lease.
+    fence: Arc<std::sync::OnceLock<String>>,
     readers: Pool,
     runtime: tokio::runtime::Handle,
 }
@@ -118,36 +122,24 @@ impl PgStore {
         let mut migrator = connect(&config).await?;
         schema::migrate(&mut migrator).await?;
         drop(migrator);
-        let writer_client = connect(&config).await?;
-        // A server killed a moment ago may still hold it: PostgreSQL ends
-        // its session when it sees the socket close.
-        let mut waited = std::time::Duration::ZERO;
-        while !writer::hold_writer_lock(&writer_client).await? {
-            if waited >= WRITER_LOCK_WAIT {
-                return Err(StoreError::Location(
-                    "has another tunnelnav server writing to it: run one server per database \
-                     (several nodes on one database are not supported yet)"
-                        .into(),
-                ));
-            }
-            tokio::time::sleep(std::time::Duration::from_millis(250)).await;
-            waited += std::time::Duration::from_millis(250);
-        }
+        let fence = Arc::new(std::sync::OnceLock::new());
         let mut writers = Vec::with_capacity(writer_count());
-        let mut client = Some(writer_client);
-        for shard in 0..writer_count() {
-            let client = match client.take() {
-                Some(first) => first,
-                None => connect(&config).await?,
-            };
+        for _ in 0..writer_count() {
+            let client = connect(&config).await?;
+            // A writer stuck inside a transaction (its host paused) must
+            // not hold the leases it checked for ever.
+            client
+                .batch_execute("SET idle_in_transaction_session_timeout = '10s'")
+                .await?;
             let (requests, queue) = mpsc::channel(QUEUE_LEN);
-            tokio::spawn(writer::writer(client, config.clone(), queue, shard == 0));
+            tokio::spawn(writer::writer(client, config.clone(), queue, fence.clone()));
             writers.push(requests);
         }
-        let readers = pool(config)?;
         Ok(PgStore {
             writers: writers.into(),
-            readers,
+            readers: pool(config.clone())?,
+            config: Arc::new(config),
+            fence,
             runtime: tokio::runtime::Handle::current(),
         })
     }
@@ -163,7 +155,9 @@ impl PgStore {
         let (requests, _) = mpsc::channel(1);
         Ok(PgStore {
             writers: Arc::new([requests]),
-            readers: pool(config)?,
+            readers: pool(config.clone())?,
+            config: Arc::new(config),
+            fence: Arc::default(),
             runtime: tokio::runtime::Handle::current(),
         })
     }
@@ -192,6 +186,34 @@ impl PgStore {
                 let _ = done.await;
             }
         }
+    }
+
+    /// Joins the database's nodes as `wanted` (or a free variant of it),
+    /// answering at `url`; from then on a machine's rows are committed
+    /// only while this node holds its lease.
+    pub async fn join(&self, wanted: &str, url: &str) -> Result<cluster::Membership, StoreError> {
+        let membership = cluster::Membership::join((*self.config).clone(), wanted, url).await?;
+        if self.fence.set(membership.node().to_string()).is_err() {
+            return Err(StoreError::Location(
+                "this store already serves a node".into(),
+            ));
+        }
+        Ok(membership)
+    }
+
+    /// Every declared machine and the node holding its lease, if any.
+    pub async fn placements(&self) -> Result<Vec<cluster::Placement>, StoreError> {
+        cluster::placements(&**self.pooled().await?).await
+    }
+
+    /// Every registered node; live if its heartbeat is younger than `ttl_s`.
+    pub async fn nodes(&self, ttl_s: f64) -> Result<Vec<cluster::NodeRow>, StoreError> {
+        cluster::nodes(&**self.pooled().await?, ttl_s).await
+    }
+
+    /// Other nodes' commits, as they happen (see [`cluster::listen`]).
+    pub fn listen(&self) -> mpsc::Receiver<cluster::Notice> {
+        cluster::listen((*self.config).clone())
     }
 
     /// The writer of machine `machine_id`: always the same one, so its
@@ -492,6 +514,7 @@ impl PgStore {
         t: f64,
         announce: impl FnOnce(AlarmChange) + Send + 'static,
     ) -> Result<Option<(StoredAlarm, bool)>, StoreError> {
+        let node = self.fence.get().cloned();
         self.maintain(move |client| {
             Box::pin(async move {
                 let acked = client
@@ -503,10 +526,14 @@ impl PgStore {
                     == 1;
                 let alarm = alarm_by_id(&*client, id).await?;
                 if let (true, Some(alarm)) = (acked, &alarm) {
-                    announce(AlarmChange {
+                    let change = AlarmChange {
                         transition: Change::Acknowledged,
                         alarm: alarm.clone(),
-                    });
+                    };
+                    if let Some(node) = &node {
+                        cluster::notify_alarm(&*client, node, &change).await?;
+                    }
+                    announce(change);
                 }
                 Ok(alarm.map(|alarm| (alarm, acked)))
             })

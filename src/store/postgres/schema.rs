@@ -92,6 +92,26 @@ const MIGRATIONS: &[&str] = &[
     );
     CREATE INDEX alarms_open ON alarms (machine_id, cleared_t);
     ",
+    // 2: several nodes on one database (`cluster.rs`).
+    "
+    -- The server nodes: where each answers, the key its forwarded
+    -- requests carry, its last heartbeat.
+    CREATE TABLE nodes (
+        node text PRIMARY KEY,
+        url text NOT NULL,
+        key text NOT NULL,
+        seen_at timestamptz NOT NULL
+    );
+    -- Which node fuses which machine, until when; `epoch` counts the
+    -- times the machine changed hands.
+    CREATE TABLE leases (
+        machine_id bigint PRIMARY KEY REFERENCES machines(id),
+        node text NOT NULL,
+        epoch bigint NOT NULL,
+        expires_at timestamptz NOT NULL
+    );
+    CREATE INDEX leases_by_node ON leases (node);
+    ",
 ];
 
 /// The schema version this build writes.

@@ -5,6 +5,7 @@
 //! statements (arrays unnested server-side).
 
 use std::collections::BTreeSet;
+use std::sync::{Arc, OnceLock};
 
 use tokio::sync::mpsc;
 use tokio_postgres::binary_copy::BinaryCopyInWriter;
@@ -32,7 +33,7 @@ pub(super) async fn writer(
     mut client: Client,
     config: tokio_postgres::Config,
     mut queue: mpsc::Receiver<Queued<Job>>,
-    holds_lock: bool,
+    fence: Arc<OnceLock<String>>,
 ) {
     let mut partitions = match schema::partitions(&client).await {
         Ok(found) => found.into_iter().collect::<BTreeSet<_>>(),
@@ -63,14 +64,11 @@ pub(super) async fn writer(
         }
         if client.is_closed() {
             let fresh = match super::connect(&config).await {
-                Ok(fresh) if !holds_lock => Ok(fresh),
-                Ok(fresh) => match hold_writer_lock(&fresh).await {
-                    Ok(true) => Ok(fresh),
-                    Ok(false) => Err(StoreError::Unavailable(
-                        "another tunnelnav server took over writing to the database".into(),
-                    )),
-                    Err(e) => Err(e),
-                },
+                Ok(fresh) => fresh
+                    .batch_execute("SET idle_in_transaction_session_timeout = '10s'")
+                    .await
+                    .map(|()| fresh)
+                    .map_err(StoreError::from),
                 Err(e) => Err(e),
             };
             match fresh {
@@ -92,7 +90,7 @@ pub(super) async fn writer(
                 }
             }
         }
-        commit(&mut client, &mut partitions, &mut group).await;
+        commit(&mut client, &mut partitions, &mut group, fence.get()).await;
         if let Some(job) = job {
             job(&mut client).await;
             // A job may drop partitions (retention): know them afresh.
@@ -102,13 +100,6 @@ pub(super) async fn writer(
         }
     }
     queue.close();
-    // The next server may take over at once.
-    if let Err(e) = client
-        .batch_execute("SELECT pg_advisory_unlock_all()")
-        .await
-    {
-        tracing::warn!(error = %e, "could not release the writer's lock");
-    }
     if let Some(reply) = close {
         let _ = reply.send(());
     }
@@ -120,12 +111,13 @@ async fn commit(
     client: &mut Client,
     partitions: &mut BTreeSet<(String, i64)>,
     group: &mut Vec<Request>,
+    node: Option<&String>,
 ) {
     if group.is_empty() {
         return;
     }
     let result = match ensure_partitions(client, partitions, group).await {
-        Ok(()) => apply_group(client, group).await,
+        Ok(()) => apply_group(client, group, node).await,
         Err(e) => Err(e),
     };
     match result {
@@ -142,7 +134,7 @@ async fn commit(
             for request in group.drain(..) {
                 let alone = std::slice::from_ref(&request);
                 let result = match ensure_partitions(client, partitions, alone).await {
-                    Ok(()) => apply_group(client, alone)
+                    Ok(()) => apply_group(client, alone, node)
                         .await
                         .map(|mut outcomes| outcomes.pop().unwrap_or(Outcome::Put(0))),
                     Err(e) => Err(e),
@@ -154,19 +146,6 @@ async fn commit(
             }
         }
     }
-}
-
-/// Any constant the nodes agree on: the advisory lock the one writing
-/// connection of a database holds for its session.
-const WRITER_LOCK: i64 = 0x7475_6e6e_656c_7772; // "tunnelwr"
-
-/// Takes the writer's lock on this connection's session; false if another
-/// server's writer holds it.
-pub(super) async fn hold_writer_lock(client: &Client) -> Result<bool, StoreError> {
-    Ok(client
-        .query_one("SELECT pg_try_advisory_lock($1)", &[&WRITER_LOCK])
-        .await?
-        .get(0))
 }
 
 /// Makes the day partitions the group's rows fall in, each in its own
@@ -197,7 +176,11 @@ async fn ensure_partitions(
     Ok(())
 }
 
-async fn apply_group(client: &mut Client, group: &[Request]) -> Result<Vec<Outcome>, StoreError> {
+async fn apply_group(
+    client: &mut Client,
+    group: &[Request],
+    node: Option<&String>,
+) -> Result<Vec<Outcome>, StoreError> {
     let mut tx = client.transaction().await?;
     let writes = || {
         group.iter().filter_map(|request| match request {
@@ -205,6 +188,14 @@ async fn apply_group(client: &mut Client, group: &[Request]) -> Result<Vec<Outco
             Request::PutMachine { .. } => None,
         })
     };
+    if let Some(node) = node {
+        check_leases(
+            &tx,
+            node,
+            writes().map(|w| (w.machine_id, w.lease_epoch)).collect(),
+        )
+        .await?;
+    }
     let copied = Copied {
         readings: copy_readings(&mut tx, writes()).await?,
         estimates: copy_estimates(&mut tx, writes()).await?,
@@ -215,16 +206,66 @@ async fn apply_group(client: &mut Client, group: &[Request]) -> Result<Vec<Outco
         outcomes.push(match request {
             Request::Write(write) => {
                 let (outcome, alarms) = apply_write(&tx, write, copied, &mut buckets).await?;
+                if let Some(node) = node {
+                    for change in &alarms {
+                        super::cluster::notify_alarm(&tx, node, change).await?;
+                    }
+                }
                 Outcome::Write(outcome, alarms)
             }
             Request::PutMachine { spec, snapshot, .. } => {
-                Outcome::Put(apply_put_machine(&tx, spec, snapshot).await?)
+                Outcome::Put(apply_put_machine(&tx, spec, snapshot, node).await?)
             }
         });
     }
     upsert_buckets(&tx, buckets).await?;
+    if node.is_some() {
+        // Live sockets on the other nodes fetch what this commit adds.
+        let with_estimates: BTreeSet<i64> = writes()
+            .filter(|w| !w.estimates.is_empty())
+            .map(|w| w.machine_id)
+            .collect();
+        super::cluster::notify_estimates(&tx, with_estimates).await?;
+    }
     tx.commit().await?;
     Ok(outcomes)
+}
+
+/// Fails unless `node` holds the lease of every machine written, in
+/// force and with the epoch the write was made under, and keeps those
+/// leases from changing hands until this transaction ends (`FOR KEY
+/// SHARE`: a taking locks the row `FOR UPDATE` first and waits; a renewal
+/// changes no key and does not). A node that lost a machine, or took it
+/// anew after a lapse, stores nothing its earlier run still had queued.
+async fn check_leases(
+    tx: &Transaction<'_>,
+    node: &str,
+    wanted: BTreeSet<(i64, Option<i64>)>,
+) -> Result<(), StoreError> {
+    if wanted.is_empty() {
+        return Ok(());
+    }
+    let ids: Vec<i64> = wanted.iter().map(|&(id, _)| id).collect();
+    let held: std::collections::BTreeMap<i64, i64> = tx
+        .query(
+            "SELECT machine_id, epoch FROM leases WHERE node = $1 AND machine_id = ANY($2) \
+             AND expires_at > now() FOR KEY SHARE",
+            &[&node, &ids],
+        )
+        .await?
+        .iter()
+        .map(|row| (row.get(0), row.get(1)))
+        .collect();
+    for (id, epoch) in wanted {
+        let in_force = held.get(&id);
+        if in_force.is_none() || epoch.is_some_and(|e| in_force != Some(&e)) {
+            return Err(StoreError::Unavailable(format!(
+                "machine {id} is no longer fused by node `{node}` under this lease: it lapsed \
+                 or moved"
+            )));
+        }
+    }
+    Ok(())
 }
 
 /// A group's rows below this go in by `INSERT` alone: a `COPY` and its
@@ -527,7 +568,26 @@ async fn apply_put_machine(
     tx: &Transaction<'_>,
     spec: &MachineSpec,
     snapshot: &str,
+    node: Option<&String>,
 ) -> Result<i64, StoreError> {
+    // Several nodes: a machine another node runs is declared there (its
+    // state is not reset from here).
+    if let Some(node) = node {
+        let elsewhere: Option<String> = tx
+            .query_opt(
+                "SELECT l.node FROM leases l JOIN machines m ON m.id = l.machine_id \
+                 WHERE m.machine = $1 AND l.node <> $2 AND l.expires_at > now() FOR KEY SHARE",
+                &[&spec.id, node],
+            )
+            .await?
+            .map(|row| row.get(0));
+        if let Some(other) = elsewhere {
+            return Err(StoreError::Unavailable(format!(
+                "machine `{}` is fused by node `{other}`: declare it there",
+                spec.id
+            )));
+        }
+    }
     let json = serde_json::to_string(spec).map_err(|e| StoreError::Corrupt(e.to_string()))?;
     let id: i64 = tx
         .query_one(
