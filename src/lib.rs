@@ -46,5 +46,6 @@ pub mod replay;
 pub mod server;
 pub mod sim;
 pub mod store;
+pub mod tls;
 #[cfg(test)]
 mod toy_engine;

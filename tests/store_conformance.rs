@@ -632,6 +632,7 @@ async fn both_stores_take_large_batches_alike() {
     let location = PgLocation {
         url: cluster.database("large"),
         password_file: None,
+        ca_file: None,
     };
     let postgres = large_batches(Store::open_postgres(&location).await.unwrap()).await;
     assert_eq!(postgres, sqlite);
@@ -647,6 +648,7 @@ async fn both_stores_keep_alike() {
     let location = PgLocation {
         url: cluster.database("retention"),
         password_file: None,
+        ca_file: None,
     };
     let postgres = retention(Store::open_postgres(&location).await.unwrap()).await;
     assert_eq!(postgres, sqlite);
@@ -664,6 +666,7 @@ async fn both_stores_answer_alike() {
     let location = PgLocation {
         url: cluster.database("conformance"),
         password_file: None,
+        ca_file: None,
     };
     let postgres = conformance(async || Store::open_postgres(&location).await.unwrap()).await;
     assert_eq!(postgres, sqlite);
@@ -677,6 +680,7 @@ async fn postgres_refuses_a_newer_schema_and_reports_a_refused_connection_as_tra
     let location = PgLocation {
         url: cluster.database("newer"),
         password_file: None,
+        ca_file: None,
     };
     let store = PgStore::open(&location).await.unwrap();
     store.close().await;
@@ -742,6 +746,7 @@ async fn postgres_refuses_a_newer_schema_and_reports_a_refused_connection_as_tra
     let gone = PgLocation {
         url: format!("postgres://postgres@127.0.0.1:{port}/newer"),
         password_file: None,
+        ca_file: None,
     };
     let err = PgStore::open(&gone).await.err().unwrap();
     assert!(err.is_transient(), "{err}");
@@ -750,10 +755,65 @@ async fn postgres_refuses_a_newer_schema_and_reports_a_refused_connection_as_tra
     let missing = PgLocation {
         url: location.url.clone(),
         password_file: Some("/nonexistent/tunnelnav-password".into()),
+        ca_file: None,
     };
     let err = PgStore::open(&missing).await.err().unwrap();
     assert!(
         err.to_string().contains("/nonexistent/tunnelnav-password"),
         "{err}"
     );
+}
+
+/// TLS to PostgreSQL: with `sslmode=require` the server's certificate is
+/// checked against the CA file named (`--store-ca-file`, `[store]
+/// ca_file`): the office's own CA is accepted, and without it (the
+/// system's roots) the connection is refused, naming the certificate. A
+/// URL without `sslmode` connects plainly as before.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn postgres_over_tls_checks_the_servers_certificate() {
+    use rcgen::{BasicConstraints, CertificateParams, CertifiedIssuer, IsCa, KeyPair};
+    let Some(mut cluster) = PgCluster::start() else {
+        return;
+    };
+    let mut ca = CertificateParams::new(Vec::<String>::new()).unwrap();
+    ca.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
+    let ca = CertifiedIssuer::self_signed(ca, KeyPair::generate().unwrap()).unwrap();
+    let key = KeyPair::generate().unwrap();
+    let certificate = CertificateParams::new(vec!["127.0.0.1".to_string()])
+        .unwrap()
+        .signed_by(&key, &ca)
+        .unwrap();
+    cluster.enable_tls(&certificate.pem(), &key.serialize_pem());
+    let plain = cluster.database("tls");
+    let dir = tempfile::tempdir().unwrap();
+    let ca_file = dir.path().join("office-ca.pem");
+    std::fs::write(&ca_file, ca.pem()).unwrap();
+
+    let location = |url: &str, ca_file: Option<std::path::PathBuf>| PgLocation {
+        url: url.to_string(),
+        password_file: None,
+        ca_file,
+    };
+    let tls = format!("{plain}?sslmode=require");
+    let store = Store::open_postgres(&location(&tls, Some(ca_file.clone())))
+        .await
+        .unwrap();
+    let id = store
+        .put_machine(spec("tbm-tls"), "s".into())
+        .await
+        .unwrap();
+    let (outcome, _) = commit(&store, id, vec![level(1.0)], vec![], vec![], None).await;
+    assert_eq!(outcome.stored, 1);
+    store.close().await;
+
+    let refused = Store::open_postgres(&location(&tls, None))
+        .await
+        .err()
+        .unwrap();
+    assert!(refused.to_string().contains("certificate"), "{refused}");
+    // Plain as before when the URL does not ask for TLS.
+    let store = Store::open_postgres(&location(&plain, None)).await.unwrap();
+    let machines = read(&store, |s| s.machines()).await;
+    assert_eq!(machines.len(), 1);
+    store.close().await;
 }

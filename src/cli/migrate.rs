@@ -21,12 +21,19 @@ pub struct MigrateArgs {
     /// A file whose first line is the database's password.
     #[arg(long, value_name = "FILE")]
     pub to_password_file: Option<PathBuf>,
+    /// The CA (PEM) the database's certificate is checked against when the
+    /// URL asks for TLS (`sslmode=require`).
+    #[arg(long, value_name = "FILE")]
+    pub to_ca_file: Option<PathBuf>,
 }
 
 pub fn run(args: MigrateArgs) -> Result<(), CliError> {
     let Some(target) = crate::server::settings::store_location(
         Some(&args.to),
-        args.to_password_file.as_deref(),
+        crate::server::settings::StoreFiles {
+            password_file: args.to_password_file.as_deref(),
+            ca_file: args.to_ca_file.as_deref(),
+        },
         &Default::default(),
     )?
     else {

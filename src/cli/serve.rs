@@ -29,6 +29,11 @@ pub struct ServeArgs {
     /// password_file`).
     #[arg(long, env = "TUNNELNAV_STORE_PASSWORD_FILE", value_name = "FILE")]
     pub store_password_file: Option<PathBuf>,
+    /// The CA (PEM) the store's certificate is checked against when its URL
+    /// asks for TLS (`sslmode=require`; also `[store] ca_file`); default
+    /// the system's roots.
+    #[arg(long, env = "TUNNELNAV_STORE_CA_FILE", value_name = "FILE")]
+    pub store_ca_file: Option<PathBuf>,
     /// This node's name among several serving one PostgreSQL store
     /// (default: the host's name; `NAME-2`, ... if a live server has it).
     #[arg(long, env = "TUNNELNAV_NODE", value_name = "NAME")]
@@ -102,7 +107,10 @@ pub fn run(args: ServeArgs) -> Result<(), CliError> {
     let mqtt = mqtt_settings(args.mqtt.as_deref(), &settings.mqtt)?;
     let postgres = crate::server::settings::store_location(
         args.store.as_deref(),
-        args.store_password_file.as_deref(),
+        crate::server::settings::StoreFiles {
+            password_file: args.store_password_file.as_deref(),
+            ca_file: args.store_ca_file.as_deref(),
+        },
         &settings.store,
     )?;
     if postgres.is_none() && (args.node.is_some() || args.advertise.is_some()) {

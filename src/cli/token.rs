@@ -33,6 +33,9 @@ pub struct DataDir {
     /// A file whose first line is the store's password.
     #[arg(long, env = "TUNNELNAV_STORE_PASSWORD_FILE", value_name = "FILE")]
     pub store_password_file: Option<PathBuf>,
+    /// The CA (PEM) the store's certificate is checked against (TLS).
+    #[arg(long, env = "TUNNELNAV_STORE_CA_FILE", value_name = "FILE")]
+    pub store_ca_file: Option<PathBuf>,
 }
 
 /// Where the tokens are: the SQLite file (a plain connection beside a
@@ -46,7 +49,10 @@ impl Tokens {
     fn open(dir: &DataDir) -> Result<Tokens, CliError> {
         let location = crate::server::settings::store_location(
             dir.store.as_deref(),
-            dir.store_password_file.as_deref(),
+            crate::server::settings::StoreFiles {
+                password_file: dir.store_password_file.as_deref(),
+                ca_file: dir.store_ca_file.as_deref(),
+            },
             &Default::default(),
         )?;
         Ok(match location {

@@ -387,13 +387,24 @@ pub struct StoreConfig {
     /// A file holding the password (its first line), kept out of the URL
     /// and the process list.
     pub password_file: Option<PathBuf>,
+    /// The CA (PEM) the server's certificate is checked against when the
+    /// URL asks for TLS (`sslmode=require`); default the system's roots.
+    pub ca_file: Option<PathBuf>,
+}
+
+/// How to reach a PostgreSQL store besides its URL (flags that win over
+/// the config file's `[store]`).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct StoreFiles<'a> {
+    pub password_file: Option<&'a Path>,
+    pub ca_file: Option<&'a Path>,
 }
 
 /// Where the store is: PostgreSQL if `url` (a flag, else the config
 /// file's `[store] url`) names it, else `None` (SQLite in the data dir).
 pub fn store_location(
     url: Option<&str>,
-    password_file: Option<&Path>,
+    files: StoreFiles<'_>,
     config: &StoreConfig,
 ) -> Result<Option<crate::store::postgres::PgLocation>, crate::store::StoreError> {
     let Some(url) = url.or(config.url.as_deref()) else {
@@ -407,9 +418,14 @@ pub fn store_location(
     }
     Ok(Some(crate::store::postgres::PgLocation {
         url: url.to_string(),
-        password_file: password_file
+        password_file: files
+            .password_file
             .map(Path::to_path_buf)
             .or_else(|| config.password_file.clone()),
+        ca_file: files
+            .ca_file
+            .map(Path::to_path_buf)
+            .or_else(|| config.ca_file.clone()),
     }))
 }
 

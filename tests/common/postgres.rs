@@ -176,6 +176,24 @@ impl PgCluster {
         );
     }
 
+    /// Restarts the server with TLS on (`ssl=on`), its certificate and key
+    /// the PEM texts given; plain connections are still accepted.
+    pub fn enable_tls(&mut self, certificate_pem: &str, key_pem: &str) {
+        use std::os::unix::fs::PermissionsExt;
+        let data = self.data_dir();
+        for (file, text) in [("server.crt", certificate_pem), ("server.key", key_pem)] {
+            let path = data.join(file);
+            std::fs::write(&path, text).unwrap();
+            std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o600)).unwrap();
+            if self.run_as_postgres {
+                std::os::unix::fs::chown(&path, Some(id_of("-u")), Some(id_of("-g"))).unwrap();
+            }
+        }
+        self.stop();
+        self.options.push_str(" -c ssl=on");
+        self.start_again();
+    }
+
     /// A new, empty database; its URL.
     pub fn database(&self, name: &str) -> String {
         self.run(

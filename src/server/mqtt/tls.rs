@@ -6,19 +6,18 @@ use std::path::Path;
 use std::sync::Arc;
 
 use rumqttc::{TlsConfiguration, Transport};
+use rustls::pki_types::PrivateKeyDer;
 use rustls::pki_types::pem::PemObject;
-use rustls::pki_types::{CertificateDer, PrivateKeyDer};
-use rustls::{ClientConfig, RootCertStore};
+
+use crate::tls::TlsSetupError;
 
 use super::MqttError;
 use crate::server::settings::MqttConfig;
 
 /// The TLS transport `config` asks for.
 pub(super) fn transport(config: &MqttConfig) -> Result<Transport, MqttError> {
-    let provider = Arc::new(rustls::crypto::ring::default_provider());
-    let builder = ClientConfig::builder_with_provider(provider)
-        .with_safe_default_protocol_versions()
-        .map_err(|e| MqttError::Settings(format!("TLS: {e}")))?
+    let builder = crate::tls::builder()
+        .map_err(mqtt_error)?
         .with_root_certificates(roots(config.ca_file.as_deref())?);
     let client = match (&config.client_cert_file, &config.client_key_file) {
         (Some(cert), Some(key)) => {
@@ -45,54 +44,26 @@ pub(super) fn transport(config: &MqttConfig) -> Result<Transport, MqttError> {
 }
 
 /// The certificates the broker's is checked against.
-fn roots(ca_file: Option<&Path>) -> Result<RootCertStore, MqttError> {
-    let mut roots = RootCertStore::empty();
-    match ca_file {
-        Some(path) => {
-            for certificate in certificates("ca_file", path)? {
-                roots.add(certificate).map_err(|e| MqttError::File {
-                    what: "ca_file",
-                    path: path.display().to_string(),
-                    reason: e.to_string(),
-                })?;
-            }
-        }
-        None => {
-            let found = rustls_native_certs::load_native_certs();
-            let (added, _) = roots.add_parsable_certificates(found.certs);
-            if added == 0 {
-                let errors: Vec<String> = found.errors.iter().map(|e| e.to_string()).collect();
-                return Err(MqttError::Settings(format!(
-                    "TLS: no root certificate found on this system ({}); \
-                     name the broker's CA in mqtt.ca_file",
-                    if errors.is_empty() {
-                        "none installed".to_string()
-                    } else {
-                        errors.join("; ")
-                    }
-                )));
-            }
-        }
-    }
-    Ok(roots)
+fn roots(ca_file: Option<&Path>) -> Result<rustls::RootCertStore, MqttError> {
+    crate::tls::roots(ca_file).map_err(mqtt_error)
 }
 
 /// Every certificate of a PEM file; at least one.
 fn certificates(
     what: &'static str,
     path: &Path,
-) -> Result<Vec<CertificateDer<'static>>, MqttError> {
-    let file_error = |reason: String| MqttError::File {
-        what,
-        path: path.display().to_string(),
-        reason,
-    };
-    let certificates = CertificateDer::pem_file_iter(path)
-        .map_err(|e| file_error(e.to_string()))?
-        .collect::<Result<Vec<_>, _>>()
-        .map_err(|e| file_error(e.to_string()))?;
-    if certificates.is_empty() {
-        return Err(file_error("no PEM certificate in it".into()));
+) -> Result<Vec<rustls::pki_types::CertificateDer<'static>>, MqttError> {
+    crate::tls::certificates(what, path).map_err(mqtt_error)
+}
+
+/// A TLS set-up error as the MQTT settings name it.
+fn mqtt_error(e: TlsSetupError) -> MqttError {
+    match e {
+        TlsSetupError::File { what, path, reason } => MqttError::File { what, path, reason },
+        TlsSetupError::NoRoots(why) => MqttError::Settings(format!(
+            "TLS: no root certificate found on this system ({why}); \
+             name the broker's CA in mqtt.ca_file"
+        )),
+        TlsSetupError::Config(why) => MqttError::Settings(format!("TLS: {why}")),
     }
-    Ok(certificates)
 }

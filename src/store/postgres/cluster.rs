@@ -15,9 +15,9 @@ use std::collections::BTreeSet;
 
 use sha2::{Digest, Sha256};
 use tokio::sync::mpsc;
-use tokio_postgres::{AsyncMessage, Client, GenericClient, NoTls};
+use tokio_postgres::{AsyncMessage, Client, GenericClient};
 
-use super::connect;
+use super::{Endpoint, connect};
 use crate::store::StoreError;
 use crate::store::alarms::AlarmChange;
 
@@ -47,7 +47,7 @@ pub struct Placement {
 /// held for as long as the session lives.
 pub struct Membership {
     client: Client,
-    config: tokio_postgres::Config,
+    endpoint: Endpoint,
     node: String,
     url: String,
     key: String,
@@ -88,12 +88,12 @@ async fn try_lock(client: &Client, node: &str) -> Result<bool, StoreError> {
 impl Membership {
     /// Joins as `wanted`, or, if a live process holds that name, as
     /// `wanted-2`, `wanted-3`, ... (up to 16); answers at `url`.
-    pub async fn join(
-        config: tokio_postgres::Config,
+    pub(super) async fn join(
+        endpoint: Endpoint,
         wanted: &str,
         url: &str,
     ) -> Result<Membership, StoreError> {
-        let client = connect(&config).await?;
+        let client = connect(&endpoint).await?;
         settle_session(&client).await?;
         // A server of the release before several nodes holds this lock
         // alone while it writes: never alongside it.
@@ -139,7 +139,7 @@ impl Membership {
         let key = hex::encode(rand::random::<[u8; 16]>());
         let membership = Membership {
             client,
-            config,
+            endpoint,
             node,
             url: url.to_string(),
             key,
@@ -176,7 +176,7 @@ impl Membership {
         if !self.client.is_closed() {
             return Ok(());
         }
-        let client = connect(&self.config).await?;
+        let client = connect(&self.endpoint).await?;
         settle_session(&client).await?;
         client
             .query_one(
@@ -394,7 +394,7 @@ pub(super) async fn notify_alarm(
 
 /// Listens for other nodes' commits on a connection of its own, made again
 /// when lost (then [`Notice::Resync`]); ends when the receiver is dropped.
-pub fn listen(config: tokio_postgres::Config) -> mpsc::Receiver<Notice> {
+pub(super) fn listen(endpoint: Endpoint) -> mpsc::Receiver<Notice> {
     let (notices, received) = mpsc::channel(1024);
     tokio::spawn(async move {
         let mut first = true;
@@ -402,7 +402,7 @@ pub fn listen(config: tokio_postgres::Config) -> mpsc::Receiver<Notice> {
             if notices.is_closed() {
                 return;
             }
-            match listen_once(&config, &notices, first).await {
+            match listen_once(&endpoint, &notices, first).await {
                 Ok(()) => return,
                 Err(e) => {
                     tracing::warn!(error = %e, "lost the notification connection; listening again")
@@ -417,14 +417,20 @@ pub fn listen(config: tokio_postgres::Config) -> mpsc::Receiver<Notice> {
 
 /// One connection's worth of [`listen`]: `Ok` when the receiver is gone.
 async fn listen_once(
-    config: &tokio_postgres::Config,
+    endpoint: &Endpoint,
     notices: &mpsc::Sender<Notice>,
     first: bool,
 ) -> Result<(), StoreError> {
-    let (client, mut connection) = config
-        .connect(NoTls)
+    let (client, mut connection) = endpoint
+        .config
+        .connect(endpoint.tls.clone())
         .await
-        .map_err(|e| StoreError::Unavailable(format!("cannot reach PostgreSQL: {e}")))?;
+        .map_err(|e| {
+            StoreError::Unavailable(format!(
+                "cannot reach PostgreSQL: {}",
+                super::with_causes(&e)
+            ))
+        })?;
     let (messages_tx, mut messages) = mpsc::unbounded_channel();
     let driver = tokio::spawn(async move {
         let mut stream = futures_util::stream::poll_fn(move |cx| connection.poll_message(cx));

@@ -189,8 +189,8 @@ pub async fn from_sqlite(
         )));
     }
     let source = SqliteStore::connect(data_dir)?;
-    let config = target.config()?;
-    let mut client = connect(&config).await?;
+    let endpoint = target.endpoint()?;
+    let mut client = connect(&endpoint).await?;
     schema::migrate(&mut client).await?;
     let machines: i64 = client
         .query_one("SELECT count(*) FROM machines", &[])

@@ -24,7 +24,8 @@ use std::sync::Arc;
 
 use deadpool_postgres::{Manager, ManagerConfig, Pool, RecyclingMethod};
 use tokio::sync::{mpsc, oneshot};
-use tokio_postgres::{GenericClient, NoTls};
+use tokio_postgres::GenericClient;
+use tokio_postgres_rustls::MakeRustlsConnect;
 
 use super::alarms::{AlarmChange, AlarmFilter, Change, StoredAlarm};
 use super::queries::{self, EstimatesPage, Extremes, HistorySource};
@@ -51,12 +52,50 @@ fn writer_count() -> usize {
 pub struct PgLocation {
     pub url: String,
     pub password_file: Option<std::path::PathBuf>,
+    /// The CA the server's certificate is checked against (TLS), if not
+    /// the system's roots.
+    pub ca_file: Option<std::path::PathBuf>,
+}
+
+/// Where and how to connect: the driver's configuration and the TLS
+/// connector (used when the URL's `sslmode` is `require` or `prefer`, or
+/// a CA file is named).
+#[derive(Clone)]
+pub(crate) struct Endpoint {
+    config: tokio_postgres::Config,
+    tls: MakeRustlsConnect,
 }
 
 impl PgLocation {
     /// The URL without its password, for messages.
     pub fn redacted_url(&self) -> String {
         redacted(&self.url)
+    }
+
+    /// The URL parsed, the password read, TLS as asked: `sslmode=require`
+    /// (or a CA file) checks the server's certificate against the CA file
+    /// or the system's roots and its name against the URL's host.
+    fn endpoint(&self) -> Result<Endpoint, StoreError> {
+        let mut config = self.config()?;
+        let wanted = self.ca_file.is_some()
+            || config.get_ssl_mode() == tokio_postgres::config::SslMode::Require
+            || self.url.contains("sslmode=prefer");
+        let roots = if wanted {
+            crate::tls::roots(self.ca_file.as_deref())
+                .map_err(|e| StoreError::Location(format!("TLS to PostgreSQL: {e}")))?
+        } else {
+            // Never used: the connection is plain.
+            config.ssl_mode(tokio_postgres::config::SslMode::Disable);
+            rustls::RootCertStore::empty()
+        };
+        let tls = crate::tls::builder()
+            .map_err(|e| StoreError::Location(e.to_string()))?
+            .with_root_certificates(roots)
+            .with_no_client_auth();
+        Ok(Endpoint {
+            config,
+            tls: MakeRustlsConnect::new(tls),
+        })
     }
 
     /// The driver's configuration: the URL parsed, the password read.
@@ -103,7 +142,7 @@ pub struct PgStore {
     /// The writers' queues: a machine's writes go to one of them (by its
     /// id), jobs and declarations to the first.
     writers: Arc<[mpsc::Sender<Queued<writer::Job>>]>,
-    config: Arc<tokio_postgres::Config>,
+    endpoint: Arc<Endpoint>,
     /// Set when this store serves a node of several: the node's name. The
     /// writers then commit a machine's rows only while the node holds its
     /// lease.
@@ -118,27 +157,32 @@ impl PgStore {
     /// starts the writer. Call within a Tokio runtime: reads and the writer
     /// run on it.
     pub async fn open(location: &PgLocation) -> Result<PgStore, StoreError> {
-        let config = location.config()?;
-        let mut migrator = connect(&config).await?;
+        let endpoint = location.endpoint()?;
+        let mut migrator = connect(&endpoint).await?;
         schema::migrate(&mut migrator).await?;
         drop(migrator);
         let fence = Arc::new(std::sync::OnceLock::new());
         let mut writers = Vec::with_capacity(writer_count());
         for _ in 0..writer_count() {
-            let client = connect(&config).await?;
+            let client = connect(&endpoint).await?;
             // A writer stuck inside a transaction (its host paused) must
             // not hold the leases it checked for ever.
             client
                 .batch_execute("SET idle_in_transaction_session_timeout = '10s'")
                 .await?;
             let (requests, queue) = mpsc::channel(QUEUE_LEN);
-            tokio::spawn(writer::writer(client, config.clone(), queue, fence.clone()));
+            tokio::spawn(writer::writer(
+                client,
+                endpoint.clone(),
+                queue,
+                fence.clone(),
+            ));
             writers.push(requests);
         }
         Ok(PgStore {
             writers: writers.into(),
-            readers: pool(config.clone())?,
-            config: Arc::new(config),
+            readers: pool(&endpoint)?,
+            endpoint: Arc::new(endpoint),
             fence,
             runtime: tokio::runtime::Handle::current(),
         })
@@ -148,15 +192,15 @@ impl PgStore {
     /// (`tunnelnav token`): its schema brought current and a read pool, no
     /// writer (writes fail with [`StoreError::Closed`]).
     pub async fn open_client(location: &PgLocation) -> Result<PgStore, StoreError> {
-        let config = location.config()?;
-        let mut migrator = connect(&config).await?;
+        let endpoint = location.endpoint()?;
+        let mut migrator = connect(&endpoint).await?;
         schema::migrate(&mut migrator).await?;
         drop(migrator);
         let (requests, _) = mpsc::channel(1);
         Ok(PgStore {
             writers: Arc::new([requests]),
-            readers: pool(config.clone())?,
-            config: Arc::new(config),
+            readers: pool(&endpoint)?,
+            endpoint: Arc::new(endpoint),
             fence: Arc::default(),
             runtime: tokio::runtime::Handle::current(),
         })
@@ -192,7 +236,7 @@ impl PgStore {
     /// answering at `url`; from then on a machine's rows are committed
     /// only while this node holds its lease.
     pub async fn join(&self, wanted: &str, url: &str) -> Result<cluster::Membership, StoreError> {
-        let membership = cluster::Membership::join((*self.config).clone(), wanted, url).await?;
+        let membership = cluster::Membership::join((*self.endpoint).clone(), wanted, url).await?;
         if self.fence.set(membership.node().to_string()).is_err() {
             return Err(StoreError::Location(
                 "this store already serves a node".into(),
@@ -213,7 +257,7 @@ impl PgStore {
 
     /// Other nodes' commits, as they happen (see [`cluster::listen`]).
     pub fn listen(&self) -> mpsc::Receiver<cluster::Notice> {
-        cluster::listen((*self.config).clone())
+        cluster::listen((*self.endpoint).clone())
     }
 
     /// The writer of machine `machine_id`: always the same one, so its
@@ -894,10 +938,10 @@ async fn alarm_by_id(
 }
 
 /// The pool of reading connections.
-fn pool(config: tokio_postgres::Config) -> Result<Pool, StoreError> {
+fn pool(endpoint: &Endpoint) -> Result<Pool, StoreError> {
     let manager = Manager::from_config(
-        config,
-        NoTls,
+        endpoint.config.clone(),
+        endpoint.tls.clone(),
         ManagerConfig {
             recycling_method: RecyclingMethod::Fast,
         },
@@ -914,20 +958,36 @@ fn pool(config: tokio_postgres::Config) -> Result<Pool, StoreError> {
 /// A connection, its driver task spawned on the current runtime. Not
 /// reaching the server (refused, timed out) is [`StoreError::Unavailable`];
 /// what the server answers (a wrong password, no such database) is its error.
-async fn connect(config: &tokio_postgres::Config) -> Result<tokio_postgres::Client, StoreError> {
-    let (client, connection) = config.connect(NoTls).await.map_err(|e| {
-        if e.code().is_some() {
-            StoreError::Postgres(e)
-        } else {
-            StoreError::Unavailable(format!("cannot reach PostgreSQL: {e}"))
-        }
-    })?;
+async fn connect(endpoint: &Endpoint) -> Result<tokio_postgres::Client, StoreError> {
+    let (client, connection) = endpoint
+        .config
+        .connect(endpoint.tls.clone())
+        .await
+        .map_err(|e| {
+            if e.code().is_some() {
+                StoreError::Postgres(e)
+            } else {
+                StoreError::Unavailable(format!("cannot reach PostgreSQL: {}", with_causes(&e)))
+            }
+        })?;
     tokio::spawn(async move {
         if let Err(e) = connection.await {
             tracing::warn!(error = %e, "PostgreSQL connection ended");
         }
     });
     Ok(client)
+}
+
+/// An error with what caused it (a TLS handshake's reason, say).
+pub(super) fn with_causes(e: &dyn std::error::Error) -> String {
+    let mut text = e.to_string();
+    let mut cause = e.source();
+    while let Some(inner) = cause {
+        text.push_str(": ");
+        text.push_str(&inner.to_string());
+        cause = inner.source();
+    }
+    text
 }
 
 /// A stored reading's row.

@@ -31,7 +31,7 @@ pub(super) type Job =
 /// or when every handle is gone.
 pub(super) async fn writer(
     mut client: Client,
-    config: tokio_postgres::Config,
+    endpoint: super::Endpoint,
     mut queue: mpsc::Receiver<Queued<Job>>,
     fence: Arc<OnceLock<String>>,
 ) {
@@ -63,7 +63,7 @@ pub(super) async fn writer(
             }
         }
         if client.is_closed() {
-            let fresh = match super::connect(&config).await {
+            let fresh = match super::connect(&endpoint).await {
                 Ok(fresh) => fresh
                     .batch_execute("SET idle_in_transaction_session_timeout = '10s'")
                     .await
