@@ -257,7 +257,7 @@ pub struct MachineHandle {
     pub spec: Arc<MachineSpec>,
     pub db_id: i64,
     /// The lease epoch it runs under here (several nodes).
-    pub lease_epoch: Option<i64>,
+    pub lease_epoch: LeaseEpoch,
     commands: mpsc::Sender<Command>,
     live: broadcast::Sender<LiveEstimate>,
     status: watch::Receiver<Arc<MachineStatus>>,
@@ -459,6 +459,33 @@ pub struct Surroundings {
     pub alarm_changes: Arc<dyn AlarmSink>,
 }
 
+/// The lease epoch a machine runs under on this node (several nodes on
+/// PostgreSQL), shared by its handle and its task: every write carries
+/// it. Raised in place when this node takes a lapsed lease back that no
+/// other node held meanwhile.
+#[derive(Debug, Clone)]
+pub struct LeaseEpoch(Arc<std::sync::atomic::AtomicI64>);
+
+impl LeaseEpoch {
+    /// No lease (one server).
+    const NONE: i64 = i64::MIN;
+
+    pub fn new(epoch: Option<i64>) -> LeaseEpoch {
+        LeaseEpoch(Arc::new(std::sync::atomic::AtomicI64::new(
+            epoch.unwrap_or(Self::NONE),
+        )))
+    }
+
+    pub fn get(&self) -> Option<i64> {
+        let epoch = self.0.load(Ordering::SeqCst);
+        (epoch != Self::NONE).then_some(epoch)
+    }
+
+    pub fn set(&self, epoch: i64) {
+        self.0.store(epoch, Ordering::SeqCst);
+    }
+}
+
 /// Starts the task that owns `core`.
 pub fn spawn(
     surroundings: Surroundings,
@@ -474,6 +501,7 @@ pub fn spawn(
         clock,
         alarm_changes,
     } = surroundings;
+    let lease_epoch = LeaseEpoch::new(lease_epoch);
     let (commands, queue) = mpsc::channel(queue_len.max(1));
     let (live, _) = broadcast::channel(LIVE_BUFFER);
     let (status_tx, status) = watch::channel(Arc::new(current.clone()));
@@ -482,7 +510,7 @@ pub fn spawn(
         store,
         spec: spec.clone(),
         db_id,
-        lease_epoch,
+        lease_epoch: lease_epoch.clone(),
         core,
         write_failed: Arc::default(),
         live: live.clone(),
@@ -508,7 +536,7 @@ struct Actor {
     spec: Arc<MachineSpec>,
     db_id: i64,
     /// The lease this node runs the machine under (several nodes).
-    lease_epoch: Option<i64>,
+    lease_epoch: LeaseEpoch,
     core: MachineCore,
     /// Set by the store when one of this machine's writes failed: the
     /// engines have seen readings that are not stored, so they are rebuilt
@@ -575,7 +603,7 @@ impl Actor {
                         snapshot: Some(self.core.snapshot()),
                         after_commit: None,
                         reply: Some(done),
-                        lease_epoch: self.lease_epoch,
+                        lease_epoch: self.lease_epoch.get(),
                     };
                     if self.store.write(write).await.is_ok() {
                         let _ = committed.await;
@@ -610,7 +638,7 @@ impl Actor {
                 None => write_failed.store(true, Ordering::SeqCst),
             })),
             reply: None,
-            lease_epoch: self.lease_epoch,
+            lease_epoch: self.lease_epoch.get(),
         };
         if let Err(e) = self.store.write(write).await {
             tracing::error!(error = %e, "store closed");
@@ -627,7 +655,7 @@ impl Actor {
             self.store.clone(),
             self.spec.clone(),
             self.db_id,
-            self.lease_epoch,
+            self.lease_epoch.get(),
         );
         match tokio::task::spawn_blocking(move || recover(&store, &spec, db_id, epoch)).await {
             Ok(Ok(core)) => {
@@ -706,7 +734,7 @@ impl Actor {
                 None => write_failed.store(true, Ordering::SeqCst),
             })),
             reply: Some(reply),
-            lease_epoch: self.lease_epoch,
+            lease_epoch: self.lease_epoch.get(),
         };
         if let Err(e) = self.store.write(write).await {
             tracing::error!(error = %e, "store closed");

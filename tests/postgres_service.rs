@@ -317,3 +317,55 @@ async fn a_site_moves_to_postgres_whole_and_verified() {
     let said = String::from_utf8_lossy(&again.stderr);
     assert!(said.contains("holds 1 machines already"), "{said}");
 }
+
+/// The database away for longer than a lease (8 s) under a running
+/// server: ingest answers 503 meanwhile, and once the database is back the
+/// same server takes its lapsed lease back and carries on (no other node
+/// held it): every acknowledged reading stored once, the estimates equal
+/// replay of what is stored.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_database_away_longer_than_a_lease_is_ridden_out() {
+    let Some(cluster) = PgCluster::start() else {
+        return;
+    };
+    let url = cluster.database("outage");
+    let dir = tempfile::tempdir().unwrap();
+    let server = ServerProcess::start_with_args(dir.path(), &["--store", &url]);
+    let base = server.url("");
+    let client = reqwest::Client::new();
+    put_machine(&client, &base, "tbm-out").await;
+    let lines = drive(1.0, 7, vec![]);
+    let (before, after) = lines.split_at(lines.len() / 2);
+    for chunk in before.chunks(200) {
+        let response = send_ndjson(&client, &base, "tbm-out", chunk).await.unwrap();
+        assert_eq!(response.status(), 200);
+    }
+    cluster.stop();
+    let refused = send_ndjson(&client, &base, "tbm-out", &after[..10])
+        .await
+        .unwrap();
+    assert_eq!(refused.status(), 503);
+    tokio::time::sleep(std::time::Duration::from_secs(8)).await;
+    cluster.start_again();
+    let back = std::time::Instant::now();
+    for chunk in after.chunks(200) {
+        loop {
+            let response = send_ndjson(&client, &base, "tbm-out", chunk).await.unwrap();
+            if response.status() == 200 {
+                break;
+            }
+            assert_eq!(response.status(), 503);
+            assert!(
+                back.elapsed() < std::time::Duration::from_secs(20),
+                "ingest did not resume after the database came back"
+            );
+            tokio::time::sleep(std::time::Duration::from_millis(200)).await;
+        }
+    }
+    let stored = common::exported_readings(&client, &base, "tbm-out").await;
+    assert_eq!(stored.len(), lines.len());
+    let served = common::all_estimates(&client, &base, "tbm-out").await;
+    let replayed = common::replay("tbm-out", &stored);
+    assert_eq!(served, replayed);
+    server.kill();
+}

@@ -40,6 +40,8 @@ use crate::store::postgres::cluster::{Membership, NodeRow, Placement};
 pub const LEASE_TTL_S: f64 = 5.0;
 /// How often a node renews its leases and rebalances.
 const TICK: Duration = Duration::from_secs(1);
+/// How long a machine that could not be started here waits for the next try.
+const START_RETRY: Duration = Duration::from_secs(10);
 /// A node that could not renew for this long stops its machines: its
 /// leases are about to lapse and another node to take them.
 const SELF_FENCE: Duration = Duration::from_secs(4);
@@ -81,6 +83,8 @@ pub struct Cluster {
     renewed: std::sync::Mutex<Instant>,
     /// Set when the node left: renewals stop.
     left: std::sync::atomic::AtomicBool,
+    /// Machines whose start failed here, and when (tried again later).
+    failed: std::sync::Mutex<HashMap<i64, Instant>>,
     /// Live feeds of machines other nodes fuse, followed here.
     pub feeds: super::feeds::Feeds,
     http: reqwest::Client,
@@ -145,6 +149,7 @@ impl Cluster {
             held: std::sync::Mutex::new(BTreeMap::new()),
             renewed: std::sync::Mutex::new(Instant::now()),
             left: std::sync::atomic::AtomicBool::new(false),
+            failed: std::sync::Mutex::new(HashMap::new()),
             feeds: super::feeds::Feeds::default(),
             http,
         })
@@ -443,7 +448,15 @@ async fn keep_renewing(state: SharedState, cluster: Arc<Cluster>) {
             .lock()
             .map(|at| at.elapsed())
             .unwrap_or_default();
-        if since >= SELF_FENCE && !cluster.left.load(std::sync::atomic::Ordering::SeqCst) {
+        // Alone, nobody can take the machines: they run on, their writes
+        // refused until the leases are taken back (each commit checks).
+        let others = cluster.view.read().is_ok_and(|view| {
+            view.nodes
+                .values()
+                .any(|n| n.live && n.node != cluster.node)
+        });
+        if since >= SELF_FENCE && others && !cluster.left.load(std::sync::atomic::Ordering::SeqCst)
+        {
             if let Ok(mut held) = cluster.held.lock() {
                 held.clear();
             }
@@ -484,8 +497,27 @@ pub async fn balance(state: &SharedState, cluster: &Cluster) -> Result<(), ApiEr
         .lock()
         .map(|held| held.iter().map(|(&id, &(epoch, _))| (id, epoch)).collect())
         .unwrap_or_default();
-    for machine in state.all_machines() {
-        if held.get(&machine.db_id).copied() != machine.lease_epoch {
+    let mut held = held;
+    // A running machine whose lease lapsed (the database away, a slow
+    // renewal) is taken back; if no node held it meanwhile (the epoch is
+    // exactly one more) it runs on.
+    let running = state.all_machines();
+    let lapsed: Vec<i64> = running
+        .iter()
+        .filter(|m| !held.contains_key(&m.db_id))
+        .map(|m| m.db_id)
+        .collect();
+    for (id, epoch) in take(cluster, &lapsed).await? {
+        if let Some(machine) = running.iter().find(|m| m.db_id == id)
+            && machine.lease_epoch.get() == Some(epoch - 1)
+        {
+            tracing::info!(machine = %machine.spec.id, epoch, "lapsed lease taken back");
+            machine.lease_epoch.set(epoch);
+        }
+        held.insert(id, epoch);
+    }
+    for machine in running {
+        if held.get(&machine.db_id).copied() != machine.lease_epoch.get() {
             tracing::warn!(machine = %machine.spec.id, "no longer held under its lease: stopping");
             state.stop_machine(&machine.spec.id).await;
         }
@@ -519,9 +551,6 @@ pub async fn balance(state: &SharedState, cluster: &Cluster) -> Result<(), ApiEr
         // The newest machine goes: one a round, so the others settle.
         if let Some(machine) = state.all_machines().into_iter().max_by_key(|m| m.db_id) {
             tracing::info!(machine = %machine.spec.id, "handing a machine to another node");
-            if let Ok(mut held) = cluster.held.lock() {
-                held.remove(&machine.db_id);
-            }
             state.stop_machine(&machine.spec.id).await;
             cluster
                 .membership
@@ -529,6 +558,9 @@ pub async fn balance(state: &SharedState, cluster: &Cluster) -> Result<(), ApiEr
                 .await
                 .release(machine.db_id)
                 .await?;
+            if let Ok(mut held) = cluster.held.lock() {
+                held.remove(&machine.db_id);
+            }
         }
     }
     Ok(())
@@ -556,8 +588,30 @@ async fn take(cluster: &Cluster, machine_ids: &[i64]) -> Result<Vec<(i64, i64)>,
 /// restored is logged and left (its requests answered 503) while the
 /// others run.
 async fn run(state: &SharedState, id: i64, epoch: i64) {
-    if let Err(e) = state.start_machine(id, Some(epoch)).await {
-        tracing::error!(machine_id = id, error = %e, "cannot start a machine this node holds");
+    let Some(cluster) = &state.cluster else {
+        return;
+    };
+    let failed_lately = cluster
+        .failed
+        .lock()
+        .ok()
+        .and_then(|failed| failed.get(&id).copied())
+        .is_some_and(|at| at.elapsed() < START_RETRY);
+    if failed_lately {
+        return;
+    }
+    match state.start_machine(id, Some(epoch)).await {
+        Ok(()) => {
+            if let Ok(mut failed) = cluster.failed.lock() {
+                failed.remove(&id);
+            }
+        }
+        Err(e) => {
+            tracing::error!(machine_id = id, error = %e, "cannot start a machine this node holds; trying again in 10 s");
+            if let Ok(mut failed) = cluster.failed.lock() {
+                failed.insert(id, Instant::now());
+            }
+        }
     }
 }
 
@@ -566,10 +620,19 @@ async fn run(state: &SharedState, id: i64, epoch: i64) {
 pub async fn claim(cluster: &Cluster, machine_id: i64) -> Result<Option<i64>, ApiError> {
     let taken = take(cluster, &[machine_id]).await?;
     cluster.refresh_if_stale().await;
-    Ok(taken
+    let epoch = taken
         .into_iter()
         .find(|&(id, _)| id == machine_id)
-        .map(|(_, epoch)| epoch))
+        .map(|(_, epoch)| epoch)
+        // This node's rebalancing took it a moment before.
+        .or_else(|| {
+            cluster
+                .held
+                .lock()
+                .ok()
+                .and_then(|held| held.get(&machine_id).map(|&(epoch, _)| epoch))
+        });
+    Ok(epoch)
 }
 
 /// Compares two secrets in time independent of where they differ.

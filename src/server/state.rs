@@ -196,7 +196,7 @@ impl AppState {
         if self
             .all_machines()
             .iter()
-            .any(|m| m.db_id == db_id && m.lease_epoch == lease_epoch)
+            .any(|m| m.db_id == db_id && m.lease_epoch.get() == lease_epoch)
         {
             return Ok(());
         }
@@ -411,7 +411,7 @@ impl AppState {
             .put_machine(spec.clone(), core.snapshot())
             .await?;
         let lease_epoch = match (&existing, &self.cluster) {
-            (Some(existing), _) => existing.lease_epoch,
+            (Some(existing), _) => existing.lease_epoch.get(),
             (None, Some(cluster)) => match super::cluster::claim(cluster, db_id).await? {
                 Some(epoch) => Some(epoch),
                 None => {

@@ -137,7 +137,7 @@ impl Membership {
             ))
         })?;
         let key = hex::encode(rand::random::<[u8; 16]>());
-        let membership = Membership {
+        let mut membership = Membership {
             client,
             endpoint,
             node,
@@ -145,7 +145,28 @@ impl Membership {
             key,
         };
         membership.register().await?;
+        membership.supersede().await?;
         Ok(membership)
+    }
+
+    /// Takes the leases an earlier process of this name still holds with
+    /// new epochs (after any commit of its in flight), so nothing that
+    /// process may still have queued is stored.
+    async fn supersede(&mut self) -> Result<(), StoreError> {
+        let tx = self.client.transaction().await?;
+        tx.execute(
+            "SELECT 1 FROM leases WHERE node = $1 AND expires_at > now() \
+             ORDER BY machine_id FOR UPDATE",
+            &[&self.node],
+        )
+        .await?;
+        tx.execute(
+            "UPDATE leases SET epoch = epoch + 1 WHERE node = $1 AND expires_at > now()",
+            &[&self.node],
+        )
+        .await?;
+        tx.commit().await?;
+        Ok(())
     }
 
     /// The name this node joined under.
@@ -178,12 +199,20 @@ impl Membership {
         }
         let client = connect(&self.endpoint).await?;
         settle_session(&client).await?;
-        client
+        let shared: bool = client
             .query_one(
                 "SELECT pg_try_advisory_lock_shared($1)",
                 &[&OLD_WRITER_LOCK],
             )
-            .await?;
+            .await?
+            .get(0);
+        if !shared {
+            return Err(StoreError::Location(
+                "a server of an older tunnelnav release took the database while this node \
+                 was cut off"
+                    .into(),
+            ));
+        }
         if !try_lock(&client, &self.node).await? {
             return Err(StoreError::Location(format!(
                 "node name `{}` was taken by another process while this one was cut off",
@@ -214,9 +243,10 @@ impl Membership {
     }
 
     /// Takes the leases of `machine_ids` that no node holds in force; the
-    /// machines taken with their new epochs. The rows are locked first
-    /// (`FOR UPDATE`), which waits for any commit still holding a lease,
-    /// so nothing the previous holder stores lands after the taking.
+    /// machines taken with their new epochs. A lapsed row is locked first
+    /// (`FOR UPDATE`, in id order), which waits for a commit still holding
+    /// it, so nothing its previous holder stores lands after the taking;
+    /// rows another transaction holds are left for the next round.
     pub async fn acquire(
         &mut self,
         machine_ids: &[i64],
@@ -226,34 +256,53 @@ impl Membership {
             return Ok(Vec::new());
         }
         let tx = self.client.transaction().await?;
-        tx.execute(
-            "SELECT 1 FROM leases WHERE machine_id = ANY($1) FOR UPDATE",
-            &[&machine_ids],
-        )
-        .await?;
-        let rows = tx
+        let lapsed: Vec<i64> = tx
+            .query(
+                "SELECT machine_id FROM leases WHERE machine_id = ANY($1) AND expires_at < now() \
+                 ORDER BY machine_id FOR UPDATE SKIP LOCKED",
+                &[&machine_ids],
+            )
+            .await?
+            .iter()
+            .map(|row| row.get(0))
+            .collect();
+        let mut taken: Vec<(i64, i64)> = tx
+            .query(
+                "UPDATE leases SET node = $2, epoch = epoch + 1, \
+                 expires_at = now() + make_interval(secs => $3) \
+                 WHERE machine_id = ANY($1) RETURNING machine_id, epoch",
+                &[&lapsed, &self.node, &ttl_s],
+            )
+            .await?
+            .iter()
+            .map(|row| (row.get(0), row.get(1)))
+            .collect();
+        let never: Vec<(i64, i64)> = tx
             .query(
                 "INSERT INTO leases (machine_id, node, epoch, expires_at) \
                  SELECT w.machine_id, $2, 1, now() + make_interval(secs => $3) \
                  FROM unnest($1::int8[]) AS w(machine_id) \
                  WHERE EXISTS (SELECT 1 FROM machines m WHERE m.id = w.machine_id) \
-                 ON CONFLICT (machine_id) DO UPDATE SET node = excluded.node, \
-                 epoch = leases.epoch + 1, expires_at = excluded.expires_at \
-                 WHERE leases.expires_at < now() \
-                 RETURNING machine_id, epoch",
+                 ORDER BY w.machine_id \
+                 ON CONFLICT (machine_id) DO NOTHING RETURNING machine_id, epoch",
                 &[&machine_ids, &self.node, &ttl_s],
             )
-            .await?;
+            .await?
+            .iter()
+            .map(|row| (row.get(0), row.get(1)))
+            .collect();
         tx.commit().await?;
-        Ok(rows.iter().map(|row| (row.get(0), row.get(1))).collect())
+        taken.extend(never);
+        Ok(taken)
     }
 
     /// Gives up machine `machine_id` (its final snapshot stored first), so
     /// another node may take it at once.
     pub async fn release(&self, machine_id: i64) -> Result<(), StoreError> {
+        // The row stays, lapsed, so the next taking's epoch is higher.
         self.client
             .execute(
-                "DELETE FROM leases WHERE machine_id = $1 AND node = $2",
+                "UPDATE leases SET expires_at = '-infinity' WHERE machine_id = $1 AND node = $2",
                 &[&machine_id, &self.node],
             )
             .await?;
@@ -263,7 +312,10 @@ impl Membership {
     /// Leaves: every lease given up, the node no longer live.
     pub async fn leave(&self) -> Result<(), StoreError> {
         self.client
-            .execute("DELETE FROM leases WHERE node = $1", &[&self.node])
+            .execute(
+                "UPDATE leases SET expires_at = '-infinity' WHERE node = $1",
+                &[&self.node],
+            )
             .await?;
         self.client
             .execute(

@@ -76,16 +76,36 @@ impl PgLocation {
     /// (or a CA file) checks the server's certificate against the CA file
     /// or the system's roots and its name against the URL's host.
     fn endpoint(&self) -> Result<Endpoint, StoreError> {
+        use tokio_postgres::config::SslMode;
         let mut config = self.config()?;
-        let wanted = self.ca_file.is_some()
-            || config.get_ssl_mode() == tokio_postgres::config::SslMode::Require
-            || self.url.contains("sslmode=prefer");
+        let asked = ["disable", "prefer", "require"]
+            .into_iter()
+            .find(|mode| self.url.contains(&format!("sslmode={mode}")));
+        let wanted = match (asked, &self.ca_file) {
+            (Some("prefer"), _) => {
+                return Err(StoreError::Location(
+                    "sslmode=prefer is not supported (a connection that may fall back to plain \
+                     text is not checked): use sslmode=require, or leave sslmode out for plain"
+                        .into(),
+                ));
+            }
+            (Some("disable"), Some(_)) => {
+                return Err(StoreError::Location(
+                    "a CA file with sslmode=disable: drop one of the two".into(),
+                ));
+            }
+            (Some("require"), _) | (None, Some(_)) => true,
+            _ => false,
+        };
+        if wanted {
+            config.ssl_mode(SslMode::Require);
+        }
         let roots = if wanted {
             crate::tls::roots(self.ca_file.as_deref())
                 .map_err(|e| StoreError::Location(format!("TLS to PostgreSQL: {e}")))?
         } else {
             // Never used: the connection is plain.
-            config.ssl_mode(tokio_postgres::config::SslMode::Disable);
+            config.ssl_mode(SslMode::Disable);
             rustls::RootCertStore::empty()
         };
         let tls = crate::tls::builder()

@@ -258,7 +258,7 @@ async fn check_leases(
         .collect();
     for (id, epoch) in wanted {
         let in_force = held.get(&id);
-        if in_force.is_none() || epoch.is_some_and(|e| in_force != Some(&e)) {
+        if in_force.is_none() || epoch.is_none_or(|e| in_force != Some(&e)) {
             return Err(StoreError::Unavailable(format!(
                 "machine {id} is no longer fused by node `{node}` under this lease: it lapsed \
                  or moved"
