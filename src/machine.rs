@@ -69,6 +69,24 @@ pub struct FusedEstimate {
     pub json: Arc<str>,
 }
 
+impl FusedEstimate {
+    /// A stored estimate of `machine`'s `engine` as the live stream shows it.
+    pub fn stored(
+        machine: &str,
+        engine: StreamKind,
+        output: &EngineOutput,
+    ) -> Result<FusedEstimate, StoreError> {
+        let json = serde_json::to_string(&output.for_machine(machine))
+            .map_err(|e| StoreError::Corrupt(format!("stored estimate: {e}")))?;
+        Ok(FusedEstimate {
+            engine,
+            t: output.t,
+            signals: output.values.signals(),
+            json: Arc::from(json),
+        })
+    }
+}
+
 /// One engine output in both forms it leaves the machine in: JSON for live
 /// clients and the status, a compact row for the store.
 #[derive(Debug)]
@@ -331,16 +349,9 @@ pub fn stored_status(
         let Some(output) = store.latest_estimate(db_id, engine)? else {
             continue;
         };
-        let json = serde_json::to_string(&output.for_machine(&spec.id))
-            .map_err(|e| StoreError::Corrupt(format!("stored estimate: {e}")))?;
         status.latest.insert(
             engine,
-            Arc::new(FusedEstimate {
-                engine,
-                t: output.t,
-                signals: output.values.signals(),
-                json: Arc::from(json),
-            }),
+            Arc::new(FusedEstimate::stored(&spec.id, engine, &output)?),
         );
     }
     for sensor in SensorKind::ALL {

@@ -90,10 +90,8 @@ pub struct Cluster {
     http: reqwest::Client,
 }
 
-/// Where a request for a machine goes.
+/// Where a request for a machine not running here goes.
 pub enum Route {
-    /// This node runs it.
-    Local,
     /// Another live node holds it: its URL.
     Forward(String),
     /// Declared, but no node runs it right now.
@@ -487,7 +485,7 @@ async fn keep_balancing(state: SharedState, cluster: Arc<Cluster>) {
 /// One round: stop what this node no longer holds (or holds under a newer
 /// epoch: taken anew after a lapse), start what it holds, take free or
 /// lapsed leases up to its share, or hand one back above it.
-pub async fn balance(state: &SharedState, cluster: &Cluster) -> Result<(), ApiError> {
+async fn balance(state: &SharedState, cluster: &Cluster) -> Result<(), ApiError> {
     if *state.shutdown_signal().borrow() {
         return Ok(());
     }
@@ -708,7 +706,7 @@ pub async fn forward(State(state): State<SharedState>, request: Request, next: N
     }
     let forwarded = request.headers().contains_key(NODE_HEADER);
     match cluster.route(&machine).await {
-        Route::Local | Route::Unknown => next.run(request).await,
+        Route::Unknown => next.run(request).await,
         Route::Forward(_) | Route::Moving if forwarded => {
             moving(&machine, "it is not running on the node it was sent to").into_response()
         }

@@ -138,16 +138,10 @@ async fn fetch(store: &Store, feed: &Feed) -> Result<(), ApiError> {
     let mut new = new;
     new.sort_by(|a, b| a.1.t.total_cmp(&b.1.t));
     for (stream, output) in new {
-        let json = serde_json::to_string(&output.for_machine(&feed.spec.id))
-            .map_err(|e| ApiError::Internal(e.to_string()))?;
+        let estimate = FusedEstimate::stored(&feed.spec.id, stream, &output)?;
         sent_to.insert(stream, output.t);
         // No receivers is fine: the feed goes at the next notice.
-        let _ = feed.sender.send(Arc::new(FusedEstimate {
-            engine: stream,
-            t: output.t,
-            signals: output.values.signals(),
-            json: Arc::from(json),
-        }));
+        let _ = feed.sender.send(Arc::new(estimate));
     }
     Ok(())
 }

@@ -164,17 +164,8 @@ impl AppState {
                     .map_err(|e| ServerError::Cluster(e.to_string()))?;
             }
             None => {
-                let ids: Vec<i64> = {
-                    let store = state.store.clone();
-                    tokio::task::spawn_blocking(move || store.machines())
-                        .await
-                        .map_err(std::io::Error::other)??
-                        .into_iter()
-                        .map(|m| m.db_id)
-                        .collect()
-                };
-                for id in ids {
-                    state.start_machine(id, None).await?;
+                for stored in state.stored_machines().await? {
+                    state.start_stored(stored, None).await?;
                 }
             }
         }
@@ -189,6 +180,35 @@ impl AppState {
         db_id: i64,
         lease_epoch: Option<i64>,
     ) -> Result<(), ServerError> {
+        let Some(stored) = self
+            .stored_machines()
+            .await?
+            .into_iter()
+            .find(|m| m.db_id == db_id)
+        else {
+            return Err(ServerError::Machine {
+                machine: format!("#{db_id}"),
+                source: StoreError::Corrupt(format!("machine {db_id} is not stored")).into(),
+            });
+        };
+        self.start_stored(stored, lease_epoch).await
+    }
+
+    /// Every stored machine.
+    async fn stored_machines(&self) -> Result<Vec<crate::store::StoredMachine>, ServerError> {
+        let store = self.store.clone();
+        Ok(tokio::task::spawn_blocking(move || store.machines())
+            .await
+            .map_err(std::io::Error::other)??)
+    }
+
+    /// [`AppState::start_machine`] of a machine already read from the store.
+    async fn start_stored(
+        &self,
+        stored: crate::store::StoredMachine,
+        lease_epoch: Option<i64>,
+    ) -> Result<(), ServerError> {
+        let db_id = stored.db_id;
         let _admin = self.admin.lock().await;
         if *self.shutdown.borrow() {
             return Err(ServerError::Cluster("the server is stopping".into()));
@@ -202,19 +222,6 @@ impl AppState {
         }
         let store = self.store.clone();
         let (spec, core, status) = tokio::task::spawn_blocking(move || {
-            let Some(stored) = store
-                .machines()
-                .map_err(|e| (String::new(), MachineError::from(e)))?
-                .into_iter()
-                .find(|m| m.db_id == db_id)
-            else {
-                return Err((
-                    format!("#{db_id}"),
-                    MachineError::from(StoreError::Corrupt(format!(
-                        "machine {db_id} is not stored"
-                    ))),
-                ));
-            };
             let spec = stored.spec;
             let core = machine::recover(&store, &spec, db_id, lease_epoch)
                 .map_err(|e| (spec.id.clone(), e))?;

@@ -60,6 +60,31 @@ pub(super) fn checkpoints(conn: Connection, writer_gone: std::sync::mpsc::Receiv
     }
 }
 
+/// Puts `first` and the requests waiting behind it (up to [`MAX_GROUP`]
+/// in `group`) into `group`; a job or a close ends the gathering and is
+/// returned, to run after the group's commit.
+pub(super) fn gather<J>(
+    first: Queued<J>,
+    queue: &mut mpsc::Receiver<Queued<J>>,
+    group: &mut Vec<Request>,
+) -> (Option<J>, Option<oneshot::Sender<()>>) {
+    let (mut job, mut close) = (None, None);
+    let mut next = Some(first);
+    while let Some(request) = next.take() {
+        match request {
+            Queued::Close(reply) => close = Some(reply),
+            Queued::Job(queued) => job = Some(queued),
+            Queued::Request(request) => {
+                group.push(request);
+                if group.len() < MAX_GROUP {
+                    next = queue.try_recv().ok();
+                }
+            }
+        }
+    }
+    (job, close)
+}
+
 /// The writer thread: takes every waiting request, commits them together,
 /// then answers each.
 pub(super) fn writer(mut conn: Connection, mut queue: mpsc::Receiver<Queued>) {
@@ -69,20 +94,8 @@ pub(super) fn writer(mut conn: Connection, mut queue: mpsc::Receiver<Queued>) {
         let Some(first) = queue.blocking_recv() else {
             break;
         };
-        let mut next = Some(first);
-        let mut job = None;
-        while let Some(request) = next.take() {
-            match request {
-                Queued::Close(reply) => close = Some(reply),
-                Queued::Job(queued) => job = Some(queued),
-                Queued::Request(request) => {
-                    group.push(request);
-                    if group.len() < MAX_GROUP {
-                        next = queue.try_recv().ok();
-                    }
-                }
-            }
-        }
+        let job;
+        (job, close) = gather(first, &mut queue, &mut group);
         commit(&mut conn, &mut group);
         if let Some(job) = job {
             job(&mut conn);

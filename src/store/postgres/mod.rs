@@ -184,12 +184,7 @@ impl PgStore {
         let fence = Arc::new(std::sync::OnceLock::new());
         let mut writers = Vec::with_capacity(writer_count());
         for _ in 0..writer_count() {
-            let client = connect(&endpoint).await?;
-            // A writer stuck inside a transaction (its host paused) must
-            // not hold the leases it checked for ever.
-            client
-                .batch_execute("SET idle_in_transaction_session_timeout = '10s'")
-                .await?;
+            let client = connect_writer(&endpoint).await?;
             let (requests, queue) = mpsc::channel(QUEUE_LEN);
             tokio::spawn(writer::writer(
                 client,
@@ -1008,6 +1003,17 @@ pub(super) fn with_causes(e: &dyn std::error::Error) -> String {
         cause = inner.source();
     }
     text
+}
+
+/// A writing connection: [`connect`], and a transaction left idle for
+/// 10 s (its host paused) is ended, so the leases it checked are not held
+/// for ever.
+async fn connect_writer(endpoint: &Endpoint) -> Result<tokio_postgres::Client, StoreError> {
+    let client = connect(endpoint).await?;
+    client
+        .batch_execute("SET idle_in_transaction_session_timeout = '10s'")
+        .await?;
+    Ok(client)
 }
 
 /// A stored reading's row.

@@ -16,7 +16,7 @@ use tokio_postgres::{Client, Transaction};
 use super::schema;
 use crate::config::MachineSpec;
 use crate::store::alarms::{AlarmChange, AlarmRow, Change, StoredAlarm};
-use crate::store::writer::{Buckets, Outcome, Queued, Request, answer, fold_buckets};
+use crate::store::writer::{Buckets, Outcome, Queued, Request, answer, fold_buckets, gather};
 use crate::store::{MAX_GROUP, StoreError, Write, WriteOutcome};
 
 /// Work on the writer's connection between two group commits
@@ -48,30 +48,10 @@ pub(super) async fn writer(
         let Some(first) = queue.recv().await else {
             break;
         };
-        let mut next = Some(first);
-        let mut job = None;
-        while let Some(request) = next.take() {
-            match request {
-                Queued::Close(reply) => close = Some(reply),
-                Queued::Job(queued) => job = Some(queued),
-                Queued::Request(request) => {
-                    group.push(request);
-                    if group.len() < MAX_GROUP {
-                        next = queue.try_recv().ok();
-                    }
-                }
-            }
-        }
+        let job;
+        (job, close) = gather(first, &mut queue, &mut group);
         if client.is_closed() {
-            let fresh = match super::connect(&endpoint).await {
-                Ok(fresh) => fresh
-                    .batch_execute("SET idle_in_transaction_session_timeout = '10s'")
-                    .await
-                    .map(|()| fresh)
-                    .map_err(StoreError::from),
-                Err(e) => Err(e),
-            };
-            match fresh {
+            match super::connect_writer(&endpoint).await {
                 Ok(fresh) => {
                     tracing::info!("PostgreSQL connection made again");
                     client = fresh;
@@ -257,8 +237,7 @@ async fn check_leases(
         .map(|row| (row.get(0), row.get(1)))
         .collect();
     for (id, epoch) in wanted {
-        let in_force = held.get(&id);
-        if in_force.is_none() || epoch.is_none_or(|e| in_force != Some(&e)) {
+        if epoch.is_none() || held.get(&id).copied() != epoch {
             return Err(StoreError::Unavailable(format!(
                 "machine {id} is no longer fused by node `{node}` under this lease: it lapsed \
                  or moved"
@@ -297,28 +276,23 @@ async fn copy_readings<'w>(
         .copy_in("COPY readings (machine_id, t, sensor, body) FROM STDIN (FORMAT binary)")
         .await?;
     let types = [Type::INT8, Type::FLOAT8, Type::INT2, Type::BYTEA];
-    let mut copy = std::pin::pin!(BinaryCopyInWriter::new(sink, &types));
-    let mut sent = Ok(());
-    'rows: for write in writes {
-        for reading in &write.readings {
-            let sensor = reading.sensor as i16;
-            let row: [&(dyn ToSql + Sync); 4] = [
-                &write.machine_id,
-                &reading.t,
-                &sensor,
-                &reading.data.as_slice(),
-            ];
-            sent = copy.as_mut().write(&row).await;
-            if sent.is_err() {
-                break 'rows;
+    let copied = async {
+        let mut copy = std::pin::pin!(BinaryCopyInWriter::new(sink, &types));
+        for write in writes {
+            for reading in &write.readings {
+                let sensor = reading.sensor as i16;
+                let row: [&(dyn ToSql + Sync); 4] = [
+                    &write.machine_id,
+                    &reading.t,
+                    &sensor,
+                    &reading.data.as_slice(),
+                ];
+                copy.as_mut().write(&row).await?;
             }
         }
-    }
-    let finished = match sent {
-        Ok(()) => copy.finish().await.map(|_| ()),
-        Err(e) => Err(e),
+        copy.finish().await.map(|_| ())
     };
-    settle(savepoint, finished).await
+    settle(savepoint, copied.await).await
 }
 
 /// [`copy_readings`] for the group's estimates: `false` when one is
@@ -347,31 +321,26 @@ async fn copy_estimates<'w>(
         Type::BYTEA,
         Type::INT4,
     ];
-    let mut copy = std::pin::pin!(BinaryCopyInWriter::new(sink, &types));
-    let mut sent = Ok(());
-    'rows: for write in writes {
-        for estimate in &write.estimates {
-            let codec = estimate.codec as i32;
-            let row: [&(dyn ToSql + Sync); 7] = [
-                &write.machine_id,
-                &estimate.engine.as_str(),
-                &estimate.t,
-                &estimate.extremes[0],
-                &estimate.extremes[1],
-                &estimate.values.as_slice(),
-                &codec,
-            ];
-            sent = copy.as_mut().write(&row).await;
-            if sent.is_err() {
-                break 'rows;
+    let copied = async {
+        let mut copy = std::pin::pin!(BinaryCopyInWriter::new(sink, &types));
+        for write in writes {
+            for estimate in &write.estimates {
+                let codec = estimate.codec as i32;
+                let row: [&(dyn ToSql + Sync); 7] = [
+                    &write.machine_id,
+                    &estimate.engine.as_str(),
+                    &estimate.t,
+                    &estimate.extremes[0],
+                    &estimate.extremes[1],
+                    &estimate.values.as_slice(),
+                    &codec,
+                ];
+                copy.as_mut().write(&row).await?;
             }
         }
-    }
-    let finished = match sent {
-        Ok(()) => copy.finish().await.map(|_| ()),
-        Err(e) => Err(e),
+        copy.finish().await.map(|_| ())
     };
-    settle(savepoint, finished).await
+    settle(savepoint, copied.await).await
 }
 
 /// Ends a `COPY`'s savepoint: kept if it stored everything, rolled back
