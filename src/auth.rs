@@ -8,7 +8,9 @@
 //! - `ingest` for one named machine: post its readings, use its ingest
 //!   WebSocket (a field gateway);
 //! - `read`: the dashboard, history, exports, live sockets, metrics;
-//! - `admin`: everything, including declaring machines.
+//! - `admin`: everything, including declaring machines;
+//! - `site` for one named site: forward that site's machines to this
+//!   office and report its link (a site server's token at its office).
 
 use rusqlite::{Connection, OptionalExtension, params};
 use serde::Serialize;
@@ -21,6 +23,7 @@ pub enum Scope {
     Ingest,
     Read,
     Admin,
+    Site,
 }
 
 impl Scope {
@@ -30,12 +33,13 @@ impl Scope {
             Scope::Ingest => "ingest",
             Scope::Read => "read",
             Scope::Admin => "admin",
+            Scope::Site => "site",
         }
     }
 
     /// Parses a name.
     pub fn from_name(name: &str) -> Option<Scope> {
-        [Scope::Ingest, Scope::Read, Scope::Admin]
+        [Scope::Ingest, Scope::Read, Scope::Admin, Scope::Site]
             .into_iter()
             .find(|s| s.as_str() == name)
     }
@@ -52,6 +56,8 @@ pub enum Need {
     Ingest(String),
     /// Declaring machines.
     Admin,
+    /// Forwarding this site's machines to this office.
+    Site(String),
 }
 
 /// A stored token (without its hash).
@@ -60,7 +66,7 @@ pub struct Token {
     pub id: i64,
     pub name: String,
     pub scope: Scope,
-    /// The machine an `ingest` token is for.
+    /// The machine an `ingest` token is for; the site a `site` token is for.
     pub machine: Option<String>,
     pub created_t: f64,
     pub revoked_t: Option<f64>,
@@ -73,6 +79,7 @@ impl Token {
             (_, Need::Nothing) | (Scope::Admin, _) => true,
             (Scope::Read, Need::Read) => true,
             (Scope::Ingest, Need::Ingest(machine)) => self.machine.as_deref() == Some(machine),
+            (Scope::Site, Need::Site(site)) => self.machine.as_deref() == Some(site),
             _ => false,
         }
     }
@@ -96,7 +103,9 @@ pub fn hash(token: &str) -> String {
 pub enum TokenError {
     #[error("an `ingest` token needs --machine (the machine its gateway feeds)")]
     MachineMissing,
-    #[error("only `ingest` tokens are for one machine; `{}` tokens are not", .0.as_str())]
+    #[error("a `site` token needs --site (the site that forwards with it)")]
+    SiteMissing,
+    #[error("only `ingest` tokens are for one machine and `site` tokens for one site; `{}` tokens are for neither", .0.as_str())]
     MachineNotAllowed(Scope),
     #[error("machine id `{0}` is not valid (letters, digits, _ and -, at most 64)")]
     MachineId(String),
@@ -113,6 +122,7 @@ pub enum TokenError {
 pub fn check_new(scope: Scope, machine: Option<&str>) -> Result<(), TokenError> {
     match (scope, machine) {
         (Scope::Ingest, None) => Err(TokenError::MachineMissing),
+        (Scope::Site, None) => Err(TokenError::SiteMissing),
         (Scope::Read | Scope::Admin, Some(_)) => Err(TokenError::MachineNotAllowed(scope)),
         (_, Some(m)) if !crate::config::valid_machine_id(m) => {
             Err(TokenError::MachineId(m.to_string()))

@@ -111,6 +111,9 @@ pub struct MachineCore {
     ready: Vec<Reading>,
     outputs: Vec<EngineOutput>,
     line: Vec<u8>,
+    /// Whether the alarm rules run here: not for a machine an office holds
+    /// for a site, whose alarms come from the site.
+    own_alarms: bool,
 }
 
 #[derive(Serialize, Deserialize)]
@@ -176,6 +179,7 @@ impl MachineCore {
             ready: Vec::new(),
             outputs: Vec::new(),
             line: Vec::new(),
+            own_alarms: crate::config::forwarded_site(&spec.id).is_none(),
         }
     }
 
@@ -195,13 +199,17 @@ impl MachineCore {
         self.reorder.pop_ready(&mut self.ready);
         for reading in self.ready.drain(..) {
             self.outputs.clear();
-            self.alarms.reading(&reading, &mut self.transitions);
+            if self.own_alarms {
+                self.alarms.reading(&reading, &mut self.transitions);
+            }
             self.pipeline.feed(&reading, &mut self.outputs);
             for output in &self.outputs {
                 let stream = output.values.stream();
                 let signals = output.values.signals();
-                self.alarms
-                    .signals(output.t, stream, &signals, &mut self.transitions);
+                if self.own_alarms {
+                    self.alarms
+                        .signals(output.t, stream, &signals, &mut self.transitions);
+                }
                 self.line.clear();
                 self.writer.write_line(output, &mut self.line);
                 let json = std::str::from_utf8(self.line.trim_ascii_end()).unwrap_or("{}");
@@ -227,7 +235,9 @@ impl MachineCore {
     /// The server clock at `now_t`: sensors silent too long. Returns the
     /// alarms raised (and any pending from readings).
     pub fn tick(&mut self, now_t: f64) -> Vec<Transition> {
-        self.alarms.tick(now_t, &mut self.transitions);
+        if self.own_alarms {
+            self.alarms.tick(now_t, &mut self.transitions);
+        }
         self.take_alarms()
     }
 
@@ -257,9 +267,29 @@ pub struct MachineStatus {
     pub late: u64,
 }
 
+/// One part of what a site forwards for a machine, with its sequence.
+#[derive(Debug, Clone)]
+pub enum ForwardedPart {
+    /// Readings, fused in the order the site stored them.
+    Readings(Vec<Reading>),
+    /// An alarm change the site made.
+    Alarm(AlarmChange),
+}
+
 enum Command {
     Ingest {
         readings: Vec<Reading>,
+        reply: oneshot::Sender<Result<WriteOutcome, StoreError>>,
+    },
+    /// An office: what a site forwarded, each part with its sequence.
+    Forwarded {
+        parts: Vec<(i64, ForwardedPart)>,
+        reply: oneshot::Sender<Result<WriteOutcome, StoreError>>,
+    },
+    /// Alarms the server raises or clears for the machine (an office's
+    /// `site_link`).
+    Alarms {
+        rows: Vec<AlarmRow>,
         reply: oneshot::Sender<Result<WriteOutcome, StoreError>>,
     },
     Models {
@@ -297,6 +327,32 @@ impl MachineHandle {
                 mpsc::error::TrySendError::Closed(_) => self.stopped(),
             })?;
         Ok(answer.await.map_err(|_| self.stopped())??)
+    }
+
+    /// An office: stores and fuses what the machine's site forwarded, in
+    /// order, skipping each part whose sequence is already committed here;
+    /// resolves once committed (the mark with it).
+    pub async fn forwarded(
+        &self,
+        parts: Vec<(i64, ForwardedPart)>,
+    ) -> Result<WriteOutcome, MachineError> {
+        let (reply, answer) = oneshot::channel();
+        self.commands
+            .send(Command::Forwarded { parts, reply })
+            .await
+            .map_err(|_| self.stopped())?;
+        Ok(answer.await.map_err(|_| self.stopped())??)
+    }
+
+    /// Stores alarm rows the server decided for this machine.
+    pub async fn alarms(&self, rows: Vec<AlarmRow>) -> Result<(), MachineError> {
+        let (reply, answer) = oneshot::channel();
+        self.commands
+            .send(Command::Alarms { rows, reply })
+            .await
+            .map_err(|_| self.stopped())?;
+        answer.await.map_err(|_| self.stopped())??;
+        Ok(())
     }
 
     /// The engines' model reports.
@@ -421,6 +477,7 @@ pub fn recover(
                 after_commit: None,
                 reply: Some(reply),
                 lease_epoch,
+                forwarded: None,
             })?;
             answer.blocking_recv().map_err(|_| StoreError::Closed)??;
             Ok::<_, MachineError>(())
@@ -498,6 +555,8 @@ impl LeaseEpoch {
 }
 
 /// Starts the task that owns `core`.
+/// `forward_mark`: an office's, the last sequence of the machine's site
+/// committed here.
 pub fn spawn(
     surroundings: Surroundings,
     spec: MachineSpec,
@@ -505,6 +564,7 @@ pub fn spawn(
     lease_epoch: Option<i64>,
     core: MachineCore,
     current: MachineStatus,
+    forward_mark: Option<i64>,
 ) -> MachineHandle {
     let Surroundings {
         store,
@@ -530,6 +590,7 @@ pub fn spawn(
         since_snapshot: 0,
         clock,
         alarm_changes,
+        forward_mark,
     };
     tokio::spawn(actor.run(queue));
     MachineHandle {
@@ -561,6 +622,8 @@ struct Actor {
     clock: Clock,
     /// Where the alarms this machine's writes changed go once committed.
     alarm_changes: Arc<dyn AlarmSink>,
+    /// An office: the last sequence of the machine's site fused here.
+    forward_mark: Option<i64>,
 }
 
 /// Real time between the checks for silent sensors.
@@ -594,7 +657,20 @@ impl Actor {
                     let why = stale.unwrap_or_default();
                     let _ = reply.send(Err(StoreError::Unrebuilt(why)));
                 }
-                Command::Ingest { readings, reply } => self.ingest(readings, reply).await,
+                Command::Forwarded { reply, .. } | Command::Alarms { reply, .. }
+                    if stale.is_some() =>
+                {
+                    let why = stale.unwrap_or_default();
+                    let _ = reply.send(Err(StoreError::Unrebuilt(why)));
+                }
+                Command::Ingest { readings, reply } => {
+                    self.ingest(readings, None, Vec::new(), reply).await
+                }
+                Command::Forwarded { parts, reply } => self.forwarded(parts, reply).await,
+                Command::Alarms { rows, reply } => {
+                    let forward_mark = None;
+                    self.ingest(Vec::new(), forward_mark, rows, reply).await
+                }
                 Command::Models { reply } => {
                     let _ = reply.send(self.core.models());
                 }
@@ -615,6 +691,7 @@ impl Actor {
                         after_commit: None,
                         reply: Some(done),
                         lease_epoch: self.lease_epoch.get(),
+                        forwarded: None,
                     };
                     if self.store.write(write).await.is_ok() {
                         let _ = committed.await;
@@ -650,6 +727,7 @@ impl Actor {
             })),
             reply: None,
             lease_epoch: self.lease_epoch.get(),
+            forwarded: None,
         };
         if let Err(e) = self.store.write(write).await {
             tracing::error!(error = %e, "store closed");
@@ -670,6 +748,21 @@ impl Actor {
         );
         match tokio::task::spawn_blocking(move || recover(&store, &spec, db_id, epoch)).await {
             Ok(Ok(core)) => {
+                if self.forward_mark.is_some() {
+                    let store = self.store.clone();
+                    let db_id = self.db_id;
+                    match tokio::task::spawn_blocking(move || store.forward_mark(db_id)).await {
+                        Ok(Ok(mark)) => self.forward_mark = mark,
+                        Ok(Err(e)) => {
+                            self.write_failed.store(true, Ordering::SeqCst);
+                            return Some(e.to_string());
+                        }
+                        Err(e) => {
+                            self.write_failed.store(true, Ordering::SeqCst);
+                            return Some(e.to_string());
+                        }
+                    }
+                }
                 self.core = core;
                 self.since_snapshot = 0;
                 tracing::warn!(machine = %self.spec.id, "engines rebuilt from the store after a failed write");
@@ -688,13 +781,60 @@ impl Actor {
         }
     }
 
+    /// An office: fuses and stores the parts of a site's forwarding not
+    /// committed here yet, readings in the site's order (not re-sorted:
+    /// the site stored them sorted per batch, and the same order gives
+    /// the same estimates), the site's alarm changes as they were made.
+    async fn forwarded(
+        &mut self,
+        parts: Vec<(i64, ForwardedPart)>,
+        reply: oneshot::Sender<Result<WriteOutcome, StoreError>>,
+    ) {
+        let mark = self.forward_mark.unwrap_or(i64::MIN);
+        let mut readings = Vec::new();
+        let mut forwarded = crate::store::outbox::Forwarded::default();
+        let mut rows = Vec::new();
+        for (sequence, part) in parts.into_iter().filter(|(s, _)| *s > mark) {
+            forwarded.sequence = sequence;
+            match part {
+                ForwardedPart::Readings(batch) => readings.extend(batch),
+                ForwardedPart::Alarm(change) => {
+                    match crate::store::alarms::forwarded_rows(&change) {
+                        Some((raise_and_clear, ack)) => {
+                            rows.extend(raise_and_clear);
+                            forwarded.acks.extend(ack);
+                        }
+                        None => tracing::warn!(
+                            machine = %self.spec.id, kind = %change.alarm.kind,
+                            "a forwarded alarm of a kind or severity this release does not know: not stored"
+                        ),
+                    }
+                }
+            }
+        }
+        if forwarded.sequence == 0 && readings.is_empty() && rows.is_empty() {
+            // Every part is committed already: a resend.
+            let _ = reply.send(Ok(WriteOutcome::default()));
+            return;
+        }
+        self.forward_mark = Some(forwarded.sequence);
+        self.ingest(readings, Some(forwarded), rows, reply).await;
+    }
+
+    /// Fuses `readings` (sorted first, unless `forwarded`: a site's are
+    /// fused in the order it stored them) and commits them with their
+    /// estimates, `alarm_rows` and, for an office, the site's sequence.
     async fn ingest(
         &mut self,
         mut readings: Vec<Reading>,
+        forwarded: Option<crate::store::outbox::Forwarded>,
+        alarm_rows: Vec<AlarmRow>,
         reply: oneshot::Sender<Result<WriteOutcome, StoreError>>,
     ) {
-        // A batch is one arrival: put it in time order before the buffer.
-        readings.sort_by(|a, b| a.t.total_cmp(&b.t));
+        if forwarded.is_none() {
+            // A batch is one arrival: put it in time order before the buffer.
+            readings.sort_by(|a, b| a.t.total_cmp(&b.t));
+        }
         let mut estimates = Vec::new();
         let mut rows = Vec::with_capacity(readings.len());
         for reading in readings {
@@ -728,9 +868,11 @@ impl Actor {
         let sender = self.live.clone();
         let write_failed = self.write_failed.clone();
         let notifier = self.alarm_changes.clone();
+        let mut alarms: Vec<AlarmRow> = self.core.take_alarms().iter().map(AlarmRow::new).collect();
+        alarms.extend(alarm_rows);
         let write = Write {
             machine_id: self.db_id,
-            alarms: self.core.take_alarms().iter().map(AlarmRow::new).collect(),
+            alarms,
             readings: rows,
             estimates: estimate_rows,
             snapshot,
@@ -746,6 +888,7 @@ impl Actor {
             })),
             reply: Some(reply),
             lease_epoch: self.lease_epoch.get(),
+            forwarded,
         };
         if let Err(e) = self.store.write(write).await {
             tracing::error!(error = %e, "store closed");

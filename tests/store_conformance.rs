@@ -171,6 +171,7 @@ async fn commit(
             })),
             reply: Some(reply),
             lease_epoch: None,
+            forwarded: None,
         })
         .await
         .unwrap();
@@ -460,6 +461,7 @@ async fn conformance(open: impl AsyncFn() -> Store) -> Vec<String> {
                 after_commit: None,
                 reply: None,
                 lease_epoch: None,
+                forwarded: None,
             })
             .await,
         Err(StoreError::Closed)
@@ -582,6 +584,7 @@ async fn large_batches(store: Store) -> Vec<String> {
                     after_commit: None,
                     reply: Some(reply),
                     lease_epoch: None,
+                    forwarded: None,
                 })
                 .await
                 .unwrap();
@@ -725,6 +728,7 @@ async fn postgres_refuses_a_newer_schema_and_reports_a_refused_connection_as_tra
                     after_commit: None,
                     reply: Some(reply),
                     lease_epoch: None,
+                    forwarded: None,
                 })
                 .await
                 .unwrap();

@@ -303,6 +303,8 @@ pub fn run(args: DemoArgs) -> Result<(), CliError> {
             retention: crate::store::retention::Retention::default(),
             webhooks: Default::default(),
             cluster: None,
+            forward: None,
+            site_backlog_alarm_s: crate::server::settings::SitesConfig::default().backlog_alarm_s(),
         };
         let (state, listener) = start(
             options,

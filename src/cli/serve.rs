@@ -42,6 +42,19 @@ pub struct ServeArgs {
     /// the address listened on, the host's name for 0.0.0.0).
     #[arg(long, env = "TUNNELNAV_ADVERTISE", value_name = "URL")]
     pub advertise: Option<String>,
+    /// The office this site forwards everything it stores to,
+    /// `http://HOST:PORT` (also the config file's `[forward] url`); needs
+    /// --site.
+    #[arg(long, env = "TUNNELNAV_FORWARD_TO", value_name = "URL")]
+    pub forward_to: Option<String>,
+    /// This site's name at the office, whose machines it names
+    /// `{site}.{machine}` (also `[forward] site`).
+    #[arg(long, env = "TUNNELNAV_SITE", value_name = "NAME")]
+    pub site: Option<String>,
+    /// A file whose first line is the office's `site` token for this site
+    /// (also `[forward] token_file`).
+    #[arg(long, env = "TUNNELNAV_FORWARD_TOKEN_FILE", value_name = "FILE")]
+    pub forward_token_file: Option<PathBuf>,
     /// TOML file declaring machines, webhooks and limits (docs/operations.md).
     #[arg(long, env = "TUNNELNAV_CONFIG")]
     pub config: Option<PathBuf>,
@@ -124,6 +137,7 @@ pub fn run(args: ServeArgs) -> Result<(), CliError> {
         node: args.node.clone(),
         advertise: args.advertise.clone(),
     };
+    let forward = forward_options(&args, &settings.forward)?;
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()?;
@@ -137,6 +151,8 @@ pub fn run(args: ServeArgs) -> Result<(), CliError> {
             retention: args.retention(),
             webhooks: settings.webhooks,
             cluster: None,
+            forward,
+            site_backlog_alarm_s: settings.sites.backlog_alarm_s(),
         };
         let (state, listener) = start(options, args.listen, args.allow_no_auth, node).await?;
         if let Some(mqtt) = mqtt {
@@ -146,6 +162,58 @@ pub fn run(args: ServeArgs) -> Result<(), CliError> {
         tracing::info!("stopped");
         Ok(())
     })
+}
+
+/// Where this site forwards to, if `--forward-to` or `[forward] url` says;
+/// the flags win over the file.
+fn forward_options(
+    args: &ServeArgs,
+    config: &crate::server::settings::ForwardConfig,
+) -> Result<Option<server::forward::ForwardOptions>, CliError> {
+    let office = args.forward_to.clone().or_else(|| config.url.clone());
+    let site = args.site.clone().or_else(|| config.site.clone());
+    let (office, site) = match (office, site) {
+        (None, None) => return Ok(None),
+        (Some(office), Some(site)) => (office, site),
+        (Some(_), None) => {
+            return Err(CliError::Refused(
+                "--forward-to needs --site (this site's name at the office)".into(),
+            ));
+        }
+        (None, Some(_)) => {
+            return Err(CliError::Refused(
+                "--site names this site at an office: give --forward-to URL too".into(),
+            ));
+        }
+    };
+    let token = match args
+        .forward_token_file
+        .as_ref()
+        .or(config.token_file.as_ref())
+    {
+        Some(path) => Some(
+            std::fs::read_to_string(path)
+                .map_err(|source| CliError::File {
+                    context: format!("cannot read the forward token file {}", path.display()),
+                    source,
+                })?
+                .lines()
+                .next()
+                .unwrap_or_default()
+                .trim()
+                .to_string(),
+        ),
+        None => None,
+    };
+    let options = server::forward::ForwardOptions {
+        office,
+        site,
+        token,
+    };
+    options
+        .validate()
+        .map_err(|e| CliError::Refused(e.to_string()))?;
+    Ok(Some(options))
 }
 
 /// The broker's settings, if `url` (`--mqtt`) or the config file's

@@ -102,12 +102,16 @@ impl Tokens {
 pub struct CreateArgs {
     #[command(flatten)]
     pub dir: DataDir,
-    /// ingest (one machine's gateway), read (dashboard, history) or admin.
+    /// ingest (one machine's gateway), read (dashboard, history), admin,
+    /// or site (a site server forwarding to this office).
     #[arg(long, value_parser = parse_scope)]
     pub scope: Scope,
     /// The machine an ingest token may send readings for.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "site")]
     pub machine: Option<String>,
+    /// The site a site token may forward as (`serve --site` there).
+    #[arg(long)]
+    pub site: Option<String>,
     /// A name to recognise it by (who holds it).
     #[arg(long, default_value = "")]
     pub name: String,
@@ -122,22 +126,35 @@ pub struct RevokeArgs {
 }
 
 fn parse_scope(text: &str) -> Result<Scope, String> {
-    Scope::from_name(text).ok_or_else(|| format!("`{text}`: expected ingest, read or admin"))
+    Scope::from_name(text).ok_or_else(|| format!("`{text}`: expected ingest, read, admin or site"))
 }
 
 pub fn run(command: TokenCommand) -> Result<(), CliError> {
     match command {
         TokenCommand::Create(args) => {
             let tokens = Tokens::open(&args.dir)?;
+            // A site token names its site where an ingest token names its
+            // machine.
+            let subject = args.machine.as_ref().or(args.site.as_ref());
+            if args.site.is_some() && args.scope != Scope::Site {
+                return Err(CliError::Refused(
+                    "--site is for `--scope site` tokens".into(),
+                ));
+            }
+            if args.machine.is_some() && args.scope == Scope::Site {
+                return Err(CliError::Refused(
+                    "a site token names its site with --site, not --machine".into(),
+                ));
+            }
             let name = if args.name.is_empty() {
-                match &args.machine {
+                match subject {
                     Some(machine) => format!("{} {machine}", args.scope.as_str()),
                     None => args.scope.as_str().to_string(),
                 }
             } else {
                 args.name.clone()
             };
-            let (id, token) = tokens.create(&name, args.scope, args.machine.as_deref())?;
+            let (id, token) = tokens.create(&name, args.scope, subject.map(String::as_str))?;
             eprintln!(
                 "token {id} `{name}` ({}) created; it is shown only now:",
                 args.scope.as_str()
@@ -149,7 +166,7 @@ pub fn run(command: TokenCommand) -> Result<(), CliError> {
             let tokens = Tokens::open(&dir)?;
             println!(
                 "{:>4}  {:<8} {:<20} {:<24} state",
-                "id", "scope", "machine", "name"
+                "id", "scope", "machine/site", "name"
             );
             for t in tokens.list()? {
                 println!(

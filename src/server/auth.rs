@@ -114,6 +114,11 @@ impl Gate {
                 token.name,
                 describe(token)
             ),
+            Need::Site(site) => format!(
+                "token `{}` ({}) may not forward as site `{site}`: a site token for it needed",
+                token.name,
+                describe(token)
+            ),
             _ => format!(
                 "token `{}` ({}) may not read: read scope needed",
                 token.name,
@@ -172,6 +177,18 @@ pub async fn ingest(
     next: Next,
 ) -> Response {
     require(&state, Need::Ingest(machine), request, next).await
+}
+
+/// The route layer of a site's routes: the site is the route's `{site}`,
+/// or the part of its `{machine}` before the dot (`{site}.{machine}`).
+pub async fn site(
+    State(state): State<SharedState>,
+    Path(name): Path<String>,
+    request: Request,
+    next: Next,
+) -> Response {
+    let site = name.split_once('.').map_or(name.as_str(), |(site, _)| site);
+    require(&state, Need::Site(site.to_string()), request, next).await
 }
 
 /// The route layer of routes that change the configuration.

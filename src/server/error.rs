@@ -94,6 +94,10 @@ pub enum ApiError {
     Unauthorized(String),
     #[error("{0}")]
     Forbidden(String),
+    /// The request conflicts with where a thing belongs (a site's machine
+    /// changed at the office).
+    #[error("{0}")]
+    Conflict(String),
 }
 
 impl From<axum::extract::ws::rejection::WebSocketUpgradeRejection> for ApiError {
@@ -156,6 +160,7 @@ impl ApiError {
             ApiError::Timeout(_) => StatusCode::REQUEST_TIMEOUT,
             ApiError::Unauthorized(_) => StatusCode::UNAUTHORIZED,
             ApiError::Forbidden(_) => StatusCode::FORBIDDEN,
+            ApiError::Conflict(_) => StatusCode::CONFLICT,
         }
     }
 

@@ -167,6 +167,12 @@ pub(super) async fn ingest(
     batch: ParsedBatch,
 ) -> Result<Ack, ApiError> {
     let started = Instant::now();
+    if let Some(site) = crate::config::forwarded_site(id) {
+        return Err(ApiError::Conflict(format!(
+            "machine `{id}` is site `{site}`'s: its readings come from the site's forwarding, \
+             not from gateways"
+        )));
+    }
     metrics::rejected(id, &batch.rejected);
     if batch.readings.is_empty() {
         if batch.rejected.is_empty() {

@@ -39,6 +39,9 @@ const MACHINES: &str = "tunnelnav_machines";
 const MQTT_MESSAGES: &str = "tunnelnav_mqtt_messages_total";
 const MQTT_CONNECTED: &str = "tunnelnav_mqtt_connected";
 const MQTT_RECONNECTS: &str = "tunnelnav_mqtt_reconnects_total";
+const FORWARD_BACKLOG: &str = "tunnelnav_forward_backlog";
+const FORWARD_OLDEST_UNSENT: &str = "tunnelnav_forward_oldest_unsent_seconds";
+const FORWARD_CONNECTED: &str = "tunnelnav_forward_connected";
 /// What becomes of an MQTT readings message.
 const MQTT_OUTCOMES: [&str; 4] = ["received", "acknowledged", "rejected", "refused"];
 
@@ -113,6 +116,19 @@ fn describe() {
         MQTT_RECONNECTS,
         "times the MQTT broker could not be reached or the connection was lost"
     );
+    metrics::describe_gauge!(
+        FORWARD_BACKLOG,
+        "readings a site has not sent its office yet, per site (on the site: its own; on the office: as each site last reported)"
+    );
+    metrics::describe_gauge!(
+        FORWARD_OLDEST_UNSENT,
+        Unit::Seconds,
+        "age of the oldest row a site has not sent its office, per site (on the office, while a site is silent: at least the time since its last contact)"
+    );
+    metrics::describe_gauge!(
+        FORWARD_CONNECTED,
+        "1 while a site's link to its office works, per site"
+    );
     for outcome in MQTT_OUTCOMES {
         metrics::counter!(MQTT_MESSAGES, "outcome" => outcome).absolute(0);
     }
@@ -140,6 +156,29 @@ pub fn mqtt_connected(connected: bool) {
 /// The MQTT broker was lost or could not be reached.
 pub fn mqtt_reconnect() {
     metrics::counter!(MQTT_RECONNECTS).increment(1);
+}
+
+/// A site's link to its office: whether it works, the readings not sent
+/// and the age of the oldest row not sent.
+pub fn forward_link(site: &str, connected: bool, backlog_readings: u64, oldest_unsent_s: f64) {
+    forward_connected(site, connected);
+    forward_backlog(site, backlog_readings, oldest_unsent_s);
+}
+
+/// A site's backlog: the readings not sent and the age of the oldest row
+/// not sent.
+pub fn forward_backlog(site: &str, backlog_readings: u64, oldest_unsent_s: f64) {
+    metrics::gauge!(FORWARD_BACKLOG, "site" => site.to_string()).set(backlog_readings as f64);
+    metrics::gauge!(FORWARD_OLDEST_UNSENT, "site" => site.to_string()).set(oldest_unsent_s);
+}
+
+/// Whether a site's link to its office works.
+pub fn forward_connected(site: &str, connected: bool) {
+    metrics::gauge!(FORWARD_CONNECTED, "site" => site.to_string()).set(if connected {
+        1.0
+    } else {
+        0.0
+    });
 }
 
 /// Installs the recorder (idempotent); call before serving.

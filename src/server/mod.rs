@@ -9,6 +9,7 @@ pub mod auth;
 pub mod cluster;
 mod error;
 mod feeds;
+pub mod forward;
 mod history;
 mod ingest;
 mod live;
@@ -19,6 +20,7 @@ pub mod notify;
 pub(crate) mod openapi;
 pub mod pages;
 pub mod settings;
+pub mod sites;
 pub mod state;
 
 use std::future::Future;
@@ -44,6 +46,9 @@ enum Role {
     Read,
     Ingest,
     Admin,
+    /// A site forwarding to this office (a `site` token for the site the
+    /// route's `{site}` or `{machine}`'s prefix names).
+    Site,
 }
 
 impl Role {
@@ -52,6 +57,7 @@ impl Role {
             Role::Read => "read",
             Role::Ingest => "ingest",
             Role::Admin => "admin",
+            Role::Site => "site",
         }
     }
 }
@@ -85,13 +91,14 @@ fn guarded(
         Role::Read => routes.layer(axum::middleware::from_fn_with_state(state, auth::read)),
         Role::Ingest => routes.layer(axum::middleware::from_fn_with_state(state, auth::ingest)),
         Role::Admin => routes.layer(axum::middleware::from_fn_with_state(state, auth::admin)),
+        Role::Site => routes.layer(axum::middleware::from_fn_with_state(state, auth::site)),
     };
     (schemas, paths, routes)
 }
 
 /// The API's routes, each with its description (`openapi`).
 fn api_routes(state: &SharedState) -> OpenApiRouter<SharedState> {
-    use Role::{Admin, Ingest, Read};
+    use Role::{Admin, Ingest, Read, Site};
     let guard = |role, routes| guarded(state, role, routes);
     OpenApiRouter::with_openapi(openapi::ApiDoc::openapi())
         .routes(guard(Read, routes!(pages::fleet)))
@@ -115,6 +122,9 @@ fn api_routes(state: &SharedState) -> OpenApiRouter<SharedState> {
         .routes(guard(Read, routes!(live::alarms_websocket)))
         .routes(guard(Read, routes!(alarms::ack)))
         .routes(guard(Read, routes!(cluster::show)))
+        .routes(guard(Site, routes!(sites::forward)))
+        .routes(guard(Site, routes!(sites::report)))
+        .routes(guard(Read, routes!(sites::list)))
 }
 
 /// The application's routes (used by `serve` and by the tests).

@@ -4,6 +4,12 @@
 //! and back-off. Changes reach the notifier only after their commit, once
 //! each (a transition recomputed after a restart is not stored again, so
 //! not notified again).
+//!
+//! On SQLite a change owed to a webhook is in the store's outbox, written
+//! in the commit that made it: the URL's task posts what the outbox holds
+//! and deletes it once answered (or given up), so a change not yet posted
+//! when the server stops or is killed is posted after the restart, with
+//! the same idempotency key. On PostgreSQL the changes wait in memory.
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -27,29 +33,51 @@ pub struct AlarmNotifier {
     live: broadcast::Sender<Arc<AlarmChange>>,
     /// The changes this node made (not those relayed from other nodes).
     own: broadcast::Sender<Arc<AlarmChange>>,
-    warn: Option<(String, mpsc::Sender<Arc<AlarmChange>>)>,
-    alarm: Option<(String, mpsc::Sender<Arc<AlarmChange>>)>,
+    warn: Option<(String, Delivery)>,
+    alarm: Option<(String, Delivery)>,
+}
+
+/// How a webhook URL's task gets its changes.
+#[derive(Clone)]
+enum Delivery {
+    /// Queued in memory.
+    Memory(mpsc::Sender<Arc<AlarmChange>>),
+    /// From the store's outbox; woken when a change is committed.
+    Outbox(Arc<tokio::sync::Notify>),
 }
 
 impl AlarmNotifier {
     /// A notifier; starts one delivery task per configured webhook URL
-    /// (call within a tokio runtime).
-    pub fn start(webhooks: &WebhookConfig) -> AlarmNotifier {
+    /// (call within a tokio runtime), posting from `store`'s outbox when
+    /// it is SQLite.
+    pub fn start(webhooks: &WebhookConfig, store: &crate::store::Store) -> AlarmNotifier {
         let (live, _) = broadcast::channel(ALARM_BUFFER);
         let client = reqwest::Client::builder()
             .timeout(Duration::from_secs_f64(webhooks.timeout_s))
             .build()
             .inspect_err(|e| tracing::error!(error = %e, "no HTTP client: webhooks are off"))
             .ok();
-        let spawn = |url: &Option<String>| {
+        let spawn = |url: &Option<String>, severity: &'static str| {
             let (url, client) = (url.clone()?, client.clone()?);
+            if let Some(sqlite) = store.sqlite() {
+                let wake = Arc::new(tokio::sync::Notify::new());
+                tokio::spawn(deliver_outbox(
+                    client,
+                    url.clone(),
+                    webhooks.clone(),
+                    sqlite.clone(),
+                    severity,
+                    wake.clone(),
+                ));
+                return Some((url, Delivery::Outbox(wake)));
+            }
             let (queue, changes) = mpsc::channel(WEBHOOK_QUEUE);
             tokio::spawn(deliver(client, url.clone(), webhooks.clone(), changes));
-            Some((url, queue))
+            Some((url, Delivery::Memory(queue)))
         };
         AlarmNotifier {
-            warn: spawn(&webhooks.warn),
-            alarm: spawn(&webhooks.alarm),
+            warn: spawn(&webhooks.warn, "warn"),
+            alarm: spawn(&webhooks.alarm, "alarm"),
             live,
             own: broadcast::channel(ALARM_BUFFER).0,
         }
@@ -84,13 +112,15 @@ impl AlarmSink for AlarmNotifier {
                 "alarm" => &self.alarm,
                 _ => &self.warn,
             };
-            if let Some((url, queue)) = webhook
-                && queue.try_send(change.clone()).is_err()
-            {
-                tracing::error!(
-                    %url, alarm = change.alarm.id, pending = WEBHOOK_QUEUE,
-                    "webhook queue full (the receiver has not answered for long): change not posted"
-                );
+            match webhook {
+                Some((url, Delivery::Memory(queue))) if queue.try_send(change.clone()).is_err() => {
+                    tracing::error!(
+                        %url, alarm = change.alarm.id, pending = WEBHOOK_QUEUE,
+                        "webhook queue full (the receiver has not answered for long): change not posted"
+                    );
+                }
+                Some((_, Delivery::Outbox(wake))) => wake.notify_one(),
+                _ => {}
             }
             // No live client is fine.
             let _ = self.own.send(change.clone());
@@ -111,11 +141,60 @@ async fn deliver(
     mut changes: mpsc::Receiver<Arc<AlarmChange>>,
 ) {
     while let Some(change) = changes.recv().await {
-        let body = match serde_json::to_vec(&*change) {
+        post(&client, &url, &config, &change).await;
+    }
+}
+
+/// Posts what the outbox owes the webhook of `severity`, oldest first,
+/// deleting each once answered or given up; waits for `wake` (or a
+/// second) when nothing is owed.
+async fn deliver_outbox(
+    client: reqwest::Client,
+    url: String,
+    config: WebhookConfig,
+    store: crate::store::SqliteStore,
+    severity: &'static str,
+    wake: Arc<tokio::sync::Notify>,
+) {
+    use crate::store::StoreError;
+    loop {
+        let reader = store.clone();
+        let owed = tokio::task::spawn_blocking(move || reader.webhook_pending(severity, 100)).await;
+        let owed = match owed {
+            Ok(Ok(owed)) => owed,
+            Ok(Err(StoreError::Closed)) | Err(_) => return,
+            Ok(Err(e)) => {
+                tracing::error!(%url, error = %e, "webhook outbox not readable; trying again");
+                tokio::time::sleep(Duration::from_secs(5)).await;
+                continue;
+            }
+        };
+        if owed.is_empty() {
+            let _ = tokio::time::timeout(Duration::from_secs(1), wake.notified()).await;
+            continue;
+        }
+        for entry in owed {
+            post(&client, &url, &config, &entry.change).await;
+            match store.webhook_done(entry.id).await {
+                Ok(()) => {}
+                Err(StoreError::Closed) => return,
+                Err(e) => {
+                    tracing::warn!(%url, error = %e, "posted webhook change not deleted: it will be posted again, with the same key");
+                }
+            }
+        }
+    }
+}
+
+/// Posts one change to `url`: until a 2xx answer or `config.attempts`
+/// attempts (see [`deliver`]).
+async fn post(client: &reqwest::Client, url: &str, config: &WebhookConfig, change: &AlarmChange) {
+    {
+        let body = match serde_json::to_vec(change) {
             Ok(body) => body,
             Err(e) => {
                 tracing::error!(error = %e, "alarm change not serialisable");
-                continue;
+                return;
             }
         };
         let key = format!(
@@ -128,7 +207,7 @@ async fn deliver(
         );
         for attempt in 1..=config.attempts {
             let sent = client
-                .post(&url)
+                .post(url)
                 .header(reqwest::header::CONTENT_TYPE, "application/json")
                 .header("Idempotency-Key", &key)
                 .body(body.clone())

@@ -250,9 +250,18 @@ const TIMEOUT_S: Setting = setting(
     (0.0, 3600.0),
     AboveMin,
 );
+const BACKLOG_ALARM_S: Setting = setting(
+    "sites",
+    "backlog_alarm_s",
+    "s",
+    Some(300.0),
+    (10.0, 604_800.0),
+    Closed,
+);
 
-/// Every number of the config file's `[limits]`, `[mqtt]` and `[webhooks]`.
-pub const SETTINGS: [Setting; 16] = [
+/// Every number of the config file's `[limits]`, `[mqtt]`, `[webhooks]`
+/// and `[sites]`.
+pub const SETTINGS: [Setting; 17] = [
     MAX_BODY_MB,
     MAX_READINGS_PER_REQUEST,
     MAX_FRAME_MB,
@@ -269,6 +278,7 @@ pub const SETTINGS: [Setting; 16] = [
     FIRST_RETRY_S,
     MAX_RETRY_S,
     TIMEOUT_S,
+    BACKLOG_ALARM_S,
 ];
 
 fn megabytes(mb: f64) -> usize {
@@ -554,6 +564,49 @@ pub struct ServerConfig {
     /// The PostgreSQL store (`[store]`), if any.
     #[serde(default)]
     pub store: StoreConfig,
+    /// The office this site forwards to (`[forward]`), if any.
+    #[serde(default)]
+    pub forward: ForwardConfig,
+    /// What an office allows its sites (`[sites]`).
+    #[serde(default)]
+    pub sites: SitesConfig,
+}
+
+/// `[forward]` of the config file: the office a site forwards to
+/// (docs/operations.md, "Sites and the office"). `serve --forward-to`,
+/// `--site` and `--forward-token-file` win over it.
+#[derive(Debug, Clone, Default, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ForwardConfig {
+    /// The office, `http://HOST:PORT`.
+    pub url: Option<String>,
+    /// This site's name.
+    pub site: Option<String>,
+    /// A file whose first line is the office's `site` token for this site.
+    pub token_file: Option<PathBuf>,
+}
+
+/// `[sites]` of the config file: an office's allowance for its sites.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SitesConfig {
+    /// A site whose oldest unsent row is older than this (s), or that has
+    /// been silent this long, raises `site_link` on its machines.
+    pub backlog_alarm_s: Option<f64>,
+}
+
+impl SitesConfig {
+    /// `backlog_alarm_s`, checked, or its default.
+    pub fn checked_backlog_alarm_s(&self) -> Result<f64, SettingsError> {
+        BACKLOG_ALARM_S.check(self.backlog_alarm_s.unwrap_or(BACKLOG_ALARM_S.fixed()))
+    }
+
+    /// `backlog_alarm_s` or its default (call after [`ServerConfig::parse`]
+    /// has checked it).
+    pub fn backlog_alarm_s(&self) -> f64 {
+        self.checked_backlog_alarm_s()
+            .unwrap_or(BACKLOG_ALARM_S.fixed())
+    }
 }
 
 /// A config file, validated.
@@ -568,6 +621,10 @@ pub struct ServerSettings {
     pub mqtt: MqttConfig,
     /// `[store]`.
     pub store: StoreConfig,
+    /// `[forward]`.
+    pub forward: ForwardConfig,
+    /// `[sites]`, checked.
+    pub sites: SitesConfig,
 }
 
 impl ServerConfig {
@@ -603,6 +660,10 @@ impl ServerConfig {
             .mqtt
             .estimates_every()
             .map_err(|e| file_error(e.to_string()))?;
+        config
+            .sites
+            .checked_backlog_alarm_s()
+            .map_err(|e| file_error(e.to_string()))?;
         Ok(ServerSettings {
             machines: config
                 .machines
@@ -613,6 +674,8 @@ impl ServerConfig {
             limits,
             mqtt: config.mqtt,
             store: config.store,
+            forward: config.forward,
+            sites: config.sites,
         })
     }
 }

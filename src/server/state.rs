@@ -37,6 +37,10 @@ pub struct ServerOptions {
     /// How this node joins the others on the PostgreSQL store (`None` on
     /// SQLite: one server).
     pub cluster: Option<super::cluster::ClusterOptions>,
+    /// A site: the office it forwards to (`serve --forward-to`).
+    pub forward: Option<super::forward::ForwardOptions>,
+    /// An office: a site's backlog older than this raises `site_link`.
+    pub site_backlog_alarm_s: f64,
 }
 
 /// Why the server could not start.
@@ -53,6 +57,8 @@ pub enum ServerError {
     Io(#[from] std::io::Error),
     #[error("joining the other nodes: {0}")]
     Cluster(String),
+    #[error("forwarding to the office: {0}")]
+    Forward(#[from] super::forward::ForwardError),
 }
 
 /// What every handler shares.
@@ -76,6 +82,10 @@ pub struct AppState {
     alarm_sockets: Arc<std::sync::atomic::AtomicUsize>,
     /// This node's part among several on one PostgreSQL store.
     pub cluster: Option<Arc<Cluster>>,
+    /// An office: the sites' links as they last reported.
+    pub sites: super::sites::SiteLinks,
+    /// An office: a site's backlog older than this raises `site_link`.
+    pub site_backlog_alarm_s: f64,
 }
 
 /// Counts an open live socket while it lives.
@@ -94,9 +104,21 @@ impl AppState {
     /// machine from its snapshot and starts their tasks (on PostgreSQL: the
     /// machines this node holds, see [`super::cluster`]).
     pub async fn start(options: ServerOptions) -> Result<SharedState, ServerError> {
+        let outbox = crate::store::outbox::OutboxConfig {
+            office: options.forward.is_some(),
+            webhook_warn: options.webhooks.warn.is_some(),
+            webhook_alarm: options.webhooks.alarm.is_some(),
+        };
         let store = match &options.postgres {
+            Some(_) if options.forward.is_some() => {
+                return Err(ServerError::Store(crate::store::StoreError::Location(
+                    "a site forwarding to an office keeps its outbox in SQLite (--data-dir): \
+                     serve the site without --store"
+                        .into(),
+                )));
+            }
             Some(location) => Store::open_postgres(location).await?,
-            None => Store::open_capped(&options.data_dir, options.limits.max_database_bytes)?,
+            None => Store::open_with(&options.data_dir, options.limits.max_database_bytes, outbox)?,
         };
         let cluster = match (&options.cluster, store.postgres()) {
             (Some(joining), Some(_)) => Some(Arc::new(Cluster::join(&store, joining).await?)),
@@ -133,7 +155,42 @@ impl AppState {
             store.put_machine(spec.clone(), fresh).await?;
             tracing::info!(machine = %spec.id, "machine declared by the config file");
         }
-        let alarms = notify::AlarmNotifier::start(&options.webhooks);
+        if let Some(sqlite) = store.sqlite() {
+            for (severity, url) in [
+                ("warn", &options.webhooks.warn),
+                ("alarm", &options.webhooks.alarm),
+            ] {
+                if url.is_none() {
+                    let dropped = sqlite.webhook_dropped(severity).await?;
+                    if dropped > 0 {
+                        tracing::warn!(
+                            severity,
+                            dropped,
+                            "alarm changes owed to a webhook no longer configured: forgotten"
+                        );
+                    }
+                }
+            }
+        }
+        let alarms = notify::AlarmNotifier::start(&options.webhooks, &store);
+        let sites = {
+            let store = store.clone();
+            tokio::task::spawn_blocking(move || {
+                let records = store.sites()?;
+                let open = store.alarms(&crate::store::alarms::AlarmFilter {
+                    machine: None,
+                    active_only: true,
+                })?;
+                let raised: Vec<String> = open
+                    .into_iter()
+                    .filter(|a| a.kind == crate::fusion::alarms::AlarmKind::SiteLink.as_str())
+                    .map(|a| a.subject)
+                    .collect();
+                Ok::<_, crate::store::StoreError>(super::sites::SiteLinks::load(records, &raised))
+            })
+            .await
+            .map_err(std::io::Error::other)??
+        };
         if !options.retention.keeps_everything() {
             tokio::spawn(apply_retention(
                 store.clone(),
@@ -153,6 +210,8 @@ impl AppState {
             live_sockets: Arc::default(),
             alarm_sockets: Arc::default(),
             cluster: cluster.clone(),
+            sites,
+            site_backlog_alarm_s: options.site_backlog_alarm_s,
         });
         match cluster {
             Some(cluster) => {
@@ -169,6 +228,17 @@ impl AppState {
                 }
             }
         }
+        // The machines are restored (their snapshots cover every stored
+        // reading): the office is told of those it does not know yet.
+        match options.forward {
+            Some(forward) => super::forward::start(state.clone(), forward).await?,
+            None => {
+                if let Some(sqlite) = state.store.sqlite() {
+                    sqlite.forwarding(false).await?;
+                }
+            }
+        }
+        tokio::spawn(super::sites::watch(state.clone()));
         Ok(state)
     }
 
@@ -221,13 +291,19 @@ impl AppState {
             return Ok(());
         }
         let store = self.store.clone();
-        let (spec, core, status) = tokio::task::spawn_blocking(move || {
+        let (spec, core, status, forward_mark) = tokio::task::spawn_blocking(move || {
             let spec = stored.spec;
             let core = machine::recover(&store, &spec, db_id, lease_epoch)
                 .map_err(|e| (spec.id.clone(), e))?;
             let status =
                 machine::stored_status(&store, &spec, db_id).map_err(|e| (spec.id.clone(), e))?;
-            Ok((spec, core, status))
+            let forward_mark = match crate::config::forwarded_site(&spec.id) {
+                Some(_) => store
+                    .forward_mark(db_id)
+                    .map_err(|e| (spec.id.clone(), e.into()))?,
+                None => None,
+            };
+            Ok((spec, core, status, forward_mark))
         })
         .await
         .map_err(std::io::Error::other)?
@@ -240,6 +316,7 @@ impl AppState {
             lease_epoch,
             core,
             status,
+            forward_mark,
         );
         let replaced = self
             .machines
@@ -385,6 +462,12 @@ impl AppState {
     /// Creates or replaces a machine. Returns whether it was created and
     /// whether anything changed (an identical declaration keeps the state).
     pub async fn declare(&self, spec: MachineSpec) -> Result<(bool, bool), ApiError> {
+        if let Some(site) = crate::config::forwarded_site(&spec.id) {
+            return Err(ApiError::Conflict(format!(
+                "machine `{}` is site `{site}`'s: it is declared there and forwarded here",
+                spec.id
+            )));
+        }
         let _admin = self.admin.lock().await;
         let existing = self.machine(&spec.id).ok();
         let mut kept = None;
@@ -413,10 +496,64 @@ impl AppState {
             Some(core) => core,
             None => MachineCore::new(&spec).map_err(|e| ApiError::BadRequest(e.to_string()))?,
         };
+        let existing_none = existing.is_none();
         let db_id = self
             .store
             .put_machine(spec.clone(), core.snapshot())
             .await?;
+        self.run_declared(spec, db_id, existing, core, None).await?;
+        Ok((existing_none, true))
+    }
+
+    /// An office: machine `spec.id` (`{site}.{machine}`) was (re)declared
+    /// at its site with its engines at `snapshot`, the site's outbox
+    /// sequence `sequence`: stores both and the sequence in one commit,
+    /// and runs the machine on from there (the site's engines, restored
+    /// here). A sequence already committed changes nothing. Returns
+    /// whether it was applied.
+    pub async fn declare_forwarded(
+        &self,
+        spec: MachineSpec,
+        snapshot: String,
+        sequence: i64,
+    ) -> Result<bool, ApiError> {
+        let core = MachineCore::restore(&spec, &snapshot).map_err(|e| {
+            ApiError::BadRequest(format!(
+                "machine `{}`: the state its site's engines stand in is not readable here: {e}",
+                spec.id
+            ))
+        })?;
+        let _admin = self.admin.lock().await;
+        let existing = self.machine(&spec.id).ok();
+        if let Some(existing) = &existing {
+            let (store, db_id) = (self.store.clone(), existing.db_id);
+            let mark = tokio::task::spawn_blocking(move || store.forward_mark(db_id))
+                .await
+                .map_err(|e| ApiError::Internal(e.to_string()))??;
+            if mark.is_some_and(|mark| mark >= sequence) {
+                return Ok(false);
+            }
+            existing.stop().await;
+        }
+        let db_id = self
+            .store
+            .put_forwarded_machine(spec.clone(), snapshot, sequence)
+            .await?;
+        self.run_declared(spec, db_id, existing, core, Some(sequence))
+            .await?;
+        Ok(true)
+    }
+
+    /// Starts the task of a machine just (re)declared as `db_id` with
+    /// `core` (the admin lock held), in place of `existing`.
+    async fn run_declared(
+        &self,
+        spec: MachineSpec,
+        db_id: i64,
+        existing: Option<Arc<MachineHandle>>,
+        core: MachineCore,
+        forward_mark: Option<i64>,
+    ) -> Result<(), ApiError> {
         let lease_epoch = match (&existing, &self.cluster) {
             (Some(existing), _) => existing.lease_epoch.get(),
             (None, Some(cluster)) => match super::cluster::claim(cluster, db_id).await? {
@@ -443,11 +580,12 @@ impl AppState {
             lease_epoch,
             core,
             status,
+            forward_mark,
         ));
         if let Ok(mut machines) = self.machines.write() {
             machines.insert(spec.id, handle);
         }
-        Ok((existing.is_none(), true))
+        Ok(())
     }
 
     /// Tells live sockets the server is stopping: they close.

@@ -35,6 +35,44 @@ impl AlarmRow {
     }
 }
 
+/// An office: the rows that bring a forwarded machine's alarms to where a
+/// change its site made left them (the raise, stored once, before a clear
+/// or an acknowledgement, so the office holds the alarm even if it missed
+/// the raise), and the acknowledgement; `None` for a kind or severity this
+/// release does not know.
+pub fn forwarded_rows(
+    change: &AlarmChange,
+) -> Option<(Vec<AlarmRow>, Option<super::outbox::ForwardedAck>)> {
+    use crate::fusion::alarms::{AlarmKind, Severity};
+    let alarm = &change.alarm;
+    let kind = AlarmKind::from_name(&alarm.kind)?.as_str();
+    let severity = Severity::from_name(&alarm.severity)?.as_str();
+    let row = |raised: bool, t: f64| AlarmRow {
+        kind,
+        severity,
+        subject: alarm.subject.clone(),
+        raised,
+        t,
+        message: alarm.message.clone(),
+    };
+    let mut rows = vec![row(true, alarm.raised_t)];
+    if let Some(cleared_t) = alarm.cleared_t {
+        rows.push(row(false, cleared_t));
+    }
+    let ack = match (change.transition, alarm.acked_t, &alarm.acked_by) {
+        (Change::Acknowledged, Some(acked_t), Some(by)) => Some(super::outbox::ForwardedAck {
+            kind: kind.to_string(),
+            severity: severity.to_string(),
+            subject: alarm.subject.clone(),
+            raised_t: alarm.raised_t,
+            acked_t,
+            by: by.clone(),
+        }),
+        _ => None,
+    };
+    Some((rows, ack))
+}
+
 /// A stored alarm, as the API lists it.
 #[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize, utoipa::ToSchema)]
 pub struct StoredAlarm {
@@ -166,7 +204,7 @@ fn list(conn: &Connection, filter: &AlarmFilter) -> Result<Vec<StoredAlarm>, Sto
     Ok(rows.collect::<Result<_, _>>()?)
 }
 
-fn by_id(conn: &Connection, id: i64) -> Result<Option<StoredAlarm>, StoreError> {
+pub(super) fn by_id(conn: &Connection, id: i64) -> Result<Option<StoredAlarm>, StoreError> {
     let sql = format!(
         "SELECT {COLUMNS} FROM alarms a JOIN machines m ON m.id = a.machine_id WHERE a.id = ?1"
     );
@@ -193,6 +231,7 @@ impl SqliteStore {
         t: f64,
         announce: impl FnOnce(AlarmChange) + Send + 'static,
     ) -> Result<Option<(StoredAlarm, bool)>, StoreError> {
+        let outbox = self.outbox;
         self.maintain(move |conn| {
             let acked = conn.execute(
                 "UPDATE alarms SET acked_t = ?2, acked_by = ?3 WHERE id = ?1 AND acked_t IS NULL",
@@ -200,10 +239,25 @@ impl SqliteStore {
             )? == 1;
             let alarm = by_id(conn, id)?;
             if let (true, Some(alarm)) = (acked, &alarm) {
-                announce(AlarmChange {
+                let change = AlarmChange {
                     transition: Change::Acknowledged,
                     alarm: alarm.clone(),
-                });
+                };
+                // An acknowledgement made here (not one a site forwarded:
+                // those are written with the site's batches).
+                let machine_id: i64 =
+                    conn.query_row("SELECT machine_id FROM alarms WHERE id = ?1", [id], |r| {
+                        r.get(0)
+                    })?;
+                let to_office = outbox.office && !alarm.machine.contains('.');
+                super::outbox::record_alarms(
+                    conn,
+                    &outbox,
+                    to_office,
+                    machine_id,
+                    std::slice::from_ref(&change),
+                )?;
+                announce(change);
             }
             Ok(alarm.map(|alarm| (alarm, acked)))
         })
@@ -251,6 +305,7 @@ mod tests {
                 })),
                 reply: Some(reply),
                 lease_epoch: None,
+                forwarded: None,
             })
             .await
             .unwrap();

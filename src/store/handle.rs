@@ -8,6 +8,7 @@ use std::path::Path;
 use rusqlite::Connection;
 
 use super::alarms::{AlarmChange, AlarmFilter, StoredAlarm};
+use super::outbox::{OutboxConfig, SiteRecord};
 use super::postgres::{PgLocation, PgStore};
 use super::queries::EstimatesPage;
 use super::retention::{Pruned, Retention, Step};
@@ -48,8 +49,18 @@ impl Store {
 
     /// [`Store::open`] with the database file capped at `max_bytes`.
     pub fn open_capped(data_dir: &Path, max_bytes: Option<u64>) -> Result<Store, StoreError> {
+        Store::open_with(data_dir, max_bytes, OutboxConfig::default())
+    }
+
+    /// [`Store::open_capped`] recording in its outbox what `outbox` says is
+    /// owed (to an office, to webhooks).
+    pub fn open_with(
+        data_dir: &Path,
+        max_bytes: Option<u64>,
+        outbox: OutboxConfig,
+    ) -> Result<Store, StoreError> {
         Ok(Store {
-            backend: Backend::Sqlite(SqliteStore::open_capped(data_dir, max_bytes)?),
+            backend: Backend::Sqlite(SqliteStore::open_with(data_dir, max_bytes, outbox)?),
         })
     }
 
@@ -114,7 +125,45 @@ impl Store {
         spec: MachineSpec,
         snapshot: String,
     ) -> Result<i64, StoreError> {
-        on_backend!(self, b => b.put_machine(spec, snapshot).await)
+        on_backend!(self, b => b.put_machine(spec, snapshot, None).await)
+    }
+
+    /// An office: stores a forwarded machine's declaration, and the site's
+    /// sequence of it as the machine's mark, in one commit.
+    pub async fn put_forwarded_machine(
+        &self,
+        spec: MachineSpec,
+        snapshot: String,
+        sequence: i64,
+    ) -> Result<i64, StoreError> {
+        on_backend!(self, b => b.put_machine(spec, snapshot, Some(sequence)).await)
+    }
+
+    /// An office: the last sequence of forwarded machine `machine_id` its
+    /// site sent that is committed here.
+    pub fn forward_mark(&self, machine_id: i64) -> Result<Option<i64>, StoreError> {
+        on_backend!(self, b => b.forward_mark(machine_id))
+    }
+
+    /// An office: every site's record (blocking).
+    pub fn sites(&self) -> Result<Vec<SiteRecord>, StoreError> {
+        on_backend!(self, b => b.sites())
+    }
+
+    /// An office: records a site's contact.
+    pub async fn put_site(&self, site: SiteRecord) -> Result<(), StoreError> {
+        on_backend!(self, b => b.put_site(site).await)
+    }
+
+    /// The SQLite store a site's outbox is in (a site's store is SQLite).
+    pub fn site_outbox(&self) -> Result<&SqliteStore, StoreError> {
+        self.sqlite().ok_or_else(|| {
+            StoreError::Location(
+                "a site forwarding to an office keeps its outbox in SQLite (--data-dir), \
+                 not in PostgreSQL"
+                    .into(),
+            )
+        })
     }
 
     /// Every stored machine, its parameters made current.

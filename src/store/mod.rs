@@ -13,6 +13,7 @@ pub mod alarms;
 pub mod codec;
 mod error;
 mod handle;
+pub mod outbox;
 pub mod postgres;
 pub mod queries;
 mod read_pool;
@@ -113,6 +114,9 @@ pub struct Write {
     /// PostgreSQL): the commit fails unless the node still holds the lease
     /// with this epoch. `None` with one server.
     pub lease_epoch: Option<i64>,
+    /// An office: the site's sequence this write of a forwarded machine
+    /// brings it to (stored with it), and the acknowledgements in it.
+    pub forwarded: Option<outbox::Forwarded>,
 }
 
 /// What a committed [`Write`] stored.
@@ -154,6 +158,8 @@ pub struct SqliteStore {
     requests: mpsc::Sender<Queued>,
     readers: Arc<ReadPool>,
     path: PathBuf,
+    /// What the writer records in the outbox.
+    outbox: outbox::OutboxConfig,
 }
 
 impl SqliteStore {
@@ -167,6 +173,16 @@ impl SqliteStore {
     /// it writes fail as on a full disk (`SQLITE_FULL`), and the server
     /// answers 503 until space is made (retention, a larger cap).
     pub fn open_capped(data_dir: &Path, max_bytes: Option<u64>) -> Result<SqliteStore, StoreError> {
+        SqliteStore::open_with(data_dir, max_bytes, outbox::OutboxConfig::default())
+    }
+
+    /// [`SqliteStore::open_capped`] recording in the outbox what `outbox`
+    /// says is owed (to an office, to webhooks).
+    pub fn open_with(
+        data_dir: &Path,
+        max_bytes: Option<u64>,
+        outbox: outbox::OutboxConfig,
+    ) -> Result<SqliteStore, StoreError> {
         std::fs::create_dir_all(data_dir).map_err(|source| StoreError::DataDir {
             path: data_dir.display().to_string(),
             source,
@@ -208,7 +224,7 @@ impl SqliteStore {
         std::thread::Builder::new()
             .name("store-writer".into())
             .spawn(move || {
-                writer::writer(conn, queue);
+                writer::writer(conn, queue, outbox);
                 drop(alive);
             })
             .map_err(|source| StoreError::DataDir {
@@ -222,6 +238,7 @@ impl SqliteStore {
                 idle: Mutex::new(Vec::new()),
             }),
             path,
+            outbox,
         })
     }
 
@@ -283,16 +300,20 @@ impl SqliteStore {
 
     /// Creates or replaces a machine with a fresh engine snapshot: readings
     /// stored before are kept but not fed to the new engines. Returns its id.
+    /// An office stores a forwarded machine's declaration with the site's
+    /// sequence of it (`forwarded`).
     pub async fn put_machine(
         &self,
         spec: MachineSpec,
         snapshot: String,
+        forwarded: Option<i64>,
     ) -> Result<i64, StoreError> {
         let (reply, answer) = oneshot::channel();
         self.requests
             .send(Queued::Request(Request::PutMachine {
                 spec: Box::new(spec),
                 snapshot,
+                forwarded,
                 reply,
             }))
             .await
@@ -434,6 +455,7 @@ mod tests {
                 after_commit: None,
                 reply: Some(reply),
                 lease_epoch: None,
+                forwarded: None,
             })
             .await
             .unwrap();
@@ -494,6 +516,7 @@ mod tests {
                 after_commit: None,
                 reply: Some(reply),
                 lease_epoch: None,
+                forwarded: None,
             })
             .await;
         assert!(matches!(late, Err(StoreError::Closed)), "{late:?}");

@@ -503,6 +503,7 @@ mod tests {
                     after_commit: None,
                     reply: Some(reply),
                     lease_epoch: None,
+                    forwarded: None,
                 })
                 .await
                 .unwrap();

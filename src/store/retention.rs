@@ -143,7 +143,11 @@ impl Step {
                 let readings = conn.execute(
                     "DELETE FROM readings WHERE id IN (
                          SELECT r.id FROM readings r JOIN snapshots s ON s.machine_id = r.machine_id
-                         WHERE r.t < ?1 AND r.id <= s.last_reading_id LIMIT ?2)",
+                         WHERE r.t < ?1 AND r.id <= s.last_reading_id
+                         AND NOT EXISTS (SELECT 1 FROM outbox o WHERE o.destination = 'office'
+                             AND o.kind = 'readings' AND o.machine_id = r.machine_id
+                             AND o.first_reading_id <= r.id)
+                         LIMIT ?2)",
                     params![cut, batch as i64],
                 )? as u64;
                 Ok(Pruned {

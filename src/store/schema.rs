@@ -103,6 +103,68 @@ const MIGRATIONS: &[&str] = &[
     );
     CREATE INDEX alarms_open ON alarms(machine_id, cleared_t);
     ",
+    // 5: the outbox (what a site still owes its office, alarm changes
+    // still owed to the webhooks), which machines the office has been told
+    // of, an office's record of what each site sent, and tokens for sites.
+    "
+    -- One row per committed reading batch, declaration or alarm change
+    -- still to be sent; deleted once the receiver has committed it. The
+    -- id is the sequence of the idempotency key (site, machine, sequence).
+    -- AUTOINCREMENT: an id is never used twice, even once its row and
+    -- every later one are gone.
+    CREATE TABLE outbox (
+        id INTEGER PRIMARY KEY AUTOINCREMENT,
+        -- 'office' (a site forwarding) or 'webhook'
+        destination TEXT NOT NULL CHECK (destination IN ('office', 'webhook')),
+        machine_id INTEGER NOT NULL REFERENCES machines(id),
+        -- office: 'machine', 'readings' or 'alarm'; webhook: the severity
+        kind TEXT NOT NULL,
+        -- readings: the ids of the batch's readings (with no gap) and
+        -- their count
+        first_reading_id INTEGER,
+        last_reading_id INTEGER,
+        readings INTEGER NOT NULL DEFAULT 0,
+        -- machine: the declaration and its engines' state; alarm and
+        -- webhook: the change; JSON
+        body TEXT,
+        -- Unix seconds, when committed
+        created_t REAL NOT NULL
+    );
+    CREATE INDEX outbox_by_machine ON outbox(destination, machine_id, id);
+    CREATE INDEX outbox_by_kind ON outbox(destination, kind, id);
+    -- A site: the machines whose declaration has gone into the outbox.
+    CREATE TABLE forwarding (
+        machine_id INTEGER PRIMARY KEY REFERENCES machines(id)
+    );
+    -- An office: per forwarded machine, the last sequence its site sent
+    -- that is committed here.
+    CREATE TABLE forward_marks (
+        machine_id INTEGER PRIMARY KEY REFERENCES machines(id),
+        sequence INTEGER NOT NULL
+    );
+    -- An office: each site's link as last reported.
+    CREATE TABLE sites (
+        name TEXT PRIMARY KEY,
+        last_contact_t REAL NOT NULL,
+        backlog_items INTEGER NOT NULL,
+        backlog_readings INTEGER NOT NULL,
+        oldest_unsent_t REAL
+    );
+    -- Tokens: a fourth scope, `site` (a site forwarding to this office;
+    -- `machine` holds the site's name).
+    CREATE TABLE tokens_v5 (
+        id INTEGER PRIMARY KEY,
+        name TEXT NOT NULL,
+        scope TEXT NOT NULL CHECK (scope IN ('ingest', 'read', 'admin', 'site')),
+        machine TEXT,
+        hash TEXT NOT NULL UNIQUE,
+        created_t REAL NOT NULL,
+        revoked_t REAL
+    );
+    INSERT INTO tokens_v5 SELECT id, name, scope, machine, hash, created_t, revoked_t FROM tokens;
+    DROP TABLE tokens;
+    ALTER TABLE tokens_v5 RENAME TO tokens;
+    ",
 ];
 
 /// The schema version this build writes.

@@ -8,6 +8,7 @@ use std::collections::BTreeMap;
 use rusqlite::{Connection, params};
 use tokio::sync::{mpsc, oneshot};
 
+use super::outbox::{self, OutboxConfig};
 use super::{
     BUCKET_WIDTHS_S, CHECKPOINT_EVERY, Extremes, MAX_GROUP, StoreError, Write, WriteOutcome,
 };
@@ -35,6 +36,8 @@ pub(super) enum Request {
         spec: Box<MachineSpec>,
         /// The fresh state of the (re)declared machine's engines.
         snapshot: String,
+        /// An office: the site's sequence of this declaration.
+        forwarded: Option<i64>,
         reply: oneshot::Sender<Result<i64, StoreError>>,
     },
 }
@@ -87,7 +90,11 @@ pub(super) fn gather<J>(
 
 /// The writer thread: takes every waiting request, commits them together,
 /// then answers each.
-pub(super) fn writer(mut conn: Connection, mut queue: mpsc::Receiver<Queued>) {
+pub(super) fn writer(
+    mut conn: Connection,
+    mut queue: mpsc::Receiver<Queued>,
+    outbox: OutboxConfig,
+) {
     let mut group = Vec::with_capacity(MAX_GROUP);
     let mut close = None;
     while close.is_none() {
@@ -96,7 +103,7 @@ pub(super) fn writer(mut conn: Connection, mut queue: mpsc::Receiver<Queued>) {
         };
         let job;
         (job, close) = gather(first, &mut queue, &mut group);
-        commit(&mut conn, &mut group);
+        commit(&mut conn, &mut group, &outbox);
         if let Some(job) = job {
             job(&mut conn);
         }
@@ -115,11 +122,11 @@ pub(super) fn writer(mut conn: Connection, mut queue: mpsc::Receiver<Queued>) {
 
 /// Commits `group` in one transaction and answers each request (emptying
 /// the group); if the transaction fails, each request alone.
-fn commit(conn: &mut Connection, group: &mut Vec<Request>) {
+fn commit(conn: &mut Connection, group: &mut Vec<Request>, outbox: &OutboxConfig) {
     if group.is_empty() {
         return;
     }
-    match apply_group(conn, group) {
+    match apply_group(conn, group, outbox) {
         Ok(outcomes) => {
             for (request, outcome) in group.drain(..).zip(outcomes) {
                 answer(request, Ok(outcome));
@@ -129,7 +136,7 @@ fn commit(conn: &mut Connection, group: &mut Vec<Request>) {
             // One bad request must not fail its neighbours: retry each alone.
             tracing::warn!(error = %e, requests = group.len(), "group commit failed; retrying one by one");
             for request in group.drain(..) {
-                let result = apply_group(conn, std::slice::from_ref(&request))
+                let result = apply_group(conn, std::slice::from_ref(&request), outbox)
                     .map(|mut outcomes| outcomes.pop().unwrap_or(Outcome::Put(0)));
                 if let Err(e) = &result {
                     tracing::error!(error = %e, "write failed");
@@ -176,7 +183,11 @@ pub(super) fn answer(request: Request, result: Result<Outcome, StoreError>) {
     }
 }
 
-fn apply_group(conn: &mut Connection, group: &[Request]) -> Result<Vec<Outcome>, StoreError> {
+fn apply_group(
+    conn: &mut Connection,
+    group: &[Request],
+    outbox: &OutboxConfig,
+) -> Result<Vec<Outcome>, StoreError> {
     let tx = conn.transaction()?;
     let mut outcomes = Vec::with_capacity(group.len());
     // Bucket extremes of the whole group, upserted once each: with many
@@ -185,12 +196,15 @@ fn apply_group(conn: &mut Connection, group: &[Request]) -> Result<Vec<Outcome>,
     for request in group {
         outcomes.push(match request {
             Request::Write(write) => {
-                let (outcome, alarms) = apply_write(&tx, write, &mut buckets)?;
+                let (outcome, alarms) = apply_write(&tx, write, &mut buckets, outbox)?;
                 Outcome::Write(outcome, alarms)
             }
-            Request::PutMachine { spec, snapshot, .. } => {
-                Outcome::Put(apply_put_machine(&tx, spec, snapshot)?)
-            }
+            Request::PutMachine {
+                spec,
+                snapshot,
+                forwarded,
+                ..
+            } => Outcome::Put(apply_put_machine(&tx, spec, snapshot, *forwarded, outbox)?),
         });
     }
     upsert_buckets(&tx, buckets)?;
@@ -221,9 +235,17 @@ fn apply_write(
     tx: &rusqlite::Transaction,
     write: &Write,
     buckets: &mut Buckets,
+    outbox: &OutboxConfig,
 ) -> Result<(WriteOutcome, Vec<super::alarms::AlarmChange>), StoreError> {
     let mut outcome = WriteOutcome::default();
     let machine_id = write.machine_id;
+    // A site owes its office what it stores; an office forwards nothing on.
+    let to_office = outbox.office && write.forwarded.is_none();
+    let before = if to_office && !write.readings.is_empty() {
+        outbox::last_reading_id(tx)?
+    } else {
+        0
+    };
     let stored = insert_rows(
         tx,
         "INSERT OR IGNORE INTO readings (machine_id, t, sensor, body)",
@@ -238,6 +260,9 @@ fn apply_write(
     )?;
     outcome.stored = stored;
     outcome.duplicates = write.readings.len() - stored;
+    if to_office {
+        outbox::record_readings(tx, machine_id, before, stored)?;
+    }
     // Estimates are a function of the readings: one recomputed after a
     // restart is the same estimate, stored once.
     insert_rows(
@@ -256,7 +281,11 @@ fn apply_write(
         },
     )?;
     fold_buckets(write, buckets);
-    let alarms = super::alarms::apply(tx, machine_id, &write.alarms)?;
+    let mut alarms = super::alarms::apply(tx, machine_id, &write.alarms)?;
+    if let Some(forwarded) = &write.forwarded {
+        alarms.extend(outbox::apply_forwarded(tx, machine_id, forwarded)?);
+    }
+    outbox::record_alarms(tx, outbox, to_office, machine_id, &alarms)?;
     if let Some(state) = &write.snapshot {
         save_snapshot(tx, write.machine_id, state)?;
     }
@@ -344,6 +373,8 @@ fn apply_put_machine(
     tx: &rusqlite::Transaction,
     spec: &MachineSpec,
     snapshot: &str,
+    forwarded: Option<i64>,
+    outbox: &OutboxConfig,
 ) -> Result<i64, StoreError> {
     let json = serde_json::to_string(spec).map_err(|e| StoreError::Corrupt(e.to_string()))?;
     let id: i64 = tx
@@ -353,5 +384,10 @@ fn apply_put_machine(
         )?
         .query_row(params![spec.id, json], |row| row.get(0))?;
     save_snapshot(tx, id, snapshot)?;
+    match forwarded {
+        Some(sequence) => outbox::set_mark(tx, id, sequence)?,
+        None if outbox.office => outbox::record_machine(tx, id, &json, snapshot)?,
+        None => {}
+    }
     Ok(id)
 }

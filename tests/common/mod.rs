@@ -64,6 +64,9 @@ impl TestServer {
             retention: tunnelnav::store::retention::Retention::default(),
             webhooks,
             cluster: None,
+            forward: None,
+            site_backlog_alarm_s: tunnelnav::server::settings::SitesConfig::default()
+                .backlog_alarm_s(),
         })
         .await
         .expect("server starts");

@@ -59,18 +59,28 @@ pub enum AlarmKind {
     InsUncertainty,
     EngineReset,
     AttitudeUncertainty,
+    /// An office's: the link to the machine's site has been down, or its
+    /// backlog unsent, longer than the office allows (the server raises
+    /// it, not the machine's rules).
+    SiteLink,
 }
 
 impl AlarmKind {
     /// Every kind.
-    pub const ALL: [AlarmKind; 6] = [
+    pub const ALL: [AlarmKind; 7] = [
         AlarmKind::Deviation,
         AlarmKind::LaserDropout,
         AlarmKind::StaleSensor,
         AlarmKind::InsUncertainty,
         AlarmKind::EngineReset,
         AlarmKind::AttitudeUncertainty,
+        AlarmKind::SiteLink,
     ];
+
+    /// The kind of a protocol name.
+    pub fn from_name(name: &str) -> Option<AlarmKind> {
+        AlarmKind::ALL.into_iter().find(|k| k.as_str() == name)
+    }
 
     /// The protocol's name.
     pub fn as_str(self) -> &'static str {
@@ -81,6 +91,7 @@ impl AlarmKind {
             AlarmKind::InsUncertainty => "ins_uncertainty",
             AlarmKind::EngineReset => "engine_reset",
             AlarmKind::AttitudeUncertainty => "attitude_uncertainty",
+            AlarmKind::SiteLink => "site_link",
         }
     }
 }
@@ -108,6 +119,11 @@ pub enum Severity {
 impl Severity {
     /// Both, the milder first.
     pub const ALL: [Severity; 2] = [Severity::Warn, Severity::Alarm];
+
+    /// The severity of a protocol name.
+    pub fn from_name(name: &str) -> Option<Severity> {
+        Severity::ALL.into_iter().find(|s| s.as_str() == name)
+    }
 
     /// The protocol's name.
     pub fn as_str(self) -> &'static str {

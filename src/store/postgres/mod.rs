@@ -287,12 +287,14 @@ impl PgStore {
         &self,
         spec: MachineSpec,
         snapshot: String,
+        forwarded: Option<i64>,
     ) -> Result<i64, StoreError> {
         let (reply, answer) = oneshot::channel();
         self.writers[0]
             .send(Queued::Request(Request::PutMachine {
                 spec: Box::new(spec),
                 snapshot,
+                forwarded,
                 reply,
             }))
             .await
@@ -608,6 +610,65 @@ impl PgStore {
             .await?
             .get(0);
         Ok(bytes.max(0) as u64)
+    }
+
+    /// An office: the last sequence of machine `machine_id` its site sent
+    /// that is committed here.
+    pub fn forward_mark(&self, machine_id: i64) -> Result<Option<i64>, StoreError> {
+        self.read(async |client| {
+            Ok(client
+                .query_opt(
+                    "SELECT sequence FROM forward_marks WHERE machine_id = $1",
+                    &[&machine_id],
+                )
+                .await?
+                .map(|row| row.get(0)))
+        })
+    }
+
+    /// An office: every site's record.
+    pub fn sites(&self) -> Result<Vec<crate::store::outbox::SiteRecord>, StoreError> {
+        use crate::store::outbox::{Backlog, SiteRecord};
+        self.read(async |client| {
+            Ok(client
+                .query(
+                    "SELECT name, last_contact_t, backlog_items, backlog_readings, oldest_unsent_t \
+                     FROM sites ORDER BY name",
+                    &[],
+                )
+                .await?
+                .iter()
+                .map(|r| SiteRecord {
+                    name: r.get(0),
+                    last_contact_t: r.get(1),
+                    backlog: Backlog {
+                        items: r.get::<_, i64>(2).max(0) as u64,
+                        readings: r.get::<_, i64>(3).max(0) as u64,
+                        oldest_unsent_t: r.get(4),
+                    },
+                })
+                .collect())
+        })
+    }
+
+    /// An office: records a site's contact.
+    pub async fn put_site(&self, site: crate::store::outbox::SiteRecord) -> Result<(), StoreError> {
+        let client = self.pooled().await?;
+        client
+            .execute(
+                "INSERT INTO sites (name, last_contact_t, backlog_items, backlog_readings, oldest_unsent_t) \
+                 VALUES ($1, $2, $3, $4, $5) ON CONFLICT (name) DO UPDATE SET \
+                 last_contact_t = $2, backlog_items = $3, backlog_readings = $4, oldest_unsent_t = $5",
+                &[
+                    &site.name,
+                    &site.last_contact_t,
+                    &(site.backlog.items as i64),
+                    &(site.backlog.readings as i64),
+                    &site.backlog.oldest_unsent_t,
+                ],
+            )
+            .await?;
+        Ok(())
     }
 
     /// The tokens in force, with their hashes.

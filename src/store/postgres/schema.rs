@@ -112,6 +112,39 @@ const MIGRATIONS: &[&str] = &[
     );
     CREATE INDEX leases_by_node ON leases (node);
     ",
+    // 3: an office's record of what each site sent (as in SQLite's 5),
+    // alarm changes owed to webhooks, tokens for sites.
+    "
+    -- Per forwarded machine, the last sequence its site sent that is
+    -- committed here.
+    CREATE TABLE forward_marks (
+        machine_id bigint PRIMARY KEY REFERENCES machines(id),
+        sequence bigint NOT NULL
+    );
+    -- Each site's link as last reported.
+    CREATE TABLE sites (
+        name text PRIMARY KEY,
+        last_contact_t double precision NOT NULL,
+        backlog_items bigint NOT NULL,
+        backlog_readings bigint NOT NULL,
+        oldest_unsent_t double precision
+    );
+    -- Alarm changes owed to a webhook: `kind` the severity, `node` the
+    -- node that made them (and posts them).
+    CREATE TABLE outbox (
+        id bigserial PRIMARY KEY,
+        destination text NOT NULL CHECK (destination IN ('webhook')),
+        machine_id bigint NOT NULL REFERENCES machines(id),
+        kind text NOT NULL,
+        node text NOT NULL,
+        body text NOT NULL,
+        created_t double precision NOT NULL
+    );
+    CREATE INDEX outbox_by_kind ON outbox (destination, node, kind, id);
+    ALTER TABLE tokens DROP CONSTRAINT tokens_scope_check;
+    ALTER TABLE tokens ADD CONSTRAINT tokens_scope_check
+        CHECK (scope IN ('ingest', 'read', 'admin', 'site'));
+    ",
 ];
 
 /// The schema version this build writes.

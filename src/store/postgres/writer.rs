@@ -16,6 +16,7 @@ use tokio_postgres::{Client, Transaction};
 use super::schema;
 use crate::config::MachineSpec;
 use crate::store::alarms::{AlarmChange, AlarmRow, Change, StoredAlarm};
+use crate::store::outbox::Forwarded;
 use crate::store::writer::{Buckets, Outcome, Queued, Request, answer, fold_buckets, gather};
 use crate::store::{MAX_GROUP, StoreError, Write, WriteOutcome};
 
@@ -193,8 +194,17 @@ async fn apply_group(
                 }
                 Outcome::Write(outcome, alarms)
             }
-            Request::PutMachine { spec, snapshot, .. } => {
-                Outcome::Put(apply_put_machine(&tx, spec, snapshot, node).await?)
+            Request::PutMachine {
+                spec,
+                snapshot,
+                forwarded,
+                ..
+            } => {
+                let id = apply_put_machine(&tx, spec, snapshot, node).await?;
+                if let Some(sequence) = forwarded {
+                    set_mark(&tx, id, *sequence).await?;
+                }
+                Outcome::Put(id)
             }
         });
     }
@@ -411,7 +421,10 @@ async fn apply_write(
         .await?;
     }
     fold_buckets(write, buckets);
-    let alarms = apply_alarms(tx, machine_id, &write.alarms).await?;
+    let mut alarms = apply_alarms(tx, machine_id, &write.alarms).await?;
+    if let Some(forwarded) = &write.forwarded {
+        alarms.extend(apply_forwarded(tx, machine_id, forwarded).await?);
+    }
     if let Some(state) = &write.snapshot {
         save_snapshot(tx, machine_id, state).await?;
     }
@@ -514,6 +527,56 @@ async fn apply_alarms(
         }
     }
     Ok(changed)
+}
+
+/// An office: applies a forwarded write's acknowledgements (by the
+/// alarm's natural key) and moves the machine's mark, as
+/// `store/outbox.rs` does.
+async fn apply_forwarded(
+    tx: &Transaction<'_>,
+    machine_id: i64,
+    forwarded: &Forwarded,
+) -> Result<Vec<AlarmChange>, StoreError> {
+    let mut changed = Vec::new();
+    for ack in &forwarded.acks {
+        let ids = tx
+            .query(
+                "UPDATE alarms SET acked_t = $6, acked_by = $7 WHERE machine_id = $1 AND kind = $2 \
+                 AND severity = $3 AND subject = $4 AND raised_t = $5 AND acked_t IS NULL \
+                 RETURNING id",
+                &[
+                    &machine_id,
+                    &ack.kind,
+                    &ack.severity,
+                    &ack.subject,
+                    &ack.raised_t,
+                    &ack.acked_t,
+                    &ack.by,
+                ],
+            )
+            .await?;
+        for row in ids {
+            if let Some(alarm) = super::alarm_by_id(tx, row.get(0)).await? {
+                changed.push(AlarmChange {
+                    transition: Change::Acknowledged,
+                    alarm,
+                });
+            }
+        }
+    }
+    set_mark(tx, machine_id, forwarded.sequence).await?;
+    Ok(changed)
+}
+
+/// An office: a forwarded machine's mark is `sequence` (never lowered).
+async fn set_mark(tx: &Transaction<'_>, machine_id: i64, sequence: i64) -> Result<(), StoreError> {
+    tx.execute(
+        "INSERT INTO forward_marks (machine_id, sequence) VALUES ($1, $2) \
+         ON CONFLICT (machine_id) DO UPDATE SET sequence = greatest(forward_marks.sequence, $2)",
+        &[&machine_id, &sequence],
+    )
+    .await?;
+    Ok(())
 }
 
 /// Records `state` as the machine's state after every reading stored so far.

@@ -1,0 +1,492 @@
+//! The office's side of forwarding: what sites send it and what it knows
+//! of their links.
+//!
+//! - `POST /api/v1/machines/{site}.{machine}/forward`: a site's outbox
+//!   rows for one machine, in order, each with its sequence. Declarations
+//!   restart the machine from the site's engine state; readings are fused
+//!   here in the site's order (so the estimates equal the site's); alarm
+//!   changes are stored as the site made them. Each is applied once: the
+//!   machine's mark (the last sequence committed here) is stored with
+//!   what it brings, and the answer comes after that commit.
+//! - `PUT /api/v1/sites/{site}`: the site's report of its backlog (every
+//!   few seconds, also while it has nothing to send): the link's
+//!   heartbeat.
+//! - `GET /api/v1/sites`: each site's link, backlog and last contact.
+//!
+//! A site whose backlog is older than `[sites] backlog_alarm_s` (or that
+//! has not been heard from for that long) raises `site_link` on each of
+//! its machines here.
+
+use std::collections::BTreeMap;
+use std::sync::Mutex;
+use std::time::Duration;
+
+use axum::Json;
+use axum::body::Bytes;
+use axum::extract::rejection::BytesRejection;
+use axum::extract::{Path, State};
+use serde::{Deserialize, Serialize};
+use serde_json::value::RawValue;
+
+use super::error::ApiError;
+use super::state::SharedState;
+use crate::config::{MachineSpec, forwarded_site, valid_machine_id};
+use crate::fusion::reading::parse_reading;
+use crate::machine::ForwardedPart;
+use crate::store::alarms::{AlarmChange, AlarmRow};
+use crate::store::outbox::{Backlog, Declared, SiteRecord};
+
+/// A site not heard from for this long is shown as cut off (it reports
+/// every [`super::forward::REPORT_EVERY`]).
+pub const LINK_DOWN_AFTER: Duration = Duration::from_secs(10);
+
+/// One outbox row of a site, as sent: its sequence and exactly one of
+/// `machine`, `readings`, `alarm`.
+#[derive(Debug, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ForwardItem {
+    /// The site's outbox sequence: increasing, the idempotency key with
+    /// the site and the machine.
+    pub sequence: i64,
+    /// The machine was (re)declared: its stored declaration and the state
+    /// its engines go on from.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = Option<Object>)]
+    pub machine: Option<Declared>,
+    /// Readings committed together, in the order the site stored them.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = Option<Vec<Object>>)]
+    pub readings: Option<Vec<Box<RawValue>>>,
+    /// An alarm change the site made (as its live stream tells it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = Option<Object>)]
+    pub alarm: Option<AlarmChange>,
+}
+
+/// What a site forwards for one machine.
+#[derive(Debug, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ForwardBody {
+    /// The sending site (the part of the machine's id before the dot).
+    pub site: String,
+    /// The rows, in sequence order.
+    pub items: Vec<ForwardItem>,
+}
+
+/// The office's answer: every row up to `applied` is committed here.
+#[derive(Debug, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct ForwardAnswer {
+    pub machine: String,
+    pub applied: i64,
+}
+
+/// A site's report of what it has not sent.
+#[derive(Debug, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct SiteReport {
+    /// Outbox rows not sent.
+    pub backlog_items: u64,
+    /// Readings in them.
+    pub backlog_readings: u64,
+    /// Age of the oldest, seconds by the site's clock (0 if none).
+    pub oldest_unsent_s: f64,
+}
+
+/// A site's link as the office sees it.
+#[derive(Debug, Clone, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct SiteStatus {
+    pub site: String,
+    /// Heard from within the last 10 s.
+    pub connected: bool,
+    /// The site's last request, Unix seconds (office clock).
+    pub last_contact_t: f64,
+    /// Outbox rows the site had not sent at its last report.
+    pub backlog_items: u64,
+    /// Readings in them.
+    pub backlog_readings: u64,
+    /// How old the site's oldest unsent row is now (while cut off: at
+    /// least the time since the last contact), seconds.
+    pub oldest_unsent_s: f64,
+    /// `site_link` is raised: older than `[sites] backlog_alarm_s`.
+    pub alarm: bool,
+    /// The site's machines here (`{site}.{machine}`).
+    pub machines: Vec<String>,
+}
+
+/// `GET /api/v1/sites`.
+#[derive(Debug, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct SiteList {
+    pub sites: Vec<SiteStatus>,
+    /// The office's `[sites] backlog_alarm_s`.
+    pub backlog_alarm_s: f64,
+}
+
+/// The path parameter naming a site.
+#[derive(Debug, Deserialize, utoipa::IntoParams)]
+#[into_params(parameter_in = Path)]
+pub struct SitePath {
+    /// The site's name: 1 to 64 ASCII letters, digits, `-` or `_`.
+    #[param(pattern = r"^[A-Za-z0-9_-]{1,64}$", example = "north")]
+    pub site: String,
+}
+
+/// The sites this office has heard from, as they last reported (kept in
+/// memory, written to the store every few seconds per site).
+#[derive(Default)]
+pub struct SiteLinks {
+    links: Mutex<BTreeMap<String, Link>>,
+}
+
+#[derive(Debug, Clone)]
+struct Link {
+    record: SiteRecord,
+    /// When the record was last stored (office clock).
+    stored_t: f64,
+    /// Whether `site_link` is raised; `None` until first decided (after a
+    /// restart: raised or cleared again, which the store keeps once).
+    alarm: Option<bool>,
+}
+
+/// Interval between writes of a site's record while it keeps reporting.
+const STORE_EVERY_S: f64 = 5.0;
+
+impl SiteLinks {
+    /// The links as the store last recorded them; `raised`: the sites
+    /// whose `site_link` is open.
+    pub fn load(records: Vec<SiteRecord>, raised: &[String]) -> SiteLinks {
+        let links = records
+            .into_iter()
+            .map(|record| {
+                let link = Link {
+                    stored_t: record.last_contact_t,
+                    alarm: raised.contains(&record.name).then_some(true),
+                    record,
+                };
+                (link.record.name.clone(), link)
+            })
+            .collect();
+        SiteLinks {
+            links: Mutex::new(links),
+        }
+    }
+
+    /// A site was heard from at `now_t`, with `backlog` if it said; the
+    /// record to store, if it is time.
+    fn contact(&self, site: &str, now_t: f64, report: Option<&SiteReport>) -> Option<SiteRecord> {
+        let mut links = self.links.lock().ok()?;
+        let link = links.entry(site.to_string()).or_insert_with(|| Link {
+            record: SiteRecord {
+                name: site.to_string(),
+                last_contact_t: now_t,
+                backlog: Backlog::default(),
+            },
+            stored_t: f64::NEG_INFINITY,
+            alarm: None,
+        });
+        link.record.last_contact_t = now_t;
+        if let Some(report) = report {
+            link.record.backlog = Backlog {
+                items: report.backlog_items,
+                readings: report.backlog_readings,
+                oldest_unsent_t: (report.backlog_items > 0)
+                    .then(|| now_t - report.oldest_unsent_s.max(0.0)),
+            };
+        }
+        (now_t - link.stored_t >= STORE_EVERY_S).then(|| {
+            link.stored_t = now_t;
+            link.record.clone()
+        })
+    }
+
+    /// Each site's status at `now_t`.
+    fn statuses(&self, now_t: f64, machines: &[String], limit_s: f64) -> Vec<SiteStatus> {
+        let Ok(links) = self.links.lock() else {
+            return Vec::new();
+        };
+        links
+            .values()
+            .map(|link| {
+                let record = &link.record;
+                let oldest_unsent_s = unsent_age_s(record, now_t);
+                SiteStatus {
+                    site: record.name.clone(),
+                    connected: now_t - record.last_contact_t <= LINK_DOWN_AFTER.as_secs_f64(),
+                    last_contact_t: record.last_contact_t,
+                    backlog_items: record.backlog.items,
+                    backlog_readings: record.backlog.readings,
+                    oldest_unsent_s,
+                    alarm: oldest_unsent_s > limit_s,
+                    machines: machines
+                        .iter()
+                        .filter(|m| forwarded_site(m) == Some(record.name.as_str()))
+                        .cloned()
+                        .collect(),
+                }
+            })
+            .collect()
+    }
+
+    /// Sites whose `site_link` must change at `now_t`: (site, raise, since
+    /// when, message); each is noted as done.
+    fn alarm_changes(&self, now_t: f64, limit_s: f64) -> Vec<(String, bool, f64, String)> {
+        let Ok(mut links) = self.links.lock() else {
+            return Vec::new();
+        };
+        let mut changes = Vec::new();
+        for link in links.values_mut() {
+            let age_s = unsent_age_s(&link.record, now_t);
+            let raise = age_s > limit_s;
+            if link.alarm == Some(raise) {
+                continue;
+            }
+            link.alarm = Some(raise);
+            let since_t = now_t - age_s;
+            let message = if raise {
+                format!(
+                    "site `{}`: data not received for {age_s:.0} s (limit {limit_s:.0} s); last contact {:.0} s ago",
+                    link.record.name,
+                    now_t - link.record.last_contact_t
+                )
+            } else {
+                format!("site `{}`: caught up", link.record.name)
+            };
+            changes.push((link.record.name.clone(), raise, since_t, message));
+        }
+        changes
+    }
+}
+
+/// How old a site's oldest unsent row is at `now_t`: as it reported, and
+/// while it is silent at least the time since its last contact (a site
+/// keeps producing readings it cannot send).
+fn unsent_age_s(record: &SiteRecord, now_t: f64) -> f64 {
+    let reported = record
+        .backlog
+        .oldest_unsent_t
+        .map_or(0.0, |t| (now_t - t).max(0.0));
+    let silent = now_t - record.last_contact_t;
+    if silent > LINK_DOWN_AFTER.as_secs_f64() {
+        reported.max(silent)
+    } else {
+        reported
+    }
+}
+
+/// Forward a site's outbox rows.
+///
+/// `POST /api/v1/machines/{site}.{machine}/forward`: what a site owes this
+/// office for one machine (docs/protocol.md, "Sites and the office").
+#[utoipa::path(post, path = "/api/v1/machines/{machine}/forward", operation_id = "forward", tag = "sites",
+    params(super::openapi::MachinePath),
+    request_body(content = ForwardBody, description = "The site's outbox rows for this machine, in sequence order"),
+    responses(
+        (status = OK, description = "Every row up to `applied` is committed here (rows committed before are not applied again)", body = ForwardAnswer),
+        (status = BAD_REQUEST, description = "Not a site's machine, or a row is malformed", body = super::error::ErrorBody),
+        (status = NOT_FOUND, description = "Rows of a machine whose declaration has not come first", body = super::error::ErrorBody)))]
+pub async fn forward(
+    State(state): State<SharedState>,
+    Path(super::openapi::MachinePath { machine }): Path<super::openapi::MachinePath>,
+    body: Result<Bytes, BytesRejection>,
+) -> Result<Json<ForwardAnswer>, ApiError> {
+    let Some((site, own_id)) = machine.split_once('.') else {
+        return Err(ApiError::BadRequest(format!(
+            "`{machine}` is not a site's machine: forwarded machines are named `{{site}}.{{machine}}`"
+        )));
+    };
+    if !(valid_machine_id(site) && valid_machine_id(own_id)) {
+        return Err(ApiError::BadRequest(format!(
+            "`{machine}` is not a site's machine: site and machine are each 1 to 64 letters, digits, `-` or `_`"
+        )));
+    }
+    let body = body.map_err(|e| ApiError::BadRequest(format!("could not read the body: {e}")))?;
+    let body: ForwardBody = serde_json::from_slice(&body)
+        .map_err(|e| ApiError::BadRequest(format!("body is not a site's forwarding: {e}")))?;
+    if body.site != site {
+        return Err(ApiError::BadRequest(format!(
+            "site `{}` sent rows of `{machine}`, which belongs to site `{site}`",
+            body.site
+        )));
+    }
+    note_contact(&state, site, None).await;
+    let mut applied = 0;
+    let mut parts = Vec::new();
+    for item in body.items {
+        if item.sequence <= applied {
+            return Err(ApiError::BadRequest(format!(
+                "sequence {} is not above the one before it ({applied})",
+                item.sequence
+            )));
+        }
+        applied = item.sequence;
+        match (item.machine, item.readings, item.alarm) {
+            (Some(declared), None, None) => {
+                apply_parts(&state, &machine, std::mem::take(&mut parts)).await?;
+                let spec = forwarded_spec(&machine, declared.spec)?;
+                state
+                    .declare_forwarded(spec, declared.snapshot, item.sequence)
+                    .await?;
+            }
+            (None, Some(raw), None) => {
+                let mut readings = Vec::with_capacity(raw.len());
+                for (index, raw) in raw.iter().enumerate() {
+                    readings.push(parse_reading(raw.get().as_bytes()).map_err(|e| {
+                        ApiError::BadRequest(format!(
+                            "sequence {}, reading {index}: {e}",
+                            item.sequence
+                        ))
+                    })?);
+                }
+                parts.push((item.sequence, ForwardedPart::Readings(readings)));
+            }
+            (None, None, Some(change)) => {
+                parts.push((item.sequence, ForwardedPart::Alarm(change)));
+            }
+            _ => {
+                return Err(ApiError::BadRequest(format!(
+                    "sequence {}: a row holds exactly one of `machine`, `readings`, `alarm`",
+                    item.sequence
+                )));
+            }
+        }
+    }
+    apply_parts(&state, &machine, parts).await?;
+    Ok(Json(ForwardAnswer { machine, applied }))
+}
+
+/// Fuses and stores a run of readings and alarm changes in the machine.
+async fn apply_parts(
+    state: &SharedState,
+    machine: &str,
+    parts: Vec<(i64, ForwardedPart)>,
+) -> Result<(), ApiError> {
+    if parts.is_empty() {
+        return Ok(());
+    }
+    state
+        .on_machine(machine, |handle| {
+            let parts = parts.clone();
+            async move { handle.forwarded(parts).await }
+        })
+        .await?;
+    Ok(())
+}
+
+/// The site's stored declaration as this office's machine `id`.
+fn forwarded_spec(id: &str, spec: serde_json::Value) -> Result<MachineSpec, ApiError> {
+    let mut spec: MachineSpec = serde_json::from_value(spec).map_err(|e| {
+        ApiError::BadRequest(format!(
+            "machine `{id}`: the site's declaration is not one this release reads: {e}"
+        ))
+    })?;
+    spec.id = id.to_string();
+    spec.upgraded().map_err(ApiError::from)
+}
+
+/// Records that `site` was heard from (and what it reported).
+async fn note_contact(state: &SharedState, site: &str, report: Option<&SiteReport>) {
+    let now_t = state.clock.now_s();
+    if let Some(record) = state.sites.contact(site, now_t, report)
+        && let Err(e) = state.store.put_site(record).await
+    {
+        tracing::warn!(%site, error = %e, "site's contact not stored");
+    }
+}
+
+/// Report a site's backlog.
+///
+/// `PUT /api/v1/sites/{site}`: the site's heartbeat, with what it has not
+/// sent yet.
+#[utoipa::path(put, path = "/api/v1/sites/{site}", operation_id = "report_site", tag = "sites",
+    params(SitePath),
+    request_body(content = SiteReport, description = "What the site has not sent yet"),
+    responses((status = OK, description = "Noted; the site's link as the office now sees it", body = SiteStatus)))]
+pub async fn report(
+    State(state): State<SharedState>,
+    Path(SitePath { site }): Path<SitePath>,
+    body: Result<Json<SiteReport>, axum::extract::rejection::JsonRejection>,
+) -> Result<Json<SiteStatus>, ApiError> {
+    if !valid_machine_id(&site) {
+        return Err(ApiError::BadRequest(format!(
+            "site `{site}` is not a site name: 1 to 64 letters, digits, `-` or `_`"
+        )));
+    }
+    let Json(report) =
+        body.map_err(|e| ApiError::BadRequest(format!("body is not a site report: {e}")))?;
+    if !report.oldest_unsent_s.is_finite() {
+        return Err(ApiError::BadRequest(
+            "`oldest_unsent_s` must be a number of seconds".into(),
+        ));
+    }
+    note_contact(&state, &site, Some(&report)).await;
+    statuses(&state)
+        .into_iter()
+        .find(|s| s.site == site)
+        .map(Json)
+        .ok_or_else(|| ApiError::Internal(format!("site `{site}` not recorded")))
+}
+
+/// The sites' links.
+///
+/// `GET /api/v1/sites`: each site this office has heard from.
+#[utoipa::path(get, path = "/api/v1/sites", operation_id = "list_sites", tag = "sites",
+    responses((status = OK, description = "Each site's link, backlog and last contact", body = SiteList)))]
+pub async fn list(State(state): State<SharedState>) -> Json<SiteList> {
+    Json(SiteList {
+        sites: statuses(&state),
+        backlog_alarm_s: state.site_backlog_alarm_s,
+    })
+}
+
+/// Every site's status now.
+fn statuses(state: &SharedState) -> Vec<SiteStatus> {
+    let machines: Vec<String> = state
+        .all_machines()
+        .iter()
+        .map(|m| m.spec.id.clone())
+        .collect();
+    state
+        .sites
+        .statuses(state.clock.now_s(), &machines, state.site_backlog_alarm_s)
+}
+
+/// Every second: the sites' gauges, and `site_link` raised or cleared on
+/// each machine of a site whose backlog crossed the limit.
+pub async fn watch(state: SharedState) {
+    let mut tick = tokio::time::interval(Duration::from_secs(1));
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut stopping = state.shutdown_signal();
+    loop {
+        tokio::select! {
+            _ = tick.tick() => {}
+            _ = stopping.changed() => return,
+        }
+        let now_t = state.clock.now_s();
+        let limit_s = state.site_backlog_alarm_s;
+        for status in statuses(&state) {
+            super::metrics::forward_link(
+                &status.site,
+                status.connected,
+                status.backlog_readings,
+                status.oldest_unsent_s,
+            );
+        }
+        for (site, raise, since_t, message) in state.sites.alarm_changes(now_t, limit_s) {
+            let row = AlarmRow {
+                kind: crate::fusion::alarms::AlarmKind::SiteLink.as_str(),
+                severity: crate::fusion::alarms::Severity::Alarm.as_str(),
+                subject: site.clone(),
+                raised: raise,
+                t: if raise { since_t } else { now_t },
+                message,
+            };
+            for machine in state.all_machines() {
+                if forwarded_site(&machine.spec.id) != Some(site.as_str()) {
+                    continue;
+                }
+                if let Err(e) = machine.alarms(vec![row.clone()]).await {
+                    tracing::warn!(machine = %machine.spec.id, error = %e, "site_link not stored");
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,538 @@
+//! The outbox: what this server still owes a receiver, kept in its own
+//! store and written in the same transaction as what it reports, so
+//! nothing committed is lost to a crash, a restart or a cut line.
+//!
+//! - A **site** (`serve --forward-to`) owes its office every committed
+//!   reading batch (a row naming the readings' ids, not a copy), machine
+//!   declaration (with its engines' state) and alarm change, in order per
+//!   machine. The row's id is the sequence of the idempotency key (site,
+//!   machine, sequence); the office keeps the last sequence it committed
+//!   per machine (its *mark*, in the same transaction as what it stored),
+//!   so a batch sent twice is applied once. A row is deleted only once the
+//!   office has answered that it committed it.
+//! - Every server owes its webhooks each alarm change of a severity with a
+//!   URL: posted after a restart too, with the same idempotency key.
+//!
+//! Readings a pending batch names are kept by retention until it is sent.
+
+use rusqlite::{Connection, OptionalExtension, params};
+use serde::{Deserialize, Serialize};
+
+use super::alarms::{AlarmChange, Change};
+use super::{SqliteStore, StoreError};
+use crate::clock::wall_clock_s;
+use crate::fusion::Reading;
+
+/// What a store records in its outbox, fixed when it is opened.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct OutboxConfig {
+    /// This server forwards to an office.
+    pub office: bool,
+    /// Alarm changes of `warn` alarms go to a webhook.
+    pub webhook_warn: bool,
+    /// Alarm changes of `alarm` alarms go to a webhook.
+    pub webhook_alarm: bool,
+}
+
+impl OutboxConfig {
+    fn webhook(&self, severity: &str) -> bool {
+        match severity {
+            "alarm" => self.webhook_alarm,
+            _ => self.webhook_warn,
+        }
+    }
+}
+
+/// A declaration as a site sends it: the stored spec (JSON) and the state
+/// its engines start from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Declared {
+    pub spec: serde_json::Value,
+    pub snapshot: String,
+}
+
+/// One thing a site owes its office.
+#[derive(Debug, Clone)]
+pub enum OfficeItem {
+    /// The machine was (re)declared: its engines go on from `snapshot`.
+    Machine(Declared),
+    /// Readings committed together, in the order they were stored.
+    Readings(Vec<Reading>),
+    /// An alarm raised, cleared or acknowledged.
+    Alarm(AlarmChange),
+}
+
+/// An outbox row to the office.
+#[derive(Debug, Clone)]
+pub struct OfficeEntry {
+    /// The sequence: increasing with every row.
+    pub sequence: i64,
+    pub item: OfficeItem,
+}
+
+/// What a site has not sent yet.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct Backlog {
+    /// Outbox rows (reading batches, declarations, alarm changes).
+    pub items: u64,
+    /// Readings in the batches.
+    pub readings: u64,
+    /// When the oldest row was committed (Unix seconds), if any.
+    pub oldest_unsent_t: Option<f64>,
+}
+
+/// An office's record of what one site sent (and said of itself).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct SiteRecord {
+    pub name: String,
+    /// The site's last request (Unix seconds, office clock).
+    pub last_contact_t: f64,
+    /// The backlog the site reported then.
+    pub backlog: Backlog,
+}
+
+/// An acknowledgement a site made, to apply at the office by the alarm's
+/// natural key.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ForwardedAck {
+    pub kind: String,
+    pub severity: String,
+    pub subject: String,
+    pub raised_t: f64,
+    pub acked_t: f64,
+    pub by: String,
+}
+
+/// What an office stores with a forwarded machine's write: the site's
+/// sequence it brings the machine's mark to, and the acknowledgements in
+/// it.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Forwarded {
+    pub sequence: i64,
+    pub acks: Vec<ForwardedAck>,
+}
+
+/// An alarm change owed to a webhook.
+#[derive(Debug, Clone)]
+pub struct WebhookEntry {
+    pub id: i64,
+    pub change: AlarmChange,
+}
+
+fn to_json<T: Serialize>(value: &T) -> Result<String, StoreError> {
+    serde_json::to_string(value).map_err(|e| StoreError::Corrupt(format!("outbox body: {e}")))
+}
+
+/// The highest reading id stored so far (0 if none).
+pub(super) fn last_reading_id(tx: &Connection) -> Result<i64, StoreError> {
+    Ok(tx
+        .prepare_cached("SELECT coalesce(max(id), 0) FROM readings")?
+        .query_row([], |row| row.get(0))?)
+}
+
+/// Records a committed batch of `count` readings with ids in
+/// `(before, last]`.
+pub(super) fn record_readings(
+    tx: &Connection,
+    machine_id: i64,
+    before: i64,
+    count: usize,
+) -> Result<(), StoreError> {
+    if count == 0 {
+        return Ok(());
+    }
+    let last = last_reading_id(tx)?;
+    tx.prepare_cached(
+        "INSERT INTO outbox (destination, machine_id, kind, first_reading_id, last_reading_id, readings, created_t) \
+         VALUES ('office', ?1, 'readings', ?2, ?3, ?4, ?5)",
+    )?
+    .execute(params![machine_id, before + 1, last, count as i64, wall_clock_s()])?;
+    Ok(())
+}
+
+/// Records the alarm changes a commit made, for whoever is owed them
+/// (`office`: false for a forwarded machine's, which came from its site).
+pub(super) fn record_alarms(
+    tx: &Connection,
+    config: &OutboxConfig,
+    office: bool,
+    machine_id: i64,
+    changes: &[AlarmChange],
+) -> Result<(), StoreError> {
+    for change in changes {
+        let body = to_json(change)?;
+        if office {
+            tx.prepare_cached(
+                "INSERT INTO outbox (destination, machine_id, kind, body, created_t) \
+                 VALUES ('office', ?1, 'alarm', ?2, ?3)",
+            )?
+            .execute(params![machine_id, body, wall_clock_s()])?;
+        }
+        if config.webhook(&change.alarm.severity) {
+            tx.prepare_cached(
+                "INSERT INTO outbox (destination, machine_id, kind, body, created_t) \
+                 VALUES ('webhook', ?1, ?2, ?3, ?4)",
+            )?
+            .execute(params![
+                machine_id,
+                change.alarm.severity,
+                body,
+                wall_clock_s()
+            ])?;
+        }
+    }
+    Ok(())
+}
+
+/// Records a (re)declaration for the office and notes the machine as told.
+pub(super) fn record_machine(
+    tx: &Connection,
+    machine_id: i64,
+    spec_json: &str,
+    snapshot: &str,
+) -> Result<(), StoreError> {
+    let spec: serde_json::Value = serde_json::from_str(spec_json)
+        .map_err(|e| StoreError::Corrupt(format!("machine {machine_id} spec: {e}")))?;
+    let body = to_json(&Declared {
+        spec,
+        snapshot: snapshot.to_string(),
+    })?;
+    tx.prepare_cached(
+        "INSERT INTO outbox (destination, machine_id, kind, body, created_t) \
+         VALUES ('office', ?1, 'machine', ?2, ?3)",
+    )?
+    .execute(params![machine_id, body, wall_clock_s()])?;
+    tx.prepare_cached("INSERT OR IGNORE INTO forwarding (machine_id) VALUES (?1)")?
+        .execute([machine_id])?;
+    Ok(())
+}
+
+/// An office: applies the acknowledgements of a forwarded write and moves
+/// the machine's mark to its sequence. Returns the alarms acknowledged.
+pub(super) fn apply_forwarded(
+    tx: &rusqlite::Transaction,
+    machine_id: i64,
+    forwarded: &Forwarded,
+) -> Result<Vec<AlarmChange>, StoreError> {
+    let mut changes = Vec::new();
+    for ack in &forwarded.acks {
+        let ids: Vec<i64> = tx
+            .prepare_cached(
+                "UPDATE alarms SET acked_t = ?6, acked_by = ?7 WHERE machine_id = ?1 AND kind = ?2 \
+                 AND severity = ?3 AND subject = ?4 AND raised_t = ?5 AND acked_t IS NULL \
+                 RETURNING id",
+            )?
+            .query_map(
+                params![
+                    machine_id,
+                    ack.kind,
+                    ack.severity,
+                    ack.subject,
+                    ack.raised_t,
+                    ack.acked_t,
+                    ack.by
+                ],
+                |r| r.get::<_, i64>(0),
+            )?
+            .collect::<Result<_, _>>()?;
+        for id in ids {
+            if let Some(alarm) = super::alarms::by_id(tx, id)? {
+                changes.push(AlarmChange {
+                    transition: Change::Acknowledged,
+                    alarm,
+                });
+            }
+        }
+    }
+    set_mark(tx, machine_id, forwarded.sequence)?;
+    Ok(changes)
+}
+
+/// An office: a forwarded machine's mark is `sequence` (never lowered).
+pub(super) fn set_mark(tx: &Connection, machine_id: i64, sequence: i64) -> Result<(), StoreError> {
+    tx.prepare_cached(
+        "INSERT INTO forward_marks (machine_id, sequence) VALUES (?1, ?2) \
+         ON CONFLICT (machine_id) DO UPDATE SET sequence = max(sequence, ?2)",
+    )?
+    .execute(params![machine_id, sequence])?;
+    Ok(())
+}
+
+/// Rows read per outbox query.
+const PAGE: i64 = 256;
+
+/// An outbox row to the office as stored.
+struct Row {
+    sequence: i64,
+    kind: String,
+    first: Option<i64>,
+    last: Option<i64>,
+    count: i64,
+    body: Option<String>,
+}
+
+impl SqliteStore {
+    /// An office: the last sequence of machine `machine_id` its site sent
+    /// that is committed here.
+    pub fn forward_mark(&self, machine_id: i64) -> Result<Option<i64>, StoreError> {
+        self.read(|conn| {
+            Ok(conn
+                .prepare_cached("SELECT sequence FROM forward_marks WHERE machine_id = ?1")?
+                .query_row([machine_id], |row| row.get(0))
+                .optional()?)
+        })
+    }
+
+    /// A site: the machines with rows owed to the office, (id, protocol id).
+    pub fn office_pending(&self) -> Result<Vec<(i64, String)>, StoreError> {
+        self.read(|conn| {
+            let mut stmt = conn.prepare_cached(
+                "SELECT m.id, m.machine FROM machines m WHERE EXISTS \
+                 (SELECT 1 FROM outbox o WHERE o.destination = 'office' AND o.machine_id = m.id) \
+                 ORDER BY m.id",
+            )?;
+            let rows = stmt.query_map([], |row| Ok((row.get(0)?, row.get(1)?)))?;
+            Ok(rows.collect::<Result<_, _>>()?)
+        })
+    }
+
+    /// A site: machine `machine_id`'s first rows owed to the office, in
+    /// order, their readings loaded: at least one row, then as many as
+    /// keep the readings within `max_readings`.
+    pub fn office_entries(
+        &self,
+        machine_id: i64,
+        max_readings: u64,
+    ) -> Result<Vec<OfficeEntry>, StoreError> {
+        self.read(|conn| {
+            let mut entries = Vec::new();
+            let mut readings_taken = 0u64;
+            let mut after = i64::MIN;
+            loop {
+                let mut stmt = conn.prepare_cached(
+                    "SELECT id, kind, first_reading_id, last_reading_id, readings, body FROM outbox \
+                     WHERE destination = 'office' AND machine_id = ?1 AND id > ?2 ORDER BY id LIMIT ?3",
+                )?;
+                let rows: Vec<Row> = stmt
+                    .query_map(params![machine_id, after, PAGE], |r| {
+                        Ok(Row {
+                            sequence: r.get(0)?,
+                            kind: r.get(1)?,
+                            first: r.get(2)?,
+                            last: r.get(3)?,
+                            count: r.get(4)?,
+                            body: r.get(5)?,
+                        })
+                    })?
+                    .collect::<Result<_, _>>()?;
+                let page_len = rows.len();
+                for Row {
+                    sequence,
+                    kind,
+                    first,
+                    last,
+                    count,
+                    body,
+                } in rows
+                {
+                    let count = count.max(0) as u64;
+                    if !entries.is_empty() && readings_taken + count > max_readings {
+                        return Ok(entries);
+                    }
+                    let corrupt =
+                        |what: String| StoreError::Corrupt(format!("outbox row {sequence}: {what}"));
+                    let item = match kind.as_str() {
+                        "readings" => {
+                            let (first, last) = first.zip(last).ok_or_else(|| {
+                                corrupt("a reading batch without its ids".into())
+                            })?;
+                            OfficeItem::Readings(readings_between(conn, machine_id, first, last)?)
+                        }
+                        "machine" => OfficeItem::Machine(
+                            serde_json::from_str(body.as_deref().unwrap_or_default())
+                                .map_err(|e| corrupt(e.to_string()))?,
+                        ),
+                        "alarm" => OfficeItem::Alarm(
+                            serde_json::from_str(body.as_deref().unwrap_or_default())
+                                .map_err(|e| corrupt(e.to_string()))?,
+                        ),
+                        other => return Err(corrupt(format!("unknown kind `{other}`"))),
+                    };
+                    readings_taken += count;
+                    after = sequence;
+                    entries.push(OfficeEntry { sequence, item });
+                }
+                if page_len < PAGE as usize {
+                    return Ok(entries);
+                }
+            }
+        })
+    }
+
+    /// A site: what is owed to the office.
+    pub fn office_backlog(&self) -> Result<Backlog, StoreError> {
+        self.read(|conn| {
+            Ok(conn
+                .prepare_cached(
+                    "SELECT count(*), coalesce(sum(readings), 0), min(created_t) FROM outbox \
+                     WHERE destination = 'office'",
+                )?
+                .query_row([], |r| {
+                    Ok(Backlog {
+                        items: r.get::<_, i64>(0)?.max(0) as u64,
+                        readings: r.get::<_, i64>(1)?.max(0) as u64,
+                        oldest_unsent_t: r.get(2)?,
+                    })
+                })?)
+        })
+    }
+
+    /// A site: the office has committed machine `machine_id`'s rows up to
+    /// `sequence`: they go.
+    pub async fn office_sent(&self, machine_id: i64, sequence: i64) -> Result<(), StoreError> {
+        self.maintain(move |conn| {
+            conn.prepare_cached(
+                "DELETE FROM outbox WHERE destination = 'office' AND machine_id = ?1 AND id <= ?2",
+            )?
+            .execute(params![machine_id, sequence])?;
+            Ok(())
+        })
+        .await
+    }
+
+    /// A site starting to forward: each machine the office has not been
+    /// told of is declared to it with the state its engines stand in now
+    /// (call once the machines are restored: their snapshots then cover
+    /// every stored reading). Not forwarding: forgets which were told, so
+    /// forwarding again declares them afresh.
+    pub async fn forwarding(&self, on: bool) -> Result<(), StoreError> {
+        self.maintain(move |conn| {
+            let tx = conn.transaction()?;
+            if on {
+                let untold: Vec<(i64, String, String)> = tx
+                    .prepare(
+                        "SELECT m.id, m.spec, s.state FROM machines m JOIN snapshots s ON s.machine_id = m.id \
+                         WHERE m.id NOT IN (SELECT machine_id FROM forwarding) ORDER BY m.id",
+                    )?
+                    .query_map([], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)))?
+                    .collect::<Result<_, _>>()?;
+                for (machine_id, spec, state) in untold {
+                    record_machine(&tx, machine_id, &spec, &state)?;
+                }
+            } else {
+                tx.execute("DELETE FROM forwarding", [])?;
+            }
+            tx.commit()?;
+            Ok(())
+        })
+        .await
+    }
+
+    /// Alarm changes owed to the webhook of `severity`, oldest first.
+    pub fn webhook_pending(
+        &self,
+        severity: &'static str,
+        limit: usize,
+    ) -> Result<Vec<WebhookEntry>, StoreError> {
+        self.read(|conn| {
+            let mut stmt = conn.prepare_cached(
+                "SELECT id, body FROM outbox WHERE destination = 'webhook' AND kind = ?1 \
+                 ORDER BY id LIMIT ?2",
+            )?;
+            let rows: Vec<(i64, String)> = stmt
+                .query_map(params![severity, limit as i64], |r| {
+                    Ok((r.get(0)?, r.get(1)?))
+                })?
+                .collect::<Result<_, _>>()?;
+            rows.into_iter()
+                .map(|(id, body)| {
+                    Ok(WebhookEntry {
+                        id,
+                        change: serde_json::from_str(&body)
+                            .map_err(|e| StoreError::Corrupt(format!("outbox row {id}: {e}")))?,
+                    })
+                })
+                .collect()
+        })
+    }
+
+    /// Forgets the changes owed to a webhook no longer configured.
+    pub async fn webhook_dropped(&self, severity: &'static str) -> Result<u64, StoreError> {
+        self.maintain(move |conn| {
+            Ok(conn
+                .prepare_cached("DELETE FROM outbox WHERE destination = 'webhook' AND kind = ?1")?
+                .execute([severity])? as u64)
+        })
+        .await
+    }
+
+    /// A webhook change is done with (delivered or given up).
+    pub async fn webhook_done(&self, id: i64) -> Result<(), StoreError> {
+        self.maintain(move |conn| {
+            conn.prepare_cached("DELETE FROM outbox WHERE id = ?1 AND destination = 'webhook'")?
+                .execute([id])?;
+            Ok(())
+        })
+        .await
+    }
+
+    /// An office: every site's record.
+    pub fn sites(&self) -> Result<Vec<SiteRecord>, StoreError> {
+        self.read(|conn| {
+            let mut stmt = conn.prepare_cached(
+                "SELECT name, last_contact_t, backlog_items, backlog_readings, oldest_unsent_t \
+                 FROM sites ORDER BY name",
+            )?;
+            let rows = stmt.query_map([], |r| {
+                Ok(SiteRecord {
+                    name: r.get(0)?,
+                    last_contact_t: r.get(1)?,
+                    backlog: Backlog {
+                        items: r.get::<_, i64>(2)?.max(0) as u64,
+                        readings: r.get::<_, i64>(3)?.max(0) as u64,
+                        oldest_unsent_t: r.get(4)?,
+                    },
+                })
+            })?;
+            Ok(rows.collect::<Result<_, _>>()?)
+        })
+    }
+
+    /// An office: records a site's contact.
+    pub async fn put_site(&self, site: SiteRecord) -> Result<(), StoreError> {
+        self.maintain(move |conn| {
+            conn.prepare_cached(
+                "INSERT INTO sites (name, last_contact_t, backlog_items, backlog_readings, oldest_unsent_t) \
+                 VALUES (?1, ?2, ?3, ?4, ?5) ON CONFLICT (name) DO UPDATE SET \
+                 last_contact_t = ?2, backlog_items = ?3, backlog_readings = ?4, oldest_unsent_t = ?5",
+            )?
+            .execute(params![
+                site.name,
+                site.last_contact_t,
+                site.backlog.items as i64,
+                site.backlog.readings as i64,
+                site.backlog.oldest_unsent_t
+            ])?;
+            Ok(())
+        })
+        .await
+    }
+}
+
+/// Machine `machine_id`'s readings with ids in `[first, last]`, in order.
+fn readings_between(
+    conn: &Connection,
+    machine_id: i64,
+    first: i64,
+    last: i64,
+) -> Result<Vec<Reading>, StoreError> {
+    let mut stmt = conn.prepare_cached(
+        "SELECT t, sensor, body FROM readings WHERE machine_id = ?1 AND id BETWEEN ?2 AND ?3 ORDER BY id",
+    )?;
+    let mut rows = stmt.query(params![machine_id, first, last])?;
+    let mut readings = Vec::new();
+    while let Some(row) = rows.next()? {
+        readings.push(super::queries::reading_row(row)?);
+    }
+    Ok(readings)
+}
