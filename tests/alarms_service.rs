@@ -200,6 +200,8 @@ async fn get_json_with(client: &reqwest::Client, base: &str, path: &str, token: 
 struct Received {
     requests: Vec<(String, String, Value)>,
     refused: usize,
+    /// Refuse every request while set (a receiver that is down).
+    down: bool,
 }
 
 /// A webhook receiver on a free port that answers 500 to the first
@@ -219,7 +221,7 @@ async fn receiver(
             let state = state.clone();
             async move {
                 let mut seen = state.lock().unwrap();
-                if seen.refused < refuse {
+                if seen.down || seen.refused < refuse {
                     seen.refused += 1;
                     return StatusCode::INTERNAL_SERVER_ERROR;
                 }
@@ -366,5 +368,69 @@ async fn webhooks_get_each_transition_once_per_severity_retried_after_a_500() {
     assert_eq!(cleared.2["acked_by"], "anonymous");
     assert!(cleared.2["cleared_t"].as_f64().unwrap() >= from_t + 60.0);
     server.stop().await;
+    receiving.abort();
+}
+
+/// Issue 38: a webhook change not delivered when the server is SIGKILLed
+/// (its receiver refusing) is posted after the restart, once, with the
+/// same idempotency key: the change waits in the store's outbox, not in
+/// memory.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_webhook_pending_at_sigkill_is_delivered_once_after_the_restart() {
+    // Down until the server has been killed.
+    let (hooks, seen, receiving) = receiver(0).await;
+    seen.lock().unwrap().down = true;
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("tunnelnav.toml");
+    std::fs::write(
+        &config,
+        format!("[webhooks]\nwarn = \"{hooks}/warn\"\nfirst_retry_s = 0.2\nmax_retry_s = 0.5\n"),
+    )
+    .unwrap();
+    let config = config.to_str().unwrap().to_string();
+    let data = dir.path().join("data");
+    let server = common::ServerProcess::start_with_args(&data, &["--config", &config]);
+    let client = reqwest::Client::new();
+    let base = server.url("");
+    declare_machine(&client, &base, "tbm-outbox", &declaration().to_string()).await;
+    let from_t = (wall_clock_s() - 60.0).floor();
+    post_ndjson(&client, &base, "tbm-outbox", &off_axis(from_t, 21)).await;
+    // Attempted (and refused) at least once: the change is pending.
+    for _ in 0..100 {
+        if seen.lock().unwrap().refused >= 1 {
+            break;
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
+    assert!(
+        seen.lock().unwrap().refused >= 1,
+        "the webhook was attempted"
+    );
+    server.kill();
+    assert!(seen.lock().unwrap().requests.is_empty());
+    // The receiver is back; so is the server.
+    seen.lock().unwrap().down = false;
+    let server = common::ServerProcess::start_with_args(&data, &["--config", &config]);
+    let base = server.url("");
+    for _ in 0..100 {
+        if !seen.lock().unwrap().requests.is_empty() {
+            break;
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
+    // Nothing more comes.
+    tokio::time::sleep(std::time::Duration::from_millis(1500)).await;
+    let listed = alarms(&client, &base, "?state=all", None).await;
+    let deviation = listed.iter().find(|a| a["kind"] == "deviation").unwrap();
+    let requests = seen.lock().unwrap().requests.clone();
+    assert_eq!(requests.len(), 1, "{requests:#?}");
+    assert_eq!(requests[0].0, "/warn");
+    assert_eq!(
+        requests[0].1,
+        format!("alarm-{}-raised", deviation["id"]),
+        "the idempotency key of the change before the kill"
+    );
+    assert_eq!(requests[0].2["transition"], "raised");
+    server.kill();
     receiving.abort();
 }

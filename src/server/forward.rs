@@ -26,8 +26,10 @@ const IDLE: Duration = Duration::from_millis(100);
 /// First and longest wait after a failed request.
 const FIRST_RETRY: Duration = Duration::from_millis(250);
 const MAX_RETRY: Duration = Duration::from_secs(5);
-/// Longest one request may take.
-const REQUEST_TIMEOUT: Duration = Duration::from_secs(60);
+/// Longest one request may take (a dead line swallows it unanswered).
+const REQUEST_TIMEOUT: Duration = Duration::from_secs(15);
+/// Longest a connection may take to open.
+const CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
 
 /// Where and as whom a site forwards.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -79,6 +81,7 @@ pub async fn start(state: SharedState, options: ForwardOptions) -> Result<(), Fo
     store.forwarding(true).await?;
     let client = reqwest::Client::builder()
         .timeout(REQUEST_TIMEOUT)
+        .connect_timeout(CONNECT_TIMEOUT)
         .build()
         .map_err(|e| ForwardError::Client(e.to_string()))?;
     super::metrics::forward_link(&options.site, false, 0, 0.0);

@@ -1,0 +1,424 @@
+//! Sites forwarding to an office through cut links and SIGKILLs (issue
+//! 38), all real processes: two site servers, each reaching the office
+//! through a TCP relay of this test that cuts the line (closing every
+//! connection, or swallowing them unanswered) three times for 3–6 s, each
+//! site SIGKILLed twice and the office once, while gateways post to the
+//! sites and resend what was not acknowledged. Then the office holds
+//! every reading each site stored exactly once and in the site's order,
+//! the same estimates (max difference 0) and the same alarms.
+
+mod common;
+
+use std::net::SocketAddr;
+use std::path::Path;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use common::{ServerProcess, declare_machine, drive, send_ndjson};
+use tokio::net::{TcpListener, TcpStream};
+
+/// How a cut line behaves.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Cut {
+    /// Open: bytes flow.
+    No,
+    /// Connections are closed at once (a router that answers).
+    Refuse,
+    /// Connections are held and nothing ever comes back (a dead line).
+    Swallow,
+}
+
+/// A TCP relay to the office that the test can cut.
+struct Relay {
+    address: SocketAddr,
+    target: Arc<Mutex<SocketAddr>>,
+    cut: Arc<Mutex<Cut>>,
+    /// Bumped at each cut: connections of an earlier generation end.
+    generation: Arc<AtomicUsize>,
+}
+
+impl Relay {
+    async fn start(target: SocketAddr) -> Relay {
+        let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let relay = Relay {
+            address: listener.local_addr().unwrap(),
+            target: Arc::new(Mutex::new(target)),
+            cut: Arc::new(Mutex::new(Cut::No)),
+            generation: Arc::default(),
+        };
+        let (target, cut, generation) = (
+            relay.target.clone(),
+            relay.cut.clone(),
+            relay.generation.clone(),
+        );
+        tokio::spawn(async move {
+            loop {
+                let Ok((mut inbound, _)) = listener.accept().await else {
+                    return;
+                };
+                let now = *cut.lock().unwrap();
+                let born = generation.load(Ordering::SeqCst);
+                let generation = generation.clone();
+                let target = *target.lock().unwrap();
+                tokio::spawn(async move {
+                    match now {
+                        Cut::Refuse => drop(inbound),
+                        Cut::Swallow => {
+                            // Held unanswered for good: the sender must
+                            // give up on it by itself.
+                            let _held = inbound;
+                            std::future::pending::<()>().await;
+                        }
+                        Cut::No => {
+                            let Ok(mut outbound) = TcpStream::connect(target).await else {
+                                return;
+                            };
+                            let copy = tokio::io::copy_bidirectional(&mut inbound, &mut outbound);
+                            let cut_off = async {
+                                while generation.load(Ordering::SeqCst) == born {
+                                    tokio::time::sleep(Duration::from_millis(20)).await;
+                                }
+                            };
+                            tokio::select! {
+                                _ = copy => {}
+                                _ = cut_off => {}
+                            }
+                        }
+                    }
+                });
+            }
+        });
+        relay
+    }
+
+    fn set(&self, cut: Cut) {
+        *self.cut.lock().unwrap() = cut;
+        self.generation.fetch_add(1, Ordering::SeqCst);
+    }
+
+    fn retarget(&self, target: SocketAddr) {
+        *self.target.lock().unwrap() = target;
+    }
+
+    fn url(&self) -> String {
+        format!("http://{}", self.address)
+    }
+}
+
+/// A site server process, restartable on its data dir.
+struct Site {
+    name: String,
+    dir: tempfile::TempDir,
+    relay: Relay,
+    process: Mutex<Option<ServerProcess>>,
+    /// Where gateways reach it now.
+    base: Arc<Mutex<String>>,
+}
+
+impl Site {
+    fn start(&self) {
+        let process = ServerProcess::start_with_args(
+            self.dir.path(),
+            &["--forward-to", &self.relay.url(), "--site", &self.name],
+        );
+        *self.base.lock().unwrap() = process.url("");
+        *self.process.lock().unwrap() = Some(process);
+    }
+
+    fn kill(&self) {
+        if let Some(process) = self.process.lock().unwrap().take() {
+            process.kill();
+        }
+    }
+
+    fn base(&self) -> String {
+        self.base.lock().unwrap().clone()
+    }
+}
+
+/// Posts `lines` to `machine` at the site, 40 a request, resending what
+/// was not acknowledged until it is; returns when all are.
+async fn gateway(
+    client: reqwest::Client,
+    base: Arc<Mutex<String>>,
+    machine: String,
+    lines: Vec<String>,
+) {
+    let mut from = 0;
+    while from < lines.len() {
+        let chunk = &lines[from..(from + 40).min(lines.len())];
+        let url = base.lock().unwrap().clone();
+        let acknowledged = match send_ndjson(&client, &url, &machine, chunk).await {
+            Ok(r) if r.status() == 200 => r.bytes().await.is_ok(),
+            _ => false,
+        };
+        if acknowledged {
+            from += chunk.len();
+            tokio::time::sleep(Duration::from_millis(15)).await;
+        } else {
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+    }
+}
+
+/// A machine's readings as stored, in arrival (id) order: (t, sensor,
+/// body) of each.
+fn stored_readings(dir: &Path, machine: &str) -> Vec<(f64, i64, Vec<u8>)> {
+    let conn = rusqlite::Connection::open(dir.join("tunnelnav.sqlite3")).unwrap();
+    let mut stmt = conn
+        .prepare(
+            "SELECT r.t, r.sensor, r.body FROM readings r JOIN machines m ON m.id = r.machine_id \
+             WHERE m.machine = ?1 ORDER BY r.id",
+        )
+        .unwrap();
+    stmt.query_map([machine], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)))
+        .unwrap()
+        .collect::<Result<_, _>>()
+        .unwrap()
+}
+
+/// Every stored estimate of one of a machine's streams, without the
+/// `machine` field (the office names it `{site}.{machine}`).
+async fn estimates(
+    client: &reqwest::Client,
+    base: &str,
+    machine: &str,
+    stream: &str,
+) -> Vec<serde_json::Value> {
+    let mut all = common::stream_estimates(client, base, machine, stream).await;
+    for e in &mut all {
+        e.as_object_mut().unwrap().remove("machine");
+    }
+    all
+}
+
+/// The alarms of a machine as (kind, severity, subject, raised, cleared,
+/// message), oldest first.
+async fn alarms(client: &reqwest::Client, base: &str, machine: &str) -> Vec<String> {
+    let list = common::get_json(
+        client,
+        base,
+        &format!("/api/v1/alarms?machine={machine}&state=all"),
+    )
+    .await;
+    let mut out: Vec<String> = list["alarms"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|a| a["kind"] != "site_link")
+        .map(|a| {
+            format!(
+                "{} {} {} {} {} {}",
+                a["kind"], a["severity"], a["subject"], a["raised_t"], a["cleared_t"], a["message"]
+            )
+        })
+        .collect();
+    out.sort();
+    out
+}
+
+const MACHINES: [&str; 2] = ["tbm-a", "tbm-b"];
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn two_sites_through_cut_links_and_sigkills_lose_nothing_and_match_exactly() {
+    let started = Instant::now();
+    let client = reqwest::Client::new();
+    let office_dir = tempfile::tempdir().unwrap();
+    let office = Mutex::new(Some(ServerProcess::start(office_dir.path())));
+    let office_address = office.lock().unwrap().as_ref().unwrap().address;
+    let mut sites = Vec::new();
+    for name in ["north", "south"] {
+        let site = Site {
+            name: name.into(),
+            dir: tempfile::tempdir().unwrap(),
+            relay: Relay::start(office_address).await,
+            process: Mutex::new(None),
+            base: Arc::default(),
+        };
+        site.start();
+        for (i, machine) in MACHINES.iter().enumerate() {
+            let body = if i == 0 {
+                common::on_an_axis("Test TBM").to_string()
+            } else {
+                r#"{"name": "Test TBM", "engines": {"attitude": {}}}"#.to_string()
+            };
+            declare_machine(&client, &site.base(), machine, &body).await;
+        }
+        sites.push(Arc::new(site));
+    }
+
+    // Gateways post a 3 h drive to each machine of each site.
+    let mut gateways = Vec::new();
+    for (s, site) in sites.iter().enumerate() {
+        for (m, machine) in MACHINES.iter().enumerate() {
+            let lines = drive(3.0, 100 + 10 * s as u64 + m as u64, vec![]);
+            gateways.push(tokio::spawn(gateway(
+                client.clone(),
+                site.base.clone(),
+                machine.to_string(),
+                lines,
+            )));
+        }
+    }
+
+    // The troubles, on a fixed schedule (seconds from now): each site's
+    // link cut three times for 3–6 s (refused or swallowed), each site
+    // killed twice, the office once.
+    enum Trouble {
+        Cut(usize, Cut, u64),
+        KillSite(usize),
+        KillOffice,
+    }
+    let schedule = [
+        (1.0, Trouble::Cut(0, Cut::Refuse, 4)),
+        (2.0, Trouble::KillSite(1)),
+        (3.0, Trouble::Cut(1, Cut::Swallow, 5)),
+        (4.0, Trouble::KillSite(0)),
+        (7.0, Trouble::KillOffice),
+        (9.0, Trouble::Cut(0, Cut::Swallow, 6)),
+        (10.0, Trouble::KillSite(0)),
+        (11.0, Trouble::Cut(1, Cut::Refuse, 3)),
+        (13.0, Trouble::KillSite(1)),
+        (16.0, Trouble::Cut(0, Cut::Refuse, 3)),
+        (16.5, Trouble::Cut(1, Cut::Swallow, 4)),
+    ];
+    let mut restores = Vec::new();
+    for (at_s, trouble) in schedule {
+        let wait = Duration::from_secs_f64(at_s).saturating_sub(started.elapsed());
+        tokio::time::sleep(wait).await;
+        match trouble {
+            Trouble::Cut(s, how, seconds) => {
+                sites[s].relay.set(how);
+                let site = sites[s].clone();
+                restores.push(tokio::spawn(async move {
+                    tokio::time::sleep(Duration::from_secs(seconds)).await;
+                    site.relay.set(Cut::No);
+                }));
+            }
+            Trouble::KillSite(s) => {
+                sites[s].kill();
+                tokio::time::sleep(Duration::from_millis(300)).await;
+                sites[s].start();
+            }
+            Trouble::KillOffice => {
+                if let Some(process) = office.lock().unwrap().take() {
+                    process.kill();
+                }
+                tokio::time::sleep(Duration::from_millis(500)).await;
+                let restarted = ServerProcess::start(office_dir.path());
+                for site in &sites {
+                    site.relay.retarget(restarted.address);
+                }
+                *office.lock().unwrap() = Some(restarted);
+            }
+        }
+    }
+    for restore in restores {
+        restore.await.unwrap();
+    }
+    for gateway in gateways {
+        gateway.await.unwrap();
+    }
+    let load_s = started.elapsed().as_secs_f64();
+
+    // The office catches up: every site's backlog reported empty.
+    let office_base = office.lock().unwrap().as_ref().unwrap().url("");
+    let deadline = Instant::now() + Duration::from_secs(120);
+    loop {
+        let sites_now = common::get_json(&client, &office_base, "/api/v1/sites").await;
+        let caught_up = sites_now["sites"].as_array().unwrap().len() == 2
+            && sites_now["sites"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .all(|s| s["connected"] == true && s["backlog_items"] == 0);
+        let mut complete = caught_up;
+        if caught_up {
+            for site in &sites {
+                for machine in MACHINES {
+                    let here = common::exported_readings(&client, &site.base(), machine).await;
+                    let there = common::exported_readings(
+                        &client,
+                        &office_base,
+                        &format!("{}.{machine}", site.name),
+                    )
+                    .await;
+                    complete &= here.len() == there.len();
+                }
+            }
+        }
+        if complete {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the office did not catch up: {sites_now}"
+        );
+        tokio::time::sleep(Duration::from_millis(500)).await;
+    }
+
+    let caught_up_s = started.elapsed().as_secs_f64() - load_s;
+
+    // Same estimates and alarms, through the API.
+    let mut readings_total = 0;
+    let mut estimates_total = 0;
+    for site in &sites {
+        for machine in MACHINES {
+            let office_id = format!("{}.{machine}", site.name);
+            let streams: &[&str] = if machine == "tbm-a" {
+                &["attitude", "dta"]
+            } else {
+                &["attitude"]
+            };
+            for stream in streams {
+                let here = estimates(&client, &site.base(), machine, stream).await;
+                let there = estimates(&client, &office_base, &office_id, stream).await;
+                assert_eq!(
+                    here.len(),
+                    there.len(),
+                    "{office_id} {stream}: estimate count"
+                );
+                for (i, (a, b)) in here.iter().zip(&there).enumerate() {
+                    assert_eq!(a, b, "{office_id} {stream}: estimate {i} differs");
+                }
+                estimates_total += here.len();
+            }
+            assert_eq!(
+                alarms(&client, &site.base(), machine).await,
+                alarms(&client, &office_base, &office_id).await,
+                "{office_id}: alarms"
+            );
+        }
+    }
+
+    // Every reading once, in the site's order: the stores themselves,
+    // once the servers have stopped.
+    for site in &sites {
+        if let Some(process) = site.process.lock().unwrap().take() {
+            assert!(process.terminate().success());
+        }
+    }
+    if let Some(process) = office.lock().unwrap().take() {
+        assert!(process.terminate().success());
+    }
+    for site in &sites {
+        for machine in MACHINES {
+            let here = stored_readings(site.dir.path(), machine);
+            let there = stored_readings(office_dir.path(), &format!("{}.{machine}", site.name));
+            assert!(here.len() > 1000, "{machine}: the drive was posted");
+            assert!(
+                here == there,
+                "{}.{machine}: the office's readings differ from the site's",
+                site.name
+            );
+            readings_total += here.len();
+        }
+    }
+    eprintln!(
+        "2 sites × {} machines: {readings_total} readings and {estimates_total} estimates equal at the office \
+         (max diff 0) after 6 link cuts, 4 site SIGKILLs and 1 office SIGKILL over {load_s:.1} s of load; \
+         caught up {caught_up_s:.1} s after the load",
+        MACHINES.len(),
+    );
+}
