@@ -422,3 +422,97 @@ async fn two_sites_through_cut_links_and_sigkills_lose_nothing_and_match_exactly
         MACHINES.len(),
     );
 }
+
+/// A site offline while it takes a long backlog catches up once its
+/// office is back, and keeps answering its gateways and readers meanwhile
+/// (the rate is measured by `tools/bench-forward-catchup.sh`, not here).
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_site_offline_for_hours_catches_up_and_keeps_answering() {
+    use tunnelnav::sim::tbm::{TbmDrive, TbmScenario};
+    let client = reqwest::Client::new();
+    // 4 h of inclinometer readings every 0.2 s: 72 000 readings.
+    let lines: Vec<String> = TbmDrive::new(TbmScenario {
+        seed: 7,
+        hours: 4.0,
+        incl_period_s: 0.2,
+        ..TbmScenario::default()
+    })
+    .unwrap()
+    .map(|event| event.reading.to_json())
+    .collect();
+    let (backlog, live) = lines.split_at(lines.len() * 3 / 4);
+    // The office is not there: the relay refuses.
+    let office_dir = tempfile::tempdir().unwrap();
+    let relay = Relay::start("127.0.0.1:9".parse().unwrap()).await;
+    relay.set(Cut::Refuse);
+    let site = Site {
+        name: "east".into(),
+        dir: tempfile::tempdir().unwrap(),
+        relay,
+        process: Mutex::new(None),
+        base: Arc::default(),
+    };
+    site.start();
+    let base = site.base();
+    declare_machine(&client, &base, "tbm", r#"{"engines": {"attitude": {}}}"#).await;
+    for chunk in backlog.chunks(5000) {
+        let response = send_ndjson(&client, &base, "tbm", chunk).await.unwrap();
+        assert_eq!(response.status(), 200);
+    }
+    // The office comes up; the line with it.
+    let office = ServerProcess::start(office_dir.path());
+    site.relay.retarget(office.address);
+    site.relay.set(Cut::No);
+    // Meanwhile the gateway goes on and a reader looks at the machine:
+    // every request is answered.
+    let mut slowest = Duration::ZERO;
+    for chunk in live.chunks(200) {
+        let asked = Instant::now();
+        let response = send_ndjson(&client, &base, "tbm", chunk).await.unwrap();
+        assert_eq!(response.status(), 200);
+        let status = client
+            .get(format!("{base}/api/v1/machines/tbm"))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(status.status(), 200);
+        slowest = slowest.max(asked.elapsed());
+    }
+    let office_base = office.url("");
+    let deadline = Instant::now() + Duration::from_secs(120);
+    loop {
+        // 404 until the declaration has arrived.
+        let response = client
+            .get(format!("{office_base}/api/v1/machines/east.tbm/readings"))
+            .send()
+            .await
+            .unwrap();
+        let there = match response.status().as_u16() {
+            200 => response.text().await.unwrap().lines().count(),
+            _ => 0,
+        };
+        if there == lines.len() {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "caught up {there} of {}",
+            lines.len()
+        );
+        tokio::time::sleep(Duration::from_millis(250)).await;
+    }
+    let here = estimates(&client, &base, "tbm", "attitude").await;
+    let there = estimates(&client, &office_base, "east.tbm", "attitude").await;
+    assert!(
+        here == there,
+        "the office's estimates differ from the site's"
+    );
+    eprintln!(
+        "{} readings offline, {} more during the catch-up; the site answered every request, \
+         the slowest post and status pair in {:.0} ms",
+        backlog.len(),
+        live.len(),
+        slowest.as_secs_f64() * 1000.0
+    );
+    site.kill();
+}
