@@ -1,5 +1,6 @@
 // Fleet overview: polls /api/v1/machines every second and fills the cards
-// the server rendered.
+// the server rendered; on an office, /api/v1/sites every 2 s for each
+// site's link above its machines.
 'use strict';
 
 (function () {
@@ -80,4 +81,37 @@
 
   poll();
   setInterval(poll, 1000);
+
+  // An office: each site's link above its machines, from /api/v1/sites.
+  const sites = new Map();
+  document.querySelectorAll('.site-group[data-site]').forEach((group) => {
+    const fields = {};
+    group.querySelectorAll('[data-site-field]').forEach((el) => { fields[el.dataset.siteField] = el; });
+    sites.set(group.dataset.site, fields);
+  });
+  if (sites.size === 0) return;
+  const pollSites = tn.latestOnly(() => tn.json('/api/v1/sites'), (body) => {
+    const now = tn.clock.now();
+    for (const s of body.sites) {
+      const fields = sites.get(s.site);
+      if (!fields) continue;
+      const [link, cls] = s.connected
+        ? [s.alarm ? 'link up · behind' : 'link up', s.alarm ? 'warn' : 'ok']
+        : ['LINK DOWN', 'bad'];
+      tn.setText(fields.link, link);
+      fields.link.className = `badge ${cls}`;
+      const contact = `last contact ${tn.duration(Math.max(0, now - s.last_contact_t))} ago`;
+      const backlog = s.backlog_items === 0
+        ? 'nothing unsent'
+        : `${s.backlog_readings.toLocaleString('en')} readings unsent, oldest ${tn.duration(s.oldest_unsent_s)}`;
+      tn.setText(fields.backlog, `${backlog} · ${contact}`);
+    }
+  }, () => {
+    for (const fields of sites.values()) {
+      tn.setText(fields.link, 'no connection');
+      fields.link.className = 'badge';
+    }
+  });
+  pollSites();
+  setInterval(pollSites, 2000);
 })();

@@ -209,8 +209,15 @@ async fn alarms(client: &reqwest::Client, base: &str, machine: &str) -> Vec<Stri
         .filter(|a| a["kind"] != "site_link")
         .map(|a| {
             format!(
-                "{} {} {} {} {} {}",
-                a["kind"], a["severity"], a["subject"], a["raised_t"], a["cleared_t"], a["message"]
+                "{} {} {} {} {} {} {} {}",
+                a["kind"],
+                a["severity"],
+                a["subject"],
+                a["raised_t"],
+                a["cleared_t"],
+                a["acked_t"],
+                a["acked_by"],
+                a["message"]
             )
         })
         .collect();
@@ -321,6 +328,18 @@ async fn two_sites_through_cut_links_and_sigkills_lose_nothing_and_match_exactly
         gateway.await.unwrap();
     }
     let load_s = started.elapsed().as_secs_f64();
+    // A shift lead acknowledges every alarm at each site: the
+    // acknowledgements travel too.
+    let mut acked = 0;
+    for site in &sites {
+        let list = common::get_json(&client, &site.base(), "/api/v1/alarms?state=all").await;
+        for alarm in list["alarms"].as_array().unwrap() {
+            let url = format!("{}/api/v1/alarms/{}/ack", site.base(), alarm["id"]);
+            assert_eq!(client.post(&url).send().await.unwrap().status(), 200);
+            acked += 1;
+        }
+    }
+    assert!(acked > 0, "the drives raised alarms to acknowledge");
 
     // The office catches up: every site's backlog reported empty.
     let office_base = office.lock().unwrap().as_ref().unwrap().url("");
@@ -345,6 +364,9 @@ async fn two_sites_through_cut_links_and_sigkills_lose_nothing_and_match_exactly
                     )
                     .await;
                     complete &= here.len() == there.len();
+                    let office_id = format!("{}.{machine}", site.name);
+                    complete &= alarms(&client, &site.base(), machine).await
+                        == alarms(&client, &office_base, &office_id).await;
                 }
             }
         }
@@ -363,6 +385,7 @@ async fn two_sites_through_cut_links_and_sigkills_lose_nothing_and_match_exactly
     // Same estimates and alarms, through the API.
     let mut readings_total = 0;
     let mut estimates_total = 0;
+    let mut alarms_total = 0;
     for site in &sites {
         for machine in MACHINES {
             let office_id = format!("{}.{machine}", site.name);
@@ -384,12 +407,58 @@ async fn two_sites_through_cut_links_and_sigkills_lose_nothing_and_match_exactly
                 }
                 estimates_total += here.len();
             }
+            let here = alarms(&client, &site.base(), machine).await;
             assert_eq!(
-                alarms(&client, &site.base(), machine).await,
+                here,
                 alarms(&client, &office_base, &office_id).await,
                 "{office_id}: alarms"
             );
+            alarms_total += here.len();
         }
+    }
+
+    // The office's fleet page groups the machines by site; its lists
+    // filter by site.
+    let page = common::get_text(&client, &office_base, "/").await;
+    for site in &sites {
+        let group = page
+            .split(&format!("data-site=\"{}\"", site.name))
+            .nth(1)
+            .unwrap_or_else(|| panic!("no group for site {}:\n{page}", site.name));
+        let group = group.split("</section>").next().unwrap();
+        for machine in MACHINES {
+            assert!(group.contains(&format!("data-machine=\"{}.{machine}\"", site.name)));
+        }
+        let listed = common::get_json(
+            &client,
+            &office_base,
+            &format!("/api/v1/machines?site={}", site.name),
+        )
+        .await;
+        let listed: Vec<&str> = listed["machines"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|m| m["machine"].as_str().unwrap())
+            .collect();
+        assert_eq!(listed.len(), MACHINES.len(), "{listed:?}");
+        assert!(
+            listed
+                .iter()
+                .all(|m| m.starts_with(&format!("{}.", site.name)))
+        );
+        let alarms = common::get_json(
+            &client,
+            &office_base,
+            &format!("/api/v1/alarms?site={}&state=all", site.name),
+        )
+        .await;
+        assert!(alarms["alarms"].as_array().unwrap().iter().all(|a| {
+            a["machine"]
+                .as_str()
+                .unwrap()
+                .starts_with(&format!("{}.", site.name))
+        }));
     }
 
     // Every reading once, in the site's order: the stores themselves,
@@ -416,7 +485,8 @@ async fn two_sites_through_cut_links_and_sigkills_lose_nothing_and_match_exactly
         }
     }
     eprintln!(
-        "2 sites × {} machines: {readings_total} readings and {estimates_total} estimates equal at the office \
+        "2 sites × {} machines: {readings_total} readings, {estimates_total} estimates and \
+         {alarms_total} alarms equal at the office \
          (max diff 0) after 6 link cuts, 4 site SIGKILLs and 1 office SIGKILL over {load_s:.1} s of load; \
          caught up {caught_up_s:.1} s after the load",
         MACHINES.len(),

@@ -1,4 +1,5 @@
-//! `/metrics` on a fresh server against the table in `docs/api.md` ("Metrics"):
+//! `/metrics` on a fresh server (a site forwarding to an office, so that
+//! its link's series are there too) against the table in `docs/api.md` ("Metrics"):
 //! every documented series is there before any reading, with the
 //! documented type and labels, and nothing undocumented; `promtool check
 //! metrics` (Prometheus's own linter of names and types) finds nothing,
@@ -39,7 +40,16 @@ async fn a_fresh_server_exports_every_documented_series_and_only_those() {
     let documented = documented();
     assert!(documented.len() >= 15, "{documented:?}");
     let dir = tempfile::tempdir().unwrap();
-    let server = TestServer::start(dir.path()).await;
+    let server = TestServer::start_site(
+        dir.path(),
+        tunnelnav::server::forward::ForwardOptions {
+            // No office there: the link is down from the start.
+            office: "http://127.0.0.1:9".into(),
+            site: "metrics-site".into(),
+            token: None,
+        },
+    )
+    .await;
     let client = reqwest::Client::new();
     let base = server.url("");
     declare_machine(
@@ -91,6 +101,7 @@ async fn a_fresh_server_exports_every_documented_series_and_only_those() {
         r#"tunnelnav_last_reading_timestamp_seconds{machine="tbm-metrics",sensor="laser"} 0"#,
         r#"tunnelnav_laser_dropout{machine="tbm-metrics"} 0"#,
         r#"tunnelnav_refusals_total{reason="machine_busy"} 0"#,
+        r#"tunnelnav_forward_connected{site="metrics-site"} 0"#,
     ] {
         assert!(text.contains(series), "{series} missing:\n{text}");
     }

@@ -21,8 +21,11 @@ const ANONYMOUS: &str = "anonymous";
 #[into_params(parameter_in = Query)]
 pub struct AlarmsQuery {
     /// Only this machine's alarms.
-    #[param(pattern = r"^[A-Za-z0-9_-]{1,64}$")]
+    #[param(pattern = r"^[A-Za-z0-9_-]{1,64}(\.[A-Za-z0-9_-]{1,64})?$")]
     machine: Option<String>,
+    /// An office: only the alarms of this site's machines.
+    #[param(pattern = r"^[A-Za-z0-9_-]{1,64}$")]
+    site: Option<String>,
     /// `active` (default: not cleared) or `all`.
     #[param(inline, value_type = Option<AlarmsState>)]
     state: Option<String>,
@@ -57,7 +60,7 @@ pub struct AlarmList {
 
 /// The alarms, newest first.
 ///
-/// `GET /api/v1/alarms?machine=&state=active|all`.
+/// `GET /api/v1/alarms?machine=&site=&state=active|all`.
 #[utoipa::path(get, path = "/api/v1/alarms", operation_id = "list_alarms", tag = "alarms", params(AlarmsQuery),
     responses((status = OK, description = "The alarms, newest first", body = AlarmList),
         (status = NOT_FOUND, description = "`machine` names no machine", body = super::error::ErrorBody)))]
@@ -85,9 +88,18 @@ pub async fn list(
         machine: query.machine,
         active_only,
     };
-    Ok(Json(AlarmList {
-        alarms: stored(&state, filter).await?,
-    }))
+    if let Some(site) = &query.site
+        && !crate::config::valid_machine_id(site)
+    {
+        return Err(ApiError::BadRequest(format!(
+            "site `{site}` is not a site name: 1 to 64 letters, digits, `-` or `_`"
+        )));
+    }
+    let mut alarms = stored(&state, filter).await?;
+    if let Some(site) = &query.site {
+        alarms.retain(|a| crate::config::forwarded_site(&a.machine) == Some(site.as_str()));
+    }
+    Ok(Json(AlarmList { alarms }))
 }
 
 /// The stored alarms `filter` asks for, newest first.

@@ -2,13 +2,13 @@
 
 use axum::Json;
 use axum::body::Bytes;
-use axum::extract::rejection::BytesRejection;
-use axum::extract::{Path, State};
+use axum::extract::rejection::{BytesRejection, QueryRejection};
+use axum::extract::{Path, Query, State};
 use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
 use std::collections::BTreeMap;
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use serde_json::value::RawValue;
 
 use super::error::ApiError;
@@ -47,6 +47,9 @@ pub struct LaserReport {
 #[derive(Debug, Serialize, utoipa::ToSchema)]
 pub struct MachineStatusBody {
     pub machine: String,
+    /// An office: the site the machine is forwarded from (`{site}.{machine}`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub site: Option<String>,
     pub name: String,
     pub engines: Vec<EngineKind>,
     /// The newest reading of any sensor; `null` before the first.
@@ -147,6 +150,7 @@ fn status_of(
         });
     MachineStatusBody {
         machine: spec.id.clone(),
+        site: crate::config::forwarded_site(&spec.id).map(str::to_string),
         name: spec.name.clone(),
         engines: spec.engines.keys().copied().collect(),
         last_reading_t,
@@ -167,12 +171,34 @@ fn clock(state: &SharedState) -> (f64, f64) {
     (state.clock.now_s(), state.clock.rate())
 }
 
+/// Which machines a list holds.
+#[derive(Debug, Deserialize, utoipa::IntoParams)]
+#[serde(deny_unknown_fields)]
+#[into_params(parameter_in = Query)]
+pub struct MachinesQuery {
+    /// An office: only this site's machines.
+    #[param(pattern = r"^[A-Za-z0-9_-]{1,64}$")]
+    site: Option<String>,
+}
+
 /// Every machine's status.
 ///
-/// `GET /api/v1/machines`.
-#[utoipa::path(get, path = "/api/v1/machines", operation_id = "list_machines", tag = "machines",
-    responses((status = OK, description = "Every machine's status and the server clock", body = MachineList)))]
-pub async fn list(State(state): State<SharedState>) -> Result<Json<MachineList>, ApiError> {
+/// `GET /api/v1/machines?site=`.
+#[utoipa::path(get, path = "/api/v1/machines", operation_id = "list_machines", tag = "machines", params(MachinesQuery),
+    responses((status = OK, description = "Every machine's status (or one site's machines') and the server clock", body = MachineList)))]
+pub async fn list(
+    State(state): State<SharedState>,
+    query: Result<Query<MachinesQuery>, QueryRejection>,
+) -> Result<Json<MachineList>, ApiError> {
+    let Query(query) =
+        query.map_err(|e| ApiError::BadRequest(format!("bad query string: {}", e.body_text())))?;
+    if let Some(site) = &query.site
+        && !valid_machine_id(site)
+    {
+        return Err(ApiError::BadRequest(format!(
+            "site `{site}` is not a site name: 1 to 64 letters, digits, `-` or `_`"
+        )));
+    }
     let (now, rate) = clock(&state);
     let mut machines: Vec<MachineStatusBody> = state
         .all_machines()
@@ -196,6 +222,9 @@ pub async fn list(State(state): State<SharedState>) -> Result<Json<MachineList>,
     .map_err(|e| ApiError::Internal(e.to_string()))?
     .map_err(|e| ApiError::Internal(e.to_string()))?;
     machines.extend(others);
+    if let Some(site) = &query.site {
+        machines.retain(|m| m.site.as_ref() == Some(site));
+    }
     machines.sort_by(|a, b| a.machine.cmp(&b.machine));
     Ok(Json(MachineList {
         machines,

@@ -94,8 +94,12 @@ impl Modify for SecuritySchemes {
 #[derive(Debug, Deserialize, utoipa::IntoParams)]
 #[into_params(parameter_in = Path)]
 pub struct MachinePath {
-    /// The machine's id: 1 to 64 ASCII letters, digits, `-` or `_`.
-    #[param(pattern = r"^[A-Za-z0-9_-]{1,64}$", example = "tbm-north")]
+    /// The machine's id: 1 to 64 ASCII letters, digits, `-` or `_`; at an
+    /// office, a site's machine is `{site}.{machine}`.
+    #[param(
+        pattern = r"^[A-Za-z0-9_-]{1,64}(\.[A-Za-z0-9_-]{1,64})?$",
+        example = "tbm-north"
+    )]
     pub machine: String,
 }
 

@@ -36,9 +36,16 @@ macro_rules! asset {
 #[derive(Template, WebTemplate)]
 #[template(path = "fleet.html")]
 pub struct FleetPage {
-    machines: Vec<MachineCard>,
+    /// This server's machines, then (an office) each site's.
+    groups: Vec<FleetGroup>,
     /// Every engine's script: each gives its card rows.
     engine_scripts: Vec<&'static str>,
+}
+
+/// A site's machines (`site`: `None` for this server's own).
+struct FleetGroup {
+    site: Option<String>,
+    machines: Vec<MachineCard>,
 }
 
 struct MachineCard {
@@ -242,8 +249,21 @@ pub async fn fleet(State(state): State<SharedState>) -> Result<FleetPage, ApiErr
         })
         .collect();
     machines.sort_by(|a, b| a.id.cmp(&b.id));
+    // This server's own machines first (`None`), then each site's.
+    let mut groups: Vec<FleetGroup> = Vec::new();
+    for card in machines {
+        let site = crate::config::forwarded_site(&card.id).map(str::to_string);
+        match groups.iter_mut().find(|g| g.site == site) {
+            Some(group) => group.machines.push(card),
+            None => groups.push(FleetGroup {
+                site,
+                machines: vec![card],
+            }),
+        }
+    }
+    groups.sort_by(|a, b| a.site.cmp(&b.site));
     Ok(FleetPage {
-        machines,
+        groups,
         engine_scripts: EngineKind::ALL
             .iter()
             .map(|&engine| engine_script(engine).path)

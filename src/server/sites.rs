@@ -412,6 +412,14 @@ pub async fn report(
     }
     let Json(report) =
         body.map_err(|e| ApiError::BadRequest(format!("body is not a site report: {e}")))?;
+    if [report.backlog_items, report.backlog_readings]
+        .iter()
+        .any(|&n| i64::try_from(n).is_err())
+    {
+        return Err(ApiError::BadRequest(
+            "`backlog_items` and `backlog_readings` must be at most 2^63 - 1".into(),
+        ));
+    }
     if !report.oldest_unsent_s.is_finite() {
         return Err(ApiError::BadRequest(
             "`oldest_unsent_s` must be a number of seconds".into(),

@@ -40,12 +40,35 @@ impl TestServer {
         webhooks: tunnelnav::server::settings::WebhookConfig,
     ) -> TestServer {
         let any_port = "127.0.0.1:0".parse().unwrap();
-        Self::launch(data_dir, limits, webhooks, any_port).await
+        Self::launch(data_dir, limits, webhooks, any_port, None).await
+    }
+
+    /// A site server forwarding to `forward`'s office.
+    pub async fn start_site(
+        data_dir: &Path,
+        forward: tunnelnav::server::forward::ForwardOptions,
+    ) -> TestServer {
+        let any_port = "127.0.0.1:0".parse().unwrap();
+        Self::launch(
+            data_dir,
+            Limits::default(),
+            Default::default(),
+            any_port,
+            Some(forward),
+        )
+        .await
     }
 
     /// A server on `address` (the one a stopped server had, say).
     pub async fn start_at(data_dir: &Path, address: std::net::SocketAddr) -> TestServer {
-        Self::launch(data_dir, Limits::default(), Default::default(), address).await
+        Self::launch(
+            data_dir,
+            Limits::default(),
+            Default::default(),
+            address,
+            None,
+        )
+        .await
     }
 
     async fn launch(
@@ -53,6 +76,7 @@ impl TestServer {
         limits: Limits,
         webhooks: tunnelnav::server::settings::WebhookConfig,
         address: std::net::SocketAddr,
+        forward: Option<tunnelnav::server::forward::ForwardOptions>,
     ) -> TestServer {
         server::metrics::install();
         let state = AppState::start(ServerOptions {
@@ -64,7 +88,7 @@ impl TestServer {
             retention: tunnelnav::store::retention::Retention::default(),
             webhooks,
             cluster: None,
-            forward: None,
+            forward,
             site_backlog_alarm_s: tunnelnav::server::settings::SitesConfig::default()
                 .backlog_alarm_s(),
         })
