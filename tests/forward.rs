@@ -259,7 +259,16 @@ async fn two_sites_through_cut_links_and_sigkills_lose_nothing_and_match_exactly
     let mut gateways = Vec::new();
     for (s, site) in sites.iter().enumerate() {
         for (m, machine) in MACHINES.iter().enumerate() {
-            let lines = drive(3.0, 100 + 10 * s as u64 + m as u64, vec![]);
+            let mut lines = drive(3.0, 100 + 10 * s as u64 + m as u64, vec![]);
+            if m == 0 {
+                // Positions on the machine's axis, 70 mm off it: `dta`
+                // estimates and deviation alarms.
+                lines.extend(common::laser_pairs(
+                    1_772_431_200.0 + 3.0 * 3600.0 + 10.0,
+                    400,
+                    0.07,
+                ));
+            }
             gateways.push(tokio::spawn(gateway(
                 client.clone(),
                 site.base.clone(),
@@ -402,6 +411,7 @@ async fn two_sites_through_cut_links_and_sigkills_lose_nothing_and_match_exactly
                     there.len(),
                     "{office_id} {stream}: estimate count"
                 );
+                assert!(here.len() > 300, "{office_id} {stream}: estimates made");
                 for (i, (a, b)) in here.iter().zip(&there).enumerate() {
                     assert_eq!(a, b, "{office_id} {stream}: estimate {i} differs");
                 }
@@ -585,4 +595,87 @@ async fn a_site_offline_for_hours_catches_up_and_keeps_answering() {
         slowest.as_secs_f64() * 1000.0
     );
     site.kill();
+}
+
+/// The office on PostgreSQL (an office's usual store): a site forwards
+/// through a cut and a SIGKILL of the office, and the office holds the
+/// same readings, estimates and alarms.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_site_forwards_to_an_office_on_postgres() {
+    let Some(cluster) = common::postgres::PgCluster::start() else {
+        return;
+    };
+    let url = cluster.database("office");
+    let client = reqwest::Client::new();
+    let office_dir = tempfile::tempdir().unwrap();
+    let office = ServerProcess::start_with_args(office_dir.path(), &["--store", &url]);
+    let site = Site {
+        name: "west".into(),
+        dir: tempfile::tempdir().unwrap(),
+        relay: Relay::start(office.address).await,
+        process: Mutex::new(None),
+        base: Arc::default(),
+    };
+    site.start();
+    declare_machine(
+        &client,
+        &site.base(),
+        "tbm",
+        &common::on_an_axis("Test TBM").to_string(),
+    )
+    .await;
+    let mut lines = drive(2.0, 77, vec![]);
+    lines.extend(common::laser_pairs(
+        1_772_431_200.0 + 2.0 * 3600.0 + 10.0,
+        400,
+        0.07,
+    ));
+    let posting = tokio::spawn(gateway(
+        client.clone(),
+        site.base.clone(),
+        "tbm".into(),
+        lines.clone(),
+    ));
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    site.relay.set(Cut::Refuse);
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    site.relay.set(Cut::No);
+    office.kill();
+    let office = ServerProcess::start_with_args(office_dir.path(), &["--store", &url]);
+    site.relay.retarget(office.address);
+    posting.await.unwrap();
+    let office_base = office.url("");
+    let deadline = Instant::now() + Duration::from_secs(120);
+    loop {
+        let response = client
+            .get(format!("{office_base}/api/v1/machines/west.tbm/readings"))
+            .send()
+            .await
+            .unwrap();
+        let there = match response.status().as_u16() {
+            200 => response.text().await.unwrap(),
+            _ => String::new(),
+        };
+        let here = common::exported_readings(&client, &site.base(), "tbm").await;
+        if there.lines().count() == here.len()
+            && alarms(&client, &site.base(), "tbm").await
+                == alarms(&client, &office_base, "west.tbm").await
+        {
+            assert!(there.lines().eq(here.iter().map(String::as_str)));
+            break;
+        }
+        assert!(Instant::now() < deadline, "the office did not catch up");
+        tokio::time::sleep(Duration::from_millis(300)).await;
+    }
+    for stream in ["attitude", "dta"] {
+        let here = estimates(&client, &site.base(), "tbm", stream).await;
+        let there = estimates(&client, &office_base, "west.tbm", stream).await;
+        assert!(here.len() > 300, "{stream}: estimates made");
+        assert_eq!(here.len(), there.len(), "{stream}: estimate count");
+        for (i, (a, b)) in here.iter().zip(&there).enumerate() {
+            assert_eq!(a, b, "{stream}: estimate {i} differs");
+        }
+    }
+    site.kill();
+    office.kill();
 }
