@@ -103,7 +103,6 @@ pub enum ConfigError {
     File { path: String, reason: String },
 }
 
-/// True for ids matching `[A-Za-z0-9_-]{1,64}` (protocol, "HTTP API").
 /// The site of a machine an office holds for it (`{site}.{machine}`:
 /// only there may an id hold a dot), or `None` for a machine of this
 /// server's own.
@@ -111,12 +110,7 @@ pub fn forwarded_site(id: &str) -> Option<&str> {
     id.split_once('.').map(|(site, _)| site)
 }
 
-/// The office's id of a site's machine: `{site}.{machine}`, both valid
-/// ids (a site name is one too).
-pub fn forwarded_id(site: &str, machine: &str) -> Option<String> {
-    (valid_machine_id(site) && valid_machine_id(machine)).then(|| format!("{site}.{machine}"))
-}
-
+/// True for ids matching `[A-Za-z0-9_-]{1,64}` (protocol, "HTTP API").
 pub fn valid_machine_id(id: &str) -> bool {
     (1..=64).contains(&id.len())
         && id

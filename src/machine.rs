@@ -667,10 +667,7 @@ impl Actor {
                     self.ingest(readings, None, Vec::new(), reply).await
                 }
                 Command::Forwarded { parts, reply } => self.forwarded(parts, reply).await,
-                Command::Alarms { rows, reply } => {
-                    let forward_mark = None;
-                    self.ingest(Vec::new(), forward_mark, rows, reply).await
-                }
+                Command::Alarms { rows, reply } => self.ingest(Vec::new(), None, rows, reply).await,
                 Command::Models { reply } => {
                     let _ = reply.send(self.core.models());
                 }
@@ -792,7 +789,10 @@ impl Actor {
     ) {
         let mark = self.forward_mark.unwrap_or(i64::MIN);
         let mut readings = Vec::new();
-        let mut forwarded = crate::store::outbox::Forwarded::default();
+        let mut forwarded = crate::store::outbox::Forwarded {
+            after: self.forward_mark,
+            ..Default::default()
+        };
         let mut rows = Vec::new();
         for (sequence, part) in parts.into_iter().filter(|(s, _)| *s > mark) {
             forwarded.sequence = sequence;
@@ -812,9 +812,11 @@ impl Actor {
                 }
             }
         }
-        if forwarded.sequence == 0 && readings.is_empty() && rows.is_empty() {
-            // Every part is committed already: a resend.
-            let _ = reply.send(Ok(WriteOutcome::default()));
+        if forwarded.sequence == 0 {
+            // Every part was fused already (a resend): answered once what
+            // was queued before is committed, so the office reads its
+            // mark after that (an empty write queued behind them).
+            self.ingest(Vec::new(), None, Vec::new(), reply).await;
             return;
         }
         self.forward_mark = Some(forwarded.sequence);

@@ -78,7 +78,9 @@ impl ForwardOptions {
 pub async fn start(state: SharedState, options: ForwardOptions) -> Result<(), ForwardError> {
     options.validate()?;
     let store = state.store.site_outbox()?.clone();
-    store.forwarding(true).await?;
+    store
+        .forward_to(options.office.clone(), options.site.clone())
+        .await?;
     let client = reqwest::Client::builder()
         .timeout(REQUEST_TIMEOUT)
         .connect_timeout(CONNECT_TIMEOUT)
@@ -97,6 +99,32 @@ struct Link {
     last_report: Option<Instant>,
     /// When the last failure was logged (one line a minute at most).
     last_logged: Option<Instant>,
+    /// Most readings a request carries (halved while the office answers
+    /// 413).
+    max_readings: u64,
+    /// Machines whose rows the office refused (4xx): when to try again,
+    /// how long the wait was, when it was last logged.
+    refused: std::collections::HashMap<i64, (Instant, Duration, Option<Instant>)>,
+}
+
+/// A request that did not go through.
+struct Failure {
+    /// The office's answer, if there was one.
+    status: Option<reqwest::StatusCode>,
+    why: String,
+}
+
+impl Failure {
+    /// The office refused these rows themselves (not the line, not a
+    /// passing overload): trying again at once would fail alike.
+    fn refused(&self) -> bool {
+        self.status.is_some_and(|status| {
+            status.is_client_error()
+                && status != reqwest::StatusCode::REQUEST_TIMEOUT
+                && status != reqwest::StatusCode::TOO_MANY_REQUESTS
+                && status != reqwest::StatusCode::PAYLOAD_TOO_LARGE
+        })
+    }
 }
 
 async fn run(
@@ -112,6 +140,8 @@ async fn run(
         retry: FIRST_RETRY,
         last_report: None,
         last_logged: None,
+        max_readings: MAX_READINGS_PER_REQUEST,
+        refused: std::collections::HashMap::new(),
     };
     tracing::info!(%office, site = %options.site, "forwarding to the office");
     loop {
@@ -159,25 +189,41 @@ async fn round(
     }
     let pending = blocking(store, |s| s.office_pending()).await?;
     let mut more = false;
-    for (machine_id, machine) in pending {
-        let entries = blocking(store, move |s| {
-            s.office_entries(machine_id, MAX_READINGS_PER_REQUEST)
-        })
-        .await?;
+    for (machine_id, machine, acked) in pending {
+        if let Some((until, _, _)) = link.refused.get(&machine_id)
+            && Instant::now() < *until
+        {
+            continue;
+        }
+        let max_readings = link.max_readings;
+        let entries = blocking(store, move |s| s.office_entries(machine_id, max_readings)).await?;
         let Some(last) = entries.last().map(|e| e.sequence) else {
             continue;
         };
-        let outcome = send(client, office, options, &machine, &entries).await;
-        let applied = match outcome {
+        let applied = match send(client, office, options, &machine, acked, &entries).await {
             Ok(applied) => applied,
-            Err(why) => {
-                settle(link, &options.site, Err(why)).await;
+            Err(failure) if failure.status == Some(reqwest::StatusCode::PAYLOAD_TOO_LARGE) => {
+                link.max_readings = (link.max_readings / 2).max(1);
+                tracing::warn!(%machine, max_readings = link.max_readings, "the office refused a request as too large: sending fewer readings a request");
+                more = true;
+                continue;
+            }
+            Err(failure) if failure.refused() => {
+                refuse(link, machine_id, &machine, &failure.why);
+                continue;
+            }
+            Err(failure) => {
+                settle(link, &options.site, Err(failure.why)).await;
                 return Ok(false);
             }
         };
+        link.refused.remove(&machine_id);
         settle(link, &options.site, Ok(())).await;
         // The office answers the last sequence it holds for the machine.
         let sent = applied.min(last);
+        if sent <= 0 || acked.is_some_and(|acked| sent <= acked) {
+            continue;
+        }
         match store.office_sent(machine_id, sent).await {
             Ok(()) => more = true,
             Err(StoreError::Closed) => return Err(Halt::Stop),
@@ -188,6 +234,26 @@ async fn round(
         }
     }
     Ok(more)
+}
+
+/// The office refused a machine's rows: that machine waits (doubling from
+/// 1 s to a minute) while the others go on; logged once a minute.
+fn refuse(link: &mut Link, machine_id: i64, machine: &str, why: &str) {
+    let now = Instant::now();
+    let (_, wait, logged) =
+        link.refused
+            .get(&machine_id)
+            .copied()
+            .unwrap_or((now, Duration::from_millis(500), None));
+    let wait = (wait * 2).min(Duration::from_secs(60));
+    let log = logged.is_none_or(|t| t.elapsed() >= Duration::from_secs(60));
+    if log {
+        tracing::error!(%machine, reason = %why, retry_in_s = wait.as_secs_f64(), "the office refuses this machine's rows; they stay in the outbox, sent again later");
+    }
+    link.refused.insert(
+        machine_id,
+        (now + wait, wait, if log { Some(now) } else { logged }),
+    );
 }
 
 /// Notes a request's outcome: the link's gauge, and after a failure a
@@ -257,17 +323,20 @@ async fn report(
     answer(authorised(request, options).send().await)
         .await
         .map(|_| ())
+        .map_err(|failure| failure.why)
 }
 
-/// Sends one machine's rows; the sequence the office has committed up to.
+/// Sends one machine's rows (`acked`: the last sequence the office has
+/// answered for it); the sequence the office has committed up to.
 async fn send(
     client: &reqwest::Client,
     office: &str,
     options: &ForwardOptions,
     machine: &str,
+    acked: Option<i64>,
     entries: &[OfficeEntry],
-) -> Result<i64, String> {
-    let body = body(&options.site, entries)?;
+) -> Result<i64, Failure> {
+    let body = body(&options.site, acked, entries).map_err(|why| Failure { status: None, why })?;
     let request = client
         .post(format!(
             "{office}/api/v1/machines/{}.{machine}/forward",
@@ -276,8 +345,10 @@ async fn send(
         .header(reqwest::header::CONTENT_TYPE, "application/json")
         .body(body);
     let bytes = answer(authorised(request, options).send().await).await?;
-    let answer: ForwardAnswer = serde_json::from_slice(&bytes)
-        .map_err(|e| format!("the office's answer is not a forwarding answer: {e}"))?;
+    let answer: ForwardAnswer = serde_json::from_slice(&bytes).map_err(|e| Failure {
+        status: None,
+        why: format!("the office's answer is not a forwarding answer: {e}"),
+    })?;
     Ok(answer.applied)
 }
 
@@ -292,27 +363,38 @@ fn authorised(
 }
 
 /// The body of a 2xx answer, else why not.
-async fn answer(sent: Result<reqwest::Response, reqwest::Error>) -> Result<Vec<u8>, String> {
-    let response = sent.map_err(|e| format!("office not reached: {e}"))?;
+async fn answer(sent: Result<reqwest::Response, reqwest::Error>) -> Result<Vec<u8>, Failure> {
+    let response = sent.map_err(|e| Failure {
+        status: None,
+        why: format!("office not reached: {e}"),
+    })?;
     let status = response.status();
-    let bytes = response
-        .bytes()
-        .await
-        .map_err(|e| format!("office's answer cut off: {e}"))?;
+    let bytes = response.bytes().await.map_err(|e| Failure {
+        status: None,
+        why: format!("office's answer cut off: {e}"),
+    })?;
     if status.is_success() {
         return Ok(bytes.to_vec());
     }
-    Err(format!(
-        "office answered {status}: {}",
-        String::from_utf8_lossy(&bytes[..bytes.len().min(500)])
-    ))
+    Err(Failure {
+        status: Some(status),
+        why: format!(
+            "office answered {status}: {}",
+            String::from_utf8_lossy(&bytes[..bytes.len().min(500)])
+        ),
+    })
 }
 
 /// The JSON body of a forwarding ([`super::sites::ForwardBody`]), written
 /// directly: readings are by far the most of it.
-fn body(site: &str, entries: &[OfficeEntry]) -> Result<String, String> {
+fn body(site: &str, acked: Option<i64>, entries: &[OfficeEntry]) -> Result<String, String> {
     let mut out = String::with_capacity(256 + entries.len() * 64);
-    let _ = write!(out, "{{\"site\":{},\"items\":[", json(&site)?);
+    let _ = write!(
+        out,
+        "{{\"site\":{},\"after\":{},\"items\":[",
+        json(&site)?,
+        json(&acked)?
+    );
     for (i, entry) in entries.iter().enumerate() {
         if i > 0 {
             out.push(',');

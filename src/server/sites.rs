@@ -69,6 +69,12 @@ pub struct ForwardItem {
 pub struct ForwardBody {
     /// The sending site (the part of the machine's id before the dot).
     pub site: String,
+    /// The last sequence of this machine the office answered committed,
+    /// as the site recorded it (`null` before the first): an office whose
+    /// own record is behind it has lost rows (restored from an old
+    /// backup) and refuses, rather than leave a hole.
+    #[serde(default)]
+    pub after: Option<i64>,
     /// The rows, in sequence order.
     pub items: Vec<ForwardItem>,
 }
@@ -147,8 +153,9 @@ struct Link {
     alarm: Option<bool>,
 }
 
-/// Interval between writes of a site's record while it keeps reporting.
-const STORE_EVERY_S: f64 = 5.0;
+/// Interval between writes of a site's record while it keeps reporting
+/// (other nodes read it from the store as often).
+const STORE_EVERY_S: f64 = 2.0;
 
 impl SiteLinks {
     /// The links as the store last recorded them; `raised`: the sites
@@ -226,20 +233,50 @@ impl SiteLinks {
             .collect()
     }
 
-    /// Sites whose `site_link` must change at `now_t`: (site, raise, since
-    /// when, message); each is noted as done.
-    fn alarm_changes(&self, now_t: f64, limit_s: f64) -> Vec<(String, bool, f64, String)> {
+    /// The records other nodes stored (several nodes): a site heard
+    /// there more recently than here is taken as they recorded it.
+    fn merge(&self, records: Vec<SiteRecord>) {
         let Ok(mut links) = self.links.lock() else {
+            return;
+        };
+        for record in records {
+            match links.get_mut(&record.name) {
+                Some(link) if link.record.last_contact_t >= record.last_contact_t => {}
+                Some(link) => link.record = record,
+                None => {
+                    let link = Link {
+                        stored_t: record.last_contact_t,
+                        record,
+                        alarm: None,
+                    };
+                    links.insert(link.record.name.clone(), link);
+                }
+            }
+        }
+    }
+
+    /// Notes `site`'s `site_link` as stored raised or cleared.
+    fn alarm_stored(&self, site: &str, raised: bool) {
+        if let Ok(mut links) = self.links.lock()
+            && let Some(link) = links.get_mut(site)
+        {
+            link.alarm = Some(raised);
+        }
+    }
+
+    /// Sites whose `site_link` must change at `now_t`: (site, raise, since
+    /// when, message); [`SiteLinks::alarm_stored`] notes each once done.
+    fn alarm_changes(&self, now_t: f64, limit_s: f64) -> Vec<(String, bool, f64, String)> {
+        let Ok(links) = self.links.lock() else {
             return Vec::new();
         };
         let mut changes = Vec::new();
-        for link in links.values_mut() {
+        for link in links.values() {
             let age_s = unsent_age_s(&link.record, now_t);
             let raise = age_s > limit_s;
             if link.alarm == Some(raise) {
                 continue;
             }
-            link.alarm = Some(raise);
             let since_t = now_t - age_s;
             let message = if raise {
                 format!(
@@ -308,6 +345,16 @@ pub async fn forward(
         )));
     }
     note_contact(&state, site, None).await;
+    let committed = stored_mark(&state, &machine).await?;
+    if let Some(after) = body.after
+        && committed.is_none_or(|mark| mark < after)
+    {
+        return Err(ApiError::Conflict(format!(
+            "`{machine}`: this office holds its rows up to sequence {committed:?}, but the site \
+             had them committed up to {after}: the office lost rows (restored from an older \
+             backup?); declare the machine afresh at the site"
+        )));
+    }
     let mut applied = 0;
     let mut parts = Vec::new();
     for item in body.items {
@@ -339,6 +386,12 @@ pub async fn forward(
                 parts.push((item.sequence, ForwardedPart::Readings(readings)));
             }
             (None, None, Some(change)) => {
+                if change.alarm.kind == crate::fusion::alarms::AlarmKind::SiteLink.as_str() {
+                    return Err(ApiError::BadRequest(format!(
+                        "sequence {}: `site_link` is the office's own alarm",
+                        item.sequence
+                    )));
+                }
                 parts.push((item.sequence, ForwardedPart::Alarm(change)));
             }
             _ => {
@@ -350,7 +403,28 @@ pub async fn forward(
         }
     }
     apply_parts(&state, &machine, parts).await?;
-    Ok(Json(ForwardAnswer { machine, applied }))
+    // What is committed now (each part answered after its commit): a row
+    // whose write failed behind an earlier answer is not claimed.
+    let committed = stored_mark(&state, &machine).await?.unwrap_or(0);
+    Ok(Json(ForwardAnswer {
+        machine,
+        applied: committed.min(applied),
+    }))
+}
+
+/// The last sequence of forwarded machine `machine` committed here, if
+/// it is known here.
+async fn stored_mark(state: &SharedState, machine: &str) -> Result<Option<i64>, ApiError> {
+    let (store, id) = (state.store.clone(), machine.to_string());
+    tokio::task::spawn_blocking(move || {
+        match store.machines()?.into_iter().find(|m| m.spec.id == id) {
+            Some(stored) => store.forward_mark(stored.db_id),
+            None => Ok(None),
+        }
+    })
+    .await
+    .map_err(|e| ApiError::Internal(e.to_string()))?
+    .map_err(ApiError::from)
 }
 
 /// Fuses and stores a run of readings and alarm changes in the machine.
@@ -371,15 +445,22 @@ async fn apply_parts(
     Ok(())
 }
 
-/// The site's stored declaration as this office's machine `id`.
+/// The site's stored declaration as this office's machine `id`
+/// (`{site}.{machine}`), checked as a declaration made here would be.
 fn forwarded_spec(id: &str, spec: serde_json::Value) -> Result<MachineSpec, ApiError> {
-    let mut spec: MachineSpec = serde_json::from_value(spec).map_err(|e| {
+    let spec: MachineSpec = serde_json::from_value(spec).map_err(|e| {
         ApiError::BadRequest(format!(
             "machine `{id}`: the site's declaration is not one this release reads: {e}"
         ))
     })?;
+    let own = id.split_once('.').map_or(id, |(_, own)| own);
+    let mut spec = spec
+        .upgraded()?
+        .declaration()
+        .validate(own)
+        .map_err(ApiError::from)?;
     spec.id = id.to_string();
-    spec.upgraded().map_err(ApiError::from)
+    Ok(spec)
 }
 
 /// Records that `site` was heard from (and what it reported).
@@ -470,6 +551,15 @@ pub async fn watch(state: SharedState) {
         }
         let now_t = state.clock.now_s();
         let limit_s = state.site_backlog_alarm_s;
+        if state.cluster.is_some() {
+            // Sites may report to any node.
+            let store = state.store.clone();
+            match tokio::task::spawn_blocking(move || store.sites()).await {
+                Ok(Ok(records)) => state.sites.merge(records),
+                Ok(Err(e)) => tracing::warn!(error = %e, "sites not read"),
+                Err(e) => tracing::warn!(error = %e, "sites not read"),
+            }
+        }
         for status in statuses(&state) {
             super::metrics::forward_link(
                 &status.site,
@@ -487,13 +577,18 @@ pub async fn watch(state: SharedState) {
                 t: if raise { since_t } else { now_t },
                 message,
             };
+            let mut stored = true;
             for machine in state.all_machines() {
                 if forwarded_site(&machine.spec.id) != Some(site.as_str()) {
                     continue;
                 }
                 if let Err(e) = machine.alarms(vec![row.clone()]).await {
-                    tracing::warn!(machine = %machine.spec.id, error = %e, "site_link not stored");
+                    tracing::warn!(machine = %machine.spec.id, error = %e, "site_link not stored; tried again");
+                    stored = false;
                 }
+            }
+            if stored {
+                state.sites.alarm_stored(&site, raise);
             }
         }
     }

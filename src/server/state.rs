@@ -105,7 +105,7 @@ impl AppState {
     /// machines this node holds, see [`super::cluster`]).
     pub async fn start(options: ServerOptions) -> Result<SharedState, ServerError> {
         let outbox = crate::store::outbox::OutboxConfig {
-            office: options.forward.is_some(),
+            forward: options.forward.is_some(),
             webhook_warn: options.webhooks.warn.is_some(),
             webhook_alarm: options.webhooks.alarm.is_some(),
         };
@@ -234,7 +234,13 @@ impl AppState {
             Some(forward) => super::forward::start(state.clone(), forward).await?,
             None => {
                 if let Some(sqlite) = state.store.sqlite() {
-                    sqlite.forwarding(false).await?;
+                    let dropped = sqlite.forward_off().await?;
+                    if dropped > 0 {
+                        tracing::warn!(
+                            dropped,
+                            "served without --forward-to: the rows still owed to the office are dropped (forwarding again declares every machine afresh)"
+                        );
+                    }
                 }
             }
         }
@@ -525,14 +531,20 @@ impl AppState {
         })?;
         let _admin = self.admin.lock().await;
         let existing = self.machine(&spec.id).ok();
-        if let Some(existing) = &existing {
-            let (store, db_id) = (self.store.clone(), existing.db_id);
-            let mark = tokio::task::spawn_blocking(move || store.forward_mark(db_id))
-                .await
-                .map_err(|e| ApiError::Internal(e.to_string()))??;
-            if mark.is_some_and(|mark| mark >= sequence) {
-                return Ok(false);
+        // The committed mark, whether the machine runs here or not.
+        let (store, id) = (self.store.clone(), spec.id.clone());
+        let mark = tokio::task::spawn_blocking(move || {
+            match store.machines()?.into_iter().find(|m| m.spec.id == id) {
+                Some(stored) => store.forward_mark(stored.db_id),
+                None => Ok(None),
             }
+        })
+        .await
+        .map_err(|e| ApiError::Internal(e.to_string()))??;
+        if mark.is_some_and(|mark| mark >= sequence) {
+            return Ok(false);
+        }
+        if let Some(existing) = &existing {
             existing.stop().await;
         }
         let db_id = self

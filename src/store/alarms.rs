@@ -39,13 +39,16 @@ impl AlarmRow {
 /// change its site made left them (the raise, stored once, before a clear
 /// or an acknowledgement, so the office holds the alarm even if it missed
 /// the raise), and the acknowledgement; `None` for a kind or severity this
-/// release does not know.
+/// release does not know, or an office's own `site_link`.
 pub fn forwarded_rows(
     change: &AlarmChange,
 ) -> Option<(Vec<AlarmRow>, Option<super::outbox::ForwardedAck>)> {
     use crate::fusion::alarms::{AlarmKind, Severity};
     let alarm = &change.alarm;
-    let kind = AlarmKind::from_name(&alarm.kind)?.as_str();
+    // `site_link` is an office's own: no site raises it.
+    let kind = AlarmKind::from_name(&alarm.kind)
+        .filter(|kind| *kind != AlarmKind::SiteLink)?
+        .as_str();
     let severity = Severity::from_name(&alarm.severity)?.as_str();
     let row = |raised: bool, t: f64| AlarmRow {
         kind,
@@ -233,30 +236,36 @@ impl SqliteStore {
     ) -> Result<Option<(StoredAlarm, bool)>, StoreError> {
         let outbox = self.outbox;
         self.maintain(move |conn| {
-            let acked = conn.execute(
+            // The acknowledgement and what it owes the office and the
+            // webhooks, in one commit.
+            let tx = conn.transaction()?;
+            let acked = tx.execute(
                 "UPDATE alarms SET acked_t = ?2, acked_by = ?3 WHERE id = ?1 AND acked_t IS NULL",
                 params![id, t, by],
             )? == 1;
-            let alarm = by_id(conn, id)?;
+            let alarm = by_id(&tx, id)?;
+            let mut change = None;
             if let (true, Some(alarm)) = (acked, &alarm) {
-                let change = AlarmChange {
+                let acknowledged = AlarmChange {
                     transition: Change::Acknowledged,
                     alarm: alarm.clone(),
                 };
-                // An acknowledgement made here (not one a site forwarded:
-                // those are written with the site's batches).
                 let machine_id: i64 =
-                    conn.query_row("SELECT machine_id FROM alarms WHERE id = ?1", [id], |r| {
+                    tx.query_row("SELECT machine_id FROM alarms WHERE id = ?1", [id], |r| {
                         r.get(0)
                     })?;
-                let to_office = outbox.office && !alarm.machine.contains('.');
+                let to_office = outbox.forward && super::outbox::told(&tx, machine_id)?;
                 super::outbox::record_alarms(
-                    conn,
+                    &tx,
                     &outbox,
                     to_office,
                     machine_id,
-                    std::slice::from_ref(&change),
+                    std::slice::from_ref(&acknowledged),
                 )?;
+                change = Some(acknowledged);
+            }
+            tx.commit()?;
+            if let Some(change) = change {
                 announce(change);
             }
             Ok(alarm.map(|alarm| (alarm, acked)))

@@ -26,8 +26,8 @@ use crate::fusion::Reading;
 /// What a store records in its outbox, fixed when it is opened.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct OutboxConfig {
-    /// This server forwards to an office.
-    pub office: bool,
+    /// This server is a site: it forwards to an office.
+    pub forward: bool,
     /// Alarm changes of `warn` alarms go to a webhook.
     pub webhook_warn: bool,
     /// Alarm changes of `alarm` alarms go to a webhook.
@@ -105,9 +105,13 @@ pub struct ForwardedAck {
 
 /// What an office stores with a forwarded machine's write: the site's
 /// sequence it brings the machine's mark to, and the acknowledgements in
-/// it.
+/// it. It commits only if the stored mark is still `after` (what the
+/// machine's task had fused before it): a write of the task that failed
+/// before it leaves the mark short, and this one fails too rather than
+/// leave a hole.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Forwarded {
+    pub after: Option<i64>,
     pub sequence: i64,
     pub acks: Vec<ForwardedAck>,
 }
@@ -130,8 +134,23 @@ pub(super) fn last_reading_id(tx: &Connection) -> Result<i64, StoreError> {
         .query_row([], |row| row.get(0))?)
 }
 
+/// Most readings one outbox row names: a batch of a gateway's (up to
+/// 100 000) goes in several rows, so one row always fits a request.
+const READINGS_PER_ROW: i64 = 10_000;
+
+/// Whether the office has been told of machine `machine_id` (its
+/// declaration is in the outbox or sent): only then do its rows go there.
+pub(super) fn told(tx: &Connection, machine_id: i64) -> Result<bool, StoreError> {
+    Ok(tx
+        .prepare_cached("SELECT 1 FROM forwarding WHERE machine_id = ?1")?
+        .query_row([machine_id], |_| Ok(()))
+        .optional()?
+        .is_some())
+}
+
 /// Records a committed batch of `count` readings with ids in
-/// `(before, last]`.
+/// `(before, last]` (SQLite gives a transaction's inserts consecutive
+/// ids), [`READINGS_PER_ROW`] a row.
 pub(super) fn record_readings(
     tx: &Connection,
     machine_id: i64,
@@ -142,26 +161,31 @@ pub(super) fn record_readings(
         return Ok(());
     }
     let last = last_reading_id(tx)?;
-    tx.prepare_cached(
-        "INSERT INTO outbox (destination, machine_id, kind, first_reading_id, last_reading_id, readings, created_t) \
-         VALUES ('office', ?1, 'readings', ?2, ?3, ?4, ?5)",
-    )?
-    .execute(params![machine_id, before + 1, last, count as i64, wall_clock_s()])?;
+    let mut first = before + 1;
+    while first <= last {
+        let end = (first + READINGS_PER_ROW - 1).min(last);
+        tx.prepare_cached(
+            "INSERT INTO outbox (destination, machine_id, kind, first_reading_id, last_reading_id, readings, created_t) \
+             VALUES ('office', ?1, 'readings', ?2, ?3, ?4, ?5)",
+        )?
+        .execute(params![machine_id, first, end, end - first + 1, wall_clock_s()])?;
+        first = end + 1;
+    }
     Ok(())
 }
 
 /// Records the alarm changes a commit made, for whoever is owed them
-/// (`office`: false for a forwarded machine's, which came from its site).
+/// (`to_office`: a site's machine the office has been told of).
 pub(super) fn record_alarms(
     tx: &Connection,
     config: &OutboxConfig,
-    office: bool,
+    to_office: bool,
     machine_id: i64,
     changes: &[AlarmChange],
 ) -> Result<(), StoreError> {
     for change in changes {
         let body = to_json(change)?;
-        if office {
+        if to_office {
             tx.prepare_cached(
                 "INSERT INTO outbox (destination, machine_id, kind, body, created_t) \
                  VALUES ('office', ?1, 'alarm', ?2, ?3)",
@@ -208,12 +232,20 @@ pub(super) fn record_machine(
 }
 
 /// An office: applies the acknowledgements of a forwarded write and moves
-/// the machine's mark to its sequence. Returns the alarms acknowledged.
+/// the machine's mark to its sequence, if the mark is still where the
+/// write expects it. Returns the alarms acknowledged.
 pub(super) fn apply_forwarded(
     tx: &rusqlite::Transaction,
     machine_id: i64,
     forwarded: &Forwarded,
 ) -> Result<Vec<AlarmChange>, StoreError> {
+    let stored: Option<i64> = tx
+        .prepare_cached("SELECT sequence FROM forward_marks WHERE machine_id = ?1")?
+        .query_row([machine_id], |row| row.get(0))
+        .optional()?;
+    if stored != forwarded.after {
+        return Err(mark_moved(machine_id, stored, forwarded.after));
+    }
     let mut changes = Vec::new();
     for ack in &forwarded.acks {
         let ids: Vec<i64> = tx
@@ -246,6 +278,19 @@ pub(super) fn apply_forwarded(
     }
     set_mark(tx, machine_id, forwarded.sequence)?;
     Ok(changes)
+}
+
+/// A forwarded write whose mark moved under it: it fails (the site sends
+/// it again; the machine's task is rebuilt from the store first).
+pub(crate) fn mark_moved(
+    machine_id: i64,
+    stored: Option<i64>,
+    expected: Option<i64>,
+) -> StoreError {
+    StoreError::Unavailable(format!(
+        "forwarded machine {machine_id}: its committed sequence is {stored:?}, not the {expected:?} \
+         this write follows (a write before it failed); the site sends it again"
+    ))
 }
 
 /// An office: a forwarded machine's mark is `sequence` (never lowered).
@@ -283,15 +328,17 @@ impl SqliteStore {
         })
     }
 
-    /// A site: the machines with rows owed to the office, (id, protocol id).
-    pub fn office_pending(&self) -> Result<Vec<(i64, String)>, StoreError> {
+    /// A site: the machines with rows owed to the office: (id, protocol
+    /// id, the last sequence the office answered committed).
+    pub fn office_pending(&self) -> Result<Vec<(i64, String, Option<i64>)>, StoreError> {
         self.read(|conn| {
             let mut stmt = conn.prepare_cached(
-                "SELECT m.id, m.machine FROM machines m WHERE EXISTS \
+                "SELECT m.id, m.machine, f.acked FROM machines m \
+                 LEFT JOIN forwarding f ON f.machine_id = m.id WHERE EXISTS \
                  (SELECT 1 FROM outbox o WHERE o.destination = 'office' AND o.machine_id = m.id) \
                  ORDER BY m.id",
             )?;
-            let rows = stmt.query_map([], |row| Ok((row.get(0)?, row.get(1)?)))?;
+            let rows = stmt.query_map([], |row| Ok((row.get(0)?, row.get(1)?, row.get(2)?)))?;
             Ok(rows.collect::<Result<_, _>>()?)
         })
     }
@@ -388,42 +435,99 @@ impl SqliteStore {
     }
 
     /// A site: the office has committed machine `machine_id`'s rows up to
-    /// `sequence`: they go.
+    /// `sequence`: they go, and the sequence is remembered (the next
+    /// request tells the office, which so finds a gap on its side).
     pub async fn office_sent(&self, machine_id: i64, sequence: i64) -> Result<(), StoreError> {
         self.maintain(move |conn| {
-            conn.prepare_cached(
+            let tx = conn.transaction()?;
+            tx.prepare_cached(
                 "DELETE FROM outbox WHERE destination = 'office' AND machine_id = ?1 AND id <= ?2",
             )?
             .execute(params![machine_id, sequence])?;
+            tx.prepare_cached(
+                "UPDATE forwarding SET acked = max(coalesce(acked, ?2), ?2) WHERE machine_id = ?1",
+            )?
+            .execute(params![machine_id, sequence])?;
+            tx.commit()?;
             Ok(())
         })
         .await
     }
 
-    /// A site starting to forward: each machine the office has not been
-    /// told of is declared to it with the state its engines stand in now
-    /// (call once the machines are restored: their snapshots then cover
-    /// every stored reading). Not forwarding: forgets which were told, so
-    /// forwarding again declares them afresh.
-    pub async fn forwarding(&self, on: bool) -> Result<(), StoreError> {
+    /// A site starting to forward to `office` as `site`: each machine the
+    /// office has not been told of is declared to it with the state its
+    /// engines stand in now (call once the machines are restored: their
+    /// snapshots then cover every stored reading), its rows still pending
+    /// from an earlier time of forwarding superseded. Another office or
+    /// site name than last time: every machine is declared afresh. The
+    /// sequence is raised to the wall clock in microseconds, so a site
+    /// whose database was made anew or restored sends sequences above any
+    /// the office has had from it.
+    pub async fn forward_to(&self, office: String, site: String) -> Result<(), StoreError> {
         self.maintain(move |conn| {
             let tx = conn.transaction()?;
-            if on {
-                let untold: Vec<(i64, String, String)> = tx
-                    .prepare(
-                        "SELECT m.id, m.spec, s.state FROM machines m JOIN snapshots s ON s.machine_id = m.id \
-                         WHERE m.id NOT IN (SELECT machine_id FROM forwarding) ORDER BY m.id",
-                    )?
-                    .query_map([], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)))?
-                    .collect::<Result<_, _>>()?;
-                for (machine_id, spec, state) in untold {
-                    record_machine(&tx, machine_id, &spec, &state)?;
+            let target: Option<(String, String)> = tx
+                .query_row("SELECT office, site FROM forward_target WHERE id = 1", [], |r| {
+                    Ok((r.get(0)?, r.get(1)?))
+                })
+                .optional()?;
+            if target.as_ref() != Some(&(office.clone(), site.clone())) {
+                if target.is_some() {
+                    tracing::warn!(%office, %site, "another office or site name than before: every machine is declared to it afresh");
                 }
-            } else {
                 tx.execute("DELETE FROM forwarding", [])?;
+                tx.execute(
+                    "INSERT INTO forward_target (id, office, site) VALUES (1, ?1, ?2) \
+                     ON CONFLICT (id) DO UPDATE SET office = ?1, site = ?2",
+                    params![office, site],
+                )?;
+            }
+            let floor = (wall_clock_s() * 1e6) as i64;
+            let raised = tx.execute(
+                "UPDATE sqlite_sequence SET seq = max(seq, ?1) WHERE name = 'outbox'",
+                [floor],
+            )?;
+            if raised == 0 {
+                tx.execute(
+                    "INSERT INTO sqlite_sequence (name, seq) VALUES ('outbox', ?1)",
+                    [floor],
+                )?;
+            }
+            let untold: Vec<(i64, String, String)> = tx
+                .prepare(
+                    "SELECT m.id, m.spec, s.state FROM machines m JOIN snapshots s ON s.machine_id = m.id \
+                     WHERE m.id NOT IN (SELECT machine_id FROM forwarding) ORDER BY m.id",
+                )?
+                .query_map([], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)))?
+                .collect::<Result<_, _>>()?;
+            for (machine_id, spec, state) in untold {
+                let superseded = tx.execute(
+                    "DELETE FROM outbox WHERE destination = 'office' AND machine_id = ?1",
+                    [machine_id],
+                )?;
+                if superseded > 0 {
+                    tracing::warn!(machine_id, superseded, "rows from an earlier forwarding superseded by the declaration with the engines' state now");
+                }
+                record_machine(&tx, machine_id, &spec, &state)?;
             }
             tx.commit()?;
             Ok(())
+        })
+        .await
+    }
+
+    /// A site not forwarding (any more): forgets the office and which
+    /// machines it was told of, and drops the rows still owed to it
+    /// (forwarding again declares every machine afresh, with the state of
+    /// then). Returns how many rows were dropped.
+    pub async fn forward_off(&self) -> Result<usize, StoreError> {
+        self.maintain(move |conn| {
+            let tx = conn.transaction()?;
+            let dropped = tx.execute("DELETE FROM outbox WHERE destination = 'office'", [])?;
+            tx.execute("DELETE FROM forwarding", [])?;
+            tx.execute("DELETE FROM forward_target", [])?;
+            tx.commit()?;
+            Ok(dropped)
         })
         .await
     }
@@ -535,4 +639,205 @@ fn readings_between(
         readings.push(super::queries::reading_row(row)?);
     }
     Ok(readings)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::MachineDeclaration;
+    use crate::store::alarms::AlarmRow;
+    use crate::store::{ReadingRow, Store, Write, WriteOutcome};
+    use tokio::sync::oneshot;
+
+    fn spec(id: &str) -> crate::config::MachineSpec {
+        serde_json::from_value::<MachineDeclaration>(
+            serde_json::json!({"engines": {"attitude": {}}}),
+        )
+        .unwrap()
+        .validate(id)
+        .unwrap()
+    }
+
+    fn readings(from_t: f64, count: usize) -> Vec<ReadingRow> {
+        (0..count)
+            .map(|i| {
+                ReadingRow::new(&Reading {
+                    t: from_t + i as f64,
+                    data: crate::fusion::SensorData::Level { height_m: 1.0 },
+                })
+            })
+            .collect()
+    }
+
+    async fn write(
+        store: &Store,
+        machine_id: i64,
+        readings: Vec<ReadingRow>,
+        alarms: Vec<AlarmRow>,
+        forwarded: Option<Forwarded>,
+    ) -> Result<WriteOutcome, StoreError> {
+        let (reply, answer) = oneshot::channel();
+        store
+            .write(Write {
+                machine_id,
+                readings,
+                estimates: Vec::new(),
+                alarms,
+                snapshot: None,
+                after_commit: None,
+                reply: Some(reply),
+                lease_epoch: None,
+                forwarded,
+            })
+            .await
+            .unwrap();
+        answer.await.unwrap()
+    }
+
+    fn stale(raised: bool, t: f64) -> AlarmRow {
+        AlarmRow {
+            kind: "stale_sensor",
+            severity: "alarm",
+            subject: "level".into(),
+            raised,
+            t,
+            message: "silent".into(),
+        }
+    }
+
+    #[tokio::test]
+    async fn a_site_owes_its_office_only_what_it_stored_after_telling_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let forward = OutboxConfig {
+            forward: true,
+            ..Default::default()
+        };
+        let store = Store::open_with(dir.path(), None, forward).unwrap();
+        let site = store.sqlite().unwrap().clone();
+        // Declared: the declaration is owed, then a batch of 25 000
+        // readings goes in three rows (10 000, 10 000, 5 000).
+        let id = store
+            .put_machine(spec("m1"), "state-0".into())
+            .await
+            .unwrap();
+        write(&store, id, readings(0.0, 25_000), Vec::new(), None)
+            .await
+            .unwrap();
+        let entries = site.office_entries(id, u64::MAX).unwrap();
+        let kinds: Vec<(String, usize)> = entries
+            .iter()
+            .map(|e| match &e.item {
+                OfficeItem::Machine(d) => (format!("machine {}", d.snapshot), 0),
+                OfficeItem::Readings(r) => ("readings".into(), r.len()),
+                OfficeItem::Alarm(_) => ("alarm".into(), 0),
+            })
+            .collect();
+        assert_eq!(
+            kinds,
+            [
+                ("machine state-0".to_string(), 0),
+                ("readings".into(), 10_000),
+                ("readings".into(), 10_000),
+                ("readings".into(), 5_000)
+            ]
+        );
+        assert!(entries.windows(2).all(|w| w[0].sequence < w[1].sequence));
+        let backlog = site.office_backlog().unwrap();
+        assert_eq!((backlog.items, backlog.readings), (4, 25_000));
+        // At most 12 000 readings a request: the declaration and one row
+        // (a second would pass it).
+        assert_eq!(site.office_entries(id, 12_000).unwrap().len(), 2);
+        // Sent up to the first readings row: the rest stays, and the
+        // acknowledged sequence is remembered.
+        site.office_sent(id, entries[1].sequence).await.unwrap();
+        assert_eq!(site.office_entries(id, u64::MAX).unwrap().len(), 2);
+        assert_eq!(
+            site.office_pending().unwrap(),
+            [(id, "m1".to_string(), Some(entries[1].sequence))]
+        );
+
+        // Not forwarding any more: what was owed is dropped, and the
+        // machine is untold; alarm changes are then not recorded for the
+        // office...
+        assert_eq!(site.forward_off().await.unwrap(), 2);
+        drop(site);
+        store.close().await;
+        drop(store);
+        let store = Store::open_with(dir.path(), None, forward).unwrap();
+        let site = store.sqlite().unwrap().clone();
+        write(&store, id, Vec::new(), vec![stale(true, 5.0)], None)
+            .await
+            .unwrap();
+        assert!(site.office_pending().unwrap().is_empty());
+        // ... until forwarding starts again: the machine is declared
+        // afresh with its state, above every earlier sequence (the wall
+        // clock in microseconds), and later changes follow it.
+        site.forward_to("http://office:8080".into(), "north".into())
+            .await
+            .unwrap();
+        write(&store, id, Vec::new(), vec![stale(false, 9.0)], None)
+            .await
+            .unwrap();
+        let entries = site.office_entries(id, u64::MAX).unwrap();
+        assert!(matches!(&entries[0].item, OfficeItem::Machine(d) if d.snapshot == "state-0"));
+        assert!(
+            matches!(&entries[1].item, OfficeItem::Alarm(c) if c.transition == Change::Cleared)
+        );
+        assert_eq!(entries.len(), 2);
+        assert!(entries[0].sequence as f64 >= (wall_clock_s() - 60.0) * 1e6);
+        store.close().await;
+    }
+
+    #[tokio::test]
+    async fn an_office_commits_a_forwarded_write_only_after_the_mark_it_follows() {
+        let dir = tempfile::tempdir().unwrap();
+        let store = Store::open(dir.path()).unwrap();
+        let id = store
+            .put_forwarded_machine(spec("m1"), "state".into(), 10)
+            .await
+            .unwrap();
+        assert_eq!(store.forward_mark(id).unwrap(), Some(10));
+        let forwarded = |after, sequence| {
+            Some(Forwarded {
+                after,
+                sequence,
+                acks: Vec::new(),
+            })
+        };
+        // Following 10: committed, the mark at 12.
+        let stored = write(
+            &store,
+            id,
+            readings(0.0, 3),
+            Vec::new(),
+            forwarded(Some(10), 12),
+        )
+        .await
+        .unwrap();
+        assert_eq!(stored.stored, 3);
+        assert_eq!(store.forward_mark(id).unwrap(), Some(12));
+        // A write that follows 11 (one before it failed): refused whole.
+        let refused = write(
+            &store,
+            id,
+            readings(10.0, 2),
+            Vec::new(),
+            forwarded(Some(11), 14),
+        )
+        .await;
+        assert!(
+            matches!(refused, Err(StoreError::Unavailable(_))),
+            "{refused:?}"
+        );
+        assert_eq!(store.forward_mark(id).unwrap(), Some(12));
+        let mut count = 0;
+        store
+            .readings_since(id, 0, |_| {
+                count += 1;
+                Ok(())
+            })
+            .unwrap();
+        assert_eq!(count, 3);
+        store.close().await;
+    }
 }

@@ -132,9 +132,18 @@ const MIGRATIONS: &[&str] = &[
     );
     CREATE INDEX outbox_by_machine ON outbox(destination, machine_id, id);
     CREATE INDEX outbox_by_kind ON outbox(destination, kind, id);
-    -- A site: the machines whose declaration has gone into the outbox.
+    -- A site: the machines whose declaration has gone into the outbox,
+    -- and the last sequence of each the office has answered committed.
     CREATE TABLE forwarding (
-        machine_id INTEGER PRIMARY KEY REFERENCES machines(id)
+        machine_id INTEGER PRIMARY KEY REFERENCES machines(id),
+        acked INTEGER
+    );
+    -- A site: the office and the name it forwards to and as (another
+    -- means declaring every machine afresh).
+    CREATE TABLE forward_target (
+        id INTEGER PRIMARY KEY CHECK (id = 1),
+        office TEXT NOT NULL,
+        site TEXT NOT NULL
     );
     -- An office: per forwarded machine, the last sequence its site sent
     -- that is committed here.

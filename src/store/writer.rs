@@ -239,8 +239,9 @@ fn apply_write(
 ) -> Result<(WriteOutcome, Vec<super::alarms::AlarmChange>), StoreError> {
     let mut outcome = WriteOutcome::default();
     let machine_id = write.machine_id;
-    // A site owes its office what it stores; an office forwards nothing on.
-    let to_office = outbox.office && write.forwarded.is_none();
+    // A site owes its office what it stores of the machines it has told
+    // it of; an office forwards nothing on.
+    let to_office = outbox.forward && write.forwarded.is_none() && outbox::told(tx, machine_id)?;
     let before = if to_office && !write.readings.is_empty() {
         outbox::last_reading_id(tx)?
     } else {
@@ -386,7 +387,7 @@ fn apply_put_machine(
     save_snapshot(tx, id, snapshot)?;
     match forwarded {
         Some(sequence) => outbox::set_mark(tx, id, sequence)?,
-        None if outbox.office => outbox::record_machine(tx, id, &json, snapshot)?,
+        None if outbox.forward => outbox::record_machine(tx, id, &json, snapshot)?,
         None => {}
     }
     Ok(id)

@@ -113,7 +113,7 @@ const MIGRATIONS: &[&str] = &[
     CREATE INDEX leases_by_node ON leases (node);
     ",
     // 3: an office's record of what each site sent (as in SQLite's 5),
-    // alarm changes owed to webhooks, tokens for sites.
+    // tokens for sites.
     "
     -- Per forwarded machine, the last sequence its site sent that is
     -- committed here.
@@ -129,18 +129,6 @@ const MIGRATIONS: &[&str] = &[
         backlog_readings bigint NOT NULL,
         oldest_unsent_t double precision
     );
-    -- Alarm changes owed to a webhook: `kind` the severity, `node` the
-    -- node that made them (and posts them).
-    CREATE TABLE outbox (
-        id bigserial PRIMARY KEY,
-        destination text NOT NULL CHECK (destination IN ('webhook')),
-        machine_id bigint NOT NULL REFERENCES machines(id),
-        kind text NOT NULL,
-        node text NOT NULL,
-        body text NOT NULL,
-        created_t double precision NOT NULL
-    );
-    CREATE INDEX outbox_by_kind ON outbox (destination, node, kind, id);
     ALTER TABLE tokens DROP CONSTRAINT tokens_scope_check;
     ALTER TABLE tokens ADD CONSTRAINT tokens_scope_check
         CHECK (scope IN ('ingest', 'read', 'admin', 'site'));

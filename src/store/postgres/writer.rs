@@ -530,13 +530,27 @@ async fn apply_alarms(
 }
 
 /// An office: applies a forwarded write's acknowledgements (by the
-/// alarm's natural key) and moves the machine's mark, as
-/// `store/outbox.rs` does.
+/// alarm's natural key) and moves the machine's mark if it is still where
+/// the write expects it, as `store/outbox.rs` does.
 async fn apply_forwarded(
     tx: &Transaction<'_>,
     machine_id: i64,
     forwarded: &Forwarded,
 ) -> Result<Vec<AlarmChange>, StoreError> {
+    let stored: Option<i64> = tx
+        .query_opt(
+            "SELECT sequence FROM forward_marks WHERE machine_id = $1 FOR UPDATE",
+            &[&machine_id],
+        )
+        .await?
+        .map(|row| row.get(0));
+    if stored != forwarded.after {
+        return Err(crate::store::outbox::mark_moved(
+            machine_id,
+            stored,
+            forwarded.after,
+        ));
+    }
     let mut changed = Vec::new();
     for ack in &forwarded.acks {
         let ids = tx
