@@ -25,7 +25,7 @@ pub const MAX_READINGS_PER_REQUEST: u64 = 20_000;
 const IDLE: Duration = Duration::from_millis(100);
 /// First and longest wait after a failed request.
 const FIRST_RETRY: Duration = Duration::from_millis(250);
-const MAX_RETRY: Duration = Duration::from_secs(5);
+const MAX_RETRY: Duration = Duration::from_secs(2);
 /// Longest one request may take (a dead line swallows it unanswered).
 const REQUEST_TIMEOUT: Duration = Duration::from_secs(15);
 /// Longest a connection may take to open.
@@ -196,10 +196,13 @@ async fn round(
             continue;
         }
         let max_readings = link.max_readings;
+        let read_at = Instant::now();
         let entries = blocking(store, move |s| s.office_entries(machine_id, max_readings)).await?;
+        let read_s = read_at.elapsed().as_secs_f64();
         let Some(last) = entries.last().map(|e| e.sequence) else {
             continue;
         };
+        let sent_at = Instant::now();
         let applied = match send(client, office, options, &machine, acked, &entries).await {
             Ok(applied) => applied,
             Err(failure) if failure.status == Some(reqwest::StatusCode::PAYLOAD_TOO_LARGE) => {
@@ -224,8 +227,13 @@ async fn round(
         if sent <= 0 || acked.is_some_and(|acked| sent <= acked) {
             continue;
         }
+        let send_s = sent_at.elapsed().as_secs_f64();
+        let deleted_at = Instant::now();
         match store.office_sent(machine_id, sent).await {
-            Ok(()) => more = true,
+            Ok(()) => {
+                more = true;
+                tracing::debug!(%machine, rows = entries.len(), read_s, send_s, delete_s = deleted_at.elapsed().as_secs_f64(), "forwarded");
+            }
             Err(StoreError::Closed) => return Err(Halt::Stop),
             Err(e) => {
                 tracing::warn!(error = %e, "sent rows not deleted; sent again (the office keeps them once)");
