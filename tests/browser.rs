@@ -1393,3 +1393,90 @@ async fn the_api_docs_page_draws_every_operation_and_tries_one() {
     browser.close().await.unwrap();
     server.stop().await;
 }
+
+/// An office's fleet page (issue 38): its own machines, then each site's
+/// under the site's link, which goes down when the site falls silent.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_office_fleet_page_shows_each_sites_machines_under_its_link() {
+    let Some((driver_program, chromium)) = browser_programs() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let server = common::TestServer::start(dir.path()).await;
+    let client = reqwest::Client::new();
+    let base = server.url("");
+    common::put_machine(&client, &base, "own-tbm").await;
+    // Site `north` forwards its machine `tbm`: the declaration with its
+    // engines' state, then readings.
+    let spec = serde_json::from_value::<tunnelnav::config::MachineDeclaration>(
+        json!({"name": "North TBM", "engines": {"attitude": {}}}),
+    )
+    .unwrap()
+    .validate("tbm")
+    .unwrap();
+    let snapshot = tunnelnav::machine::MachineCore::new(&spec)
+        .unwrap()
+        .snapshot();
+    let now = tunnelnav::clock::wall_clock_s().floor();
+    let readings: Vec<Value> = (0..20)
+        .map(|i| json!({"t": now - 20.0 + f64::from(i), "sensor": "inclinometer", "pitch_deg": 0.1, "roll_deg": 0.2}))
+        .collect();
+    let forwarded = json!({"site": "north", "after": null, "items": [
+        {"sequence": 1, "machine": {"spec": spec, "snapshot": snapshot}},
+        {"sequence": 2, "readings": readings}
+    ]});
+    let answer = client
+        .post(format!("{base}/api/v1/machines/north.tbm/forward"))
+        .header("content-type", "application/json")
+        .body(forwarded.to_string())
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(answer.status(), 200);
+    let answer: Value = serde_json::from_slice(&answer.bytes().await.unwrap()).unwrap();
+    assert_eq!(answer["applied"], 2);
+    let report = json!({"backlog_items": 3, "backlog_readings": 1500, "oldest_unsent_s": 42.0});
+    let reported = client
+        .put(format!("{base}/api/v1/sites/north"))
+        .header("content-type", "application/json")
+        .body(report.to_string())
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(reported.status(), 200);
+
+    let driver = Driver::start(&driver_program);
+    let browser = connect(&driver, chromium.as_deref()).await;
+    browser
+        .goto(&format!("{base}/"))
+        .await
+        .expect("fleet loads");
+    wait_for(
+        &browser,
+        "the site's group under its link",
+        "const group = document.querySelector('.site-group[data-site=\"north\"]'); \
+         if (!group) return false; \
+         const link = group.querySelector('[data-site-field=link]').textContent; \
+         const backlog = group.querySelector('[data-site-field=backlog]').textContent; \
+         const own = document.querySelector('.site-group:not([data-site]) .machine-card'); \
+         return link === 'link up' && /1,500 readings unsent, oldest/.test(backlog) \
+           && !!group.querySelector('.machine-card[data-machine=\"north.tbm\"]') \
+           && !!own && own.dataset.machine === 'own-tbm' \
+           && /\\d/.test(group.querySelector('.machine-card [data-field=sensors]').textContent);",
+        10,
+    )
+    .await;
+    save_screenshot(&browser, "browser-office-fleet.png").await;
+    // The site falls silent: after 10 s the page says its link is down.
+    wait_for(
+        &browser,
+        "the site's link down",
+        "const link = document.querySelector('.site-group[data-site=\"north\"] [data-site-field=link]'); \
+         return link.textContent === 'LINK DOWN' && link.classList.contains('bad');",
+        20,
+    )
+    .await;
+    assert_clean_console(&browser).await;
+    browser.close().await.unwrap();
+    server.stop().await;
+}

@@ -679,3 +679,122 @@ async fn a_site_forwards_to_an_office_on_postgres() {
     site.kill();
     office.kill();
 }
+
+/// An office raises `site_link` on a site's machines once the site has
+/// been silent longer than `[sites] backlog_alarm_s`, shows the link down
+/// in `/api/v1/sites` and its metrics, and clears the alarm once the site
+/// has caught up.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_silent_site_raises_site_link_at_the_office_until_it_has_caught_up() {
+    let client = reqwest::Client::new();
+    let office_dir = tempfile::tempdir().unwrap();
+    let config = office_dir.path().join("office.toml");
+    std::fs::write(&config, "[sites]\nbacklog_alarm_s = 10\n").unwrap();
+    let office = ServerProcess::start_with_args(
+        &office_dir.path().join("data"),
+        &["--config", config.to_str().unwrap()],
+    );
+    let office_base = office.url("");
+    let site = Site {
+        name: "quiet".into(),
+        dir: tempfile::tempdir().unwrap(),
+        relay: Relay::start(office.address).await,
+        process: Mutex::new(None),
+        base: Arc::default(),
+    };
+    site.start();
+    declare_machine(
+        &client,
+        &site.base(),
+        "tbm",
+        r#"{"engines": {"attitude": {}}}"#,
+    )
+    .await;
+    let lines = drive(0.5, 5, vec![]);
+    let (before, during) = lines.split_at(lines.len() / 2);
+    send_ndjson(&client, &site.base(), "tbm", before)
+        .await
+        .unwrap();
+    // Wait for `predicate` on the office's answer to `path`, up to `s`.
+    let wait_for = |path: &'static str, s: u64, predicate: fn(&serde_json::Value) -> bool| {
+        let (client, base) = (client.clone(), office_base.clone());
+        async move {
+            let deadline = Instant::now() + Duration::from_secs(s);
+            loop {
+                let body = common::get_json(&client, &base, path).await;
+                if predicate(&body) {
+                    return body;
+                }
+                if Instant::now() >= deadline {
+                    let sites = common::get_json(&client, &base, "/api/v1/sites").await;
+                    panic!("{path}: {body}; sites: {sites}");
+                }
+                tokio::time::sleep(Duration::from_millis(250)).await;
+            }
+        }
+    };
+    wait_for("/api/v1/sites", 20, |b| b["sites"][0]["connected"] == true).await;
+    // The office has the machine (its declaration and first readings).
+    wait_for("/api/v1/machines?site=quiet", 20, |b| {
+        b["machines"][0]["machine"] == "quiet.tbm"
+    })
+    .await;
+    // The line goes; the site keeps taking readings.
+    site.relay.set(Cut::Refuse);
+    let cut_at = Instant::now();
+    send_ndjson(&client, &site.base(), "tbm", during)
+        .await
+        .unwrap();
+    let raised = wait_for("/api/v1/alarms?site=quiet", 40, |b| {
+        b["alarms"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|a| a["kind"] == "site_link" && a["machine"] == "quiet.tbm")
+    })
+    .await;
+    let silent_s = cut_at.elapsed().as_secs_f64();
+    // Silent 10 s since its last contact, at most 2 s before the cut.
+    assert!(silent_s > 7.5, "raised after {silent_s:.1} s: {raised}");
+    let alarm = &raised["alarms"][0];
+    assert_eq!(
+        (alarm["severity"].as_str(), alarm["subject"].as_str()),
+        (Some("alarm"), Some("quiet"))
+    );
+    let sites = common::get_json(&client, &office_base, "/api/v1/sites").await;
+    assert_eq!(sites["sites"][0]["connected"], false, "{sites}");
+    assert_eq!(sites["sites"][0]["alarm"], true, "{sites}");
+    let metrics = common::get_text(&client, &office_base, "/metrics").await;
+    assert!(
+        metrics.contains(r#"tunnelnav_forward_connected{site="quiet"} 0"#),
+        "{metrics}"
+    );
+    // The line is back: the site catches up, the alarm clears.
+    site.relay.set(Cut::No);
+    wait_for("/api/v1/alarms?site=quiet", 40, |b| {
+        b["alarms"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|a| a["kind"] != "site_link")
+    })
+    .await;
+    let all = common::get_json(&client, &office_base, "/api/v1/alarms?site=quiet&state=all").await;
+    let cleared = all["alarms"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|a| a["kind"] == "site_link")
+        .unwrap()
+        .clone();
+    assert!(cleared["cleared_t"].as_f64().unwrap() > cleared["raised_t"].as_f64().unwrap());
+    let here = common::exported_readings(&client, &site.base(), "tbm").await;
+    let there = common::exported_readings(&client, &office_base, "quiet.tbm").await;
+    assert_eq!(here, there);
+    let metrics = common::get_text(&client, &office_base, "/metrics").await;
+    assert!(
+        metrics.contains(r#"tunnelnav_forward_connected{site="quiet"} 1"#),
+        "{metrics}"
+    );
+    site.kill();
+}
