@@ -377,6 +377,23 @@ async fn webhooks_get_each_transition_once_per_severity_retried_after_a_500() {
 /// memory.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_webhook_pending_at_sigkill_is_delivered_once_after_the_restart() {
+    pending_at_sigkill(&[]).await;
+}
+
+/// The same on the PostgreSQL store: the node that made the change posts
+/// it once it runs again under its name.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_webhook_pending_at_sigkill_on_postgres_is_delivered_once_after_the_restart() {
+    let Some(cluster) = common::postgres::PgCluster::start() else {
+        return;
+    };
+    let url = cluster.database("hooks");
+    pending_at_sigkill(&["--store", &url, "--node", "hooks-1"]).await;
+}
+
+/// A webhook change pending when a server started with `args` is
+/// SIGKILLed is posted once after the restart, with its key.
+async fn pending_at_sigkill(args: &[&str]) {
     // Down until the server has been killed.
     let (hooks, seen, receiving) = receiver(0).await;
     seen.lock().unwrap().down = true;
@@ -389,7 +406,9 @@ async fn a_webhook_pending_at_sigkill_is_delivered_once_after_the_restart() {
     .unwrap();
     let config = config.to_str().unwrap().to_string();
     let data = dir.path().join("data");
-    let server = common::ServerProcess::start_with_args(&data, &["--config", &config]);
+    let mut with_config = vec!["--config", config.as_str()];
+    with_config.extend_from_slice(args);
+    let server = common::ServerProcess::start_with_args(&data, &with_config);
     let client = reqwest::Client::new();
     let base = server.url("");
     declare_machine(&client, &base, "tbm-outbox", &declaration().to_string()).await;
@@ -410,7 +429,7 @@ async fn a_webhook_pending_at_sigkill_is_delivered_once_after_the_restart() {
     assert!(seen.lock().unwrap().requests.is_empty());
     // The receiver is back; so is the server.
     seen.lock().unwrap().down = false;
-    let server = common::ServerProcess::start_with_args(&data, &["--config", &config]);
+    let server = common::ServerProcess::start_with_args(&data, &with_config);
     let base = server.url("");
     for _ in 0..100 {
         if !seen.lock().unwrap().requests.is_empty() {

@@ -637,7 +637,12 @@ async fn both_stores_take_large_batches_alike() {
         password_file: None,
         ca_file: None,
     };
-    let postgres = large_batches(Store::open_postgres(&location).await.unwrap()).await;
+    let postgres = large_batches(
+        Store::open_postgres(&location, Default::default())
+            .await
+            .unwrap(),
+    )
+    .await;
     assert_eq!(postgres, sqlite);
 }
 
@@ -653,7 +658,12 @@ async fn both_stores_keep_alike() {
         password_file: None,
         ca_file: None,
     };
-    let postgres = retention(Store::open_postgres(&location).await.unwrap()).await;
+    let postgres = retention(
+        Store::open_postgres(&location, Default::default())
+            .await
+            .unwrap(),
+    )
+    .await;
     assert_eq!(postgres, sqlite);
 }
 
@@ -671,7 +681,12 @@ async fn both_stores_answer_alike() {
         password_file: None,
         ca_file: None,
     };
-    let postgres = conformance(async || Store::open_postgres(&location).await.unwrap()).await;
+    let postgres = conformance(async || {
+        Store::open_postgres(&location, Default::default())
+            .await
+            .unwrap()
+    })
+    .await;
     assert_eq!(postgres, sqlite);
 }
 
@@ -701,14 +716,16 @@ async fn postgres_refuses_a_newer_schema_and_reports_a_refused_connection_as_tra
 
     // The database goes away under a running store and comes back: writes
     // in between fail as transient (503), later ones go in.
-    let store = Store::open_postgres(&location).await;
+    let store = Store::open_postgres(&location, Default::default()).await;
     assert!(matches!(store, Err(StoreError::NewerSchema { .. })));
     client
         .execute("UPDATE tunnelnav_schema SET version = version - 1", &[])
         .await
         .unwrap();
     drop(client);
-    let store = Store::open_postgres(&location).await.unwrap();
+    let store = Store::open_postgres(&location, Default::default())
+        .await
+        .unwrap();
     let id = store
         .put_machine(spec("tbm-gone"), "fresh".into())
         .await
@@ -799,7 +816,7 @@ async fn postgres_over_tls_checks_the_servers_certificate() {
         ca_file,
     };
     let tls = format!("{plain}?sslmode=require");
-    let store = Store::open_postgres(&location(&tls, Some(ca_file.clone())))
+    let store = Store::open_postgres(&location(&tls, Some(ca_file.clone())), Default::default())
         .await
         .unwrap();
     let id = store
@@ -810,13 +827,15 @@ async fn postgres_over_tls_checks_the_servers_certificate() {
     assert_eq!(outcome.stored, 1);
     store.close().await;
 
-    let refused = Store::open_postgres(&location(&tls, None))
+    let refused = Store::open_postgres(&location(&tls, None), Default::default())
         .await
         .err()
         .unwrap();
     assert!(refused.to_string().contains("certificate"), "{refused}");
     // Plain as before when the URL does not ask for TLS.
-    let store = Store::open_postgres(&location(&plain, None)).await.unwrap();
+    let store = Store::open_postgres(&location(&plain, None), Default::default())
+        .await
+        .unwrap();
     let machines = read(&store, |s| s.machines()).await;
     assert_eq!(machines.len(), 1);
     store.close().await;

@@ -5,16 +5,17 @@
 //! each (a transition recomputed after a restart is not stored again, so
 //! not notified again).
 //!
-//! On SQLite a change owed to a webhook is in the store's outbox, written
-//! in the commit that made it: the URL's task posts what the outbox holds
-//! and deletes it once answered (or given up), so a change not yet posted
+//! A change owed to a webhook is in the store's outbox, written in the
+//! commit that made it: the URL's task posts what the outbox holds and
+//! deletes it once answered (or given up), so a change not yet posted
 //! when the server stops or is killed is posted after the restart, with
-//! the same idempotency key. On PostgreSQL the changes wait in memory.
+//! the same idempotency key (on PostgreSQL by the node that made it, once
+//! it runs again under its name).
 
 use std::sync::Arc;
 use std::time::Duration;
 
-use tokio::sync::{broadcast, mpsc};
+use tokio::sync::broadcast;
 
 use super::settings::WebhookConfig;
 use crate::machine::AlarmSink;
@@ -23,9 +24,6 @@ use crate::store::alarms::AlarmChange;
 /// Alarm changes a live client may fall behind by before it is told to
 /// fetch the list again.
 pub const ALARM_BUFFER: usize = 1024;
-/// Changes waiting for one webhook URL; beyond (a receiver down for long
-/// while alarms keep changing), new changes are dropped and logged.
-pub const WEBHOOK_QUEUE: usize = 1000;
 
 /// Hands stored alarm changes to live clients and webhooks.
 #[derive(Clone)]
@@ -33,23 +31,15 @@ pub struct AlarmNotifier {
     live: broadcast::Sender<Arc<AlarmChange>>,
     /// The changes this node made (not those relayed from other nodes).
     own: broadcast::Sender<Arc<AlarmChange>>,
-    warn: Option<(String, Delivery)>,
-    alarm: Option<(String, Delivery)>,
-}
-
-/// How a webhook URL's task gets its changes.
-#[derive(Clone)]
-enum Delivery {
-    /// Queued in memory.
-    Memory(mpsc::Sender<Arc<AlarmChange>>),
-    /// From the store's outbox; woken when a change is committed.
-    Outbox(Arc<tokio::sync::Notify>),
+    /// Wakes the task of the URL of `warn` (`alarm`) changes when one is
+    /// committed.
+    warn: Option<Arc<tokio::sync::Notify>>,
+    alarm: Option<Arc<tokio::sync::Notify>>,
 }
 
 impl AlarmNotifier {
-    /// A notifier; starts one delivery task per configured webhook URL
-    /// (call within a tokio runtime), posting from `store`'s outbox when
-    /// it is SQLite.
+    /// A notifier; starts one delivery task per configured webhook URL,
+    /// posting from `store`'s outbox (call within a tokio runtime).
     pub fn start(webhooks: &WebhookConfig, store: &crate::store::Store) -> AlarmNotifier {
         let (live, _) = broadcast::channel(ALARM_BUFFER);
         let client = reqwest::Client::builder()
@@ -59,21 +49,16 @@ impl AlarmNotifier {
             .ok();
         let spawn = |url: &Option<String>, severity: &'static str| {
             let (url, client) = (url.clone()?, client.clone()?);
-            if let Some(sqlite) = store.sqlite() {
-                let wake = Arc::new(tokio::sync::Notify::new());
-                tokio::spawn(deliver_outbox(
-                    client,
-                    url.clone(),
-                    webhooks.clone(),
-                    sqlite.clone(),
-                    severity,
-                    wake.clone(),
-                ));
-                return Some((url, Delivery::Outbox(wake)));
-            }
-            let (queue, changes) = mpsc::channel(WEBHOOK_QUEUE);
-            tokio::spawn(deliver(client, url.clone(), webhooks.clone(), changes));
-            Some((url, Delivery::Memory(queue)))
+            let wake = Arc::new(tokio::sync::Notify::new());
+            tokio::spawn(deliver(
+                client,
+                url,
+                webhooks.clone(),
+                store.clone(),
+                severity,
+                wake.clone(),
+            ));
+            Some(wake)
         };
         AlarmNotifier {
             warn: spawn(&webhooks.warn, "warn"),
@@ -112,15 +97,8 @@ impl AlarmSink for AlarmNotifier {
                 "alarm" => &self.alarm,
                 _ => &self.warn,
             };
-            match webhook {
-                Some((url, Delivery::Memory(queue))) if queue.try_send(change.clone()).is_err() => {
-                    tracing::error!(
-                        %url, alarm = change.alarm.id, pending = WEBHOOK_QUEUE,
-                        "webhook queue full (the receiver has not answered for long): change not posted"
-                    );
-                }
-                Some((_, Delivery::Outbox(wake))) => wake.notify_one(),
-                _ => {}
+            if let Some(wake) = webhook {
+                wake.notify_one();
             }
             // No live client is fine.
             let _ = self.own.send(change.clone());
@@ -129,30 +107,14 @@ impl AlarmSink for AlarmNotifier {
     }
 }
 
-/// Posts each change to `url` in order: until a 2xx answer or
-/// `config.attempts` attempts, waiting [`WebhookConfig::backoff`] between
-/// them; a 4xx other than 408/429 is not retried (the receiver refuses
-/// it). Each body carries `Idempotency-Key: alarm-{id}-{transition}`, so a
-/// receiver can drop the copy an answer lost on the way back would cause.
+/// Posts what the outbox owes the webhook of `severity`, oldest first,
+/// deleting each once answered or given up; waits for `wake` (or a
+/// second) when nothing is owed.
 async fn deliver(
     client: reqwest::Client,
     url: String,
     config: WebhookConfig,
-    mut changes: mpsc::Receiver<Arc<AlarmChange>>,
-) {
-    while let Some(change) = changes.recv().await {
-        post(&client, &url, &config, &change).await;
-    }
-}
-
-/// Posts what the outbox owes the webhook of `severity`, oldest first,
-/// deleting each once answered or given up; waits for `wake` (or a
-/// second) when nothing is owed.
-async fn deliver_outbox(
-    client: reqwest::Client,
-    url: String,
-    config: WebhookConfig,
-    store: crate::store::SqliteStore,
+    store: crate::store::Store,
     severity: &'static str,
     wake: Arc<tokio::sync::Notify>,
 ) {
@@ -186,54 +148,55 @@ async fn deliver_outbox(
     }
 }
 
-/// Posts one change to `url`: until a 2xx answer or `config.attempts`
-/// attempts (see [`deliver`]).
+/// Posts one change to `url`: until a 2xx answer or
+/// `config.attempts` attempts, waiting [`WebhookConfig::backoff`] between
+/// them; a 4xx other than 408/429 is not retried (the receiver refuses
+/// it). Each body carries `Idempotency-Key: alarm-{id}-{transition}`, so a
+/// receiver can drop the copy an answer lost on the way back would cause.
 async fn post(client: &reqwest::Client, url: &str, config: &WebhookConfig, change: &AlarmChange) {
-    {
-        let body = match serde_json::to_vec(change) {
-            Ok(body) => body,
-            Err(e) => {
-                tracing::error!(error = %e, "alarm change not serialisable");
-                return;
-            }
-        };
-        let key = format!(
-            "alarm-{}-{}",
-            change.alarm.id,
-            serde_json::to_value(change.transition)
-                .ok()
-                .and_then(|v| v.as_str().map(str::to_owned))
-                .unwrap_or_default()
-        );
-        for attempt in 1..=config.attempts {
-            let sent = client
-                .post(url)
-                .header(reqwest::header::CONTENT_TYPE, "application/json")
-                .header("Idempotency-Key", &key)
-                .body(body.clone())
-                .send()
-                .await;
-            let (retry, why) = match sent {
-                Ok(answer) if answer.status().is_success() => {
-                    tracing::info!(%url, key, attempt, "alarm webhook delivered");
-                    break;
-                }
-                Ok(answer) => {
-                    let status = answer.status();
-                    let retry = status.is_server_error()
-                        || status == reqwest::StatusCode::REQUEST_TIMEOUT
-                        || status == reqwest::StatusCode::TOO_MANY_REQUESTS;
-                    (retry, format!("answered {status}"))
-                }
-                Err(e) => (true, e.to_string()),
-            };
-            if !retry || attempt == config.attempts {
-                tracing::error!(%url, key, attempt, reason = %why, "alarm webhook given up");
+    let body = match serde_json::to_vec(change) {
+        Ok(body) => body,
+        Err(e) => {
+            tracing::error!(error = %e, "alarm change not serialisable");
+            return;
+        }
+    };
+    let key = format!(
+        "alarm-{}-{}",
+        change.alarm.id,
+        serde_json::to_value(change.transition)
+            .ok()
+            .and_then(|v| v.as_str().map(str::to_owned))
+            .unwrap_or_default()
+    );
+    for attempt in 1..=config.attempts {
+        let sent = client
+            .post(url)
+            .header(reqwest::header::CONTENT_TYPE, "application/json")
+            .header("Idempotency-Key", &key)
+            .body(body.clone())
+            .send()
+            .await;
+        let (retry, why) = match sent {
+            Ok(answer) if answer.status().is_success() => {
+                tracing::info!(%url, key, attempt, "alarm webhook delivered");
                 break;
             }
-            let wait = config.backoff(attempt);
-            tracing::warn!(%url, key, attempt, reason = %why, retry_in_s = wait.as_secs_f64(), "alarm webhook failed; retrying");
-            tokio::time::sleep(wait).await;
+            Ok(answer) => {
+                let status = answer.status();
+                let retry = status.is_server_error()
+                    || status == reqwest::StatusCode::REQUEST_TIMEOUT
+                    || status == reqwest::StatusCode::TOO_MANY_REQUESTS;
+                (retry, format!("answered {status}"))
+            }
+            Err(e) => (true, e.to_string()),
+        };
+        if !retry || attempt == config.attempts {
+            tracing::error!(%url, key, attempt, reason = %why, "alarm webhook given up");
+            break;
         }
+        let wait = config.backoff(attempt);
+        tracing::warn!(%url, key, attempt, reason = %why, retry_in_s = wait.as_secs_f64(), "alarm webhook failed; retrying");
+        tokio::time::sleep(wait).await;
     }
 }

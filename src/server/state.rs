@@ -117,7 +117,7 @@ impl AppState {
                         .into(),
                 )));
             }
-            Some(location) => Store::open_postgres(location).await?,
+            Some(location) => Store::open_postgres(location, outbox).await?,
             None => Store::open_with(&options.data_dir, options.limits.max_database_bytes, outbox)?,
         };
         let cluster = match (&options.cluster, store.postgres()) {
@@ -155,13 +155,13 @@ impl AppState {
             store.put_machine(spec.clone(), fresh).await?;
             tracing::info!(machine = %spec.id, "machine declared by the config file");
         }
-        if let Some(sqlite) = store.sqlite() {
+        {
             for (severity, url) in [
                 ("warn", &options.webhooks.warn),
                 ("alarm", &options.webhooks.alarm),
             ] {
                 if url.is_none() {
-                    let dropped = sqlite.webhook_dropped(severity).await?;
+                    let dropped = store.webhook_dropped(severity).await?;
                     if dropped > 0 {
                         tracing::warn!(
                             severity,

@@ -8,7 +8,7 @@ use std::path::Path;
 use rusqlite::Connection;
 
 use super::alarms::{AlarmChange, AlarmFilter, StoredAlarm};
-use super::outbox::{OutboxConfig, SiteRecord};
+use super::outbox::{OutboxConfig, SiteRecord, WebhookEntry};
 use super::postgres::{PgLocation, PgStore};
 use super::queries::EstimatesPage;
 use super::retention::{Pruned, Retention, Step};
@@ -64,11 +64,17 @@ impl Store {
         })
     }
 
-    /// The PostgreSQL store at `location` (migrated). Call within a Tokio
+    /// The PostgreSQL store at `location` (migrated), recording in its
+    /// outbox what `outbox` says webhooks are owed. Call within a Tokio
     /// runtime.
-    pub async fn open_postgres(location: &PgLocation) -> Result<Store, StoreError> {
+    pub async fn open_postgres(
+        location: &PgLocation,
+        outbox: OutboxConfig,
+    ) -> Result<Store, StoreError> {
+        let store = PgStore::open(location).await?;
+        store.set_outbox(outbox);
         Ok(Store {
-            backend: Backend::Postgres(PgStore::open(location).await?),
+            backend: Backend::Postgres(store),
         })
     }
 
@@ -153,6 +159,27 @@ impl Store {
     /// An office: records a site's contact.
     pub async fn put_site(&self, site: SiteRecord) -> Result<(), StoreError> {
         on_backend!(self, b => b.put_site(site).await)
+    }
+
+    /// Alarm changes owed to the webhook of `severity`, oldest first
+    /// (blocking; on PostgreSQL, those this node made).
+    pub fn webhook_pending(
+        &self,
+        severity: &'static str,
+        limit: usize,
+    ) -> Result<Vec<WebhookEntry>, StoreError> {
+        on_backend!(self, b => b.webhook_pending(severity, limit))
+    }
+
+    /// A webhook's change is done with (delivered or given up).
+    pub async fn webhook_done(&self, id: i64) -> Result<(), StoreError> {
+        on_backend!(self, b => b.webhook_done(id).await)
+    }
+
+    /// Forgets the changes owed to a webhook no longer configured; how
+    /// many.
+    pub async fn webhook_dropped(&self, severity: &'static str) -> Result<u64, StoreError> {
+        on_backend!(self, b => b.webhook_dropped(severity).await)
     }
 
     /// The SQLite store a site's outbox is in (a site's store is SQLite).

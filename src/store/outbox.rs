@@ -35,7 +35,8 @@ pub struct OutboxConfig {
 }
 
 impl OutboxConfig {
-    fn webhook(&self, severity: &str) -> bool {
+    /// Whether changes of alarms of `severity` go to a webhook.
+    pub(crate) fn webhook(&self, severity: &str) -> bool {
         match severity {
             "alarm" => self.webhook_alarm,
             _ => self.webhook_warn,

@@ -167,6 +167,9 @@ pub struct PgStore {
     /// writers then commit a machine's rows only while the node holds its
     /// lease.
     fence: Arc<std::sync::OnceLock<String>>,
+    /// What the writers record in the outbox (the webhooks' changes), set
+    /// once by the server before it writes.
+    outbox: Arc<std::sync::OnceLock<crate::store::outbox::OutboxConfig>>,
     readers: Pool,
     runtime: tokio::runtime::Handle,
 }
@@ -182,6 +185,7 @@ impl PgStore {
         schema::migrate(&mut migrator).await?;
         drop(migrator);
         let fence = Arc::new(std::sync::OnceLock::new());
+        let outbox = Arc::new(std::sync::OnceLock::new());
         let mut writers = Vec::with_capacity(writer_count());
         for _ in 0..writer_count() {
             let client = connect_writer(&endpoint).await?;
@@ -191,6 +195,7 @@ impl PgStore {
                 endpoint.clone(),
                 queue,
                 fence.clone(),
+                outbox.clone(),
             ));
             writers.push(requests);
         }
@@ -199,6 +204,7 @@ impl PgStore {
             readers: pool(&endpoint)?,
             endpoint: Arc::new(endpoint),
             fence,
+            outbox,
             runtime: tokio::runtime::Handle::current(),
         })
     }
@@ -217,6 +223,7 @@ impl PgStore {
             readers: pool(&endpoint)?,
             endpoint: Arc::new(endpoint),
             fence: Arc::default(),
+            outbox: Arc::default(),
             runtime: tokio::runtime::Handle::current(),
         })
     }
@@ -576,24 +583,45 @@ impl PgStore {
         announce: impl FnOnce(AlarmChange) + Send + 'static,
     ) -> Result<Option<(StoredAlarm, bool)>, StoreError> {
         let node = self.fence.get().cloned();
+        let outbox = self.outbox.get().copied().unwrap_or_default();
         self.maintain(move |client| {
             Box::pin(async move {
-                let acked = client
+                // The acknowledgement and what it owes the webhooks, in
+                // one commit.
+                let tx = client.transaction().await?;
+                let acked = tx
                     .execute(
                         "UPDATE alarms SET acked_t = $2, acked_by = $3 WHERE id = $1 AND acked_t IS NULL",
                         &[&id, &t, &by],
                     )
                     .await?
                     == 1;
-                let alarm = alarm_by_id(&*client, id).await?;
+                let alarm = alarm_by_id(&tx, id).await?;
+                let mut change = None;
                 if let (true, Some(alarm)) = (acked, &alarm) {
-                    let change = AlarmChange {
+                    let acknowledged = AlarmChange {
                         transition: Change::Acknowledged,
                         alarm: alarm.clone(),
                     };
                     if let Some(node) = &node {
-                        cluster::notify_alarm(&*client, node, &change).await?;
+                        cluster::notify_alarm(&tx, node, &acknowledged).await?;
+                        let machine_id: i64 = tx
+                            .query_one("SELECT machine_id FROM alarms WHERE id = $1", &[&id])
+                            .await?
+                            .get(0);
+                        writer::record_webhooks(
+                            &tx,
+                            &outbox,
+                            node,
+                            machine_id,
+                            std::slice::from_ref(&acknowledged),
+                        )
+                        .await?;
                     }
+                    change = Some(acknowledged);
+                }
+                tx.commit().await?;
+                if let Some(change) = change {
                     announce(change);
                 }
                 Ok(alarm.map(|alarm| (alarm, acked)))
@@ -610,6 +638,63 @@ impl PgStore {
             .await?
             .get(0);
         Ok(bytes.max(0) as u64)
+    }
+
+    /// What the writers record in the outbox from now on (set once, before
+    /// the first write).
+    pub fn set_outbox(&self, config: crate::store::outbox::OutboxConfig) {
+        let _ = self.outbox.set(config);
+    }
+
+    /// Alarm changes this node owes the webhook of `severity`, oldest
+    /// first.
+    pub fn webhook_pending(
+        &self,
+        severity: &'static str,
+        limit: usize,
+    ) -> Result<Vec<crate::store::outbox::WebhookEntry>, StoreError> {
+        let node = self.fence.get().cloned().unwrap_or_default();
+        self.read(async |client| {
+            client
+                .query(
+                    "SELECT id, body FROM outbox WHERE node = $1 AND kind = $2 ORDER BY id LIMIT $3",
+                    &[&node, &severity, &(limit as i64)],
+                )
+                .await?
+                .iter()
+                .map(|row| {
+                    let (id, body): (i64, String) = (row.get(0), row.get(1));
+                    Ok(crate::store::outbox::WebhookEntry {
+                        id,
+                        change: serde_json::from_str(&body).map_err(|e| {
+                            StoreError::Corrupt(format!("outbox row {id}: {e}"))
+                        })?,
+                    })
+                })
+                .collect()
+        })
+    }
+
+    /// A webhook change is done with (delivered or given up).
+    pub async fn webhook_done(&self, id: i64) -> Result<(), StoreError> {
+        self.pooled()
+            .await?
+            .execute("DELETE FROM outbox WHERE id = $1", &[&id])
+            .await?;
+        Ok(())
+    }
+
+    /// Forgets the changes this node owes a webhook no longer configured.
+    pub async fn webhook_dropped(&self, severity: &'static str) -> Result<u64, StoreError> {
+        let node = self.fence.get().cloned().unwrap_or_default();
+        Ok(self
+            .pooled()
+            .await?
+            .execute(
+                "DELETE FROM outbox WHERE node = $1 AND kind = $2",
+                &[&node, &severity],
+            )
+            .await?)
     }
 
     /// An office: the last sequence of machine `machine_id` its site sent

@@ -113,7 +113,7 @@ const MIGRATIONS: &[&str] = &[
     CREATE INDEX leases_by_node ON leases (node);
     ",
     // 3: an office's record of what each site sent (as in SQLite's 5),
-    // tokens for sites.
+    // alarm changes owed to webhooks, tokens for sites.
     "
     -- Per forwarded machine, the last sequence its site sent that is
     -- committed here.
@@ -129,6 +129,17 @@ const MIGRATIONS: &[&str] = &[
         backlog_readings bigint NOT NULL,
         oldest_unsent_t double precision
     );
+    -- Alarm changes owed to a webhook: `kind` the severity, `node` the
+    -- node that made them and posts them.
+    CREATE TABLE outbox (
+        id bigserial PRIMARY KEY,
+        node text NOT NULL,
+        kind text NOT NULL,
+        machine_id bigint NOT NULL REFERENCES machines(id),
+        body text NOT NULL,
+        created_t double precision NOT NULL
+    );
+    CREATE INDEX outbox_by_node ON outbox (node, kind, id);
     ALTER TABLE tokens DROP CONSTRAINT tokens_scope_check;
     ALTER TABLE tokens ADD CONSTRAINT tokens_scope_check
         CHECK (scope IN ('ingest', 'read', 'admin', 'site'));

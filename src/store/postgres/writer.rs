@@ -16,7 +16,7 @@ use tokio_postgres::{Client, Transaction};
 use super::schema;
 use crate::config::MachineSpec;
 use crate::store::alarms::{AlarmChange, AlarmRow, Change, StoredAlarm};
-use crate::store::outbox::Forwarded;
+use crate::store::outbox::{Forwarded, OutboxConfig};
 use crate::store::writer::{Buckets, Outcome, Queued, Request, answer, fold_buckets, gather};
 use crate::store::{MAX_GROUP, StoreError, Write, WriteOutcome};
 
@@ -35,6 +35,7 @@ pub(super) async fn writer(
     endpoint: super::Endpoint,
     mut queue: mpsc::Receiver<Queued<Job>>,
     fence: Arc<OnceLock<String>>,
+    outbox: Arc<OnceLock<OutboxConfig>>,
 ) {
     let mut partitions = match schema::partitions(&client).await {
         Ok(found) => found.into_iter().collect::<BTreeSet<_>>(),
@@ -71,7 +72,15 @@ pub(super) async fn writer(
                 }
             }
         }
-        commit(&mut client, &mut partitions, &mut group, fence.get()).await;
+        let outbox = outbox.get().copied().unwrap_or_default();
+        commit(
+            &mut client,
+            &mut partitions,
+            &mut group,
+            fence.get(),
+            &outbox,
+        )
+        .await;
         if let Some(job) = job {
             job(&mut client).await;
             // A job may drop partitions (retention): know them afresh.
@@ -93,12 +102,13 @@ async fn commit(
     partitions: &mut BTreeSet<(String, i64)>,
     group: &mut Vec<Request>,
     node: Option<&String>,
+    outbox: &OutboxConfig,
 ) {
     if group.is_empty() {
         return;
     }
     let result = match ensure_partitions(client, partitions, group).await {
-        Ok(()) => apply_group(client, group, node).await,
+        Ok(()) => apply_group(client, group, node, outbox).await,
         Err(e) => Err(e),
     };
     match result {
@@ -115,7 +125,7 @@ async fn commit(
             for request in group.drain(..) {
                 let alone = std::slice::from_ref(&request);
                 let result = match ensure_partitions(client, partitions, alone).await {
-                    Ok(()) => apply_group(client, alone, node)
+                    Ok(()) => apply_group(client, alone, node, outbox)
                         .await
                         .map(|mut outcomes| outcomes.pop().unwrap_or(Outcome::Put(0))),
                     Err(e) => Err(e),
@@ -161,6 +171,7 @@ async fn apply_group(
     client: &mut Client,
     group: &[Request],
     node: Option<&String>,
+    outbox: &OutboxConfig,
 ) -> Result<Vec<Outcome>, StoreError> {
     let mut tx = client.transaction().await?;
     let writes = || {
@@ -191,6 +202,7 @@ async fn apply_group(
                     for change in &alarms {
                         super::cluster::notify_alarm(&tx, node, change).await?;
                     }
+                    record_webhooks(&tx, outbox, node, write.machine_id, &alarms).await?;
                 }
                 Outcome::Write(outcome, alarms)
             }
@@ -219,6 +231,33 @@ async fn apply_group(
     }
     tx.commit().await?;
     Ok(outcomes)
+}
+
+/// Records the alarm changes a commit made that a webhook is owed, as
+/// this node's to post (`store/outbox.rs` does the same on SQLite).
+pub(super) async fn record_webhooks(
+    tx: &Transaction<'_>,
+    outbox: &OutboxConfig,
+    node: &str,
+    machine_id: i64,
+    changes: &[AlarmChange],
+) -> Result<(), StoreError> {
+    for change in changes.iter().filter(|c| outbox.webhook(&c.alarm.severity)) {
+        let body = serde_json::to_string(change)
+            .map_err(|e| StoreError::Corrupt(format!("outbox body: {e}")))?;
+        tx.execute(
+            "INSERT INTO outbox (node, kind, machine_id, body, created_t) VALUES ($1, $2, $3, $4, $5)",
+            &[
+                &node,
+                &change.alarm.severity,
+                &machine_id,
+                &body,
+                &crate::clock::wall_clock_s(),
+            ],
+        )
+        .await?;
+    }
+    Ok(())
 }
 
 /// Fails unless `node` holds the lease of every machine written, in
