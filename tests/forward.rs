@@ -117,6 +117,20 @@ struct Site {
 }
 
 impl Site {
+    /// A site named `name` that reaches the office at `office` through a
+    /// relay of its own, started.
+    async fn start_new(name: &str, office: SocketAddr) -> Site {
+        let site = Site {
+            name: name.into(),
+            dir: tempfile::tempdir().unwrap(),
+            relay: Relay::start(office).await,
+            process: Mutex::new(None),
+            base: Arc::default(),
+        };
+        site.start();
+        site
+    }
+
     fn start(&self) {
         let process = ServerProcess::start_with_args(
             self.dir.path(),
@@ -236,14 +250,7 @@ async fn two_sites_through_cut_links_and_sigkills_lose_nothing_and_match_exactly
     let office_address = office.lock().unwrap().as_ref().unwrap().address;
     let mut sites = Vec::new();
     for name in ["north", "south"] {
-        let site = Site {
-            name: name.into(),
-            dir: tempfile::tempdir().unwrap(),
-            relay: Relay::start(office_address).await,
-            process: Mutex::new(None),
-            base: Arc::default(),
-        };
-        site.start();
+        let site = Site::start_new(name, office_address).await;
         for (i, machine) in MACHINES.iter().enumerate() {
             let body = if i == 0 {
                 common::on_an_axis("Test TBM").to_string()
@@ -523,16 +530,8 @@ async fn a_site_offline_for_hours_catches_up_and_keeps_answering() {
     let (backlog, live) = lines.split_at(lines.len() * 3 / 4);
     // The office is not there: the relay refuses.
     let office_dir = tempfile::tempdir().unwrap();
-    let relay = Relay::start("127.0.0.1:9".parse().unwrap()).await;
-    relay.set(Cut::Refuse);
-    let site = Site {
-        name: "east".into(),
-        dir: tempfile::tempdir().unwrap(),
-        relay,
-        process: Mutex::new(None),
-        base: Arc::default(),
-    };
-    site.start();
+    let site = Site::start_new("east", "127.0.0.1:9".parse().unwrap()).await;
+    site.relay.set(Cut::Refuse);
     let base = site.base();
     declare_machine(&client, &base, "tbm", r#"{"engines": {"attitude": {}}}"#).await;
     for chunk in backlog.chunks(5000) {
@@ -609,14 +608,7 @@ async fn a_site_forwards_to_an_office_on_postgres() {
     let client = reqwest::Client::new();
     let office_dir = tempfile::tempdir().unwrap();
     let office = ServerProcess::start_with_args(office_dir.path(), &["--store", &url]);
-    let site = Site {
-        name: "west".into(),
-        dir: tempfile::tempdir().unwrap(),
-        relay: Relay::start(office.address).await,
-        process: Mutex::new(None),
-        base: Arc::default(),
-    };
-    site.start();
+    let site = Site::start_new("west", office.address).await;
     declare_machine(
         &client,
         &site.base(),
@@ -695,14 +687,7 @@ async fn a_silent_site_raises_site_link_at_the_office_until_it_has_caught_up() {
         &["--config", config.to_str().unwrap()],
     );
     let office_base = office.url("");
-    let site = Site {
-        name: "quiet".into(),
-        dir: tempfile::tempdir().unwrap(),
-        relay: Relay::start(office.address).await,
-        process: Mutex::new(None),
-        base: Arc::default(),
-    };
-    site.start();
+    let site = Site::start_new("quiet", office.address).await;
     declare_machine(
         &client,
         &site.base(),
