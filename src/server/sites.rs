@@ -415,12 +415,18 @@ pub async fn forward(
 /// The last sequence of forwarded machine `machine` committed here, if
 /// it is known here.
 async fn stored_mark(state: &SharedState, machine: &str) -> Result<Option<i64>, ApiError> {
+    let running = state.machine(machine).ok().map(|m| m.db_id);
     let (store, id) = (state.store.clone(), machine.to_string());
     tokio::task::spawn_blocking(move || {
-        match store.machines()?.into_iter().find(|m| m.spec.id == id) {
-            Some(stored) => store.forward_mark(stored.db_id),
-            None => Ok(None),
-        }
+        let db_id = match running {
+            Some(db_id) => Some(db_id),
+            None => store
+                .machines()?
+                .into_iter()
+                .find(|m| m.spec.id == id)
+                .map(|m| m.db_id),
+        };
+        db_id.map_or(Ok(None), |db_id| store.forward_mark(db_id))
     })
     .await
     .map_err(|e| ApiError::Internal(e.to_string()))?
