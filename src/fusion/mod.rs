@@ -20,6 +20,7 @@ pub mod reading;
 pub mod registry;
 pub mod reorder;
 pub mod stage;
+pub mod steering;
 pub mod zupt;
 
 pub use descriptor::{
