@@ -13,6 +13,7 @@ use crate::fusion::alignment::{Alignment, AlignmentError, AlignmentSpec};
 use crate::fusion::dta::{MachineGeometry, Tolerances};
 use crate::fusion::pipeline::Pipeline;
 use crate::fusion::reading::ProjectPoint;
+use crate::fusion::steering::SteeringSpec;
 use crate::fusion::{
     Declaration, EngineKind, ParamError, ParamValue, Params, StreamKind, UnknownEngine,
 };
@@ -54,6 +55,10 @@ pub struct MachineDeclaration {
     /// The alarm rules' settings (defaults when absent).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub alarms: Option<AlarmConfig>,
+    /// How the machine may be steered back to the axis (the correction
+    /// curve: `GET .../steering`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub steering: Option<SteeringSpec>,
 }
 
 /// A validated machine: id, name, engines with complete parameters.
@@ -74,6 +79,9 @@ pub struct MachineSpec {
     /// The alarm rules' settings.
     #[serde(default)]
     pub alarms: AlarmConfig,
+    /// How it may be steered (absent in a machine stored before issue 39).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub steering: Option<SteeringSpec>,
     /// `alignment` built (when validated or loaded).
     #[serde(skip)]
     pub built_alignment: Option<Arc<Alignment>>,
@@ -259,6 +267,9 @@ impl MachineDeclaration {
             built(self.alignment.as_ref()).map_err(|e| invalid(format!("`alignment`: {e}")))?;
         let alarms = self.alarms.unwrap_or_default();
         alarms.validate().map_err(invalid)?;
+        if let Some(steering) = &self.steering {
+            steering.check().map_err(invalid)?;
+        }
         Ok(MachineSpec {
             id: id.to_string(),
             name,
@@ -269,6 +280,7 @@ impl MachineDeclaration {
             start: self.start,
             alignment: self.alignment,
             alarms,
+            steering: self.steering,
             built_alignment,
         })
     }
@@ -354,6 +366,7 @@ impl MachineSpec {
             start: self.start,
             alignment: self.alignment.clone(),
             alarms: (self.alarms != AlarmConfig::default()).then_some(self.alarms),
+            steering: self.steering,
         }
     }
 }

@@ -457,3 +457,106 @@ async fn setting_the_axis_keeps_the_engines() {
     }
     server.stop().await;
 }
+
+/// Issue 39: `GET .../steering` answers the correction curve from the
+/// newest `dta` estimate and the declared `steering`, as the formulas
+/// give it (recomputed here from the served estimate).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_correction_curve_is_served_from_the_newest_dta_estimate() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start(dir.path()).await;
+    let client = reqwest::Client::new();
+    let base = server.url("");
+    let mut declaration = common::on_an_axis("Steered TBM");
+    declaration["steering"] =
+        json!({"min_radius_m": 1500.0, "step_m": 1.5, "cylinder_circle_m": 6.0});
+    declare_machine(&client, &base, "tbm-steer", &declaration.to_string()).await;
+    let refused = client
+        .get(format!("{base}/api/v1/machines/tbm-steer/steering"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(refused.status(), 404, "no dta estimate yet");
+    // 50 mm east of the axis (right of it, heading north), level.
+    let now = tunnelnav::clock::wall_clock_s().floor();
+    post_ndjson(
+        &client,
+        &base,
+        "tbm-steer",
+        &common::laser_pairs(now - 40.0, 10, 0.05),
+    )
+    .await;
+    let served = get_json(&client, &base, "/api/v1/machines/tbm-steer/steering").await;
+    let dta = stream_estimates(&client, &base, "tbm-steer", "dta").await;
+    let newest = dta.last().unwrap();
+    assert_eq!(served["t"], newest["t"]);
+    assert_eq!(served["feasible"], true);
+    let d0_h = newest["front"]["horizontal_mm"].as_f64().unwrap();
+    let g0_h = newest["tendency_horizontal_mm_per_m"].as_f64().unwrap();
+    let d0_v = newest["front"]["vertical_mm"].as_f64().unwrap();
+    let g0_v = newest["tendency_vertical_mm_per_m"].as_f64().unwrap();
+    assert!((d0_h - 50.0).abs() < 1.0, "{newest}");
+    // The curve, recomputed (metres): the fewest 1.5 m steps whose end
+    // curvatures, both planes together, are within 1/1500 m.
+    let cubic = |d0: f64, g0: f64, l: f64| {
+        let (d0, g0) = (d0 / 1000.0, g0 / 1000.0);
+        let a = -(3.0 * d0 + 2.0 * g0 * l) / (l * l);
+        let b = (2.0 * d0 + g0 * l) / (l * l * l);
+        move |x: f64| {
+            (
+                d0 + g0 * x + a * x * x + b * x * x * x,
+                2.0 * a + 6.0 * b * x,
+            )
+        }
+    };
+    let steps = (1..)
+        .find(|&k| {
+            let l = 1.5 * f64::from(k);
+            let (h, v) = (cubic(d0_h, g0_h, l), cubic(d0_v, g0_v, l));
+            [0.0, l]
+                .iter()
+                .all(|&x| h(x).1.hypot(v(x).1) <= 1.0 / 1500.0 + 1e-15)
+        })
+        .unwrap();
+    // By hand for 50 mm and no tendency: L² ≥ 6·0.05·1500 = 450, so
+    // L ≥ 21.2 m: 15 rings.
+    assert_eq!(steps, 15);
+    assert_eq!(served["steps"], steps);
+    assert_eq!(served["length_m"], 22.5);
+    let l = 22.5;
+    for (plane, d0, g0) in [("horizontal", d0_h, g0_h), ("vertical", d0_v, g0_v)] {
+        let curve = cubic(d0, g0, l);
+        let points = served[plane]["points"].as_array().unwrap();
+        assert_eq!(points.len(), 16);
+        assert_eq!(served[plane]["deviation_mm"], d0);
+        for (k, point) in points.iter().enumerate() {
+            let x = 1.5 * k as f64;
+            let (d, kappa) = curve(x);
+            let close = |key: &str, expected: f64| {
+                let got = point[key].as_f64().unwrap();
+                assert!(
+                    (got - expected).abs() <= 1e-9 * expected.abs().max(1.0),
+                    "{plane} {k} {key}: {got} ≠ {expected}"
+                );
+            };
+            close("deviation_mm", d * 1000.0);
+            close("curvature_per_m", kappa);
+            close("stroke_difference_mm", 6.0 * 1.5 * kappa * 1000.0);
+            close(
+                "station_m",
+                newest["front"]["station_m"].as_f64().unwrap() + x,
+            );
+        }
+    }
+    // A bad declaration is refused, naming the field.
+    declaration["steering"]["step_m"] = json!(0.0);
+    let refused = client
+        .put(format!("{base}/api/v1/machines/tbm-steer"))
+        .body(declaration.to_string())
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(refused.status(), 400);
+    assert!(refused.text().await.unwrap().contains("steering.step_m"));
+    server.stop().await;
+}

@@ -22,6 +22,7 @@ pub mod pages;
 pub mod settings;
 pub mod sites;
 pub mod state;
+mod steering;
 
 use std::future::Future;
 use std::sync::Arc;
@@ -118,6 +119,7 @@ fn api_routes(state: &SharedState) -> OpenApiRouter<SharedState> {
         .routes(guard(Read, routes!(alignment::show)))
         .routes(guard(Admin, routes!(alignment::put)))
         .routes(guard(Read, routes!(alignment::axis)))
+        .routes(guard(Read, routes!(steering::show)))
         .routes(guard(Read, routes!(alarms::list)))
         .routes(guard(Read, routes!(live::alarms_websocket)))
         .routes(guard(Read, routes!(alarms::ack)))
