@@ -772,6 +772,9 @@ tn.registerEngine('dta', {
       ctx.restore();
     }
 
+    // The steps between station ticks uPlot may choose, metres.
+    const STATION_INCRS = [1, 2, 5, 10, 20, 25, 50, 100, 200, 250, 500, 1000, 2000, 5000, 10000, 20000, 50000];
+
     function stationRange(u, lo, hi) {
       if (!num(lo) || !num(hi)) return [0, 10];
       if (hi - lo < 10) { const m = (lo + hi) / 2; return [m - 5, m + 5]; }
@@ -803,7 +806,10 @@ tn.registerEngine('dta', {
           line(`rear ${name}`, css('--pred'), 'mm', 1, { width: 2, dash: [6, 3] }),
         ],
         axes: [
-          axis({ values: (u, splits) => splits.map((s) => chainage(s, 0)), size: 36 }),
+          // Whole metres between ticks (the range is at least 10 m), so
+          // each tick has a label of its own: "1+003", "1+004", not
+          // "1+003" twice at half metres.
+          axis({ incrs: STATION_INCRS, values: (u, splits) => splits.map((s) => chainage(s, 0)), size: 36 }),
           axis({ label: `${name} (mm, ${sign})`, size: 64 }),
         ],
         hooks: { drawClear: [bands(lim)], draw: [nowLines] },
