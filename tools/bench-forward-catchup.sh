@@ -5,13 +5,15 @@
 # office starts and the site sends its backlog. Prints the readings, the
 # catch-up time from the office's start until it holds every reading (its
 # store counted every 0.1 s; this includes the office's start and the
-# site's back-off, at most 2 s, before it tries again), the rate over it
+# site's back-off, at most 0.5 s, before it tries again), the rate over it
 # and from the office's first commit on, both processes' CPU seconds, and
 # the site's answer time to a status request during the catch-up.
 #
 #   tools/bench-forward-catchup.sh [HOURS] [INCL_PERIOD_S]   (default 24, 0.2)
 #   DRIVE=pipe-jacking tools/bench-forward-catchup.sh [HOURS]  (a zupt
 #     machine: FOG IMU at 100 Hz, level and odometer at 1 Hz)
+#   BATCH=10 ...: the site takes the drive 10 readings a request (default
+#     5000), so its outbox holds a row per 10 readings
 #
 # Needs a release build (cargo build --release) and python3.
 set -euo pipefail
@@ -41,7 +43,7 @@ RUST_LOG=${SITE_LOG:-warn} "$BIN" serve --listen "127.0.0.1:$SITE_PORT" --data-d
 SITE_PID=$!
 sleep 1
 curl -sf -X PUT "127.0.0.1:$SITE_PORT/api/v1/machines/tbm" -d "$DECLARATION" > /dev/null
-split -l 5000 "$WORK/drive.ndjson" "$WORK/part_"
+split -l "${BATCH:-5000}" "$WORK/drive.ndjson" "$WORK/part_"
 for part in "$WORK"/part_*; do
     curl -sf -X POST "127.0.0.1:$SITE_PORT/api/v1/machines/tbm/readings" \
         -H 'content-type: application/x-ndjson' --data-binary "@$part" > /dev/null

@@ -24,8 +24,8 @@ pub const MAX_READINGS_PER_REQUEST: u64 = 20_000;
 /// Wait between looks at an empty outbox.
 const IDLE: Duration = Duration::from_millis(100);
 /// First and longest wait after a failed request.
-const FIRST_RETRY: Duration = Duration::from_millis(250);
-const MAX_RETRY: Duration = Duration::from_secs(2);
+const FIRST_RETRY: Duration = Duration::from_millis(100);
+const MAX_RETRY: Duration = Duration::from_millis(500);
 /// Longest one request may take (a dead line swallows it unanswered).
 const REQUEST_TIMEOUT: Duration = Duration::from_secs(15);
 /// Longest a connection may take to open.
