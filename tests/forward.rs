@@ -192,6 +192,27 @@ fn stored_readings(dir: &Path, machine: &str) -> Vec<(f64, i64, Vec<u8>)> {
         .unwrap()
 }
 
+/// The office's stored readings of a site's machine, as the export's
+/// lines; none while it does not answer them (404 until the machine's
+/// declaration has arrived).
+async fn office_readings(client: &reqwest::Client, base: &str, machine: &str) -> Vec<String> {
+    let response = client
+        .get(format!("{base}/api/v1/machines/{machine}/readings"))
+        .send()
+        .await
+        .unwrap();
+    match response.status().as_u16() {
+        200 => response
+            .text()
+            .await
+            .unwrap()
+            .lines()
+            .map(str::to_string)
+            .collect(),
+        _ => Vec::new(),
+    }
+}
+
 /// Every stored estimate of one of a machine's streams, without the
 /// `machine` field (the office names it `{site}.{machine}`).
 async fn estimates(
@@ -560,16 +581,9 @@ async fn a_site_offline_for_hours_catches_up_and_keeps_answering() {
     let office_base = office.url("");
     let deadline = Instant::now() + Duration::from_secs(120);
     loop {
-        // 404 until the declaration has arrived.
-        let response = client
-            .get(format!("{office_base}/api/v1/machines/east.tbm/readings"))
-            .send()
+        let there = office_readings(&client, &office_base, "east.tbm")
             .await
-            .unwrap();
-        let there = match response.status().as_u16() {
-            200 => response.text().await.unwrap().lines().count(),
-            _ => 0,
-        };
+            .len();
         if there == lines.len() {
             break;
         }
@@ -639,21 +653,13 @@ async fn a_site_forwards_to_an_office_on_postgres() {
     let office_base = office.url("");
     let deadline = Instant::now() + Duration::from_secs(120);
     loop {
-        let response = client
-            .get(format!("{office_base}/api/v1/machines/west.tbm/readings"))
-            .send()
-            .await
-            .unwrap();
-        let there = match response.status().as_u16() {
-            200 => response.text().await.unwrap(),
-            _ => String::new(),
-        };
+        let there = office_readings(&client, &office_base, "west.tbm").await;
         let here = common::exported_readings(&client, &site.base(), "tbm").await;
-        if there.lines().count() == here.len()
+        if there.len() == here.len()
             && alarms(&client, &site.base(), "tbm").await
                 == alarms(&client, &office_base, "west.tbm").await
         {
-            assert!(there.lines().eq(here.iter().map(String::as_str)));
+            assert_eq!(there, here);
             break;
         }
         assert!(Instant::now() < deadline, "the office did not catch up");

@@ -220,6 +220,16 @@ pub fn correction(spec: &SteeringSpec, start: &Start) -> Result<Correction, Infe
 mod tests {
     use super::*;
 
+    /// The machine: 1500 m minimum radius, 1.5 m rings, thrust
+    /// cylinders on a 6.0 m circle.
+    fn rings() -> SteeringSpec {
+        SteeringSpec {
+            min_radius_m: 1500.0,
+            step_m: 1.5,
+            cylinder_circle_m: 6.0,
+        }
+    }
+
     fn close(a: f64, b: f64, tolerance: f64) -> bool {
         (a - b).abs() <= tolerance
     }
@@ -256,11 +266,7 @@ mod tests {
         // κ(L) = −6.5004e-4 + 6·6.7821e-6·28.5 = 5.0970e-4 (R 1961.9 m);
         // 18 rings (27 m) would need κ(0) = −2·0.258/729 = −7.078e-4,
         // beyond 1/1500 = 6.667e-4.
-        let spec = SteeringSpec {
-            min_radius_m: 1500.0,
-            step_m: 1.5,
-            cylinder_circle_m: 6.0,
-        };
+        let spec = rings();
         let start = Start {
             station_m: 1000.0,
             horizontal_mm: 50.0,
@@ -291,11 +297,7 @@ mod tests {
 
     #[test]
     fn both_planes_share_the_radius_and_a_lost_machine_is_told_so() {
-        let spec = SteeringSpec {
-            min_radius_m: 1500.0,
-            step_m: 1.5,
-            cylinder_circle_m: 6.0,
-        };
+        let spec = rings();
         // The same 50 mm in both planes needs a longer curve than in one:
         // at the 19 rings of one plane the two together curve √2 times
         // as much.

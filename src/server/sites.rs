@@ -345,7 +345,7 @@ pub async fn forward(
         )));
     }
     note_contact(&state, site, None).await;
-    let committed = stored_mark(&state, &machine).await?;
+    let committed = state.forward_mark(&machine).await?;
     if let Some(after) = body.after
         && committed.is_none_or(|mark| mark < after)
     {
@@ -405,32 +405,11 @@ pub async fn forward(
     apply_parts(&state, &machine, parts).await?;
     // What is committed now (each part answered after its commit): a row
     // whose write failed behind an earlier answer is not claimed.
-    let committed = stored_mark(&state, &machine).await?.unwrap_or(0);
+    let committed = state.forward_mark(&machine).await?.unwrap_or(0);
     Ok(Json(ForwardAnswer {
         machine,
         applied: committed.min(applied),
     }))
-}
-
-/// The last sequence of forwarded machine `machine` committed here, if
-/// it is known here.
-async fn stored_mark(state: &SharedState, machine: &str) -> Result<Option<i64>, ApiError> {
-    let running = state.machine(machine).ok().map(|m| m.db_id);
-    let (store, id) = (state.store.clone(), machine.to_string());
-    tokio::task::spawn_blocking(move || {
-        let db_id = match running {
-            Some(db_id) => Some(db_id),
-            None => store
-                .machines()?
-                .into_iter()
-                .find(|m| m.spec.id == id)
-                .map(|m| m.db_id),
-        };
-        db_id.map_or(Ok(None), |db_id| store.forward_mark(db_id))
-    })
-    .await
-    .map_err(|e| ApiError::Internal(e.to_string()))?
-    .map_err(ApiError::from)
 }
 
 /// Fuses and stores a run of readings and alarm changes in the machine.

@@ -531,17 +531,11 @@ impl AppState {
         })?;
         let _admin = self.admin.lock().await;
         let existing = self.machine(&spec.id).ok();
-        // The committed mark, whether the machine runs here or not.
-        let (store, id) = (self.store.clone(), spec.id.clone());
-        let mark = tokio::task::spawn_blocking(move || {
-            match store.machines()?.into_iter().find(|m| m.spec.id == id) {
-                Some(stored) => store.forward_mark(stored.db_id),
-                None => Ok(None),
-            }
-        })
-        .await
-        .map_err(|e| ApiError::Internal(e.to_string()))??;
-        if mark.is_some_and(|mark| mark >= sequence) {
+        if self
+            .forward_mark(&spec.id)
+            .await?
+            .is_some_and(|mark| mark >= sequence)
+        {
             return Ok(false);
         }
         if let Some(existing) = &existing {
@@ -554,6 +548,28 @@ impl AppState {
         self.run_declared(spec, db_id, existing, core, Some(sequence))
             .await?;
         Ok(true)
+    }
+
+    /// An office: the last sequence of forwarded machine `id` its site
+    /// sent that is committed here, whether the machine runs on this node
+    /// or not (`None`: none, or no such machine).
+    pub async fn forward_mark(&self, id: &str) -> Result<Option<i64>, ApiError> {
+        let running = self.machine(id).ok().map(|m| m.db_id);
+        let (store, id) = (self.store.clone(), id.to_string());
+        tokio::task::spawn_blocking(move || {
+            let db_id = match running {
+                Some(db_id) => Some(db_id),
+                None => store
+                    .machines()?
+                    .into_iter()
+                    .find(|m| m.spec.id == id)
+                    .map(|m| m.db_id),
+            };
+            db_id.map_or(Ok(None), |db_id| store.forward_mark(db_id))
+        })
+        .await
+        .map_err(|e| ApiError::Internal(e.to_string()))?
+        .map_err(ApiError::from)
     }
 
     /// Starts the task of a machine just (re)declared as `db_id` with

@@ -185,6 +185,10 @@ pub(super) fn record_alarms(
     changes: &[AlarmChange],
 ) -> Result<(), StoreError> {
     for change in changes {
+        let to_webhook = config.webhook(&change.alarm.severity);
+        if !(to_office || to_webhook) {
+            continue;
+        }
         let body = to_json(change)?;
         if to_office {
             tx.prepare_cached(
@@ -193,7 +197,7 @@ pub(super) fn record_alarms(
             )?
             .execute(params![machine_id, body, wall_clock_s()])?;
         }
-        if config.webhook(&change.alarm.severity) {
+        if to_webhook {
             tx.prepare_cached(
                 "INSERT INTO outbox (destination, machine_id, kind, body, created_t) \
                  VALUES ('webhook', ?1, ?2, ?3, ?4)",
