@@ -310,6 +310,7 @@ impl MachineSpec {
             geometry: self.geometry,
             tolerances: self.tolerances,
             start: self.start,
+            steering: self.steering,
             ..Declaration::of_engines(self.engines.keys().copied())
         }
     }

@@ -1328,7 +1328,7 @@ async fn the_api_docs_page_draws_every_operation_and_tries_one() {
         .values()
         .map(|item| item.as_object().unwrap().len())
         .sum();
-    assert_eq!(operations, 25);
+    assert_eq!(operations, 26);
 
     let driver = Driver::start(&driver_program);
     let browser = connect(&driver, chromium.as_deref()).await;

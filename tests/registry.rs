@@ -222,9 +222,30 @@ fn declaration_for(stage: StageKind, engine: EngineKind) -> Option<Declaration> 
         StageKind::Pushes => {
             (engine == EngineKind::Zupt).then(|| Declaration::of_engines([engine]))
         }
-        // The `zupt` source: a long straight axis through the start point,
-        // along the engine's initial heading (north), with a design grade.
-        StageKind::Dta => (engine == EngineKind::Zupt).then(|| {
+        StageKind::Dta => zupt_on_an_axis(engine),
+        // On the axis, 0.1 m off it: a curve back every time.
+        StageKind::Steer => zupt_on_an_axis(engine).map(|declaration| Declaration {
+            steering: Some(tunnelnav::fusion::steering::SteeringSpec {
+                min_radius_m: 300.0,
+                step_m: 1.2,
+                cylinder_circle_m: 2.0,
+            }),
+            ..declaration
+        }),
+        // Rings log the dta estimates of a zupt machine; an attitude
+        // machine's without a position.
+        StageKind::Rings => match engine {
+            EngineKind::Zupt => zupt_on_an_axis(engine),
+            _ => Some(Declaration::of_engines([engine])),
+        },
+    }
+}
+
+/// The `zupt` source: a long straight axis through the start point,
+/// along the engine's initial heading (north), with a design grade.
+fn zupt_on_an_axis(engine: EngineKind) -> Option<Declaration> {
+    {
+        (engine == EngineKind::Zupt).then(|| {
             let axis = r#"{"start_station_m": 1000.0,
                 "start": {"easting_m": 2000.0, "northing_m": 4900.0, "azimuth_deg": 0.0},
                 "horizontal": [{"type": "line", "length_m": 1000.0}],
@@ -244,8 +265,32 @@ fn declaration_for(stage: StageKind, engine: EngineKind) -> Option<Declaration> 
                 }),
                 ..Declaration::of_engines([engine])
             }
-        }),
+        })
     }
+}
+
+/// `readings` with, for the `rings` stage, an `advance` reading every
+/// seventh of the way (every other one with strokes).
+fn with_advances(stage: StageKind, mut readings: Vec<Reading>) -> Vec<Reading> {
+    if stage != StageKind::Rings {
+        return readings;
+    }
+    let every = readings.len() / 7;
+    for ring in (1..7u64).rev() {
+        let at = ring as usize * every;
+        let t = readings[at].t;
+        readings.insert(
+            at + 1,
+            Reading {
+                t,
+                data: tunnelnav::fusion::SensorData::Advance {
+                    ring: 100 + ring,
+                    strokes_mm: (ring % 2 == 0).then(|| vec![1500.0 + ring as f64, 1498.25]),
+                },
+            },
+        );
+    }
+    readings
 }
 
 #[test]
@@ -257,7 +302,7 @@ fn every_stage_runs_after_an_engine_and_writes_stores_and_continues_exactly() {
             .collect();
         assert!(!declared.is_empty(), "{stage}: no engine to test it after");
         for (engine, declaration) in declared {
-            let readings = drive(engine);
+            let readings = with_advances(stage, drive(engine));
             let params = Params::defaults(engine.specs());
             let create = || vec![engine.create(params.clone()).unwrap()];
             let mut whole = Pipeline::declared(create(), &declaration);

@@ -157,6 +157,9 @@ pub struct Signals {
     pub navigation: Option<Navigation>,
     /// Deviation from the design axis (`deviation`).
     pub deviation: Option<DeviationSignal>,
+    /// Whether a correction curve within the machine's minimum radius
+    /// reaches the axis (`steering_infeasible`).
+    pub steering_feasible: Option<bool>,
 }
 
 /// A signal a stream may tell: one per field of [`Signals`].
@@ -166,6 +169,7 @@ pub enum SignalKind {
     PitchSigma,
     Navigation,
     Deviation,
+    Steering,
 }
 
 impl Signals {
@@ -176,6 +180,7 @@ impl Signals {
             (self.pitch_sigma_deg.is_some(), SignalKind::PitchSigma),
             (self.navigation.is_some(), SignalKind::Navigation),
             (self.deviation.is_some(), SignalKind::Deviation),
+            (self.steering_feasible.is_some(), SignalKind::Steering),
         ]
         .into_iter()
         .filter_map(|(told, kind)| told.then_some(kind))

@@ -21,7 +21,7 @@ use super::descriptor::{DeviationSignal, SignalKind, Signals, StageDescriptor, S
 use super::estimate::{EngineOutput, EstimateValues};
 use super::geometry::{V3, attitude_from_euler};
 use super::json_fields::JsonFields;
-use super::reading::{ProjectPoint, Reading, SensorData};
+use super::reading::{ProjectPoint, Reading, SensorData, SensorKind};
 use super::registry::{EngineKind, StageKind};
 use super::stage::{Declaration, Stage};
 use super::{SnapshotError, StreamKind};
@@ -412,6 +412,10 @@ impl Stage for DtaStage {
         StageKind::Dta
     }
 
+    fn reads(&self, sensor: SensorKind) -> bool {
+        self.setup.laser && sensor == SensorKind::Laser
+    }
+
     fn reading(&mut self, reading: &Reading, out: &mut Vec<EngineOutput>) {
         let SensorData::Laser {
             pitch_deg,
@@ -542,6 +546,7 @@ mod tests {
                 northing_m: 5000.0,
                 height_m: 50.0,
             }),
+            steering: None,
             engines: engines.to_vec(),
         }
     }
@@ -563,6 +568,73 @@ mod tests {
             EstimateValues::Dta(d) => d,
             other => panic!("{other:?}"),
         }
+    }
+
+    #[test]
+    fn a_pipeline_offers_the_dta_estimates_to_steer_and_rings() {
+        use crate::fusion::pipeline::Pipeline;
+        use crate::fusion::steering::SteeringSpec;
+        let declaration = Declaration {
+            steering: Some(SteeringSpec {
+                min_radius_m: 1500.0,
+                step_m: 1.5,
+                cylinder_circle_m: 6.0,
+            }),
+            ..declaration(&[EngineKind::Attitude])
+        };
+        let engines = vec![
+            EngineKind::Attitude
+                .create(EngineKind::Attitude.params([]).unwrap())
+                .unwrap(),
+        ];
+        let mut pipeline = Pipeline::declared(engines, &declaration);
+        assert_eq!(
+            pipeline.stages().collect::<Vec<_>>(),
+            [StageKind::Dta, StageKind::Steer, StageKind::Rings]
+        );
+        assert!(pipeline.uses(SensorKind::Advance));
+        let mut out = Vec::new();
+        // 50 mm right of the axis, square to it: the laser's reading makes
+        // the dta estimate from its position, and the curve from that (the
+        // attitude engine waits for its inclinometer).
+        let at = ProjectPoint {
+            easting_m: 1000.05,
+            northing_m: 5010.0,
+            height_m: 50.0,
+        };
+        pipeline.feed(&laser(1.772e9, 0.0, at), &mut out);
+        let streams: Vec<StreamKind> = out.iter().map(|o| o.values.stream()).collect();
+        assert_eq!(streams, [StreamKind::Dta, StreamKind::Steer]);
+        let EstimateValues::Steer(steer) = &out[1].values else {
+            panic!("{out:?}")
+        };
+        // d0 = 50 mm, g0 = 0, R 1500 m, 1.5 m steps: L = 30 m is the
+        // issue's first check value (κ(0) = 3.333e-4 /m); the fewest whole
+        // steps within 1/1500 = 6.667e-4 /m: 6·0.05/L² ≤ 6.667e-4, L ≥
+        // 21.21 m, so 15 steps (22.5 m).
+        assert_eq!((steer.steps, steer.station_m), (Some(15), 14.0));
+        // A ring closed now logs the dta estimate the pipeline made.
+        out.clear();
+        let ring = Reading {
+            t: 1.772e9 + 60.0,
+            data: SensorData::Advance {
+                ring: 7,
+                strokes_mm: None,
+            },
+        };
+        pipeline.feed(&ring, &mut out);
+        let [
+            EngineOutput {
+                values: EstimateValues::Rings(record),
+                ..
+            },
+        ] = out.as_slice()
+        else {
+            panic!("{out:?}")
+        };
+        assert_eq!((record.ring, record.dta_t), (7, Some(1.772e9)));
+        assert!((record.front_horizontal_mm.unwrap() - 50.0).abs() < 1e-6);
+        assert!((record.station_m.unwrap() - 10.0).abs() < 1e-9);
     }
 
     #[test]

@@ -33,6 +33,46 @@ impl EstimateValues {
             _ => None,
         }
     }
+
+    /// Pitch and roll, degrees, of an engine that estimates the attitude.
+    pub fn pitch_roll_deg(&self) -> Option<(f64, f64)> {
+        match self {
+            EstimateValues::Attitude(a) => Some((a.pitch_deg, a.roll_deg)),
+            EstimateValues::Zupt(z) => Some((z.pitch_deg, z.roll_deg)),
+            EstimateValues::Fuzzy(f) => Some((f.pitch_deg, f.roll_deg)),
+            _ => None,
+        }
+    }
+}
+
+/// A `zupt` estimate at rest at the origin, for stage tests.
+#[cfg(test)]
+pub(crate) fn zupt_for_tests(t: f64, smoothed_push: Option<Vec<TrackPoint>>) -> EngineOutput {
+    EngineOutput {
+        t,
+        values: EstimateValues::Zupt(ZuptEstimate {
+            zv: true,
+            position_m: [0.0; 3],
+            distance_m: 0.0,
+            velocity_mps: [0.0; 3],
+            pitch_deg: 0.0,
+            roll_deg: 0.0,
+            yaw_deg: 0.0,
+            aligned: true,
+            position_sigma_m: [0.0; 3],
+            height_m: None,
+            odometer_m: None,
+            mv_ratio: 0.0,
+            are_ratio: 0.0,
+            shoe_ratio: 0.0,
+            mag_ratio: 0.0,
+            yaw_sigma_deg: None,
+            attitude_sigma_deg: None,
+            pitch_sigma_deg: None,
+            roll_sigma_deg: None,
+            smoothed_push,
+        }),
+    }
 }
 
 /// The stored form of a plain estimate struct: postcard.

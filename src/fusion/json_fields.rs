@@ -72,6 +72,11 @@ impl<'a> JsonFields<'a> {
 
     /// `,"key":[x,y,z]`
     pub fn triple(&mut self, key: &str, values: &[f64; 3]) {
+        self.numbers(key, values);
+    }
+
+    /// `,"key":[x,…]`
+    pub fn numbers(&mut self, key: &str, values: &[f64]) {
         self.key(key);
         self.out.push(b'[');
         for (i, value) in values.iter().enumerate() {

@@ -19,7 +19,9 @@ pub mod pushes;
 pub mod reading;
 pub mod registry;
 pub mod reorder;
+pub mod rings;
 pub mod stage;
+pub mod steer;
 pub mod steering;
 pub mod zupt;
 

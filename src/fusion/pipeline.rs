@@ -17,10 +17,9 @@ use super::{Engine, SnapshotError};
 pub struct Pipeline {
     engines: Vec<Box<dyn Engine>>,
     stages: Vec<Box<dyn Stage>>,
-    /// One engine's outputs of the current reading, before the stages.
+    /// One engine's (or stage's) outputs of the current reading, before
+    /// the stages after it.
     scratch: Vec<EngineOutput>,
-    /// The stages' outputs from one estimate.
-    derived: Vec<EngineOutput>,
 }
 
 /// The state of a pipeline, serialisable.
@@ -62,7 +61,6 @@ impl Pipeline {
             engines,
             stages,
             scratch: Vec::new(),
-            derived: Vec::new(),
         }
     }
 
@@ -108,7 +106,6 @@ impl Pipeline {
             engines,
             stages,
             scratch: Vec::new(),
-            derived: Vec::new(),
         })
     }
 
@@ -128,13 +125,16 @@ impl Pipeline {
         }
     }
 
-    /// Feeds one time-ordered reading to the engines that use its sensor
-    /// and the stages; appends every output to `out`, each engine's
-    /// estimates followed by what the stages derive from them.
+    /// Feeds one time-ordered reading to the stages and the engines
+    /// that use its sensor; appends every output to `out`, each followed
+    /// by what the stages after the one that made it derive from it (in
+    /// registry order: `steer` and `rings` see `dta`'s estimates).
     pub fn feed(&mut self, reading: &Reading, out: &mut Vec<EngineOutput>) {
         let sensor = reading.sensor();
-        for stage in &mut self.stages {
-            stage.reading(reading, out);
+        for i in 0..self.stages.len() {
+            let (stage, later) = self.stages[i..].split_at_mut(1);
+            stage[0].reading(reading, &mut self.scratch);
+            pass_on(&mut self.scratch, later, out);
         }
         for engine in &mut self.engines {
             if !engine.kind().sensors().contains(&sensor) {
@@ -145,7 +145,7 @@ impl Pipeline {
                 continue;
             }
             engine.feed(reading, &mut self.scratch);
-            pass_on(&mut self.scratch, &mut self.stages, &mut self.derived, out);
+            pass_on(&mut self.scratch, &mut self.stages, out);
         }
     }
 
@@ -154,15 +154,16 @@ impl Pipeline {
     pub fn flush(&mut self, out: &mut Vec<EngineOutput>) {
         for engine in &mut self.engines {
             engine.flush(&mut self.scratch);
-            pass_on(&mut self.scratch, &mut self.stages, &mut self.derived, out);
+            pass_on(&mut self.scratch, &mut self.stages, out);
         }
     }
 
-    /// Whether a reading of `sensor` feeds any engine.
+    /// Whether a reading of `sensor` feeds any engine or stage.
     pub fn uses(&self, sensor: super::SensorKind) -> bool {
         self.engines
             .iter()
             .any(|e| e.kind().sensors().contains(&sensor))
+            || self.stages.iter().any(|s| s.reads(sensor))
     }
 
     /// The engines.
@@ -184,19 +185,30 @@ impl Pipeline {
     }
 }
 
-/// Moves an engine's `estimates` to `out`, each followed by what the
-/// `stages` derive from it (gathered in `derived`).
+/// Moves `outputs` to `out`, each followed by what the `stages` derive
+/// from it.
 fn pass_on(
-    estimates: &mut Vec<EngineOutput>,
+    outputs: &mut Vec<EngineOutput>,
     stages: &mut [Box<dyn Stage>],
-    derived: &mut Vec<EngineOutput>,
     out: &mut Vec<EngineOutput>,
 ) {
-    for estimate in estimates.drain(..) {
-        for stage in stages.iter_mut() {
-            stage.estimate(&estimate, derived);
+    for output in outputs.drain(..) {
+        offer(output, stages, out);
+    }
+}
+
+/// Appends `output` to `out`, then offers it to each of `stages` in turn:
+/// what one derives follows, each offered in turn to the stages after it.
+fn offer(output: EngineOutput, stages: &mut [Box<dyn Stage>], out: &mut Vec<EngineOutput>) {
+    let at = out.len();
+    out.push(output);
+    for i in 0..stages.len() {
+        let (stage, later) = stages[i..].split_at_mut(1);
+        // Most stages derive nothing from most outputs: no allocation then.
+        let mut derived = Vec::new();
+        stage[0].estimate(&out[at], &mut derived);
+        for d in derived {
+            offer(d, later, out);
         }
-        out.push(estimate);
-        out.append(derived);
     }
 }

@@ -192,7 +192,6 @@ impl StageDescriptor for Pushes {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::fusion::ZuptEstimate;
 
     fn point(t: f64, position_m: [f64; 3], distance_m: f64) -> TrackPoint {
         TrackPoint {
@@ -204,31 +203,7 @@ mod tests {
     }
 
     fn zupt_estimate(t: f64, smoothed_push: Option<Vec<TrackPoint>>) -> EngineOutput {
-        EngineOutput {
-            t,
-            values: EstimateValues::Zupt(ZuptEstimate {
-                zv: true,
-                position_m: [0.0; 3],
-                distance_m: 0.0,
-                velocity_mps: [0.0; 3],
-                pitch_deg: 0.0,
-                roll_deg: 0.0,
-                yaw_deg: 0.0,
-                aligned: true,
-                position_sigma_m: [0.0; 3],
-                height_m: None,
-                odometer_m: None,
-                mv_ratio: 0.0,
-                are_ratio: 0.0,
-                shoe_ratio: 0.0,
-                mag_ratio: 0.0,
-                yaw_sigma_deg: None,
-                attitude_sigma_deg: None,
-                pitch_sigma_deg: None,
-                roll_sigma_deg: None,
-                smoothed_push,
-            }),
-        }
+        crate::fusion::estimate::zupt_for_tests(t, smoothed_push)
     }
 
     #[test]
@@ -313,7 +288,7 @@ mod tests {
         assert!(Pushes::create(&Declaration::of_engines([EngineKind::Attitude])).is_none());
         assert_eq!(
             Declaration::of_engines([EngineKind::Fuzzy, EngineKind::Zupt]).stages(),
-            [StageKind::Pushes]
+            [StageKind::Pushes, StageKind::Rings]
         );
         let outdated = serde_json::json!({"state_version": 0, "pushes": 3});
         assert!(matches!(

@@ -36,17 +36,19 @@ pub enum SensorKind {
     Magnetometer,
     Level,
     Odometer,
+    Advance,
 }
 
 impl SensorKind {
     /// Every sensor kind, in protocol order.
-    pub const ALL: [SensorKind; 6] = [
+    pub const ALL: [SensorKind; 7] = [
         SensorKind::Laser,
         SensorKind::Inclinometer,
         SensorKind::Imu,
         SensorKind::Magnetometer,
         SensorKind::Level,
         SensorKind::Odometer,
+        SensorKind::Advance,
     ];
 
     /// The protocol name (`"laser"`, `"inclinometer"`, ...).
@@ -58,6 +60,7 @@ impl SensorKind {
             SensorKind::Magnetometer => "magnetometer",
             SensorKind::Level => "level",
             SensorKind::Odometer => "odometer",
+            SensorKind::Advance => "advance",
         }
     }
 
@@ -114,6 +117,13 @@ pub enum SensorData {
     Level { height_m: f64 },
     /// Travelled distance from an odometer or encoder.
     Odometer { distance_m: f64 },
+    /// A ring built (a TBM) or a pipe pushed home (a jacked string): its
+    /// number, and the thrust cylinders' strokes if the gateway has them.
+    Advance {
+        ring: u64,
+        #[serde(skip_serializing_if = "Option::is_none")]
+        strokes_mm: Option<Vec<f64>>,
+    },
 }
 
 impl SensorData {
@@ -126,6 +136,7 @@ impl SensorData {
             SensorData::Magnetometer { .. } => SensorKind::Magnetometer,
             SensorData::Level { .. } => SensorKind::Level,
             SensorData::Odometer { .. } => SensorKind::Odometer,
+            SensorData::Advance { .. } => SensorKind::Advance,
         }
     }
 }
@@ -154,7 +165,7 @@ pub enum ReadingError {
         expected: &'static str,
     },
     #[error(
-        "unknown sensor `{0}` (expected laser, inclinometer, imu, magnetometer, level or odometer)"
+        "unknown sensor `{0}` (expected laser, inclinometer, imu, magnetometer, level, odometer or advance)"
     )]
     UnknownSensor(String),
     #[error("field `{field}` is not a finite number")]
@@ -199,7 +210,14 @@ const BOUNDS: &[(&str, f64, f64)] = &[
     // Project grids (UTM, national grids) stay within 10 000 km.
     ("easting_m", -1.0e7, 1.0e7),
     ("northing_m", -1.0e7, 1.0e7),
+    // Ring and pipe numbers: whole, from 0 to ten million.
+    ("ring", 0.0, 1.0e7),
+    // A thrust cylinder's stroke: up to 10 m.
+    ("strokes_mm", 0.0, 10_000.0),
 ];
+
+/// Thrust cylinders an `advance` reading may give the strokes of.
+pub const MAX_STROKES: usize = 64;
 
 /// The bounds the validator holds `field` to, (min, max); unbounded for a
 /// field it does not bound. (The OpenAPI document's reading schema reads
@@ -244,6 +262,31 @@ fn vector(field: &'static str, value: Option<[f64; 3]>) -> Result<[f64; 3], Read
     Ok(v)
 }
 
+/// A ring number: a whole number within its bounds.
+fn ring_number(value: f64) -> Result<u64, ReadingError> {
+    if value.fract() != 0.0 {
+        return Err(ReadingError::WrongType {
+            field: "ring",
+            expected: "a whole number",
+        });
+    }
+    Ok(value as u64)
+}
+
+/// Thrust-cylinder strokes: 1 to [`MAX_STROKES`] numbers within bounds.
+fn strokes(values: Vec<f64>) -> Result<Vec<f64>, ReadingError> {
+    if values.is_empty() || values.len() > MAX_STROKES {
+        return Err(ReadingError::WrongType {
+            field: "strokes_mm",
+            expected: "an array of 1 to 64 numbers",
+        });
+    }
+    for &v in &values {
+        check("strokes_mm", v)?;
+    }
+    Ok(values)
+}
+
 /// The `sensor` field, matched without allocating for the known names.
 #[derive(Debug)]
 enum SensorTag {
@@ -286,6 +329,8 @@ struct RawReading {
     distance_m: Option<f64>,
     easting_m: Option<f64>,
     northing_m: Option<f64>,
+    ring: Option<f64>,
+    strokes_mm: Option<Vec<f64>>,
 }
 
 impl RawReading {
@@ -328,6 +373,10 @@ impl RawReading {
             SensorKind::Odometer => SensorData::Odometer {
                 distance_m: required("distance_m", self.distance_m)?,
             },
+            SensorKind::Advance => SensorData::Advance {
+                ring: ring_number(required("ring", self.ring)?)?,
+                strokes_mm: self.strokes_mm.map(strokes).transpose()?,
+            },
         };
         Ok(Reading { t, data })
     }
@@ -346,6 +395,8 @@ const FIELD_TYPES: &[(&str, FieldType)] = &[
     ("field_ut", FieldType::Vector3),
     ("height_m", FieldType::Number),
     ("distance_m", FieldType::Number),
+    ("ring", FieldType::Number),
+    ("strokes_mm", FieldType::Numbers),
 ];
 
 #[derive(Clone, Copy)]
@@ -353,6 +404,7 @@ enum FieldType {
     Number,
     Text,
     Vector3,
+    Numbers,
 }
 
 impl FieldType {
@@ -366,6 +418,12 @@ impl FieldType {
                         .as_array()
                         .is_some_and(|a| a.len() == 3 && a.iter().all(|x| x.is_number()))
             }
+            FieldType::Numbers => {
+                value.is_null()
+                    || value
+                        .as_array()
+                        .is_some_and(|a| a.iter().all(|x| x.is_number()))
+            }
         }
     }
 
@@ -374,6 +432,7 @@ impl FieldType {
             FieldType::Number => "a number",
             FieldType::Text => "a string",
             FieldType::Vector3 => "an array of 3 numbers",
+            FieldType::Numbers => "an array of numbers",
         }
     }
 }
@@ -470,6 +529,12 @@ impl Reading {
             SensorData::Odometer { distance_m } => {
                 check("distance_m", *distance_m)?;
             }
+            SensorData::Advance { ring, strokes_mm } => {
+                check("ring", *ring as f64)?;
+                if let Some(s) = strokes_mm {
+                    strokes(s.clone())?;
+                }
+            }
         }
         Ok(())
     }
@@ -499,6 +564,7 @@ mod tests {
             r#"{"t":1772431200,"sensor":"magnetometer","field_ut":[20,1,43]}"#,
             r#"{"t":1772431200,"sensor":"level","height_m":12.5}"#,
             r#"{"t":1772431200,"sensor":"odometer","distance_m":3.25}"#,
+            r#"{"t":1772431200,"sensor":"advance","ring":412,"strokes_mm":[1510.5,1498,1502.25,1507]}"#,
         ];
         for (line, kind) in lines.iter().zip(SensorKind::ALL) {
             let r = parse_reading(line.as_bytes()).unwrap();
@@ -590,6 +656,58 @@ mod tests {
             parse_reading(b"{not json").unwrap_err(),
             ReadingError::Json(_)
         ));
+    }
+
+    #[test]
+    fn an_advance_has_a_whole_ring_number_and_at_most_64_strokes_in_bounds() {
+        let plain = parse_reading(br#"{"t":1772431200,"sensor":"advance","ring":0}"#).unwrap();
+        assert_eq!(
+            plain.data,
+            SensorData::Advance {
+                ring: 0,
+                strokes_mm: None
+            }
+        );
+        assert_eq!(
+            plain.to_json(),
+            r#"{"t":1772431200.0,"sensor":"advance","ring":0}"#
+        );
+        let wrong = |line: &str| parse_reading(line.as_bytes()).unwrap_err();
+        assert_eq!(
+            wrong(r#"{"t":1772431200,"sensor":"advance"}"#),
+            ReadingError::Missing { field: "ring" }
+        );
+        assert_eq!(
+            wrong(r#"{"t":1772431200,"sensor":"advance","ring":12.5}"#).field(),
+            Some("ring")
+        );
+        assert_eq!(
+            wrong(r#"{"t":1772431200,"sensor":"advance","ring":-1}"#).field(),
+            Some("ring")
+        );
+        assert_eq!(
+            wrong(r#"{"t":1772431200,"sensor":"advance","ring":3,"strokes_mm":[]}"#).field(),
+            Some("strokes_mm")
+        );
+        assert_eq!(
+            wrong(r#"{"t":1772431200,"sensor":"advance","ring":3,"strokes_mm":[1,"2"]}"#),
+            ReadingError::WrongType {
+                field: "strokes_mm",
+                expected: "an array of numbers"
+            }
+        );
+        assert!(matches!(
+            wrong(r#"{"t":1772431200,"sensor":"advance","ring":3,"strokes_mm":[1,20000]}"#),
+            ReadingError::OutOfRange {
+                field: "strokes_mm",
+                ..
+            }
+        ));
+        let many = format!(
+            r#"{{"t":1772431200,"sensor":"advance","ring":3,"strokes_mm":[{}]}}"#,
+            vec!["1"; 65].join(",")
+        );
+        assert_eq!(wrong(&many).field(), Some("strokes_mm"));
     }
 
     #[test]

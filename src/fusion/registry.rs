@@ -21,7 +21,7 @@ use super::json_fields::JsonFields;
 use super::params::{ParamError, ParamSpec, ParamValue, Params, Retired, TypedParams};
 use super::reading::SensorKind;
 use super::stage::{Declaration, Stage};
-use super::{Engine, SnapshotError, attitude, dta, fuzzy, pushes, zupt};
+use super::{Engine, SnapshotError, attitude, dta, fuzzy, pushes, rings, steer, zupt};
 
 /// Why a stored estimate could not be read.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -384,6 +384,10 @@ registry! {
         Pushes = "pushes" => pushes::Pushes,
         /// Deviation from the designed tunnel axis (machines with an alignment).
         Dta = "dta" => dta::Dta,
+        /// The correction curve back to the axis (machines that declare their steering).
+        Steer = "steer" => steer::Steer,
+        /// The ring (or pipe) log: one record per `advance` reading.
+        Rings = "rings" => rings::Rings,
     }
 }
 

@@ -186,7 +186,7 @@ impl ReorderBuffer {
                 .map(|e| serde_json::to_value(&e.reading).unwrap_or_default())
                 .collect(),
             newest_t: finite(self.newest_t),
-            released_t: self.released_t.map(finite),
+            released_t: self.released_t.map(finite).to_vec(),
             stats: self.stats,
         };
         serde_json::to_value(state).unwrap_or_default()
@@ -207,7 +207,10 @@ impl ReorderBuffer {
             });
         }
         buffer.newest_t = state.newest_t.unwrap_or(f64::NEG_INFINITY);
-        buffer.released_t = state.released_t.map(|t| t.unwrap_or(f64::NEG_INFINITY));
+        // A snapshot from before a sensor kind existed has none for it.
+        for (released, t) in buffer.released_t.iter_mut().zip(state.released_t) {
+            *released = t.unwrap_or(f64::NEG_INFINITY);
+        }
         buffer.stats = state.stats;
         Ok(buffer)
     }
@@ -221,7 +224,8 @@ struct ReorderState {
     /// Held readings in release order, as protocol JSON.
     held: Vec<serde_json::Value>,
     newest_t: Option<f64>,
-    released_t: [Option<f64>; SensorKind::ALL.len()],
+    /// Per sensor kind in protocol order.
+    released_t: Vec<Option<f64>>,
     stats: ReorderStats,
 }
 
@@ -330,6 +334,21 @@ mod tests {
         restored.drain(&mut b);
         assert_eq!(a, b);
         assert_eq!(live.stats(), restored.stats());
+    }
+
+    #[test]
+    fn a_snapshot_from_before_the_advance_sensor_restores() {
+        const T0: f64 = 1.772e9;
+        let mut live = ReorderBuffer::new(2.0, 100);
+        live.push(incl(T0 + 10.0, 1.0));
+        live.drain(&mut Vec::new());
+        let mut snapshot = live.snapshot();
+        // Six sensor kinds then: the inclinometer's release time and five
+        // without one.
+        snapshot["released_t"] = serde_json::json!([null, T0 + 10.0, null, null, null, null]);
+        let mut restored = ReorderBuffer::restore(snapshot).unwrap();
+        assert_eq!(restored.push(incl(T0 + 9.0, 1.0)), Admission::Late);
+        assert_eq!(restored.push(incl(T0 + 11.0, 1.0)), Admission::Buffered);
     }
 
     #[test]

@@ -10,8 +10,9 @@ use std::sync::Arc;
 use super::alignment::Alignment;
 use super::dta::{MachineGeometry, Tolerances};
 use super::estimate::EngineOutput;
-use super::reading::{ProjectPoint, Reading};
+use super::reading::{ProjectPoint, Reading, SensorKind};
 use super::registry::{EngineKind, StageKind};
+use super::steering::SteeringSpec;
 
 /// The part of a machine's declaration stages read.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -26,6 +27,8 @@ pub struct Declaration {
     /// Project coordinates of its reference point at the first reading
     /// (for engines whose position is relative to their start).
     pub start: Option<ProjectPoint>,
+    /// How the machine may be steered (the `steer` stage's curve).
+    pub steering: Option<SteeringSpec>,
 }
 
 impl Declaration {
@@ -57,13 +60,20 @@ pub trait Stage: Send {
     /// Which stage this is.
     fn kind(&self) -> StageKind;
 
+    /// Whether the stage reads readings of `sensor` (a reading no engine
+    /// and no stage reads is not fed at all).
+    fn reads(&self, _sensor: SensorKind) -> bool {
+        false
+    }
+
     /// A reading as the engines are fed it (in time order, after the
     /// reorder buffer); appends what it derives to `out`. Most stages
     /// need only estimates.
     fn reading(&mut self, _reading: &Reading, _out: &mut Vec<EngineOutput>) {}
 
-    /// An engine's estimate, in the order the engines emit them; appends
-    /// what it derives to `out`.
+    /// An engine's estimate, or an earlier stage's output, in the order
+    /// they are emitted; appends what it derives to `out` (offered in
+    /// turn to the stages after this one).
     fn estimate(&mut self, estimate: &EngineOutput, out: &mut Vec<EngineOutput>);
 
     /// The whole state, serialisable: [`StageKind::restore`] continues

@@ -342,22 +342,25 @@ pub struct ReadingsQuery {
 }
 
 /// Columns of the CSV export; a reading fills those of its sensor (a
-/// laser's position: `easting_m`, `northing_m` and `height_m`).
+/// laser's position: `easting_m`, `northing_m` and `height_m`; an
+/// advance's strokes: one cell, the numbers separated by spaces).
 pub const CSV_HEADER: &str = "t,sensor,pitch_deg,roll_deg,yaw_deg,temp_c,\
 accel_x_mps2,accel_y_mps2,accel_z_mps2,gyro_x_dps,gyro_y_dps,gyro_z_dps,\
-field_x_ut,field_y_ut,field_z_ut,height_m,distance_m,easting_m,northing_m\n";
+field_x_ut,field_y_ut,field_z_ut,height_m,distance_m,easting_m,northing_m,\
+ring,strokes_mm\n";
 
 fn csv_row(reading: &Reading, out: &mut String) {
     use std::fmt::Write;
-    let mut cells: [Option<f64>; 17] = [None; 17];
-    match reading.data {
+    let mut cells: [Option<f64>; 18] = [None; 18];
+    let mut strokes: &[f64] = &[];
+    match &reading.data {
         SensorData::Laser {
             pitch_deg,
             roll_deg,
             yaw_deg,
             position,
         } => {
-            (cells[0], cells[1], cells[2]) = (Some(pitch_deg), Some(roll_deg), yaw_deg);
+            (cells[0], cells[1], cells[2]) = (Some(*pitch_deg), Some(*roll_deg), *yaw_deg);
             if let Some(p) = position {
                 (cells[13], cells[15], cells[16]) =
                     (Some(p.height_m), Some(p.easting_m), Some(p.northing_m));
@@ -368,7 +371,7 @@ fn csv_row(reading: &Reading, out: &mut String) {
             roll_deg,
             temp_c,
         } => {
-            (cells[0], cells[1], cells[3]) = (Some(pitch_deg), Some(roll_deg), temp_c);
+            (cells[0], cells[1], cells[3]) = (Some(*pitch_deg), Some(*roll_deg), *temp_c);
         }
         SensorData::Imu {
             accel_mps2,
@@ -384,8 +387,12 @@ fn csv_row(reading: &Reading, out: &mut String) {
                 cells[10 + i] = Some(field_ut[i]);
             }
         }
-        SensorData::Level { height_m } => cells[13] = Some(height_m),
-        SensorData::Odometer { distance_m } => cells[14] = Some(distance_m),
+        SensorData::Level { height_m } => cells[13] = Some(*height_m),
+        SensorData::Odometer { distance_m } => cells[14] = Some(*distance_m),
+        SensorData::Advance { ring, strokes_mm } => {
+            cells[17] = Some(*ring as f64);
+            strokes = strokes_mm.as_deref().unwrap_or_default();
+        }
     }
     let _ = write!(out, "{},{}", reading.t, reading.sensor());
     for cell in cells {
@@ -393,6 +400,10 @@ fn csv_row(reading: &Reading, out: &mut String) {
         if let Some(x) = cell {
             let _ = write!(out, "{x}");
         }
+    }
+    out.push(',');
+    for (i, stroke) in strokes.iter().enumerate() {
+        let _ = write!(out, "{}{stroke}", if i > 0 { " " } else { "" });
     }
     out.push('\n');
 }

@@ -19,6 +19,7 @@ pub mod mqtt;
 pub mod notify;
 pub(crate) mod openapi;
 pub mod pages;
+mod report;
 pub mod settings;
 pub mod sites;
 pub mod state;
@@ -120,6 +121,7 @@ fn api_routes(state: &SharedState) -> OpenApiRouter<SharedState> {
         .routes(guard(Admin, routes!(alignment::put)))
         .routes(guard(Read, routes!(alignment::axis)))
         .routes(guard(Read, routes!(steering::show)))
+        .routes(guard(Read, routes!(report::show)))
         .routes(guard(Read, routes!(alarms::list)))
         .routes(guard(Read, routes!(live::alarms_websocket)))
         .routes(guard(Read, routes!(alarms::ack)))

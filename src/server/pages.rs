@@ -198,7 +198,7 @@ pub fn stage_section(
             }
             .render()
         }
-        StageKind::Pushes => return Ok(None),
+        StageKind::Pushes | StageKind::Steer | StageKind::Rings => return Ok(None),
     }
     .map_err(|source| SectionError::RenderStage { stage, source })?;
     Ok(Some(EngineSection {
@@ -212,7 +212,7 @@ fn stage_script(stage: StageKind) -> Option<&'static Asset> {
     const DTA: Asset = asset!("dta.js", "text/javascript; charset=utf-8");
     match stage {
         StageKind::Dta => Some(&DTA),
-        StageKind::Pushes => None,
+        StageKind::Pushes | StageKind::Steer | StageKind::Rings => None,
     }
 }
 

@@ -12,7 +12,7 @@
 //!   (the row's `codec` column); each engine's `estimate.rs` decodes every
 //!   version it has had.
 
-use crate::fusion::reading::ProjectPoint;
+use crate::fusion::reading::{MAX_STROKES, ProjectPoint};
 use crate::fusion::{EstimateValues, Reading, SensorData, SensorKind, StreamKind};
 
 use super::StoreError;
@@ -45,6 +45,12 @@ pub fn encode_reading(data: &SensorData) -> Vec<u8> {
         SensorData::Magnetometer { field_ut } => numbers.extend(field_ut),
         SensorData::Level { height_m } => numbers.push(*height_m),
         SensorData::Odometer { distance_m } => numbers.push(*distance_m),
+        // The ring number (exact as an f64 within its bounds), then the
+        // strokes, if any.
+        SensorData::Advance { ring, strokes_mm } => {
+            numbers.push(*ring as f64);
+            numbers.extend(strokes_mm.iter().flatten());
+        }
     }
     numbers.iter().flat_map(|x| x.to_le_bytes()).collect()
 }
@@ -104,6 +110,14 @@ pub fn decode_reading(t: f64, sensor: SensorKind, bytes: &[u8]) -> Result<Readin
         (SensorKind::Odometer, [distance_m]) => SensorData::Odometer {
             distance_m: *distance_m,
         },
+        (SensorKind::Advance, [ring, strokes @ ..])
+            if ring.fract() == 0.0 && *ring >= 0.0 && strokes.len() <= MAX_STROKES =>
+        {
+            SensorData::Advance {
+                ring: *ring as u64,
+                strokes_mm: (!strokes.is_empty()).then(|| strokes.to_vec()),
+            }
+        }
         _ => return Err(corrupt()),
     };
     Ok(Reading { t, data })
@@ -184,6 +198,14 @@ mod tests {
             },
             SensorData::Level { height_m: -12.345 },
             SensorData::Odometer { distance_m: 36.0 },
+            SensorData::Advance {
+                ring: 412,
+                strokes_mm: None,
+            },
+            SensorData::Advance {
+                ring: 9_999_999,
+                strokes_mm: Some(vec![1510.5, 0.0, 1e-3]),
+            },
         ] {
             let bytes = encode_reading(&data);
             let back = decode_reading(t, data.kind(), &bytes).unwrap();

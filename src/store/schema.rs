@@ -21,7 +21,7 @@ const MIGRATIONS: &[&str] = &[
         machine_id INTEGER NOT NULL REFERENCES machines(id),
         t REAL NOT NULL,
         -- SensorKind in protocol order: 0 laser, 1 inclinometer, 2 imu,
-        -- 3 magnetometer, 4 level, 5 odometer
+        -- 3 magnetometer, 4 level, 5 odometer, 6 advance
         sensor INTEGER NOT NULL,
         body BLOB NOT NULL
     );

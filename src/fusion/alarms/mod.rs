@@ -16,7 +16,9 @@
 //! - `attitude_uncertainty`: the pitch 1σ above a limit (a long laser
 //!   dropout, a roll the model has not seen: steer with care);
 //! - `engine_reset`: an INS lost its solution and re-aligns (the engine is
-//!   the alarm's subject).
+//!   the alarm's subject);
+//! - `steering_infeasible`: no correction curve within the machine's
+//!   minimum radius reaches the axis within 500 m (`steer`).
 //!
 //! Values at a limit do not flap: a limit must be undercut by a band
 //! before it counts as cleared, and a condition must hold (or be gone) for
@@ -59,6 +61,8 @@ pub enum AlarmKind {
     InsUncertainty,
     EngineReset,
     AttitudeUncertainty,
+    /// No correction curve within the minimum radius reaches the axis.
+    SteeringInfeasible,
     /// An office's: the link to the machine's site has been down, or its
     /// backlog unsent, longer than the office allows (the server raises
     /// it, not the machine's rules).
@@ -67,13 +71,14 @@ pub enum AlarmKind {
 
 impl AlarmKind {
     /// Every kind.
-    pub const ALL: [AlarmKind; 7] = [
+    pub const ALL: [AlarmKind; 8] = [
         AlarmKind::Deviation,
         AlarmKind::LaserDropout,
         AlarmKind::StaleSensor,
         AlarmKind::InsUncertainty,
         AlarmKind::EngineReset,
         AlarmKind::AttitudeUncertainty,
+        AlarmKind::SteeringInfeasible,
         AlarmKind::SiteLink,
     ];
 
@@ -91,6 +96,7 @@ impl AlarmKind {
             AlarmKind::InsUncertainty => "ins_uncertainty",
             AlarmKind::EngineReset => "engine_reset",
             AlarmKind::AttitudeUncertainty => "attitude_uncertainty",
+            AlarmKind::SteeringInfeasible => "steering_infeasible",
             AlarmKind::SiteLink => "site_link",
         }
     }
@@ -260,6 +266,8 @@ pub struct AlarmState {
     #[serde(default)]
     attitude: [Level; 2],
     reset: Debounced,
+    #[serde(default)]
+    steering: Debounced,
     was_aligned: bool,
     sensors: BTreeMap<SensorKind, (LearnedPeriod, Debounced)>,
 }
@@ -354,7 +362,9 @@ impl AlarmRules {
     pub fn tick(&mut self, now_t: f64, out: &mut Vec<Transition>) {
         let c = self.config;
         for (sensor, (period, stale)) in &mut self.state.sensors {
-            if *sensor == SensorKind::Laser {
+            // The laser's beam is lost routinely (`laser_dropout`); a ring
+            // is closed when it is built, not on a period.
+            if matches!(sensor, SensorKind::Laser | SensorKind::Advance) {
                 continue;
             }
             let (Some(last_t), Some(period_s)) = (period.last_t, period.period_s()) else {
@@ -407,6 +417,9 @@ impl AlarmRules {
         let navigation = signals
             .navigation
             .filter(|_| watched(SignalKind::Navigation));
+        let steering_feasible = signals
+            .steering_feasible
+            .filter(|_| watched(SignalKind::Steering));
         if let Some(deviation) = &deviation {
             self.deviation(t, deviation, out);
         }
@@ -418,6 +431,24 @@ impl AlarmRules {
         }
         if let Some(navigation) = navigation {
             self.navigation(t, stream, navigation, out);
+        }
+        if let Some(feasible) = steering_feasible {
+            self.steering(t, feasible, out);
+        }
+    }
+
+    /// `steering_infeasible` while no curve reaches the axis (for the
+    /// minimum time, as a deviation).
+    fn steering(&mut self, t: f64, feasible: bool, out: &mut Vec<Transition>) {
+        let min_s = self.config.min_duration_s;
+        if let Some(edge) = self.state.steering.update(t, !feasible, min_s) {
+            push(
+                out,
+                key(AlarmKind::SteeringInfeasible, Severity::Alarm, ""),
+                edge,
+                "no correction curve within the machine's minimum radius reaches the design axis within 500 m".into(),
+                "a correction curve back to the axis again".into(),
+            );
         }
     }
 
@@ -658,6 +689,43 @@ mod tests {
             out[1].message.contains("rear vertical -70 mm (±60 mm)"),
             "{}",
             out[1].message
+        );
+    }
+
+    #[test]
+    fn steering_infeasible_is_raised_once_held_and_cleared_once_a_curve_returns() {
+        use crate::fusion::steer::{SteerEstimate, SteerPlane};
+        let steer = |t: f64, feasible: bool| {
+            let plane = SteerPlane {
+                deviation_mm: 0.0,
+                tendency_mm_per_m: 0.0,
+                next_deviation_mm: None,
+                stroke_difference_mm: None,
+            };
+            EngineOutput {
+                t,
+                values: EstimateValues::Steer(SteerEstimate {
+                    station_m: 0.0,
+                    feasible,
+                    steps: None,
+                    length_m: None,
+                    horizontal: plane,
+                    vertical: plane,
+                }),
+            }
+        };
+        let mut r = rules();
+        // Infeasible from t = 5 for 10 s (the default minimum): raised at
+        // 15, dated 5; feasible again from 30: cleared at 40, dated 30.
+        let mut out = run(&mut r, (0..5).map(|i| steer(f64::from(i), true)));
+        assert!(out.is_empty());
+        out.extend(run(&mut r, (5..30).map(|i| steer(f64::from(i), false))));
+        out.extend(run(&mut r, (30..=45).map(|i| steer(f64::from(i), true))));
+        let edges: Vec<(bool, f64)> = out.iter().map(|t| (t.raised, t.t)).collect();
+        assert_eq!(edges, [(true, 5.0), (false, 30.0)], "{out:?}");
+        assert_eq!(
+            out[0].key,
+            key(AlarmKind::SteeringInfeasible, Severity::Alarm, "")
         );
     }
 

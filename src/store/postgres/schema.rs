@@ -27,7 +27,7 @@ const MIGRATIONS: &[&str] = &[
         machine_id bigint NOT NULL REFERENCES machines(id),
         t double precision NOT NULL,
         -- SensorKind in protocol order: 0 laser, 1 inclinometer, 2 imu,
-        -- 3 magnetometer, 4 level, 5 odometer
+        -- 3 magnetometer, 4 level, 5 odometer, 6 advance
         sensor smallint NOT NULL,
         body bytea NOT NULL,
         -- A sensor has one reading per instant: a resent reading is stored once.

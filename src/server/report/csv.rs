@@ -1,0 +1,157 @@
+//! The report as CSV, for spreadsheets: one table per section, each row's
+//! first cell naming its table (`advance`, `deviation`, `ring`, …), the
+//! first row of each its column names. Every value is the JSON report's
+//! own, written as the JSON writes it (so the CSV equals the API).
+
+use serde_json::Value;
+
+use super::Report;
+
+/// The sections: the table name, the report's field, and whether it is a
+/// list of rows (else one object).
+const SECTIONS: [(&str, &str, bool); 7] = [
+    ("report", "", false),
+    ("advance", "advance", false),
+    ("deviation", "deviations", true),
+    ("ring", "rings", true),
+    ("push", "pushes", true),
+    ("alarm", "alarms", true),
+    ("laser_dropout", "laser_dropouts", true),
+];
+
+/// The CSV text of `report`.
+pub fn write(report: &Report) -> String {
+    // Plain structs of numbers and strings: serialising cannot fail.
+    let value = serde_json::to_value(report).unwrap_or(Value::Null);
+    let mut out = String::new();
+    for (table, field, is_list) in SECTIONS {
+        let rows: Vec<&Value> = match (field, is_list) {
+            ("", _) => vec![&value],
+            (_, false) => vec![&value[field]],
+            (_, true) => value[field]
+                .as_array()
+                .map(|rows| rows.iter().collect())
+                .unwrap_or_default(),
+        };
+        let columns = columns(table);
+        line(&mut out, table, columns.iter().map(|c| c.to_string()));
+        for row in rows {
+            line(&mut out, table, columns.iter().map(|c| cell(row.get(*c))));
+        }
+    }
+    out
+}
+
+/// A table's columns in the order its struct declares its fields (the
+/// JSON object's keys are sorted; an empty list has no object to ask).
+/// The HTTP test checks them against the JSON's keys.
+fn columns(table: &str) -> &'static [&'static str] {
+    match table {
+        "report" => &["machine", "name", "from", "to"],
+        "advance" => &[
+            "rings",
+            "first_ring",
+            "last_ring",
+            "start_station_m",
+            "end_station_m",
+            "advance_m",
+            "pushes",
+            "pushed_m",
+        ],
+        "deviation" => &["point", "plane", "deviation_mm", "t", "station_m"],
+        "ring" => &[
+            "ring",
+            "t",
+            "start_t",
+            "duration_s",
+            "station_m",
+            "advance_m",
+            "front_horizontal_mm",
+            "front_vertical_mm",
+            "rear_horizontal_mm",
+            "rear_vertical_mm",
+            "tendency_horizontal_mm_per_m",
+            "tendency_vertical_mm_per_m",
+            "dta_t",
+            "pitch_deg",
+            "roll_deg",
+            "strokes_mm",
+        ],
+        "push" => &[
+            "push",
+            "t",
+            "start_t",
+            "end_t",
+            "duration_s",
+            "length_m",
+            "speed_mm_per_s",
+            "course_deg",
+            "grade_pct",
+            "end_position_m",
+            "end_position_sigma_m",
+        ],
+        "alarm" => &[
+            "id",
+            "kind",
+            "severity",
+            "subject",
+            "raised_t",
+            "cleared_t",
+            "acked_t",
+            "acked_by",
+            "message",
+        ],
+        "laser_dropout" => &["from_t", "to_t", "duration_s"],
+        _ => &[],
+    }
+}
+
+fn line(out: &mut String, table: &str, cells: impl Iterator<Item = String>) {
+    out.push_str(table);
+    for cell in cells {
+        out.push(',');
+        out.push_str(&cell);
+    }
+    out.push('\n');
+}
+
+/// Numbers as the JSON has them, nothing for null, text quoted where it
+/// must be (quotes doubled), lists as their numbers separated by spaces.
+fn cell(value: Option<&Value>) -> String {
+    match value {
+        None | Some(Value::Null) => String::new(),
+        Some(Value::Number(n)) => n.to_string(),
+        Some(Value::Bool(b)) => b.to_string(),
+        Some(Value::String(s)) if s.contains([',', '"', '\n', '\r']) => {
+            format!("\"{}\"", s.replace('"', "\"\""))
+        }
+        Some(Value::String(s)) => s.clone(),
+        Some(Value::Array(items)) => items
+            .iter()
+            .map(|item| cell(Some(item)))
+            .collect::<Vec<_>>()
+            .join(" "),
+        Some(other) => format!("\"{}\"", other.to_string().replace('"', "\"\"")),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cells_are_written_as_the_json_has_them() {
+        let json: Value = serde_json::from_str(
+            r#"{"a": 0.1, "b": null, "c": "x, \"y\"", "d": [1.5, 2], "e": 1e-7, "f": "plain"}"#,
+        )
+        .unwrap();
+        let cells: Vec<String> = ["a", "b", "c", "d", "e", "f", "g"]
+            .iter()
+            .map(|k| cell(json.get(k)))
+            .collect();
+        assert_eq!(
+            cells,
+            ["0.1", "", "\"x, \"\"y\"\"\"", "1.5 2", "1e-7", "plain", ""]
+        );
+    }
+}

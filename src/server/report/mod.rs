@@ -1,0 +1,431 @@
+//! `GET /api/v1/machines/{machine}/report`: the shift report. Over a time
+//! range, from what the machine's streams stored: the advance (rings,
+//! pushes, station gained), the largest deviations from the axis, the
+//! ring and push logs, the alarms raised or still active and who
+//! acknowledged them, the laser's dropouts, and the deviation chart. As
+//! JSON (the numbers), CSV (the same numbers, a table per section), a
+//! printable HTML page or a PDF; the page and the PDF lay out the same
+//! tables ([`layout`]).
+
+mod csv;
+mod layout;
+mod pdf;
+
+use askama::Template;
+use axum::extract::{Path, Query, State};
+use axum::http::header;
+use axum::response::{IntoResponse, Response};
+use serde::{Deserialize, Serialize};
+
+use super::error::ApiError;
+use super::history::parse_time;
+use super::openapi::MachinePath;
+use super::state::SharedState;
+use crate::fusion::pushes::PushRecord;
+use crate::fusion::rings::RingRecord;
+use crate::fusion::{EngineKind, EstimateValues, SensorKind, StreamKind};
+use crate::machine::MachineHandle;
+use crate::store::alarms::{AlarmFilter, StoredAlarm};
+use crate::store::{Store, StoreError};
+
+/// One shift: the range a report covers when the query names none.
+pub const DEFAULT_SPAN_S: f64 = 8.0 * 3600.0;
+/// Points of the deviation chart (the range downsampled, keeping each
+/// bucket's extremes).
+pub const CHART_POINTS: usize = 400;
+
+/// The report's query.
+#[derive(Debug, Deserialize, utoipa::IntoParams)]
+#[serde(deny_unknown_fields)]
+#[into_params(parameter_in = Query)]
+pub struct ReportQuery {
+    /// Start of the shift: Unix seconds or RFC 3339 (default: 8 h before
+    /// `to`).
+    from: Option<String>,
+    /// End of the shift (default: now); after `from`.
+    to: Option<String>,
+    /// `json` (default), `csv`, `html` or `pdf`.
+    #[param(inline, value_type = Option<ReportFormat>)]
+    format: Option<String>,
+}
+
+/// How the report is answered.
+#[derive(Debug, Clone, Copy, PartialEq, utoipa::ToSchema)]
+#[schema(rename_all = "lowercase")]
+pub enum ReportFormat {
+    Json,
+    Csv,
+    Html,
+    Pdf,
+}
+
+/// The advance over the range.
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct Advance {
+    /// Rings (or pipes) completed: `advance` readings in the range.
+    pub rings: u64,
+    pub first_ring: Option<u64>,
+    pub last_ring: Option<u64>,
+    /// Station of the reference point at the first and the last `dta`
+    /// estimate of the range; `null` without one.
+    pub start_station_m: Option<f64>,
+    pub end_station_m: Option<f64>,
+    /// `end_station_m` − `start_station_m`.
+    pub advance_m: Option<f64>,
+    /// Pushes of a jacked string (`pushes` log) and their total length.
+    pub pushes: u64,
+    pub pushed_m: f64,
+}
+
+/// The largest deviation of one point in one plane over the range.
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct LargestDeviation {
+    /// `front` or `rear`.
+    pub point: &'static str,
+    /// `horizontal` or `vertical`.
+    pub plane: &'static str,
+    /// The deviation, mm, signed (largest in magnitude).
+    pub deviation_mm: f64,
+    /// When and where.
+    pub t: f64,
+    pub station_m: f64,
+}
+
+/// A ring of the log, with its completion time.
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct RingRow {
+    pub t: f64,
+    #[serde(flatten)]
+    pub ring: RingRecord,
+}
+
+/// A push of the jacking log, with its time.
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct PushRow {
+    pub t: f64,
+    #[serde(flatten)]
+    pub push: PushRecord,
+}
+
+/// A stretch without a laser sample longer than the machine's
+/// `laser_dropout_warn_s`.
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct Dropout {
+    pub from_t: f64,
+    pub to_t: f64,
+    pub duration_s: f64,
+}
+
+/// A point of the deviation chart: the front's deviations.
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct ChartPoint {
+    pub t: f64,
+    pub station_m: f64,
+    pub horizontal_mm: f64,
+    pub vertical_mm: f64,
+}
+
+/// The shift report.
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct Report {
+    pub machine: String,
+    pub name: String,
+    pub from: f64,
+    pub to: f64,
+    pub advance: Advance,
+    /// Front and rear, horizontal and vertical: empty without `dta`
+    /// estimates in the range.
+    pub deviations: Vec<LargestDeviation>,
+    pub rings: Vec<RingRow>,
+    pub pushes: Vec<PushRow>,
+    /// Alarms raised in the range or still active at its start, oldest
+    /// first, with who acknowledged them.
+    pub alarms: Vec<StoredAlarm>,
+    /// `null` for a machine that does not fuse a laser.
+    pub laser_dropouts: Option<Vec<Dropout>>,
+    /// The front's deviation over the range, at most 400 points.
+    pub chart: Vec<ChartPoint>,
+}
+
+/// The shift report.
+///
+/// `GET /api/v1/machines/{machine}/report?from=&to=&format=json|csv|html|pdf`
+/// (docs/api.md, "Shift report").
+#[utoipa::path(get, path = "/api/v1/machines/{machine}/report", operation_id = "get_report", tag = "estimates",
+    params(MachinePath, ReportQuery),
+    responses((status = OK, description = "The report over the range",
+        content(
+            (Report = "application/json"),
+            (String = "text/csv"),
+            (String = "text/html"),
+            (Vec<u8> = "application/pdf"))),
+        (status = BAD_REQUEST, description = "A bad time or format", body = super::error::ErrorBody),
+        (status = NOT_FOUND, description = "No such machine", body = super::error::ErrorBody)))]
+pub async fn show(
+    State(state): State<SharedState>,
+    Path(MachinePath { machine }): Path<MachinePath>,
+    query: Result<Query<ReportQuery>, axum::extract::rejection::QueryRejection>,
+) -> Result<Response, ApiError> {
+    let Query(query) =
+        query.map_err(|e| ApiError::BadRequest(format!("bad query string: {}", e.body_text())))?;
+    let format = match query.format.as_deref() {
+        None | Some("json") => ReportFormat::Json,
+        Some("csv") => ReportFormat::Csv,
+        Some("html") => ReportFormat::Html,
+        Some("pdf") => ReportFormat::Pdf,
+        Some(other) => {
+            return Err(ApiError::BadRequest(format!(
+                "`format` = `{other}`: expected json, csv, html or pdf"
+            )));
+        }
+    };
+    let to = match &query.to {
+        Some(text) => parse_time("to", text)?,
+        None => state.clock.now_s(),
+    };
+    let from = match &query.from {
+        Some(text) => parse_time("from", text)?,
+        None => to - DEFAULT_SPAN_S,
+    };
+    if from >= to {
+        return Err(ApiError::BadRequest(format!(
+            "`from` ({from}) is not before `to` ({to})"
+        )));
+    }
+    let handle = state.machine(&machine)?;
+    let store = state.store.clone();
+    let report = tokio::task::spawn_blocking(move || gather(&store, &handle, from, to))
+        .await
+        .map_err(|e| ApiError::Internal(e.to_string()))??;
+    let attachment = |extension: &str| {
+        format!(
+            "inline; filename=\"{}-report-{}-{}.{extension}\"",
+            report.machine, report.from, report.to
+        )
+    };
+    Ok(match format {
+        ReportFormat::Json => axum::Json(report).into_response(),
+        ReportFormat::Csv => (
+            [
+                (header::CONTENT_TYPE, "text/csv; charset=utf-8".to_string()),
+                (header::CONTENT_DISPOSITION, attachment("csv")),
+            ],
+            csv::write(&report),
+        )
+            .into_response(),
+        ReportFormat::Html => {
+            let page = layout::ReportPage::new(&report);
+            let html = page
+                .render()
+                .map_err(|e| ApiError::Internal(format!("the report page: {e}")))?;
+            ([(header::CONTENT_TYPE, "text/html; charset=utf-8")], html).into_response()
+        }
+        ReportFormat::Pdf => {
+            let bytes = pdf::write(&layout::ReportPage::new(&report))
+                .map_err(|e| ApiError::Internal(format!("the report PDF: {e}")))?;
+            (
+                [
+                    (header::CONTENT_TYPE, "application/pdf".to_string()),
+                    (header::CONTENT_DISPOSITION, attachment("pdf")),
+                ],
+                bytes,
+            )
+                .into_response()
+        }
+    })
+}
+
+/// The report of `machine` over [`from`, `to`], from the store.
+fn gather(
+    store: &Store,
+    machine: &MachineHandle,
+    from: f64,
+    to: f64,
+) -> Result<Report, StoreError> {
+    let spec = &machine.spec;
+    let db_id = machine.db_id;
+    let streams = spec.streams();
+    let runs = |stream: StreamKind| streams.contains(&stream);
+
+    let mut rings = Vec::new();
+    if runs(StreamKind::Rings) {
+        store.export_estimates(db_id, StreamKind::Rings, from, to, |e| {
+            if let EstimateValues::Rings(ring) = &e.values {
+                rings.push(RingRow {
+                    t: e.t,
+                    ring: ring.clone(),
+                });
+            }
+            true
+        })?;
+    }
+    let mut pushes = Vec::new();
+    if runs(StreamKind::Pushes) {
+        store.export_estimates(db_id, StreamKind::Pushes, from, to, |e| {
+            if let EstimateValues::Pushes(push) = &e.values {
+                pushes.push(PushRow {
+                    t: e.t,
+                    push: push.clone(),
+                });
+            }
+            true
+        })?;
+    }
+
+    // Every dta estimate of the range: the largest deviations are exact.
+    let mut deviations: Vec<LargestDeviation> = Vec::new();
+    let mut stations: Option<(f64, f64)> = None;
+    if runs(StreamKind::Dta) {
+        store.export_estimates(db_id, StreamKind::Dta, from, to, |e| {
+            let EstimateValues::Dta(d) = &e.values else {
+                return true;
+            };
+            stations = Some(match stations {
+                Some((first, _)) => (first, d.station_m),
+                None => (d.station_m, d.station_m),
+            });
+            let values = [
+                (
+                    "front",
+                    "horizontal",
+                    d.front.horizontal_mm,
+                    d.front.station_m,
+                ),
+                ("front", "vertical", d.front.vertical_mm, d.front.station_m),
+                ("rear", "horizontal", d.rear.horizontal_mm, d.rear.station_m),
+                ("rear", "vertical", d.rear.vertical_mm, d.rear.station_m),
+            ];
+            if deviations.is_empty() {
+                deviations = values
+                    .iter()
+                    .map(
+                        |&(point, plane, deviation_mm, station_m)| LargestDeviation {
+                            point,
+                            plane,
+                            deviation_mm,
+                            t: e.t,
+                            station_m,
+                        },
+                    )
+                    .collect();
+            }
+            for (largest, &(_, _, deviation_mm, station_m)) in deviations.iter_mut().zip(&values) {
+                if deviation_mm.abs() > largest.deviation_mm.abs() {
+                    (largest.deviation_mm, largest.t, largest.station_m) =
+                        (deviation_mm, e.t, station_m);
+                }
+            }
+            true
+        })?;
+    }
+    let chart = if runs(StreamKind::Dta) {
+        store
+            .estimates_page(db_id, StreamKind::Dta, from, to, CHART_POINTS)?
+            .estimates
+            .iter()
+            .filter_map(|e| match &e.values {
+                EstimateValues::Dta(d) => Some(ChartPoint {
+                    t: e.t,
+                    station_m: d.front.station_m,
+                    horizontal_mm: d.front.horizontal_mm,
+                    vertical_mm: d.front.vertical_mm,
+                }),
+                _ => None,
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+
+    let mut alarms = store.alarms(&AlarmFilter {
+        machine: Some(spec.id.clone()),
+        active_only: false,
+    })?;
+    alarms.retain(|a| a.raised_t <= to && a.cleared_t.is_none_or(|cleared| cleared >= from));
+    alarms.sort_by(|a, b| a.raised_t.total_cmp(&b.raised_t).then(a.id.cmp(&b.id)));
+
+    let laser_dropouts = if spec.engines.contains_key(&EngineKind::Attitude) {
+        let status = machine.status();
+        // The range ends for the laser where the machine's readings do.
+        let newest_t = status
+            .sensors
+            .values()
+            .map(|s| s.last_t)
+            .fold(f64::NEG_INFINITY, f64::max);
+        Some(dropouts(
+            store,
+            db_id,
+            from,
+            to.min(newest_t),
+            spec.alarms.laser_dropout_warn_s,
+        )?)
+    } else {
+        None
+    };
+
+    let advance = Advance {
+        rings: rings.len() as u64,
+        first_ring: rings.first().map(|r| r.ring.ring),
+        last_ring: rings.last().map(|r| r.ring.ring),
+        start_station_m: stations.map(|s| s.0),
+        end_station_m: stations.map(|s| s.1),
+        advance_m: stations.map(|(first, last)| last - first),
+        pushes: pushes.len() as u64,
+        pushed_m: pushes.iter().map(|p| p.push.length_m).sum(),
+    };
+    Ok(Report {
+        machine: spec.id.clone(),
+        name: spec.name.clone(),
+        from,
+        to,
+        advance,
+        deviations,
+        rings,
+        pushes,
+        alarms,
+        laser_dropouts,
+        chart,
+    })
+}
+
+/// Stretches of [`from`, `until`] within a gap of more than `limit_s`
+/// between laser readings. The search starts `limit_s` before `from`: a
+/// range that opens without a reading in that time opens in a dropout.
+fn dropouts(
+    store: &Store,
+    db_id: i64,
+    from: f64,
+    until: f64,
+    limit_s: f64,
+) -> Result<Vec<Dropout>, StoreError> {
+    let mut gaps = Vec::new();
+    if until <= from {
+        return Ok(gaps);
+    }
+    let mut previous = from - limit_s;
+    let gap = |start: f64, end: f64, gaps: &mut Vec<Dropout>| {
+        if end - start > limit_s {
+            let (from_t, to_t) = (start.max(from), end.min(until));
+            if to_t > from_t {
+                gaps.push(Dropout {
+                    from_t,
+                    to_t,
+                    duration_s: to_t - from_t,
+                });
+            }
+        }
+    };
+    store.export_readings(
+        db_id,
+        Some(SensorKind::Laser),
+        from - limit_s,
+        until,
+        |reading| {
+            gap(previous, reading.t, &mut gaps);
+            previous = reading.t;
+            true
+        },
+    )?;
+    gap(previous, until, &mut gaps);
+    Ok(gaps)
+}
