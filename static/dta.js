@@ -8,6 +8,11 @@
 //
 // Signs as the stage gives them: horizontal + right of the axis looking
 // along increasing station, vertical + above the design height.
+//
+// A machine that declares its steering also gets the correction curve
+// (`GET .../steering`, fetched for each newest dta estimate): on the
+// target (where the front should be after each step, the next one
+// ringed), dashed on the deviation charts, and as a table per step.
 'use strict';
 
 tn.registerEngine('dta', {
@@ -96,7 +101,12 @@ tn.registerEngine('dta', {
       lastLiveT: null,
       connection: 'connecting',
       backfilled: 0,
+      // The newest correction curve (`GET .../steering`) and the dta
+      // estimate's time it was asked for.
+      steering: null,
+      steeringFor: null,
     };
+    const STEER = $('dta-steer');
     const charts = {};
     // What the canvases drew last (CSS pixels) and how often: for the
     // browser test and anyone debugging in the console.
@@ -126,6 +136,78 @@ tn.registerEngine('dta', {
         trail.push({ t: e.t, h: e.front.horizontal_mm, v: e.front.vertical_mm });
         if (trail.length > TRAIL) trail.shift();
       }
+    }
+
+    // The curve for the newest estimate, once per estimate; only the
+    // newest request's answer is used.
+    const fetchSteering = tn.latestOnly(
+      async () => tn.json(`${API}/steering`),
+      (curve) => {
+        state.steering = curve;
+        showSteering();
+        drawTarget();
+        drawStationCharts();
+      },
+      (e) => setText($('dta-steer-summary'), `the correction curve: ${e.message}`),
+    );
+
+    // At most once a second (a zupt machine's estimates come many a
+    // second); a newer estimate meanwhile is asked for after it.
+    let steeringAskedAt = 0, steeringLater = null;
+    function refreshSteering() {
+      if (!STEER || !state.latest || state.steeringFor === state.latest.t) return;
+      const wait = steeringAskedAt + 1000 - Date.now();
+      if (wait > 0) {
+        if (!steeringLater) steeringLater = setTimeout(() => { steeringLater = null; refreshSteering(); }, wait);
+        return;
+      }
+      steeringAskedAt = Date.now();
+      state.steeringFor = state.latest.t;
+      fetchSteering();
+    }
+
+    // The curve's points per step: {k, s, h, v, sh, sv} (sh, sv: the
+    // stroke differences over the step from that point).
+    function curvePoints() {
+      const c = state.steering;
+      if (!c || !c.feasible) return [];
+      return c.horizontal.points.map((p, k) => ({
+        k, s: p.station_m, h: p.deviation_mm, v: c.vertical.points[k].deviation_mm,
+        sh: p.stroke_difference_mm, sv: c.vertical.points[k].stroke_difference_mm,
+      }));
+    }
+
+    function showSteering() {
+      const c = state.steering;
+      const badge = $('dta-steer-status');
+      const body = $('dta-steer-table').tBodies[0];
+      if (!c) return;
+      const one = (v) => (num(v) ? `${v > 0 ? '+' : v < 0 ? '\u2212' : ''}${Math.abs(v).toFixed(1)}` : '—');
+      if (!c.feasible) {
+        badge.dataset.status = 'alarm';
+        badge.className = 'badge bad';
+        setText(badge, 'no curve back within the radius');
+        setText($('dta-steer-summary'), c.reason || 'no curve back to the axis');
+        body.replaceChildren();
+        return;
+      }
+      badge.dataset.status = 'ok';
+      badge.className = 'badge ok';
+      setText(badge, `${c.steps} steps to the axis`);
+      setText($('dta-steer-summary'), `${c.steps} steps (${fixed(c.length_m, 1)} m) from ${chainage(c.horizontal.points[0].station_m)}`
+        + ` to ${chainage(c.horizontal.points[c.steps].station_m)}; curve from the estimate of ${tn.timeOfDay(c.t)}`);
+      const points = curvePoints();
+      const rows = points.slice(1).map((p) => {
+        const from = points[p.k - 1];
+        const row = document.createElement('tr');
+        for (const text of [String(p.k), chainage(p.s), one(p.h), one(p.v), one(from.sh), one(from.sv)]) {
+          const cell = document.createElement('td');
+          cell.textContent = text;
+          row.appendChild(cell);
+        }
+        return row;
+      });
+      body.replaceChildren(...rows);
     }
 
     async function loadDrive() {
@@ -471,6 +553,37 @@ tn.registerEngine('dta', {
           arrowHead(ctx, front.x, front.y, tipX, tipY, 11);
         }
       }
+      // The correction curve: where the front should be after each step,
+      // back to the centre; the next step ringed.
+      const curve = curvePoints();
+      marks.next = null;
+      if (curve.length > 1 && !front.clamped) {
+        const at = curve.map((q) => place(q.h, q.v));
+        ctx.strokeStyle = c.warn;
+        ctx.fillStyle = c.warn;
+        ctx.lineWidth = 1.5;
+        ctx.setLineDash([2, 3]);
+        ctx.beginPath();
+        at.forEach((p, i) => (i ? ctx.lineTo(p.x, p.y) : ctx.moveTo(p.x, p.y)));
+        ctx.stroke();
+        ctx.setLineDash([]);
+        for (const p of at.slice(2)) {
+          ctx.beginPath();
+          ctx.arc(p.x, p.y, 2, 0, 2 * Math.PI);
+          ctx.fill();
+        }
+        const next = at[1];
+        ctx.lineWidth = 2.5;
+        ctx.beginPath();
+        ctx.arc(next.x, next.y, 9, 0, 2 * Math.PI);
+        ctx.stroke();
+        ctx.font = '600 11px system-ui, sans-serif';
+        ctx.textAlign = next.x > cx ? 'right' : 'left';
+        ctx.textBaseline = 'middle';
+        ctx.fillText('next', next.x + (next.x > cx ? -13 : 13), next.y);
+        ctx.font = '12px system-ui, sans-serif';
+        marks.next = { x: next.x, y: next.y, h: curve[1].h, v: curve[1].v };
+      }
       ctx.restore();
 
       // The marks, drawn last so nothing covers them.
@@ -804,6 +917,7 @@ tn.registerEngine('dta', {
           { label: 'station', value: (u, v) => (v == null ? '—' : chainage(v)) },
           line(`front ${name}`, css('--fused'), 'mm', 1, { width: 2 }),
           line(`rear ${name}`, css('--pred'), 'mm', 1, { width: 2, dash: [6, 3] }),
+          line(`correction ${name}`, css('--warn'), 'mm', 1, { width: 2, dash: [2, 3], show: !!STEER }),
         ],
         axes: [
           // Whole metres between ticks (the range is at least 10 m), so
@@ -814,7 +928,7 @@ tn.registerEngine('dta', {
         ],
         hooks: { drawClear: [bands(lim)], draw: [nowLines] },
         cursor: { drag: { x: false, y: false } },
-      }, [[], [], []], el);
+      }, [[], [], [], []], el);
     }
 
     function createCharts() {
@@ -825,31 +939,33 @@ tn.registerEngine('dta', {
       }
     }
 
-    // The front's and the rear's deviations, each at its own station, on
-    // one sorted x (null where a point has no value there).
+    // The front's and the rear's deviations, each at its own station, and
+    // the correction curve ahead of the front, on one sorted x (null where
+    // a series has no value there).
     function driveSeries() {
-      const points = [...state.drive.values()];
-      const front = points.map((p) => [p.fs, p.fh, p.fv]).filter((p) => num(p[0])).sort((a, b) => a[0] - b[0]);
-      const rear = points.map((p) => [p.rs, p.rh, p.rv]).filter((p) => num(p[0])).sort((a, b) => a[0] - b[0]);
-      const xs = [], fh = [], fv = [], rh = [], rv = [];
-      let i = 0, j = 0;
-      while (i < front.length || j < rear.length) {
-        const a = front[i], b = rear[j];
-        const x = !b || (a && a[0] <= b[0]) ? a[0] : b[0];
-        xs.push(x);
-        fh.push(null); fv.push(null); rh.push(null); rv.push(null);
-        const k = xs.length - 1;
-        if (a && a[0] === x) { fh[k] = a[1]; fv[k] = a[2]; i++; }
-        if (b && b[0] === x) { rh[k] = b[1]; rv[k] = b[2]; j++; }
+      const rows = new Map(); // station → [fh, fv, rh, rv, ch, cv]
+      const put = (x, i, a, b) => {
+        if (!num(x)) return;
+        let row = rows.get(x);
+        if (!row) rows.set(x, (row = [null, null, null, null, null, null]));
+        row[i] = a;
+        row[i + 1] = b;
+      };
+      for (const p of state.drive.values()) {
+        put(p.fs, 0, p.fh, p.fv);
+        put(p.rs, 2, p.rh, p.rv);
       }
-      return { xs, fh, fv, rh, rv };
+      for (const p of curvePoints()) put(p.s, 4, p.h, p.v);
+      const xs = [...rows.keys()].sort((a, b) => a - b);
+      const column = (i) => xs.map((x) => rows.get(x)[i]);
+      return { xs, fh: column(0), fv: column(1), rh: column(2), rv: column(3), ch: column(4), cv: column(5) };
     }
 
     function drawStationCharts() {
       if (!charts.h) return;
       const d = driveSeries();
-      charts.h.setData([d.xs, d.fh, d.rh]);
-      charts.v.setData([d.xs, d.fv, d.rv]);
+      charts.h.setData([d.xs, d.fh, d.rh, d.ch]);
+      charts.v.setData([d.xs, d.fv, d.rv, d.cv]);
       const n = state.drive.size;
       if (n === 0) {
         setText($('dta-drive-note'), 'no positions yet');
@@ -868,6 +984,7 @@ tn.registerEngine('dta', {
     }
 
     const redraw = tn.debounce(() => {
+      refreshSteering();
       showReadouts();
       drawStationCharts();
       drawCanvases();

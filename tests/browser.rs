@@ -853,8 +853,19 @@ return {
   stations: d.charts.h ? d.charts.h.data[0].length : 0,
   most_front_h: Math.max(0, ...values(1)),
   axis_points: d.state.axis.length,
+  steer_t: d.state.steering ? d.state.steering.t : null,
+  steer_rows: $('dta-steer-table') ? [...$('dta-steer-table').tBodies[0].rows].map((r) => [...r.cells].map((c) => c.textContent)) : null,
+  steer_badge: $('dta-steer-status') ? $('dta-steer-status').textContent : null,
+  next: d.marks.next,
+  curve_points: d.charts.h ? d.charts.h.data[3].filter((v) => v !== null).length : 0,
 };
 "#;
+
+/// A station as the page writes it: "1+234.500".
+fn tunnelnav_chainage(station_m: f64) -> String {
+    let km = (station_m / 1000.0).floor();
+    format!("{km}+{:07.3}", station_m - km * 1000.0)
+}
 
 /// Polls [`DTA_VIEW`] until `done` holds; panics with the view (and saves
 /// a screenshot) after `secs`.
@@ -905,6 +916,7 @@ async fn dta_panel_draws_moves_and_shows_warn_and_alarm_colours() {
         "tolerances": {"horizontal_mm": {"warn": 50, "alarm": 100},
                        "vertical_mm": {"warn": 30, "alarm": 60}},
         "alignment": alignment,
+        "steering": {"min_radius_m": 300.0, "step_m": 1.5, "cylinder_circle_m": 6.0},
     });
     common::declare_machine(&client, &base, TBM, &declaration.to_string()).await;
 
@@ -1044,6 +1056,50 @@ async fn dta_panel_draws_moves_and_shows_warn_and_alarm_colours() {
     })
     .await;
     assert_ne!(alarm["front_h_colour"], warn["front_h_colour"], "{alarm:#}");
+
+    // The correction curve from the newest estimate: a row per step with
+    // the served targets and stroke differences, the next step ringed on
+    // the target, the curve dashed on the charts.
+    let served =
+        common::get_json(&client, &base, &format!("/api/v1/machines/{TBM}/steering")).await;
+    let steps = served["steps"].as_u64().expect("a curve back") as usize;
+    let one = |v: &Value| {
+        let v = v.as_f64().unwrap();
+        let text = format!("{:.1}", v.abs());
+        match v {
+            v if v > 0.0 => format!("+{text}"),
+            v if v < 0.0 => format!("\u{2212}{text}"),
+            _ => text,
+        }
+    };
+    let (h, v) = (
+        &served["horizontal"]["points"],
+        &served["vertical"]["points"],
+    );
+    let first_row = json!([
+        "1",
+        tunnelnav_chainage(h[1]["station_m"].as_f64().unwrap()),
+        one(&h[1]["deviation_mm"]),
+        one(&v[1]["deviation_mm"]),
+        one(&h[0]["stroke_difference_mm"]),
+        one(&v[0]["stroke_difference_mm"]),
+    ]);
+    let curve = wait_for_dta(&browser, "the correction curve", 15, |view| {
+        view["steer_t"].as_f64() == served["t"].as_f64()
+            && view["steer_rows"].as_array().map(Vec::len) == Some(steps)
+            && view["steer_rows"][0] == first_row
+            && view["curve_points"].as_u64() == Some(steps as u64 + 1)
+            && view["next"].is_object()
+    })
+    .await;
+    assert_eq!(curve["next"]["h"], h[1]["deviation_mm"], "{curve:#}");
+    assert!(
+        curve["steer_badge"]
+            .as_str()
+            .unwrap()
+            .contains(&format!("{steps} steps")),
+        "{curve:#}"
+    );
     save_screenshot(&browser, "browser-dta.png").await;
 
     // The other theme redraws the target.

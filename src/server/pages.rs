@@ -105,6 +105,8 @@ struct DtaSection {
     alarm_v: String,
     /// Front to rear along the body's x axis, m.
     length_m: f64,
+    /// The declared steering: the correction curve's panel.
+    steering: Option<crate::fusion::steering::SteeringSpec>,
 }
 
 /// Why an engine's section could not be made.
@@ -195,6 +197,7 @@ pub fn stage_section(
                 warn_v: limit(t.map(|t| t.vertical_mm.warn)),
                 alarm_v: limit(t.map(|t| t.vertical_mm.alarm)),
                 length_m: spec.geometry.map_or(0.0, |g| g.front_m[0] - g.rear_m[0]),
+                steering: spec.steering,
             }
             .render()
         }

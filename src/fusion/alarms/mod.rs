@@ -285,6 +285,16 @@ pub struct AlarmRules {
 
 const SEVERITIES: [Severity; 2] = [Severity::Warn, Severity::Alarm];
 
+/// A limit in time as an operator reads it: seconds below two minutes,
+/// else minutes.
+fn span(seconds: f64) -> String {
+    if seconds < 120.0 {
+        format!("{seconds:.0} s")
+    } else {
+        format!("{:.0} min", seconds / 60.0)
+    }
+}
+
 fn key(kind: AlarmKind, severity: Severity, subject: &str) -> AlarmKey {
     AlarmKey {
         kind,
@@ -466,7 +476,7 @@ impl AlarmRules {
                     out,
                     key(AlarmKind::LaserDropout, severity, ""),
                     edge,
-                    format!("no laser sample for over {:.0} min", limits[i] / 60.0),
+                    format!("no laser sample for over {}", span(limits[i])),
                     "laser samples again".into(),
                 );
             }
@@ -821,6 +831,13 @@ mod tests {
         );
         assert_eq!(out.len(), 2);
         assert!(out.iter().all(|t| !t.raised && t.t == 400.0), "{out:?}");
+    }
+
+    #[test]
+    fn a_time_limit_reads_in_seconds_below_two_minutes() {
+        assert_eq!(span(30.0), "30 s");
+        assert_eq!(span(119.0), "119 s");
+        assert_eq!(span(300.0), "5 min");
     }
 
     #[test]

@@ -325,7 +325,12 @@ fn chart(report: &Report) -> Option<Chart> {
     let mut y_ticks = Vec::new();
     let mut tick = -y_extent;
     while tick <= y_extent + y_step / 2.0 {
-        y_ticks.push((y(tick), format!("{tick:+}")));
+        let label = if tick == 0.0 {
+            "0".to_string()
+        } else {
+            format!("{tick:+}")
+        };
+        y_ticks.push((y(tick), label));
         tick += y_step;
     }
     Some(Chart {

@@ -371,7 +371,8 @@ fn gather(
         end_station_m: stations.map(|s| s.1),
         advance_m: stations.map(|(first, last)| last - first),
         pushes: pushes.len() as u64,
-        pushed_m: pushes.iter().map(|p| p.push.length_m).sum(),
+        // A fold from +0: an empty f64 sum is −0.
+        pushed_m: pushes.iter().fold(0.0, |sum, p| sum + p.push.length_m),
     };
     Ok(Report {
         machine: spec.id.clone(),
@@ -389,8 +390,9 @@ fn gather(
 }
 
 /// Stretches of [`from`, `until`] within a gap of more than `limit_s`
-/// between laser readings. The search starts `limit_s` before `from`: a
-/// range that opens without a reading in that time opens in a dropout.
+/// between laser readings. The search starts `limit_s` before `from`; the
+/// first gap opens at the machine's first reading of any sensor from
+/// then (a machine that has not spoken has not lost its laser).
 fn dropouts(
     store: &Store,
     db_id: i64,
@@ -402,7 +404,14 @@ fn dropouts(
     if until <= from {
         return Ok(gaps);
     }
-    let mut previous = from - limit_s;
+    let mut first_t = None;
+    store.export_readings(db_id, None, from - limit_s, until, |reading| {
+        first_t = Some(reading.t);
+        false
+    })?;
+    let Some(mut previous) = first_t else {
+        return Ok(gaps);
+    };
     let gap = |start: f64, end: f64, gaps: &mut Vec<Dropout>| {
         if end - start > limit_s {
             let (from_t, to_t) = (start.max(from), end.min(until));
