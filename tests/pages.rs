@@ -175,6 +175,38 @@ async fn demo_posts_five_machines_with_a_dropout_and_resumes() {
             "{machine}"
         );
     }
+
+    // The TBMs close rings (a ring every 12–20 simulated minutes) and
+    // steer back: their ring logs and correction curves.
+    let rings = |server: &ServerProcess, id: &str| {
+        let url = server.url(&format!("/api/v1/machines/{id}/estimates?engine=rings"));
+        let client = client.clone();
+        async move {
+            json(&client, url).await["estimates"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|r| r["ring"].as_u64().unwrap())
+                .collect::<Vec<u64>>()
+        }
+    };
+    let mut first_rings = Vec::new();
+    for id in ["tbm-north", "tbm-south"] {
+        let numbers = rings(&server, id).await;
+        assert!(!numbers.is_empty(), "{id}: no ring logged");
+        assert_eq!(numbers[0], 1, "{id}: {numbers:?}");
+        assert!(
+            numbers.windows(2).all(|w| w[1] == w[0] + 1),
+            "{id}: {numbers:?}"
+        );
+        first_rings.push(numbers.len());
+        let steer = json(
+            &client,
+            server.url(&format!("/api/v1/machines/{id}/steering")),
+        )
+        .await;
+        assert!(steer["steps"].as_u64() > Some(0), "{id}: {steer}");
+    }
     server.terminate();
 
     run_demo(dir.path(), "300", "3");
@@ -183,6 +215,14 @@ async fn demo_posts_five_machines_with_a_dropout_and_resumes() {
     for machine in list["machines"].as_array().unwrap() {
         let end = machine["last_reading_t"].as_f64().unwrap();
         assert!(end > first_end + 60.0, "{machine}: did not continue");
+    }
+    // The second run numbers its rings on from the first's.
+    for (id, before) in ["tbm-north", "tbm-south"].into_iter().zip(first_rings) {
+        let numbers = rings(&server, id).await;
+        assert!(
+            numbers.windows(2).all(|w| w[1] == w[0] + 1),
+            "{id}: {numbers:?} ({before} in the first run)"
+        );
     }
     // The INS's second stretch continued the first: the fused height still
     // follows the level (its readings were not refused as a jump).

@@ -48,12 +48,14 @@ name = "TBM North · S-1 drive"
 engines = { attitude = {} }
 geometry = { front_m = [4.2, 0.4, 1.1], rear_m = [-5.1, 0.4, 1.1] }
 tolerances = { horizontal_mm = { warn = 50, alarm = 100 }, vertical_mm = { warn = 30, alarm = 60 } }
+steering = { min_radius_m = 250, step_m = 1.5, cylinder_circle_m = 6.0 }
 
 [machines.tbm-south]
 name = "TBM South · S-2 drive (WebSocket gateway)"
 engines = { attitude = {} }
 geometry = { front_m = [4.6, -0.3, 1.2], rear_m = [-5.4, -0.3, 1.2] }
 tolerances = { horizontal_mm = { warn = 50, alarm = 100 }, vertical_mm = { warn = 30, alarm = 60 } }
+steering = { min_radius_m = 250, step_m = 1.5, cylinder_circle_m = 6.0 }
 
 [machines.pipejack-3]
 name = "Pipe jack P-3 · laser blocked 20 min per hour"
@@ -339,7 +341,10 @@ pub fn run(args: DemoArgs) -> Result<(), CliError> {
                 address,
                 broker,
                 clock,
-                resume.aids,
+                Continue {
+                    aids: resume.aids,
+                    last_ring: resume.rings.get(gateway.machine).copied().unwrap_or(0),
+                },
                 stopping.clone(),
             )));
         }
@@ -367,13 +372,24 @@ pub fn run(args: DemoArgs) -> Result<(), CliError> {
 }
 
 /// Where an earlier demo in the same data dir stopped.
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Debug, Clone, Default)]
 struct Resume {
     /// The newest reading of any machine.
     newest_t: Option<f64>,
     /// The INS machine's last level height and odometer distance: its next
     /// stretch of drive starts there, so the engine sees one drive.
     aids: (Option<f64>, Option<f64>),
+    /// Each TBM's last ring: its ring log numbers on from there.
+    rings: std::collections::BTreeMap<String, u64>,
+}
+
+/// Where one gateway's drive continues an earlier demo's.
+#[derive(Debug, Clone, Copy)]
+struct Continue {
+    /// [`Resume::aids`].
+    aids: (Option<f64>, Option<f64>),
+    /// The machine's last ring.
+    last_ring: u64,
 }
 
 /// What `data_dir` holds from an earlier demo.
@@ -389,13 +405,18 @@ async fn resume_point(data_dir: &Path) -> Result<Resume, CliError> {
                         continue;
                     };
                     resume.newest_t = Some(resume.newest_t.map_or(t, |n| n.max(t)));
-                    if machine.spec.id != "pipejack-ins" {
+                    if machine.spec.id != "pipejack-ins" && sensor != SensorKind::Advance {
                         continue;
                     }
                     store.export_readings(machine.db_id, Some(sensor), t, t, |r| {
-                        match r.data {
-                            SensorData::Level { height_m } => resume.aids.0 = Some(height_m),
-                            SensorData::Odometer { distance_m } => resume.aids.1 = Some(distance_m),
+                        match &r.data {
+                            SensorData::Level { height_m } => resume.aids.0 = Some(*height_m),
+                            SensorData::Odometer { distance_m } => {
+                                resume.aids.1 = Some(*distance_m)
+                            }
+                            SensorData::Advance { ring, .. } => {
+                                resume.rings.insert(machine.spec.id.clone(), *ring);
+                            }
                             _ => {}
                         }
                         false
@@ -420,12 +441,15 @@ fn readings(
     gateway: &Gateway,
     axis: Option<AxisDriveScenario>,
     start_t: f64,
-    (height_m, odometer_m): (Option<f64>, Option<f64>),
+    Continue {
+        aids: (height_m, odometer_m),
+        last_ring,
+    }: Continue,
 ) -> Result<Box<dyn Iterator<Item = Reading> + Send>, String> {
     Ok(match gateway.kind {
         Kind::Tbm => {
             let axis = axis.ok_or("a demo TBM without a design axis")?;
-            Box::new(AxisDrives::new(axis, gateway.seed, start_t)?)
+            Box::new(AxisDrives::new(axis, gateway.seed, start_t, last_ring)?)
         }
         Kind::PipeJack => Box::new(
             PipeJackDrive::new(PipeJackScenario {
@@ -479,23 +503,39 @@ fn axis_scenario(gateway: &Gateway, machines: &[MachineSpec]) -> Option<AxisDriv
 
 /// A demo TBM's readings: drives along its axis back to back, each from
 /// the axis's start once the last one reached its end (half an hour after
-/// its last stroke), with the next seed.
+/// its last stroke), with the next seed; an `advance` reading closes each
+/// ring as its build ends, numbered on from drive to drive.
 struct AxisDrives {
     scenario: AxisDriveScenario,
     drive: AxisDrive,
     end_t: f64,
+    /// When the drive's rings are complete, the next first.
+    rings: std::collections::VecDeque<f64>,
+    /// The last ring's number.
+    ring: u64,
+    /// A reading of the drive held back for an advance before it.
+    held: Option<Reading>,
 }
 
 impl AxisDrives {
-    fn new(mut scenario: AxisDriveScenario, seed: u64, start_t: f64) -> Result<AxisDrives, String> {
+    fn new(
+        mut scenario: AxisDriveScenario,
+        seed: u64,
+        start_t: f64,
+        ring: u64,
+    ) -> Result<AxisDrives, String> {
         scenario.seed = seed;
         scenario.start_t = start_t;
         let drive = AxisDrive::new(scenario.clone())?;
         let end_t = drive.last_stroke_end_t() + 1800.0;
+        let rings = drive.rings_complete_t().collect();
         Ok(AxisDrives {
             scenario,
             drive,
             end_t,
+            rings,
+            ring,
+            held: None,
         })
     }
 }
@@ -504,13 +544,40 @@ impl Iterator for AxisDrives {
     type Item = Reading;
 
     fn next(&mut self) -> Option<Reading> {
-        if let Some(event) = self.drive.next().filter(|e| e.reading.t < self.end_t) {
-            return Some(event.reading);
+        let reading = match self.held.take() {
+            Some(reading) => Some(reading),
+            None => self
+                .drive
+                .next()
+                .filter(|e| e.reading.t < self.end_t)
+                .map(|e| e.reading),
+        };
+        let Some(reading) = reading else {
+            let next = AxisDrives::new(
+                self.scenario.clone(),
+                self.scenario.seed + 1,
+                self.end_t,
+                self.ring,
+            )
+            .ok()?;
+            *self = next;
+            return self.next();
+        };
+        if let Some(&ring_t) = self.rings.front()
+            && ring_t <= reading.t
+        {
+            self.rings.pop_front();
+            self.ring += 1;
+            self.held = Some(reading);
+            return Some(Reading {
+                t: ring_t,
+                data: SensorData::Advance {
+                    ring: self.ring,
+                    strokes_mm: None,
+                },
+            });
         }
-        let next =
-            AxisDrives::new(self.scenario.clone(), self.scenario.seed + 1, self.end_t).ok()?;
-        *self = next;
-        self.drive.next().map(|e| e.reading)
+        Some(reading)
     }
 }
 
@@ -574,11 +641,11 @@ async fn run_gateway(
     address: SocketAddr,
     broker: Option<rumqttc::MqttOptions>,
     clock: Clock,
-    aids: (Option<f64>, Option<f64>),
+    from: Continue,
     mut stop: watch::Receiver<bool>,
 ) {
     let start_t = clock.now_s();
-    let mut drive = match readings(gateway, axis, start_t, aids) {
+    let mut drive = match readings(gateway, axis, start_t, from) {
         Ok(drive) => drive.peekable(),
         Err(e) => {
             tracing::error!(machine = gateway.machine, "demo drive: {e}");

@@ -543,6 +543,12 @@ impl AxisDrive {
         &self.scenario
     }
 
+    /// When each ring is complete: the end of the ring build before each
+    /// excavation stroke (its start), in time order.
+    pub fn rings_complete_t(&self) -> impl Iterator<Item = f64> + '_ {
+        self.strokes.iter().map(|stroke| stroke.0)
+    }
+
     /// When the last excavation stroke ends (the drive's end or the
     /// axis's, whichever comes first).
     pub fn last_stroke_end_t(&self) -> f64 {
