@@ -269,6 +269,14 @@ impl MachineDeclaration {
         alarms.validate().map_err(invalid)?;
         if let Some(steering) = &self.steering {
             steering.check().map_err(invalid)?;
+            // The curve starts from the dta stage's front; the axis may
+            // come later (PUT .../alignment), the machine's geometry not.
+            if self.geometry.is_none() {
+                return Err(invalid(
+                    "`steering` needs a `geometry` (the front and rear the curve starts from)"
+                        .into(),
+                ));
+            }
         }
         Ok(MachineSpec {
             id: id.to_string(),

@@ -149,6 +149,24 @@ impl MachineCore {
         ))
     }
 
+    /// Like [`MachineCore::restore`], a stage this release added that may
+    /// be seeded starting from `newest`, the machine's newest stored
+    /// output of each stream ([`Pipeline::restore_seeded`]).
+    pub fn restore_seeded(
+        spec: &MachineSpec,
+        state: &str,
+        newest: &[EngineOutput],
+    ) -> Result<MachineCore, SnapshotError> {
+        let state: CoreState =
+            serde_json::from_str(state).map_err(|e| SnapshotError::Invalid(e.to_string()))?;
+        Ok(Self::assemble(
+            spec,
+            Pipeline::restore_seeded(state.pipeline, &spec.stage_declaration(), newest)?,
+            ReorderBuffer::restore(state.reorder)?,
+            state.alarms,
+        ))
+    }
+
     /// The engines of a [`MachineCore::snapshot`] under a declaration that
     /// differs only in what the stages read (the design axis, geometry,
     /// tolerances, start): the engines go on where they stood, a stage the
@@ -393,6 +411,19 @@ impl MachineHandle {
     }
 }
 
+/// The newest stored output of each of the machine's streams. Blocking.
+pub fn newest_outputs(
+    store: &Store,
+    spec: &MachineSpec,
+    db_id: i64,
+) -> Result<Vec<EngineOutput>, MachineError> {
+    let mut newest = Vec::new();
+    for stream in spec.streams() {
+        newest.extend(store.latest_estimate(db_id, stream)?);
+    }
+    Ok(newest)
+}
+
 /// The status a restarted machine starts from: each engine's latest stored
 /// estimate and each sensor's latest stored reading. Blocking.
 pub fn stored_status(
@@ -452,13 +483,22 @@ pub fn recover(
                 );
                 (MachineCore::new(spec)?, 0)
             }
-            // A stage this release adds starts with the machine's history.
-            Err(SnapshotError::MissingStage(stage)) => {
-                tracing::warn!(
-                    machine = %spec.id, %stage,
-                    "snapshot without a stage the machine now runs: rebuilding from the stored readings"
-                );
-                (MachineCore::new(spec)?, 0)
+            // A stage this release adds: seeded from the newest stored
+            // estimates where that equals a replay, else it starts with the
+            // machine's history.
+            Err(SnapshotError::MissingStage(_)) => {
+                let newest = newest_outputs(store, spec, db_id)?;
+                match MachineCore::restore_seeded(spec, &s.state, &newest) {
+                    Ok(core) => (core, s.last_reading_id),
+                    Err(SnapshotError::MissingStage(stage)) => {
+                        tracing::warn!(
+                            machine = %spec.id, %stage,
+                            "snapshot without a stage the machine now runs: rebuilding from the stored readings"
+                        );
+                        (MachineCore::new(spec)?, 0)
+                    }
+                    Err(e) => return Err(e.into()),
+                }
             }
             Err(e) => return Err(e.into()),
         },

@@ -341,10 +341,7 @@ pub fn run(args: DemoArgs) -> Result<(), CliError> {
                 address,
                 broker,
                 clock,
-                Continue {
-                    aids: resume.aids,
-                    last_ring: resume.rings.get(gateway.machine).copied().unwrap_or(0),
-                },
+                resume.aids,
                 stopping.clone(),
             )));
         }
@@ -372,24 +369,13 @@ pub fn run(args: DemoArgs) -> Result<(), CliError> {
 }
 
 /// Where an earlier demo in the same data dir stopped.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone, Copy, Default)]
 struct Resume {
     /// The newest reading of any machine.
     newest_t: Option<f64>,
     /// The INS machine's last level height and odometer distance: its next
     /// stretch of drive starts there, so the engine sees one drive.
     aids: (Option<f64>, Option<f64>),
-    /// Each TBM's last ring: its ring log numbers on from there.
-    rings: std::collections::BTreeMap<String, u64>,
-}
-
-/// Where one gateway's drive continues an earlier demo's.
-#[derive(Debug, Clone, Copy)]
-struct Continue {
-    /// [`Resume::aids`].
-    aids: (Option<f64>, Option<f64>),
-    /// The machine's last ring.
-    last_ring: u64,
 }
 
 /// What `data_dir` holds from an earlier demo.
@@ -405,7 +391,7 @@ async fn resume_point(data_dir: &Path) -> Result<Resume, CliError> {
                         continue;
                     };
                     resume.newest_t = Some(resume.newest_t.map_or(t, |n| n.max(t)));
-                    if machine.spec.id != "pipejack-ins" && sensor != SensorKind::Advance {
+                    if machine.spec.id != "pipejack-ins" {
                         continue;
                     }
                     store.export_readings(machine.db_id, Some(sensor), t, t, |r| {
@@ -413,9 +399,6 @@ async fn resume_point(data_dir: &Path) -> Result<Resume, CliError> {
                             SensorData::Level { height_m } => resume.aids.0 = Some(*height_m),
                             SensorData::Odometer { distance_m } => {
                                 resume.aids.1 = Some(*distance_m)
-                            }
-                            SensorData::Advance { ring, .. } => {
-                                resume.rings.insert(machine.spec.id.clone(), *ring);
                             }
                             _ => {}
                         }
@@ -441,15 +424,12 @@ fn readings(
     gateway: &Gateway,
     axis: Option<AxisDriveScenario>,
     start_t: f64,
-    Continue {
-        aids: (height_m, odometer_m),
-        last_ring,
-    }: Continue,
+    (height_m, odometer_m): (Option<f64>, Option<f64>),
 ) -> Result<Box<dyn Iterator<Item = Reading> + Send>, String> {
     Ok(match gateway.kind {
         Kind::Tbm => {
             let axis = axis.ok_or("a demo TBM without a design axis")?;
-            Box::new(AxisDrives::new(axis, gateway.seed, start_t, last_ring)?)
+            Box::new(AxisDrives::new(axis, gateway.seed, start_t)?)
         }
         Kind::PipeJack => Box::new(
             PipeJackDrive::new(PipeJackScenario {
@@ -504,7 +484,8 @@ fn axis_scenario(gateway: &Gateway, machines: &[MachineSpec]) -> Option<AxisDriv
 /// A demo TBM's readings: drives along its axis back to back, each from
 /// the axis's start once the last one reached its end (half an hour after
 /// its last stroke), with the next seed; an `advance` reading closes each
-/// ring as its build ends, numbered on from drive to drive.
+/// ring as its build ends, numbered from 1 in each drive (a demo started
+/// again starts a drive again).
 struct AxisDrives {
     scenario: AxisDriveScenario,
     drive: AxisDrive,
@@ -518,12 +499,7 @@ struct AxisDrives {
 }
 
 impl AxisDrives {
-    fn new(
-        mut scenario: AxisDriveScenario,
-        seed: u64,
-        start_t: f64,
-        ring: u64,
-    ) -> Result<AxisDrives, String> {
+    fn new(mut scenario: AxisDriveScenario, seed: u64, start_t: f64) -> Result<AxisDrives, String> {
         scenario.seed = seed;
         scenario.start_t = start_t;
         let drive = AxisDrive::new(scenario.clone())?;
@@ -534,7 +510,7 @@ impl AxisDrives {
             drive,
             end_t,
             rings,
-            ring,
+            ring: 0,
             held: None,
         })
     }
@@ -553,13 +529,8 @@ impl Iterator for AxisDrives {
                 .map(|e| e.reading),
         };
         let Some(reading) = reading else {
-            let next = AxisDrives::new(
-                self.scenario.clone(),
-                self.scenario.seed + 1,
-                self.end_t,
-                self.ring,
-            )
-            .ok()?;
+            let next =
+                AxisDrives::new(self.scenario.clone(), self.scenario.seed + 1, self.end_t).ok()?;
             *self = next;
             return self.next();
         };
@@ -641,11 +612,11 @@ async fn run_gateway(
     address: SocketAddr,
     broker: Option<rumqttc::MqttOptions>,
     clock: Clock,
-    from: Continue,
+    aids: (Option<f64>, Option<f64>),
     mut stop: watch::Receiver<bool>,
 ) {
     let start_t = clock.now_s();
-    let mut drive = match readings(gateway, axis, start_t, from) {
+    let mut drive = match readings(gateway, axis, start_t, aids) {
         Ok(drive) => drive.peekable(),
         Err(e) => {
             tracing::error!(machine = gateway.machine, "demo drive: {e}");

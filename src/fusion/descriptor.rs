@@ -55,6 +55,15 @@ pub trait StageDescriptor {
     /// What the stage emits per estimate.
     type Output: StreamValues;
 
+    /// Whether a machine's snapshot from before the stage existed may
+    /// continue with it seeded from the newest stored output of each of
+    /// the machine's streams (see [`Pipeline::restore_seeded`]): true only
+    /// where that is the state a replay of the stored readings would reach
+    /// (no reading the stage itself reads could be stored before it).
+    ///
+    /// [`Pipeline::restore_seeded`]: super::pipeline::Pipeline::restore_seeded
+    const SEEDED: bool = false;
+
     /// The stage for a machine so declared; `None` when the declaration
     /// does not call for it.
     fn create(declaration: &Declaration) -> Option<Self::Stage>;

@@ -638,6 +638,81 @@ mod tests {
     }
 
     #[test]
+    fn a_snapshot_from_before_the_ring_log_continues_seeded_as_a_replay_would() {
+        use crate::fusion::pipeline::Pipeline;
+        let declaration = declaration(&[EngineKind::Attitude]);
+        let engines = || {
+            vec![
+                EngineKind::Attitude
+                    .create(EngineKind::Attitude.params([]).unwrap())
+                    .unwrap(),
+            ]
+        };
+        let t0 = 1.772e9;
+        let at = |east_m: f64| ProjectPoint {
+            easting_m: 1000.0 + east_m,
+            northing_m: 5010.0,
+            height_m: 50.0,
+        };
+        let inclinometer = |t: f64| Reading {
+            t,
+            data: SensorData::Inclinometer {
+                pitch_deg: 0.01,
+                roll_deg: 0.2,
+                temp_c: None,
+            },
+        };
+        let mut replayed = Pipeline::declared(engines(), &declaration);
+        let mut before = Vec::new();
+        for i in 0..20 {
+            let t = t0 + f64::from(i);
+            replayed.feed(&inclinometer(t), &mut before);
+            if i % 5 == 0 {
+                replayed.feed(&laser(t + 0.5, 0.0, at(0.001 * f64::from(i))), &mut before);
+            }
+        }
+        // The snapshot as the release before the ring log wrote it, and
+        // the newest output of each stream as the store keeps them.
+        let mut state = replayed.state();
+        assert!(state.stages.remove(&StageKind::Rings).is_some());
+        let text = serde_json::to_string(&state).unwrap();
+        assert!(matches!(
+            Pipeline::restore(serde_json::from_str(&text).unwrap(), &declaration),
+            Err(SnapshotError::MissingStage(StageKind::Rings))
+        ));
+        let newest: Vec<EngineOutput> = [StreamKind::Attitude, StreamKind::Dta]
+            .iter()
+            .filter_map(|s| {
+                before
+                    .iter()
+                    .rev()
+                    .find(|o| o.values.stream() == *s)
+                    .cloned()
+            })
+            .collect();
+        let mut seeded =
+            Pipeline::restore_seeded(serde_json::from_str(&text).unwrap(), &declaration, &newest)
+                .unwrap();
+        // A ring closed now is logged alike.
+        let ring = Reading {
+            t: t0 + 30.0,
+            data: SensorData::Advance {
+                ring: 12,
+                strokes_mm: None,
+            },
+        };
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        replayed.feed(&ring, &mut a);
+        seeded.feed(&ring, &mut b);
+        assert_eq!(a, b);
+        let EstimateValues::Rings(record) = &a[0].values else {
+            panic!("{a:?}")
+        };
+        assert_eq!(record.dta_t, Some(t0 + 15.5));
+        assert!(record.pitch_deg.is_some());
+    }
+
+    #[test]
     fn front_and_rear_by_hand_from_a_laser_position() {
         let mut stage = Dta::create(&declaration(&[EngineKind::Attitude])).unwrap();
         let mut out = Vec::new();
@@ -719,30 +794,15 @@ mod tests {
     fn a_zupt_position_is_relative_to_the_declared_start() {
         let mut stage = Dta::create(&declaration(&[EngineKind::Zupt])).unwrap();
         let mut out = Vec::new();
-        let estimate = |position_m: [f64; 3], aligned| EngineOutput {
-            t: 5.0,
-            values: EstimateValues::Zupt(crate::fusion::ZuptEstimate {
-                zv: false,
-                position_m,
-                distance_m: 0.0,
-                velocity_mps: [0.0; 3],
-                pitch_deg: 0.0,
-                roll_deg: 0.0,
-                yaw_deg: 0.0,
-                aligned,
-                position_sigma_m: [0.01; 3],
-                height_m: None,
-                odometer_m: None,
-                mv_ratio: 0.0,
-                are_ratio: 0.0,
-                shoe_ratio: 0.0,
-                mag_ratio: 0.0,
-                yaw_sigma_deg: Some(0.1),
-                attitude_sigma_deg: Some([0.05, 0.05, 0.1]),
-                pitch_sigma_deg: None,
-                roll_sigma_deg: None,
-                smoothed_push: None,
-            }),
+        let estimate = |position_m: [f64; 3], aligned| {
+            let mut output = crate::fusion::estimate::zupt_for_tests(5.0, None);
+            if let EstimateValues::Zupt(z) = &mut output.values {
+                (z.zv, z.position_m, z.aligned) = (false, position_m, aligned);
+                z.position_sigma_m = [0.01; 3];
+                z.yaw_sigma_deg = Some(0.1);
+                z.attitude_sigma_deg = Some([0.05, 0.05, 0.1]);
+            }
+            output
         };
         stage.estimate(&estimate([20.0, -0.07, 0.01], false), &mut out);
         assert!(out.is_empty(), "nothing before alignment");

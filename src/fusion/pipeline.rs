@@ -22,6 +22,17 @@ pub struct Pipeline {
     scratch: Vec<EngineOutput>,
 }
 
+/// What restoring does with a stage the snapshot lacks.
+#[derive(Clone, Copy)]
+enum Missing<'a> {
+    /// Refuse: the machine is rebuilt from its readings.
+    Refuse,
+    /// Start it afresh (the declaration gained it just now).
+    Fresh,
+    /// Seed a stage that may be from the newest outputs; refuse others.
+    Seed(&'a [EngineOutput]),
+}
+
 /// The state of a pipeline, serialisable.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct PipelineState {
@@ -71,7 +82,20 @@ impl Pipeline {
         state: PipelineState,
         declaration: &Declaration,
     ) -> Result<Pipeline, SnapshotError> {
-        Pipeline::restore_as(state, declaration, false)
+        Pipeline::restore_as(state, declaration, Missing::Refuse)
+    }
+
+    /// Like [`Pipeline::restore`], but a stage the state lacks that may be
+    /// seeded ([`StageKind::seeded`]) starts from `newest`, the newest
+    /// stored output of each of the machine's streams, offered to it in
+    /// stream order (what it derives is dropped); any other missing stage
+    /// is still [`SnapshotError::MissingStage`].
+    pub fn restore_seeded(
+        state: PipelineState,
+        declaration: &Declaration,
+        newest: &[EngineOutput],
+    ) -> Result<Pipeline, SnapshotError> {
+        Pipeline::restore_as(state, declaration, Missing::Seed(newest))
     }
 
     /// Like [`Pipeline::restore`], but a stage the state lacks starts
@@ -81,13 +105,13 @@ impl Pipeline {
         state: PipelineState,
         declaration: &Declaration,
     ) -> Result<Pipeline, SnapshotError> {
-        Pipeline::restore_as(state, declaration, true)
+        Pipeline::restore_as(state, declaration, Missing::Fresh)
     }
 
     fn restore_as(
         state: PipelineState,
         declaration: &Declaration,
-        add_missing: bool,
+        missing: Missing<'_>,
     ) -> Result<Pipeline, SnapshotError> {
         let mut engines = Vec::new();
         for (kind, snapshot) in state.engines {
@@ -96,10 +120,23 @@ impl Pipeline {
         let mut stages = Vec::new();
         let mut snapshots = state.stages;
         for stage in declaration.stages() {
-            match (snapshots.remove(&stage), add_missing) {
+            match (snapshots.remove(&stage), missing) {
                 (Some(snapshot), _) => stages.push(stage.restore(declaration, snapshot)?),
-                (None, true) => stages.extend(stage.create(declaration)),
-                (None, false) => return Err(SnapshotError::MissingStage(stage)),
+                (None, Missing::Fresh) => stages.extend(stage.create(declaration)),
+                (None, Missing::Seed(newest)) if stage.seeded() => {
+                    let mut fresh = stage
+                        .create(declaration)
+                        .ok_or(SnapshotError::MissingStage(stage))?;
+                    let mut sorted: Vec<&EngineOutput> = newest.iter().collect();
+                    sorted.sort_by_key(|o| o.values.stream());
+                    let mut dropped = Vec::new();
+                    for output in sorted {
+                        fresh.estimate(output, &mut dropped);
+                        dropped.clear();
+                    }
+                    stages.push(fresh);
+                }
+                (None, _) => return Err(SnapshotError::MissingStage(stage)),
             }
         }
         Ok(Pipeline {

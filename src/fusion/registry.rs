@@ -176,6 +176,12 @@ macro_rules! registry {
                 match self { $( StageKind::$Stage => <$SDescriptor>::SUMMARY ),+ }
             }
 
+            /// Whether a snapshot from before the stage may continue with it
+            /// seeded (see [`StageDescriptor::SEEDED`]).
+            pub fn seeded(self) -> bool {
+                match self { $( StageKind::$Stage => <$SDescriptor>::SEEDED ),+ }
+            }
+
             /// The stage for a machine so declared, if the declaration
             /// calls for it.
             pub fn create(self, declaration: &Declaration) -> Option<Box<dyn Stage>> {

@@ -36,7 +36,7 @@ pub struct RingRecord {
     /// Station of the machine's reference point (newest `dta` estimate);
     /// `null` without one (no alignment or no position yet).
     pub station_m: Option<f64>,
-    /// Station gained since the previous ring's completion.
+    /// Station gained since the last ring completed with a station.
     pub advance_m: Option<f64>,
     /// Deviations from the axis at completion, mm.
     pub front_horizontal_mm: Option<f64>,
@@ -131,8 +131,10 @@ struct Attitude {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RingLog {
     state_version: u32,
-    /// The previous ring's completion time and station.
-    previous: Option<(f64, Option<f64>)>,
+    /// The previous ring's completion time.
+    previous_t: Option<f64>,
+    /// The station of the last ring completed with one.
+    previous_station_m: Option<f64>,
     position: Option<Position>,
     attitude: Option<Attitude>,
 }
@@ -142,7 +144,8 @@ impl RingLog {
     pub fn new() -> RingLog {
         RingLog {
             state_version: STATE_VERSION,
-            previous: None,
+            previous_t: None,
+            previous_station_m: None,
             position: None,
             attitude: None,
         }
@@ -170,17 +173,14 @@ impl Stage for RingLog {
         };
         let position = self.position;
         let station_m = position.map(|p| p.station_m);
-        let (start_t, previous_station_m) = match self.previous {
-            Some((t, station_m)) => (Some(t), station_m),
-            None => (None, None),
-        };
+        let start_t = self.previous_t;
         let record = RingRecord {
             ring: *ring,
             start_t,
             duration_s: start_t.map(|start| reading.t - start),
             station_m,
             advance_m: station_m
-                .zip(previous_station_m)
+                .zip(self.previous_station_m)
                 .map(|(now, then)| now - then),
             front_horizontal_mm: position.map(|p| p.front_mm[0]),
             front_vertical_mm: position.map(|p| p.front_mm[1]),
@@ -193,7 +193,8 @@ impl Stage for RingLog {
             roll_deg: self.attitude.map(|a| a.roll_deg),
             strokes_mm: strokes_mm.clone(),
         };
-        self.previous = Some((reading.t, station_m));
+        self.previous_t = Some(reading.t);
+        self.previous_station_m = station_m.or(self.previous_station_m);
         out.push(EngineOutput {
             t: reading.t,
             values: EstimateValues::Rings(record),
@@ -238,6 +239,11 @@ impl StageDescriptor for Rings {
     const SUMMARY: &'static str = "the ring (or pipe) log: one record per advance reading, with the machine's station, deviations, tendency and attitude at the ring's completion";
     type Stage = RingLog;
     type Output = RingRecord;
+    /// A store from before the stage holds no `advance` reading: a replay
+    /// of it leaves no previous ring, the newest `dta` estimate and the
+    /// newest attitude of the first engine that tells one, which the
+    /// newest stored output of each stream gives.
+    const SEEDED: bool = true;
 
     fn create(_: &Declaration) -> Option<RingLog> {
         Some(RingLog::new())

@@ -31,8 +31,8 @@ pub struct SteerPlane {
     /// Where the front should be after the next step, mm off the axis;
     /// `null` without a curve.
     pub next_deviation_mm: Option<f64>,
-    /// Stroke difference of the opposite thrust cylinders (right less
-    /// left, top less bottom) over the next step, mm; `null` without a
+    /// Stroke difference of the opposite thrust cylinders (left less
+    /// right, bottom less top) over the next step, mm; `null` without a
     /// curve.
     pub stroke_difference_mm: Option<f64>,
 }

@@ -12,9 +12,13 @@
 //! end. L is the fewest whole steps (a ring or a pipe, `step_m`) for which
 //! the curvature of both planes together, √(κh² + κv²), is within
 //! 1/`min_radius_m` at both ends; per step the thrust cylinders on opposite
-//! sides must differ in stroke by `cylinder_circle_m`·`step_m`·κ. With d0
-//! positive (right of or above the axis) the curve bends back first
-//! (κ(0) < 0) and straightens out onto the axis (κ(L) > 0).
+//! sides must differ in stroke by `cylinder_circle_m`·`step_m`·κ: the
+//! cylinders on the outside of the curve extend more, so a curve to the
+//! right or upward (κ > 0) is steered with the left or bottom ones (the
+//! difference is left less right, bottom less top). With d0 positive
+//! (right of or above the axis) the curve bends back first (κ(0) < 0: the
+//! right or top cylinders extend more) and straightens out onto the axis
+//! (κ(L) > 0).
 //!
 //! Lengths in metres inside; the answer in the protocol's units (mm,
 //! mm/m, 1/m).
@@ -41,18 +45,20 @@ pub struct SteeringSpec {
 impl SteeringSpec {
     /// Why the numbers cannot steer anything, if they cannot.
     pub fn check(&self) -> Result<(), String> {
-        let positive = |name: &str, v: f64, max: f64| {
-            if v.is_finite() && v > 0.0 && v <= max {
+        // A step of at least 10 cm keeps the search and the curve's points
+        // within 5000 steps of the longest correction.
+        let within = |name: &str, v: f64, min: f64, max: f64| {
+            if v.is_finite() && v >= min && v <= max {
                 Ok(())
             } else {
                 Err(format!(
-                    "`steering.{name}` must be above 0 and at most {max}, not {v}"
+                    "`steering.{name}` must be from {min} to {max}, not {v}"
                 ))
             }
         };
-        positive("min_radius_m", self.min_radius_m, 1.0e6)?;
-        positive("step_m", self.step_m, 100.0)?;
-        positive("cylinder_circle_m", self.cylinder_circle_m, 50.0)
+        within("min_radius_m", self.min_radius_m, 1.0, 1.0e6)?;
+        within("step_m", self.step_m, 0.1, 100.0)?;
+        within("cylinder_circle_m", self.cylinder_circle_m, 0.1, 50.0)
     }
 }
 
@@ -106,9 +112,9 @@ pub struct CurvePoint {
     pub deviation_mm: f64,
     /// The curve's curvature there, 1/m.
     pub curvature_per_m: f64,
-    /// Stroke of the cylinders on the positive side (right, top) less the
-    /// opposite side's over the step from here, mm:
-    /// `cylinder_circle_m`·`step_m`·κ.
+    /// Stroke of the cylinders on the left (bottom) less the right (top)
+    /// over the step from here, mm: `cylinder_circle_m`·`step_m`·κ. A
+    /// curve to the right (κ > 0) needs the left cylinders to extend more.
     pub stroke_difference_mm: f64,
 }
 

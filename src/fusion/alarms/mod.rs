@@ -605,10 +605,10 @@ impl AlarmRules {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::fusion::AttitudeEstimate;
     use crate::fusion::EstimateValues;
     use crate::fusion::dta::{DtaEstimate, DtaSource, Limits, PointDeviation};
     use crate::fusion::reading::SensorData;
-    use crate::fusion::{AttitudeEstimate, ZuptEstimate};
 
     fn rules() -> AlarmRules {
         let tolerances = Tolerances {
@@ -926,31 +926,12 @@ mod tests {
     }
 
     fn zupt(t: f64, aligned: bool, sigma_m: f64) -> EngineOutput {
-        EngineOutput {
-            t,
-            values: EstimateValues::Zupt(ZuptEstimate {
-                zv: false,
-                position_m: [0.0; 3],
-                distance_m: 0.0,
-                velocity_mps: [0.0; 3],
-                pitch_deg: 0.0,
-                roll_deg: 0.0,
-                yaw_deg: 0.0,
-                aligned,
-                position_sigma_m: [sigma_m, sigma_m, 0.001],
-                height_m: None,
-                odometer_m: None,
-                mv_ratio: 0.0,
-                are_ratio: 0.0,
-                shoe_ratio: 0.0,
-                mag_ratio: 0.0,
-                yaw_sigma_deg: None,
-                attitude_sigma_deg: None,
-                pitch_sigma_deg: None,
-                roll_sigma_deg: None,
-                smoothed_push: None,
-            }),
+        let mut output = crate::fusion::estimate::zupt_for_tests(t, None);
+        if let EstimateValues::Zupt(z) = &mut output.values {
+            (z.zv, z.aligned) = (false, aligned);
+            z.position_sigma_m = [sigma_m, sigma_m, 0.001];
         }
+        output
     }
 
     #[test]

@@ -1,5 +1,5 @@
 //! The report as CSV, for spreadsheets: one table per section, each row's
-//! first cell naming its table (`advance`, `deviation`, `ring`, …), the
+//! first cell naming its table (`advance`, `deviation`, `ring`, `chart`, …), the
 //! first row of each its column names. Every value is the JSON report's
 //! own, written as the JSON writes it (so the CSV equals the API).
 
@@ -9,7 +9,7 @@ use super::Report;
 
 /// The sections: the table name, the report's field, and whether it is a
 /// list of rows (else one object).
-const SECTIONS: [(&str, &str, bool); 7] = [
+const SECTIONS: [(&str, &str, bool); 8] = [
     ("report", "", false),
     ("advance", "advance", false),
     ("deviation", "deviations", true),
@@ -17,6 +17,7 @@ const SECTIONS: [(&str, &str, bool); 7] = [
     ("push", "pushes", true),
     ("alarm", "alarms", true),
     ("laser_dropout", "laser_dropouts", true),
+    ("chart", "chart", true),
 ];
 
 /// The CSV text of `report`.
@@ -92,6 +93,7 @@ fn columns(table: &str) -> &'static [&'static str] {
         ],
         "alarm" => &[
             "id",
+            "machine",
             "kind",
             "severity",
             "subject",
@@ -102,6 +104,7 @@ fn columns(table: &str) -> &'static [&'static str] {
             "message",
         ],
         "laser_dropout" => &["from_t", "to_t", "duration_s"],
+        "chart" => &["t", "station_m", "horizontal_mm", "vertical_mm"],
         _ => &[],
     }
 }

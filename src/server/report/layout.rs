@@ -289,6 +289,11 @@ fn step(span: f64, most: f64) -> f64 {
         .unwrap_or(10.0 * decade)
 }
 
+/// Decimals that show a multiple of `step` exactly (0.2 → 1, 5 → 0).
+fn decimals(step: f64) -> usize {
+    (-step.log10().floor()).max(0.0) as usize
+}
+
 /// The chart of the report's points; `None` without two.
 fn chart(report: &Report) -> Option<Chart> {
     let points = &report.chart;
@@ -316,23 +321,23 @@ fn chart(report: &Report) -> Option<Chart> {
             .collect()
     };
     let x_step = step(x1 - x0, 8.0);
-    let mut x_ticks = Vec::new();
-    let mut tick = (x0 / x_step).ceil() * x_step;
-    while tick <= x1 {
-        x_ticks.push((x(tick), format!("{tick}")));
-        tick += x_step;
-    }
-    let mut y_ticks = Vec::new();
-    let mut tick = -y_extent;
-    while tick <= y_extent + y_step / 2.0 {
-        let label = if tick == 0.0 {
-            "0".to_string()
-        } else {
-            format!("{tick:+}")
-        };
-        y_ticks.push((y(tick), label));
-        tick += y_step;
-    }
+    let x_ticks = (((x0 / x_step).ceil() as i64)..=((x1 / x_step).floor() as i64))
+        .map(|k| {
+            let tick = k as f64 * x_step;
+            (x(tick), format!("{tick:.*}", decimals(x_step)))
+        })
+        .collect();
+    let n = (y_extent / y_step).round() as i64;
+    let y_ticks = (-n..=n)
+        .map(|k| {
+            let tick = k as f64 * y_step;
+            let label = match k {
+                0 => "0".to_string(),
+                _ => format!("{tick:+.*}", decimals(y_step)),
+            };
+            (y(tick), label)
+        })
+        .collect();
     Some(Chart {
         horizontal: line(&|p| p.horizontal_mm),
         vertical: line(&|p| p.vertical_mm),
@@ -351,6 +356,7 @@ mod tests {
         assert_eq!(step(7.0, 8.0), 1.0);
         assert_eq!(step(30.0, 6.0), 5.0);
         assert_eq!(step(0.3, 6.0), 0.05);
+        assert_eq!((decimals(0.2), decimals(0.05), decimals(5.0)), (1, 2, 0));
     }
 
     #[test]

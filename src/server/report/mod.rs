@@ -30,6 +30,10 @@ use crate::store::{Store, StoreError};
 
 /// One shift: the range a report covers when the query names none.
 pub const DEFAULT_SPAN_S: f64 = 8.0 * 3600.0;
+/// The longest range a report covers: a week of shifts (its deviations
+/// are read from every `dta` estimate, its dropouts from every laser and
+/// inclinometer reading).
+pub const MAX_SPAN_S: f64 = 7.0 * 86_400.0;
 /// Points of the deviation chart (the range downsampled, keeping each
 /// bucket's extremes).
 pub const CHART_POINTS: usize = 400;
@@ -192,6 +196,12 @@ pub async fn show(
             "`from` ({from}) is not before `to` ({to})"
         )));
     }
+    if to - from > MAX_SPAN_S {
+        return Err(ApiError::BadRequest(format!(
+            "`from` to `to` spans {:.1} days; a report covers at most 7",
+            (to - from) / 86_400.0
+        )));
+    }
     let handle = state.machine(&machine)?;
     let store = state.store.clone();
     let report = tokio::task::spawn_blocking(move || gather(&store, &handle, from, to))
@@ -345,18 +355,11 @@ fn gather(
     alarms.sort_by(|a, b| a.raised_t.total_cmp(&b.raised_t).then(a.id.cmp(&b.id)));
 
     let laser_dropouts = if spec.engines.contains_key(&EngineKind::Attitude) {
-        let status = machine.status();
-        // The range ends for the laser where the machine's readings do.
-        let newest_t = status
-            .sensors
-            .values()
-            .map(|s| s.last_t)
-            .fold(f64::NEG_INFINITY, f64::max);
         Some(dropouts(
             store,
             db_id,
             from,
-            to.min(newest_t),
+            to,
             spec.alarms.laser_dropout_warn_s,
         )?)
     } else {
@@ -389,52 +392,53 @@ fn gather(
     })
 }
 
-/// Stretches of [`from`, `until`] within a gap of more than `limit_s`
-/// between laser readings. The search starts `limit_s` before `from`; the
-/// first gap opens at the machine's first reading of any sensor from
-/// then (a machine that has not spoken has not lost its laser).
+/// Stretches of [`from`, `to`] without a laser reading for more than
+/// `limit_s` while the machine ran: while its inclinometer (which the
+/// `attitude` engine fuses with the laser) read without a gap of more than
+/// `limit_s`. Each is the whole gap between two laser readings (or the
+/// start or end of the machine's run), clipped to the range. The search
+/// starts `limit_s` before `from`, so a range opening in a dropout says so.
 fn dropouts(
     store: &Store,
     db_id: i64,
     from: f64,
-    until: f64,
+    to: f64,
     limit_s: f64,
 ) -> Result<Vec<Dropout>, StoreError> {
-    let mut gaps = Vec::new();
-    if until <= from {
-        return Ok(gaps);
-    }
-    let mut first_t = None;
-    store.export_readings(db_id, None, from - limit_s, until, |reading| {
-        first_t = Some(reading.t);
-        false
+    let since = from - limit_s;
+    let mut lasers = Vec::new();
+    store.export_readings(db_id, Some(SensorKind::Laser), since, to, |r| {
+        lasers.push(r.t);
+        true
     })?;
-    let Some(mut previous) = first_t else {
-        return Ok(gaps);
-    };
-    let gap = |start: f64, end: f64, gaps: &mut Vec<Dropout>| {
-        if end - start > limit_s {
-            let (from_t, to_t) = (start.max(from), end.min(until));
-            if to_t > from_t {
-                gaps.push(Dropout {
-                    from_t,
-                    to_t,
-                    duration_s: to_t - from_t,
-                });
-            }
+    // The machine's runs: its inclinometer's readings without a silence.
+    let mut runs: Vec<(f64, f64)> = Vec::new();
+    store.export_readings(db_id, Some(SensorKind::Inclinometer), since, to, |r| {
+        match runs.last_mut() {
+            Some(run) if r.t - run.1 <= limit_s => run.1 = r.t,
+            _ => runs.push((r.t, r.t)),
         }
-    };
-    store.export_readings(
-        db_id,
-        Some(SensorKind::Laser),
-        from - limit_s,
-        until,
-        |reading| {
-            gap(previous, reading.t, &mut gaps);
-            previous = reading.t;
-            true
-        },
-    )?;
-    gap(previous, until, &mut gaps);
+        true
+    })?;
+    let mut gaps = Vec::new();
+    for (start, end) in runs {
+        // The newest laser reading before the run, those in it, its end.
+        let first = lasers.partition_point(|&t| t < start);
+        let last = lasers.partition_point(|&t| t <= end);
+        let mut previous = if first > 0 { lasers[first - 1] } else { start };
+        for &next in lasers[first..last].iter().chain(std::iter::once(&end)) {
+            if next - previous > limit_s {
+                let (from_t, to_t) = (previous.max(start).max(from), next.min(to));
+                if to_t > from_t {
+                    gaps.push(Dropout {
+                        from_t,
+                        to_t,
+                        duration_s: to_t - from_t,
+                    });
+                }
+            }
+            previous = next;
+        }
+    }
     Ok(gaps)
 }

@@ -108,7 +108,8 @@ fn columns_across(size: f32) -> usize {
 }
 
 /// The table's lines: headings and rows in columns as wide as their
-/// widest cell, the last column cut to fit the page.
+/// widest cell; a last cell too long for the page (an alarm's message)
+/// goes on over continuation lines under its column.
 fn table_lines(table: &Table, across: usize) -> Vec<String> {
     let mut widths: Vec<usize> = table.headings.iter().map(|h| h.chars().count()).collect();
     for row in &table.rows {
@@ -116,32 +117,72 @@ fn table_lines(table: &Table, across: usize) -> Vec<String> {
             *width = (*width).max(cell.chars().count());
         }
     }
-    let format = |cells: Vec<&str>| {
+    // Where the last column starts, and what is left of the line for it.
+    let count = widths.len();
+    let indent: usize = widths[..count.saturating_sub(1)]
+        .iter()
+        .map(|w| w + 2)
+        .sum();
+    let room = across.saturating_sub(indent).max(MIN_LAST_COLUMN);
+    let mut lines = Vec::new();
+    for cells in std::iter::once(table.headings.clone()).chain(
+        table
+            .rows
+            .iter()
+            .map(|row| row.iter().map(String::as_str).collect()),
+    ) {
         let mut line = String::new();
-        for (i, (cell, width)) in cells.iter().zip(&widths).enumerate() {
+        for (i, (cell, width)) in cells.iter().zip(&widths).enumerate().take(count - 1) {
             if i > 0 {
                 line.push_str("  ");
             }
             line.push_str(cell);
-            if i + 1 < cells.len() {
-                line.extend(std::iter::repeat_n(' ', width - cell.chars().count()));
-            }
+            line.extend(std::iter::repeat_n(' ', width - cell.chars().count()));
         }
-        if line.chars().count() > across {
-            line = line.chars().take(across.saturating_sub(1)).collect();
-            line.push('…');
+        if count > 1 {
+            line.push_str("  ");
         }
-        line
-    };
-    let mut lines = vec![format(table.headings.clone())];
-    lines.extend(
-        table
-            .rows
-            .iter()
-            .map(|row| format(row.iter().map(String::as_str).collect())),
-    );
+        let mut pieces = wrap(cells.get(count - 1).copied().unwrap_or(""), room).into_iter();
+        line.push_str(&pieces.next().unwrap_or_default());
+        lines.push(line);
+        for piece in pieces {
+            lines.push(format!("{:indent$}{piece}", ""));
+        }
+    }
     lines
 }
+
+/// `text` in lines of at most `room` characters, broken between words
+/// (a number stays whole), a word longer than a line cut.
+fn wrap(text: &str, room: usize) -> Vec<String> {
+    let mut lines = vec![String::new()];
+    for word in text.split(' ') {
+        let mut word: Vec<char> = word.chars().collect();
+        loop {
+            let line = lines.last_mut().expect("one line at least");
+            let used = line.chars().count();
+            let gap = usize::from(used > 0);
+            if used + gap + word.len() <= room {
+                if gap > 0 {
+                    line.push(' ');
+                }
+                line.extend(word.iter());
+                break;
+            }
+            if used == 0 {
+                // Longer than a line: cut.
+                line.extend(word.drain(..room));
+                lines.push(String::new());
+                continue;
+            }
+            lines.push(String::new());
+        }
+    }
+    lines
+}
+
+/// The narrowest the last column is made, characters.
+const MIN_LAST_COLUMN: usize = 20;
 
 /// The chart at the current line, scaled from its layout box.
 fn chart(pages: &mut Pages, chart: &Chart) {
@@ -324,14 +365,27 @@ mod tests {
     }
 
     #[test]
-    fn columns_are_as_wide_as_their_widest_cell_and_lines_fit_the_page() {
+    fn columns_are_as_wide_as_their_widest_cell_and_a_long_last_cell_continues() {
         let lines = table_lines(&table(2), 200);
         assert_eq!(
             lines,
             ["ring  station m", "100   1000.000", "101   1001.500"]
         );
-        let cut = table_lines(&table(1), 8);
-        assert_eq!(cut[0], "ring  s…");
+        // 26 characters across: 20 for the last column, a long cell
+        // continues under it.
+        let mut long = table(1);
+        long.rows[0][1] = "deviation past the tolerance: front +120 mm".into();
+        let wrapped = table_lines(&long, 26);
+        assert_eq!(
+            wrapped,
+            [
+                "ring  station m",
+                "100   deviation past the",
+                "      tolerance: front",
+                "      +120 mm",
+            ]
+        );
+        assert_eq!(wrap("abcdefghij klm", 4), ["abcd", "efgh", "ij", "klm"]);
     }
 
     #[test]
