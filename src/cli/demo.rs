@@ -307,6 +307,9 @@ pub fn run(args: DemoArgs) -> Result<(), CliError> {
             cluster: None,
             forward: None,
             site_backlog_alarm_s: crate::server::settings::SitesConfig::default().backlog_alarm_s(),
+            // Its own gateways post dozens a second: the console keeps the
+            // URL, the summary, alarms and errors (RUST_LOG=debug shows them).
+            access_log: tracing::Level::DEBUG,
         };
         let (state, listener) = start(
             options,
@@ -327,6 +330,7 @@ pub fn run(args: DemoArgs) -> Result<(), CliError> {
             args.data_dir.display()
         );
 
+        tokio::spawn(summarise(state.clone(), clock));
         let (stop_gateways, stopping) = watch::channel(false);
         let mut gateways = Vec::new();
         for (i, (gateway, axis)) in GATEWAYS.iter().zip(axes).enumerate() {
@@ -366,6 +370,54 @@ pub fn run(args: DemoArgs) -> Result<(), CliError> {
         tracing::info!("demo stopped");
         Ok(())
     })
+}
+
+/// How often the demo's console says how it goes.
+const SUMMARY_EVERY: Duration = Duration::from_secs(10);
+
+/// Every [`SUMMARY_EVERY`], one line: the machines, the readings a second
+/// they received, the simulated time, the active alarms.
+async fn summarise(state: crate::server::state::SharedState, clock: Clock) {
+    let received = |state: &crate::server::state::SharedState| -> u64 {
+        state
+            .all_machines()
+            .iter()
+            .flat_map(|m| {
+                m.status()
+                    .sensors
+                    .values()
+                    .map(|s| s.readings)
+                    .collect::<Vec<_>>()
+            })
+            .sum()
+    };
+    let mut ticks = tokio::time::interval(SUMMARY_EVERY);
+    ticks.tick().await;
+    let mut before = received(&state);
+    loop {
+        ticks.tick().await;
+        let now = received(&state);
+        let store = state.store.clone();
+        let active = tokio::task::spawn_blocking(move || {
+            store.alarms(&crate::store::alarms::AlarmFilter {
+                machine: None,
+                active_only: true,
+            })
+        })
+        .await
+        .ok()
+        .and_then(Result::ok)
+        .map_or(0, |alarms| alarms.len());
+        let simulated = chrono::DateTime::<chrono::Utc>::from_timestamp(clock.now_s() as i64, 0)
+            .map(|d| d.format("%Y-%m-%d %H:%M").to_string())
+            .unwrap_or_default();
+        tracing::info!(
+            "demo: {} machines, {:.0} readings/s, simulated clock {simulated} UTC, {active} active alarms",
+            state.all_machines().len(),
+            now.saturating_sub(before) as f64 / SUMMARY_EVERY.as_secs_f64(),
+        );
+        before = now;
+    }
 }
 
 /// Where an earlier demo in the same data dir stopped.

@@ -153,6 +153,7 @@ pub fn run(args: ServeArgs) -> Result<(), CliError> {
             cluster: None,
             forward,
             site_backlog_alarm_s: settings.sites.backlog_alarm_s(),
+            access_log: tracing::Level::INFO,
         };
         let (state, listener) = start(options, args.listen, args.allow_no_auth, node).await?;
         if let Some(mqtt) = mqtt {

@@ -156,11 +156,11 @@ pub fn router(state: SharedState) -> Router {
         .layer(axum::middleware::from_fn(metrics::count_responses))
         .layer(
             TraceLayer::new_for_http()
-                .make_span_with(request_span)
+                .make_span_with(request_span(state.access_log))
                 .on_request(())
                 .on_response(
                     tower_http::trace::DefaultOnResponse::new()
-                        .level(tracing::Level::INFO)
+                        .level(state.access_log)
                         .latency_unit(tower_http::LatencyUnit::Millis),
                 ),
         )
@@ -170,7 +170,31 @@ pub fn router(state: SharedState) -> Router {
 /// The span of one request, so its one INFO line (on the response: status
 /// and latency) names the method, the route as declared (`{machine}` and
 /// all, or `unmatched`) and the machine, if the route has one.
-fn request_span(request: &axum::http::Request<axum::body::Body>) -> tracing::Span {
+fn request_span(
+    level: tracing::Level,
+) -> impl Fn(&axum::http::Request<axum::body::Body>) -> tracing::Span + Clone {
+    move |request| {
+        let span = match level {
+            tracing::Level::DEBUG => tracing::debug_span!(
+                "request",
+                method = %request.method(),
+                route = tracing::field::Empty,
+                machine = tracing::field::Empty,
+            ),
+            _ => tracing::info_span!(
+                "request",
+                method = %request.method(),
+                route = tracing::field::Empty,
+                machine = tracing::field::Empty,
+            ),
+        };
+        describe_request(request, &span);
+        span
+    }
+}
+
+/// Records the route and the machine of `request` in its `span`.
+fn describe_request(request: &axum::http::Request<axum::body::Body>, span: &tracing::Span) {
     let route = request
         .extensions()
         .get::<axum::extract::MatchedPath>()
@@ -180,16 +204,10 @@ fn request_span(request: &axum::http::Request<axum::body::Body>) -> tracing::Spa
         .split('/')
         .position(|segment| segment == "{machine}")
         .and_then(|i| request.uri().path().split('/').nth(i));
-    let span = tracing::info_span!(
-        "request",
-        method = %request.method(),
-        route = %route,
-        machine = tracing::field::Empty,
-    );
+    span.record("route", tracing::field::display(route));
     if let Some(machine) = machine {
         span.record("machine", tracing::field::display(machine));
     }
-    span
 }
 
 /// Answers a request not answered within the limit: 408 when its body

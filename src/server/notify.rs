@@ -19,7 +19,7 @@ use tokio::sync::broadcast;
 
 use super::settings::WebhookConfig;
 use crate::machine::AlarmSink;
-use crate::store::alarms::AlarmChange;
+use crate::store::alarms::{AlarmChange, Change};
 
 /// Alarm changes a live client may fall behind by before it is told to
 /// fetch the list again.
@@ -92,6 +92,7 @@ impl AlarmSink for AlarmNotifier {
     /// Publishes stored changes, in order.
     fn publish(&self, changes: Vec<AlarmChange>) {
         for change in changes {
+            log_change(&change);
             let change = Arc::new(change);
             let webhook = match change.alarm.severity.as_str() {
                 "alarm" => &self.alarm,
@@ -104,6 +105,27 @@ impl AlarmSink for AlarmNotifier {
             let _ = self.own.send(change.clone());
             let _ = self.live.send(change);
         }
+    }
+}
+
+/// One line on the console per alarm change: a raise at WARN, a clear or
+/// an acknowledgement at INFO.
+fn log_change(change: &AlarmChange) {
+    let a = &change.alarm;
+    match change.transition {
+        Change::Raised => tracing::warn!(
+            machine = %a.machine, kind = %a.kind, severity = %a.severity, id = a.id,
+            "alarm raised: {}", a.message
+        ),
+        Change::Cleared => tracing::info!(
+            machine = %a.machine, kind = %a.kind, severity = %a.severity, id = a.id,
+            "alarm cleared: {}", a.message
+        ),
+        Change::Acknowledged => tracing::info!(
+            machine = %a.machine, kind = %a.kind, severity = %a.severity, id = a.id,
+            by = a.acked_by.as_deref().unwrap_or(""),
+            "alarm acknowledged"
+        ),
     }
 }
 

@@ -41,6 +41,9 @@ pub struct ServerOptions {
     pub forward: Option<super::forward::ForwardOptions>,
     /// An office: a site's backlog older than this raises `site_link`.
     pub site_backlog_alarm_s: f64,
+    /// The level of the one line per request (`serve`: INFO; the demo,
+    /// whose own gateways post dozens a second: DEBUG).
+    pub access_log: tracing::Level,
 }
 
 /// Why the server could not start.
@@ -86,6 +89,8 @@ pub struct AppState {
     pub sites: super::sites::SiteLinks,
     /// An office: a site's backlog older than this raises `site_link`.
     pub site_backlog_alarm_s: f64,
+    /// [`ServerOptions::access_log`].
+    pub access_log: tracing::Level,
 }
 
 /// Counts an open live socket while it lives.
@@ -212,6 +217,7 @@ impl AppState {
             cluster: cluster.clone(),
             sites,
             site_backlog_alarm_s: options.site_backlog_alarm_s,
+            access_log: options.access_log,
         });
         match cluster {
             Some(cluster) => {

@@ -91,6 +91,7 @@ impl TestServer {
             forward,
             site_backlog_alarm_s: tunnelnav::server::settings::SitesConfig::default()
                 .backlog_alarm_s(),
+            access_log: tracing::Level::INFO,
         })
         .await
         .expect("server starts");
