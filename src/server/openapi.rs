@@ -246,6 +246,32 @@ impl PartialSchema for ReadingInput {
                 &[("distance_m", angle("distance_m", "distance, m"))],
                 &[],
             ))
+            .item(sensor_reading(
+                "advance",
+                "A ring built or a pipe pushed home: closes it in the `rings` log",
+                &[(
+                    "ring",
+                    RefOr::T(
+                        bounded("ring", "the ring's or pipe's number")
+                            .schema_type(Type::Integer)
+                            .into(),
+                    ),
+                )],
+                &[(
+                    "strokes_mm",
+                    RefOr::T(
+                        ArrayBuilder::new()
+                            .schema_type(SchemaType::from_iter([Type::Array, Type::Null]))
+                            .items(bounded("strokes_mm", "one cylinder's stroke, mm"))
+                            .min_items(Some(1))
+                            .max_items(Some(crate::fusion::reading::MAX_STROKES))
+                            .description(Some(
+                                "the thrust cylinders' strokes, in the gateway's order; null: as absent",
+                            ))
+                            .into(),
+                    ),
+                )],
+            ))
             .into()
     }
 }
