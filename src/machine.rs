@@ -139,14 +139,7 @@ impl MachineCore {
 
     /// Engines and stages continuing from a [`MachineCore::snapshot`].
     pub fn restore(spec: &MachineSpec, state: &str) -> Result<MachineCore, SnapshotError> {
-        let state: CoreState =
-            serde_json::from_str(state).map_err(|e| SnapshotError::Invalid(e.to_string()))?;
-        Ok(Self::assemble(
-            spec,
-            Pipeline::restore(state.pipeline, &spec.stage_declaration())?,
-            ReorderBuffer::restore(state.reorder)?,
-            state.alarms,
-        ))
+        Self::from_snapshot(spec, state, Pipeline::restore)
     }
 
     /// Like [`MachineCore::restore`], a stage this release added that may
@@ -157,14 +150,9 @@ impl MachineCore {
         state: &str,
         newest: &[EngineOutput],
     ) -> Result<MachineCore, SnapshotError> {
-        let state: CoreState =
-            serde_json::from_str(state).map_err(|e| SnapshotError::Invalid(e.to_string()))?;
-        Ok(Self::assemble(
-            spec,
-            Pipeline::restore_seeded(state.pipeline, &spec.stage_declaration(), newest)?,
-            ReorderBuffer::restore(state.reorder)?,
-            state.alarms,
-        ))
+        Self::from_snapshot(spec, state, |pipeline, declaration| {
+            Pipeline::restore_seeded(pipeline, declaration, newest)
+        })
     }
 
     /// The engines of a [`MachineCore::snapshot`] under a declaration that
@@ -172,11 +160,23 @@ impl MachineCore {
     /// tolerances, start): the engines go on where they stood, a stage the
     /// declaration now calls for starts from here.
     pub fn redeclared(spec: &MachineSpec, state: &str) -> Result<MachineCore, SnapshotError> {
+        Self::from_snapshot(spec, state, Pipeline::restore_adding_stages)
+    }
+
+    /// The core of a snapshot's `state`, its pipeline restored by `pipeline`.
+    fn from_snapshot(
+        spec: &MachineSpec,
+        state: &str,
+        pipeline: impl FnOnce(
+            PipelineState,
+            &crate::fusion::stage::Declaration,
+        ) -> Result<Pipeline, SnapshotError>,
+    ) -> Result<MachineCore, SnapshotError> {
         let state: CoreState =
             serde_json::from_str(state).map_err(|e| SnapshotError::Invalid(e.to_string()))?;
         Ok(Self::assemble(
             spec,
-            Pipeline::restore_adding_stages(state.pipeline, &spec.stage_declaration())?,
+            pipeline(state.pipeline, &spec.stage_declaration())?,
             ReorderBuffer::restore(state.reorder)?,
             state.alarms,
         ))

@@ -382,13 +382,7 @@ async fn summarise(state: crate::server::state::SharedState, clock: Clock) {
         state
             .all_machines()
             .iter()
-            .flat_map(|m| {
-                m.status()
-                    .sensors
-                    .values()
-                    .map(|s| s.readings)
-                    .collect::<Vec<_>>()
-            })
+            .map(|m| m.status().sensors.values().map(|s| s.readings).sum::<u64>())
             .sum()
     };
     let mut ticks = tokio::time::interval(SUMMARY_EVERY);

@@ -533,19 +533,26 @@ impl AppState {
         let existing = self.machine(&spec.id).ok();
         // A site on the release before a stage: the stage seeded from what
         // this office stored of the machine (nothing for a new one).
-        let newest = match &existing {
-            Some(machine) => {
-                let (store, spec, db_id) = (self.store.clone(), spec.clone(), machine.db_id);
-                tokio::task::spawn_blocking(move || {
-                    crate::machine::newest_outputs(&store, &spec, db_id)
-                })
-                .await
-                .map_err(|e| ApiError::Internal(e.to_string()))?
-                .map_err(|e| ApiError::Internal(e.to_string()))?
+        let core = match MachineCore::restore(&spec, &snapshot) {
+            Err(crate::fusion::SnapshotError::MissingStage(_)) => {
+                let newest = match &existing {
+                    Some(machine) => {
+                        let (store, spec, db_id) =
+                            (self.store.clone(), spec.clone(), machine.db_id);
+                        tokio::task::spawn_blocking(move || {
+                            crate::machine::newest_outputs(&store, &spec, db_id)
+                        })
+                        .await
+                        .map_err(|e| ApiError::Internal(e.to_string()))?
+                        .map_err(|e| ApiError::Internal(e.to_string()))?
+                    }
+                    None => Vec::new(),
+                };
+                MachineCore::restore_seeded(&spec, &snapshot, &newest)
             }
-            None => Vec::new(),
-        };
-        let core = MachineCore::restore_seeded(&spec, &snapshot, &newest).map_err(|e| {
+            restored => restored,
+        }
+        .map_err(|e| {
             ApiError::BadRequest(format!(
                 "machine `{}`: the state its site's engines stand in is not readable here: {e}",
                 spec.id

@@ -257,30 +257,36 @@ fn gather(
     let streams = spec.streams();
     let runs = |stream: StreamKind| streams.contains(&stream);
 
-    let mut rings = Vec::new();
-    if runs(StreamKind::Rings) {
-        store.export_estimates(db_id, StreamKind::Rings, from, to, |e| {
-            if let EstimateValues::Rings(ring) = &e.values {
-                rings.push(RingRow {
-                    t: e.t,
-                    ring: ring.clone(),
-                });
-            }
-            true
-        })?;
-    }
-    let mut pushes = Vec::new();
-    if runs(StreamKind::Pushes) {
-        store.export_estimates(db_id, StreamKind::Pushes, from, to, |e| {
-            if let EstimateValues::Pushes(push) = &e.values {
-                pushes.push(PushRow {
-                    t: e.t,
-                    push: push.clone(),
-                });
-            }
-            true
-        })?;
-    }
+    let rings = rows(
+        store,
+        db_id,
+        runs(StreamKind::Rings),
+        StreamKind::Rings,
+        from,
+        to,
+        |e| match &e.values {
+            EstimateValues::Rings(ring) => Some(RingRow {
+                t: e.t,
+                ring: ring.clone(),
+            }),
+            _ => None,
+        },
+    )?;
+    let pushes = rows(
+        store,
+        db_id,
+        runs(StreamKind::Pushes),
+        StreamKind::Pushes,
+        from,
+        to,
+        |e| match &e.values {
+            EstimateValues::Pushes(push) => Some(PushRow {
+                t: e.t,
+                push: push.clone(),
+            }),
+            _ => None,
+        },
+    )?;
 
     // Every dta estimate of the range: the largest deviations are exact.
     let mut deviations: Vec<LargestDeviation> = Vec::new();
@@ -390,6 +396,27 @@ fn gather(
         laser_dropouts,
         chart,
     })
+}
+
+/// A row per estimate of `stream` in [`from`, `to`] that `row` makes
+/// one of; none if the machine does not run the stream.
+fn rows<T>(
+    store: &Store,
+    db_id: i64,
+    runs: bool,
+    stream: StreamKind,
+    from: f64,
+    to: f64,
+    row: impl Fn(&crate::fusion::EngineOutput) -> Option<T>,
+) -> Result<Vec<T>, StoreError> {
+    let mut rows = Vec::new();
+    if runs {
+        store.export_estimates(db_id, stream, from, to, |e| {
+            rows.extend(row(e));
+            true
+        })?;
+    }
+    Ok(rows)
 }
 
 /// Stretches of [`from`, `to`] without a laser reading for more than
