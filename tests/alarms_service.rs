@@ -139,18 +139,7 @@ async fn alarms_are_raised_listed_acknowledged_by_name_and_kept_across_a_restart
     assert_eq!(unknown.status(), 404);
 
     // A read token acknowledges it: its name is recorded.
-    let token = {
-        let conn = tunnelnav::store::Store::connect(dir.path()).unwrap();
-        tunnelnav::auth::create(
-            &conn,
-            "shift-lead",
-            tunnelnav::auth::Scope::Read,
-            None,
-            wall_clock_s(),
-        )
-        .unwrap()
-        .1
-    };
+    let token = common::read_token(dir.path(), "shift-lead");
     tokio::time::sleep(std::time::Duration::from_millis(2100)).await;
     let url = format!("{base}/api/v1/alarms/{}/ack", deviation["id"]);
     let refused = client.post(&url).send().await.unwrap();

@@ -185,18 +185,7 @@ async fn rings_steer_and_the_shift_report_hold_the_streams_numbers() {
         tokio::time::sleep(std::time::Duration::from_millis(100)).await;
     }
     assert!(deviation.is_object(), "the deviation alarm is raised");
-    let token = {
-        let conn = tunnelnav::store::Store::connect(dir.path()).unwrap();
-        tunnelnav::auth::create(
-            &conn,
-            "shift-lead",
-            tunnelnav::auth::Scope::Read,
-            None,
-            wall_clock_s(),
-        )
-        .unwrap()
-        .1
-    };
+    let token = common::read_token(dir.path(), "shift-lead");
     // The server reads new tokens within 2 s.
     tokio::time::sleep(std::time::Duration::from_millis(2100)).await;
     let acked = client

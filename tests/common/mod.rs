@@ -461,6 +461,22 @@ pub fn spawn_serving(command: &mut Command) -> (Child, String) {
     (child, base)
 }
 
+/// A read token named `name` in the store of `dir`, created now, as
+/// `tunnelnav token create` makes one; a running server takes it up within
+/// its token refresh (2 s).
+pub fn read_token(dir: &Path, name: &str) -> String {
+    let conn = tunnelnav::store::Store::connect(dir).unwrap();
+    tunnelnav::auth::create(
+        &conn,
+        name,
+        tunnelnav::auth::Scope::Read,
+        None,
+        tunnelnav::clock::wall_clock_s(),
+    )
+    .unwrap()
+    .1
+}
+
 /// An attitude machine on a straight axis due north from (1000, 5000),
 /// ±50/100 mm horizontal tolerances .
 pub fn on_an_axis(name: &str) -> serde_json::Value {
