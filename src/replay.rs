@@ -1,12 +1,21 @@
 //! Streams NDJSON readings through an engine (and the stages after it,
-//! as a machine running it has) and writes the estimates as NDJSON. Memory stays constant however long the input: one line is held
-//! at a time, plus the bounded reorder buffer.
+//! as a machine running it has) and writes the estimates as NDJSON.
+//! Memory stays constant however long the input: a few batches of lines
+//! are in flight, plus the bounded reorder buffer.
+//!
+//! Three threads share the work, in order and with bounded hand-overs:
+//! one reads and parses lines, the caller's thread reorders and fuses
+//! (the engines are the same deterministic code the server runs), one
+//! formats and writes the estimates. The output is the same bytes as a
+//! single thread would write.
 
 use std::io::{self, BufRead, Write};
+use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 
 use serde::Serialize;
 
-use crate::fusion::estimate::EstimateWriter;
+use crate::fusion::Reading;
+use crate::fusion::estimate::{EngineOutput, EstimateWriter};
 use crate::fusion::parse_reading;
 use crate::fusion::pipeline::Pipeline;
 use crate::fusion::reorder::{Admission, ReorderBuffer};
@@ -17,6 +26,10 @@ const FLUSH_BYTES: usize = 64 * 1024;
 /// line (a JSON array export, a binary file) is reported and skipped
 /// without holding it in memory.
 pub const MAX_LINE_BYTES: usize = 64 * 1024;
+/// Lines parsed, or estimates made, per batch handed to the next thread.
+const BATCH_LEN: usize = 256;
+/// Batches waiting between two threads; a faster thread waits beyond it.
+const BATCHES_IN_FLIGHT: usize = 8;
 
 /// How to replay.
 #[derive(Debug, Clone)]
@@ -74,111 +87,177 @@ impl std::fmt::Display for ReplaySummary {
     }
 }
 
+/// One non-blank input line, parsed.
+enum Line {
+    Reading { number: u64, reading: Reading },
+    Rejected { number: u64, why: String },
+}
+
 /// Runs `pipeline` over the readings in `input`; estimates go to
 /// `output`, one line per rejected input line goes to `errors`.
 pub fn replay(
-    input: impl BufRead,
-    mut output: impl Write,
+    input: impl BufRead + Send,
+    output: impl Write + Send,
     mut errors: impl Write,
     pipeline: &mut Pipeline,
     options: &ReplayOptions,
 ) -> io::Result<ReplaySummary> {
-    let mut input = input;
-    let mut summary = ReplaySummary::default();
-    let mut reorder = ReorderBuffer::new(options.reorder_window_s, options.reorder_max_len);
+    std::thread::scope(|scope| {
+        let (lines_tx, lines_rx) = sync_channel(BATCHES_IN_FLIGHT);
+        let (outputs_tx, outputs_rx) = sync_channel(BATCHES_IN_FLIGHT);
+        let reader = scope.spawn(move || read_lines(input, lines_tx));
+        let machine = options.machine.as_str();
+        let writer = scope.spawn(move || write_estimates(outputs_rx, output, machine));
+        let fused = fuse(lines_rx, outputs_tx, &mut errors, pipeline, options);
+        // The writer ends when `fuse` has dropped its sender (or on an
+        // error of its own); the reader when the input ends or `fuse` has
+        // stopped taking its batches.
+        let written = writer
+            .join()
+            .unwrap_or_else(|p| std::panic::resume_unwind(p));
+        let read = reader
+            .join()
+            .unwrap_or_else(|p| std::panic::resume_unwind(p));
+        // The first failure in the data's path is the cause; a closed
+        // hand-over further along is its consequence.
+        read?;
+        written?;
+        let summary = fused?;
+        errors.flush()?;
+        Ok(summary)
+    })
+}
+
+/// Reads and parses lines, handing them on in batches. Ends at the end
+/// of the input, on a read error, or when nobody takes the batches.
+fn read_lines(mut input: impl BufRead, batches: SyncSender<Vec<Line>>) -> io::Result<()> {
     let mut line = Vec::with_capacity(256);
-    let mut line_number: u64 = 0;
-    let mut ready = Vec::new();
-    let mut outputs = Vec::new();
-
-    // Estimates are formatted into one buffer and written in large chunks.
-    let mut pending = Vec::with_capacity(FLUSH_BYTES + 1024);
-    let mut writer = EstimateWriter::new(&options.machine);
-    let mut feed = |ready: &mut Vec<_>,
-                    pipeline: &mut Pipeline,
-                    pending: &mut Vec<u8>,
-                    summary: &mut ReplaySummary|
-     -> io::Result<()> {
-        for reading in ready.drain(..) {
-            outputs.clear();
-            pipeline.feed(&reading, &mut outputs);
-            for estimate in &outputs {
-                writer.write_line(estimate, pending);
-                summary.estimates += 1;
-            }
-        }
-        Ok(())
-    };
-
+    let mut number: u64 = 0;
+    let mut batch = Vec::with_capacity(BATCH_LEN);
     loop {
         line.clear();
         let limit = MAX_LINE_BYTES as u64 + 1;
         if io::Read::take(&mut input, limit).read_until(b'\n', &mut line)? == 0 {
             break;
         }
-        line_number += 1;
+        number += 1;
         if line.len() > MAX_LINE_BYTES && line.last() != Some(&b'\n') {
             input.skip_until(b'\n')?;
-            summary.lines += 1;
-            summary.invalid += 1;
-            writeln!(
-                errors,
-                "line {line_number}: longer than {MAX_LINE_BYTES} bytes, skipped (one reading per line)"
-            )?;
-            continue;
-        }
-        let text = line.trim_ascii();
-        if text.is_empty() {
-            continue;
-        }
-        summary.lines += 1;
-        let reading = match parse_reading(text) {
-            Ok(r) => r,
-            Err(e) => {
-                summary.invalid += 1;
-                writeln!(errors, "line {line_number}: {e}")?;
+            batch.push(Line::Rejected {
+                number,
+                why: format!("longer than {MAX_LINE_BYTES} bytes, skipped (one reading per line)"),
+            });
+        } else {
+            let text = line.trim_ascii();
+            if text.is_empty() {
                 continue;
             }
-        };
-        summary.readings += 1;
-        if !pipeline.uses(reading.sensor()) {
-            summary.unused += 1;
-            continue;
+            batch.push(match parse_reading(text) {
+                Ok(reading) => Line::Reading { number, reading },
+                Err(e) => Line::Rejected {
+                    number,
+                    why: e.to_string(),
+                },
+            });
         }
-        match reorder.push(reading) {
-            Admission::Buffered => {}
-            Admission::Late => {
-                writeln!(
-                    errors,
-                    "line {line_number}: dropped, older than a reading already fed to the engine"
-                )?;
+        if batch.len() == BATCH_LEN
+            && batches
+                .send(std::mem::replace(&mut batch, Vec::with_capacity(BATCH_LEN)))
+                .is_err()
+        {
+            return Ok(());
+        }
+    }
+    if !batch.is_empty() {
+        let _ = batches.send(batch);
+    }
+    Ok(())
+}
+
+/// Reorders and fuses the parsed lines, handing the estimates on in
+/// batches; reports rejected and late lines to `errors`.
+fn fuse(
+    lines: Receiver<Vec<Line>>,
+    estimates: SyncSender<Vec<EngineOutput>>,
+    errors: &mut impl Write,
+    pipeline: &mut Pipeline,
+    options: &ReplayOptions,
+) -> io::Result<ReplaySummary> {
+    let mut summary = ReplaySummary::default();
+    let mut reorder = ReorderBuffer::new(options.reorder_window_s, options.reorder_max_len);
+    let mut ready = Vec::new();
+    let mut batch = Vec::with_capacity(2 * BATCH_LEN);
+    let writer_gone = || io::Error::other("the estimate writer stopped");
+    for lines in lines {
+        for line in lines {
+            summary.lines += 1;
+            let (number, reading) = match line {
+                Line::Reading { number, reading } => (number, reading),
+                Line::Rejected { number, why } => {
+                    summary.invalid += 1;
+                    writeln!(errors, "line {number}: {why}")?;
+                    continue;
+                }
+            };
+            summary.readings += 1;
+            if !pipeline.uses(reading.sensor()) {
+                summary.unused += 1;
+                continue;
             }
-            Admission::Duplicate => {}
-        }
-        reorder.pop_ready(&mut ready);
-        feed(&mut ready, pipeline, &mut pending, &mut summary)?;
-        if pending.len() >= FLUSH_BYTES {
-            output.write_all(&pending)?;
-            pending.clear();
+            match reorder.push(reading) {
+                Admission::Buffered | Admission::Duplicate => {}
+                Admission::Late => writeln!(
+                    errors,
+                    "line {number}: dropped, older than a reading already fed to the engine"
+                )?,
+            }
+            reorder.pop_ready(&mut ready);
+            for reading in ready.drain(..) {
+                pipeline.feed(&reading, &mut batch);
+            }
+            if batch.len() >= BATCH_LEN {
+                summary.estimates += batch.len() as u64;
+                let full = std::mem::replace(&mut batch, Vec::with_capacity(2 * BATCH_LEN));
+                estimates.send(full).map_err(|_| writer_gone())?;
+            }
         }
     }
     reorder.drain(&mut ready);
-    feed(&mut ready, pipeline, &mut pending, &mut summary)?;
-    // The end of the input: what the engines still hold comes out too.
-    let mut held = Vec::new();
-    pipeline.flush(&mut held);
-    for estimate in &held {
-        writer.write_line(estimate, &mut pending);
-        summary.estimates += 1;
+    for reading in ready.drain(..) {
+        pipeline.feed(&reading, &mut batch);
     }
-    output.write_all(&pending)?;
+    // The end of the input: what the engines still hold comes out too.
+    pipeline.flush(&mut batch);
+    summary.estimates += batch.len() as u64;
+    if !batch.is_empty() {
+        estimates.send(batch).map_err(|_| writer_gone())?;
+    }
     let stats = reorder.stats();
     summary.late = stats.late;
     summary.duplicates = stats.duplicates;
-    output.flush()?;
     Ok(summary)
 }
 
+/// Formats the estimates into one buffer and writes it in large chunks.
+fn write_estimates(
+    batches: Receiver<Vec<EngineOutput>>,
+    mut output: impl Write,
+    machine: &str,
+) -> io::Result<()> {
+    let mut writer = EstimateWriter::new(machine);
+    let mut pending = Vec::with_capacity(FLUSH_BYTES + 4096);
+    for batch in batches {
+        for estimate in &batch {
+            writer.write_line(estimate, &mut pending);
+            if pending.len() >= FLUSH_BYTES {
+                output.write_all(&pending)?;
+                pending.clear();
+            }
+        }
+    }
+    output.write_all(&pending)?;
+    output.flush()
+}
 #[cfg(test)]
 mod tests {
     use super::*;

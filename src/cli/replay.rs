@@ -1,7 +1,7 @@
 //! `tunnelnav replay --engine NAME [--param name=value ...] [--machine ID] FILE|-`, or `tunnelnav replay --machine DECLARATION.json FILE|-`
 
 use std::fs::File;
-use std::io::{self, BufReader, BufWriter, Write};
+use std::io::{self, BufReader, Write};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -83,14 +83,14 @@ pub fn run(args: ReplayArgs) -> Result<(), CliError> {
         reorder_window_s: args.reorder_window_s,
         ..ReplayOptions::default()
     };
-    let stdout = io::stdout();
-    let out = BufWriter::with_capacity(1 << 16, stdout.lock());
+    // The estimates are written in 64 KiB chunks by replay's writing thread.
+    let out = io::stdout();
     let stderr = io::stderr();
     let mut err = stderr.lock();
     let started = Instant::now();
     let result = if args.input.as_os_str() == "-" {
-        let stdin = io::stdin();
-        replay(stdin.lock(), out, &mut err, &mut pipeline, &options)
+        let stdin = BufReader::with_capacity(1 << 16, io::stdin());
+        replay(stdin, out, &mut err, &mut pipeline, &options)
     } else {
         let file = File::open(&args.input).map_err(|source| CliError::File {
             context: format!("cannot open {}", args.input.display()),
