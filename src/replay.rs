@@ -272,6 +272,115 @@ mod tests {
         .unwrap()
     }
 
+    /// `count` inclinometer readings a second apart, as NDJSON.
+    fn inclinometer_lines(count: u64) -> Vec<u8> {
+        let mut input = Vec::new();
+        for i in 0..count {
+            let pitch = 0.5 + 0.001 * (i % 50) as f64;
+            input.extend_from_slice(
+                format!(
+                    "{{\"t\":{},\"sensor\":\"inclinometer\",\"pitch_deg\":{pitch},\"roll_deg\":1}}\n",
+                    1_772_431_200 + i
+                )
+                .as_bytes(),
+            );
+        }
+        input
+    }
+
+    #[test]
+    fn many_batches_come_out_in_order_as_one_thread_writes_them() {
+        // Far more lines than the batches in flight hold.
+        let count = (BATCH_LEN * BATCHES_IN_FLIGHT * 5 + 7) as u64;
+        let input = inclinometer_lines(count);
+        let mut out = Vec::new();
+        let summary = replay(
+            &input[..],
+            &mut out,
+            std::io::sink(),
+            &mut engine(),
+            &ReplayOptions::default(),
+        )
+        .unwrap();
+        // The same readings fed and written on this thread, one by one.
+        let mut pipeline = engine();
+        let mut writer = EstimateWriter::new("replay");
+        let (mut expected, mut outputs) = (Vec::new(), Vec::new());
+        for line in input.split(|&b| b == b'\n').filter(|l| !l.is_empty()) {
+            pipeline.feed(&parse_reading(line).unwrap(), &mut outputs);
+        }
+        pipeline.flush(&mut outputs);
+        for output in &outputs {
+            writer.write_line(output, &mut expected);
+        }
+        assert_eq!(summary.lines, count);
+        assert_eq!(summary.estimates, outputs.len() as u64);
+        assert!(out == expected, "the threaded replay wrote other bytes");
+    }
+
+    /// Takes `room` bytes, then refuses as a closed pipe does.
+    struct ClosingPipe {
+        room: usize,
+    }
+
+    impl Write for ClosingPipe {
+        fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+            if self.room == 0 {
+                return Err(io::ErrorKind::BrokenPipe.into());
+            }
+            let n = buf.len().min(self.room);
+            self.room -= n;
+            Ok(n)
+        }
+        fn flush(&mut self) -> io::Result<()> {
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn a_closed_output_ends_the_replay_with_its_error() {
+        let input = inclinometer_lines((BATCH_LEN * BATCHES_IN_FLIGHT * 8) as u64);
+        let error = replay(
+            &input[..],
+            ClosingPipe { room: 100_000 },
+            std::io::sink(),
+            &mut engine(),
+            &ReplayOptions::default(),
+        )
+        .unwrap_err();
+        assert_eq!(error.kind(), io::ErrorKind::BrokenPipe);
+    }
+
+    /// Gives `lines` of input, then fails as a dropped connection does.
+    struct FailingInput {
+        lines: io::Cursor<Vec<u8>>,
+    }
+
+    impl io::Read for FailingInput {
+        fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+            match self.lines.read(buf)? {
+                0 => Err(io::ErrorKind::ConnectionReset.into()),
+                n => Ok(n),
+            }
+        }
+    }
+
+    #[test]
+    fn a_failing_input_ends_the_replay_with_its_error() {
+        let input = io::BufReader::new(FailingInput {
+            lines: io::Cursor::new(inclinometer_lines(3000)),
+        });
+        let error = replay(
+            input,
+            std::io::sink(),
+            std::io::sink(),
+            &mut engine(),
+            &ReplayOptions::default(),
+        )
+        .unwrap_err();
+        assert_eq!(error.kind(), io::ErrorKind::ConnectionReset);
+    }
+
     #[test]
     fn an_overlong_line_is_skipped_without_being_held() {
         let mut input = Vec::new();
