@@ -74,6 +74,11 @@ pub struct LoadArgs {
     /// the run is given it too.
     #[arg(long, value_name = "URL")]
     pub mqtt: Option<String>,
+    /// `batch` on a server started for the run: afterwards, stop it and
+    /// time a plain SQLite insert loop of the rows it stored (see
+    /// [`raw_sqlite_loop`]), and print the ratio of the two rates.
+    #[arg(long)]
+    pub against_raw_sqlite: bool,
 }
 
 /// A `serve` child process started for the run.
@@ -162,7 +167,12 @@ fn readings(machine: usize, count: usize) -> Vec<String> {
 }
 
 pub fn run(args: LoadArgs) -> Result<(), CliError> {
-    let spawned = match &args.url {
+    if args.against_raw_sqlite && (args.mode != LoadMode::Batch || args.url.is_some()) {
+        return Err(CliError::Scenario(
+            "--against-raw-sqlite needs --mode batch on a server the run starts (no --url)".into(),
+        ));
+    }
+    let mut spawned = match &args.url {
         Some(_) => None,
         None => Some(SpawnedServer::start(args.mqtt.as_deref())?),
     };
@@ -218,26 +228,189 @@ pub fn run(args: LoadArgs) -> Result<(), CliError> {
             }
         }
         match args.mode {
-            LoadMode::Batch | LoadMode::Single => throughput(&args, &client, &url, &machines).await,
+            LoadMode::Batch | LoadMode::Single => {
+                throughput(&args, &client, &url, &machines).await.map(Some)
+            }
             LoadMode::Mqtt => {
                 let (http, broker) = machines.split_at(machine_count);
                 throughput(&args, &client, &url, http).await?;
-                through_broker(&args, broker).await
+                through_broker(&args, broker).await.map(|()| None)
             }
-            LoadMode::Live => live(&args, &client, &headers, &url, &machines).await,
-            LoadMode::History => history(&args, &client, &url, &machines[0]).await,
+            LoadMode::Live => live(&args, &client, &headers, &url, &machines)
+                .await
+                .map(|()| None),
+            LoadMode::History => history(&args, &client, &url, &machines[0])
+                .await
+                .map(|()| None),
         }
     });
+    let ingest_readings_per_s = result?;
+    if let (true, Some(server), Some(ingest)) = (
+        args.against_raw_sqlite,
+        spawned.as_mut(),
+        ingest_readings_per_s,
+    ) {
+        // Stopped as a crash would: what it acknowledged is committed.
+        server.child.kill()?;
+        server.child.wait()?;
+        let raw = raw_sqlite_loop(&server.data_dir, args.batch.max(1))?;
+        println!("{raw}");
+        println!(
+            "batched ingest / raw insert loop: {:.2}× ({ingest:.0} against {:.0} readings/s)",
+            ingest / raw.readings_per_s(),
+            raw.readings_per_s()
+        );
+    }
     drop(spawned);
-    result
+    Ok(())
 }
 
+/// What [`raw_sqlite_loop`] did.
+struct RawRun {
+    readings: usize,
+    estimates: usize,
+    transactions: usize,
+    seconds: f64,
+}
+
+impl RawRun {
+    fn readings_per_s(&self) -> f64 {
+        self.readings as f64 / self.seconds.max(1e-9)
+    }
+}
+
+impl std::fmt::Display for RawRun {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "raw SQLite insert loop: {} readings and {} estimates in {} transactions over {:.2} s: {:.0} readings/s",
+            self.readings,
+            self.estimates,
+            self.transactions,
+            self.seconds,
+            self.readings_per_s()
+        )
+    }
+}
+
+/// The yardstick for batched ingest: the readings and estimates a server
+/// stored in `data_dir`, inserted again into a fresh database of the same
+/// schema (the store's migrations, WAL, `synchronous=FULL`, every index)
+/// by a loop of prepared `INSERT`s, one transaction per `batch` readings
+/// in the order they arrived, each with the estimates made at those
+/// readings' times (as a request of `batch` readings commits them).
+/// No HTTP, no parsing, no fusion, no bucket extremes: only the rows.
+/// Only the loop is timed.
+fn raw_sqlite_loop(data_dir: &std::path::Path, batch: usize) -> Result<RawRun, CliError> {
+    use rusqlite::types::Value;
+    let sql_error = |e: rusqlite::Error| CliError::Scenario(format!("raw SQLite loop: {e}"));
+    let stored = rusqlite::Connection::open_with_flags(
+        data_dir.join(crate::store::DB_FILE),
+        rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY,
+    )
+    .map_err(sql_error)?;
+    let rows = |sql: &str| -> Result<Vec<Vec<Value>>, rusqlite::Error> {
+        let mut statement = stored.prepare(sql)?;
+        let columns = statement.column_count();
+        statement
+            .query_map([], |row| {
+                (0..columns).map(|i| row.get::<_, Value>(i)).collect()
+            })?
+            .collect()
+    };
+    let machines = rows("SELECT id, machine, spec FROM machines").map_err(sql_error)?;
+    let readings = rows("SELECT id, machine_id, t, sensor, body FROM readings ORDER BY id")
+        .map_err(sql_error)?;
+    // The estimates each reading made: those of its machine at its time.
+    let mut made: HashMap<(i64, u64), Vec<Vec<Value>>> = HashMap::new();
+    let estimates = rows("SELECT machine_id, engine, t, extreme_a, extreme_b, body FROM estimates")
+        .map_err(sql_error)?;
+    let estimate_count = estimates.len();
+    let key = |machine: &Value, t: &Value| match (machine, t) {
+        (Value::Integer(m), Value::Real(t)) => Some((*m, t.to_bits())),
+        _ => None,
+    };
+    for row in estimates {
+        if let Some(k) = key(&row[0], &row[2]) {
+            made.entry(k).or_default().push(row);
+        }
+    }
+    let mut transactions: Vec<(Vec<Vec<Value>>, Vec<Vec<Value>>)> = readings
+        .chunks(batch)
+        .map(|chunk| {
+            let estimates = chunk
+                .iter()
+                .filter_map(|r| key(&r[1], &r[2]))
+                .filter_map(|k| made.remove(&k))
+                .flatten()
+                .collect();
+            (chunk.to_vec(), estimates)
+        })
+        .collect();
+    // Estimates at no reading's time (an engine's last, flushed) go last.
+    if let Some(last) = transactions.last_mut() {
+        last.1.extend(made.into_values().flatten());
+    }
+    drop(stored);
+
+    let fresh_dir = data_dir.join("raw-insert-loop");
+    let _ = std::fs::remove_dir_all(&fresh_dir);
+    let mut fresh = crate::store::SqliteStore::connect(&fresh_dir)
+        .map_err(|e| CliError::Scenario(format!("raw SQLite loop: {e}")))?;
+    for machine in &machines {
+        fresh
+            .execute(
+                "INSERT INTO machines (id, machine, spec) VALUES (?1, ?2, ?3)",
+                rusqlite::params_from_iter(machine),
+            )
+            .map_err(sql_error)?;
+    }
+    let started = Instant::now();
+    for (readings, estimates) in &transactions {
+        let tx = fresh.transaction().map_err(sql_error)?;
+        {
+            let mut insert_reading = tx
+                .prepare_cached(
+                    "INSERT INTO readings (id, machine_id, t, sensor, body) VALUES (?1, ?2, ?3, ?4, ?5)",
+                )
+                .map_err(sql_error)?;
+            for row in readings {
+                insert_reading
+                    .execute(rusqlite::params_from_iter(row))
+                    .map_err(sql_error)?;
+            }
+            let mut insert_estimate = tx
+                .prepare_cached(
+                    "INSERT INTO estimates (machine_id, engine, t, extreme_a, extreme_b, body) \
+                     VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
+                )
+                .map_err(sql_error)?;
+            for row in estimates {
+                insert_estimate
+                    .execute(rusqlite::params_from_iter(row))
+                    .map_err(sql_error)?;
+            }
+        }
+        tx.commit().map_err(sql_error)?;
+    }
+    let seconds = started.elapsed().as_secs_f64();
+    drop(fresh);
+    let _ = std::fs::remove_dir_all(&fresh_dir);
+    Ok(RawRun {
+        readings: readings.len(),
+        estimates: estimate_count,
+        transactions: transactions.len(),
+        seconds,
+    })
+}
+
+/// Posts every machine's readings; returns the readings accepted per second.
 async fn throughput(
     args: &LoadArgs,
     client: &reqwest::Client,
     url: &str,
     machines: &[String],
-) -> Result<(), CliError> {
+) -> Result<f64, CliError> {
     let batch = if args.mode == LoadMode::Single {
         1
     } else {
@@ -309,7 +482,7 @@ async fn throughput(
         machines.len(),
         args.concurrency,
     );
-    Ok(())
+    Ok(accepted as f64 / elapsed)
 }
 
 async fn live(

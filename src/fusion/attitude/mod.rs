@@ -102,6 +102,10 @@ const TRAIN_EVERY_S: f64 = 300.0;
 const PAIR_WINDOW_AVERAGES: f64 = 4.0;
 /// The candidate models not in use are trained every this many trainings.
 const CANDIDATES_EVERY: u64 = 4;
+/// Candidate models not in use trained per reading, at most: a training
+/// costs tens of microseconds, so a reading pays for at most this many
+/// beside the model in use's one ([`AttitudeEngine::train_due_candidate`]).
+const CANDIDATE_TRAININGS_PER_READING: usize = 1;
 /// Another candidate model takes over when its cross-validation score is
 /// below this share of the current one's.
 const GCV_SWITCH: f64 = 0.95;
@@ -267,6 +271,21 @@ struct Extrapolation {
     side: f64,
 }
 
+/// A training found due by a pair.
+#[derive(Debug, Clone, Copy)]
+struct Training {
+    /// The model in use has few pairs yet: every candidate trains.
+    young: bool,
+}
+
+impl Training {
+    fn or(self, other: Training) -> Training {
+        Training {
+            young: self.young || other.young,
+        }
+    }
+}
+
 /// The fused attitude of the newest inclinometer reading.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 struct Newest {
@@ -314,6 +333,10 @@ pub struct AttitudeEngine {
     pairs_untrained: u32,
     /// Trainings so far.
     trainings: u64,
+    /// Candidate models (not in use) due to train, in order; one trains
+    /// per reading, and the choice among the models waits for the last.
+    #[serde(default)]
+    candidates_due: Vec<usize>,
     /// When the noise was last re-estimated.
     retuned_t: Option<f64>,
     newest: Option<Newest>,
@@ -430,6 +453,7 @@ impl AttitudeEngine {
             extrapolation: None,
             pairs_untrained: 0,
             trainings: 0,
+            candidates_due: Vec::new(),
             retuned_t: None,
             newest: None,
             stats: AttitudeStats::default(),
@@ -462,6 +486,14 @@ impl AttitudeEngine {
         for (model, config) in engine.models.iter_mut().zip(configs) {
             model.reconfigure(config).map_err(SnapshotError::Invalid)?;
         }
+        // Only candidates other than the model in use wait, each once.
+        let (models, chosen) = (engine.models.len(), engine.chosen);
+        let mut seen = Vec::new();
+        engine.candidates_due.retain(|&i| {
+            let keep = i < models && i != chosen && !seen.contains(&i);
+            seen.push(i);
+            keep
+        });
         engine
             .laser
             .set_nominal_period(engine.config.laser_period_s);
@@ -906,18 +938,91 @@ impl AttitudeEngine {
             return;
         }
         let window = self.pair_window_s();
+        let mut due: Option<Training> = None;
         while let Some(&(t, pitch, _)) = self.pending_laser.first() {
             if t + window > newest {
                 break;
             }
             self.pending_laser.remove(0);
-            self.pair(t, pitch, window);
+            if let Some(training) = self.pair(t, pitch, window) {
+                due = Some(due.map_or(training, |d| d.or(training)));
+            }
+        }
+        if let Some(training) = due {
+            self.train(training);
+        }
+    }
+
+    /// Trains the model in use once on the pairs added (however many this
+    /// reading paired); queues the other candidates when they are due too.
+    fn train(&mut self, training: Training) {
+        // The model in use trains every time, the other candidates every
+        // [`CANDIDATES_EVERY`]th time (warm, they stay close in between),
+        // and while young.
+        self.trainings += 1;
+        let all = self.trainings.is_multiple_of(CANDIDATES_EVERY) || training.young;
+        let chosen = self.chosen;
+        self.keeping_the_estimate(|engine| engine.models[chosen].train());
+        if all {
+            for i in (0..self.models.len()).filter(|&i| i != chosen) {
+                if !self.candidates_due.contains(&i) {
+                    self.candidates_due.push(i);
+                }
+            }
+        }
+        if self.candidates_due.is_empty() {
+            self.keeping_the_estimate(Self::choose_model);
+        }
+    }
+
+    /// Trains the next candidate model due, at most
+    /// [`CANDIDATE_TRAININGS_PER_READING`] per reading; once none is left,
+    /// chooses among the models.
+    fn train_due_candidate(&mut self) {
+        if self.candidates_due.is_empty() {
+            return;
+        }
+        let take = CANDIDATE_TRAININGS_PER_READING.min(self.candidates_due.len());
+        for i in self.candidates_due.drain(..take) {
+            // A queued candidate is not the model in use (the choice waits
+            // for the queue), so its training leaves the estimate alone.
+            if let Some(model) = self.models.get_mut(i) {
+                model.train();
+            }
+        }
+        if self.candidates_due.is_empty() {
+            self.keeping_the_estimate(Self::choose_model);
+        }
+    }
+
+    /// The candidate generalised cross-validation prefers takes over,
+    /// by a clear margin (no flapping between near equals).
+    fn choose_model(&mut self) {
+        let best = (0..self.models.len())
+            .min_by(|&a, &b| self.models[a].gcv().total_cmp(&self.models[b].gcv()))
+            .unwrap_or(0);
+        if self.models[best].gcv() < GCV_SWITCH * self.models[self.chosen].gcv() {
+            self.chosen = best;
+        }
+    }
+
+    /// Runs `change` on the models; the filter's bias moves with the
+    /// correction at the current roll and temperature, so the estimate
+    /// does not jump at a retrain or a change of model.
+    fn keeping_the_estimate(&mut self, change: impl FnOnce(&mut Self)) {
+        let now = self.newest.map(|n| (n.roll_rad, n.temp_c));
+        let before = now.map(|(r, tc)| self.correction_at(r, tc));
+        change(self);
+        let after = now.map(|(r, tc)| self.correction_at(r, tc));
+        if let (Some(before), Some(after), Some(f)) = (before, after, self.pitch.as_mut()) {
+            f.shift_bias(after - before);
         }
     }
 
     /// Eq. 16: the pitch error at a laser instant, from the inclinometer
-    /// around it; then training.
-    fn pair(&mut self, t: f64, laser_pitch: f64, window: f64) {
+    /// around it, added to the training sets. Returns whether (and why)
+    /// training is due.
+    fn pair(&mut self, t: f64, laser_pitch: f64, window: f64) -> Option<Training> {
         // The inclinometer at t: a line through the window of readings. The
         // roll moves over the window, and with it the inclinometer's error:
         // a line through a curved error sits (q₋ + q₊ − 2q₀)/6 off it at the
@@ -933,7 +1038,7 @@ impl AttitudeEngine {
         let (Some(pitch), Some(roll), Some((first, last)), true) = (pitch, roll, ends, continuous)
         else {
             self.stats.laser_unpaired += 1;
-            return;
+            return None;
         };
         let (first, last) = (*first, *last);
         let temp_c = self.history.nearest(t).and_then(|p| p.temp_c);
@@ -957,7 +1062,7 @@ impl AttitudeEngine {
         }
         self.pairs_untrained += 1;
         if self.config.correction == Correction::None {
-            return;
+            return None;
         }
         // Retrain when the model has something to learn: while it is young,
         // when the pair is a surprise (beyond the roll it was trained on, or
@@ -967,34 +1072,10 @@ impl AttitudeEngine {
         let surprise = (error - middle).abs() > SURPRISE_FIT_RMS * fit_rmse.max(rad(1e-3));
         let due = self.pairs_untrained as f64 * self.laser.period_s() >= TRAIN_EVERY_S;
         if !(young || outside || surprise || due) {
-            return;
+            return None;
         }
         self.pairs_untrained = 0;
-        // The filter's bias moves with the correction at the current roll
-        // and temperature, so the estimate does not jump at a retrain.
-        let now = self.newest.map(|n| (n.roll_rad, n.temp_c));
-        let before = now.map(|(r, tc)| self.correction_at(r, tc));
-        // The model in use trains every time, the other candidates every
-        // [`CANDIDATES_EVERY`]th time (warm, they stay close in between).
-        self.trainings += 1;
-        let all = self.trainings.is_multiple_of(CANDIDATES_EVERY) || young;
-        for (i, model) in self.models.iter_mut().enumerate() {
-            if all || i == self.chosen {
-                model.train();
-            }
-        }
-        // The candidate generalised cross-validation prefers takes over,
-        // by a clear margin (no flapping between near equals).
-        let best = (0..self.models.len())
-            .min_by(|&a, &b| self.models[a].gcv().total_cmp(&self.models[b].gcv()))
-            .unwrap_or(0);
-        if self.models[best].gcv() < GCV_SWITCH * self.models[self.chosen].gcv() {
-            self.chosen = best;
-        }
-        let after = now.map(|(r, tc)| self.correction_at(r, tc));
-        if let (Some(before), Some(after), Some(f)) = (before, after, self.pitch.as_mut()) {
-            f.shift_bias(after - before);
-        }
+        Some(Training { young })
     }
 
     /// The learned model and the noise in degrees, as `GET .../model` reports it.
@@ -1133,6 +1214,12 @@ impl Engine for AttitudeEngine {
     }
 
     fn feed(&mut self, reading: &Reading, out: &mut Vec<EngineOutput>) {
+        if matches!(
+            reading.data,
+            SensorData::Inclinometer { .. } | SensorData::Laser { .. }
+        ) {
+            self.train_due_candidate();
+        }
         match reading.data {
             SensorData::Inclinometer {
                 pitch_deg,
