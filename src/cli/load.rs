@@ -335,7 +335,9 @@ fn raw_sqlite_loop(data_dir: &std::path::Path, batch: usize) -> Result<RawRun, C
             made.entry(k).or_default().push(row);
         }
     }
-    let mut transactions: Vec<(Vec<Vec<Value>>, Vec<Vec<Value>>)> = readings
+    // Per transaction: its readings' rows and their estimates' rows.
+    type Rows = Vec<Vec<Value>>;
+    let mut transactions: Vec<(Rows, Rows)> = readings
         .chunks(batch)
         .map(|chunk| {
             let estimates = chunk
