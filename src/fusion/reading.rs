@@ -1,11 +1,14 @@
 //! Sensor readings of the wire protocol (docs/protocol.md, "Readings").
 //!
-//! Parsing has a fast path (serde straight into a flat struct) and, only when
-//! that fails, a slow diagnostic path that re-reads the JSON to say which
-//! field was wrong. Validation turns the flat struct into a typed [`Reading`]
+//! Parsing has a fast path (a strict scanner for the flat object a reading
+//! is, [`scan`]), then serde straight into the same flat struct and, only
+//! when that fails, a slow diagnostic path that re-reads the JSON to say
+//! which field was wrong. Validation turns the flat struct into a typed [`Reading`]
 //! or a [`ReadingError`] naming the field.
 
 use serde::{Deserialize, Serialize};
+
+mod scan;
 
 /// Earliest accepted reading time: 2000-01-01T00:00:00Z.
 pub const EARLIEST_T_S: f64 = 946_684_800.0;
@@ -467,6 +470,15 @@ fn diagnose(value: &serde_json::Value, fast_path_error: serde_json::Error) -> Re
 /// assert_eq!(e.unwrap_err().field(), Some("pitch_deg"));
 /// ```
 pub fn parse_reading(bytes: &[u8]) -> Result<Reading, ReadingError> {
+    match scan::scan(bytes) {
+        Some(raw) => raw.validate(),
+        None => parse_with_serde(bytes),
+    }
+}
+
+/// [`parse_reading`] without the scanner: serde, and the diagnosis of
+/// what it refused.
+fn parse_with_serde(bytes: &[u8]) -> Result<Reading, ReadingError> {
     match serde_json::from_slice::<RawReading>(bytes) {
         Ok(raw) => raw.validate(),
         Err(e) => match serde_json::from_slice::<serde_json::Value>(bytes) {
