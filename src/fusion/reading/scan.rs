@@ -29,27 +29,27 @@ pub(super) fn scan(bytes: &[u8]) -> Option<RawReading> {
         }
         seen |= bit;
         match field {
-            Field::T => raw.t = Some(scanner.number()?),
-            Field::Sensor => {
+            Key::T => raw.t = Some(scanner.number()?),
+            Key::Sensor => {
                 let name = std::str::from_utf8(scanner.string()?).ok()?;
                 raw.sensor = Some(match SensorKind::from_name(name) {
                     Some(kind) => SensorTag::Known(kind),
                     None => SensorTag::Unknown(name.to_string()),
                 });
             }
-            Field::PitchDeg => raw.pitch_deg = Some(scanner.number()?),
-            Field::RollDeg => raw.roll_deg = Some(scanner.number()?),
-            Field::YawDeg => raw.yaw_deg = Some(scanner.number()?),
-            Field::TempC => raw.temp_c = Some(scanner.number()?),
-            Field::AccelMps2 => raw.accel_mps2 = Some(scanner.triple()?),
-            Field::GyroDps => raw.gyro_dps = Some(scanner.triple()?),
-            Field::FieldUt => raw.field_ut = Some(scanner.triple()?),
-            Field::HeightM => raw.height_m = Some(scanner.number()?),
-            Field::DistanceM => raw.distance_m = Some(scanner.number()?),
-            Field::EastingM => raw.easting_m = Some(scanner.number()?),
-            Field::NorthingM => raw.northing_m = Some(scanner.number()?),
-            Field::Ring => raw.ring = Some(scanner.number()?),
-            Field::StrokesMm => raw.strokes_mm = Some(scanner.numbers()?),
+            Key::PitchDeg => raw.pitch_deg = Some(scanner.number()?),
+            Key::RollDeg => raw.roll_deg = Some(scanner.number()?),
+            Key::YawDeg => raw.yaw_deg = Some(scanner.number()?),
+            Key::TempC => raw.temp_c = Some(scanner.number()?),
+            Key::AccelMps2 => raw.accel_mps2 = Some(scanner.triple()?),
+            Key::GyroDps => raw.gyro_dps = Some(scanner.triple()?),
+            Key::FieldUt => raw.field_ut = Some(scanner.triple()?),
+            Key::HeightM => raw.height_m = Some(scanner.number()?),
+            Key::DistanceM => raw.distance_m = Some(scanner.number()?),
+            Key::EastingM => raw.easting_m = Some(scanner.number()?),
+            Key::NorthingM => raw.northing_m = Some(scanner.number()?),
+            Key::Ring => raw.ring = Some(scanner.number()?),
+            Key::StrokesMm => raw.strokes_mm = Some(scanner.numbers()?),
         }
         match scanner.next()? {
             b',' => continue,
@@ -61,7 +61,7 @@ pub(super) fn scan(bytes: &[u8]) -> Option<RawReading> {
 }
 
 #[derive(Clone, Copy)]
-enum Field {
+enum Key {
     T,
     Sensor,
     PitchDeg,
@@ -80,23 +80,23 @@ enum Field {
 }
 
 /// A known key's bit (for duplicates) and field.
-fn field(key: &[u8]) -> Option<(u32, Field)> {
+fn field(key: &[u8]) -> Option<(u32, Key)> {
     let field = match key {
-        b"t" => Field::T,
-        b"sensor" => Field::Sensor,
-        b"pitch_deg" => Field::PitchDeg,
-        b"roll_deg" => Field::RollDeg,
-        b"yaw_deg" => Field::YawDeg,
-        b"temp_c" => Field::TempC,
-        b"accel_mps2" => Field::AccelMps2,
-        b"gyro_dps" => Field::GyroDps,
-        b"field_ut" => Field::FieldUt,
-        b"height_m" => Field::HeightM,
-        b"distance_m" => Field::DistanceM,
-        b"easting_m" => Field::EastingM,
-        b"northing_m" => Field::NorthingM,
-        b"ring" => Field::Ring,
-        b"strokes_mm" => Field::StrokesMm,
+        b"t" => Key::T,
+        b"sensor" => Key::Sensor,
+        b"pitch_deg" => Key::PitchDeg,
+        b"roll_deg" => Key::RollDeg,
+        b"yaw_deg" => Key::YawDeg,
+        b"temp_c" => Key::TempC,
+        b"accel_mps2" => Key::AccelMps2,
+        b"gyro_dps" => Key::GyroDps,
+        b"field_ut" => Key::FieldUt,
+        b"height_m" => Key::HeightM,
+        b"distance_m" => Key::DistanceM,
+        b"easting_m" => Key::EastingM,
+        b"northing_m" => Key::NorthingM,
+        b"ring" => Key::Ring,
+        b"strokes_mm" => Key::StrokesMm,
         _ => return None,
     };
     Some((1 << field as u32, field))
