@@ -407,11 +407,14 @@ impl MagCalibration {
     }
 
     fn azimuths_seen(&self, level_only: bool) -> usize {
-        let mut seen = [false; AZIMUTH_BINS];
+        // One bit per azimuth bin (every estimate asks, over up to
+        // `MAX_SAMPLES` samples: a mask is the cheapest pass).
+        const _: () = assert!(AZIMUTH_BINS <= 64);
+        let mut seen = 0u64;
         for sample in self.samples.iter().filter(|s| s.level || !level_only) {
-            seen[sample.bin % AZIMUTH_BINS] = true;
+            seen |= 1 << (sample.bin % AZIMUTH_BINS);
         }
-        seen.iter().filter(|&&s| s).count()
+        seen.count_ones() as usize
     }
 
     fn elevations_seen(&self) -> usize {
