@@ -12,7 +12,9 @@ use super::{RawReading, SensorKind, SensorTag};
 
 /// The reading in `bytes`, or `None` to leave it to serde.
 pub(super) fn scan(bytes: &[u8]) -> Option<RawReading> {
-    let mut scanner = Scanner { bytes, at: 0 };
+    // Checked once, so that any slice between ASCII tokens is text.
+    let text = std::str::from_utf8(bytes).ok()?;
+    let mut scanner = Scanner { text, bytes, at: 0 };
     let mut raw = RawReading::default();
     scanner.expect(b'{')?;
     if scanner.peek()? == b'}' {
@@ -21,7 +23,7 @@ pub(super) fn scan(bytes: &[u8]) -> Option<RawReading> {
     }
     let mut seen = 0u32;
     loop {
-        let key = scanner.string()?;
+        let key = scanner.string()?.as_bytes();
         scanner.expect(b':')?;
         let (bit, field) = field(key)?;
         if seen & bit != 0 {
@@ -31,7 +33,7 @@ pub(super) fn scan(bytes: &[u8]) -> Option<RawReading> {
         match field {
             Key::T => raw.t = Some(scanner.number()?),
             Key::Sensor => {
-                let name = std::str::from_utf8(scanner.string()?).ok()?;
+                let name = scanner.string()?;
                 raw.sensor = Some(match SensorKind::from_name(name) {
                     Some(kind) => SensorTag::Known(kind),
                     None => SensorTag::Unknown(name.to_string()),
@@ -103,6 +105,8 @@ fn field(key: &[u8]) -> Option<(u32, Key)> {
 }
 
 struct Scanner<'a> {
+    text: &'a str,
+    /// `text`'s bytes.
     bytes: &'a [u8],
     at: usize,
 }
@@ -135,8 +139,8 @@ impl<'a> Scanner<'a> {
         self.peek().is_none()
     }
 
-    /// A string's bytes, for one without escapes or control characters.
-    fn string(&mut self) -> Option<&'a [u8]> {
+    /// A string without escapes or control characters.
+    fn string(&mut self) -> Option<&'a str> {
         self.expect(b'"')?;
         let start = self.at;
         loop {
@@ -147,7 +151,8 @@ impl<'a> Scanner<'a> {
             }
         }
         self.at += 1;
-        Some(&self.bytes[start..self.at - 1])
+        // Both ends are at a quote: ASCII, so on character boundaries.
+        self.text.get(start..self.at - 1)
     }
 
     /// A finite number in JSON's grammar: -?(0|[1-9][0-9]*)(.[0-9]+)?([eE][+-]?[0-9]+)?
@@ -190,8 +195,9 @@ impl<'a> Scanner<'a> {
         if self.bytes.get(self.at).is_some_and(u8::is_ascii_digit) {
             return None;
         }
-        let text = std::str::from_utf8(&self.bytes[start..self.at]).ok()?;
-        text.parse::<f64>().ok().filter(|v| v.is_finite())
+        // ASCII from `start` to here: character boundaries.
+        let number = self.text.get(start..self.at)?;
+        number.parse::<f64>().ok().filter(|v| v.is_finite())
     }
 
     /// `[x,y,z]`
