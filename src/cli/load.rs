@@ -96,7 +96,7 @@ impl SpawnedServer {
             .args(["serve", "--listen", "127.0.0.1:0", "--data-dir"])
             .arg(&data_dir)
             .args(mqtt.map(|url| ["--mqtt", url]).into_iter().flatten())
-            .env("RUST_LOG", "warn")
+            .env("RUST_LOG", "error")
             .stdout(Stdio::piped())
             .spawn()?;
         let mut line = String::new();
