@@ -10,6 +10,7 @@
 //! single thread would write.
 
 use std::io::{self, BufRead, Write};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 
 use serde::Serialize;
@@ -28,6 +29,9 @@ const FLUSH_BYTES: usize = 64 * 1024;
 pub const MAX_LINE_BYTES: usize = 64 * 1024;
 /// Lines parsed, or estimates made, per batch handed to the next thread.
 const BATCH_LEN: usize = 256;
+/// A batch of parsed lines also goes once its error messages hold this
+/// many bytes (a rejected line's message may quote much of it).
+const BATCH_MESSAGE_BYTES: usize = 64 * 1024;
 /// Batches waiting between two threads; a faster thread waits beyond it.
 const BATCHES_IN_FLIGHT: usize = 8;
 
@@ -93,6 +97,10 @@ enum Line {
     Rejected { number: u64, why: String },
 }
 
+/// What the reading thread hands on: parsed lines, or the error that
+/// ended the input early (not to be taken for its end).
+type LineBatch = io::Result<Vec<Line>>;
+
 /// Runs `pipeline` over the readings in `input`; estimates go to
 /// `output`, one line per rejected input line goes to `errors`.
 pub fn replay(
@@ -102,25 +110,30 @@ pub fn replay(
     pipeline: &mut Pipeline,
     options: &ReplayOptions,
 ) -> io::Result<ReplaySummary> {
+    // Set when fusing has stopped, so the reading thread stops at its
+    // next line rather than at its next full batch.
+    let fusing_stopped = AtomicBool::new(false);
     std::thread::scope(|scope| {
         let (lines_tx, lines_rx) = sync_channel(BATCHES_IN_FLIGHT);
         let (outputs_tx, outputs_rx) = sync_channel(BATCHES_IN_FLIGHT);
-        let reader = scope.spawn(move || read_lines(input, lines_tx));
+        let stopped = &fusing_stopped;
+        let reader = scope.spawn(move || read_lines(input, lines_tx, stopped));
         let machine = options.machine.as_str();
         let writer = scope.spawn(move || write_estimates(outputs_rx, output, machine));
         let fused = fuse(lines_rx, outputs_tx, &mut errors, pipeline, options);
+        fusing_stopped.store(true, Ordering::Relaxed);
         // The writer ends when `fuse` has dropped its sender (or on an
-        // error of its own); the reader when the input ends or `fuse` has
-        // stopped taking its batches.
+        // error of its own); the reader when the input ends or fusing has
+        // stopped.
         let written = writer
             .join()
             .unwrap_or_else(|p| std::panic::resume_unwind(p));
-        let read = reader
+        reader
             .join()
             .unwrap_or_else(|p| std::panic::resume_unwind(p));
-        // The first failure in the data's path is the cause; a closed
-        // hand-over further along is its consequence.
-        read?;
+        // A failed input ends `fuse` with its error; a failed output ends
+        // the writer with its own, and `fuse` with a closed hand-over,
+        // its consequence.
         written?;
         let summary = fused?;
         errors.flush()?;
@@ -128,56 +141,76 @@ pub fn replay(
     })
 }
 
-/// Reads and parses lines, handing them on in batches. Ends at the end
-/// of the input, on a read error, or when nobody takes the batches.
-fn read_lines(mut input: impl BufRead, batches: SyncSender<Vec<Line>>) -> io::Result<()> {
+/// Reads and parses lines, handing them on in batches; a read error is
+/// handed on last. Ends at the end of the input, on a read error, or
+/// once fusing has stopped.
+fn read_lines(input: impl BufRead, batches: SyncSender<LineBatch>, fusing_stopped: &AtomicBool) {
+    let mut batch = Vec::with_capacity(BATCH_LEN);
+    let read = parse_lines(input, &mut batch, &batches, fusing_stopped);
+    // Nobody may be taking batches any more: then there is no one to tell.
+    let _ = match read {
+        Ok(()) if batch.is_empty() => Ok(()),
+        Ok(()) => batches.send(Ok(batch)),
+        Err(e) => batches.send(Ok(batch)).and_then(|()| batches.send(Err(e))),
+    };
+}
+
+/// [`read_lines`]' loop: fills `batch`, sending it on when full.
+fn parse_lines(
+    mut input: impl BufRead,
+    batch: &mut Vec<Line>,
+    batches: &SyncSender<LineBatch>,
+    fusing_stopped: &AtomicBool,
+) -> io::Result<()> {
     let mut line = Vec::with_capacity(256);
     let mut number: u64 = 0;
-    let mut batch = Vec::with_capacity(BATCH_LEN);
-    loop {
+    let mut message_bytes = 0;
+    while !fusing_stopped.load(Ordering::Relaxed) {
         line.clear();
         let limit = MAX_LINE_BYTES as u64 + 1;
         if io::Read::take(&mut input, limit).read_until(b'\n', &mut line)? == 0 {
             break;
         }
         number += 1;
-        if line.len() > MAX_LINE_BYTES && line.last() != Some(&b'\n') {
+        let parsed = if line.len() > MAX_LINE_BYTES && line.last() != Some(&b'\n') {
             input.skip_until(b'\n')?;
-            batch.push(Line::Rejected {
+            Line::Rejected {
                 number,
                 why: format!("longer than {MAX_LINE_BYTES} bytes, skipped (one reading per line)"),
-            });
+            }
         } else {
             let text = line.trim_ascii();
             if text.is_empty() {
                 continue;
             }
-            batch.push(match parse_reading(text) {
+            match parse_reading(text) {
                 Ok(reading) => Line::Reading { number, reading },
                 Err(e) => Line::Rejected {
                     number,
                     why: e.to_string(),
                 },
-            });
+            }
+        };
+        if let Line::Rejected { why, .. } = &parsed {
+            message_bytes += why.len();
         }
-        if batch.len() == BATCH_LEN
-            && batches
-                .send(std::mem::replace(&mut batch, Vec::with_capacity(BATCH_LEN)))
-                .is_err()
-        {
-            return Ok(());
+        batch.push(parsed);
+        if batch.len() == BATCH_LEN || message_bytes >= BATCH_MESSAGE_BYTES {
+            message_bytes = 0;
+            let full = std::mem::replace(batch, Vec::with_capacity(BATCH_LEN));
+            if batches.send(Ok(full)).is_err() {
+                break;
+            }
         }
-    }
-    if !batch.is_empty() {
-        let _ = batches.send(batch);
     }
     Ok(())
 }
 
 /// Reorders and fuses the parsed lines, handing the estimates on in
-/// batches; reports rejected and late lines to `errors`.
+/// batches; reports rejected and late lines to `errors`. Ends with the
+/// input's error if it failed.
 fn fuse(
-    lines: Receiver<Vec<Line>>,
+    lines: Receiver<LineBatch>,
     estimates: SyncSender<Vec<EngineOutput>>,
     errors: &mut impl Write,
     pipeline: &mut Pipeline,
@@ -189,7 +222,9 @@ fn fuse(
     let mut batch = Vec::with_capacity(2 * BATCH_LEN);
     let writer_gone = || io::Error::other("the estimate writer stopped");
     for lines in lines {
-        for line in lines {
+        // An input that failed ends the replay here: what the engines
+        // hold is not flushed as if the input had ended.
+        for line in lines? {
             summary.lines += 1;
             let (number, reading) = match line {
                 Line::Reading { number, reading } => (number, reading),

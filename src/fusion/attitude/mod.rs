@@ -960,6 +960,9 @@ impl AttitudeEngine {
         // [`CANDIDATES_EVERY`]th time (warm, they stay close in between),
         // and while young.
         self.trainings += 1;
+        // Every pair this reading made is in the training, those after
+        // the one that made it due too.
+        self.pairs_untrained = 0;
         let all = self.trainings.is_multiple_of(CANDIDATES_EVERY) || training.young;
         let chosen = self.chosen;
         self.keeping_the_estimate(|engine| engine.models[chosen].train());
@@ -991,7 +994,15 @@ impl AttitudeEngine {
             }
         }
         if self.candidates_due.is_empty() {
+            let before = self.chosen;
             self.keeping_the_estimate(Self::choose_model);
+            // What the slope state knows of the model in use's range is
+            // made again for a new model, as after a laser sample's pairs.
+            if self.chosen != before
+                && let Some(roll) = self.roll.map(|f| f.angle())
+            {
+                self.refresh_extrapolation(roll);
+            }
         }
     }
 
@@ -1074,7 +1085,6 @@ impl AttitudeEngine {
         if !(young || outside || surprise || due) {
             return None;
         }
-        self.pairs_untrained = 0;
         Some(Training { young })
     }
 
@@ -1214,12 +1224,6 @@ impl Engine for AttitudeEngine {
     }
 
     fn feed(&mut self, reading: &Reading, out: &mut Vec<EngineOutput>) {
-        if matches!(
-            reading.data,
-            SensorData::Inclinometer { .. } | SensorData::Laser { .. }
-        ) {
-            self.train_due_candidate();
-        }
         match reading.data {
             SensorData::Inclinometer {
                 pitch_deg,
@@ -1231,8 +1235,11 @@ impl Engine for AttitudeEngine {
                 roll_deg,
                 ..
             } => self.on_laser(reading.t, pitch_deg, roll_deg),
-            _ => {}
+            _ => return,
         }
+        // After the reading: its estimate is out, and a change of model
+        // is in place (extrapolation included) before the next one.
+        self.train_due_candidate();
     }
 
     fn params(&self) -> &Params {
@@ -1700,6 +1707,77 @@ mod tests {
         let mut out_b = Vec::new();
         out_a.clear();
         for s in 2000..4000 {
+            feed(&mut a, s, &mut out_a);
+            feed(&mut b, s, &mut out_b);
+        }
+        assert_eq!(out_a, out_b);
+    }
+
+    #[test]
+    fn a_reading_trains_the_model_in_use_and_at_most_one_candidate() {
+        // A laser sample every 10 s: while young each pair trains every
+        // model, so candidates wait in the queue.
+        let mut engine = AttitudeEngine::with_defaults();
+        let mut out = Vec::new();
+        let versions =
+            |e: &AttitudeEngine| e.models.iter().map(|m| m.version()).collect::<Vec<_>>();
+        let mut queued_seen = false;
+        for s in 0..3000u32 {
+            let t = T0 + s as f64;
+            let roll = 1.0 + (s as f64 / 300.0).sin();
+            let mut readings = vec![incl(t, 0.1, roll + 0.2)];
+            if s.is_multiple_of(10) {
+                readings.insert(0, laser(t, 0.3 + 0.01 * roll * roll, roll));
+            }
+            for reading in readings {
+                let (before, in_use) = (versions(&engine), engine.chosen);
+                engine.feed(&reading, &mut out);
+                let after = versions(&engine);
+                let trained: Vec<usize> = (0..after.len())
+                    .filter(|&i| after[i] != before[i])
+                    .collect();
+                let candidates = trained.iter().filter(|&&i| i != in_use).count();
+                assert!(
+                    candidates <= 1,
+                    "second {s}: models {trained:?} trained by one reading"
+                );
+                assert!(
+                    after[in_use] - before[in_use] <= 1,
+                    "second {s}: the model in use trained twice"
+                );
+                queued_seen |= !engine.candidates_due.is_empty();
+            }
+        }
+        assert!(
+            queued_seen,
+            "no candidate ever waited: the test shows nothing"
+        );
+    }
+
+    #[test]
+    fn a_snapshot_with_candidates_waiting_continues_exactly() {
+        let mut a = AttitudeEngine::with_defaults();
+        let mut out_a = Vec::new();
+        let feed = |e: &mut dyn Engine, s: usize, out: &mut Vec<EngineOutput>| {
+            let t = T0 + s as f64;
+            let roll = 1.0 + (s as f64 / 300.0).sin();
+            if s.is_multiple_of(10) {
+                e.feed(&laser(t, 0.3 + 0.01 * roll * roll, roll), out);
+            }
+            e.feed(&incl(t, 0.1, roll + 0.2), out);
+        };
+        let mut s = 0;
+        while a.candidates_due.is_empty() {
+            feed(&mut a, s, &mut out_a);
+            s += 1;
+            assert!(s < 3000, "no candidate ever waited");
+        }
+        let text = serde_json::to_string(&a.snapshot()).unwrap();
+        let mut b = AttitudeEngine::restore(serde_json::from_str(&text).unwrap()).unwrap();
+        assert_eq!(a, b);
+        let mut out_b = Vec::new();
+        out_a.clear();
+        for s in s..s + 600 {
             feed(&mut a, s, &mut out_a);
             feed(&mut b, s, &mut out_b);
         }

@@ -3,12 +3,18 @@
 //! per-token machinery. It knows only what a reading holds (the known
 //! keys, each once; numbers, the sensor's name, arrays of numbers;
 //! whitespace between tokens) and gives up on anything else (an escape,
-//! `null`, an unknown key, a number out of range, a syntax error), which
-//! serde then parses or explains. Numbers are read by the standard
-//! library's correctly rounded parser, as serde_json's `float_roundtrip`
-//! reads them, so both paths give the same bits.
+//! `null`, an unknown key, a number out of range or longer than
+//! [`MAX_NUMBER_BYTES`], a syntax error), which serde then parses or
+//! explains. Numbers are read by the standard library's correctly rounded
+//! parser, as serde_json's `float_roundtrip` reads them, so both paths
+//! give the same bits; serde_json's long-number path (hundreds of digits)
+//! can round a halfway case the other way, so long numbers are serde's.
 
 use super::{RawReading, SensorKind, SensorTag};
+
+/// Longest number text the scanner reads: a shortest-round-trip f64 takes
+/// at most 24 bytes, so a gateway's numbers fit with room to spare.
+const MAX_NUMBER_BYTES: usize = 40;
 
 /// The reading in `bytes`, or `None` to leave it to serde.
 pub(super) fn scan(bytes: &[u8]) -> Option<RawReading> {
@@ -195,6 +201,9 @@ impl<'a> Scanner<'a> {
         if self.bytes.get(self.at).is_some_and(u8::is_ascii_digit) {
             return None;
         }
+        if self.at - start > MAX_NUMBER_BYTES {
+            return None;
+        }
         // ASCII from `start` to here: character boundaries.
         let number = self.text.get(start..self.at)?;
         number.parse::<f64>().ok().filter(|v| v.is_finite())
@@ -274,6 +283,7 @@ mod tests {
             r#"{"t":.5,"sensor":"odometer","distance_m":1}"#,
             r#"{"t":1e999,"sensor":"odometer","distance_m":1}"#,
             r#"{"t":+1,"sensor":"odometer","distance_m":1}"#,
+            r#"{"t":1772431200.00000000000000000000000000000000000000001,"sensor":"odometer","distance_m":1}"#,
             r#"{"t":1772431200,"sensor":"odo\u006deter","distance_m":1}"#,
             r#"{"t":1772431200,"sensor":"odometer","distance_m":null}"#,
             r#"{"t":1772431200,"sensor":"imu","accel_mps2":[1,2],"gyro_dps":[1,2,3]}"#,
