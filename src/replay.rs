@@ -293,6 +293,7 @@ fn write_estimates(
     output.write_all(&pending)?;
     output.flush()
 }
+
 #[cfg(test)]
 mod tests {
     use super::*;

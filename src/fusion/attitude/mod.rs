@@ -271,21 +271,6 @@ struct Extrapolation {
     side: f64,
 }
 
-/// A training found due by a pair.
-#[derive(Debug, Clone, Copy)]
-struct Training {
-    /// The model in use has few pairs yet: every candidate trains.
-    young: bool,
-}
-
-impl Training {
-    fn or(self, other: Training) -> Training {
-        Training {
-            young: self.young || other.young,
-        }
-    }
-}
-
 /// The fused attitude of the newest inclinometer reading.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 struct Newest {
@@ -938,24 +923,26 @@ impl AttitudeEngine {
             return;
         }
         let window = self.pair_window_s();
-        let mut due: Option<Training> = None;
+        // Whether a pair made training due, and whether one found the model young.
+        let mut due: Option<bool> = None;
         while let Some(&(t, pitch, _)) = self.pending_laser.first() {
             if t + window > newest {
                 break;
             }
             self.pending_laser.remove(0);
-            if let Some(training) = self.pair(t, pitch, window) {
-                due = Some(due.map_or(training, |d| d.or(training)));
+            if let Some(young) = self.pair(t, pitch, window) {
+                due = Some(due.unwrap_or(false) || young);
             }
         }
-        if let Some(training) = due {
-            self.train(training);
+        if let Some(young) = due {
+            self.train(young);
         }
     }
 
     /// Trains the model in use once on the pairs added (however many this
-    /// reading paired); queues the other candidates when they are due too.
-    fn train(&mut self, training: Training) {
+    /// reading paired, `young` if one found the model young); queues the
+    /// other candidates when they are due too.
+    fn train(&mut self, young: bool) {
         // The model in use trains every time, the other candidates every
         // [`CANDIDATES_EVERY`]th time (warm, they stay close in between),
         // and while young.
@@ -963,19 +950,22 @@ impl AttitudeEngine {
         // Every pair this reading made is in the training, those after
         // the one that made it due too.
         self.pairs_untrained = 0;
-        let all = self.trainings.is_multiple_of(CANDIDATES_EVERY) || training.young;
         let chosen = self.chosen;
-        self.keeping_the_estimate(|engine| engine.models[chosen].train());
-        if all {
+        if self.trainings.is_multiple_of(CANDIDATES_EVERY) || young {
             for i in (0..self.models.len()).filter(|&i| i != chosen) {
                 if !self.candidates_due.contains(&i) {
                     self.candidates_due.push(i);
                 }
             }
         }
-        if self.candidates_due.is_empty() {
-            self.keeping_the_estimate(Self::choose_model);
-        }
+        // One shift of the bias for the retrain and, with no candidate
+        // waiting, the choice that follows it.
+        self.keeping_the_estimate(|engine| {
+            engine.models[chosen].train();
+            if engine.candidates_due.is_empty() {
+                engine.choose_model();
+            }
+        });
     }
 
     /// Trains the next candidate model due, at most
@@ -1031,9 +1021,9 @@ impl AttitudeEngine {
     }
 
     /// Eq. 16: the pitch error at a laser instant, from the inclinometer
-    /// around it, added to the training sets. Returns whether (and why)
-    /// training is due.
-    fn pair(&mut self, t: f64, laser_pitch: f64, window: f64) -> Option<Training> {
+    /// around it, added to the training sets. `Some` when training is due,
+    /// holding whether the model in use is young (every candidate trains).
+    fn pair(&mut self, t: f64, laser_pitch: f64, window: f64) -> Option<bool> {
         // The inclinometer at t: a line through the window of readings. The
         // roll moves over the window, and with it the inclinometer's error:
         // a line through a curved error sits (q₋ + q₊ − 2q₀)/6 off it at the
@@ -1085,7 +1075,7 @@ impl AttitudeEngine {
         if !(young || outside || surprise || due) {
             return None;
         }
-        Some(Training { young })
+        Some(young)
     }
 
     /// The learned model and the noise in degrees, as `GET .../model` reports it.

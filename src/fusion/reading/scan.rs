@@ -20,7 +20,7 @@ const MAX_NUMBER_BYTES: usize = 40;
 pub(super) fn scan(bytes: &[u8]) -> Option<RawReading> {
     // Checked once, so that any slice between ASCII tokens is text.
     let text = std::str::from_utf8(bytes).ok()?;
-    let mut scanner = Scanner { text, bytes, at: 0 };
+    let mut scanner = Scanner { text, at: 0 };
     let mut raw = RawReading::default();
     scanner.expect(b'{')?;
     if scanner.peek()? == b'}' {
@@ -29,7 +29,7 @@ pub(super) fn scan(bytes: &[u8]) -> Option<RawReading> {
     }
     let mut seen = 0u32;
     loop {
-        let key = scanner.string()?.as_bytes();
+        let key = scanner.string()?;
         scanner.expect(b':')?;
         let (bit, field) = field(key)?;
         if seen & bit != 0 {
@@ -88,23 +88,23 @@ enum Key {
 }
 
 /// A known key's bit (for duplicates) and field.
-fn field(key: &[u8]) -> Option<(u32, Key)> {
+fn field(key: &str) -> Option<(u32, Key)> {
     let field = match key {
-        b"t" => Key::T,
-        b"sensor" => Key::Sensor,
-        b"pitch_deg" => Key::PitchDeg,
-        b"roll_deg" => Key::RollDeg,
-        b"yaw_deg" => Key::YawDeg,
-        b"temp_c" => Key::TempC,
-        b"accel_mps2" => Key::AccelMps2,
-        b"gyro_dps" => Key::GyroDps,
-        b"field_ut" => Key::FieldUt,
-        b"height_m" => Key::HeightM,
-        b"distance_m" => Key::DistanceM,
-        b"easting_m" => Key::EastingM,
-        b"northing_m" => Key::NorthingM,
-        b"ring" => Key::Ring,
-        b"strokes_mm" => Key::StrokesMm,
+        "t" => Key::T,
+        "sensor" => Key::Sensor,
+        "pitch_deg" => Key::PitchDeg,
+        "roll_deg" => Key::RollDeg,
+        "yaw_deg" => Key::YawDeg,
+        "temp_c" => Key::TempC,
+        "accel_mps2" => Key::AccelMps2,
+        "gyro_dps" => Key::GyroDps,
+        "field_ut" => Key::FieldUt,
+        "height_m" => Key::HeightM,
+        "distance_m" => Key::DistanceM,
+        "easting_m" => Key::EastingM,
+        "northing_m" => Key::NorthingM,
+        "ring" => Key::Ring,
+        "strokes_mm" => Key::StrokesMm,
         _ => return None,
     };
     Some((1 << field as u32, field))
@@ -112,15 +112,18 @@ fn field(key: &[u8]) -> Option<(u32, Key)> {
 
 struct Scanner<'a> {
     text: &'a str,
-    /// `text`'s bytes.
-    bytes: &'a [u8],
     at: usize,
 }
 
 impl<'a> Scanner<'a> {
+    /// The text's bytes.
+    fn bytes(&self) -> &'a [u8] {
+        self.text.as_bytes()
+    }
+
     /// The next byte after whitespace, not consumed.
     fn peek(&mut self) -> Option<u8> {
-        while let Some(&b) = self.bytes.get(self.at) {
+        while let Some(&b) = self.bytes().get(self.at) {
             if !matches!(b, b' ' | b'\t' | b'\n' | b'\r') {
                 return Some(b);
             }
@@ -150,7 +153,7 @@ impl<'a> Scanner<'a> {
         self.expect(b'"')?;
         let start = self.at;
         loop {
-            match *self.bytes.get(self.at)? {
+            match *self.bytes().get(self.at)? {
                 b'"' => break,
                 b'\\' | 0..0x20 => return None,
                 _ => self.at += 1,
@@ -167,30 +170,30 @@ impl<'a> Scanner<'a> {
         let start = self.at;
         let digits = |s: &mut Self| {
             let from = s.at;
-            while s.bytes.get(s.at).is_some_and(u8::is_ascii_digit) {
+            while s.bytes().get(s.at).is_some_and(u8::is_ascii_digit) {
                 s.at += 1;
             }
             s.at > from
         };
-        if self.bytes.get(self.at) == Some(&b'-') {
+        if self.bytes().get(self.at) == Some(&b'-') {
             self.at += 1;
         }
-        match self.bytes.get(self.at)? {
+        match self.bytes().get(self.at)? {
             b'0' => self.at += 1,
             b'1'..=b'9' => {
                 digits(self);
             }
             _ => return None,
         }
-        if self.bytes.get(self.at) == Some(&b'.') {
+        if self.bytes().get(self.at) == Some(&b'.') {
             self.at += 1;
             if !digits(self) {
                 return None;
             }
         }
-        if matches!(self.bytes.get(self.at), Some(b'e' | b'E')) {
+        if matches!(self.bytes().get(self.at), Some(b'e' | b'E')) {
             self.at += 1;
-            if matches!(self.bytes.get(self.at), Some(b'+' | b'-')) {
+            if matches!(self.bytes().get(self.at), Some(b'+' | b'-')) {
                 self.at += 1;
             }
             if !digits(self) {
@@ -198,7 +201,7 @@ impl<'a> Scanner<'a> {
             }
         }
         // A digit right after the number (`01`) is not JSON.
-        if self.bytes.get(self.at).is_some_and(u8::is_ascii_digit) {
+        if self.bytes().get(self.at).is_some_and(u8::is_ascii_digit) {
             return None;
         }
         if self.at - start > MAX_NUMBER_BYTES {
