@@ -68,6 +68,7 @@ impl Engine for ToyEngine {
             self.readings += 1;
             let sigma_deg = ToyParams::from_params(&self.params).map_or(0.0, |p| p.sigma_deg);
             out.push(EngineOutput {
+                integrity: crate::fusion::Integrity::OK,
                 t: reading.t,
                 values: EstimateValues::Toy(ToyEstimate {
                     pitch_deg,

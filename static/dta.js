@@ -323,15 +323,20 @@ tn.registerEngine('dta', {
       showAge();
 
       const badge = $('dta-status');
-      const status = ['ok', 'warn', 'alarm'].includes(e.status) ? e.status : 'none';
+      const status = ['ok', 'warn', 'alarm', 'unknown'].includes(e.status) ? e.status : 'none';
+      // A position whose source cannot vouch for it (docs/protocol.md, "Integrity").
+      const trust = e.integrity && e.integrity !== 'ok'
+        ? ` · position ${e.integrity}${e.integrity_reason ? ` (${e.integrity_reason.replace(/_/g, ' ')})` : ''}`
+        : '';
       const w = worst(e);
       const where = w ? `${w.point} ${w.comp === 'h' ? 'horizontal' : 'vertical'} ${signedMm(w.v)} mm` : '';
       const text = {
         ok: 'OK · within tolerance',
         warn: `WARNING · ${where}`,
         alarm: `ALARM · ${where}`,
+        unknown: 'UNKNOWN · the uncertainty reaches across a limit',
         none: 'no tolerances declared',
-      }[status];
+      }[status] + trust;
       if (badge.dataset.status !== status) badge.dataset.status = status;
       badge.className = `badge dta-badge ${BADGE_CLASS[status] || ''}`;
       setText(badge, text);

@@ -111,6 +111,7 @@ fn level(t: f64) -> ReadingRow {
 
 fn estimate(t: f64, pitch_deg: f64) -> EstimateRow {
     EstimateRow::new(&EngineOutput {
+        integrity: tunnelnav::fusion::Integrity::OK,
         t,
         values: EstimateValues::Attitude(AttitudeEstimate {
             pitch_deg,

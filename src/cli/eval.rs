@@ -111,6 +111,10 @@ pub struct FuzzyArgs {
     /// object {"summary", "drives"}.
     #[arg(long)]
     pub json: bool,
+    /// With --envelope: inject this fault into every drive, each fault a
+    /// category of its own figures (docs/evaluation.md, "Faults").
+    #[arg(long, value_enum, requires = "envelope")]
+    pub fault: Option<crate::eval::fuzzy_envelope::Fault>,
 }
 
 #[derive(Debug, Args)]
@@ -189,7 +193,8 @@ pub fn run(target: EvalTarget) -> Result<(), CliError> {
             if args.drive.envelope {
                 let seeds: Vec<u64> =
                     envelope_seeds(args.drive.seed, args.seeds.unwrap_or(40)).collect();
-                let drives = fuzzy_envelope::evaluate_all(&seeds, &params, cores())?;
+                let drives =
+                    fuzzy_envelope::evaluate_all_with(&seeds, &params, args.fault, cores())?;
                 let summary = fuzzy_envelope::summarise(&drives);
                 return print_envelope(args.json, &summary, &drives, || {
                     fuzzy_envelope::render(&drives, &summary)

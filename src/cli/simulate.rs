@@ -105,6 +105,11 @@ pub struct VehicleDriveArgs {
     /// The magnet's field at the sensor, µT, fixed in the body frame.
     #[arg(long, value_parser = non_negative, requires = "magnet_at_s")]
     pub magnet_ut: Option<f64>,
+    /// Fault: power-cycle the IMU this many seconds from the start (its
+    /// gyros come up with a new turn-on bias); repeatable, and allowed
+    /// with --envelope.
+    #[arg(long = "power-cycle-at-s", value_name = "S", value_parser = non_negative)]
+    pub power_cycle_at_s: Vec<f64>,
     /// Draw the vehicle, its sensors, the site and the drive at random
     /// from the envelope the fuzzy engine must hold over (seeded by
     /// --seed). See `src/sim/vehicle_envelope.rs`.
@@ -131,6 +136,7 @@ impl VehicleDriveArgs {
         if self.envelope {
             return VehicleScenario {
                 start_t: self.start_t,
+                power_cycles_s: self.power_cycle_at_s.clone(),
                 ..VehicleEnvelope::draw(self.seed).scenario
             };
         }
@@ -178,6 +184,7 @@ impl VehicleDriveArgs {
             manoeuvres: None,
             iron: None,
             disturbances: Vec::new(),
+            power_cycles_s: self.power_cycle_at_s.clone(),
         }
     }
 }

@@ -783,6 +783,7 @@ mod tests {
                 yaw_deg: (scenario.drive.heading_deg + yaw).rem_euclid(360.0),
             };
             let zupt = EngineOutput {
+                integrity: crate::fusion::Integrity::OK,
                 t: truth.t,
                 values: EstimateValues::Zupt(ZuptEstimate {
                     zv: false,

@@ -32,6 +32,7 @@ use serde::Serialize;
 
 use super::ahrs::{Madgwick, Mahony, initial_attitude};
 use super::attitude::Spread;
+use super::integrity::{self, IntegrityScore};
 use super::{Bar, ErrorStats, parallel_map};
 use crate::fusion::angles::{deg, rad};
 use crate::fusion::fuzzy::PARAMS;
@@ -126,7 +127,31 @@ pub struct DriveScores {
     /// Per method, in [`METHODS`] order.
     pub methods: Vec<MethodScores>,
     pub coverage: Coverage,
+    /// The engine's integrity against its errors (eval/integrity.rs):
+    /// misleading is a tilt error beyond 5σ and [`TILT_FLOOR_DEG`], or a
+    /// scored heading error beyond 5σ and [`HEADING_FLOOR_DEG`].
+    pub integrity: IntegrityScore,
+    /// The fault injected, if any.
+    pub fault: Option<Fault>,
 }
+
+/// A tilt error is misleading beyond this, degrees (and 5σ).
+pub const TILT_FLOOR_DEG: f64 = 1.0;
+/// A heading error is misleading beyond this, degrees (and 5σ).
+pub const HEADING_FLOOR_DEG: f64 = 4.0;
+
+/// A fault injected into every envelope drive (docs/evaluation.md,
+/// "Faults").
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum Fault {
+    /// The IMU is power-cycled at [`POWER_CYCLE_AT`] of the drive: its
+    /// gyros come up with a new turn-on bias.
+    PowerCycle,
+}
+
+/// Where in a drive its power cycle falls (share of its length).
+pub const POWER_CYCLE_AT: f64 = 0.4;
 
 impl DriveScores {
     /// The scores of the method called `label`.
@@ -183,7 +208,22 @@ pub fn installer_params(scenario: &VehicleScenario, params: &Params) -> Result<P
 
 /// Runs one envelope drive through the engine and the baselines.
 pub fn evaluate_drive(seed: u64, params: &Params) -> Result<DriveScores, ParamError> {
-    let scenario = VehicleEnvelope::draw(seed).scenario;
+    evaluate_drive_with(seed, params, None)
+}
+
+/// Like [`evaluate_drive`], with a fault injected.
+pub fn evaluate_drive_with(
+    seed: u64,
+    params: &Params,
+    fault: Option<Fault>,
+) -> Result<DriveScores, ParamError> {
+    let mut scenario = VehicleEnvelope::draw(seed).scenario;
+    match fault {
+        Some(Fault::PowerCycle) => {
+            scenario.power_cycles_s = vec![POWER_CYCLE_AT * scenario.duration_s]
+        }
+        None => {}
+    }
     let mut engine = EngineKind::Fuzzy.create(installer_params(&scenario, params)?)?;
     let drive = VehicleDrive::new(scenario.clone()).map_err(ParamError::Inconsistent)?;
     let declination = rad(scenario.declination_deg);
@@ -204,6 +244,7 @@ pub fn evaluate_drive(seed: u64, params: &Params) -> Result<DriveScores, ParamEr
     let mut out: Vec<EngineOutput> = Vec::with_capacity(2);
     let mut errors: Vec<Errors> = METHODS.iter().map(|_| Errors::default()).collect();
     let mut coverage = Coverage::default();
+    let mut integrity = IntegrityScore::default();
     let (mut right, mut total) = (0u64, 0u64);
     let (mut moving, mut moving_as_static, mut still, mut still_as_moving) = (0u64, 0, 0u64, 0);
     let (mut aligned_after, mut calibrated_after, mut heading_from) = (None, None, None);
@@ -271,7 +312,10 @@ pub fn evaluate_drive(seed: u64, params: &Params) -> Result<DriveScores, ParamEr
         }
         previous = Some((reading.t, rate));
 
-        let Some(estimate) = out.last().and_then(|o| o.values.as_fuzzy()) else {
+        let Some(output) = out.last() else {
+            continue;
+        };
+        let Some(estimate) = output.values.as_fuzzy() else {
             continue;
         };
         if estimate.aligned {
@@ -319,11 +363,17 @@ pub fn evaluate_drive(seed: u64, params: &Params) -> Result<DriveScores, ParamEr
         errors[0].roll.add(roll_error);
         coverage.add(0, pitch_error, estimate.pitch_sigma_deg);
         coverage.add(1, roll_error, estimate.roll_sigma_deg);
+        let mut misleading =
+            integrity::misleading(pitch_error, estimate.pitch_sigma_deg, TILT_FLOOR_DEG)
+                || integrity::misleading(roll_error, estimate.roll_sigma_deg, TILT_FLOOR_DEG);
         if score_heading {
             let heading_error = heading_error_deg(estimate.heading_deg, truth.heading_deg);
             errors[0].heading.add(heading_error);
             coverage.add(2, heading_error, estimate.heading_sigma_deg);
+            misleading |=
+                integrity::misleading(heading_error, estimate.heading_sigma_deg, HEADING_FLOOR_DEG);
         }
+        integrity.add(reading.t, output.integrity, misleading);
     }
     let share = |part: u64, whole: u64| {
         if whole == 0 {
@@ -344,6 +394,8 @@ pub fn evaluate_drive(seed: u64, params: &Params) -> Result<DriveScores, ParamEr
         heading_scored_from_s: heading_from,
         methods: errors.iter().map(Errors::scores).collect(),
         coverage,
+        integrity,
+        fault,
     })
 }
 
@@ -358,9 +410,21 @@ pub fn evaluate_all(
     params: &Params,
     threads: usize,
 ) -> Result<Vec<DriveScores>, ParamError> {
-    parallel_map(seeds, threads, |&seed| evaluate_drive(seed, params))
-        .into_iter()
-        .collect()
+    evaluate_all_with(seeds, params, None, threads)
+}
+
+/// Like [`evaluate_all`], with a fault injected into every drive.
+pub fn evaluate_all_with(
+    seeds: &[u64],
+    params: &Params,
+    fault: Option<Fault>,
+    threads: usize,
+) -> Result<Vec<DriveScores>, ParamError> {
+    parallel_map(seeds, threads, |&seed| {
+        evaluate_drive_with(seed, params, fault)
+    })
+    .into_iter()
+    .collect()
 }
 
 /// One method's figures over the drives: median and worst (largest).
@@ -383,6 +447,10 @@ pub struct Summary {
     pub methods: Vec<MethodSpread>,
     /// Pooled over every scored estimate: pitch, roll, heading.
     pub coverage_2_sigma: [f64; 3],
+    /// Share of estimates flagged (not `ok`): median and largest.
+    pub flagged_share: Spread,
+    /// The longest misleading `ok` run, s: median and largest.
+    pub misleading_run_s: Spread,
     pub bars: Vec<Bar>,
 }
 
@@ -473,6 +541,39 @@ pub fn summarise(drives: &[DriveScores]) -> Summary {
             met: !drives.is_empty() && tilt.median <= 0.5,
         },
     ];
+    let flagged_share = Spread::of(&finite(drives, |d| d.integrity.flagged_share()));
+    let misleading_run_s = Spread::of(&finite(drives, |d| d.integrity.worst_run_s));
+    let long_runs: Vec<String> = drives
+        .iter()
+        .filter(|d| !d.integrity.run_bar_met())
+        .map(|d| format!("{} ({:.0} s)", d.seed, d.integrity.worst_run_s))
+        .collect();
+    bars.push(Bar {
+        bar: format!(
+            "no run of |error| > 5σ (tilt > {TILT_FLOOR_DEG}°, heading > {HEADING_FLOOR_DEG}°) shown ok longer than {} s, on every drive",
+            integrity::MAX_MISLEADING_RUN_S
+        ),
+        measured: if long_runs.is_empty() {
+            format!("longest {:.1} s", misleading_run_s.worst)
+        } else {
+            format!("longer on seeds {}", long_runs.join(", "))
+        },
+        met: long_runs.is_empty(),
+    });
+    if drives.iter().all(|d| d.fault.is_none()) {
+        bars.push(Bar {
+            bar: format!(
+                "at most {:.0} % of estimates flagged on every ordinary drive",
+                100.0 * integrity::MAX_FLAGGED_SHARE
+            ),
+            measured: format!(
+                "median {:.2} %, largest {:.2} %",
+                100.0 * flagged_share.median,
+                100.0 * flagged_share.worst
+            ),
+            met: flagged_share.worst <= integrity::MAX_FLAGGED_SHARE,
+        });
+    }
     for (k, name) in ["pitch", "roll", "heading"].iter().enumerate() {
         bars.push(Bar {
             bar: format!("2σ covers 90–99 % of {name} errors"),
@@ -494,6 +595,8 @@ pub fn summarise(drives: &[DriveScores]) -> Summary {
         motion_accuracy,
         methods,
         coverage_2_sigma: coverage,
+        flagged_share,
+        misleading_run_s,
         bars,
     }
 }
@@ -509,7 +612,7 @@ pub fn render(drives: &[DriveScores], summary: &Summary) -> String {
     );
     let _ = writeln!(
         out,
-        "{:>5} {:>4} {:>4} {:>5} {:>5} {:>5} {:>4} {:>3} {:>4} | {:>6} {:>7} {:>7} | {:>7} {:>7} {:>7} {:>7} | {:>6} {:>6} {:>6}",
+        "{:>5} {:>4} {:>4} {:>5} {:>5} {:>5} {:>4} {:>3} {:>4} | {:>6} {:>7} {:>7} | {:>7} {:>7} {:>7} {:>7} | {:>6} {:>6} {:>6} | {:>6} {:>6}",
         "seed",
         "min",
         "Hz",
@@ -528,7 +631,9 @@ pub fn render(drives: &[DriveScores], summary: &Summary) -> String {
         "gyro",
         "tilt e",
         "madgw",
-        "gyro"
+        "gyro",
+        "flag%",
+        "run s"
     );
     for d in drives {
         let s = &d.scenario;
@@ -539,7 +644,7 @@ pub fn render(drives: &[DriveScores], summary: &Summary) -> String {
         let seconds = |x: Option<f64>| x.map_or("never".to_string(), |s| format!("{s:.0}"));
         let _ = writeln!(
             out,
-            "{:>5} {:>4.0} {:>4.0} {:>5.2} {:>5.0} {:>5.2} {:>4} {:>3} {:>4.0} | {:>6.4} {:>7} {:>7} | {:>7.3} {:>7.3} {:>7.3} {:>7.3} | {:>6.3} {:>6.3} {:>6.3}",
+            "{:>5} {:>4.0} {:>4.0} {:>5.2} {:>5.0} {:>5.2} {:>4} {:>3} {:>4.0} | {:>6.4} {:>7} {:>7} | {:>7.3} {:>7.3} {:>7.3} {:>7.3} | {:>6.3} {:>6.3} {:>6.3} | {:>6.2} {:>6.1}",
             d.seed,
             d.duration_s / 60.0,
             s.imu_rate_hz,
@@ -563,6 +668,8 @@ pub fn render(drives: &[DriveScores], summary: &Summary) -> String {
             method("engine", MethodScores::tilt_rmse_deg),
             method("madgwick", MethodScores::tilt_rmse_deg),
             method("gyro", MethodScores::tilt_rmse_deg),
+            100.0 * d.integrity.flagged_share(),
+            d.integrity.worst_run_s,
         );
     }
     let _ = writeln!(
@@ -588,10 +695,22 @@ pub fn render(drives: &[DriveScores], summary: &Summary) -> String {
         .map(|x| format!("{:.1}", 100.0 * x));
     let _ = writeln!(
         out,
-        "motion accuracy median {:.4}, lowest {:.4}; engine 2σ coverage pitch/roll/heading {} %\n",
+        "motion accuracy median {:.4}, lowest {:.4}; engine 2σ coverage pitch/roll/heading {} %",
         summary.motion_accuracy.median,
         summary.motion_accuracy.worst,
         c.join("/")
+    );
+    let _ = writeln!(
+        out,
+        "integrity{}: flagged median {:.2} %, largest {:.2} %; longest misleading ok run median {:.1} s, largest {:.1} s\n",
+        match drives.first().and_then(|d| d.fault) {
+            Some(Fault::PowerCycle) => " (fault: IMU power cycle)",
+            None => "",
+        },
+        100.0 * summary.flagged_share.median,
+        100.0 * summary.flagged_share.worst,
+        summary.misleading_run_s.median,
+        summary.misleading_run_s.worst,
     );
     Bar::render_all(&summary.bars, &mut out);
     out

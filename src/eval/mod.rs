@@ -7,6 +7,7 @@ pub mod dta;
 pub mod dta_ins;
 pub mod fuzzy;
 pub mod fuzzy_envelope;
+pub mod integrity;
 pub mod kf3;
 pub mod recording;
 pub mod zupt;

@@ -20,6 +20,7 @@ use super::angles::rad;
 use super::descriptor::{DeviationSignal, SignalKind, Signals, StageDescriptor, StreamValues};
 use super::estimate::{EngineOutput, EstimateValues};
 use super::geometry::{V3, attitude_from_euler};
+use super::integrity::{Integrity, IntegrityLevel};
 use super::json_fields::JsonFields;
 use super::reading::{ProjectPoint, Reading, SensorData, SensorKind};
 use super::registry::{EngineKind, StageKind};
@@ -76,15 +77,17 @@ impl DtaSource {
     }
 }
 
-/// The worst of the four deviations against the tolerances.
-#[derive(
-    Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize, utoipa::ToSchema,
-)]
+/// The worst of the four deviations against the tolerances. Stored as the
+/// variant's index: new ones are appended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum DtaStatus {
     Ok,
     Warn,
     Alarm,
+    /// A deviation's 2σ band crosses a limit, or the position's source
+    /// cannot vouch for it: the status cannot be told.
+    Unknown,
 }
 
 impl DtaStatus {
@@ -94,8 +97,41 @@ impl DtaStatus {
             DtaStatus::Ok => "ok",
             DtaStatus::Warn => "warn",
             DtaStatus::Alarm => "alarm",
+            DtaStatus::Unknown => "unknown",
         }
     }
+
+    /// Which of two deviations' statuses the estimate shows: a certain
+    /// alarm over an unknown, an unknown over a certain warn.
+    fn rank(self) -> u8 {
+        match self {
+            DtaStatus::Ok => 0,
+            DtaStatus::Warn => 1,
+            DtaStatus::Unknown => 2,
+            DtaStatus::Alarm => 3,
+        }
+    }
+}
+
+/// The status of one deviation against its limits: the grade of every
+/// value in its 2σ band when they agree, [`DtaStatus::Unknown`] when the
+/// band crosses a limit. Without a σ (laser positions) the value's own.
+fn grade(value_mm: f64, sigma_mm: Option<f64>, limits: Limits) -> DtaStatus {
+    let of = |magnitude: f64| {
+        if magnitude > limits.alarm {
+            DtaStatus::Alarm
+        } else if magnitude > limits.warn {
+            DtaStatus::Warn
+        } else {
+            DtaStatus::Ok
+        }
+    };
+    let two_sigma = 2.0 * sigma_mm.unwrap_or(0.0);
+    let (low, high) = (
+        of((value_mm.abs() - two_sigma).max(0.0)),
+        of(value_mm.abs() + two_sigma),
+    );
+    if low == high { low } else { DtaStatus::Unknown }
 }
 
 /// One point's deviation.
@@ -275,6 +311,9 @@ struct DtaState {
     state_version: u32,
     /// The newest fused pitch and roll, degrees.
     attitude_deg: Option<(f64, f64)>,
+    /// Their integrity (`ok` in snapshots from before estimates had one).
+    #[serde(default)]
+    attitude_integrity: Integrity,
     /// Positions that fell outside the alignment's station range.
     outside: u64,
     /// Laser positions without a yaw (no direction for the points).
@@ -366,23 +405,22 @@ impl DtaStage {
             }
         };
         let status = self.setup.tolerances.map(|t| {
-            let grade = |value: f64, limits: Limits| {
-                if value.abs() > limits.alarm {
-                    DtaStatus::Alarm
-                } else if value.abs() > limits.warn {
-                    DtaStatus::Warn
-                } else {
-                    DtaStatus::Ok
-                }
-            };
             [
-                grade(front.horizontal_mm, t.horizontal_mm),
-                grade(rear.horizontal_mm, t.horizontal_mm),
-                grade(front.vertical_mm, t.vertical_mm),
-                grade(rear.vertical_mm, t.vertical_mm),
+                grade(
+                    front.horizontal_mm,
+                    front.sigma_horizontal_mm,
+                    t.horizontal_mm,
+                ),
+                grade(
+                    rear.horizontal_mm,
+                    rear.sigma_horizontal_mm,
+                    t.horizontal_mm,
+                ),
+                grade(front.vertical_mm, front.sigma_vertical_mm, t.vertical_mm),
+                grade(rear.vertical_mm, rear.sigma_vertical_mm, t.vertical_mm),
             ]
             .into_iter()
-            .max()
+            .max_by_key(|s| s.rank())
             .unwrap_or(DtaStatus::Ok)
         });
         Some(DtaEstimate {
@@ -396,12 +434,26 @@ impl DtaStage {
         })
     }
 
-    fn emit(&mut self, t: f64, located: Option<DtaEstimate>, out: &mut Vec<EngineOutput>) {
+    /// Emits `located`, of a source of `integrity`: a source that cannot
+    /// vouch for its position leaves the status unknown.
+    fn emit(
+        &mut self,
+        t: f64,
+        located: Option<DtaEstimate>,
+        integrity: Integrity,
+        out: &mut Vec<EngineOutput>,
+    ) {
         match located {
-            Some(estimate) => out.push(EngineOutput {
-                t,
-                values: EstimateValues::Dta(estimate),
-            }),
+            Some(mut estimate) => {
+                if integrity.level == IntegrityLevel::Lost && estimate.status.is_some() {
+                    estimate.status = Some(DtaStatus::Unknown);
+                }
+                out.push(EngineOutput {
+                    t,
+                    values: EstimateValues::Dta(estimate),
+                    integrity: integrity.inherited(),
+                })
+            }
             None => self.state.outside += 1,
         }
     }
@@ -433,9 +485,18 @@ impl Stage for DtaStage {
             self.state.without_yaw += 1;
             return;
         };
-        let (pitch, roll) = self.state.attitude_deg.unwrap_or((pitch_deg, roll_deg));
+        // The engine's fused attitude unless it cannot vouch for it: then
+        // the laser's own, as before the engine's first laser sample.
+        let fused = self
+            .state
+            .attitude_deg
+            .filter(|_| self.state.attitude_integrity.level != IntegrityLevel::Lost);
+        let ((pitch, roll), integrity) = match fused {
+            Some(attitude) => (attitude, self.state.attitude_integrity),
+            None => ((pitch_deg, roll_deg), Integrity::OK),
+        };
         let located = self.locate(DtaSource::Laser, position, (yaw_deg, pitch, roll), None);
-        self.emit(reading.t, located, out);
+        self.emit(reading.t, located, integrity, out);
     }
 
     fn estimate(&mut self, estimate: &EngineOutput, out: &mut Vec<EngineOutput>) {
@@ -444,7 +505,8 @@ impl Stage for DtaStage {
             // carries the inclinometer's unlearned error (tenths of a degree,
             // centimetres over the shield), and the laser's own is better.
             EstimateValues::Attitude(a) if a.laser_age_s.is_some() => {
-                self.state.attitude_deg = Some((a.pitch_deg, a.roll_deg))
+                self.state.attitude_deg = Some((a.pitch_deg, a.roll_deg));
+                self.state.attitude_integrity = estimate.integrity;
             }
             EstimateValues::Zupt(z) if z.aligned => {
                 let Some(start) = self.setup.start else {
@@ -471,7 +533,7 @@ impl Stage for DtaStage {
                     (z.yaw_deg, z.pitch_deg, z.roll_deg),
                     uncertainty,
                 );
-                self.emit(estimate.t, located, out);
+                self.emit(estimate.t, located, estimate.integrity, out);
             }
             _ => {}
         }
@@ -516,6 +578,7 @@ impl StageDescriptor for Dta {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::fusion::IntegrityReason;
     use crate::fusion::alignment::AlignmentSpec;
 
     /// Due north from (1000, 5000) for 100 m, level at 50 m; the front 4 m
@@ -738,6 +801,7 @@ mod tests {
         // An attitude estimate before the engine's first laser sample (its
         // pitch still carries the inclinometer's error) is not used.
         let attitude = |t: f64, pitch_deg: f64, laser_age_s: Option<f64>| EngineOutput {
+            integrity: crate::fusion::Integrity::OK,
             t,
             values: EstimateValues::Attitude(crate::fusion::AttitudeEstimate {
                 pitch_deg,
@@ -815,7 +879,9 @@ mod tests {
             (d.front.horizontal_mm + 70.0).abs() < 1e-6
                 && (d.front.vertical_mm + 10.0).abs() < 1e-6
         );
-        assert_eq!(d.status, Some(DtaStatus::Warn));
+        // 70 mm left is beyond the 50 mm warning, but its 2σ band (below)
+        // reaches back to 70 − 2·12.2 = 45.6 mm: the status cannot be told.
+        assert_eq!(d.status, Some(DtaStatus::Unknown));
         // The INS's σ: 10 mm per coordinate, and the attitude's over the
         // lever (4 m ahead, 5 m behind, level, due north): across the axis
         // the heading's 0.1°, vertically the tilt about east, 0.05°:
@@ -830,6 +896,62 @@ mod tests {
         stage.estimate(&estimate([120.0, 0.0, 0.0], true), &mut out);
         assert_eq!(out.len(), 1);
         assert_eq!(stage.state.outside, 1);
+    }
+
+    #[test]
+    fn a_deviation_is_graded_only_where_its_two_sigma_band_agrees() {
+        let limits = Limits {
+            warn: 50.0,
+            alarm: 100.0,
+        };
+        // No σ (a laser position): the value's own grade.
+        assert_eq!(grade(49.9, None, limits), DtaStatus::Ok);
+        assert_eq!(grade(-50.1, None, limits), DtaStatus::Warn);
+        assert_eq!(grade(100.1, None, limits), DtaStatus::Alarm);
+        // 30 ± 2·9.9 = 10.2 … 49.8: ok throughout.
+        assert_eq!(grade(30.0, Some(9.9), limits), DtaStatus::Ok);
+        // 30 ± 2·10.1 reaches 50.2: unknown.
+        assert_eq!(grade(30.0, Some(10.1), limits), DtaStatus::Unknown);
+        // −75 ± 2·12: 51 … 99, a warning either way.
+        assert_eq!(grade(-75.0, Some(12.0), limits), DtaStatus::Warn);
+        // 140 ± 2·15: 110 … 170, an alarm either way.
+        assert_eq!(grade(140.0, Some(15.0), limits), DtaStatus::Alarm);
+        // 90 ± 2·6 crosses the alarm limit.
+        assert_eq!(grade(90.0, Some(6.0), limits), DtaStatus::Unknown);
+        // The estimate shows a certain alarm over an unknown, an unknown
+        // over a certain warning.
+        let worst = |a: DtaStatus, b: DtaStatus| [a, b].into_iter().max_by_key(|s| s.rank());
+        assert_eq!(
+            worst(DtaStatus::Unknown, DtaStatus::Alarm),
+            Some(DtaStatus::Alarm)
+        );
+        assert_eq!(
+            worst(DtaStatus::Warn, DtaStatus::Unknown),
+            Some(DtaStatus::Unknown)
+        );
+    }
+
+    #[test]
+    fn a_source_that_cannot_vouch_leaves_the_status_unknown_and_is_inherited() {
+        let mut stage = Dta::create(&declaration(&[EngineKind::Zupt])).unwrap();
+        let mut out = Vec::new();
+        let mut output = crate::fusion::estimate::zupt_for_tests(5.0, None);
+        if let EstimateValues::Zupt(z) = &mut output.values {
+            (z.zv, z.position_m, z.aligned) = (false, [20.0, 0.0, 0.0], true);
+        }
+        stage.estimate(&output, &mut out);
+        assert_eq!(dta(&out).status, Some(DtaStatus::Ok));
+        assert_eq!(out[0].integrity, Integrity::OK);
+        output.integrity = Integrity::lost(IntegrityReason::TiltDisagrees);
+        out.clear();
+        stage.estimate(&output, &mut out);
+        assert_eq!(dta(&out).status, Some(DtaStatus::Unknown));
+        assert_eq!(out[0].integrity, output.integrity);
+        output.integrity = Integrity::degraded(IntegrityReason::Innovations);
+        out.clear();
+        stage.estimate(&output, &mut out);
+        assert_eq!(dta(&out).status, Some(DtaStatus::Ok));
+        assert_eq!(out[0].integrity, output.integrity);
     }
 
     #[test]

@@ -4,6 +4,7 @@ use serde::{Deserialize, Serialize};
 
 pub use super::attitude::estimate::AttitudeEstimate;
 pub use super::fuzzy::estimate::{FuzzyEstimate, Motion};
+pub use super::integrity::{Integrity, IntegrityLevel, IntegrityReason};
 pub use super::json_fields::JsonFields;
 pub use super::registry::EstimateValues;
 pub use super::zupt::estimate::{TrackPoint, ZuptEstimate};
@@ -49,6 +50,7 @@ impl EstimateValues {
 #[cfg(test)]
 pub(crate) fn zupt_for_tests(t: f64, smoothed_push: Option<Vec<TrackPoint>>) -> EngineOutput {
     EngineOutput {
+        integrity: Integrity::OK,
         t,
         values: EstimateValues::Zupt(ZuptEstimate {
             zv: true,
@@ -88,6 +90,8 @@ pub struct EngineOutput {
     /// Time of the reading that produced the estimate, Unix seconds.
     pub t: f64,
     pub values: EstimateValues,
+    /// Whether the values can be trusted.
+    pub integrity: Integrity,
 }
 
 /// A complete protocol estimate: time, machine, engine and values.
@@ -97,6 +101,8 @@ pub struct Estimate {
     pub machine: String,
     #[serde(flatten)]
     pub values: EstimateValues,
+    #[serde(flatten)]
+    pub integrity: Integrity,
 }
 
 /// Borrowing form of [`Estimate`] for writing without copying the machine id.
@@ -106,6 +112,8 @@ pub struct EstimateRef<'a> {
     pub machine: &'a str,
     #[serde(flatten)]
     pub values: &'a EstimateValues,
+    #[serde(flatten)]
+    pub integrity: Integrity,
 }
 
 impl EngineOutput {
@@ -115,6 +123,7 @@ impl EngineOutput {
             t: self.t,
             machine,
             values: &self.values,
+            integrity: self.integrity,
         }
     }
 }
@@ -151,6 +160,11 @@ impl EstimateWriter {
         fields.raw(&self.machine_field);
         fields.word("engine", output.values.stream().as_str());
         output.values.write_fields(&mut fields);
+        fields.word("integrity", output.integrity.level.as_str());
+        match output.integrity.reason {
+            Some(reason) => fields.word("integrity_reason", reason.as_str()),
+            None => fields.null("integrity_reason"),
+        }
         out.extend_from_slice(b"}\n");
     }
 }
@@ -173,6 +187,13 @@ mod tests {
             for i in 0..2000 {
                 let scale = 10f64.powi((i % 9) as i32 - 4);
                 let output = EngineOutput {
+                    integrity: match i % 3 {
+                        0 => Integrity::OK,
+                        1 => Integrity::degraded(
+                            IntegrityReason::ALL[i as usize % IntegrityReason::ALL.len()],
+                        ),
+                        _ => Integrity::lost(IntegrityReason::Innovations),
+                    },
                     t: 1.7e9 + next() * 1e6,
                     values: EstimateValues::Attitude(AttitudeEstimate {
                         pitch_deg: (next() - 0.5) * scale,
@@ -209,6 +230,7 @@ mod tests {
         for i in 0..500u32 {
             let x = f64::from(i) * 0.37 - 40.0;
             let output = EngineOutput {
+                integrity: Integrity::OK,
                 t: 1.7e9 + f64::from(i) * 0.01,
                 values: EstimateValues::Zupt(ZuptEstimate {
                     zv: i % 3 == 0,
@@ -270,6 +292,7 @@ mod tests {
         for i in 0..300u32 {
             let x = f64::from(i) * 0.731 - 90.0;
             let output = EngineOutput {
+                integrity: Integrity::OK,
                 t: 1.7e9 + f64::from(i) * 0.01,
                 values: EstimateValues::Fuzzy(FuzzyEstimate {
                     motion: if i % 2 == 0 {
@@ -313,6 +336,7 @@ mod tests {
     #[test]
     fn serialises_with_engine_tag_and_parses_back() {
         let output = EngineOutput {
+            integrity: Integrity::OK,
             t: 1_772_431_200.5,
             values: EstimateValues::Attitude(AttitudeEstimate {
                 pitch_deg: 0.25,

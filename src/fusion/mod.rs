@@ -12,6 +12,7 @@ pub mod dta;
 pub mod estimate;
 pub mod fuzzy;
 pub mod geometry;
+pub mod integrity;
 pub mod json_fields;
 pub mod params;
 pub mod pipeline;
@@ -32,6 +33,7 @@ pub use estimate::{
     AttitudeEstimate, EngineOutput, Estimate, EstimateRef, EstimateValues, FuzzyEstimate, Motion,
     ZuptEstimate,
 };
+pub use integrity::{Integrity, IntegrityLevel, IntegrityReason};
 pub use params::{ParamError, ParamKind, ParamSpec, ParamValue, Params, Retired};
 pub use reading::{Reading, ReadingError, SensorData, SensorKind, parse_reading};
 pub use registry::{CodecError, EngineKind, EngineModel, StageKind, StreamKind, UnknownEngine};

@@ -161,6 +161,7 @@ impl Stage for PushLog {
             out.push(EngineOutput {
                 t: estimate.t,
                 values: EstimateValues::Pushes(record),
+                integrity: estimate.integrity.inherited(),
             });
         }
     }

@@ -10,6 +10,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::integrity::Integrity;
+
 use super::descriptor::{SignalKind, Signals, StageDescriptor, StreamValues};
 use super::estimate::{EngineOutput, EstimateValues};
 use super::json_fields::JsonFields;
@@ -117,6 +119,9 @@ struct Position {
     front_mm: [f64; 2],
     rear_mm: [f64; 2],
     tendency_mm_per_m: [f64; 2],
+    /// The estimate's integrity (`ok` in snapshots from before it).
+    #[serde(default)]
+    integrity: Integrity,
 }
 
 /// Pitch and roll, degrees, and the stream that told them.
@@ -125,6 +130,9 @@ struct Attitude {
     stream: StreamKind,
     pitch_deg: f64,
     roll_deg: f64,
+    /// The estimate's integrity (`ok` in snapshots from before it).
+    #[serde(default)]
+    integrity: Integrity,
 }
 
 /// What the stage remembers.
@@ -195,9 +203,18 @@ impl Stage for RingLog {
         };
         self.previous_t = Some(reading.t);
         self.previous_station_m = station_m.or(self.previous_station_m);
+        // The worse of the position's and the attitude's it records.
+        let integrity = [
+            position.map(|p| p.integrity),
+            self.attitude.map(|a| a.integrity),
+        ]
+        .into_iter()
+        .flatten()
+        .fold(Integrity::OK, Integrity::worst);
         out.push(EngineOutput {
             t: reading.t,
             values: EstimateValues::Rings(record),
+            integrity: integrity.inherited(),
         });
     }
 
@@ -210,6 +227,7 @@ impl Stage for RingLog {
                 front_mm: [d.front.horizontal_mm, d.front.vertical_mm],
                 rear_mm: [d.rear.horizontal_mm, d.rear.vertical_mm],
                 tendency_mm_per_m: [d.tendency_horizontal_mm_per_m, d.tendency_vertical_mm_per_m],
+                integrity: estimate.integrity,
             });
             return;
         }
@@ -222,6 +240,7 @@ impl Stage for RingLog {
                 stream,
                 pitch_deg,
                 roll_deg,
+                integrity: estimate.integrity,
             });
         }
     }
@@ -275,6 +294,7 @@ mod tests {
             sigma_vertical_mm: None,
         };
         EngineOutput {
+            integrity: crate::fusion::Integrity::OK,
             t,
             values: EstimateValues::Dta(DtaEstimate {
                 source: DtaSource::Laser,

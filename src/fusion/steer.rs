@@ -171,6 +171,7 @@ impl Stage for SteerStage {
         out.push(EngineOutput {
             t: estimate.t,
             values: EstimateValues::Steer(SteerEstimate::new(&self.spec, &start)),
+            integrity: estimate.integrity.inherited(),
         });
     }
 
@@ -226,6 +227,7 @@ mod tests {
             sigma_vertical_mm: None,
         };
         EngineOutput {
+            integrity: crate::fusion::Integrity::OK,
             t: 1000.0,
             values: EstimateValues::Dta(DtaEstimate {
                 source: DtaSource::Laser,
@@ -253,6 +255,7 @@ mod tests {
             EngineOutput {
                 t,
                 values: EstimateValues::Steer(s),
+                ..
             },
         ] = out.as_slice()
         else {
@@ -295,6 +298,7 @@ mod tests {
         // Other streams pass by.
         let mut none = Vec::new();
         let other = EngineOutput {
+            integrity: crate::fusion::Integrity::OK,
             t: 1.0,
             values: out[0].values.clone(),
         };

@@ -25,7 +25,7 @@ use utoipa::{Modify, PartialSchema, ToSchema};
 
 use super::auth::COOKIE;
 use crate::fusion::reading::field_bounds;
-use crate::fusion::{EngineKind, StreamKind};
+use crate::fusion::{EngineKind, IntegrityLevel, IntegrityReason, StreamKind};
 
 /// The document's frame: title, tags, security schemes and the schemas no
 /// handler names directly.
@@ -421,7 +421,17 @@ impl PartialSchema for Estimate {
                     )
                     .required("t")
                     .property("machine", ObjectBuilder::new().schema_type(Type::String))
-                    .required("machine"),
+                    .required("machine")
+                    .property("integrity", Ref::from_schema_name(IntegrityLevel::name()))
+                    .required("integrity")
+                    .property(
+                        "integrity_reason",
+                        OneOfBuilder::new()
+                            .item(Ref::from_schema_name(IntegrityReason::name()))
+                            .item(ObjectBuilder::new().schema_type(Type::Null))
+                            .description(Some("Why it is not ok; null when ok")),
+                    )
+                    .required("integrity_reason"),
             )
             .item(Ref::from_schema_name(EstimateValues::name()))
             .into()
@@ -430,6 +440,8 @@ impl PartialSchema for Estimate {
 
 impl ToSchema for Estimate {
     fn schemas(schemas: &mut Vec<(String, RefOr<Schema>)>) {
+        schemas.push((IntegrityLevel::name().into(), IntegrityLevel::schema()));
+        schemas.push((IntegrityReason::name().into(), IntegrityReason::schema()));
         schemas.push((EstimateValues::name().into(), EstimateValues::schema()));
         EstimateValues::schemas(schemas);
     }

@@ -201,6 +201,11 @@ pub struct VehicleScenario {
     /// Further changes of the field at the sensor.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub disturbances: Vec<FieldDisturbance>,
+    /// Fault: the IMU is power-cycled at these seconds from the start;
+    /// each time its gyros come up with a new turn-on bias, drawn like
+    /// the first (`imu.gyro_bias_dps`, 1σ per axis), and warm up again.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub power_cycles_s: Vec<f64>,
 }
 
 /// The magnetometer's errors: m = S·(Earth's field in the body frame) + b.
@@ -296,6 +301,7 @@ impl Default for VehicleScenario {
             manoeuvres: None,
             iron: None,
             disturbances: Vec::new(),
+            power_cycles_s: Vec::new(),
         }
     }
 }
@@ -407,6 +413,9 @@ pub struct VehicleDrive {
     hard_iron_ut: V3,
     gyro_bias0: V3,
     gyro_warmup: V3,
+    /// Per power cycle, from its time on: the new turn-on bias and the
+    /// start of its warm-up.
+    power_cycles: Vec<(f64, V3)>,
     gyro_walk: V3,
     drift: BiasDrift,
     accel_bias: V3,
@@ -879,6 +888,16 @@ impl VehicleDrive {
         let gyro_warmup = normal3(&mut rng, rad(0.05));
         let accel_bias = normal3(&mut rng, imu.accel_bias_mps2);
         let drift = BiasDrift::new(scenario.seed, imu.bias_drift_dps_per_min);
+        // The power cycles' biases from a stream of their own: a drive
+        // without them is the drive it always was.
+        let mut cycle_rng =
+            ChaCha8Rng::seed_from_u64(scenario.seed.wrapping_mul(47).wrapping_add(23));
+        let mut cycle_times = scenario.power_cycles_s.clone();
+        cycle_times.sort_by(f64::total_cmp);
+        let power_cycles = cycle_times
+            .into_iter()
+            .map(|at_s| (at_s, normal3(&mut cycle_rng, rad(imu.gyro_bias_dps))))
+            .collect();
         let imu_rng = ChaCha8Rng::seed_from_u64(scenario.seed.wrapping_mul(31).wrapping_add(7));
         let mag_rng = ChaCha8Rng::seed_from_u64(scenario.seed.wrapping_mul(37).wrapping_add(11));
         Ok(VehicleDrive {
@@ -893,6 +912,7 @@ impl VehicleDrive {
             hard_iron_ut,
             gyro_bias0,
             gyro_warmup,
+            power_cycles,
             gyro_walk: V3::zeros(),
             drift,
             accel_bias,
@@ -1041,8 +1061,14 @@ impl VehicleDrive {
 
     /// Gyro bias at `s` seconds (`s` only grows).
     fn gyro_bias(&mut self, s: f64) -> V3 {
-        self.gyro_bias0
-            + self.gyro_warmup * (1.0 - (-s / 400.0).exp())
+        let (turned_on_s, turn_on) = self
+            .power_cycles
+            .iter()
+            .rev()
+            .find(|(at_s, _)| *at_s <= s)
+            .map_or((0.0, self.gyro_bias0), |&(at_s, bias)| (at_s, bias));
+        turn_on
+            + self.gyro_warmup * (1.0 - (-(s - turned_on_s) / 400.0).exp())
             + self.gyro_walk
             + self.drift.at(s)
     }

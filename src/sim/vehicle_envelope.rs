@@ -181,6 +181,7 @@ impl VehicleEnvelope {
                 manoeuvres: Some(manoeuvres),
                 iron: Some(iron),
                 disturbances,
+                power_cycles_s: Vec::new(),
             },
         }
     }

@@ -13,7 +13,9 @@
 //!   version it has had.
 
 use crate::fusion::reading::{MAX_STROKES, ProjectPoint};
-use crate::fusion::{EstimateValues, Reading, SensorData, SensorKind, StreamKind};
+use crate::fusion::{
+    EngineOutput, EstimateValues, Integrity, Reading, SensorData, SensorKind, StreamKind,
+};
 
 use super::StoreError;
 
@@ -123,25 +125,59 @@ pub fn decode_reading(t: f64, sensor: SensorKind, bytes: &[u8]) -> Result<Readin
     Ok(Reading { t, data })
 }
 
-/// The compact bytes of `values`, of their engine's codec version.
-pub fn encode_values(values: &EstimateValues) -> Vec<u8> {
-    values.encode()
+/// Set in an estimate row's `codec` column when its body starts with the
+/// estimate's integrity ([`Integrity::to_bytes`], two bytes) before the
+/// values; the column's low 16 bits are the values' codec version. Rows
+/// stored before estimates carried an integrity lack it and read as `ok`,
+/// as they were shown.
+pub const WITH_INTEGRITY: u32 = 1 << 16;
+
+/// The stored body of `output` and its `codec` column.
+pub fn encode_output(output: &EngineOutput) -> (Vec<u8>, u32) {
+    let values = output.values.encode();
+    let mut body = Vec::with_capacity(2 + values.len());
+    body.extend_from_slice(&output.integrity.to_bytes());
+    body.extend_from_slice(&values);
+    (
+        body,
+        output.values.stream().codec_version() | WITH_INTEGRITY,
+    )
 }
 
-/// The values `bytes` hold, for an estimate of `engine` stored with codec
-/// `version`.
-pub fn decode_values(
+/// The estimate `bytes` hold, for an estimate of `engine` at `t` stored
+/// with `codec` (see [`WITH_INTEGRITY`]).
+pub fn decode_output(
     engine: StreamKind,
-    version: u32,
+    t: f64,
+    codec: u32,
     bytes: &[u8],
-) -> Result<EstimateValues, StoreError> {
-    EstimateValues::decode(engine, version, bytes).map_err(|e| StoreError::Corrupt(e.to_string()))
+) -> Result<EngineOutput, StoreError> {
+    let (integrity, values) = if codec & WITH_INTEGRITY != 0 {
+        let corrupt = || {
+            StoreError::Corrupt(format!(
+                "stored {engine} estimate at t = {t}: no integrity in its {} bytes",
+                bytes.len()
+            ))
+        };
+        let (head, values) = bytes.split_first_chunk::<2>().ok_or_else(corrupt)?;
+        (Integrity::from_bytes(*head).ok_or_else(corrupt)?, values)
+    } else {
+        (Integrity::OK, bytes)
+    };
+    let version = codec & !WITH_INTEGRITY;
+    let values = EstimateValues::decode(engine, version, values)
+        .map_err(|e| StoreError::Corrupt(e.to_string()))?;
+    Ok(EngineOutput {
+        t,
+        values,
+        integrity,
+    })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::fusion::AttitudeEstimate;
+    use crate::fusion::{AttitudeEstimate, IntegrityReason};
 
     #[test]
     fn readings_of_every_sensor_round_trip_exactly() {
@@ -226,6 +262,19 @@ mod tests {
         assert!(err.to_string().contains("inclinometer"), "{err}");
     }
 
+    /// `values` at `t`, stored and read back.
+    fn round_trip(values: &EstimateValues, integrity: Integrity) -> (Vec<u8>, EngineOutput) {
+        let output = EngineOutput {
+            t: 7.5,
+            values: values.clone(),
+            integrity,
+        };
+        let (body, codec) = encode_output(&output);
+        assert_eq!(codec, values.stream().codec_version() | WITH_INTEGRITY);
+        let back = decode_output(values.stream(), 7.5, codec, &body).unwrap();
+        (body, back)
+    }
+
     #[test]
     fn values_round_trip_bit_for_bit_and_small() {
         let values = EstimateValues::Attitude(AttitudeEstimate {
@@ -244,13 +293,17 @@ mod tests {
             incl_pitch_deg: 0.3,
             incl_roll_deg: -7.25,
         });
-        let bytes = encode_values(&values);
-        // 14 fields, eight of them f64 and three optional ones set.
-        assert!(bytes.len() <= 113, "{} bytes", bytes.len());
-        let version = StreamKind::Attitude.codec_version();
-        let back = decode_values(StreamKind::Attitude, version, &bytes).unwrap();
-        assert_eq!(format!("{back:?}"), format!("{values:?}"));
-        let (a, b) = (back.as_attitude().unwrap(), values.as_attitude().unwrap());
+        let integrity = Integrity::degraded(IntegrityReason::LaserDisagrees);
+        let (bytes, back) = round_trip(&values, integrity);
+        // 14 fields, eight of them f64 and three optional ones set, and
+        // the integrity's two bytes.
+        assert!(bytes.len() <= 115, "{} bytes", bytes.len());
+        assert_eq!(format!("{:?}", back.values), format!("{values:?}"));
+        assert_eq!(back.integrity, integrity);
+        let (a, b) = (
+            back.values.as_attitude().unwrap(),
+            values.as_attitude().unwrap(),
+        );
         assert_eq!(
             a.pitch_correction_deg.to_bits(),
             b.pitch_correction_deg.to_bits()
@@ -280,27 +333,59 @@ mod tests {
     #[test]
     fn truncated_bytes_are_reported_corrupt() {
         let values = attitude_values();
-        let bytes = encode_values(&values);
-        let version = StreamKind::Attitude.codec_version();
+        let output = EngineOutput {
+            t: 1.0,
+            values,
+            integrity: Integrity::OK,
+        };
+        let (bytes, codec) = encode_output(&output);
         let err =
-            decode_values(StreamKind::Attitude, version, &bytes[..bytes.len() - 3]).unwrap_err();
+            decode_output(StreamKind::Attitude, 1.0, codec, &bytes[..bytes.len() - 3]).unwrap_err();
         assert!(err.to_string().contains("attitude"), "{err}");
+        let err = decode_output(StreamKind::Attitude, 1.0, codec, &bytes[..1]).unwrap_err();
+        assert!(err.to_string().contains("integrity"), "{err}");
+        let mut unknown = bytes.clone();
+        unknown[0] = 9;
+        assert!(decode_output(StreamKind::Attitude, 1.0, codec, &unknown).is_err());
+    }
+
+    #[test]
+    fn a_row_stored_before_integrity_reads_as_ok_and_every_code_round_trips() {
+        let values = attitude_values();
+        let version = StreamKind::Attitude.codec_version();
+        let old = decode_output(StreamKind::Attitude, 2.0, version, &values.encode()).unwrap();
+        assert_eq!(
+            (old.t, &old.values, old.integrity),
+            (2.0, &values, Integrity::OK)
+        );
+        for &reason in IntegrityReason::ALL {
+            for integrity in [Integrity::degraded(reason), Integrity::lost(reason)] {
+                assert_eq!(round_trip(&values, integrity).1.integrity, integrity);
+            }
+        }
     }
 
     #[test]
     fn a_version_newer_than_this_release_is_refused_naming_it() {
         let values = attitude_values();
-        let bytes = encode_values(&values);
+        let bytes = values.encode();
         let newer = StreamKind::Attitude.codec_version() + 1;
-        let err = decode_values(StreamKind::Attitude, newer, &bytes).unwrap_err();
-        let text = err.to_string();
-        assert!(
-            text.contains("attitude") && text.contains(&format!("codec version {newer}")),
-            "{text}"
-        );
+        for codec in [newer, newer | WITH_INTEGRITY] {
+            let body = if codec & WITH_INTEGRITY != 0 {
+                [&[0u8, 0][..], &bytes].concat()
+            } else {
+                bytes.clone()
+            };
+            let err = decode_output(StreamKind::Attitude, 1.0, codec, &body).unwrap_err();
+            let text = err.to_string();
+            assert!(
+                text.contains("attitude") && text.contains(&format!("codec version {newer}")),
+                "{text}"
+            );
+        }
         // This release's rows decode; rows stored before versions existed
         // (0) and before the σ (1) are AttitudeEstimate::decode's tests.
-        let back = decode_values(StreamKind::Attitude, newer - 1, &bytes).unwrap();
-        assert_eq!(back, values);
+        let back = decode_output(StreamKind::Attitude, 1.0, newer - 1, &bytes).unwrap();
+        assert_eq!(back.values, values);
     }
 }

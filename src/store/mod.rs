@@ -73,8 +73,8 @@ pub struct EstimateRow {
     pub t: f64,
     /// The two values whose extremes downsampling keeps.
     pub extremes: [f64; 2],
-    /// The values, encoded by [`codec::encode_values`] with the engine's
-    /// codec version, `codec`.
+    /// The integrity and values, encoded by [`codec::encode_output`]; `codec`
+    /// is the values' codec version with [`codec::WITH_INTEGRITY`].
     pub values: Vec<u8>,
     pub codec: u32,
 }
@@ -82,12 +82,13 @@ pub struct EstimateRow {
 impl EstimateRow {
     /// The row that stores `output`.
     pub fn new(output: &EngineOutput) -> EstimateRow {
+        let (values, codec) = codec::encode_output(output);
         EstimateRow {
             engine: output.values.stream(),
             t: output.t,
             extremes: output.values.extremes(),
-            values: codec::encode_values(&output.values),
-            codec: output.values.stream().codec_version(),
+            values,
+            codec,
         }
     }
 }

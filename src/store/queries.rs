@@ -2,7 +2,7 @@
 
 use rusqlite::{OptionalExtension, params};
 
-use super::codec::{decode_reading, decode_values};
+use super::codec::{decode_output, decode_reading};
 use super::{SqliteStore, StoreError};
 use crate::fusion::{EngineOutput, Reading, SensorKind, StreamKind};
 
@@ -28,10 +28,7 @@ pub(super) fn reading_row(row: &rusqlite::Row) -> Result<Reading, StoreError> {
 /// Decodes a `(t, body, codec)` row of `estimates`.
 fn output_row(engine: StreamKind, row: &rusqlite::Row) -> Result<EngineOutput, StoreError> {
     let bytes = row.get_ref(1)?.as_blob().map_err(rusqlite::Error::from)?;
-    Ok(EngineOutput {
-        t: row.get(0)?,
-        values: decode_values(engine, row.get(2)?, bytes)?,
-    })
+    decode_output(engine, row.get(0)?, row.get(2)?, bytes)
 }
 
 /// Widths of the stored extreme buckets (`estimate_buckets`), seconds.
@@ -473,6 +470,7 @@ mod tests {
                 .map(|&i| {
                     let [pitch_deg, roll_deg] = f(i);
                     EstimateRow::new(&EngineOutput {
+                        integrity: crate::fusion::Integrity::OK,
                         t: 1.0e9 + i as f64,
                         values: EstimateValues::Attitude(AttitudeEstimate {
                             pitch_deg,

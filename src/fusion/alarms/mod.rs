@@ -638,6 +638,7 @@ mod tests {
             sigma_vertical_mm: None,
         };
         EngineOutput {
+            integrity: crate::fusion::Integrity::OK,
             t,
             values: EstimateValues::Dta(DtaEstimate {
                 source: DtaSource::Laser,
@@ -713,6 +714,7 @@ mod tests {
                 stroke_difference_mm: None,
             };
             EngineOutput {
+                integrity: crate::fusion::Integrity::OK,
                 t,
                 values: EstimateValues::Steer(SteerEstimate {
                     station_m: 0.0,
@@ -752,6 +754,7 @@ mod tests {
 
     fn attitude(t: f64, laser_age_s: Option<f64>) -> EngineOutput {
         EngineOutput {
+            integrity: crate::fusion::Integrity::OK,
             t,
             values: EstimateValues::Attitude(AttitudeEstimate {
                 pitch_deg: 0.0,

@@ -66,6 +66,7 @@ pub use self::params::{
 use super::angles::{deg, rad, rad2};
 use super::descriptor::EngineDescriptor;
 use super::estimate::{EngineOutput, EstimateValues};
+use super::integrity::Integrity;
 use super::params::{ParamError, Params, Retired};
 use super::reading::{Reading, SensorData, SensorKind};
 use super::registry::EngineModel;
@@ -664,6 +665,7 @@ impl AttitudeEngine {
                 incl_pitch_deg: pitch_deg,
                 incl_roll_deg: roll_deg,
             }),
+            integrity: Integrity::OK,
         })
     }
 

@@ -60,6 +60,7 @@ pub mod planar_fit;
 pub mod rest_rate;
 pub mod start_frame;
 pub mod tilt;
+pub mod tilt_monitor;
 pub mod turn_check;
 pub mod uncertainty;
 
@@ -79,10 +80,12 @@ pub use self::params::{FuzzyConfig, FuzzyParams, PARAMS, RETIRED};
 use self::rest_rate::RestRate;
 use self::start_frame::StartFrame;
 use self::tilt::TiltWindow;
+use self::tilt_monitor::TiltMonitor;
 use self::turn_check::TurnCheck;
 use super::angles::{deg, rad};
 use super::descriptor::EngineDescriptor;
 use super::estimate::{EngineOutput, EstimateValues};
+use super::integrity::{Integrity, IntegrityReason};
 use super::params::{ParamError, Params, Retired};
 use super::reading::{Reading, SensorData, SensorKind};
 use super::registry::EngineModel;
@@ -248,6 +251,10 @@ pub struct FuzzyEngine {
     /// Whether the compass steers the heading, and since when.
     #[serde(default)]
     compass_state: Option<(CompassState, f64)>,
+    /// The accelerometer's tilt at rest against the carried tilt
+    /// (tilt_monitor.rs).
+    #[serde(default)]
+    tilt_monitor: TiltMonitor,
     #[serde(skip)]
     scratch: Scratch,
 }
@@ -297,6 +304,7 @@ impl FuzzyEngine {
             rehead_turn: None,
             static_degree: 0.0,
             compass_state: None,
+            tilt_monitor: TiltMonitor::default(),
             scratch: Scratch::default(),
         })
     }
@@ -617,6 +625,7 @@ impl FuzzyEngine {
                 self.window.clear();
             }
         }
+        self.monitor_tilt(t);
         let state = self.compass_now(t);
         if self
             .compass_state
@@ -657,20 +666,19 @@ impl FuzzyEngine {
         }
     }
 
-    /// Aligns on a quiet, plausible full window.
-    fn try_align(&mut self, t: f64) {
+    /// The spreads of a full window the alignment accepts: quiet against
+    /// the learnt floors and plausible for a MEMS sensor at rest (the
+    /// accelerometer's, the gyros' fast one); `None` for any other window.
+    fn quiet_window(&self) -> Option<(f64, f64)> {
         if !self.window.is_full() {
-            return;
+            return None;
         }
         let m = &self.config.motion;
         let spread = self.window.force_spread();
         let rate_spread = self.window.rate_spread();
         let mean_rate = self.window.mean_rate();
-        let (Some(accel_floor), Some(gyro_floor)) =
-            (self.floor.accel.level(), self.floor.gyro.level())
-        else {
-            return;
-        };
+        let accel_floor = self.floor.accel.level()?;
+        let gyro_floor = self.floor.gyro.level()?;
         let fast_rate_spread = self.window.fast_rate_spread();
         let quiet = spread <= m.accel_activity.still * accel_floor
             && fast_rate_spread <= m.gyro_activity.still * gyro_floor;
@@ -678,10 +686,73 @@ impl FuzzyEngine {
             && rate_spread <= ALIGN_MAX_RATE_SPREAD_RAD_PER_S
             && mean_rate.norm() <= ALIGN_MAX_MEAN_RATE_RAD_PER_S
             && (self.window.mean_force_norm() - 9.81).abs() <= ALIGN_MAX_GRAVITY_ERROR_MPS2;
-        if !(quiet && plausible) {
-            self.align_while_moving(t);
+        (quiet && plausible).then_some((spread, fast_rate_spread))
+    }
+
+    /// Tests the carried tilt against a quiet window's (tilt_monitor.rs),
+    /// and aligns again from the window when they disagree for long
+    /// enough. The heading is the compass's if it gives one, else the
+    /// carried one, its σ grown by what the bias's change turns it by
+    /// since the tilt last agreed.
+    fn monitor_tilt(&mut self, t: f64) {
+        let Some(solution) = &self.solution else {
+            return;
+        };
+        if self.quiet_window().is_none() {
+            self.tilt_monitor.moving();
             return;
         }
+        let down = solution.attitude.inverse_transform_vector(&V3::z());
+        // The σ the estimate reports: the test asks whether the tilt shown
+        // is as good as it says.
+        let fit_rms = self.calibration.correction().map(|c| c.fit_rms);
+        let (tilt_sigma_rad, _) = self.reported_sigmas(solution, fit_rms);
+        let verdict = self.tilt_monitor.test(
+            t,
+            &down,
+            &self.window.mean_force(),
+            self.window.force_spread(),
+            self.window.len(),
+            tilt_sigma_rad,
+        );
+        if verdict != tilt_monitor::Verdict::Realign {
+            return;
+        }
+        let Some(old) = self.solution.take() else {
+            return;
+        };
+        let since_agreed_s = self.tilt_monitor.since_agreed_s(t);
+        self.try_align(t);
+        self.tilt_monitor.realigned(t);
+        let Some((roll, pitch, _)) = self.solution.as_ref().map(|s| s.attitude.euler_angles())
+        else {
+            self.solution = Some(old);
+            return;
+        };
+        let compass = self.any_compass_heading(t, roll, pitch);
+        if let (None, Some(new)) = (compass, &mut self.solution) {
+            let (_, _, old_yaw) = old.attitude.euler_angles();
+            new.attitude = attitude_from_euler(roll, pitch, old_yaw);
+            let bias_change = (new.gyro_bias.bias_rad_per_s - old.gyro_bias.bias_rad_per_s).norm();
+            let turned = since_agreed_s.map_or(std::f64::consts::PI, |s| bias_change * s);
+            new.heading_sigma_rad = old.heading_sigma_rad.hypot(turned);
+            new.gyro_yaw_rad = old.gyro_yaw_rad;
+        }
+    }
+
+    /// Aligns on a quiet, plausible full window.
+    fn try_align(&mut self, t: f64) {
+        if !self.window.is_full() {
+            return;
+        }
+        let Some((spread, fast_rate_spread)) = self.quiet_window() else {
+            if self.floor.accel.level().is_some() && self.floor.gyro.level().is_some() {
+                self.align_while_moving(t);
+            }
+            return;
+        };
+        let rate_spread = self.window.rate_spread();
+        let mean_rate = self.window.mean_rate();
         let (roll, pitch) = tilt_from_accel(&self.window.mean_force());
         let compass = self.any_compass_heading(t, roll, pitch);
         let yaw_known = compass.is_some();
@@ -1083,6 +1154,15 @@ impl FuzzyEngine {
                 compass: self.compass_state.map(|(state, _)| state),
                 compass_since: self.compass_state.map(|(_, since)| since),
             }),
+            integrity: if !aligned {
+                Integrity::lost(IntegrityReason::Unaligned)
+            } else if self.tilt_monitor.disagrees() {
+                Integrity::lost(IntegrityReason::TiltDisagrees)
+            } else if self.tilt_monitor.recovering() {
+                Integrity::degraded(IntegrityReason::Recovering)
+            } else {
+                Integrity::OK
+            },
         }
     }
 }

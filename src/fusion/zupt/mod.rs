@@ -53,6 +53,7 @@ use self::zero_velocity::{Decision, DetectorKind, ZeroVelocityPipeline};
 use super::angles::{deg, rad};
 use super::descriptor::{EngineDescriptor, NoModel};
 use super::estimate::{EngineOutput, EstimateValues};
+use super::integrity::{Integrity, IntegrityReason};
 use super::params::{ParamError, Params, Retired};
 use super::reading::{Reading, SensorData, SensorKind};
 use super::{Engine, EngineKind, SnapshotError};
@@ -582,6 +583,7 @@ impl ZuptEngine {
                 Some(tilt_sigma_deg),
                 smoothed_push,
             )),
+            integrity: Integrity::OK,
         }
     }
 
@@ -604,6 +606,7 @@ impl ZuptEngine {
                 None,
                 None,
             )),
+            integrity: Integrity::lost(IntegrityReason::Unaligned),
         }
     }
 

@@ -77,6 +77,8 @@ fn columns(table: &str) -> &'static [&'static str] {
             "pitch_deg",
             "roll_deg",
             "strokes_mm",
+            "integrity",
+            "integrity_reason",
         ],
         "push" => &[
             "push",
@@ -90,6 +92,8 @@ fn columns(table: &str) -> &'static [&'static str] {
             "grade_pct",
             "end_position_m",
             "end_position_sigma_m",
+            "integrity",
+            "integrity_reason",
         ],
         "alarm" => &[
             "id",

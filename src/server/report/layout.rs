@@ -2,6 +2,7 @@
 //! their numbers formatted, and the deviation chart's geometry. The HTML
 //! page (`templates/report.html`) and the PDF draw the same layout.
 
+use crate::fusion::Integrity;
 use askama::Template;
 use chrono::{DateTime, Utc};
 
@@ -68,6 +69,16 @@ pub fn time(t: f64) -> String {
     DateTime::<Utc>::from_timestamp(t.floor() as i64, 0)
         .map(|d| d.format("%Y-%m-%d %H:%M:%S").to_string())
         .unwrap_or_else(|| format!("{t}"))
+}
+
+/// `ok`, or the level and its reason (`lost: tilt_disagrees`).
+fn integrity(integrity: Integrity) -> String {
+    match integrity.reason {
+        Some(reason) if !integrity.is_ok() => {
+            format!("{}: {}", integrity.level.as_str(), reason.as_str())
+        }
+        _ => integrity.level.as_str().to_string(),
+    }
 }
 
 fn fixed(value: Option<f64>, decimals: usize) -> String {
@@ -157,6 +168,7 @@ impl ReportPage {
                 "tend. V mm/m",
                 "pitch °",
                 "roll °",
+                "integrity",
             ],
             rows: report
                 .rings
@@ -177,6 +189,7 @@ impl ReportPage {
                         fixed(g.tendency_vertical_mm_per_m, 2),
                         fixed(g.pitch_deg, 3),
                         fixed(g.roll_deg, 3),
+                        integrity(r.integrity),
                     ]
                 })
                 .collect(),
@@ -192,6 +205,7 @@ impl ReportPage {
                 "speed mm/s",
                 "course °",
                 "grade %",
+                "integrity",
             ],
             rows: report
                 .pushes
@@ -206,6 +220,7 @@ impl ReportPage {
                         format!("{:.1}", q.speed_mm_per_s),
                         fixed(q.course_deg, 2),
                         fixed(q.grade_pct, 2),
+                        integrity(p.integrity),
                     ]
                 })
                 .collect(),

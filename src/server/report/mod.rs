@@ -21,6 +21,7 @@ use super::error::ApiError;
 use super::history::parse_time;
 use super::openapi::MachinePath;
 use super::state::SharedState;
+use crate::fusion::Integrity;
 use crate::fusion::pushes::PushRecord;
 use crate::fusion::rings::RingRecord;
 use crate::fusion::{EngineKind, EstimateValues, SensorKind, StreamKind};
@@ -101,6 +102,9 @@ pub struct RingRow {
     pub t: f64,
     #[serde(flatten)]
     pub ring: RingRecord,
+    /// Whether its position and attitude can be trusted.
+    #[serde(flatten)]
+    pub integrity: Integrity,
 }
 
 /// A push of the jacking log, with its time.
@@ -109,6 +113,9 @@ pub struct PushRow {
     pub t: f64,
     #[serde(flatten)]
     pub push: PushRecord,
+    /// Whether its track can be trusted.
+    #[serde(flatten)]
+    pub integrity: Integrity,
 }
 
 /// A stretch without a laser sample longer than the machine's
@@ -268,6 +275,7 @@ fn gather(
             EstimateValues::Rings(ring) => Some(RingRow {
                 t: e.t,
                 ring: ring.clone(),
+                integrity: e.integrity,
             }),
             _ => None,
         },
@@ -283,6 +291,7 @@ fn gather(
             EstimateValues::Pushes(push) => Some(PushRow {
                 t: e.t,
                 push: push.clone(),
+                integrity: e.integrity,
             }),
             _ => None,
         },

@@ -1175,8 +1175,5 @@ fn reading(t: f64, sensor: i16, body: Vec<u8>) -> Result<Reading, StoreError> {
 fn output(engine: StreamKind, row: &tokio_postgres::Row) -> Result<EngineOutput, StoreError> {
     let body: Vec<u8> = row.get(1);
     let codec: i32 = row.get(2);
-    Ok(EngineOutput {
-        t: row.get(0),
-        values: super::codec::decode_values(engine, codec as u32, &body)?,
-    })
+    super::codec::decode_output(engine, row.get(0), codec as u32, &body)
 }
