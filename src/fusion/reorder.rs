@@ -50,15 +50,18 @@ struct Entry {
 }
 
 impl Entry {
-    /// Release order: time, then sensor (protocol order), then arrival.
-    fn key(&self) -> (f64, SensorKind, u64) {
-        (self.reading.t, self.reading.sensor(), self.seq)
+    /// Release order: time, then arrival. Readings that share a time are
+    /// fused in the order they arrived, which the store keeps (its ids)
+    /// and the export repeats, so a replay of the export, a restart and
+    /// an office fuse them as the server did (docs/protocol.md).
+    fn key(&self) -> (f64, u64) {
+        (self.reading.t, self.seq)
     }
 
     fn before(&self, other: &Entry) -> bool {
-        let (ta, sa, qa) = self.key();
-        let (tb, sb, qb) = other.key();
-        ta.total_cmp(&tb).then(sa.cmp(&sb)).then(qa.cmp(&qb)) == Ordering::Less
+        let (ta, qa) = self.key();
+        let (tb, qb) = other.key();
+        ta.total_cmp(&tb).then(qa.cmp(&qb)) == Ordering::Less
     }
 }
 
@@ -283,8 +286,8 @@ mod tests {
         buf.push(laser(10.0)); // same time, other sensor: kept
         buf.push(incl(12.0, 3.0));
         buf.pop_ready(&mut out);
-        // Same time: sensors in protocol order, laser first.
-        assert_eq!(out, vec![laser(10.0), incl(10.0, 1.0)]);
+        // Same time: in arrival order, the inclinometer first.
+        assert_eq!(out, vec![incl(10.0, 1.0), laser(10.0)]);
         assert_eq!(buf.push(incl(10.0, 4.0)), Admission::Duplicate);
         assert_eq!(buf.push(incl(9.0, 4.0)), Admission::Late);
         buf.drain(&mut out);

@@ -354,8 +354,9 @@ impl SqliteStore {
     }
 
     /// Calls `f` with each stored reading of the machine in `[from_t, to_t]`
-    /// (of one sensor, or all), in time order, one row at a time; stops
-    /// early when `f` returns false.
+    /// (of one sensor, or all), in time order and, within a time, in the
+    /// order they were stored (arrival), one row at a time; stops early
+    /// when `f` returns false.
     pub fn export_readings(
         &self,
         machine_id: i64,
@@ -367,7 +368,7 @@ impl SqliteStore {
         self.read(|conn| {
             let mut stmt = conn.prepare_cached(
                 "SELECT t, sensor, body FROM readings WHERE machine_id = ?1 AND t >= ?2 AND t <= ?3 \
-                 AND (?4 IS NULL OR sensor = ?4) ORDER BY t, sensor",
+                 AND (?4 IS NULL OR sensor = ?4) ORDER BY t, id",
             )?;
             let mut rows =
                 stmt.query(params![machine_id, from_t, to_t, sensor.map(|s| s as i64)])?;

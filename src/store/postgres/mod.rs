@@ -478,15 +478,16 @@ impl PgStore {
         mut f: impl FnMut(&Reading) -> bool,
     ) -> Result<(), StoreError> {
         let sensor = sensor.map(|s| s as i16);
-        // Resume after the last (t, sensor) sent.
-        let mut after: (f64, i16) = (f64::NEG_INFINITY, -1);
+        // Resume after the last (t, id) sent: within a time, the order
+        // the readings were stored in (arrival).
+        let mut after: (f64, i64) = (f64::NEG_INFINITY, -1);
         loop {
             // A connection per batch: a slow reader holds none between them.
             let client = self.reader()?;
             let rows = self.runtime.block_on(client.query(
-                "SELECT t, sensor, body FROM readings WHERE machine_id = $1 AND t >= $2 \
-                 AND t <= $3 AND ($4::int2 IS NULL OR sensor = $4) AND (t, sensor) > ($5, $6) \
-                 ORDER BY t, sensor LIMIT $7",
+                "SELECT t, sensor, body, id FROM readings WHERE machine_id = $1 AND t >= $2 \
+                 AND t <= $3 AND ($4::int2 IS NULL OR sensor = $4) AND t >= $5 AND (t, id) > ($5, $6) \
+                 ORDER BY t, id LIMIT $7",
                 &[
                     &machine_id,
                     &from_t,
@@ -499,7 +500,7 @@ impl PgStore {
             ))?;
             drop(client);
             for row in &rows {
-                after = (row.get(0), row.get(1));
+                after = (row.get(0), row.get(3));
                 if !f(&reading(row.get(0), row.get(1), row.get(2))?) {
                     return Ok(());
                 }
