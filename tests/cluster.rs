@@ -12,18 +12,11 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
 use common::postgres::PgCluster;
-use common::{ServerProcess, all_estimates, drive, exported_readings, put_machine, send_ndjson};
+use common::{
+    ServerProcess, all_estimates, drive, exported_readings, put_machine, reading_key, send_ndjson,
+};
 
 const MACHINES: usize = 10;
-
-/// The key of a reading line: its time and sensor.
-fn key(line: &str) -> (u64, String) {
-    let v: serde_json::Value = serde_json::from_str(line).unwrap();
-    (
-        v["t"].as_f64().unwrap().to_bits(),
-        v["sensor"].as_str().unwrap().to_string(),
-    )
-}
 
 /// `GET /api/v1/cluster` of the node at `base`.
 async fn cluster(client: &reqwest::Client, base: &str) -> serde_json::Value {
@@ -185,11 +178,11 @@ async fn a_node_killed_under_load_hands_its_machines_over_within_ten_seconds() {
         }
         let reach = acknowledged[g].load(Ordering::SeqCst);
         let stored = exported_readings(&client, &bases[1], name).await;
-        let keys: BTreeSet<_> = stored.iter().map(|l| key(l)).collect();
+        let keys: BTreeSet<_> = stored.iter().map(|l| reading_key(l)).collect();
         assert_eq!(keys.len(), stored.len(), "{name}: a reading stored twice");
         for line in &lines[g][..reach] {
             assert!(
-                keys.contains(&key(line)),
+                keys.contains(&reading_key(line)),
                 "{name}: acknowledged {line} lost"
             );
         }

@@ -14,18 +14,11 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Duration;
 
-use common::{ServerProcess, drive, exported_readings, put_machine, replay_engine, send_ndjson};
+use common::{
+    ServerProcess, drive, exported_readings, put_machine, reading_key, replay_engine, send_ndjson,
+};
 
 const MACHINES: [&str; 4] = ["k0", "k1", "k2", "k3"];
-
-/// The key of a reading line: its time and sensor.
-fn key(line: &str) -> (u64, String) {
-    let v: serde_json::Value = serde_json::from_str(line).unwrap();
-    (
-        v["t"].as_f64().unwrap().to_bits(),
-        v["sensor"].as_str().unwrap().to_string(),
-    )
-}
 
 /// Every stored estimate of a machine, fetched in windows of 20 000 s so
 /// that none is downsampled.
@@ -118,7 +111,7 @@ async fn sigkills_under_load(kills_wanted: usize, dir: &std::path::Path, args: &
             for (g, machine) in MACHINES.into_iter().enumerate() {
                 let reach = acknowledged[g].load(Ordering::SeqCst);
                 let stored = exported_readings(&client, &base, machine).await;
-                let keys: BTreeSet<_> = stored.iter().map(|l| key(l)).collect();
+                let keys: BTreeSet<_> = stored.iter().map(|l| reading_key(l)).collect();
                 assert_eq!(
                     keys.len(),
                     stored.len(),
@@ -126,7 +119,7 @@ async fn sigkills_under_load(kills_wanted: usize, dir: &std::path::Path, args: &
                 );
                 for line in &lines[..reach] {
                     assert!(
-                        keys.contains(&key(line)),
+                        keys.contains(&reading_key(line)),
                         "{machine}: acknowledged {line} lost"
                     );
                 }

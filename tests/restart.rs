@@ -8,23 +8,13 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use common::{
-    ServerProcess, all_estimates, drive, exported_readings, post_ndjson, put_machine, replay,
-    send_ndjson,
+    ServerProcess, all_estimates, drive, exported_readings, post_ndjson, put_machine, reading_key,
+    replay, send_ndjson,
 };
-use serde_json::Value;
 use tunnelnav::sim::tbm::Dropout;
 
 fn times(lines: &[String]) -> Vec<(u64, String)> {
-    lines
-        .iter()
-        .map(|l| {
-            let v: Value = serde_json::from_str(l).unwrap();
-            (
-                v["t"].as_f64().unwrap().to_bits(),
-                v["sensor"].as_str().unwrap().to_string(),
-            )
-        })
-        .collect()
+    lines.iter().map(|l| reading_key(l)).collect()
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

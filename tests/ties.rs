@@ -5,7 +5,9 @@
 
 mod common;
 
-use common::{TestServer, all_estimates, exported_readings, post_ndjson, put_machine, replay};
+use common::{
+    TestServer, all_estimates, exported_readings, post_ndjson, put_machine, reading_key, replay,
+};
 use serde_json::Value;
 
 /// A TBM drive whose every laser sample is stamped with the time of the
@@ -80,20 +82,10 @@ async fn readings_sharing_a_time_are_fused_in_arrival_order_everywhere() {
         })
         .collect();
     by_time.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let sensors = |lines: &[String]| -> Vec<(u64, String)> {
-        lines
-            .iter()
-            .map(|l| {
-                let v: Value = serde_json::from_str(l).unwrap();
-                (
-                    v["t"].as_f64().unwrap().to_bits(),
-                    v["sensor"].as_str().unwrap().to_string(),
-                )
-            })
-            .collect()
-    };
+    let keys =
+        |lines: &[String]| -> Vec<(u64, String)> { lines.iter().map(|l| reading_key(l)).collect() };
     let sorted: Vec<String> = by_time.into_iter().map(|(_, l)| l).collect();
-    assert_eq!(sensors(&exported), sensors(&sorted));
+    assert_eq!(keys(&exported), keys(&sorted));
 
     let from_posts = replay("tbm-ties", &posts);
     let from_export = replay("tbm-ties", &exported);

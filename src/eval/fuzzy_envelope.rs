@@ -218,11 +218,8 @@ pub fn evaluate_drive_with(
     fault: Option<Fault>,
 ) -> Result<DriveScores, ParamError> {
     let mut scenario = VehicleEnvelope::draw(seed).scenario;
-    match fault {
-        Some(Fault::PowerCycle) => {
-            scenario.power_cycles_s = vec![POWER_CYCLE_AT * scenario.duration_s]
-        }
-        None => {}
+    if let Some(Fault::PowerCycle) = fault {
+        scenario.power_cycles_s = vec![POWER_CYCLE_AT * scenario.duration_s];
     }
     let mut engine = EngineKind::Fuzzy.create(installer_params(&scenario, params)?)?;
     let drive = VehicleDrive::new(scenario.clone()).map_err(ParamError::Inconsistent)?;

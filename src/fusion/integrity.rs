@@ -107,7 +107,7 @@ impl IntegrityReason {
         }
     }
 
-    /// Every code, in stored order.
+    /// Every code, in stored (declaration) order.
     pub const ALL: &'static [IntegrityReason] = &[
         IntegrityReason::Source,
         IntegrityReason::StaleSource,
@@ -186,16 +186,9 @@ impl Integrity {
     }
 
     /// The stored form: two bytes, the level's index and the reason's
-    /// index plus one (0: none).
+    /// index plus one (0: none); both are the variants' declaration order.
     pub fn to_bytes(self) -> [u8; 2] {
-        let level = self.level as u8;
-        let reason = self.reason.map_or(0, |r| {
-            IntegrityReason::ALL
-                .iter()
-                .position(|&x| x == r)
-                .map_or(0, |i| i as u8 + 1)
-        });
-        [level, reason]
+        [self.level as u8, self.reason.map_or(0, |r| r as u8 + 1)]
     }
 
     /// Reads [`Integrity::to_bytes`]; `None` for bytes no release wrote.
@@ -249,6 +242,9 @@ mod tests {
                 };
                 assert_eq!(Integrity::from_bytes(i.to_bytes()), Some(i));
             }
+        }
+        for (i, &reason) in IntegrityReason::ALL.iter().enumerate() {
+            assert_eq!(reason as usize, i, "{reason:?} out of declaration order");
         }
         assert_eq!(Integrity::from_bytes([3, 0]), None);
         let past_the_end = IntegrityReason::ALL.len() as u8 + 1;

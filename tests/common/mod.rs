@@ -269,6 +269,15 @@ pub async fn post_ndjson(
     serde_json::from_slice(&response.bytes().await.unwrap()).unwrap()
 }
 
+/// The key of a reading line: its time (bits) and sensor.
+pub fn reading_key(line: &str) -> (u64, String) {
+    let v: serde_json::Value = serde_json::from_str(line).unwrap();
+    (
+        v["t"].as_f64().unwrap().to_bits(),
+        v["sensor"].as_str().unwrap().to_string(),
+    )
+}
+
 /// Every stored reading of a machine, as the NDJSON export's lines.
 pub async fn exported_readings(client: &reqwest::Client, base: &str, machine: &str) -> Vec<String> {
     let response = client

@@ -58,14 +58,12 @@ pub struct TiltMonitor {
     last_agreed_t: Option<f64>,
     /// Re-alignments the monitor has asked for.
     pub realignments: u64,
-    /// The largest residual over its gate seen, for the model report.
-    pub worst_ratio: f64,
 }
 
 impl TiltMonitor {
     /// Tests a quiet window at `t`: the carried `down` (unit, body frame),
     /// the window's `mean_force` (m/s²), its `spread` (m/s²) over `samples`,
-    /// the engine's own tilt σ (rad).
+    /// the tilt σ the estimate reports (rad).
     pub fn test(
         &mut self,
         t: f64,
@@ -84,9 +82,6 @@ impl TiltMonitor {
         let residual = down.cross(&measured).norm().atan2(down.dot(&measured));
         let window_sigma = spread_mps2 / (norm * (samples as f64).sqrt());
         let gate = GATE_SIGMAS * (tilt_sigma_rad.powi(2) + window_sigma.powi(2)).sqrt();
-        if gate > 0.0 {
-            self.worst_ratio = self.worst_ratio.max(residual / gate);
-        }
         if residual <= gate {
             self.disagreeing_since = None;
             self.disagrees = false;
