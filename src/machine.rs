@@ -225,8 +225,13 @@ impl MachineCore {
                 let stream = output.values.stream();
                 let signals = output.values.signals();
                 if self.own_alarms {
-                    self.alarms
-                        .signals(output.t, stream, &signals, &mut self.transitions);
+                    self.alarms.signals(
+                        output.t,
+                        stream,
+                        output.integrity,
+                        &signals,
+                        &mut self.transitions,
+                    );
                 }
                 self.line.clear();
                 self.writer.write_line(output, &mut self.line);
@@ -248,6 +253,17 @@ impl MachineCore {
     /// The alarms raised and cleared since the last call.
     pub fn take_alarms(&mut self) -> Vec<Transition> {
         std::mem::take(&mut self.transitions)
+    }
+
+    /// The server runs the machine again at `now_t`: its downtime is not
+    /// its sensors' silence.
+    pub fn resumed(&mut self, now_t: f64) {
+        self.alarms.resumed(now_t);
+    }
+
+    /// When [`MachineCore::resumed`] last said the server resumed.
+    pub fn resumed_t(&self) -> Option<f64> {
+        self.alarms.resumed_t()
     }
 
     /// The server clock at `now_t`: sensors silent too long. Returns the
@@ -617,6 +633,7 @@ pub fn spawn(
     let (live, _) = broadcast::channel(LIVE_BUFFER);
     let (status_tx, status) = watch::channel(Arc::new(current.clone()));
     let spec = Arc::new(spec);
+    let resumed_t = core.resumed_t();
     let actor = Actor {
         store,
         spec: spec.clone(),
@@ -629,6 +646,7 @@ pub fn spawn(
         current,
         since_snapshot: 0,
         clock,
+        resumed_t,
         alarm_changes,
         forward_mark,
     };
@@ -660,6 +678,9 @@ struct Actor {
     since_snapshot: u64,
     /// The server clock, for sensors gone silent.
     clock: Clock,
+    /// When this server resumed the machine from the store, by its clock
+    /// (`None`: declared here while running).
+    resumed_t: Option<f64>,
     /// Where the alarms this machine's writes changed go once committed.
     alarm_changes: Arc<dyn AlarmSink>,
     /// An office: the last sequence of the machine's site fused here.
@@ -799,6 +820,10 @@ impl Actor {
                             return Some(e.to_string());
                         }
                     }
+                }
+                let mut core = core;
+                if let Some(resumed_t) = self.resumed_t {
+                    core.resumed(resumed_t);
                 }
                 self.core = core;
                 self.since_snapshot = 0;
@@ -1029,10 +1054,11 @@ mod tests {
             .is_empty()
         );
         // Back on the axis from t = 40, an inclinometer reading between
-        // each: cleared at t = 50, dated 40.
+        // each: cleared at t = 60 (gone 10 s, and held a minute from its
+        // onset), dated 40.
         let cleared = feed(
             &mut restored,
-            (20..=25).flat_map(|i| {
+            (20..=30).flat_map(|i| {
                 let t = 2.0 * f64::from(i);
                 [laser(t, 0.0), inclinometer(t + 1.0)]
             }),
@@ -1041,13 +1067,13 @@ mod tests {
         assert!(!cleared[0].raised && cleared[0].t == 40.0);
         // The machine then falls silent: the inclinometer is stale after 5
         // of its 2 s periods, at least 10 s, past its last reading at
-        // t = 51 (the laser's silence is a laser dropout's business).
-        assert!(restored.tick(60.0).is_empty());
-        let stale = restored.tick(62.0);
+        // t = 61 (the laser's silence is a laser dropout's business).
+        assert!(restored.tick(70.0).is_empty());
+        let stale = restored.tick(72.0);
         assert_eq!(stale.len(), 1, "{stale:?}");
         assert_eq!(
             (stale[0].key.kind, stale[0].key.subject.as_str(), stale[0].t),
-            (AlarmKind::StaleSensor, "inclinometer", 61.0)
+            (AlarmKind::StaleSensor, "inclinometer", 71.0)
         );
     }
 

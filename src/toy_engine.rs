@@ -275,7 +275,13 @@ mod tests {
                 AlarmRules::new(AlarmConfig::default(), None, streams, AlarmState::default());
             let mut out = Vec::new();
             for i in 0..60 {
-                rules.signals(f64::from(i), StreamKind::Toy, &toy.signals(), &mut out);
+                rules.signals(
+                    f64::from(i),
+                    StreamKind::Toy,
+                    crate::fusion::Integrity::OK,
+                    &toy.signals(),
+                    &mut out,
+                );
             }
             out.iter().any(|t| t.raised)
         };

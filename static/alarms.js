@@ -1,6 +1,6 @@
 // The fleet-wide alarm bar on every page: follows /api/v1/alarms/live
 // (hello with the active alarms, then raised / cleared / acknowledged),
-// lists them newest first with the worst severity, acknowledges, chimes
+// lists them by severity (alarms first), then newest first, acknowledges, chimes
 // for new unacknowledged ones (toggle remembered), and colours the fleet
 // cards. The socket counts as one of the page's connections (tn.link).
 'use strict';
@@ -86,11 +86,14 @@
     '&': '&amp;', '<': '&lt;', '>': '&gt;', '"': '&quot;', "'": '&#39;',
   }[c]));
 
+  // The worst first: alarms before warnings, then the newest first.
+  const rank = (a) => (a.severity === 'alarm' ? 0 : 1);
   function sorted() {
-    return [...active.values()].sort((a, b) => (b.raised_t - a.raised_t) || (b.id - a.id));
+    return [...active.values()].sort((a, b) =>
+      (rank(a) - rank(b)) || (b.raised_t - a.raised_t) || (b.id - a.id));
   }
 
-  // Unacknowledged alarms are listed (newest first) with their button;
+  // Unacknowledged alarms are listed (alarms, then warnings; newest first) with their button;
   // acknowledged ones that are still active fold into a line below, so
   // acknowledging takes an alarm off the list but not out of sight.
   function render() {

@@ -172,6 +172,56 @@ async fn alarms_are_raised_listed_acknowledged_by_name_and_kept_across_a_restart
     server.stop().await;
 }
 
+/// A server's own downtime is not a sensor's silence: an inclinometer that
+/// read every second until the server stopped is not stale the moment the
+/// server is back 10 s later (it was raised and cleared within
+/// milliseconds before), only once it has been silent 10 s of the new
+/// run; and then it is.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_restart_is_not_a_sensors_silence() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start(dir.path()).await;
+    let client = reqwest::Client::new();
+    let base = server.url("");
+    declare_machine(&client, &base, "tbm-down", &declaration().to_string()).await;
+    let last_t = wall_clock_s().floor() - 2.0;
+    let readings: Vec<String> = (0..8)
+        .map(|i| {
+            json!({"t": last_t - f64::from(7 - i), "sensor": "inclinometer",
+                   "pitch_deg": 0.0, "roll_deg": 0.0})
+            .to_string()
+        })
+        .collect();
+    post_ndjson(&client, &base, "tbm-down", &readings).await;
+    server.stop().await;
+    tokio::time::sleep(std::time::Duration::from_secs(10)).await;
+
+    let server = TestServer::start(dir.path()).await;
+    let base = server.url("");
+    let restarted_t = wall_clock_s();
+    assert!(restarted_t - last_t > 11.0);
+    tokio::time::sleep(std::time::Duration::from_secs(3)).await;
+    let early = alarms(&client, &base, "?state=all", None).await;
+    assert!(early.is_empty(), "raised at the restart: {early:?}");
+    let mut stale = Vec::new();
+    for _ in 0..100 {
+        stale = alarms(&client, &base, "?state=all", None).await;
+        if !stale.is_empty() {
+            break;
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(200)).await;
+    }
+    assert_eq!(stale.len(), 1, "{stale:?}");
+    assert_eq!(stale[0]["kind"], "stale_sensor");
+    assert!(stale[0]["cleared_t"].is_null());
+    let raised_t = stale[0]["raised_t"].as_f64().unwrap();
+    assert!(
+        raised_t >= restarted_t + 9.0,
+        "raised {raised_t}, restarted {restarted_t}"
+    );
+    server.stop().await;
+}
+
 async fn get_json_with(client: &reqwest::Client, base: &str, path: &str, token: &str) -> Value {
     let response = client
         .get(format!("{base}{path}"))

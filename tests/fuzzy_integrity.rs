@@ -11,9 +11,12 @@
 //! The same figures over the whole envelope are
 //! `tunnelnav eval fuzzy --envelope --fault power-cycle`.
 
+use tunnelnav::config::MachineDeclaration;
 use tunnelnav::eval::integrity::{IntegrityScore, misleading};
+use tunnelnav::fusion::alarms::{AlarmKind, Severity};
 use tunnelnav::fusion::fuzzy::PARAMS;
 use tunnelnav::fusion::{EngineKind, ParamValue, Params};
+use tunnelnav::machine::MachineCore;
 use tunnelnav::sim::vehicle::{VehicleDrive, VehicleScenario};
 
 /// The start of the first stop of at least 5 s after 300 s, seconds
@@ -95,4 +98,63 @@ fn a_power_cycle_at_a_stop_is_never_shown_as_right_and_the_engine_recovers() {
             "seed {seed}: tilt error {worst_after_deg}° shown ok after the cycle"
         );
     }
+}
+
+/// The same fault seen by an operator: a machine running `fuzzy` (seed 1,
+/// cycled as above) raises an `integrity` alarm about `fuzzy` within 10 s
+/// of the cycle, and clears it once the engine is vouched for again.
+#[test]
+fn a_power_cycle_raises_an_integrity_alarm_that_clears_on_recovery() {
+    let mut scenario = VehicleScenario {
+        seed: 1,
+        ..VehicleScenario::default()
+    };
+    let cycle_s = first_stop_after_300_s(&scenario);
+    scenario.power_cycles_s = vec![cycle_s];
+    let spec = serde_json::from_value::<MachineDeclaration>(serde_json::json!({
+        "engines": {"fuzzy": {
+            "declination_deg": scenario.declination_deg,
+            "mag_inclination_deg": scenario.inclination_deg,
+            "window_samples": 50
+        }}
+    }))
+    .unwrap()
+    .validate("van")
+    .unwrap();
+    let mut core = MachineCore::new(&spec).unwrap();
+    let mut out = Vec::new();
+    let mut transitions = Vec::new();
+    for event in VehicleDrive::new(scenario.clone()).unwrap() {
+        out.clear();
+        core.push(event.reading, &mut out);
+        transitions.extend(core.take_alarms());
+    }
+    let integrity: Vec<_> = transitions
+        .iter()
+        .filter(|t| t.key.kind == AlarmKind::Integrity)
+        .map(|t| {
+            (
+                t.key.severity,
+                t.key.subject.as_str(),
+                t.raised,
+                t.t - scenario.start_t,
+            )
+        })
+        .collect();
+    eprintln!("cycle at {cycle_s:.1} s: {integrity:?}");
+    let raised = integrity
+        .iter()
+        .find(|(severity, _, raised, _)| *severity == Severity::Alarm && *raised)
+        .expect("an integrity alarm");
+    assert_eq!(raised.1, "fuzzy");
+    assert!(
+        raised.3 >= cycle_s && raised.3 <= cycle_s + 10.0,
+        "raised at {} s, the cycle at {cycle_s} s",
+        raised.3
+    );
+    let last = integrity.iter().rev().find(|e| e.0 == Severity::Alarm);
+    assert!(
+        last.is_some_and(|e| !e.2),
+        "the alarm clears on recovery: {integrity:?}"
+    );
 }

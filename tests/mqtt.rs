@@ -649,9 +649,9 @@ async fn estimates_status_and_alarms_are_published() {
     // Its status first: the machine is being published.
     while !scada.next().await.0.ends_with("/status") {}
 
-    // 42 s off the axis (70 mm: a deviation warning), ending 18 s ago, in
+    // 42 s off the axis (70 mm: a deviation warning), ending 24 s ago, in
     // one request: a burst of estimates.
-    let from_t = (tunnelnav::clock::wall_clock_s() - 60.0).floor();
+    let from_t = (tunnelnav::clock::wall_clock_s() - 66.0).floor();
     common::post_ndjson(
         &client,
         &base,
@@ -734,12 +734,14 @@ async fn estimates_status_and_alarms_are_published() {
             break;
         }
     }
-    // Back on the axis for 16 s: cleared, then the retained message gone.
+    // Back on the axis for 24 s: cleared (10 s back, and a minute after
+    // its onset, the deviation alarm's hold), then the retained message
+    // gone.
     common::post_ndjson(
         &client,
         &base,
         "tbm-pub",
-        &common::laser_pairs(from_t + 42.0, 8, 0.0),
+        &common::laser_pairs(from_t + 42.0, 12, 0.0),
     )
     .await;
     loop {

@@ -28,10 +28,16 @@
 //! much more an output moves between two readings than the truth does) is
 //! taken over the two laser periods after the laser returns, and over the
 //! two before the dropout as the ordinary reference.
+//!
+//! The engine's `integrity` is scored over the whole drive, learning
+//! included ([`super::integrity`]): an estimate shown `ok` whose pitch or
+//! roll error exceeds 5σ and 0.02° is misleading; the longest run of them
+//! and the share of estimates flagged are printed against issue 54's bars.
 
 use serde::Serialize;
 
 use super::ErrorStats;
+use super::integrity::{self, IntegrityScore};
 use super::kf3::{Kf3, Kf3Noise};
 use crate::fusion::attitude::{AttitudeEngine, PARAMS};
 use crate::fusion::{
@@ -253,6 +259,8 @@ pub struct AttitudeEvaluation {
     pub drive: Drive,
     pub learning_h: f64,
     pub methods: Vec<MethodScores>,
+    /// The engine's integrity against its errors, the whole drive.
+    pub integrity: IntegrityScore,
 }
 
 impl AttitudeEvaluation {
@@ -438,6 +446,7 @@ pub fn evaluate(config: &AttitudeEvalConfig) -> Result<AttitudeEvaluation, EvalE
     let mut laser_hold: Option<(f64, f64)> = None;
     let mut outputs = Vec::new();
     let mut previous_truth_pitch: Option<f64> = None;
+    let mut integrity = IntegrityScore::default();
 
     for event in events {
         let reading = &event.reading;
@@ -503,6 +512,20 @@ pub fn evaluate(config: &AttitudeEvalConfig) -> Result<AttitudeEvaluation, EvalE
                 // Oracle roll: the kf3 roll (its offset is learned alike).
                 let kf3_roll = kf3.roll.angle();
                 values.push(((oracle_pitch, kf3_roll), oracle_pred));
+                if let Some(output) = outputs.first()
+                    && let Some(a) = attitude(output)
+                {
+                    let misleading = integrity::misleading(
+                        a.pitch_deg - truth.pitch_deg,
+                        a.pitch_sigma_deg,
+                        TILT_FLOOR_DEG,
+                    ) || integrity::misleading(
+                        a.roll_deg - truth.roll_deg,
+                        a.roll_sigma_deg,
+                        TILT_FLOOR_DEG,
+                    );
+                    integrity.add(t, output.integrity, misleading);
+                }
                 let hold = laser_hold.unwrap_or((pitch_deg, roll_deg));
                 values.push((hold, hold.0));
                 values.push(((pitch_deg, roll_deg), pitch_deg));
@@ -536,8 +559,12 @@ pub fn evaluate(config: &AttitudeEvalConfig) -> Result<AttitudeEvaluation, EvalE
         drive: drive.clone(),
         learning_h: config.learning_h,
         methods: scorers.into_iter().map(|s| s.scores).collect(),
+        integrity,
     })
 }
+
+/// A pitch or roll error below this is never misleading (issue 54), degrees.
+const TILT_FLOOR_DEG: f64 = 0.02;
 
 /// The 1σ of one engine output, degrees.
 #[derive(Debug, Clone, Copy)]
@@ -681,6 +708,19 @@ pub fn render_table(e: &AttitudeEvaluation) -> String {
         }
         let _ = writeln!(out, "{line}");
     }
+    let i = &e.integrity;
+    let _ = writeln!(
+        out,
+        "engine integrity (whole drive): {:.2} % flagged ({} degraded, {} lost of {}); longest misleading ok run {:.1} s{}",
+        100.0 * i.flagged_share(),
+        i.degraded,
+        i.lost,
+        i.estimates,
+        i.worst_run_s,
+        i.worst_run_from_t
+            .map(|t| format!(" from t = {t:.0}"))
+            .unwrap_or_default()
+    );
     out
 }
 
@@ -763,6 +803,12 @@ pub struct EnvelopeSummary {
     pub easy_pred_rmse_worst_deg: f64,
     /// The engine's 2σ coverage pooled over every drive.
     pub engine_sigma: SigmaCoverage,
+    /// The engine's longest misleading `ok` run per drive, s, and its
+    /// share of estimates flagged.
+    pub misleading_run_s: Spread,
+    pub flagged_share: Spread,
+    /// Drives whose longest misleading run is over the bar: "seed (s)".
+    pub misleading_drives: Vec<String>,
 }
 
 /// The 2σ coverage bar of issue 35: 90–99 % of the errors.
@@ -831,6 +877,21 @@ impl EnvelopeSummary {
                 ));
             }
         }
+        if !self.misleading_drives.is_empty() {
+            out.push(format!(
+                "integrity: misleading ok runs over {:.0} s on {} drive(s): {}",
+                integrity::MAX_MISLEADING_RUN_S,
+                self.misleading_drives.len(),
+                self.misleading_drives.join(", ")
+            ));
+        }
+        if self.flagged_share.worst > integrity::MAX_FLAGGED_SHARE {
+            out.push(format!(
+                "integrity: up to {:.1} % of a drive's estimates flagged (bar {:.0} %)",
+                100.0 * self.flagged_share.worst,
+                100.0 * integrity::MAX_FLAGGED_SHARE
+            ));
+        }
         out
     }
 }
@@ -868,7 +929,22 @@ pub fn summarise(evaluations: &[AttitudeEvaluation]) -> EnvelopeSummary {
     let easy_worst = |metric: fn(&MethodScores) -> f64| {
         easy.iter().map(|e| metric(e.engine())).fold(0.0, f64::max)
     };
+    let runs: Vec<f64> = evaluations
+        .iter()
+        .map(|e| e.integrity.worst_run_s)
+        .collect();
+    let flagged: Vec<f64> = evaluations
+        .iter()
+        .map(|e| e.integrity.flagged_share())
+        .collect();
     EnvelopeSummary {
+        misleading_run_s: Spread::of(&runs),
+        flagged_share: Spread::of(&flagged),
+        misleading_drives: evaluations
+            .iter()
+            .filter(|e| !e.integrity.run_bar_met())
+            .map(|e| format!("{} ({:.0} s)", e.drive.seed(), e.integrity.worst_run_s))
+            .collect(),
         drives: evaluations.len(),
         methods,
         rmse_over_oracle: Spread::of(&ratio(ENGINE, ORACLE, rmse)),
@@ -962,6 +1038,15 @@ pub fn render_summary(s: &EnvelopeSummary, first_seed: u64) -> String {
         100.0 * c.pitch_pred.share(),
         100.0 * c.pitch_in_dropout.share(),
         c.pitch_in_dropout.scored
+    );
+    let _ = writeln!(
+        out,
+        "engine integrity (whole drive; misleading: ok with error > 5σ and 0.02°): longest misleading ok run median {:.1} s, largest {:.1} s (bar {:.0} s); flagged median {:.2} %, largest {:.2} %",
+        s.misleading_run_s.median,
+        s.misleading_run_s.worst,
+        integrity::MAX_MISLEADING_RUN_S,
+        100.0 * s.flagged_share.median,
+        100.0 * s.flagged_share.worst
     );
     let failures = s.failures();
     if failures.is_empty() {

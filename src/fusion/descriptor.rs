@@ -215,9 +215,12 @@ pub enum Navigation {
     Aligning,
 }
 
-/// Deviations from the design axis, mm: `[horizontal, vertical]`.
+/// Deviations from the design axis, mm: `[horizontal, vertical]`, with
+/// their 1σ (0 where the stream states none).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DeviationSignal {
     pub front_mm: [f64; 2],
     pub rear_mm: [f64; 2],
+    pub front_sigma_mm: [f64; 2],
+    pub rear_sigma_mm: [f64; 2],
 }

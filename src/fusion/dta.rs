@@ -237,10 +237,18 @@ impl StreamValues for DtaEstimate {
     /// The front's and rear's deviations.
     fn signals(&self) -> Signals {
         let mm = |p: &PointDeviation| [p.horizontal_mm, p.vertical_mm];
+        let sigma_mm = |p: &PointDeviation| {
+            [
+                p.sigma_horizontal_mm.unwrap_or(0.0),
+                p.sigma_vertical_mm.unwrap_or(0.0),
+            ]
+        };
         Signals {
             deviation: Some(DeviationSignal {
                 front_mm: mm(&self.front),
                 rear_mm: mm(&self.rear),
+                front_sigma_mm: sigma_mm(&self.front),
+                rear_sigma_mm: sigma_mm(&self.rear),
             }),
             ..Signals::default()
         }

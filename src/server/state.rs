@@ -321,6 +321,10 @@ impl AppState {
         .map_err(std::io::Error::other)?
         .map_err(|(machine, source)| ServerError::Machine { machine, source })?;
         metrics::register_machine(&spec);
+        // The time the machine was not running here is not its sensors'
+        // silence.
+        let mut core = core;
+        core.resumed(self.clock.now_s());
         let handle = machine::spawn(
             self.surroundings(),
             spec.clone(),

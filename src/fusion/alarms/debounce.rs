@@ -50,16 +50,57 @@ pub struct Debounced {
     onset_t: Option<f64>,
 }
 
+/// How long a debounced condition must hold before it is raised, be gone
+/// before it clears, and at least how long a raised alarm stays raised
+/// (from its onset), s.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Timing {
+    pub raise_s: f64,
+    pub clear_s: f64,
+    pub hold_s: f64,
+}
+
+impl Timing {
+    /// The same minimum for raising and clearing, no hold.
+    pub fn symmetric(min_s: f64) -> Timing {
+        Timing {
+            raise_s: min_s,
+            clear_s: min_s,
+            hold_s: 0.0,
+        }
+    }
+}
+
 impl Debounced {
     /// The condition at `t`: `holds` now. `min_s` is the minimum time for
     /// both raising and clearing (0: at once).
     pub fn update(&mut self, t: f64, holds: bool, min_s: f64) -> Option<Edge> {
+        self.update_timed(t, holds, Timing::symmetric(min_s))
+    }
+
+    /// The condition at `t` with separate minimum times and a hold: a
+    /// raised alarm clears only once the condition has been gone
+    /// `clear_s` and `hold_s` have passed since its onset.
+    pub fn update_timed(&mut self, t: f64, holds: bool, timing: Timing) -> Option<Edge> {
         if holds == self.active {
             self.pending_since_t = None;
             return None;
         }
         let since = *self.pending_since_t.get_or_insert(t);
+        let min_s = if holds {
+            timing.raise_s
+        } else {
+            timing.clear_s
+        };
         if t - since < min_s {
+            return None;
+        }
+        if !holds
+            && timing.hold_s > 0.0
+            && self
+                .onset_t
+                .is_some_and(|onset_t| t - onset_t < timing.hold_s)
+        {
             return None;
         }
         self.active = holds;
@@ -163,5 +204,41 @@ mod tests {
             assert_eq!(d.update(t, holds, 10.0), None, "{t}");
         }
         assert!(!d.active);
+    }
+
+    #[test]
+    fn a_raised_alarm_is_held_for_its_minimum_and_clears_by_its_own_minimum() {
+        let timing = Timing {
+            raise_s: 10.0,
+            clear_s: 5.0,
+            hold_s: 60.0,
+        };
+        let mut d = Debounced::default();
+        assert_eq!(d.update_timed(0.0, true, timing), None);
+        assert_eq!(
+            d.update_timed(10.0, true, timing),
+            Some(Edge::Raised { onset_t: 0.0 })
+        );
+        // Gone from t = 20: 5 s would do, but the hold keeps it to t = 60;
+        // the clear is dated when the condition went.
+        for t in [20.0, 30.0, 59.0] {
+            assert_eq!(d.update_timed(t, false, timing), None, "{t}");
+        }
+        assert_eq!(
+            d.update_timed(60.0, false, timing),
+            Some(Edge::Cleared { gone_t: 20.0 })
+        );
+        // Raised again at 70 (dated 60) and gone at 140, past the hold:
+        // cleared after 5 s.
+        assert_eq!(d.update_timed(60.0, true, timing), None);
+        assert_eq!(
+            d.update_timed(70.0, true, timing),
+            Some(Edge::Raised { onset_t: 60.0 })
+        );
+        assert_eq!(d.update_timed(140.0, false, timing), None);
+        assert_eq!(
+            d.update_timed(145.0, false, timing),
+            Some(Edge::Cleared { gone_t: 140.0 })
+        );
     }
 }

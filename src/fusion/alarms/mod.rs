@@ -18,11 +18,18 @@
 //! - `engine_reset`: an INS lost its solution and re-aligns (the engine is
 //!   the alarm's subject);
 //! - `steering_infeasible`: no correction curve within the machine's
-//!   minimum radius reaches the axis within 500 m (`steer`).
+//!   minimum radius reaches the axis within 500 m (`steer`);
+//! - `integrity`: an engine's estimates not `ok` (warn: degraded or lost
+//!   for a while; alarm: lost), the engine the alarm's subject. Stages
+//!   inherit their source's integrity, so only engines are watched: one
+//!   fault, one alarm.
 //!
-//! Values at a limit do not flap: a limit must be undercut by a band
-//! before it counts as cleared, and a condition must hold (or be gone) for
-//! a minimum time ([`debounce`]).
+//! Values at a limit do not flap: a limit must be undercut by a band (for
+//! a deviation, at least its 2σ) before it counts as cleared, a condition
+//! must hold (or be gone) for a minimum time, and a raised alarm of a noisy
+//! input stays raised for a minimum hold ([`debounce`]). A deviation whose
+//! source is lost is not judged: its alarm stays as it was. The server's
+//! own downtime is not a sensor's silence ([`AlarmRules::resumed`]).
 
 pub mod debounce;
 pub mod period;
@@ -31,12 +38,13 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
-use self::debounce::{Debounced, Edge, Hysteresis};
+use self::debounce::{Debounced, Edge, Hysteresis, Timing};
 use self::period::LearnedPeriod;
 use super::StreamKind;
 use super::descriptor::{DeviationSignal, Navigation, SignalKind, Signals};
 use super::dta::Tolerances;
 use super::estimate::EngineOutput;
+use super::integrity::{Integrity, IntegrityLevel, IntegrityReason};
 use super::reading::{Reading, SensorKind};
 
 /// What an alarm is about.
@@ -67,11 +75,13 @@ pub enum AlarmKind {
     /// backlog unsent, longer than the office allows (the server raises
     /// it, not the machine's rules).
     SiteLink,
+    /// An engine's estimates degraded or lost (the engine the subject).
+    Integrity,
 }
 
 impl AlarmKind {
     /// Every kind.
-    pub const ALL: [AlarmKind; 8] = [
+    pub const ALL: [AlarmKind; 9] = [
         AlarmKind::Deviation,
         AlarmKind::LaserDropout,
         AlarmKind::StaleSensor,
@@ -80,6 +90,7 @@ impl AlarmKind {
         AlarmKind::AttitudeUncertainty,
         AlarmKind::SteeringInfeasible,
         AlarmKind::SiteLink,
+        AlarmKind::Integrity,
     ];
 
     /// The kind of a protocol name.
@@ -98,6 +109,7 @@ impl AlarmKind {
             AlarmKind::AttitudeUncertainty => "attitude_uncertainty",
             AlarmKind::SteeringInfeasible => "steering_infeasible",
             AlarmKind::SiteLink => "site_link",
+            AlarmKind::Integrity => "integrity",
         }
     }
 }
@@ -186,6 +198,15 @@ pub struct AlarmConfig {
     /// The `attitude` pitch 1σ above this: `attitude_uncertainty`, degrees.
     pub attitude_sigma_warn_deg: f64,
     pub attitude_sigma_alarm_deg: f64,
+    /// A raised `deviation`, `ins_uncertainty`, `attitude_uncertainty` or
+    /// `integrity` alarm stays raised at least this long from its onset,
+    /// s: their inputs are noisy, and one episode at a limit raises once.
+    pub min_hold_s: f64,
+    /// An engine's estimates degraded (or lost) this long: `integrity`
+    /// warn, s.
+    pub integrity_degraded_warn_s: f64,
+    /// An engine's estimates lost this long: `integrity` alarm, s.
+    pub integrity_lost_alarm_s: f64,
 }
 
 impl Default for AlarmConfig {
@@ -201,6 +222,9 @@ impl Default for AlarmConfig {
             ins_sigma_alarm_mm: 250.0,
             attitude_sigma_warn_deg: 0.05,
             attitude_sigma_alarm_deg: 0.1,
+            min_hold_s: 60.0,
+            integrity_degraded_warn_s: 10.0,
+            integrity_lost_alarm_s: 0.0,
         }
     }
 }
@@ -219,6 +243,9 @@ impl AlarmConfig {
             ("ins_sigma_alarm_mm", self.ins_sigma_alarm_mm),
             ("attitude_sigma_warn_deg", self.attitude_sigma_warn_deg),
             ("attitude_sigma_alarm_deg", self.attitude_sigma_alarm_deg),
+            ("min_hold_s", self.min_hold_s),
+            ("integrity_degraded_warn_s", self.integrity_degraded_warn_s),
+            ("integrity_lost_alarm_s", self.integrity_lost_alarm_s),
         ];
         for (name, value) in fields {
             if !(value.is_finite() && value >= 0.0) {
@@ -250,10 +277,21 @@ struct Level {
 }
 
 impl Level {
-    fn update(&mut self, t: f64, value: f64, limit: Hysteresis, min_s: f64) -> Option<Edge> {
+    fn update(&mut self, t: f64, value: f64, limit: Hysteresis, timing: Timing) -> Option<Edge> {
         self.beyond = limit.exceeded(value, self.beyond);
-        self.alarm.update(t, self.beyond, min_s)
+        self.alarm.update_timed(t, self.beyond, timing)
     }
+}
+
+/// What the `integrity` rule remembers of one engine.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+struct IntegrityWatch {
+    /// The engine has vouched for an estimate (been `ok`) since the rules
+    /// began: its first alignment is not a fault.
+    vouched: bool,
+    /// Degraded or lost (warn), lost (alarm).
+    warn: Debounced,
+    alarm: Debounced,
 }
 
 /// What the rules remember (part of the machine's snapshot).
@@ -270,6 +308,8 @@ pub struct AlarmState {
     steering: Debounced,
     was_aligned: bool,
     sensors: BTreeMap<SensorKind, (LearnedPeriod, Debounced)>,
+    #[serde(default)]
+    integrity: BTreeMap<StreamKind, IntegrityWatch>,
 }
 
 /// The rules of one machine.
@@ -281,6 +321,9 @@ pub struct AlarmRules {
     /// The stream each signal is watched from: of the machine's streams
     /// that tell it, the first in registry order.
     watched: BTreeMap<SignalKind, StreamKind>,
+    /// When the server (re)started running the rules, by its clock: a
+    /// sensor's silence is counted from here at the earliest.
+    resumed_t: Option<f64>,
 }
 
 const SEVERITIES: [Severity; 2] = [Severity::Warn, Severity::Alarm];
@@ -343,6 +386,27 @@ impl AlarmRules {
             tolerances,
             state,
             watched,
+            resumed_t: None,
+        }
+    }
+
+    /// The server runs the rules again at `now_t` (a start, a recovery):
+    /// the time it was down is not its sensors' silence.
+    pub fn resumed(&mut self, now_t: f64) {
+        self.resumed_t = Some(now_t);
+    }
+
+    /// When the server last resumed the rules, if it told.
+    pub fn resumed_t(&self) -> Option<f64> {
+        self.resumed_t
+    }
+
+    /// The timing of a rule whose input is noisy.
+    fn held(&self, raise_s: f64) -> Timing {
+        Timing {
+            raise_s,
+            clear_s: self.config.min_duration_s,
+            hold_s: self.config.min_hold_s,
         }
     }
 
@@ -382,8 +446,9 @@ impl AlarmRules {
             };
             let limit_s = (c.stale_periods * period_s).max(c.stale_min_s);
             let silent_s = now_t - last_t;
-            if silent_s > limit_s
-                && let Some(edge) = stale.update(last_t + limit_s, true, 0.0)
+            let silent_from_t = last_t.max(self.resumed_t.unwrap_or(last_t));
+            if now_t - silent_from_t > limit_s
+                && let Some(edge) = stale.update(silent_from_t + limit_s, true, 0.0)
             {
                 push(
                     out,
@@ -404,20 +469,25 @@ impl AlarmRules {
         self.signals(
             estimate.t,
             estimate.values.stream(),
+            estimate.integrity,
             &estimate.values.signals(),
             out,
         );
     }
 
-    /// The signals of an estimate of `stream` at `t` (those it is
-    /// watched for).
+    /// The signals of an estimate of `stream` at `t` with `integrity`
+    /// (those it is watched for).
     pub fn signals(
         &mut self,
         t: f64,
         stream: StreamKind,
+        integrity: Integrity,
         signals: &Signals,
         out: &mut Vec<Transition>,
     ) {
+        if stream.engine().is_some() {
+            self.integrity(t, stream, integrity, out);
+        }
         let watched = |kind| self.watched.get(&kind) == Some(&stream);
         let deviation = signals.deviation.filter(|_| watched(SignalKind::Deviation));
         let pitch_sigma_deg = signals
@@ -430,7 +500,11 @@ impl AlarmRules {
         let steering_feasible = signals
             .steering_feasible
             .filter(|_| watched(SignalKind::Steering));
-        if let Some(deviation) = &deviation {
+        // A lost source's deviation is not judged: its alarm stays as it
+        // was until a position can be vouched for again.
+        if let Some(deviation) = &deviation
+            && integrity.level != IntegrityLevel::Lost
+        {
             self.deviation(t, deviation, out);
         }
         if let Some(sigma_deg) = pitch_sigma_deg {
@@ -444,6 +518,54 @@ impl AlarmRules {
         }
         if let Some(feasible) = steering_feasible {
             self.steering(t, feasible, out);
+        }
+    }
+
+    /// `integrity` of an engine: warn while not `ok` for
+    /// `integrity_degraded_warn_s`, alarm while lost for
+    /// `integrity_lost_alarm_s`. Lost before the engine was ever `ok` (its
+    /// first alignment) is not a fault.
+    fn integrity(
+        &mut self,
+        t: f64,
+        stream: StreamKind,
+        integrity: Integrity,
+        out: &mut Vec<Transition>,
+    ) {
+        let c = self.config;
+        let warn_timing = self.held(c.integrity_degraded_warn_s);
+        let alarm_timing = self.held(c.integrity_lost_alarm_s);
+        let watch = self.state.integrity.entry(stream).or_default();
+        watch.vouched |= integrity.level == IntegrityLevel::Ok;
+        let first_alignment =
+            !watch.vouched && integrity.reason == Some(IntegrityReason::Unaligned);
+        let not_ok = integrity.level != IntegrityLevel::Ok && !first_alignment;
+        let lost = integrity.level == IntegrityLevel::Lost && !first_alignment;
+        let reason = integrity.reason.map_or("", IntegrityReason::as_str);
+        let name = stream.as_str();
+        for (severity, debounced, holds, timing) in [
+            (Severity::Warn, &mut watch.warn, not_ok, warn_timing),
+            (Severity::Alarm, &mut watch.alarm, lost, alarm_timing),
+        ] {
+            if let Some(edge) = debounced.update_timed(t, holds, timing) {
+                let raised = match severity {
+                    Severity::Warn => format!(
+                        "{name} estimates {} ({reason}) for over {}: their σ is widened, or they cannot be vouched for",
+                        integrity.level.as_str(),
+                        span(timing.raise_s)
+                    ),
+                    Severity::Alarm => format!(
+                        "{name} estimates lost ({reason}): the engine cannot vouch for its values; do not steer by them"
+                    ),
+                };
+                push(
+                    out,
+                    key(AlarmKind::Integrity, severity, name),
+                    edge,
+                    raised,
+                    format!("{name} estimates vouched for again"),
+                );
+            }
         }
     }
 
@@ -471,7 +593,8 @@ impl AlarmRules {
                 limit: limits[i],
                 band: 0.0,
             };
-            if let Some(edge) = self.state.laser[i].update(t, age_s, limit, 0.0) {
+            if let Some(edge) = self.state.laser[i].update(t, age_s, limit, Timing::symmetric(0.0))
+            {
                 push(
                     out,
                     key(AlarmKind::LaserDropout, severity, ""),
@@ -503,9 +626,8 @@ impl AlarmRules {
                         limit: limits[i],
                         band: c.hysteresis_fraction * limits[i],
                     };
-                    if let Some(edge) =
-                        self.state.ins[i].update(t, sigma_mm, limit, c.min_duration_s)
-                    {
+                    let timing = self.held(c.min_duration_s);
+                    if let Some(edge) = self.state.ins[i].update(t, sigma_mm, limit, timing) {
                         push(
                             out,
                             key(AlarmKind::InsUncertainty, severity, ""),
@@ -544,8 +666,8 @@ impl AlarmRules {
                 limit: limits[i],
                 band: c.hysteresis_fraction * limits[i],
             };
-            if let Some(edge) = self.state.attitude[i].update(t, sigma_deg, limit, c.min_duration_s)
-            {
+            let timing = self.held(c.min_duration_s);
+            if let Some(edge) = self.state.attitude[i].update(t, sigma_deg, limit, timing) {
                 push(
                     out,
                     key(AlarmKind::AttitudeUncertainty, severity, ""),
@@ -560,17 +682,37 @@ impl AlarmRules {
         }
     }
 
+    /// `deviation`: the worst of the four deviations against its own
+    /// limit. Raised beyond a limit; back only below the limit less the
+    /// larger of the hysteresis fraction and the deviation's 2σ (a noisy
+    /// position hovering at a limit raises once; one whose 2σ is as wide
+    /// as the limit stays raised until it narrows).
     fn deviation(&mut self, t: f64, d: &DeviationSignal, out: &mut Vec<Transition>) {
         let Some(tol) = self.tolerances else { return };
         let c = self.config;
-        let points = [("front", d.front_mm), ("rear", d.rear_mm)];
+        let timing = self.held(c.min_duration_s);
+        let points = [
+            ("front", d.front_mm, d.front_sigma_mm),
+            ("rear", d.rear_mm, d.rear_sigma_mm),
+        ];
         for (i, severity) in SEVERITIES.into_iter().enumerate() {
             let limit = |l: super::dta::Limits| if i == 0 { l.warn } else { l.alarm };
             let (h, v) = (limit(tol.horizontal_mm), limit(tol.vertical_mm));
-            // The worst of the four against its own limit, as a ratio.
+            let was = self.state.deviation[i].beyond;
+            // The worst of the four against its own limit, as a ratio;
+            // beyond if any is past its limit (less its band, once beyond).
+            let mut beyond = false;
             let mut worst = (0.0, String::new());
-            for (name, p) in points {
-                for (axis, value, lim) in [("horizontal", p[0], h), ("vertical", p[1], v)] {
+            for (name, p, sigma) in points {
+                for (axis, value, sigma_mm, lim) in [
+                    ("horizontal", p[0], sigma[0], h),
+                    ("vertical", p[1], sigma[1], v),
+                ] {
+                    let band = Hysteresis {
+                        limit: lim,
+                        band: (c.hysteresis_fraction * lim).max(2.0 * sigma_mm),
+                    };
+                    beyond |= lim > 0.0 && band.exceeded(value.abs(), was);
                     let ratio = if lim > 0.0 { value.abs() / lim } else { 0.0 };
                     if ratio > worst.0 {
                         worst = (
@@ -580,12 +722,9 @@ impl AlarmRules {
                     }
                 }
             }
-            let limit = Hysteresis {
-                limit: 1.0,
-                band: c.hysteresis_fraction,
-            };
-            if let Some(edge) = self.state.deviation[i].update(t, worst.0, limit, c.min_duration_s)
-            {
+            let level = &mut self.state.deviation[i];
+            level.beyond = beyond;
+            if let Some(edge) = level.alarm.update_timed(t, beyond, timing) {
                 let word = if i == 0 { "warn" } else { "alarm" };
                 push(
                     out,
@@ -960,15 +1099,179 @@ mod tests {
             (out[0].key.kind, out[0].raised, out[0].t),
             (AlarmKind::EngineReset, true, 16.0)
         );
-        let out = run(&mut r, (30..45).map(|i| zupt(f64::from(i), true, 0.001)));
+        // The reset clears 10 s on; the uncertainty is held a minute from
+        // its onset (t = 5), so it clears at t = 65, dated 30.
+        let out = run(&mut r, (30..64).map(|i| zupt(f64::from(i), true, 0.001)));
         let cleared: Vec<_> = out.iter().map(|t| (t.key.kind, t.raised, t.t)).collect();
+        assert_eq!(cleared, [(AlarmKind::EngineReset, false, 30.0)]);
+        let out = run(&mut r, (64..70).map(|i| zupt(f64::from(i), true, 0.001)));
+        let cleared: Vec<_> = out.iter().map(|t| (t.key.kind, t.raised, t.t)).collect();
+        assert_eq!(cleared, [(AlarmKind::InsUncertainty, false, 30.0)]);
+    }
+
+    fn with_integrity(mut output: EngineOutput, integrity: Integrity) -> EngineOutput {
+        output.integrity = integrity;
+        output
+    }
+
+    /// The `integrity` transitions: (severity, raised, t).
+    fn integrity_edges(out: &[Transition]) -> Vec<(Severity, bool, f64)> {
+        out.iter()
+            .filter(|t| t.key.kind == AlarmKind::Integrity)
+            .map(|t| (t.key.severity, t.raised, t.t))
+            .collect()
+    }
+
+    #[test]
+    fn an_engine_lost_alarms_degraded_warns_and_its_first_alignment_does_neither() {
+        let mut r = rules();
+        let lost = Integrity::lost(IntegrityReason::Unaligned);
+        // Aligning from the start for a minute: nothing.
+        let out = run(
+            &mut r,
+            (0..60).map(|i| with_integrity(zupt(f64::from(i), false, 0.0), lost)),
+        );
+        assert!(
+            out.iter().all(|t| t.key.kind != AlarmKind::Integrity),
+            "{out:?}"
+        );
+        // Vouched for from t = 60; tilt disagrees at t = 100 for 20 s:
+        // alarm at once, warn after 10 s, both dated 100.
+        let ok = (60..100).map(|i| zupt(f64::from(i), true, 0.001));
+        let tilt = Integrity::lost(IntegrityReason::TiltDisagrees);
+        let bad = (100..120).map(|i| with_integrity(zupt(f64::from(i), true, 0.001), tilt));
+        let out = run(&mut r, ok.chain(bad));
+        let edges: Vec<_> = out
+            .iter()
+            .filter(|t| t.key.kind == AlarmKind::Integrity)
+            .map(|t| (t.key.severity, t.key.subject.as_str(), t.raised, t.t))
+            .collect();
         assert_eq!(
-            cleared,
+            edges,
             [
-                (AlarmKind::EngineReset, false, 30.0),
-                (AlarmKind::InsUncertainty, false, 30.0)
+                (Severity::Alarm, "zupt", true, 100.0),
+                (Severity::Warn, "zupt", true, 100.0)
             ]
         );
+        assert!(
+            out[0].message.contains("lost (tilt_disagrees)"),
+            "{}",
+            out[0].message
+        );
+        // Recovering (degraded) from t = 120 to 130, then ok: the alarm
+        // clears once lost has been gone 10 s and a minute has passed
+        // since its onset (t = 160), dated 120; the warn likewise, dated 130.
+        let recovering = Integrity::degraded(IntegrityReason::Recovering);
+        let out = run(
+            &mut r,
+            (120..130)
+                .map(|i| with_integrity(zupt(f64::from(i), true, 0.001), recovering))
+                .chain((130..200).map(|i| zupt(f64::from(i), true, 0.001))),
+        );
+        let edges = integrity_edges(&out);
+        assert_eq!(
+            edges,
+            [
+                (Severity::Warn, false, 130.0),
+                (Severity::Alarm, false, 120.0)
+            ]
+        );
+        // Unaligned again after having been ok is a fault; degraded for
+        // 9 s is not yet one.
+        let out = run(
+            &mut r,
+            (200..209)
+                .map(|i| with_integrity(zupt(f64::from(i), true, 0.001), recovering))
+                .chain((209..215).map(|i| with_integrity(zupt(f64::from(i), false, 0.0), lost))),
+        );
+        let edges = integrity_edges(&out);
+        assert_eq!(
+            edges,
+            [
+                (Severity::Alarm, true, 209.0),
+                (Severity::Warn, true, 200.0)
+            ]
+        );
+    }
+
+    #[test]
+    fn a_stage_inherits_integrity_and_raises_no_alarm_of_its_own() {
+        let mut r = rules();
+        let lost = Integrity::lost(IntegrityReason::Source);
+        let out = run(
+            &mut r,
+            (0..60).map(|i| with_integrity(dta(f64::from(i), 0.0, 0.0), lost)),
+        );
+        assert!(out.is_empty(), "{out:?}");
+    }
+
+    #[test]
+    fn a_lost_deviation_is_not_judged_and_its_alarm_stays_as_it_was() {
+        let mut r = rules();
+        // 55 mm raises the warn; the source is then lost at 0 mm for two
+        // minutes: no clear. Lost at 80 mm from a fresh start: no raise.
+        let out = run(&mut r, (0..=10).map(|i| dta(f64::from(i), 55.0, 0.0)));
+        assert_eq!(out.len(), 1);
+        let lost = Integrity::lost(IntegrityReason::Source);
+        let out = run(
+            &mut r,
+            (11..130).map(|i| with_integrity(dta(f64::from(i), 0.0, 0.0), lost)),
+        );
+        assert!(out.is_empty(), "{out:?}");
+        let mut fresh = rules();
+        let out = run(
+            &mut fresh,
+            (0..60).map(|i| with_integrity(dta(f64::from(i), 80.0, 0.0), lost)),
+        );
+        assert!(out.is_empty(), "{out:?}");
+    }
+
+    #[test]
+    fn a_noisy_deviation_hovering_at_its_limit_raises_once() {
+        let mut r = rules();
+        // An INS position: front horizontal 50 ± 8 mm (1σ 10 mm) for ten
+        // minutes, against a 50 mm warn limit; each value held 12 s, so
+        // past the 10 s minimum. With 10 % hysteresis alone it would flap
+        // (42 mm is below 45); with the 2σ band (back below 30 mm) it is
+        // raised once and stays raised.
+        let noisy = |t: f64, h_mm: f64| {
+            let mut o = dta(t, h_mm, 0.0);
+            if let EstimateValues::Dta(d) = &mut o.values {
+                d.front.sigma_horizontal_mm = Some(10.0);
+            }
+            o
+        };
+        let values = [58.0, 42.0];
+        let out = run(
+            &mut r,
+            (0..600).map(|i| noisy(f64::from(i), values[(i / 12) as usize % 2])),
+        );
+        let raised = out.iter().filter(|t| t.raised).count();
+        let cleared = out.iter().filter(|t| !t.raised).count();
+        assert_eq!((raised, cleared), (1, 0), "{out:?}");
+        // Back at 25 mm: cleared.
+        let out = run(&mut r, (600..620).map(|i| noisy(f64::from(i), 25.0)));
+        assert_eq!(out.len(), 1, "{out:?}");
+        assert!(!out[0].raised && out[0].t == 600.0);
+    }
+
+    #[test]
+    fn the_servers_downtime_is_not_a_sensors_silence() {
+        let mut r = rules();
+        let mut out = Vec::new();
+        for i in 0..=20 {
+            r.reading(&inclinometer(2.0 * f64::from(i)), &mut out);
+        }
+        // The server was down from t = 41 to t = 1000: at its first tick
+        // the inclinometer has not yet had 10 s to speak again.
+        r.resumed(1000.0);
+        r.tick(1000.5, &mut out);
+        r.tick(1009.0, &mut out);
+        assert!(out.is_empty(), "{out:?}");
+        // It stays silent: stale from 10 s after the resumption.
+        r.tick(1011.0, &mut out);
+        assert_eq!(out.len(), 1, "{out:?}");
+        assert!(out[0].raised && out[0].t == 1010.0);
     }
 
     #[test]
