@@ -86,6 +86,10 @@ pub enum IntegrityReason {
     /// The engine has not aligned yet: it has no reference to hold its
     /// values to.
     Unaligned,
+    /// The engine's σ has not been checked by independent evidence yet (at
+    /// the start: before the laser has checked the inclinometer between
+    /// its samples).
+    Unverified,
 }
 
 impl IntegrityReason {
@@ -104,6 +108,7 @@ impl IntegrityReason {
             IntegrityReason::SensorSpikes => "sensor_spikes",
             IntegrityReason::ClockStep => "clock_step",
             IntegrityReason::Unaligned => "unaligned",
+            IntegrityReason::Unverified => "unverified",
         }
     }
 
@@ -121,6 +126,7 @@ impl IntegrityReason {
         IntegrityReason::SensorSpikes,
         IntegrityReason::ClockStep,
         IntegrityReason::Unaligned,
+        IntegrityReason::Unverified,
     ];
 }
 

@@ -523,8 +523,8 @@ impl AlarmRules {
 
     /// `integrity` of an engine: warn while not `ok` for
     /// `integrity_degraded_warn_s`, alarm while lost for
-    /// `integrity_lost_alarm_s`. Lost before the engine was ever `ok` (its
-    /// first alignment) is not a fault.
+    /// `integrity_lost_alarm_s`. Unaligned or unverified before the engine
+    /// was ever `ok` (its first alignment, its first checks) is not a fault.
     fn integrity(
         &mut self,
         t: f64,
@@ -537,8 +537,11 @@ impl AlarmRules {
         let alarm_timing = self.held(c.integrity_lost_alarm_s);
         let watch = self.state.integrity.entry(stream).or_default();
         watch.vouched |= integrity.level == IntegrityLevel::Ok;
-        let first_alignment =
-            !watch.vouched && integrity.reason == Some(IntegrityReason::Unaligned);
+        let first_alignment = !watch.vouched
+            && matches!(
+                integrity.reason,
+                Some(IntegrityReason::Unaligned | IntegrityReason::Unverified)
+            );
         let not_ok = integrity.level != IntegrityLevel::Ok && !first_alignment;
         let lost = integrity.level == IntegrityLevel::Lost && !first_alignment;
         let reason = integrity.reason.map_or("", IntegrityReason::as_str);

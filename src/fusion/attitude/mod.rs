@@ -47,6 +47,7 @@ pub mod anfis;
 pub mod dual_rate;
 pub mod estimate;
 pub mod kalman;
+pub mod laser_monitor;
 pub mod noise;
 pub mod params;
 pub mod residual;
@@ -58,6 +59,7 @@ use self::anfis::{Anfis, AnfisConfig, TrainingSample};
 use self::dual_rate::{InclHistory, InclPoint, LaserHold, Period, fuse, local_line};
 use self::estimate::AttitudeEstimate;
 use self::kalman::{H_INCLINOMETER, H_LASER, N, ProcessNoise, TiltFilter, inclinometer_row};
+use self::laser_monitor::LaserMonitor;
 use self::noise::{LaserCurvature, NoiseFit, Phase, PhaseDetector, Variogram};
 pub use self::params::{
     AnfisSelect, AttitudeConfig, AttitudeParams, BiasMotion, Correction, NoiseMode, NoisePriors,
@@ -66,7 +68,6 @@ pub use self::params::{
 use super::angles::{deg, rad, rad2};
 use super::descriptor::EngineDescriptor;
 use super::estimate::{EngineOutput, EstimateValues};
-use super::integrity::Integrity;
 use super::params::{ParamError, Params, Retired};
 use super::reading::{Reading, SensorData, SensorKind};
 use super::registry::EngineModel;
@@ -78,7 +79,8 @@ use super::{Engine, EngineKind, SnapshotError};
 /// 3: the laser innovations' means and the model's range, for the σ (issue 35).
 /// 4: the model's smoothed residuals ([`residual`]).
 /// 5: the pitch filter's slope state beyond the trained roll ([`kalman`]).
-pub const STATE_VERSION: u32 = 5;
+/// 6: the laser's excess errors weighted by their precision (issue 54).
+pub const STATE_VERSION: u32 = 6;
 /// Inclinometer readings kept for pairing with laser samples.
 const HISTORY_POINTS: usize = 512;
 /// Laser samples kept waiting for the inclinometer to pass their time.
@@ -309,10 +311,16 @@ pub struct AttitudeEngine {
     /// Normalised laser innovations ν²/S, averaged over the last few.
     laser_nis: noise::RecentMean,
     /// The pitch's and the roll's laser innovations beyond what the filter
-    /// expected of them, ν² − S, averaged over the last few: the error the
-    /// laser finds that the filter's variance misses (rad²).
-    pitch_laser_error: noise::RecentMean,
-    roll_laser_error: noise::RecentMean,
+    /// expected of them, ν² − S, averaged over the last few, each weighted
+    /// by its precision 1/S² (a sample the prior dominated says little):
+    /// the error the laser finds that the filter's variance misses (rad²).
+    pitch_laser_error: noise::PrecisionMean,
+    roll_laser_error: noise::PrecisionMean,
+    /// The pitch and roll shown at the newest estimate and their
+    /// variances (rad, rad²), for the laser monitor.
+    shown: Option<[(f64, f64); 2]>,
+    /// Each laser sample against the pitch shown before it (integrity).
+    laser_monitor: LaserMonitor,
     /// What the model in use knows of its roll range, for the σ beyond it.
     extrapolation: Option<Extrapolation>,
     /// Training pairs added since the model was last trained.
@@ -434,8 +442,10 @@ impl AttitudeEngine {
             noise: TunedNoise::from_priors(&config.priors),
             last_laser_roll: None,
             laser_nis: noise::RecentMean::default(),
-            pitch_laser_error: noise::RecentMean::default(),
-            roll_laser_error: noise::RecentMean::default(),
+            pitch_laser_error: noise::PrecisionMean::default(),
+            roll_laser_error: noise::PrecisionMean::default(),
+            shown: None,
+            laser_monitor: LaserMonitor::default(),
             extrapolation: None,
             pairs_untrained: 0,
             trainings: 0,
@@ -646,6 +656,7 @@ impl AttitudeEngine {
             + k_f1 * k_f1 * held(&noise.pitch);
         let roll_own = roll.p[0][0] + self.roll_laser_error.mean.max(0.0);
         let roll_variance = (1.0 - k_f2).powi(2) * roll_own + k_f2 * k_f2 * held(&noise.roll);
+        self.shown = Some([(pitch_out, pitch_variance), (roll_out, roll_variance)]);
 
         Some(EngineOutput {
             t,
@@ -665,7 +676,7 @@ impl AttitudeEngine {
                 incl_pitch_deg: pitch_deg,
                 incl_roll_deg: roll_deg,
             }),
-            integrity: Integrity::OK,
+            integrity: self.laser_monitor.integrity(),
         })
     }
 
@@ -852,6 +863,13 @@ impl AttitudeEngine {
         }
         self.stats.laser_used += 1;
         let noise = self.noise;
+        if let Some(shown) = self.shown {
+            let z = |laser: f64, (value, variance): (f64, f64)| {
+                (laser - value).abs() / (variance.max(0.0) + noise.r_laser).sqrt()
+            };
+            self.laser_monitor
+                .check(z(pitch, shown[0]).max(z(roll, shown[1])));
+        }
         let roll_now = self.roll.map(|f| f.angle());
         let unchecked = roll_now.map_or(0.0, |roll| self.unchecked_bias_variance(t, roll));
         let allowance = roll_now.and_then(|roll| self.bias_allowance(t, roll));
@@ -869,8 +887,9 @@ impl AttitudeEngine {
             // Beyond S and what the estimate's σ already counted as
             // unchecked (the drift since the previous sample, which the
             // laser row does not see: it has no bias entry).
+            let expected = innovation.variance + unchecked;
             self.pitch_laser_error
-                .add(innovation.value.powi(2) - innovation.variance - unchecked);
+                .add(innovation.value.powi(2) - expected, expected.powi(-2));
             let nis = innovation.value.powi(2) / innovation.variance;
             self.laser_nis.add(nis);
             let excess = self.laser_nis.mean - 1.0;
@@ -883,8 +902,10 @@ impl AttitudeEngine {
         if let Some(f) = self.roll.as_mut() {
             let (h, r) = laser_row(f, t, &noise.roll, noise.r_laser);
             let innovation = f.update(h, roll, r);
-            self.roll_laser_error
-                .add(innovation.value.powi(2) - innovation.variance);
+            self.roll_laser_error.add(
+                innovation.value.powi(2) - innovation.variance,
+                innovation.variance.powi(-2),
+            );
         }
         self.tuning
             .curvature
@@ -1825,7 +1846,7 @@ mod tests {
             AttitudeEngine::restore(old),
             Err(SnapshotError::Outdated {
                 found: 1,
-                expected: 5,
+                expected: 6,
                 ..
             })
         ));

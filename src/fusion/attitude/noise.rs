@@ -194,6 +194,33 @@ impl RecentMean {
     }
 }
 
+/// A mean over about the last [`RECENT`] samples, each weighted by its
+/// precision: an estimate of a variance from one innovation, ν² − S, has
+/// variance 2S², so a sample taken while the filter still rested on its
+/// prior (S large) weighs next to nothing against one taken once it has
+/// settled. With equal weights it is [`RecentMean`].
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct PrecisionMean {
+    pub mean: f64,
+    weight: f64,
+    count: f64,
+}
+
+impl PrecisionMean {
+    /// Adds `x` with precision `weight` (ignored unless positive and finite).
+    pub fn add(&mut self, x: f64, weight: f64) {
+        if !(weight > 0.0 && weight.is_finite()) {
+            return;
+        }
+        self.count += 1.0;
+        if self.count > RECENT {
+            self.weight *= 1.0 - 1.0 / RECENT;
+        }
+        self.weight += weight;
+        self.mean += weight / self.weight * (x - self.mean);
+    }
+}
+
 /// Classifies readings into motion phases from their white-noise level (N1).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PhaseDetector {
@@ -815,5 +842,23 @@ mod tests {
             }
         }
         assert!(right as f64 > 0.97 * total as f64, "{right}");
+    }
+
+    #[test]
+    fn a_precision_mean_with_equal_weights_is_the_recent_mean_and_ignores_an_imprecise_sample() {
+        let mut plain = RecentMean::default();
+        let mut weighted = PrecisionMean::default();
+        for i in 0..20 {
+            let x = f64::from(i * i % 7);
+            plain.add(x);
+            weighted.add(x, 3.0);
+            assert!((plain.mean - weighted.mean).abs() < 1e-12, "{i}");
+        }
+        // 1.0 (weight 1) then −100 (weight 1e-6, the prior's S): the mean
+        // moves by about 1e-4 only.
+        let mut m = PrecisionMean::default();
+        m.add(1.0, 1.0);
+        m.add(-100.0, 1e-6);
+        assert!((m.mean - (1.0 - 101.0e-6 / (1.0 + 1e-6))).abs() < 1e-12);
     }
 }
