@@ -30,6 +30,7 @@ use serde::Serialize;
 
 use super::attitude::Spread;
 use super::zupt::ZeroVelocityTally;
+use super::integrity::{self, IntegrityScore};
 use super::{Bar, heading_error_deg};
 use crate::fusion::zupt::{PARAMS, ZuptEngine};
 use crate::fusion::{Engine, EngineOutput, ParamError, ParamValue, Params, Reading, SensorKind};
@@ -44,6 +45,9 @@ pub const RUNS: [&str; 3] = ["engine", "paper", "oracle"];
 fn envelope_odometer_scale_sigma_pct() -> f64 {
     100.0 * ODOMETER_SCALE_ERROR_MAX / 3.0_f64.sqrt()
 }
+
+/// A horizontal position error below this is never misleading (issue 54), m.
+const POSITION_FLOOR_M: f64 = 0.1;
 
 /// Components whose 2σ coverage is counted.
 pub const COVERED: [&str; 6] = ["north", "east", "down", "heading", "pitch", "roll"];
@@ -62,6 +66,10 @@ pub struct RunScores {
     /// Per [`COVERED`] component: estimates with |error| ≤ 2σ, and estimates.
     pub within_2_sigma: [u64; 6],
     pub estimates: u64,
+    /// Integrity against the errors (issue 54): misleading where a
+    /// horizontal position component is off by more than 5σ and 0.1 m
+    /// while `ok`; every estimate of the drive, aligned or not.
+    pub integrity: IntegrityScore,
 }
 
 /// One drive and its runs.
@@ -205,6 +213,7 @@ fn score(
     let mut tally = ZeroVelocityTally::default();
     let mut within = [0u64; 6];
     let mut estimates = 0u64;
+    let mut integrity = IntegrityScore::default();
     let mut last = None;
     // One estimate per IMU reading, in order.
     for (output, truth) in outputs.iter().zip(truths) {
@@ -212,6 +221,14 @@ fn score(
             continue;
         };
         tally.add(e.zv, truth.zv);
+        let misleading = (0..2).any(|k| {
+            integrity::misleading(
+                e.position_m[k] - truth.position_m[k],
+                Some(e.position_sigma_m[k]),
+                POSITION_FLOOR_M,
+            )
+        });
+        integrity.add(output.t, output.integrity, misleading && e.aligned);
         if e.aligned {
             estimates += 1;
             let sigma = [
@@ -257,6 +274,7 @@ fn score(
         heading_error_deg,
         within_2_sigma: within,
         estimates,
+        integrity,
     }
 }
 
@@ -376,6 +394,46 @@ pub fn summarise(drives: &[DriveScores]) -> Summary {
             paper_over_engine.worst
         ),
         paper_over_engine.median >= 1.5,
+    );
+    let engine_integrity: Vec<(u64, IntegrityScore)> = drives
+        .iter()
+        .filter_map(|d| Some((d.drive.seed, d.run("engine")?.integrity)))
+        .collect();
+    let runs_s: Vec<f64> = engine_integrity.iter().map(|(_, i)| i.worst_run_s).collect();
+    let long: Vec<String> = engine_integrity
+        .iter()
+        .filter(|(_, i)| !i.run_bar_met())
+        .map(|(seed, i)| format!("{seed} ({:.0} s)", i.worst_run_s))
+        .collect();
+    let runs_spread = Spread::of(&runs_s);
+    bar(
+        "no misleading ok run (horizontal error > 5σ and 0.1 m) over 10 s on any drive",
+        format!(
+            "median {:.1} s, largest {:.1} s{}",
+            runs_spread.median,
+            runs_spread.worst,
+            if long.is_empty() {
+                String::new()
+            } else {
+                format!("; over on {}: {}", long.len(), long.join(", "))
+            }
+        ),
+        long.is_empty(),
+    );
+    let flagged = Spread::of(
+        &engine_integrity
+            .iter()
+            .map(|(_, i)| i.flagged_share())
+            .collect::<Vec<_>>(),
+    );
+    bar(
+        "at most 10 % of a drive's estimates flagged",
+        format!(
+            "median {:.2} %, largest {:.2} %",
+            100.0 * flagged.median,
+            100.0 * flagged.worst
+        ),
+        flagged.worst <= integrity::MAX_FLAGGED_SHARE,
     );
     for (k, name) in COVERED.iter().enumerate() {
         let c = engine.coverage_2_sigma[k];
