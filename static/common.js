@@ -105,6 +105,37 @@ const tn = (function () {
     return `${Math.floor(s / 86400)} d ${Math.floor((s % 86400) / 3600)} h`;
   }
 
+  // Whether an estimate is too old to show as live: its age beyond five of
+  // the intervals its stream has been seen to update at, and at least
+  // `minS` (as the stale-sensor alarm judges a sensor). Keyed per stream;
+  // the interval is learned from the distinct times seen.
+  function freshness(minS = 30) {
+    const seen = new Map(); // key → { t, interval }
+    return {
+      // The estimate of `key` at `t`, seen now at `now`: { stale, age }.
+      judge(key, t, now) {
+        if (typeof t !== 'number') return { stale: false, age: null };
+        const was = seen.get(key);
+        if (!was) seen.set(key, { t, interval: null });
+        else if (t > was.t) seen.set(key, { t, interval: t - was.t });
+        const interval = (seen.get(key) || {}).interval;
+        const age = now - t;
+        const limit = Math.max(minS, 5 * (interval || 0));
+        return { stale: age > limit, age };
+      },
+    };
+  }
+
+  // A note on an estimate that is not live: its integrity when not ok, and
+  // its age when stale ("" for a live, vouched-for estimate).
+  function trustNote(estimate, judged) {
+    const parts = [];
+    if (estimate.integrity === 'lost') parts.push(`LOST${estimate.integrity_reason ? ` · ${estimate.integrity_reason.replace(/_/g, ' ')}` : ''}`);
+    else if (estimate.integrity === 'degraded') parts.push(`degraded${estimate.integrity_reason ? ` · ${estimate.integrity_reason.replace(/_/g, ' ')}` : ''}`);
+    if (judged && judged.stale) parts.push(`${duration(judged.age)} old`);
+    return parts.join(' · ');
+  }
+
   function timeOfDay(t) {
     if (typeof t !== 'number' || !isFinite(t)) return '—';
     return new Date(t * 1000).toLocaleString([], { hour12: false });
@@ -430,7 +461,7 @@ const tn = (function () {
   }
 
   return {
-    clock, link, silenceWatchdog, latestOnly, fixed, mmPerM, duration, timeOfDay, json, ndjson, setText, css,
+    clock, link, silenceWatchdog, latestOnly, fixed, mmPerM, duration, freshness, trustNote, timeOfDay, json, ndjson, setText, css,
     showConnection, follow, showSensors, pollStatus, windowButtons, axis, num,
     shadeSpans, line, followEngine, debounce, runSection, engines, registerEngine,
   };

@@ -30,7 +30,7 @@ tn.registerEngine('dta', {
     ];
   },
 
-  STATUS_WORD: { ok: 'OK', warn: 'WARN', alarm: 'ALARM', none: 'no tolerances' },
+  STATUS_WORD: { ok: 'OK', warn: 'WARN', alarm: 'ALARM', unknown: 'UNKNOWN', none: 'no tolerances' },
 
   // Millimetres, rounded, signed with a true minus: "+70", "−12", "0".
   signedMm(v) {
@@ -125,8 +125,13 @@ tn.registerEngine('dta', {
       };
     }
 
+    // A position too old (five of its own intervals, at least 30 s) or
+    // lost is never shown as live: greyed and struck, with its age.
+    const fresh = tn.freshness(30);
+    let shownLive = null;
     function add(e) {
       if (!e || e.engine !== 'dta' || !num(e.t) || !num(e.station_m) || !e.front || !e.rear) return;
+      fresh.judge('dta', e.t, e.t); // learns the interval between positions
       if (!state.latest || e.t >= state.latest.t) state.latest = e;
       const key = Math.round(e.station_m / STATION_BUCKET_M);
       const held = state.drive.get(key);
@@ -282,15 +287,22 @@ tn.registerEngine('dta', {
       return out;
     }
 
+    function judged(e) {
+      const j = fresh.judge('dta', e.t, tn.clock.now());
+      return { ...j, notLive: j.stale || e.integrity === 'lost' };
+    }
+
     function showReadouts() {
       const e = state.latest;
       if (!e) return;
+      const now = judged(e);
+      shownLive = !now.notLive;
       for (const p of POINTS) {
         for (const c of COMPONENTS) {
           const v = e[p][FIELD[c]];
           setText($(`dta-${p}-${c}`), signedMm(v));
           const box = $(`dta-${p}-${c}-box`);
-          const status = grade(v, LIMITS[c]);
+          const status = now.notLive ? 'stale' : grade(v, LIMITS[c]);
           if (box.dataset.status !== status) box.dataset.status = status;
           let dir = '';
           if (num(v) && Math.round(v) !== 0) dir = c === 'h' ? (v > 0 ? '▶' : '◀') : (v > 0 ? '▲' : '▼');
@@ -323,7 +335,8 @@ tn.registerEngine('dta', {
       showAge();
 
       const badge = $('dta-status');
-      const status = ['ok', 'warn', 'alarm', 'unknown'].includes(e.status) ? e.status : 'none';
+      let status = ['ok', 'warn', 'alarm', 'unknown'].includes(e.status) ? e.status : 'none';
+      if (now.notLive) status = 'stale';
       // A position whose source cannot vouch for it (docs/protocol.md, "Integrity").
       const trust = e.integrity && e.integrity !== 'ok'
         ? ` · position ${e.integrity}${e.integrity_reason ? ` (${e.integrity_reason.replace(/_/g, ' ')})` : ''}`
@@ -336,7 +349,8 @@ tn.registerEngine('dta', {
         alarm: `ALARM · ${where}`,
         unknown: 'UNKNOWN · the uncertainty reaches across a limit',
         none: 'no tolerances declared',
-      }[status] + trust;
+        stale: `NOT LIVE · ${tn.trustNote(e, now) || 'position not vouched for'}: not a current deviation`,
+      }[status] + (status === 'stale' ? '' : trust);
       if (badge.dataset.status !== status) badge.dataset.status = status;
       badge.className = `badge dta-badge ${BADGE_CLASS[status] || ''}`;
       setText(badge, text);
@@ -346,7 +360,13 @@ tn.registerEngine('dta', {
 
     function showAge() {
       const e = state.latest;
-      if (e) setText($('dta-age'), `${tn.duration(tn.clock.now() - e.t)} ago`);
+      if (!e) return;
+      const now = judged(e);
+      const age = $('dta-age');
+      setText(age, `${tn.duration(tn.clock.now() - e.t)} ago`);
+      age.classList.toggle('age-stale', now.stale);
+      // Gone stale (or fresh again) since drawn: redraw as such.
+      if (shownLive !== null && shownLive === now.notLive) showReadouts();
     }
 
     // ---- canvases -----------------------------------------------------------

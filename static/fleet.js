@@ -15,12 +15,23 @@
   });
 
   // Each engine's rows, from its script (tn.registerEngine), in the
-  // order the server lists the machine's engines.
-  function figures(latest) {
+  // order the server lists the machine's engines. An estimate that is
+  // lost or too old is never shown as live: its values struck and greyed,
+  // with why and how old.
+  const fresh = tn.freshness(STALE_S);
+  function figures(machine, latest, now) {
     const rows = [];
     for (const [name, estimate] of Object.entries(latest)) {
       const engine = tn.engines[name];
-      if (engine && engine.card) rows.push(...engine.card(estimate));
+      if (!engine || !engine.card) continue;
+      const judged = fresh.judge(`${machine}/${name}`, estimate.t, now);
+      const note = tn.trustNote(estimate, judged);
+      const notLive = judged.stale || estimate.integrity === 'lost';
+      for (const [k, v] of engine.card(estimate)) {
+        rows.push([k, note
+          ? `<span class="${notLive ? 'not-live' : 'degraded'}">${v}</span> <span class="trust-note">${note}</span>`
+          : v]);
+      }
     }
     return rows;
   }
@@ -36,7 +47,7 @@
     tn.setText(card.state, state);
     card.state.className = `badge ${cls}`;
 
-    const html = figures(m.latest || {})
+    const html = figures(m.machine, m.latest || {}, now)
       .map(([k, v]) => `<dt>${k}</dt><dd>${v}</dd>`).join('');
     if (card.figures.innerHTML !== html) card.figures.innerHTML = html;
 

@@ -920,10 +920,12 @@ async fn dta_panel_draws_moves_and_shows_warn_and_alarm_colours() {
     });
     common::declare_machine(&client, &base, TBM, &declaration.to_string()).await;
 
-    // Ten minutes ending now: 1 Hz inclinometer, the laser every 30 s. The
-    // machine pitches with the 0.5 % grade and advances 10 → 19 m.
+    // Ten minutes from five minutes ago (what is posted live later is
+    // stamped ahead: a position minutes old is not drawn as live): 1 Hz
+    // inclinometer, the laser every 30 s. The machine pitches with the
+    // 0.5 % grade and advances 10 → 19 m.
     let now = tunnelnav::clock::wall_clock_s();
-    let t0 = (now - 600.0).floor();
+    let t0 = (now - 300.0).floor();
     let (azimuth, grade) = (30f64.to_radians(), 0.005f64);
     let pitch_deg = grade.atan().to_degrees();
     // (right offset m, height offset m, yaw error °) of each phase.
@@ -1138,6 +1140,88 @@ async fn dta_panel_draws_moves_and_shows_warn_and_alarm_colours() {
     )
     .await;
     save_screenshot(&browser, "browser-dta-fleet.png").await;
+    assert_clean_console(&browser).await;
+    browser.close().await.ok();
+    server.stop().await;
+}
+
+/// Issue 54: a deviation whose position is 15 minutes old (the laser out
+/// since) is not drawn as live: the panel's badge says NOT LIVE with the
+/// age, the readouts are struck and uncoloured, the age is highlighted; the
+/// laser dropout is said in a banner at the top of the page, above every
+/// panel; the fleet card strikes the deviation and gives its age.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stale_deviation_is_struck_with_its_age_and_the_dropout_is_said_at_the_top() {
+    let Some((driver_program, chromium)) = browser_programs() else {
+        return;
+    };
+    const TBM: &str = "tbm-stale";
+    let dir = tempfile::tempdir().unwrap();
+    let server = common::TestServer::start(dir.path()).await;
+    let client = reqwest::Client::new();
+    let base = server.url("");
+    let declaration = json!({
+        "name": "TBM with a stale position",
+        "engines": {"attitude": {}},
+        "geometry": {"front_m": [4.0, 0.0, 0.0], "rear_m": [-5.0, 0.0, 0.0]},
+        "tolerances": {"horizontal_mm": {"warn": 50, "alarm": 100},
+                       "vertical_mm": {"warn": 30, "alarm": 60}},
+        "alignment": {"start": {"easting_m": 1000.0, "northing_m": 5000.0, "azimuth_deg": 0.0},
+                      "horizontal": [{"type": "line", "length_m": 100.0}],
+                      "vertical": {"start_height_m": 50.0, "end_grade_pct": 0.0}}
+    });
+    common::declare_machine(&client, &base, TBM, &declaration.to_string()).await;
+    // 20 minutes of a 1 Hz inclinometer to now; the laser every 20 s,
+    // 70 mm right of the axis (a warning), only until 15 minutes ago.
+    let now = tunnelnav::clock::wall_clock_s().floor();
+    let lines: Vec<String> = (-1200..=0)
+        .flat_map(|s: i32| {
+            let t = now + f64::from(s);
+            let mut lines =
+                vec![json!({"t": t, "sensor": "inclinometer", "pitch_deg": 0.0, "roll_deg": 0.0})];
+            if s % 20 == 0 && s <= -900 {
+                lines.push(json!({"t": t, "sensor": "laser", "pitch_deg": 0.0,
+                    "roll_deg": 0.0, "yaw_deg": 0.0, "easting_m": 1000.07,
+                    "northing_m": 5020.0, "height_m": 50.0}));
+            }
+            lines
+        })
+        .map(|line| line.to_string())
+        .collect();
+    post_ndjson(&client, &base, TBM, &lines).await;
+
+    let driver = Driver::start(&driver_program);
+    let browser = connect(&driver, chromium.as_deref()).await;
+    browser
+        .goto(&format!("{base}/machines/{TBM}"))
+        .await
+        .expect("machine page loads");
+    wait_for(
+        &browser,
+        "the stale deviation struck with its age, the dropout banner at the top",
+        "const badge = document.getElementById('dta-status');          const box = document.getElementById('dta-front-h-box');          const banner = document.getElementById('trust-banner');          const panel = document.querySelector('.dta-panel');          return /NOT LIVE/.test(badge.textContent) && /1[45] min [0-9][0-9] s old/.test(badge.textContent)            && box.dataset.status === 'stale'            && getComputedStyle(box.querySelector('.readout-value')).textDecorationLine === 'line-through'            && document.getElementById('dta-age').classList.contains('age-stale')            && !banner.hidden && /LASER DROPOUT/.test(banner.textContent)            && banner.getBoundingClientRect().top < panel.getBoundingClientRect().top            && banner.getBoundingClientRect().top < 200;",
+        15,
+    )
+    .await;
+    save_screenshot(&browser, "browser-stale-deviation.png").await;
+
+    browser
+        .goto(&format!("{base}/"))
+        .await
+        .expect("fleet loads");
+    wait_for(
+        &browser,
+        "the fleet card's deviation struck with its age",
+        &format!(
+            "const c = document.querySelector('[data-machine=\"{TBM}\"]'); \
+             const struck = c && c.querySelector('.figures .not-live'); \
+             return !!struck && /DTA front/.test(c.textContent) \
+               && /1[45] min \\d\\d s old/.test(c.textContent) \
+               && getComputedStyle(struck).textDecorationLine === 'line-through';"
+        ),
+        15,
+    )
+    .await;
     assert_clean_console(&browser).await;
     browser.close().await.ok();
     server.stop().await;

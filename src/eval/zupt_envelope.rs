@@ -29,8 +29,8 @@ use rand_distr::StandardNormal;
 use serde::Serialize;
 
 use super::attitude::Spread;
-use super::zupt::ZeroVelocityTally;
 use super::integrity::{self, IntegrityScore};
+use super::zupt::ZeroVelocityTally;
 use super::{Bar, heading_error_deg};
 use crate::fusion::zupt::{PARAMS, ZuptEngine};
 use crate::fusion::{Engine, EngineOutput, ParamError, ParamValue, Params, Reading, SensorKind};
@@ -399,7 +399,10 @@ pub fn summarise(drives: &[DriveScores]) -> Summary {
         .iter()
         .filter_map(|d| Some((d.drive.seed, d.run("engine")?.integrity)))
         .collect();
-    let runs_s: Vec<f64> = engine_integrity.iter().map(|(_, i)| i.worst_run_s).collect();
+    let runs_s: Vec<f64> = engine_integrity
+        .iter()
+        .map(|(_, i)| i.worst_run_s)
+        .collect();
     let long: Vec<String> = engine_integrity
         .iter()
         .filter(|(_, i)| !i.run_bar_met())
