@@ -7,6 +7,8 @@
   // Seconds (server clock) since a machine's newest reading before it is
   // marked stale, then offline.
   const STALE_S = 30, OFFLINE_S = 600;
+  // Card values older than this say how old.
+  const AGE_SHOWN_S = 10;
   const cards = new Map();
   document.querySelectorAll('.machine-card').forEach((card) => {
     const fields = {};
@@ -27,10 +29,14 @@
       const judged = fresh.judge(`${machine}/${name}`, estimate.t, now);
       const note = tn.trustNote(estimate, judged);
       const notLive = judged.stale || estimate.integrity === 'lost';
+      // A value more than a few seconds old carries its age even while
+      // still current (a laser position between samples).
+      const age = !note && judged.age > AGE_SHOWN_S
+        ? ` <span class="age-note">${tn.duration(judged.age)} ago</span>` : '';
       for (const [k, v] of engine.card(estimate)) {
         rows.push([k, note
           ? `<span class="${notLive ? 'not-live' : 'degraded'}">${v}</span> <span class="trust-note">${note}</span>`
-          : v]);
+          : `${v}${age}`]);
       }
     }
     return rows;
