@@ -1227,6 +1227,70 @@ async fn a_stale_deviation_is_struck_with_its_age_and_the_dropout_is_said_at_the
     server.stop().await;
 }
 
+/// Issue 54: the alarm bar lists alarms before warnings, then the newest
+/// first: machine A beyond its alarm limit (an alarm and a warning, raised
+/// together), then machine B beyond its warn limit later. Newest first
+/// alone would put B's warning on top.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_alarm_bar_lists_alarms_before_warnings_then_the_newest_first() {
+    let Some((driver_program, chromium)) = browser_programs() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let server = common::TestServer::start(dir.path()).await;
+    let client = reqwest::Client::new();
+    let base = server.url("");
+    let now = tunnelnav::clock::wall_clock_s().floor();
+    for (machine, right_mm, from_s) in [("tbm-a", 120.0, -80), ("tbm-b", 70.0, -40)] {
+        let declaration = json!({
+            "name": machine,
+            "engines": {"attitude": {}},
+            "geometry": {"front_m": [4.0, 0.0, 0.0], "rear_m": [-5.0, 0.0, 0.0]},
+            "tolerances": {"horizontal_mm": {"warn": 50, "alarm": 100},
+                           "vertical_mm": {"warn": 30, "alarm": 60}},
+            "alignment": {"start": {"easting_m": 1000.0, "northing_m": 5000.0, "azimuth_deg": 0.0},
+                          "horizontal": [{"type": "line", "length_m": 100.0}],
+                          "vertical": {"start_height_m": 50.0, "end_grade_pct": 0.0}},
+            "alarms": {"stale_min_s": 3600}
+        });
+        common::declare_machine(&client, &base, machine, &declaration.to_string()).await;
+        let lines: Vec<String> = (from_s..from_s + 30)
+            .flat_map(|s: i32| {
+                let t = now + f64::from(s);
+                let mut lines = vec![json!({"t": t, "sensor": "inclinometer",
+                                            "pitch_deg": 0.0, "roll_deg": 0.0})];
+                if s % 2 == 0 {
+                    lines.push(json!({"t": t, "sensor": "laser", "pitch_deg": 0.0,
+                        "roll_deg": 0.0, "yaw_deg": 0.0,
+                        "easting_m": 1000.0 + right_mm / 1000.0,
+                        "northing_m": 5020.0, "height_m": 50.0}));
+                }
+                lines
+            })
+            .map(|line| line.to_string())
+            .collect();
+        post_ndjson(&client, &base, machine, &lines).await;
+    }
+    let driver = Driver::start(&driver_program);
+    let browser = connect(&driver, chromium.as_deref()).await;
+    browser
+        .goto(&format!("{base}/"))
+        .await
+        .expect("fleet loads");
+    wait_for(
+        &browser,
+        "three alarms: A's alarm, then B's warning, then A's warning",
+        "const rows = [...document.querySelectorAll('#alarm-list li')].map((li) => \
+           `${li.querySelector('a').textContent} ${li.querySelector('.badge').textContent}`); \
+         return rows.join(' | ') === 'tbm-a ALARM | tbm-b warn | tbm-a warn';",
+        15,
+    )
+    .await;
+    assert_clean_console(&browser).await;
+    browser.close().await.ok();
+    server.stop().await;
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_alarm_bar_rings_is_acknowledged_and_the_page_says_when_the_server_is_gone() {
     let Some((driver_program, chromium)) = browser_programs() else {
