@@ -633,7 +633,6 @@ pub fn spawn(
     let (live, _) = broadcast::channel(LIVE_BUFFER);
     let (status_tx, status) = watch::channel(Arc::new(current.clone()));
     let spec = Arc::new(spec);
-    let resumed_t = core.resumed_t();
     let actor = Actor {
         store,
         spec: spec.clone(),
@@ -646,7 +645,6 @@ pub fn spawn(
         current,
         since_snapshot: 0,
         clock,
-        resumed_t,
         alarm_changes,
         forward_mark,
     };
@@ -678,9 +676,6 @@ struct Actor {
     since_snapshot: u64,
     /// The server clock, for sensors gone silent.
     clock: Clock,
-    /// When this server resumed the machine from the store, by its clock
-    /// (`None`: declared here while running).
-    resumed_t: Option<f64>,
     /// Where the alarms this machine's writes changed go once committed.
     alarm_changes: Arc<dyn AlarmSink>,
     /// An office: the last sequence of the machine's site fused here.
@@ -821,8 +816,10 @@ impl Actor {
                         }
                     }
                 }
+                // The rebuilt core keeps when this server resumed the
+                // machine: the time it was down is still no silence.
                 let mut core = core;
-                if let Some(resumed_t) = self.resumed_t {
+                if let Some(resumed_t) = self.core.resumed_t() {
                     core.resumed(resumed_t);
                 }
                 self.core = core;

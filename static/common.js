@@ -112,28 +112,37 @@ const tn = (function () {
   function freshness(minS = 30) {
     const seen = new Map(); // key → { t, interval }
     return {
-      // The estimate of `key` at `t`, seen now at `now`: { stale, age }.
-      judge(key, t, now) {
-        if (typeof t !== 'number') return { stale: false, age: null };
+      // The `estimate` of `key`, seen at `now`: { stale, age, notLive }
+      // (not live: stale, or lost).
+      judge(key, estimate, now) {
+        const t = estimate.t;
+        if (typeof t !== 'number') return { stale: false, age: null, notLive: estimate.integrity === 'lost' };
         const was = seen.get(key);
         if (!was) seen.set(key, { t, interval: null });
         else if (t > was.t) seen.set(key, { t, interval: t - was.t });
         const interval = (seen.get(key) || {}).interval;
         const age = now - t;
         const limit = Math.max(minS, 5 * (interval || 0));
-        return { stale: age > limit, age };
+        const stale = age > limit;
+        return { stale, age, notLive: stale || estimate.integrity === 'lost' };
       },
     };
+  }
+
+  // An estimate's integrity in words: "LOST · tilt disagrees",
+  // "degraded · recovering", or "" when ok (docs/protocol.md, "Integrity").
+  function integrityWords(estimate) {
+    const level = { lost: 'LOST', degraded: 'degraded' }[estimate.integrity];
+    if (!level) return '';
+    return estimate.integrity_reason ? `${level} · ${estimate.integrity_reason.replace(/_/g, ' ')}` : level;
   }
 
   // A note on an estimate that is not live: its integrity when not ok, and
   // its age when stale ("" for a live, vouched-for estimate).
   function trustNote(estimate, judged) {
-    const parts = [];
-    if (estimate.integrity === 'lost') parts.push(`LOST${estimate.integrity_reason ? ` · ${estimate.integrity_reason.replace(/_/g, ' ')}` : ''}`);
-    else if (estimate.integrity === 'degraded') parts.push(`degraded${estimate.integrity_reason ? ` · ${estimate.integrity_reason.replace(/_/g, ' ')}` : ''}`);
+    const parts = [integrityWords(estimate)];
     if (judged && judged.stale) parts.push(`${duration(judged.age)} old`);
-    return parts.join(' · ');
+    return parts.filter(Boolean).join(' · ');
   }
 
   function timeOfDay(t) {
@@ -461,7 +470,7 @@ const tn = (function () {
   }
 
   return {
-    clock, link, silenceWatchdog, latestOnly, fixed, mmPerM, duration, freshness, trustNote, timeOfDay, json, ndjson, setText, css,
+    clock, link, silenceWatchdog, latestOnly, fixed, mmPerM, duration, freshness, integrityWords, trustNote, timeOfDay, json, ndjson, setText, css,
     showConnection, follow, showSensors, pollStatus, windowButtons, axis, num,
     shadeSpans, line, followEngine, debounce, runSection, engines, registerEngine,
   };

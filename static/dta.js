@@ -131,7 +131,7 @@ tn.registerEngine('dta', {
     let shownLive = null;
     function add(e) {
       if (!e || e.engine !== 'dta' || !num(e.t) || !num(e.station_m) || !e.front || !e.rear) return;
-      fresh.judge('dta', e.t, e.t); // learns the interval between positions
+      fresh.judge('dta', e, e.t); // learns the interval between positions
       if (!state.latest || e.t >= state.latest.t) state.latest = e;
       const key = Math.round(e.station_m / STATION_BUCKET_M);
       const held = state.drive.get(key);
@@ -287,10 +287,7 @@ tn.registerEngine('dta', {
       return out;
     }
 
-    function judged(e) {
-      const j = fresh.judge('dta', e.t, tn.clock.now());
-      return { ...j, notLive: j.stale || e.integrity === 'lost' };
-    }
+    const judged = (e) => fresh.judge('dta', e, tn.clock.now());
 
     function showReadouts() {
       const e = state.latest;
@@ -338,9 +335,8 @@ tn.registerEngine('dta', {
       let status = ['ok', 'warn', 'alarm', 'unknown'].includes(e.status) ? e.status : 'none';
       if (now.notLive) status = 'stale';
       // A position whose source cannot vouch for it (docs/protocol.md, "Integrity").
-      const trust = e.integrity && e.integrity !== 'ok'
-        ? ` · position ${e.integrity}${e.integrity_reason ? ` (${e.integrity_reason.replace(/_/g, ' ')})` : ''}`
-        : '';
+      const words = tn.integrityWords(e);
+      const trust = words ? ` · position ${words}` : '';
       const w = worst(e);
       const where = w ? `${w.point} ${w.comp === 'h' ? 'horizontal' : 'vertical'} ${signedMm(w.v)} mm` : '';
       const text = {

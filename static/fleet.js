@@ -26,16 +26,15 @@
     for (const [name, estimate] of Object.entries(latest)) {
       const engine = tn.engines[name];
       if (!engine || !engine.card) continue;
-      const judged = fresh.judge(`${machine}/${name}`, estimate.t, now);
+      const judged = fresh.judge(`${machine}/${name}`, estimate, now);
       const note = tn.trustNote(estimate, judged);
-      const notLive = judged.stale || estimate.integrity === 'lost';
       // A value more than a few seconds old carries its age even while
       // still current (a laser position between samples).
       const age = !note && judged.age > AGE_SHOWN_S
         ? ` <span class="age-note">${tn.duration(judged.age)} ago</span>` : '';
       for (const [k, v] of engine.card(estimate)) {
         rows.push([k, note
-          ? `<span class="${notLive ? 'not-live' : 'degraded'}">${v}</span> <span class="trust-note">${note}</span>`
+          ? `<span class="${judged.notLive ? 'not-live' : 'degraded'}">${v}</span> <span class="trust-note">${note}</span>`
           : `${v}${age}`]);
       }
     }

@@ -15,7 +15,6 @@
   // before any number is read (docs/protocol.md, "Integrity").
   const banner = document.getElementById('trust-banner');
   const api = `/api/v1/machines/${encodeURIComponent(root.dataset.machine)}`;
-  const word = (e) => `${e.integrity === 'lost' ? 'LOST' : 'degraded'}${e.integrity_reason ? ` (${e.integrity_reason.replace(/_/g, ' ')})` : ''}`;
   const show = (status) => {
     const lines = [];
     const laser = status.laser;
@@ -28,7 +27,7 @@
       .sort(([, a], [, b]) => (a.integrity === 'lost' ? 0 : 1) - (b.integrity === 'lost' ? 0 : 1));
     for (const [name, e] of streams) {
       lines.push([e.integrity === 'lost' ? 'bad' : 'warn',
-        `${name}: ${word(e)}${e.integrity === 'lost' ? ' · its values cannot be vouched for' : ' · its σ is widened'}`]);
+        `${name}: ${tn.integrityWords(e)}${e.integrity === 'lost' ? ' · its values cannot be vouched for' : ' · its σ is widened'}`]);
     }
     const html = lines.map(([cls, text]) => `<div class="trust-line ${cls}">${text}</div>`).join('');
     if (banner.innerHTML !== html) banner.innerHTML = html;

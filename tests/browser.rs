@@ -1160,16 +1160,7 @@ async fn a_stale_deviation_is_struck_with_its_age_and_the_dropout_is_said_at_the
     let server = common::TestServer::start(dir.path()).await;
     let client = reqwest::Client::new();
     let base = server.url("");
-    let declaration = json!({
-        "name": "TBM with a stale position",
-        "engines": {"attitude": {}},
-        "geometry": {"front_m": [4.0, 0.0, 0.0], "rear_m": [-5.0, 0.0, 0.0]},
-        "tolerances": {"horizontal_mm": {"warn": 50, "alarm": 100},
-                       "vertical_mm": {"warn": 30, "alarm": 60}},
-        "alignment": {"start": {"easting_m": 1000.0, "northing_m": 5000.0, "azimuth_deg": 0.0},
-                      "horizontal": [{"type": "line", "length_m": 100.0}],
-                      "vertical": {"start_height_m": 50.0, "end_grade_pct": 0.0}}
-    });
+    let declaration = common::on_an_axis("TBM with a stale position");
     common::declare_machine(&client, &base, TBM, &declaration.to_string()).await;
     // 20 minutes of a 1 Hz inclinometer to now; the laser every 20 s,
     // 70 mm right of the axis (a warning), only until 15 minutes ago.
@@ -1242,33 +1233,10 @@ async fn the_alarm_bar_lists_alarms_before_warnings_then_the_newest_first() {
     let base = server.url("");
     let now = tunnelnav::clock::wall_clock_s().floor();
     for (machine, right_mm, from_s) in [("tbm-a", 120.0, -80), ("tbm-b", 70.0, -40)] {
-        let declaration = json!({
-            "name": machine,
-            "engines": {"attitude": {}},
-            "geometry": {"front_m": [4.0, 0.0, 0.0], "rear_m": [-5.0, 0.0, 0.0]},
-            "tolerances": {"horizontal_mm": {"warn": 50, "alarm": 100},
-                           "vertical_mm": {"warn": 30, "alarm": 60}},
-            "alignment": {"start": {"easting_m": 1000.0, "northing_m": 5000.0, "azimuth_deg": 0.0},
-                          "horizontal": [{"type": "line", "length_m": 100.0}],
-                          "vertical": {"start_height_m": 50.0, "end_grade_pct": 0.0}},
-            "alarms": {"stale_min_s": 3600}
-        });
+        let mut declaration = common::on_an_axis(machine);
+        declaration["alarms"] = json!({"stale_min_s": 3600});
         common::declare_machine(&client, &base, machine, &declaration.to_string()).await;
-        let lines: Vec<String> = (from_s..from_s + 30)
-            .flat_map(|s: i32| {
-                let t = now + f64::from(s);
-                let mut lines = vec![json!({"t": t, "sensor": "inclinometer",
-                                            "pitch_deg": 0.0, "roll_deg": 0.0})];
-                if s % 2 == 0 {
-                    lines.push(json!({"t": t, "sensor": "laser", "pitch_deg": 0.0,
-                        "roll_deg": 0.0, "yaw_deg": 0.0,
-                        "easting_m": 1000.0 + right_mm / 1000.0,
-                        "northing_m": 5020.0, "height_m": 50.0}));
-                }
-                lines
-            })
-            .map(|line| line.to_string())
-            .collect();
+        let lines = common::laser_pairs(now + f64::from(from_s), 15, right_mm / 1000.0);
         post_ndjson(&client, &base, machine, &lines).await;
     }
     let driver = Driver::start(&driver_program);

@@ -221,14 +221,15 @@ fn score(
             continue;
         };
         tally.add(e.zv, truth.zv);
-        let misleading = (0..2).any(|k| {
-            integrity::misleading(
-                e.position_m[k] - truth.position_m[k],
-                Some(e.position_sigma_m[k]),
-                POSITION_FLOOR_M,
-            )
-        });
-        integrity.add(output.t, output.integrity, misleading && e.aligned);
+        let misleading = e.aligned
+            && (0..2).any(|k| {
+                integrity::misleading(
+                    e.position_m[k] - truth.position_m[k],
+                    Some(e.position_sigma_m[k]),
+                    POSITION_FLOOR_M,
+                )
+            });
+        integrity.add(output.t, output.integrity, misleading);
         if e.aligned {
             estimates += 1;
             let sigma = [

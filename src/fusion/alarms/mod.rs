@@ -536,13 +536,13 @@ impl AlarmRules {
         let warn_timing = self.held(c.integrity_degraded_warn_s);
         let alarm_timing = self.held(c.integrity_lost_alarm_s);
         let watch = self.state.integrity.entry(stream).or_default();
-        watch.vouched |= integrity.level == IntegrityLevel::Ok;
+        watch.vouched |= integrity.is_ok();
         let first_alignment = !watch.vouched
             && matches!(
                 integrity.reason,
                 Some(IntegrityReason::Unaligned | IntegrityReason::Unverified)
             );
-        let not_ok = integrity.level != IntegrityLevel::Ok && !first_alignment;
+        let not_ok = !integrity.is_ok() && !first_alignment;
         let lost = integrity.level == IntegrityLevel::Lost && !first_alignment;
         let reason = integrity.reason.map_or("", IntegrityReason::as_str);
         let name = stream.as_str();
