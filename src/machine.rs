@@ -19,7 +19,7 @@ use tokio::sync::{broadcast, mpsc, oneshot, watch};
 
 use crate::clock::Clock;
 use crate::config::MachineSpec;
-use crate::fusion::alarms::{AlarmRules, AlarmState, Transition};
+use crate::fusion::alarms::{AlarmKind, AlarmNow, AlarmRules, AlarmState, Transition};
 use crate::fusion::estimate::EstimateWriter;
 use crate::fusion::pipeline::{Pipeline, PipelineState};
 use crate::fusion::reorder::{Admission, ReorderBuffer};
@@ -255,6 +255,11 @@ impl MachineCore {
         std::mem::take(&mut self.transitions)
     }
 
+    /// What each active alarm's quantity reads now, by kind and subject.
+    pub fn alarm_now(&self) -> &BTreeMap<(AlarmKind, String), AlarmNow> {
+        self.alarms.now()
+    }
+
     /// The server runs the machine again at `now_t`: its downtime is not
     /// its sensors' silence.
     pub fn resumed(&mut self, now_t: f64) {
@@ -299,6 +304,8 @@ pub struct MachineStatus {
     /// Readings dropped as older than one of the same sensor already fused
     /// (stored all the same), since the server started.
     pub late: u64,
+    /// What each active alarm's quantity reads now, by kind and subject.
+    pub alarm_now: BTreeMap<(AlarmKind, String), AlarmNow>,
 }
 
 /// One part of what a site forwards for a machine, with its sequence.
@@ -307,7 +314,7 @@ pub enum ForwardedPart {
     /// Readings, fused in the order the site stored them.
     Readings(Vec<Reading>),
     /// An alarm change the site made.
-    Alarm(AlarmChange),
+    Alarm(Box<AlarmChange>),
 }
 
 enum Command {
@@ -756,6 +763,17 @@ impl Actor {
         }
     }
 
+    /// Copies what the active alarms read now into the status; whether it
+    /// changed.
+    fn publish_alarm_now(&mut self) -> bool {
+        let now = self.core.alarm_now();
+        if *now == self.current.alarm_now {
+            return false;
+        }
+        self.current.alarm_now.clone_from(now);
+        true
+    }
+
     /// Sensors silent for too long by the server clock: their alarms,
     /// stored (with no readings) once raised.
     async fn check_silence(&mut self) {
@@ -763,6 +781,9 @@ impl Actor {
             return;
         }
         let transitions = self.core.tick(self.clock.now_s());
+        if self.publish_alarm_now() {
+            self.status.send_replace(Arc::new(self.current.clone()));
+        }
         if transitions.is_empty() {
             return;
         }
@@ -928,6 +949,7 @@ impl Actor {
                 .latest
                 .insert(estimate.engine, estimate.clone());
         }
+        self.publish_alarm_now();
         self.status.send_replace(Arc::new(self.current.clone()));
         let sender = self.live.clone();
         let write_failed = self.write_failed.clone();

@@ -117,6 +117,7 @@
         `<span class="badge ${cls}">${a.severity === 'alarm' ? 'ALARM' : 'warn'}</span> ` +
         `<a href="/machines/${encodeURIComponent(a.machine)}">${escape(a.machine)}</a> ` +
         `<span class="message">${escape(a.message)}</span> ` +
+        (a.now ? `<span class="now">· now ${escape(a.now.value)}</span> ` : '') +
         `<span class="since">since ${tn.timeOfDay(a.raised_t)}</span> ${end}</li>`;
     };
     const html = open.map((a) => row(a, true)).join('');
@@ -181,9 +182,31 @@
     const { transition, event, ...alarm } = change;
     if (transition === 'cleared' || alarm.cleared_t != null) cleared.add(alarm.id);
     if (cleared.has(alarm.id)) active.delete(alarm.id);
-    else active.set(alarm.id, alarm);
+    else active.set(alarm.id, { ...alarm, now: alarm.now || (active.get(alarm.id) || {}).now });
     refresh();
   }
+
+  // What each active alarm's quantity reads now (the message keeps the
+  // value at the raise): asked every 5 s while any is active. Only the
+  // `now` of alarms already listed is taken: the socket says which are.
+  async function readNow() {
+    if (active.size === 0) return;
+    try {
+      const response = await fetch('/api/v1/alarms?state=active');
+      if (!response.ok) return;
+      const { alarms } = await response.json();
+      let changed = false;
+      for (const a of alarms) {
+        const shown = active.get(a.id);
+        if (shown && JSON.stringify(shown.now) !== JSON.stringify(a.now)) {
+          shown.now = a.now;
+          changed = true;
+        }
+      }
+      if (changed) render();
+    } catch (e) { /* the socket's link state says the server is away */ }
+  }
+  setInterval(readNow, 5000);
 
   // The whole active list (on hello, or after falling behind).
   function replace(alarms) {

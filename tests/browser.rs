@@ -1223,7 +1223,8 @@ async fn a_stale_deviation_is_struck_with_its_age_and_the_dropout_is_said_at_the
 /// together), then machine B beyond its warn limit later. Newest first
 /// alone would put B's warning on top.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn the_alarm_bar_lists_alarms_before_warnings_then_the_newest_first() {
+async fn the_alarm_bar_lists_alarms_before_warnings_then_the_newest_first_with_what_they_read_now()
+{
     let Some((driver_program, chromium)) = browser_programs() else {
         return;
     };
@@ -1251,6 +1252,20 @@ async fn the_alarm_bar_lists_alarms_before_warnings_then_the_newest_first() {
         "const rows = [...document.querySelectorAll('#alarm-list li')].map((li) => \
            `${li.querySelector('a').textContent} ${li.querySelector('.badge').textContent}`); \
          return rows.join(' | ') === 'tbm-a ALARM | tbm-b warn | tbm-a warn';",
+        15,
+    )
+    .await;
+    // Machine A swings from 120 to 150 mm right: its alarm keeps the value
+    // at the raise and says what it reads now, without a reload.
+    let lines = common::laser_pairs(now - 40.0, 5, 0.15);
+    post_ndjson(&client, &base, "tbm-a", &lines).await;
+    wait_for(
+        &browser,
+        "A's alarm: raised at +120 mm, now +150 mm",
+        "const li = document.querySelector('#alarm-list li'); \
+         const now = li && li.querySelector('.now'); \
+         return !!now && li.querySelector('.message').textContent.includes('+120 mm') \
+           && now.textContent.includes('+150 mm');",
         15,
     )
     .await;

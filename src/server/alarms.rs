@@ -10,6 +10,7 @@ use serde::{Deserialize, Serialize};
 use super::auth::Caller;
 use super::error::ApiError;
 use super::state::SharedState;
+use crate::fusion::alarms::AlarmKind;
 use crate::machine::AlarmSink;
 use crate::store::alarms::{AlarmFilter, StoredAlarm};
 
@@ -102,15 +103,30 @@ pub async fn list(
     Ok(Json(AlarmList { alarms }))
 }
 
-/// The stored alarms `filter` asks for, newest first.
+/// The stored alarms `filter` asks for, newest first; an active one of a
+/// machine running here with what its quantity reads now.
 pub async fn stored(
     state: &SharedState,
     filter: AlarmFilter,
 ) -> Result<Vec<StoredAlarm>, ApiError> {
     let store = state.store.clone();
-    Ok(tokio::task::spawn_blocking(move || store.alarms(&filter))
+    let mut alarms = tokio::task::spawn_blocking(move || store.alarms(&filter))
         .await
-        .map_err(|e| ApiError::Internal(e.to_string()))??)
+        .map_err(|e| ApiError::Internal(e.to_string()))??;
+    for alarm in alarms.iter_mut().filter(|a| a.cleared_t.is_none()) {
+        let (Ok(machine), Some(kind)) = (
+            state.machine(&alarm.machine),
+            AlarmKind::from_name(&alarm.kind),
+        ) else {
+            continue;
+        };
+        let status = machine.status();
+        alarm.now = status
+            .alarm_now
+            .get(&(kind, alarm.subject.clone()))
+            .cloned();
+    }
+    Ok(alarms)
 }
 
 /// Acknowledge an alarm.

@@ -392,7 +392,7 @@ pub async fn forward(
                         item.sequence
                     )));
                 }
-                parts.push((item.sequence, ForwardedPart::Alarm(change)));
+                parts.push((item.sequence, ForwardedPart::Alarm(Box::new(change))));
             }
             _ => {
                 return Err(ApiError::BadRequest(format!(

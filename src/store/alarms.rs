@@ -93,6 +93,11 @@ pub struct StoredAlarm {
     pub acked_t: Option<f64>,
     /// The name of the token that acknowledged it.
     pub acked_by: Option<String>,
+    /// An active alarm of a machine running on this node: what its
+    /// quantity reads now (the message keeps the value at the raise).
+    /// Not stored.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub now: Option<crate::fusion::alarms::AlarmNow>,
 }
 
 /// What happened to a stored alarm: the live event's `transition`.
@@ -184,6 +189,7 @@ fn stored(row: &Row) -> rusqlite::Result<StoredAlarm> {
         cleared_t: row.get(7)?,
         acked_t: row.get(8)?,
         acked_by: row.get(9)?,
+        now: None,
     })
 }
 

@@ -174,6 +174,16 @@ pub struct Transition {
     pub message: String,
 }
 
+/// What an active alarm's quantity reads now (its message keeps the value
+/// at the raise): "rear vertical +38 mm", "lost (tilt_disagrees)".
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct AlarmNow {
+    /// When it was judged last, s (the data's time, or the server clock's
+    /// for a silent sensor).
+    pub t: f64,
+    pub value: String,
+}
+
 /// The rules' settings (a machine declaration's `alarms`), with defaults
 /// that need no site tuning: the periods are learned, the tolerances
 /// are the machine's.
@@ -324,6 +334,10 @@ pub struct AlarmRules {
     /// When the server (re)started running the rules, by its clock: a
     /// sensor's silence is counted from here at the earliest.
     resumed_t: Option<f64>,
+    /// What each active alarm's quantity reads now, by kind and subject
+    /// (both severities read the same quantity). Not snapshotted: it is
+    /// judged again at the next estimate.
+    now: BTreeMap<(AlarmKind, String), AlarmNow>,
 }
 
 const SEVERITIES: [Severity; 2] = [Severity::Warn, Severity::Alarm];
@@ -387,6 +401,30 @@ impl AlarmRules {
             state,
             watched,
             resumed_t: None,
+            now: BTreeMap::new(),
+        }
+    }
+
+    /// What each active alarm's quantity reads now, by kind and subject.
+    pub fn now(&self) -> &BTreeMap<(AlarmKind, String), AlarmNow> {
+        &self.now
+    }
+
+    /// Keeps what the alarm of `kind` about `subject` reads at `t` while
+    /// it is `active` (formatted only then), forgets it once cleared.
+    fn note(
+        &mut self,
+        kind: AlarmKind,
+        subject: &str,
+        t: f64,
+        active: bool,
+        value: impl FnOnce() -> String,
+    ) {
+        if active {
+            let key = (kind, subject.to_string());
+            self.now.insert(key, AlarmNow { t, value: value() });
+        } else if !self.now.is_empty() {
+            self.now.retain(|(k, s), _| !(*k == kind && s == subject));
         }
     }
 
@@ -430,11 +468,20 @@ impl AlarmRules {
                 format!("{sensor} readings again"),
             );
         }
+        let active = stale.active;
+        self.note(
+            AlarmKind::StaleSensor,
+            sensor.as_str(),
+            reading.t,
+            active,
+            || "reading again".into(),
+        );
     }
 
     /// The server clock at `now_t`: sensors silent for too long.
     pub fn tick(&mut self, now_t: f64, out: &mut Vec<Transition>) {
         let c = self.config;
+        let mut silent = Vec::new();
         for (sensor, (period, stale)) in &mut self.state.sensors {
             // The laser's beam is lost routinely (`laser_dropout`); a ring
             // is closed when it is built, not on a period.
@@ -460,6 +507,14 @@ impl AlarmRules {
                     String::new(),
                 );
             }
+            if stale.active {
+                silent.push((*sensor, silent_s));
+            }
+        }
+        for (sensor, silent_s) in silent {
+            self.note(AlarmKind::StaleSensor, sensor.as_str(), now_t, true, || {
+                format!("silent for {}", span(silent_s))
+            });
         }
     }
 
@@ -570,6 +625,13 @@ impl AlarmRules {
                 );
             }
         }
+        let active = watch.warn.active || watch.alarm.active;
+        self.note(AlarmKind::Integrity, name, t, active, || {
+            match integrity.reason {
+                Some(reason) => format!("{} ({})", integrity.level.as_str(), reason.as_str()),
+                None => integrity.level.as_str().to_string(),
+            }
+        });
     }
 
     /// `steering_infeasible` while no curve reaches the axis (for the
@@ -585,6 +647,15 @@ impl AlarmRules {
                 "a correction curve back to the axis again".into(),
             );
         }
+        let active = self.state.steering.active;
+        self.note(AlarmKind::SteeringInfeasible, "", t, active, || {
+            if feasible {
+                "a curve reaches the axis"
+            } else {
+                "no curve reaches the axis"
+            }
+            .into()
+        });
     }
 
     fn laser_dropout(&mut self, t: f64, age_s: f64, out: &mut Vec<Transition>) {
@@ -607,6 +678,10 @@ impl AlarmRules {
                 );
             }
         }
+        let active = self.state.laser.iter().any(|l| l.alarm.active);
+        self.note(AlarmKind::LaserDropout, "", t, active, || {
+            format!("last laser sample {} ago", span(age_s))
+        });
     }
 
     /// `ins_uncertainty` while aligned; `engine_reset` (about `stream`)
@@ -643,6 +718,10 @@ impl AlarmRules {
                         );
                     }
                 }
+                let active = self.state.ins.iter().any(|l| l.alarm.active);
+                self.note(AlarmKind::InsUncertainty, "", t, active, || {
+                    format!("1σ {sigma_mm:.0} mm")
+                });
                 true
             }
             Navigation::Aligning => false,
@@ -659,6 +738,10 @@ impl AlarmRules {
                 "the INS is aligned again".into(),
             );
         }
+        let active = self.state.reset.active;
+        self.note(AlarmKind::EngineReset, stream.as_str(), t, active, || {
+            if aligned { "aligned" } else { "re-aligning" }.into()
+        });
     }
 
     fn attitude_uncertainty(&mut self, t: f64, sigma_deg: f64, out: &mut Vec<Transition>) {
@@ -683,6 +766,10 @@ impl AlarmRules {
                 );
             }
         }
+        let active = self.state.attitude.iter().any(|l| l.alarm.active);
+        self.note(AlarmKind::AttitudeUncertainty, "", t, active, || {
+            format!("pitch 1σ {sigma_deg:.3}°")
+        });
     }
 
     /// `deviation`: the worst of the four deviations against its own
@@ -694,6 +781,8 @@ impl AlarmRules {
         let Some(tol) = self.tolerances else { return };
         let c = self.config;
         let timing = self.held(c.min_duration_s);
+        // The worst against the warn limits, as the alarm reads now.
+        let mut worst_now = String::new();
         let points = [
             ("front", d.front_mm, d.front_sigma_mm),
             ("rear", d.rear_mm, d.rear_sigma_mm),
@@ -740,7 +829,12 @@ impl AlarmRules {
                     format!("deviation back within the {word} tolerance"),
                 );
             }
+            if i == 0 {
+                worst_now = worst.1;
+            }
         }
+        let active = self.state.deviation.iter().any(|l| l.alarm.active);
+        self.note(AlarmKind::Deviation, "", t, active, || worst_now);
     }
 }
 
@@ -843,6 +937,27 @@ mod tests {
             "{}",
             out[1].message
         );
+    }
+
+    #[test]
+    fn an_active_alarm_says_what_its_quantity_reads_now_and_forgets_it_once_cleared() {
+        let now = |r: &AlarmRules| r.now().get(&(AlarmKind::Deviation, String::new())).cloned();
+        let mut r = rules();
+        // Not raised: nothing to say.
+        run(&mut r, (0..5).map(|i| dta(f64::from(i), 40.0, 0.0)));
+        assert_eq!(now(&r), None);
+        // Raised at +55 mm (at t = 15, dated 5), then the machine swings to
+        // -47 mm: the message keeps +55, now says -47.
+        let out = run(&mut r, (5..=15).map(|i| dta(f64::from(i), 55.0, 0.0)));
+        assert!(out[0].message.contains("+55 mm"), "{}", out[0].message);
+        run(&mut r, [dta(16.0, -47.0, 0.0)]);
+        let reads = now(&r).expect("the raised deviation reads now");
+        assert_eq!(reads.t, 16.0);
+        assert_eq!(reads.value, "front horizontal -47 mm (±50 mm)");
+        // Back to 10 mm from t = 70 (past the hold): cleared, forgotten.
+        let out = run(&mut r, (70..=80).map(|i| dta(f64::from(i), 10.0, 0.0)));
+        assert!(out.iter().any(|t| !t.raised), "{out:?}");
+        assert_eq!(now(&r), None);
     }
 
     #[test]
@@ -1285,7 +1400,10 @@ mod tests {
         let state: AlarmState = serde_json::from_value(json).unwrap();
         let mut restored =
             AlarmRules::new(AlarmConfig::default(), r.tolerances, StreamKind::ALL, state);
-        assert_eq!(restored, r);
+        // All but what the active alarms read now, judged again at the
+        // next estimate.
+        assert_eq!(restored.state(), r.state());
+        assert!(restored.now().is_empty() && !r.now().is_empty());
         // Still active: no second raise.
         assert!(
             run(

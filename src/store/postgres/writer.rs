@@ -699,5 +699,6 @@ pub(super) fn stored_alarm(row: &tokio_postgres::Row) -> StoredAlarm {
         cleared_t: row.get(7),
         acked_t: row.get(8),
         acked_by: row.get(9),
+        now: None,
     }
 }
