@@ -114,7 +114,7 @@ pub struct FuzzyArgs {
     /// With --envelope: inject this fault into every drive, each fault a
     /// category of its own figures (docs/evaluation.md, "Faults").
     #[arg(long, value_enum, requires = "envelope")]
-    pub fault: Option<crate::eval::fuzzy_envelope::Fault>,
+    pub fault: Option<crate::sim::faults::FaultKind>,
 }
 
 #[derive(Debug, Args)]
@@ -137,6 +137,10 @@ pub struct ZuptArgs {
     /// Print the scores as JSON instead of a table.
     #[arg(long)]
     pub json: bool,
+    /// With --envelope: inject this fault into every drive, each fault a
+    /// category of its own figures (docs/evaluation.md, "Faults").
+    #[arg(long, value_enum, requires = "envelope")]
+    pub fault: Option<crate::sim::faults::FaultKind>,
 }
 
 #[derive(Debug, Args)]
@@ -167,6 +171,10 @@ pub struct AttitudeArgs {
     /// Print the scores as JSON instead of a table.
     #[arg(long)]
     pub json: bool,
+    /// With --envelope: inject this fault into every drive, each fault a
+    /// category of its own figures (docs/evaluation.md, "Faults").
+    #[arg(long, value_enum, requires = "envelope")]
+    pub fault: Option<crate::sim::faults::FaultKind>,
 }
 
 fn parse_noise(text: &str) -> Result<Kf3Noise, String> {
@@ -294,7 +302,8 @@ pub fn run(target: EvalTarget) -> Result<(), CliError> {
             if args.envelope {
                 let seeds: Vec<u64> =
                     envelope_seeds(args.drive.seed, args.seeds.unwrap_or(40)).collect();
-                let drives = zupt_envelope::evaluate_all(&seeds, &params, cores())?;
+                let drives =
+                    zupt_envelope::evaluate_all_with(&seeds, &params, args.fault, cores())?;
                 let summary = zupt_envelope::summarise(&drives);
                 return print_envelope(args.json, &summary, &drives, || {
                     zupt_envelope::render(&drives, &summary)
@@ -324,6 +333,7 @@ pub fn run(target: EvalTarget) -> Result<(), CliError> {
                 params: params.clone(),
                 kf3_noise: args.kf3_noise.unwrap_or(KF3_NOISE),
                 oracle_noise: args.oracle_noise.unwrap_or(ORACLE_NOISE),
+                fault: args.fault,
                 ..AttitudeEvalConfig::on(drive)
             };
             if args.envelope {

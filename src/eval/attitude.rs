@@ -37,12 +37,13 @@
 use serde::Serialize;
 
 use super::ErrorStats;
-use super::integrity::{self, IntegrityScore};
+use super::integrity::{self, FaultSummary, IntegrityScore};
 use super::kf3::{Kf3, Kf3Noise};
 use crate::fusion::attitude::{AttitudeEngine, PARAMS};
 use crate::fusion::{
     AttitudeEstimate, Engine, EngineOutput, ParamError, ParamValue, Params, SensorData,
 };
+use crate::sim::faults::{FaultInjector, FaultKind, FaultWindow};
 use crate::sim::tbm::{Dropout, Phase, TbmDrive, TbmEvent, TbmScenario, TbmTruth};
 use crate::sim::tbm_envelope::EnvelopeDrive;
 
@@ -162,6 +163,8 @@ pub struct AttitudeEvalConfig {
     /// Process noise of the `kf3` baseline and of the `oracle`.
     pub kf3_noise: Kf3Noise,
     pub oracle_noise: Kf3Noise,
+    /// A fault injected into the drive's readings (all methods see it).
+    pub fault: Option<FaultKind>,
 }
 
 impl AttitudeEvalConfig {
@@ -178,6 +181,7 @@ impl AttitudeEvalConfig {
             params: Params::defaults(PARAMS),
             kf3_noise: KF3_NOISE,
             oracle_noise: ORACLE_NOISE,
+            fault: None,
         }
     }
 }
@@ -446,9 +450,19 @@ pub fn evaluate(config: &AttitudeEvalConfig) -> Result<AttitudeEvaluation, EvalE
     let mut laser_hold: Option<(f64, f64)> = None;
     let mut outputs = Vec::new();
     let mut previous_truth_pitch: Option<f64> = None;
-    let mut integrity = IntegrityScore::default();
+    let window = config
+        .fault
+        .map(|kind| FaultWindow::in_drive(kind, start_t, drive.hours() * 3600.0));
+    let mut injector = window
+        .map(|w| FaultInjector::new(w, crate::fusion::EngineKind::Attitude))
+        .transpose()
+        .map_err(|e| EvalError::Scenario(e.to_string()))?;
+    let mut integrity = IntegrityScore::with_fault(window);
 
-    for event in events {
+    for mut event in events {
+        if let Some(injector) = &mut injector {
+            event.reading = injector.apply(event.reading);
+        }
         let reading = &event.reading;
         let truth = event.truth;
         match reading.data {
@@ -735,7 +749,7 @@ pub fn evaluate_all(
 }
 
 /// Median and worst of one metric over drives.
-#[derive(Debug, Clone, Copy, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Spread {
     pub median: f64,
     pub worst: f64,
@@ -787,6 +801,9 @@ pub struct MethodSpread {
 #[derive(Debug, Clone, Serialize)]
 pub struct EnvelopeSummary {
     pub drives: usize,
+    /// With a fault injected: how the engine met it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fault: Option<FaultSummary>,
     pub methods: Vec<MethodSpread>,
     /// Engine ÷ oracle pitch RMSE per drive (bar: median ≤ 1.5, worst ≤ 3).
     pub rmse_over_oracle: Spread,
@@ -885,7 +902,19 @@ impl EnvelopeSummary {
                 self.misleading_drives.join(", ")
             ));
         }
-        if self.flagged_share.worst > integrity::MAX_FLAGGED_SHARE {
+        if let Some(fault) = &self.fault
+            && fault.recovered < fault.drives
+        {
+            out.push(format!(
+                "fault {}: recovered on {} of {} drives",
+                fault.fault.as_str(),
+                fault.recovered,
+                fault.drives
+            ));
+        }
+        // A fault drive is not an ordinary one: its share flagged is a
+        // figure of the fault.
+        if self.fault.is_none() && self.flagged_share.worst > integrity::MAX_FLAGGED_SHARE {
             out.push(format!(
                 "integrity: up to {:.1} % of a drive's estimates flagged (bar {:.0} %)",
                 100.0 * self.flagged_share.worst,
@@ -938,6 +967,7 @@ pub fn summarise(evaluations: &[AttitudeEvaluation]) -> EnvelopeSummary {
         .map(|e| e.integrity.flagged_share())
         .collect();
     EnvelopeSummary {
+        fault: FaultSummary::of(evaluations.iter().map(|e| &e.integrity)),
         misleading_run_s: Spread::of(&runs),
         flagged_share: Spread::of(&flagged),
         misleading_drives: evaluations
@@ -1048,6 +1078,9 @@ pub fn render_summary(s: &EnvelopeSummary, first_seed: u64) -> String {
         100.0 * s.flagged_share.median,
         100.0 * s.flagged_share.worst
     );
+    if let Some(fault) = &s.fault {
+        out.push_str(&fault.render());
+    }
     let failures = s.failures();
     if failures.is_empty() {
         let _ = writeln!(out, "every bar met");

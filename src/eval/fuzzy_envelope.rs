@@ -32,13 +32,14 @@ use serde::Serialize;
 
 use super::ahrs::{Madgwick, Mahony, initial_attitude};
 use super::attitude::Spread;
-use super::integrity::{self, IntegrityScore};
+use super::integrity::{self, FaultSummary, IntegrityScore};
 use super::{Bar, ErrorStats, parallel_map};
 use crate::fusion::angles::{deg, rad};
 use crate::fusion::fuzzy::PARAMS;
 use crate::fusion::fuzzy::orientation::{angle_difference, integrate};
 use crate::fusion::geometry::{V3, attitude_from_euler};
 use crate::fusion::{EngineKind, EngineOutput, Motion, ParamError, ParamValue, Params, SensorData};
+use crate::sim::faults::{FAULT_AT, FaultInjector, FaultKind, FaultWindow};
 use crate::sim::vehicle::{VehicleDrive, VehicleScenario, VehicleTruth};
 use crate::sim::vehicle_envelope::VehicleEnvelope;
 
@@ -132,26 +133,13 @@ pub struct DriveScores {
     /// scored heading error beyond 5σ and [`HEADING_FLOOR_DEG`].
     pub integrity: IntegrityScore,
     /// The fault injected, if any.
-    pub fault: Option<Fault>,
+    pub fault: Option<FaultKind>,
 }
 
 /// A tilt error is misleading beyond this, degrees (and 5σ).
 pub const TILT_FLOOR_DEG: f64 = 1.0;
 /// A heading error is misleading beyond this, degrees (and 5σ).
 pub const HEADING_FLOOR_DEG: f64 = 4.0;
-
-/// A fault injected into every envelope drive (docs/evaluation.md,
-/// "Faults").
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, clap::ValueEnum)]
-#[serde(rename_all = "kebab-case")]
-pub enum Fault {
-    /// The IMU is power-cycled at [`POWER_CYCLE_AT`] of the drive: its
-    /// gyros come up with a new turn-on bias.
-    PowerCycle,
-}
-
-/// Where in a drive its power cycle falls (share of its length).
-pub const POWER_CYCLE_AT: f64 = 0.4;
 
 impl DriveScores {
     /// The scores of the method called `label`.
@@ -215,11 +203,19 @@ pub fn evaluate_drive(seed: u64, params: &Params) -> Result<DriveScores, ParamEr
 pub fn evaluate_drive_with(
     seed: u64,
     params: &Params,
-    fault: Option<Fault>,
+    fault: Option<FaultKind>,
 ) -> Result<DriveScores, ParamError> {
     let mut scenario = VehicleEnvelope::draw(seed).scenario;
-    if let Some(Fault::PowerCycle) = fault {
-        scenario.power_cycles_s = vec![POWER_CYCLE_AT * scenario.duration_s];
+    let window =
+        fault.map(|kind| FaultWindow::in_drive(kind, scenario.start_t, scenario.duration_s));
+    let mut injector = window
+        .map(|w| FaultInjector::new(w, EngineKind::Fuzzy))
+        .transpose()
+        .map_err(|e| ParamError::Inconsistent(e.to_string()))?;
+    if injector.as_ref().is_some_and(FaultInjector::by_simulator) {
+        // A power cycle: the simulator's IMU comes up with a new turn-on
+        // bias.
+        scenario.power_cycles_s = vec![FAULT_AT * scenario.duration_s];
     }
     let mut engine = EngineKind::Fuzzy.create(installer_params(&scenario, params)?)?;
     let drive = VehicleDrive::new(scenario.clone()).map_err(ParamError::Inconsistent)?;
@@ -241,7 +237,7 @@ pub fn evaluate_drive_with(
     let mut out: Vec<EngineOutput> = Vec::with_capacity(2);
     let mut errors: Vec<Errors> = METHODS.iter().map(|_| Errors::default()).collect();
     let mut coverage = Coverage::default();
-    let mut integrity = IntegrityScore::default();
+    let mut integrity = IntegrityScore::with_fault(window);
     let (mut right, mut total) = (0u64, 0u64);
     let (mut moving, mut moving_as_static, mut still, mut still_as_moving) = (0u64, 0, 0u64, 0);
     let (mut aligned_after, mut calibrated_after, mut heading_from) = (None, None, None);
@@ -254,7 +250,10 @@ pub fn evaluate_drive_with(
     let start_t = scenario.start_t;
 
     for event in drive {
-        let reading = event.reading;
+        let reading = match &mut injector {
+            Some(injector) => injector.apply(event.reading),
+            None => event.reading,
+        };
         let (
             SensorData::Imu {
                 accel_mps2,
@@ -414,7 +413,7 @@ pub fn evaluate_all(
 pub fn evaluate_all_with(
     seeds: &[u64],
     params: &Params,
-    fault: Option<Fault>,
+    fault: Option<FaultKind>,
     threads: usize,
 ) -> Result<Vec<DriveScores>, ParamError> {
     parallel_map(seeds, threads, |&seed| {
@@ -448,6 +447,9 @@ pub struct Summary {
     pub flagged_share: Spread,
     /// The longest misleading `ok` run, s: median and largest.
     pub misleading_run_s: Spread,
+    /// With a fault injected: how the engine met it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fault: Option<FaultSummary>,
     pub bars: Vec<Bar>,
 }
 
@@ -571,6 +573,8 @@ pub fn summarise(drives: &[DriveScores]) -> Summary {
             met: flagged_share.worst <= integrity::MAX_FLAGGED_SHARE,
         });
     }
+    let fault = FaultSummary::of(drives.iter().map(|d| &d.integrity));
+    bars.extend(fault.as_ref().map(FaultSummary::recovery_bar));
     for (k, name) in ["pitch", "roll", "heading"].iter().enumerate() {
         bars.push(Bar {
             bar: format!("2σ covers 90–99 % of {name} errors"),
@@ -594,6 +598,7 @@ pub fn summarise(drives: &[DriveScores]) -> Summary {
         coverage_2_sigma: coverage,
         flagged_share,
         misleading_run_s,
+        fault,
         bars,
     }
 }
@@ -701,14 +706,18 @@ pub fn render(drives: &[DriveScores], summary: &Summary) -> String {
         out,
         "integrity{}: flagged median {:.2} %, largest {:.2} %; longest misleading ok run median {:.1} s, largest {:.1} s\n",
         match drives.first().and_then(|d| d.fault) {
-            Some(Fault::PowerCycle) => " (fault: IMU power cycle)",
-            None => "",
+            Some(fault) => format!(" (fault: {})", fault.as_str()),
+            None => String::new(),
         },
         100.0 * summary.flagged_share.median,
         100.0 * summary.flagged_share.worst,
         summary.misleading_run_s.median,
         summary.misleading_run_s.worst,
     );
+    if let Some(fault) = &summary.fault {
+        out.push_str(&fault.render());
+        out.push('\n');
+    }
     Bar::render_all(&summary.bars, &mut out);
     out
 }

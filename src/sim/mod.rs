@@ -2,6 +2,7 @@
 //! the same readings on every machine.
 
 pub mod axis_drive;
+pub mod faults;
 mod noise;
 pub mod pipejack;
 pub mod pipejack_envelope;

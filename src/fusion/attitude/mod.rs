@@ -46,6 +46,7 @@
 pub mod anfis;
 pub mod dual_rate;
 pub mod estimate;
+pub mod inclinometer_monitor;
 pub mod kalman;
 pub mod laser_monitor;
 pub mod noise;
@@ -58,6 +59,7 @@ use serde::{Deserialize, Serialize};
 use self::anfis::{Anfis, AnfisConfig, TrainingSample};
 use self::dual_rate::{InclHistory, InclPoint, LaserHold, Period, fuse, local_line};
 use self::estimate::AttitudeEstimate;
+use self::inclinometer_monitor::{InclinometerMonitor, Screened};
 use self::kalman::{H_INCLINOMETER, H_LASER, N, ProcessNoise, TiltFilter, inclinometer_row};
 use self::laser_monitor::LaserMonitor;
 use self::noise::{LaserCurvature, NoiseFit, Phase, PhaseDetector, Variogram};
@@ -72,6 +74,7 @@ use super::params::{ParamError, Params, Retired};
 use super::reading::{Reading, SensorData, SensorKind};
 use super::registry::EngineModel;
 use super::{Engine, EngineKind, SnapshotError};
+use crate::fusion::Integrity;
 
 /// Version of the engine's snapshot. A snapshot of another version is
 /// refused as [`SnapshotError::Outdated`]; the machine is then rebuilt from
@@ -80,7 +83,8 @@ use super::{Engine, EngineKind, SnapshotError};
 /// 4: the model's smoothed residuals ([`residual`]).
 /// 5: the pitch filter's slope state beyond the trained roll ([`kalman`]).
 /// 6: the laser's excess errors weighted by their precision (issue 54).
-pub const STATE_VERSION: u32 = 6;
+/// 7: the inclinometer monitor (spikes, a frozen sensor; issue 54).
+pub const STATE_VERSION: u32 = 7;
 /// Inclinometer readings kept for pairing with laser samples.
 const HISTORY_POINTS: usize = 512;
 /// Laser samples kept waiting for the inclinometer to pass their time.
@@ -283,6 +287,18 @@ struct Newest {
     phase: Phase,
 }
 
+/// What an estimate shows: pitch and roll with their variances (rad,
+/// rad²), the predicted pitch's variance, the filters' rates (rad/s), the
+/// prediction's horizon (s) and whether the laser is in.
+struct Shown {
+    pitch: (f64, f64),
+    roll: (f64, f64),
+    pitch_pred_variance: f64,
+    rates: (f64, f64),
+    ahead_s: f64,
+    laser_ok: bool,
+}
+
 /// The `attitude` engine; see the module documentation.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct AttitudeEngine {
@@ -321,6 +337,10 @@ pub struct AttitudeEngine {
     shown: Option<(f64, [(f64, f64); 2])>,
     /// Each laser sample against the pitch shown before it (integrity).
     laser_monitor: LaserMonitor,
+    /// Each inclinometer reading against the prediction and the one
+    /// before it: spikes and a frozen sensor are not fused (integrity).
+    #[serde(default)]
+    inclinometer_monitor: InclinometerMonitor,
     /// What the model in use knows of its roll range, for the σ beyond it.
     extrapolation: Option<Extrapolation>,
     /// Training pairs added since the model was last trained.
@@ -446,6 +466,7 @@ impl AttitudeEngine {
             roll_laser_error: noise::PrecisionMean::default(),
             shown: None,
             laser_monitor: LaserMonitor::default(),
+            inclinometer_monitor: InclinometerMonitor::default(),
             extrapolation: None,
             pairs_untrained: 0,
             trainings: 0,
@@ -549,11 +570,21 @@ impl AttitudeEngine {
         roll_deg: f64,
         temp_c: Option<f64>,
     ) -> Option<EngineOutput> {
+        if self.newest.is_some_and(|newest| t <= newest.t) {
+            self.stats.inclinometer_dropped += 1;
+            return None;
+        }
+        let innovations = self.inclinometer_innovations(t, rad(pitch_deg), rad(roll_deg));
+        match self
+            .inclinometer_monitor
+            .screen(t, pitch_deg, roll_deg, innovations)
+        {
+            Screened::Fuse => {}
+            // A spike moves no TBM: no estimate of its own.
+            Screened::Spike => return None,
+            Screened::Frozen => return self.coasted(t, pitch_deg, roll_deg),
+        }
         if let Some(newest) = self.newest {
-            if t <= newest.t {
-                self.stats.inclinometer_dropped += 1;
-                return None;
-            }
             self.incl_period.add(t - newest.t);
         }
         self.stats.inclinometer_used += 1;
@@ -658,26 +689,108 @@ impl AttitudeEngine {
         let roll_variance = (1.0 - k_f2).powi(2) * roll_own + k_f2 * k_f2 * held(&noise.roll);
         self.shown = Some((t, [(pitch_out, pitch_variance), (roll_out, roll_variance)]));
 
-        Some(EngineOutput {
+        Some(self.output(
+            t,
+            Shown {
+                pitch: (pitch_out, pitch_variance),
+                roll: (roll_out, roll_variance),
+                pitch_pred_variance,
+                rates: (pitch.rate(), roll.rate()),
+                ahead_s,
+                laser_ok,
+            },
+            (pitch_deg, roll_deg),
+        ))
+    }
+
+    /// The estimate at `t` of what is `shown`, beside the inclinometer's
+    /// `incl_deg` (pitch, roll as sent).
+    fn output(&self, t: f64, shown: Shown, incl_deg: (f64, f64)) -> EngineOutput {
+        let sigma = |variance: f64| Some(deg(variance.max(0.0).sqrt()));
+        let ((pitch, pitch_variance), (roll, roll_variance)) = (shown.pitch, shown.roll);
+        EngineOutput {
             t,
             values: EstimateValues::Attitude(AttitudeEstimate {
-                pitch_deg: deg(pitch_out),
-                roll_deg: deg(roll_out),
-                pitch_pred_deg: deg(pitch_out + pitch.rate() * ahead_s),
-                roll_pred_deg: deg(roll_out + roll.rate() * ahead_s),
-                pred_t: t + ahead_s,
-                pitch_sigma_deg: Some(deg(pitch_variance.max(0.0).sqrt())),
-                roll_sigma_deg: Some(deg(roll_variance.max(0.0).sqrt())),
-                pitch_pred_sigma_deg: Some(deg(pitch_pred_variance.max(0.0).sqrt())),
-                laser_ok,
+                pitch_deg: deg(pitch),
+                roll_deg: deg(roll),
+                pitch_pred_deg: deg(pitch + shown.rates.0 * shown.ahead_s),
+                roll_pred_deg: deg(roll + shown.rates.1 * shown.ahead_s),
+                pred_t: t + shown.ahead_s,
+                pitch_sigma_deg: sigma(pitch_variance),
+                roll_sigma_deg: sigma(roll_variance),
+                pitch_pred_sigma_deg: sigma(shown.pitch_pred_variance),
+                laser_ok: shown.laser_ok,
                 pitch_correction_deg: deg(self.correction_rad),
                 laser_age_s: self.laser.age_s(t),
                 model_version: self.anfis().version(),
-                incl_pitch_deg: pitch_deg,
-                incl_roll_deg: roll_deg,
+                incl_pitch_deg: incl_deg.0,
+                incl_roll_deg: incl_deg.1,
             }),
-            integrity: self.laser_monitor.integrity(),
-        })
+            integrity: self.integrity(),
+        }
+    }
+
+    /// The integrity of an estimate: the worse of the two monitors'.
+    fn integrity(&self) -> Integrity {
+        self.laser_monitor
+            .integrity()
+            .worst(self.inclinometer_monitor.integrity())
+    }
+
+    /// How far an inclinometer reading at `t` lies from the filters'
+    /// prediction: (|ν|, √S) of pitch and roll, with the larger of the two
+    /// phases' noise (`None` before the filters start).
+    fn inclinometer_innovations(
+        &self,
+        t: f64,
+        pitch_raw: f64,
+        roll_raw: f64,
+    ) -> Option<[(f64, f64); 2]> {
+        let (Some(pitch), Some(roll)) = (self.pitch, self.roll) else {
+            return None;
+        };
+        let noise = &self.noise;
+        let r = |r: [f64; 2]| r[0].max(r[1]);
+        let mut roll_probe = roll;
+        roll_probe.predict_to(t, &noise.roll);
+        let roll_i = roll_probe.innovation(H_INCLINOMETER, roll_raw, r(noise.r_roll));
+        let mut pitch_probe = pitch;
+        pitch_probe.predict_to(t, &noise.pitch);
+        let beyond = self.beyond_rad(roll_probe.angle());
+        let z = pitch_raw + self.correction_rad;
+        let pitch_i = pitch_probe.innovation(inclinometer_row(beyond), z, r(noise.r_pitch));
+        let pair = |i: kalman::Innovation| (i.value.abs(), i.variance.max(0.0).sqrt());
+        Some([pair(pitch_i), pair(roll_i)])
+    }
+
+    /// The estimate at `t` while the inclinometer is frozen (it sent
+    /// `pitch_deg`, `roll_deg` again): the last one shown carried by the
+    /// filters' rates, its variance grown as the prediction's.
+    fn coasted(&self, t: f64, pitch_deg: f64, roll_deg: f64) -> Option<EngineOutput> {
+        let (shown_t, shown) = self.shown?;
+        let (pitch, roll) = (self.pitch.as_ref()?, self.roll.as_ref()?);
+        let noise = &self.noise;
+        let ahead_s = self.config.prediction_gain * self.incl_period.get();
+        let coast = |(value, variance): (f64, f64), f: &TiltFilter, q: &ProcessNoise, dt: f64| {
+            let growth = f.predicted_angle_variance(1.0, dt, q) - f.p[0][0];
+            (value + f.rate() * dt, variance.max(0.0) + growth.max(0.0))
+        };
+        let dt = t - shown_t;
+        let (pitch_rad, pitch_variance) = coast(shown[0], pitch, &noise.pitch, dt);
+        let (roll_rad, roll_variance) = coast(shown[1], roll, &noise.roll, dt);
+        let (_, pitch_pred_variance) = coast(shown[0], pitch, &noise.pitch, dt + ahead_s);
+        Some(self.output(
+            t,
+            Shown {
+                pitch: (pitch_rad, pitch_variance),
+                roll: (roll_rad, roll_variance),
+                pitch_pred_variance,
+                rates: (pitch.rate(), roll.rate()),
+                ahead_s,
+                laser_ok: self.laser.is_ok(t, self.config.dropout_factor),
+            },
+            (pitch_deg, roll_deg),
+        ))
     }
 
     /// How far the bias may have moved since the previous laser sample,
@@ -1405,7 +1518,10 @@ mod tests {
                 if with_laser && s % 60 == 30 {
                     e.feed(&laser(t, 0.8, roll), &mut out);
                 }
-                e.feed(&incl(t, 0.8 - error, roll), &mut out);
+                // A live sensor's last digit (1e−6°): one repeating the same
+                // value to the bit is frozen (the inclinometer monitor).
+                let dither = 1e-6 * f64::from(s % 5);
+                e.feed(&incl(t, 0.8 - error + dither, roll), &mut out);
                 let a = attitude(&out);
                 last = (a.pitch_sigma_deg.unwrap(), (a.pitch_deg - 0.8).abs());
             }
@@ -1885,7 +2001,7 @@ mod tests {
             AttitudeEngine::restore(old),
             Err(SnapshotError::Outdated {
                 found: 1,
-                expected: 6,
+                expected: 7,
                 ..
             })
         ));
