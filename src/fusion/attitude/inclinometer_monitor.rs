@@ -93,10 +93,14 @@ impl InclinometerMonitor {
     /// `sqrt_s` is, on `axis` (0 pitch, 1 roll).
     fn sigmas(&self, axis: usize, abs_innovation: f64, sqrt_s: f64) -> f64 {
         let recent = &self.recent_abs_innovation[axis];
-        let robust = if recent.len() >= RECENT / 2 {
-            let mut sorted = recent.clone();
-            sorted.sort_by(f64::total_cmp);
-            MAD_TO_SIGMA * sorted[sorted.len() / 2]
+        // The newest RECENT at most (a restored snapshot may hold more).
+        let n = recent.len().min(RECENT);
+        let robust = if n >= RECENT / 2 {
+            // The median without a heap copy.
+            let mut copy = [0.0; RECENT];
+            copy[..n].copy_from_slice(&recent[recent.len() - n..]);
+            let (_, median, _) = copy[..n].select_nth_unstable_by(n / 2, f64::total_cmp);
+            MAD_TO_SIGMA * *median
         } else {
             0.0
         };

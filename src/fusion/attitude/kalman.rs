@@ -99,6 +99,16 @@ impl TiltFilter {
         }
     }
 
+    /// A value shown with `variance` (rad, rad²) carried `dt_s` on by the
+    /// filter's rate, its variance grown as the prediction's over `dt_s`.
+    pub fn carry(&self, (value, variance): (f64, f64), dt_s: f64, q: &ProcessNoise) -> (f64, f64) {
+        let growth = self.predicted_angle_variance(1.0, dt_s, q) - self.p[0][0];
+        (
+            value + self.rate() * dt_s,
+            variance.max(0.0) + growth.max(0.0),
+        )
+    }
+
     /// Variance of w·θ + θ̇·`ahead_s` (w: the filter's weight in a blend
     /// with the held laser, 1 without) as a prediction of the angle
     /// `ahead_s` later: [w, a, 0, 0] P [w, a, 0, 0]ᵀ plus the angle's

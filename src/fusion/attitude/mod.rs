@@ -771,14 +771,10 @@ impl AttitudeEngine {
         let (pitch, roll) = (self.pitch.as_ref()?, self.roll.as_ref()?);
         let noise = &self.noise;
         let ahead_s = self.config.prediction_gain * self.incl_period.get();
-        let coast = |(value, variance): (f64, f64), f: &TiltFilter, q: &ProcessNoise, dt: f64| {
-            let growth = f.predicted_angle_variance(1.0, dt, q) - f.p[0][0];
-            (value + f.rate() * dt, variance.max(0.0) + growth.max(0.0))
-        };
         let dt = t - shown_t;
-        let (pitch_rad, pitch_variance) = coast(shown[0], pitch, &noise.pitch, dt);
-        let (roll_rad, roll_variance) = coast(shown[1], roll, &noise.roll, dt);
-        let (_, pitch_pred_variance) = coast(shown[0], pitch, &noise.pitch, dt + ahead_s);
+        let (pitch_rad, pitch_variance) = pitch.carry(shown[0], dt, &noise.pitch);
+        let (roll_rad, roll_variance) = roll.carry(shown[1], dt, &noise.roll);
+        let (_, pitch_pred_variance) = pitch.carry(shown[0], dt + ahead_s, &noise.pitch);
         Some(self.output(
             t,
             Shown {
@@ -983,11 +979,9 @@ impl AttitudeEngine {
             (self.shown, self.pitch.as_ref(), self.roll.as_ref())
         {
             let dt = t - shown_t;
-            let z = |laser: f64, (value, variance): (f64, f64), f: &TiltFilter, q| {
-                let growth = f.predicted_angle_variance(1.0, dt, q) - f.p[0][0];
-                let predicted = value + f.rate() * dt;
-                (laser - predicted).abs()
-                    / (variance.max(0.0) + growth.max(0.0) + noise.r_laser).sqrt()
+            let z = |laser: f64, shown: (f64, f64), f: &TiltFilter, q| {
+                let (predicted, variance) = f.carry(shown, dt, q);
+                (laser - predicted).abs() / (variance + noise.r_laser).sqrt()
             };
             let pitch_z = z(pitch, shown[0], pitch_filter, &noise.pitch);
             let roll_z = z(roll, shown[1], roll_filter, &noise.roll);
