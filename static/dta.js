@@ -330,7 +330,13 @@ tn.registerEngine('dta', {
       setText($('dta-source'), e.source === 'laser' ? 'laser (total station)' : e.source === 'zupt' ? 'inertial (zupt)' : String(e.source));
       setText($('dta-time'), tn.timeOfDay(e.t));
       showAge();
+      setText($('dta-note'), `${LENGTH_M > 0 ? `front and rear ${fixed(LENGTH_M, 2)} m apart` : 'no machine length declared'}`
+        + `; the arrow on the target is where the front goes over the next ${fixed(AHEAD_M, 1)} m if the machine keeps its attitude`);
+    }
 
+    // The badge: the deviation's grade, or NOT LIVE with its age (redrawn
+    // every second, so the age said is the age now).
+    function showBadge(e, now) {
       const badge = $('dta-status');
       let status = ['ok', 'warn', 'alarm', 'unknown'].includes(e.status) ? e.status : 'none';
       if (now.notLive) status = 'stale';
@@ -350,8 +356,6 @@ tn.registerEngine('dta', {
       if (badge.dataset.status !== status) badge.dataset.status = status;
       badge.className = `badge dta-badge ${BADGE_CLASS[status] || ''}`;
       setText(badge, text);
-      setText($('dta-note'), `${LENGTH_M > 0 ? `front and rear ${fixed(LENGTH_M, 2)} m apart` : 'no machine length declared'}`
-        + `; the arrow on the target is where the front goes over the next ${fixed(AHEAD_M, 1)} m if the machine keeps its attitude`);
     }
 
     function showAge() {
@@ -361,6 +365,7 @@ tn.registerEngine('dta', {
       const age = $('dta-age');
       setText(age, `${tn.duration(tn.clock.now() - e.t)} ago`);
       age.classList.toggle('age-stale', now.stale);
+      showBadge(e, now);
       // Gone stale (or fresh again) since drawn: redraw as such.
       if (shownLive !== null && shownLive === now.notLive) showReadouts();
     }
