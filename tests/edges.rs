@@ -12,8 +12,11 @@ use tunnelnav::server::settings::Limits;
 
 const T0: i64 = 1_772_431_200;
 
+/// A TBM's pitch changes slowly (0.001° a second here): a step of 0.1° a
+/// second is a spike to the inclinometer monitor, not fused until it has
+/// held for four readings.
 fn inclinometer(i: i64) -> String {
-    json!({"t": T0 + i, "sensor": "inclinometer", "pitch_deg": 0.1 * i as f64, "roll_deg": 0.2})
+    json!({"t": T0 + i, "sensor": "inclinometer", "pitch_deg": 0.001 * i as f64, "roll_deg": 0.2})
         .to_string()
 }
 

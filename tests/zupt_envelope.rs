@@ -105,3 +105,74 @@ fn a_rolling_trolley_is_never_standing() {
         }
     }
 }
+
+/// Issue 54: faults injected at 40 % of each drive, on seeds 41–60, fixed
+/// for these tests before any fault figure on them was looked at (the IMU
+/// screen's constants were chosen on seeds 1–40). What is asserted: a
+/// frozen IMU is flagged on every drive; with a frozen IMU or spikes, no
+/// misleading `ok` run begun while the fault acts or within 10 min of its
+/// end lasts over 10 s, unless the same drive without the fault already
+/// has a longer one (before the screen: runs of up to 2,236 s on seeds
+/// 1–40 that the drives did not have without the fault). First written as
+/// "at most 30 s" on every drive, which seed 57 breaks (38.7 s frozen,
+/// 39.5 s spikes): without any fault it is misled for 270 s, the engine
+/// taking part of the advance for rests (precision 0.56) and no odometer
+/// to say so. The bars and recovery on every drive are printed, met or
+/// not.
+const FAULT_SEEDS: std::ops::RangeInclusive<u64> = 41..=60;
+
+fn evaluated(
+    fault: Option<tunnelnav::sim::faults::FaultKind>,
+) -> Vec<tunnelnav::eval::zupt_envelope::DriveScores> {
+    let seeds: Vec<u64> = FAULT_SEEDS.collect();
+    let threads = std::thread::available_parallelism().map_or(1, usize::from);
+    let drives = tunnelnav::eval::zupt_envelope::evaluate_all_with(
+        &seeds,
+        &Params::defaults(PARAMS),
+        fault,
+        threads,
+    )
+    .unwrap();
+    eprintln!("{}", render(&drives, &summarise(&drives)));
+    drives
+}
+
+/// The same drives without a fault, evaluated once for both tests.
+fn ordinary() -> &'static [tunnelnav::eval::zupt_envelope::DriveScores] {
+    static DRIVES: std::sync::OnceLock<Vec<tunnelnav::eval::zupt_envelope::DriveScores>> =
+        std::sync::OnceLock::new();
+    DRIVES.get_or_init(|| evaluated(None))
+}
+
+/// Each drive's longest misleading run begun in the fault's reach, beside
+/// the same drive's longest without the fault: no longer than that or
+/// 10 s, whichever is longer.
+fn no_drive_misled_longer_for_the_fault(faulty: &[tunnelnav::eval::zupt_envelope::DriveScores]) {
+    for (with, without) in faulty.iter().zip(ordinary()) {
+        let seed = with.drive.seed;
+        assert_eq!(seed, without.drive.seed);
+        let figures = with.run("engine").unwrap().integrity.fault.unwrap();
+        let before_s = without.run("engine").unwrap().integrity.worst_run_s;
+        assert!(
+            figures.worst_run_s <= before_s.max(10.0),
+            "seed {seed}: misled {:.1} s in the fault's reach, {before_s:.1} s without it",
+            figures.worst_run_s
+        );
+    }
+}
+
+#[test]
+fn a_frozen_imu_is_flagged_on_every_drive_and_misleads_none_for_long() {
+    let drives = evaluated(Some(tunnelnav::sim::faults::FaultKind::Frozen));
+    let fault = summarise(&drives).fault.expect("fault figures");
+    assert_eq!(fault.drives, 20);
+    assert_eq!(fault.alerted, fault.drives, "{fault:?}");
+    no_drive_misled_longer_for_the_fault(&drives);
+}
+
+#[test]
+fn imu_spikes_are_refused_and_mislead_no_drive_for_long() {
+    let drives = evaluated(Some(tunnelnav::sim::faults::FaultKind::Spikes));
+    assert_eq!(drives.len(), 20);
+    no_drive_misled_longer_for_the_fault(&drives);
+}

@@ -10,6 +10,7 @@ pub mod attitude;
 pub mod descriptor;
 pub mod dta;
 pub mod estimate;
+pub mod frozen;
 pub mod fuzzy;
 pub mod geometry;
 pub mod integrity;

@@ -14,12 +14,9 @@
 //!   [`MAX_REJECTED_IN_A_ROW`] readings rejected in a row the next is
 //!   fused (a new zero after a power cycle, a real motion); the laser
 //!   monitor judges it at the next sample.
-//! - **A frozen sensor.** A live inclinometer's noise makes two readings
-//!   identical (both angles, to the last bit) only as often as its
-//!   resolution allows; the monitor learns that share p from the readings
-//!   themselves and calls a run of k identical readings frozen once pᵏ <
-//!   [`FROZEN_PROBABILITY`] (at least [`MIN_FROZEN_RUN`]). A frozen
-//!   reading is not fused; the estimate is the last one, its σ widened by
+//! - **A frozen sensor.** A run of identical readings (both angles, to the
+//!   last bit) improbable at the sensor's learnt repeat rate
+//!   ([`FrozenWatch`]). A frozen reading is not fused; the estimate is the last one, its σ widened by
 //!   the angle's process noise over the frozen time, `degraded`
 //!   (`sensor_frozen`).
 //!
@@ -29,6 +26,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::fusion::frozen::FrozenWatch;
 use crate::fusion::integrity::{Integrity, IntegrityReason};
 
 /// An innovation beyond this many σ is a spike.
@@ -39,10 +37,6 @@ pub const RECENT: usize = 32;
 const MAD_TO_SIGMA: f64 = 1.4826;
 /// Readings rejected in a row before a change counts as real.
 pub const MAX_REJECTED_IN_A_ROW: u32 = 3;
-/// A run of identical readings this improbable for the sensor is frozen.
-pub const FROZEN_PROBABILITY: f64 = 1e-6;
-/// The shortest run called frozen (readings identical to the first).
-pub const MIN_FROZEN_RUN: u32 = 3;
 
 /// What a reading is, to the monitor.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -58,16 +52,10 @@ pub enum Screened {
 /// What the monitor remembers.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct InclinometerMonitor {
-    /// The previous reading's raw angles (degrees, as sent).
-    last: Option<(f64, f64)>,
-    /// Consecutive pairs of readings seen live, and of them identical.
-    pairs: u64,
-    repeats: u64,
-    /// Readings identical to the one before, in a row now.
-    repeat_run: u32,
-    /// When the current frozen stretch began (the last live reading's t).
-    frozen_from_t: Option<f64>,
-    live_t: Option<f64>,
+    /// The raw angles (degrees, as sent) watched for a frozen sensor;
+    /// flattened, so snapshots keep the fields they had.
+    #[serde(flatten)]
+    frozen: FrozenWatch<(f64, f64)>,
     /// The newest live readings' |ν| for pitch and roll, oldest first.
     recent_abs_innovation: [Vec<f64>; 2],
     /// Readings rejected as spikes in a row now, and so far.
@@ -76,19 +64,6 @@ pub struct InclinometerMonitor {
 }
 
 impl InclinometerMonitor {
-    /// The shortest run of identical readings called frozen, from the
-    /// share of identical pairs seen so far (Laplace's rule: one repeat
-    /// in two pairs before any are seen).
-    pub fn frozen_run(&self) -> u32 {
-        let p = (self.repeats as f64 + 1.0) / (self.pairs as f64 + 2.0);
-        let run = (FROZEN_PROBABILITY.ln() / p.ln()).ceil();
-        if run.is_finite() {
-            (run as u32).max(MIN_FROZEN_RUN)
-        } else {
-            u32::MAX
-        }
-    }
-
     /// How many σ an innovation `abs_innovation` with the filter's
     /// `sqrt_s` is, on `axis` (0 pitch, 1 roll).
     fn sigmas(&self, axis: usize, abs_innovation: f64, sqrt_s: f64) -> f64 {
@@ -117,19 +92,9 @@ impl InclinometerMonitor {
         roll_deg: f64,
         innovations: Option<[(f64, f64); 2]>,
     ) -> Screened {
-        let same = self.last == Some((pitch_deg, roll_deg));
-        self.last = Some((pitch_deg, roll_deg));
-        self.repeat_run = if same { self.repeat_run + 1 } else { 0 };
-        if self.repeat_run >= self.frozen_run() {
-            self.frozen_from_t.get_or_insert(self.live_t.unwrap_or(t));
+        if self.frozen.is_frozen(t, (pitch_deg, roll_deg)) {
             return Screened::Frozen;
         }
-        if self.frozen_from_t.take().is_none() && self.live_t.is_some() {
-            // Pairs inside a frozen stretch say nothing of the live sensor.
-            self.pairs += 1;
-            self.repeats += u64::from(same);
-        }
-        self.live_t = Some(t);
         let z = innovations.map_or(0.0, |axes| {
             (0..2)
                 .map(|k| self.sigmas(k, axes[k].0, axes[k].1))
@@ -159,12 +124,12 @@ impl InclinometerMonitor {
 
     /// When the current frozen stretch began, if the sensor is frozen.
     pub fn frozen_since_t(&self) -> Option<f64> {
-        self.frozen_from_t
+        self.frozen.frozen_since_t()
     }
 
     /// The integrity of an estimate on this sensor's account.
     pub fn integrity(&self) -> Integrity {
-        if self.frozen_from_t.is_some() {
+        if self.frozen.frozen_since_t().is_some() {
             Integrity::degraded(IntegrityReason::SensorFrozen)
         } else {
             Integrity::OK
@@ -175,23 +140,6 @@ impl InclinometerMonitor {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn the_frozen_run_follows_the_share_of_identical_pairs() {
-        let mut m = InclinometerMonitor::default();
-        // No pairs yet: p = 1/2, 2^−20 < 1e−6: a run of 20.
-        assert_eq!(m.frozen_run(), 20);
-        // 998 live pairs, none identical: p = 1/1000, 3 readings (1e−9).
-        for i in 0..999 {
-            m.screen(f64::from(i), f64::from(i), 0.0, None);
-        }
-        assert_eq!(m.frozen_run(), MIN_FROZEN_RUN);
-        // A sensor that repeats one pair in ten: p = 101/1002 ≈ 0.1008,
-        // p⁶ ≈ 1.05e−6: a run of 7.
-        m.pairs = 1000;
-        m.repeats = 100;
-        assert_eq!(m.frozen_run(), 7);
-    }
 
     #[test]
     fn a_frozen_sensor_is_called_after_its_run_and_live_again_at_its_next_change() {

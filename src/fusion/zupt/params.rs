@@ -229,7 +229,7 @@ param_table! {
             0.001,
             100.0,
             "m/s",
-            "the fastest the machine advances: the rest check books motion only along the machine's axis and up to this speed; a velocity beyond (an INS gone wrong, not motion) leaves the call to the detector",
+            "the fastest the machine advances: the rest check books motion only along the machine's axis and up to this speed (a velocity beyond, an INS gone wrong, leaves the call to the detector); a rest no odometer confirms may hide a creep this fast, and the position σ along the axis grows by it",
         ),
         odometer_rest_m: f64 = real(
             0.006,
@@ -335,6 +335,9 @@ pub struct ZuptConfig {
     pub odometer_sigma_mps: f64,
     /// 1σ of the odometer's scale error, a fraction.
     pub odometer_scale_sigma: f64,
+    /// The fastest the machine advances, m/s: what a rest no odometer
+    /// confirms may hide.
+    pub max_speed_mps: f64,
     pub max_imu_gap_s: f64,
 }
 
@@ -411,6 +414,7 @@ impl ZuptConfig {
             odometer_aiding: p.odometer_aiding,
             odometer_sigma_mps: p.odometer_sigma_mps,
             odometer_scale_sigma: p.odometer_scale_sigma_pct / 100.0,
+            max_speed_mps: p.max_speed_mps,
             max_imu_gap_s: p.max_imu_gap_s,
         }
     }
