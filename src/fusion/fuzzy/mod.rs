@@ -85,6 +85,7 @@ use self::turn_check::TurnCheck;
 use super::angles::{deg, rad};
 use super::descriptor::EngineDescriptor;
 use super::estimate::{EngineOutput, EstimateValues};
+use super::frozen::FrozenWatch;
 use super::integrity::{Integrity, IntegrityReason};
 use super::params::{ParamError, Params, Retired};
 use super::reading::{Reading, SensorData, SensorKind};
@@ -100,8 +101,9 @@ use crate::fusion::geometry::{V3, attitude_from_euler};
 /// calibration's check and the compass's innovations (issue 34);
 /// 6: samples with roll and pitch (the levelled planar fit), relearnt
 /// fields, the turns (issue 34);
-/// 7: the motion window's time moments of the rates (fast_spread.rs).
-pub const STATE_VERSION: u32 = 7;
+/// 7: the motion window's time moments of the rates (fast_spread.rs);
+/// 8: the IMU watched for a frozen sensor (issue 54).
+pub const STATE_VERSION: u32 = 8;
 
 /// Plausibility caps for alignment, whatever the floor says: a MEMS
 /// sensor at rest shows less spread and less mean rate than this (a
@@ -154,6 +156,9 @@ pub struct FuzzyStats {
     pub heading_drifts: u64,
     /// Times the attitude became non-finite and alignment started again.
     pub resets: u64,
+    /// IMU readings taken for a frozen sensor's (not used).
+    #[serde(default)]
+    pub imu_frozen: u64,
 }
 
 /// The attitude solution once aligned.
@@ -204,6 +209,9 @@ pub struct FuzzyEngine {
     window: MotionWindow,
     floor: NoiseFloor,
     newest_imu_t: Option<f64>,
+    /// The IMU's readings (forces, rates as sent) watched for a frozen
+    /// sensor: a frozen reading is not used ([`crate::fusion::frozen`]).
+    imu_frozen: FrozenWatch<[f64; 6]>,
     /// Before alignment: the forces in the first reading's frame
     /// (start_frame.rs), for an alignment while moving.
     #[serde(default)]
@@ -305,6 +313,7 @@ impl FuzzyEngine {
             static_degree: 0.0,
             compass_state: None,
             tilt_monitor: TiltMonitor::default(),
+            imu_frozen: FrozenWatch::default(),
             scratch: Scratch::default(),
         })
     }
@@ -537,6 +546,28 @@ impl FuzzyEngine {
             Some(newest) => t - newest,
             None => f64::INFINITY,
         };
+        let raw = [force.x, force.y, force.z, rate.x, rate.y, rate.z];
+        let was_frozen = self.imu_frozen.frozen_since_t().is_some();
+        if self.imu_frozen.is_frozen(t, raw) {
+            // Not used: the attitude is held, `lost` (`sensor_frozen`);
+            // the time until the IMU is live again is a gap.
+            self.stats.imu_frozen += 1;
+            let signals = self.window_signals();
+            let mut held = self.estimate(t, self.static_degree, &signals);
+            held.integrity = Integrity::lost(IntegrityReason::SensorFrozen);
+            out.push(held);
+            return;
+        }
+        if was_frozen {
+            // Live again after a frozen stretch: what the attitude did
+            // meanwhile is unknown. The tilt until a quiet window agrees
+            // (`lost`, `recovering`); the heading until the compass gives
+            // it again (the vehicle may have turned any way).
+            self.tilt_monitor.unverified();
+            if let Some(solution) = &mut self.solution {
+                solution.heading_sigma_rad = uncertainty::UNKNOWN_ANGLE_SIGMA_RAD;
+            }
+        }
         self.newest_imu_t = Some(t);
         self.stats.imu_used += 1;
         let continuous = dt_s <= self.config.max_imu_gap_s;
@@ -577,18 +608,11 @@ impl FuzzyEngine {
                 self.start_frame.clear();
             }
         }
-        let (bias, gravity, tolerance) = match &self.solution {
-            Some(s) => (
-                s.gyro_bias.bias_rad_per_s,
-                s.static_gravity_mps2,
-                RATE_TOLERANCE_SIGMAS
-                    * (s.gyro_bias.variance.sum() + 3.0 * s.rest_rate.wander_variance())
-                        .max(0.0)
-                        .sqrt(),
-            ),
-            None => (V3::zeros(), self.window.mean_force_norm(), 0.0),
-        };
-        let signals = self.window.signals(gravity, &bias, tolerance);
+        let signals = self.window_signals();
+        let bias = self
+            .solution
+            .as_ref()
+            .map_or(V3::zeros(), |s| s.gyro_bias.bias_rad_per_s);
         let relative = self.relative_signals(&signals);
         // The floors are the quietest windows seen; a sensor never still
         // has learnt them while moving, and everything looks "low" against
@@ -634,6 +658,23 @@ impl FuzzyEngine {
             self.compass_state = Some((state, t));
         }
         out.push(self.estimate(t, static_degree, &signals));
+    }
+
+    /// The motion signals of the window, against the solution's gravity
+    /// and gyro bias (before alignment: the window's own gravity, no bias).
+    fn window_signals(&self) -> MotionSignals {
+        let (bias, gravity, tolerance) = match &self.solution {
+            Some(s) => (
+                s.gyro_bias.bias_rad_per_s,
+                s.static_gravity_mps2,
+                RATE_TOLERANCE_SIGMAS
+                    * (s.gyro_bias.variance.sum() + 3.0 * s.rest_rate.wander_variance())
+                        .max(0.0)
+                        .sqrt(),
+            ),
+            None => (V3::zeros(), self.window.mean_force_norm(), 0.0),
+        };
+        self.window.signals(gravity, &bias, tolerance)
     }
 
     /// True while the compass disagrees with the gyro heading beyond the
@@ -1158,6 +1199,8 @@ impl FuzzyEngine {
                 Integrity::lost(IntegrityReason::Unaligned)
             } else if self.tilt_monitor.disagrees() {
                 Integrity::lost(IntegrityReason::TiltDisagrees)
+            } else if self.tilt_monitor.unwatched() {
+                Integrity::lost(IntegrityReason::Recovering)
             } else if self.tilt_monitor.recovering() {
                 Integrity::degraded(IntegrityReason::Recovering)
             } else {
@@ -1272,6 +1315,7 @@ impl Engine for FuzzyEngine {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::fusion::integrity::IntegrityLevel;
 
     const G: f64 = 9.81;
 
@@ -1322,6 +1366,69 @@ mod tests {
             }
         }
         readings
+    }
+
+    /// Issue 54: a frozen IMU (a gateway re-sending its last register).
+    /// A still platform whose rates carry a little noise, 20 s; then the
+    /// same reading 10 s over; then live again for 20 s. From the third
+    /// repeat on the estimates hold the attitude, `lost` (`sensor_frozen`);
+    /// live again, the tilt is not vouched for until a quiet window agrees
+    /// (`lost`, `recovering`) and the heading's σ is a full turn's, then
+    /// `ok` once windows have agreed for RECOVERED_S.
+    #[test]
+    fn a_frozen_imu_is_held_lost_and_vouched_for_again_once_a_window_agrees() {
+        let attitude = attitude_from_euler(rad(1.5), rad(-2.0), rad(40.0));
+        let force = attitude.inverse() * V3::new(0.0, 0.0, -G);
+        let bias = V3::new(0.4, -0.3, 0.25);
+        let noisy = |i: usize| {
+            let t = 1.7e9 + i as f64 * 0.01;
+            imu(
+                t,
+                force,
+                bias + V3::new(1e-4 * (i as f64 * 0.7).sin(), 0.0, 0.0),
+            )
+        };
+        let mut engine = FuzzyEngine::with_defaults();
+        let mut out = Vec::new();
+        for i in 0..2000 {
+            engine.feed(&noisy(i), &mut out);
+        }
+        let live = fuzzy(out.last().unwrap()).clone();
+        assert!(live.aligned && out.last().unwrap().integrity.is_ok());
+        let stuck = noisy(1999);
+        for i in 2000..3000 {
+            let again = Reading {
+                t: 1.7e9 + i as f64 * 0.01,
+                ..stuck.clone()
+            };
+            engine.feed(&again, &mut out);
+        }
+        assert_eq!(out.len(), 3000);
+        // Repeats 1 and 2 (readings 2000, 2001) are used; from 2002 on, held.
+        assert!(out[2001].integrity.is_ok());
+        let last_used = fuzzy(&out[2001]).clone();
+        for held in &out[2002..3000] {
+            assert_eq!(held.integrity.reason, Some(IntegrityReason::SensorFrozen));
+            assert_eq!(held.integrity.level, IntegrityLevel::Lost);
+            assert_eq!(fuzzy(held).pitch_deg, last_used.pitch_deg);
+            assert_eq!(fuzzy(held).heading_deg, last_used.heading_deg);
+        }
+        assert_eq!(engine.stats.imu_frozen, 998);
+        for i in 3000..5000 {
+            engine.feed(&noisy(i), &mut out);
+        }
+        let first_live = &out[3000];
+        assert_eq!(
+            first_live.integrity.reason,
+            Some(IntegrityReason::Recovering)
+        );
+        assert_eq!(first_live.integrity.level, IntegrityLevel::Lost);
+        assert!(fuzzy(first_live).heading_sigma_deg.unwrap() > 100.0);
+        assert!(
+            out.last().unwrap().integrity.is_ok(),
+            "{:?}",
+            out.last().unwrap().integrity
+        );
     }
 
     #[test]

@@ -56,6 +56,10 @@ pub struct TiltMonitor {
     disagrees: bool,
     /// The newest quiet window that agreed (or the re-alignment).
     last_agreed_t: Option<f64>,
+    /// The attitude went unwatched (a frozen IMU) and no quiet window has
+    /// agreed since.
+    #[serde(default)]
+    unwatched: bool,
     /// Re-alignments the monitor has asked for.
     pub realignments: u64,
 }
@@ -85,6 +89,7 @@ impl TiltMonitor {
         if residual <= gate {
             self.disagreeing_since = None;
             self.disagrees = false;
+            self.unwatched = false;
             self.last_agreed_t = Some(t);
             if let Some(agreeing) = &mut self.recovering {
                 let since = *agreeing.get_or_insert(t);
@@ -116,8 +121,23 @@ impl TiltMonitor {
         self.last_agreed_t = Some(t);
         self.disagreeing_since = None;
         self.disagrees = false;
+        self.unwatched = false;
         self.recovering = Some(None);
         self.realignments += 1;
+    }
+
+    /// The attitude went unwatched (the IMU was frozen): not vouched for
+    /// until a quiet window agrees, then recovering until quiet windows
+    /// have agreed for [`RECOVERED_S`].
+    pub fn unverified(&mut self) {
+        self.recovering = Some(None);
+        self.unwatched = true;
+    }
+
+    /// Whether the attitude went unwatched and no quiet window has agreed
+    /// since.
+    pub fn unwatched(&self) -> bool {
+        self.unwatched
     }
 
     /// Whether the newest quiet window disagreed.
