@@ -37,7 +37,7 @@ use crate::server::settings::{Limits, MqttConfig, ServerConfig};
 use crate::server::{self, ServerOptions};
 use crate::sim::axis_drive::{AxisDrive, AxisDriveScenario};
 use crate::sim::pipejack::{Case, PipeJackDrive, PipeJackScenario};
-use crate::sim::vehicle::{VehicleDrive, VehicleScenario};
+use crate::sim::vehicle::{Iron, VehicleDrive, VehicleEvent, VehicleScenario};
 use crate::store::Store;
 
 /// The demo machines, declared as a config file would; their design
@@ -490,7 +490,7 @@ fn readings(
             })?
             .map(|e| e.reading),
         ),
-        Kind::Vehicle => Box::new(VehicleShifts::new(gateway.seed, start_t)?),
+        Kind::Vehicle => Box::new(VehicleShifts::new(gateway.seed, start_t)?.map(|e| e.reading)),
     })
 }
 
@@ -598,17 +598,26 @@ impl Iterator for AxisDrives {
     }
 }
 
-/// The demo vehicle's readings: simulated shifts back to back, each
-/// starting where the last one ended (time and heading).
-struct VehicleShifts {
+/// The demo vehicle's readings with their truth: simulated shifts back to
+/// back, each starting where the last one ended (time and heading), each
+/// with a new turn-on gyro bias (a power cycle) and a route of its own;
+/// the magnetometer's hard and soft iron are the first shift's throughout
+/// (the same sensor on the same van).
+pub struct VehicleShifts {
     seed: u64,
     drive: VehicleDrive,
+    iron: Iron,
     end_t: f64,
     heading_deg: f64,
 }
 
 impl VehicleShifts {
-    fn shift(seed: u64, start_t: f64, heading_deg: f64) -> Result<VehicleDrive, String> {
+    fn shift(
+        seed: u64,
+        start_t: f64,
+        heading_deg: f64,
+        iron: Option<Iron>,
+    ) -> Result<VehicleDrive, String> {
         VehicleDrive::new(VehicleScenario {
             seed,
             start_t,
@@ -616,36 +625,49 @@ impl VehicleShifts {
             imu_rate_hz: DEMO_VEHICLE_IMU_HZ,
             mag_rate_hz: DEMO_VEHICLE_MAG_HZ,
             initial_heading_deg: heading_deg,
+            iron,
             ..VehicleScenario::default()
         })
     }
 
-    fn new(seed: u64, start_t: f64) -> Result<VehicleShifts, String> {
+    /// The shifts of the vehicle of seed `seed` from `start_t`.
+    pub fn new(seed: u64, start_t: f64) -> Result<VehicleShifts, String> {
         let heading_deg = VehicleScenario::default().initial_heading_deg;
+        let drive = Self::shift(seed, start_t, heading_deg, None)?;
         Ok(VehicleShifts {
             seed,
-            drive: Self::shift(seed, start_t, heading_deg)?,
+            iron: drive.iron(),
+            drive,
             end_t: start_t,
             heading_deg,
         })
     }
+
+    /// The demo's service vehicle (its machine and seed), from `start_t`.
+    pub fn demo_vehicle(start_t: f64) -> Result<(&'static str, VehicleShifts), String> {
+        let gateway = GATEWAYS
+            .iter()
+            .find(|g| matches!(g.kind, Kind::Vehicle))
+            .ok_or("the demo has no vehicle")?;
+        Ok((gateway.machine, VehicleShifts::new(gateway.seed, start_t)?))
+    }
 }
 
 impl Iterator for VehicleShifts {
-    type Item = Reading;
+    type Item = VehicleEvent;
 
-    fn next(&mut self) -> Option<Reading> {
+    fn next(&mut self) -> Option<VehicleEvent> {
         loop {
             if let Some(event) = self.drive.next() {
                 self.end_t = event.reading.t;
-                if let Some(truth) = event.truth {
+                if let Some(truth) = &event.truth {
                     self.heading_deg = truth.heading_deg;
                 }
-                return Some(event.reading);
+                return Some(event);
             }
             self.seed += 1;
             let start_t = self.end_t + 1.0 / DEMO_VEHICLE_IMU_HZ;
-            self.drive = Self::shift(self.seed, start_t, self.heading_deg).ok()?;
+            self.drive = Self::shift(self.seed, start_t, self.heading_deg, Some(self.iron)).ok()?;
         }
     }
 }

@@ -938,6 +938,14 @@ impl VehicleDrive {
         self.hard_iron_ut
     }
 
+    /// The magnetometer's hard and soft iron, as drawn or given.
+    pub fn iron(&self) -> Iron {
+        Iron {
+            hard_iron_ut: self.hard_iron_ut.into(),
+            soft_iron: std::array::from_fn(|i| std::array::from_fn(|j| self.soft_iron[(i, j)])),
+        }
+    }
+
     /// Moves the pulses that have started by `s` into the active set and
     /// the ones that have ended out of it, into the settled totals. `s`
     /// only grows.
