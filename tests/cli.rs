@@ -422,3 +422,47 @@ fn eval_recording_scores_the_committed_broad_excerpt() {
     let stderr = String::from_utf8_lossy(&missing.stderr);
     assert!(stderr.contains("/nonexistent/broad"), "{stderr}");
 }
+
+/// Issue 54: `simulate … --fault` injects a fault category at 40 % of the
+/// drive, as `eval … --envelope --fault` does: an hour's TBM drive with a
+/// frozen inclinometer repeats its reading from 1,440 s for 120 s, its
+/// truth untouched, and a fault that does not concern the machine's
+/// sensors is refused by name.
+#[test]
+fn simulate_injects_a_fault_and_refuses_one_that_does_not_apply() {
+    let sim = tunnelnav()
+        .args(["simulate", "tbm", "--hours", "1", "--fault", "frozen"])
+        .output()
+        .unwrap();
+    assert!(sim.status.success());
+    let inclinometer: Vec<serde_json::Value> = String::from_utf8(sim.stdout)
+        .unwrap()
+        .lines()
+        .map(|line| serde_json::from_str::<serde_json::Value>(line).unwrap())
+        .filter(|r| r["sensor"] == "inclinometer")
+        .collect();
+    let t0 = inclinometer[0]["t"].as_f64().unwrap();
+    let repeated: Vec<f64> = inclinometer
+        .windows(2)
+        .filter(|pair| {
+            pair[0]["pitch_deg"] == pair[1]["pitch_deg"]
+                && pair[0]["roll_deg"] == pair[1]["roll_deg"]
+        })
+        .map(|pair| pair[1]["t"].as_f64().unwrap() - t0)
+        .collect();
+    // The 1 Hz readings at 1,441 … 1,559 s repeat the one at 1,440 s.
+    assert_eq!(repeated.len(), 119, "{repeated:?}");
+    assert_eq!(repeated[0], 1441.0);
+    assert_eq!(*repeated.last().unwrap(), 1559.0);
+
+    let refused = tunnelnav()
+        .args(["simulate", "pipe-jacking", "--fault", "steel"])
+        .output()
+        .unwrap();
+    assert!(!refused.status.success());
+    let said = String::from_utf8(refused.stderr).unwrap();
+    assert!(
+        said.contains("fault `steel` does not apply to `zupt`"),
+        "{said}"
+    );
+}

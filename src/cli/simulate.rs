@@ -7,7 +7,8 @@ use std::path::PathBuf;
 use clap::{Args, Subcommand};
 
 use super::CliError;
-use crate::fusion::SensorKind;
+use crate::fusion::{EngineKind, Reading, SensorKind};
+use crate::sim::faults::{FaultInjector, FaultKind, FaultWindow};
 use crate::sim::pipejack::{
     Case, IMU_RATE_HZ, Machinery, MachineryPattern, PipeJackDrive, PipeJackScenario,
 };
@@ -196,6 +197,11 @@ pub struct VehicleArgs {
     /// Write the truth (one NDJSON line per IMU reading) to this file.
     #[arg(long, value_name = "FILE")]
     pub truth: Option<PathBuf>,
+    /// Inject this fault at 40 % of the drive into the readings written
+    /// (the truth is left as it was; docs/evaluation.md, "Faults"): the
+    /// same injection as `eval … --envelope --fault`.
+    #[arg(long, value_enum)]
+    pub fault: Option<FaultKind>,
 }
 
 /// The simulated pipe-jacking drive: shared by `simulate pipe-jacking` and `eval zupt`.
@@ -298,6 +304,11 @@ pub struct PipeJackingArgs {
     /// Write the truth (one NDJSON line per IMU reading) to this file.
     #[arg(long, value_name = "FILE")]
     pub truth: Option<PathBuf>,
+    /// Inject this fault at 40 % of the drive into the readings written
+    /// (the truth is left as it was; docs/evaluation.md, "Faults"): the
+    /// same injection as `eval … --envelope --fault`.
+    #[arg(long, value_enum)]
+    pub fault: Option<FaultKind>,
 }
 
 /// The simulated drive: shared by `simulate tbm` and `eval attitude`.
@@ -349,6 +360,11 @@ pub struct TbmArgs {
     /// Write the truth (one NDJSON line per inclinometer reading) to this file.
     #[arg(long, value_name = "FILE")]
     pub truth: Option<PathBuf>,
+    /// Inject this fault at 40 % of the drive into the readings written
+    /// (the truth is left as it was; docs/evaluation.md, "Faults"): the
+    /// same injection as `eval … --envelope --fault`.
+    #[arg(long, value_enum)]
+    pub fault: Option<FaultKind>,
 }
 
 pub fn run(scenario: Scenario) -> Result<(), CliError> {
@@ -356,7 +372,21 @@ pub fn run(scenario: Scenario) -> Result<(), CliError> {
         Scenario::Tbm(args) => run_tbm(&args),
         Scenario::PipeJacking(args) => run_pipe_jacking(&args),
         Scenario::Vehicle(args) => {
-            let scenario = args.drive.scenario();
+            let mut scenario = args.drive.scenario();
+            let mut injector = injector(
+                args.fault,
+                EngineKind::Fuzzy,
+                scenario.start_t,
+                scenario.duration_s,
+            )?;
+            // The IMU's power cycle is the simulator's own (a new turn-on
+            // bias of its model).
+            if let Some(by_simulator) = injector.take_if(|i| i.by_simulator()) {
+                let window = by_simulator.window();
+                scenario
+                    .power_cycles_s
+                    .push(window.from_t - scenario.start_t);
+            }
             if args.drive.envelope {
                 eprintln!(
                     "{}",
@@ -365,7 +395,10 @@ pub fn run(scenario: Scenario) -> Result<(), CliError> {
             }
             let drive = VehicleDrive::new(scenario).map_err(CliError::Scenario)?;
             let truth = create_truth(&args.truth)?;
-            write_events(drive.map(|e| (e.reading, e.truth)), truth)
+            write_events(
+                drive.map(|e| (faulty(&mut injector, e.reading), e.truth)),
+                truth,
+            )
         }
     }
 }
@@ -411,6 +444,30 @@ fn write_events<T: serde::Serialize>(
     }
 }
 
+/// The injector of `fault` for a drive of `engine` from `start_t` lasting
+/// `duration_s`, if one is asked for.
+fn injector(
+    fault: Option<FaultKind>,
+    engine: EngineKind,
+    start_t: f64,
+    duration_s: f64,
+) -> Result<Option<FaultInjector>, CliError> {
+    fault
+        .map(|kind| {
+            FaultInjector::new(FaultWindow::in_drive(kind, start_t, duration_s), engine)
+                .map_err(|e| CliError::Scenario(e.to_string()))
+        })
+        .transpose()
+}
+
+/// `reading` as the fault, if any, delivers it.
+fn faulty(injector: &mut Option<FaultInjector>, reading: Reading) -> Reading {
+    match injector {
+        Some(injector) => injector.apply(reading),
+        None => reading,
+    }
+}
+
 fn run_pipe_jacking(args: &PipeJackingArgs) -> Result<(), CliError> {
     let drive = if args.envelope {
         let mut draw = PipeJackEnvelope::draw(args.drive.seed);
@@ -423,28 +480,45 @@ fn run_pipe_jacking(args: &PipeJackingArgs) -> Result<(), CliError> {
     } else {
         PipeJackDrive::new(args.drive.scenario()).map_err(CliError::Scenario)?
     };
+    let mut injector = injector(
+        args.fault,
+        EngineKind::Zupt,
+        drive.scenario().start_t,
+        drive.duration_s(),
+    )?;
     let truth = create_truth(&args.truth)?;
-    write_events(drive.map(|e| (e.reading, e.truth)), truth)
+    write_events(
+        drive.map(|e| (faulty(&mut injector, e.reading), e.truth)),
+        truth,
+    )
 }
 
 fn run_tbm(args: &TbmArgs) -> Result<(), CliError> {
     let truth = create_truth(&args.truth)?;
-    let drive: Box<dyn Iterator<Item = TbmEvent>> = if args.envelope {
+    let (drive, hours): (Box<dyn Iterator<Item = TbmEvent>>, f64) = if args.envelope {
         let mut draw = EnvelopeDrive::draw(args.drive.seed);
         draw.start_t = args.drive.start_t;
         eprintln!(
             "{}",
             serde_json::to_string(&draw).map_err(io::Error::other)?
         );
-        Box::new(draw.events())
+        let hours = draw.hours;
+        (Box::new(draw.events()), hours)
     } else {
-        Box::new(TbmDrive::new(args.drive.scenario()).map_err(CliError::Scenario)?)
+        let drive = TbmDrive::new(args.drive.scenario()).map_err(CliError::Scenario)?;
+        (Box::new(drive), args.drive.hours)
     };
+    let mut injector = injector(
+        args.fault,
+        EngineKind::Attitude,
+        args.drive.start_t,
+        hours * 3600.0,
+    )?;
     // The truth is written per inclinometer reading.
     write_events(
         drive.map(|e| {
             let truth = (e.reading.sensor() == SensorKind::Inclinometer).then_some(e.truth);
-            (e.reading, truth)
+            (faulty(&mut injector, e.reading), truth)
         }),
         truth,
     )
