@@ -198,13 +198,12 @@ struct Navigation {
     odometer_carried_m: V3,
     /// How far the position could be off along the machine's axis (NED m,
     /// along the axis at each step) by what no evidence checked, a bound
-    /// the reported position σ grows by ([`with_creep_bound`]):
-    /// - the creep a rest no odometer confirmed may hide, `max_speed_mps`
-    ///   times each such still epoch: an IMU cannot tell a steady creep
-    ///   from a stop (no acceleration), so a rest the detector calls
-    ///   wrongly loses that distance unseen;
-    ///
-    /// The down part is dropped at each height the level gives.
+    /// the reported position σ grows by ([`with_creep_bound`]): the creep
+    /// a rest no odometer confirmed may hide, `max_speed_mps` times each
+    /// such still epoch and each IMU gap (an IMU cannot tell a steady
+    /// creep from a stop: no acceleration, so a rest the detector calls
+    /// wrongly loses that distance unseen). The down part is dropped at
+    /// each height the level gives.
     unverified_m: V3,
     /// The odometer's distance when the engine's was zero (set at the
     /// first odometer reading after alignment), and by how much the
