@@ -52,6 +52,7 @@ pub mod laser_monitor;
 pub mod noise;
 pub mod params;
 pub mod residual;
+pub mod step_watch;
 pub mod training_set;
 
 use serde::{Deserialize, Serialize};
@@ -67,6 +68,7 @@ pub use self::params::{
     AnfisSelect, AttitudeConfig, AttitudeParams, BiasMotion, Correction, NoiseMode, NoisePriors,
     PARAMS, RETIRED,
 };
+use self::step_watch::StepWatch;
 use super::angles::{deg, rad, rad2};
 use super::descriptor::EngineDescriptor;
 use super::estimate::{EngineOutput, EstimateValues};
@@ -74,7 +76,7 @@ use super::params::{ParamError, Params, Retired};
 use super::reading::{Reading, SensorData, SensorKind};
 use super::registry::EngineModel;
 use super::{Engine, EngineKind, SnapshotError};
-use crate::fusion::Integrity;
+use crate::fusion::{Integrity, IntegrityReason};
 
 /// Version of the engine's snapshot. A snapshot of another version is
 /// refused as [`SnapshotError::Outdated`]; the machine is then rebuilt from
@@ -84,7 +86,8 @@ use crate::fusion::Integrity;
 /// 5: the pitch filter's slope state beyond the trained roll ([`kalman`]).
 /// 6: the laser's excess errors weighted by their precision (issue 54).
 /// 7: the inclinometer monitor (spikes, a frozen sensor; issue 54).
-pub const STATE_VERSION: u32 = 7;
+/// 8: the step watch (a new inclinometer zero; issue 54).
+pub const STATE_VERSION: u32 = 8;
 /// Inclinometer readings kept for pairing with laser samples.
 const HISTORY_POINTS: usize = 512;
 /// Laser samples kept waiting for the inclinometer to pass their time.
@@ -341,6 +344,10 @@ pub struct AttitudeEngine {
     /// before it: spikes and a frozen sensor are not fused (integrity).
     #[serde(default)]
     inclinometer_monitor: InclinometerMonitor,
+    /// The inclinometer's readings watched for a step (a new zero) until
+    /// a laser sample checks the estimate (integrity).
+    #[serde(default)]
+    step_watch: StepWatch,
     /// What the model in use knows of its roll range, for the σ beyond it.
     extrapolation: Option<Extrapolation>,
     /// Training pairs added since the model was last trained.
@@ -467,6 +474,7 @@ impl AttitudeEngine {
             shown: None,
             laser_monitor: LaserMonitor::default(),
             inclinometer_monitor: InclinometerMonitor::default(),
+            step_watch: StepWatch::default(),
             extrapolation: None,
             pairs_untrained: 0,
             trainings: 0,
@@ -593,6 +601,13 @@ impl AttitudeEngine {
         let phase = self.tuning.phase.observe(t, pitch_raw, roll_raw);
         let at = phase.index();
         let noise = self.noise;
+        // The raw readings: the model's correction changes at a retraining.
+        self.step_watch.observe(
+            t,
+            pitch_raw,
+            roll_raw,
+            [noise.r_pitch[at], noise.r_roll[at]],
+        );
 
         // Roll: the inclinometer roll and its offset (the bias state).
         let roll = match self.roll.as_mut() {
@@ -678,14 +693,15 @@ impl AttitudeEngine {
         // (its noise and the angle's motion since).
         let laser_age = self.laser.age_s(t).unwrap_or(0.0);
         let held = |q: &ProcessNoise| noise.r_laser + q.angle * laser_age;
-        let own = pitch.p[0][0] + self.pitch_laser_error.mean.max(0.0) + unchecked;
+        let [step_pitch, step_roll] = self.step_watch.unverified_variance();
+        let own = pitch.p[0][0] + self.pitch_laser_error.mean.max(0.0) + unchecked + step_pitch;
         let pitch_variance = (1.0 - k_f1).powi(2) * own + k_f1 * k_f1 * held(&noise.pitch);
         // The prediction adds rate·a to the blend: [1 − k, a, 0, 0] P [1 − k, a, 0, 0]ᵀ
         // and the angle's motion over a.
         let pitch_pred_variance = pitch.predicted_angle_variance(1.0 - k_f1, ahead_s, &noise.pitch)
             + (1.0 - k_f1).powi(2) * (own - pitch.p[0][0])
             + k_f1 * k_f1 * held(&noise.pitch);
-        let roll_own = roll.p[0][0] + self.roll_laser_error.mean.max(0.0);
+        let roll_own = roll.p[0][0] + self.roll_laser_error.mean.max(0.0) + step_roll;
         let roll_variance = (1.0 - k_f2).powi(2) * roll_own + k_f2 * k_f2 * held(&noise.roll);
         self.shown = Some((t, [(pitch_out, pitch_variance), (roll_out, roll_variance)]));
 
@@ -730,11 +746,17 @@ impl AttitudeEngine {
         }
     }
 
-    /// The integrity of an estimate: the worse of the two monitors'.
+    /// The integrity of an estimate: the worst of the monitors'.
     fn integrity(&self) -> Integrity {
+        let step = if self.step_watch.unverified() {
+            Integrity::degraded(IntegrityReason::Unverified)
+        } else {
+            Integrity::OK
+        };
         self.laser_monitor
             .integrity()
             .worst(self.inclinometer_monitor.integrity())
+            .worst(step)
     }
 
     /// How far an inclinometer reading at `t` lies from the filters'
@@ -987,6 +1009,7 @@ impl AttitudeEngine {
             let roll_z = z(roll, shown[1], roll_filter, &noise.roll);
             self.laser_monitor.check(pitch_z.max(roll_z));
         }
+        self.step_watch.laser_checked();
         let roll_now = self.roll.map(|f| f.angle());
         let unchecked = roll_now.map_or(0.0, |roll| self.unchecked_bias_variance(t, roll));
         let allowance = roll_now.and_then(|roll| self.bias_allowance(t, roll));
@@ -1453,6 +1476,47 @@ mod tests {
         let vouched = seen.iter().position(|i| i.is_ok()).expect("vouched for");
         assert!(vouched <= 10, "first ok at reading {vouched}");
         assert!(seen[vouched..].iter().all(|i| i.is_ok()), "{seen:?}");
+    }
+
+    /// Issue 54: a new inclinometer zero between laser samples. A 1 Hz
+    /// inclinometer with ±0.01° of noise on a still shield at pitch 0.3°,
+    /// the laser every 60 s; at 1,000 s (40 s after a laser sample) the
+    /// inclinometer's zero moves by 0.05°. Within 20 readings the estimate
+    /// is `degraded` (`unverified`) and its pitch σ grows by the step's
+    /// bound (0.05/√3 = 0.029°); the next laser sample takes the flag.
+    #[test]
+    fn a_step_in_the_inclinometer_is_flagged_and_widened_until_the_laser_checks() {
+        let mut e = engine(&[]);
+        let mut out = Vec::new();
+        let mut at = Vec::new();
+        for i in 0..1030 {
+            let s = f64::from(i);
+            let noise = if i % 2 == 0 { 0.01 } else { -0.01 };
+            let zero = if i >= 1000 { 0.05 } else { 0.0 };
+            out.clear();
+            e.feed(&incl(T0 + s, 0.3 + noise + zero, 0.2 + noise), &mut out);
+            if let Some(o) = out.last() {
+                at.push((s, o.integrity, attitude(&out).pitch_sigma_deg.unwrap()));
+            }
+            if i % 60 == 0 {
+                e.feed(&laser(T0 + s + 0.5, 0.3, 0.2), &mut out);
+            }
+        }
+        let before = at.iter().find(|(s, ..)| *s == 999.0).unwrap();
+        assert!(before.1.is_ok(), "{before:?}");
+        let flagged = at
+            .iter()
+            .find(|(s, i, _)| *s >= 1000.0 && !i.is_ok())
+            .expect("the step is flagged");
+        assert!(flagged.0 < 1020.0, "{flagged:?}");
+        assert_eq!(
+            flagged.1.reason,
+            Some(crate::fusion::IntegrityReason::Unverified)
+        );
+        assert!(flagged.2 >= 0.04 / 3f64.sqrt(), "{flagged:?}");
+        // The laser sample at 1,020.5 s checks it (and finds the estimate
+        // off: the laser monitor's own flag may follow).
+        assert!(!e.step_watch.unverified());
     }
 
     #[test]
@@ -1995,7 +2059,7 @@ mod tests {
             AttitudeEngine::restore(old),
             Err(SnapshotError::Outdated {
                 found: 1,
-                expected: 7,
+                expected: 8,
                 ..
             })
         ));

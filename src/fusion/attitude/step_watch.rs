@@ -1,0 +1,185 @@
+//! The `attitude` engine's step watch (issue 54): a new zero of the
+//! inclinometer (a power cycle, a knock) is a step between two readings,
+//! which a TBM's pitch and roll, trends of thousandths of a degree a
+//! second, do not make.
+//!
+//! At each reading the last 2W corrected readings (pitch with the error
+//! model's correction, roll as read) are split in two halves of
+//! [`HALF`]; a line is fitted to each, and both are evaluated at the time
+//! between them. Their difference δ is the step; its variance is the sum
+//! of the two lines' variances there, s²(1/W + (t − t̄)²/Sₜₜ), with s² the
+//! larger half's residual variance and at least the inclinometer's noise
+//! variance r (coloured noise makes the residuals understate it). A step
+//! beyond [`STEP_SIGMAS`] σ on pitch or roll is a new zero until a laser
+//! sample checks the estimate: the engine's estimates are `degraded`
+//! (`unverified`) and their σ grows by the step (as a bound: the estimate
+//! is off by anything from nothing, if the machine did move, to the whole
+//! step, the error lying uniformly between: |δ|/√3). The readings are
+//! then forgotten, so one step is called once. A window spanning more
+//! than [`MAX_WINDOW_S`] is not tested (a slow inclinometer's readings
+//! are minutes apart, over which the machine's own motion is no line).
+//!
+//! With honest Gaussian noise a step of 6σ is called by chance once in
+//! 500 million tests; the rate on the envelope's drives is in
+//! docs/engines/attitude.md.
+
+use std::collections::VecDeque;
+
+use serde::{Deserialize, Serialize};
+
+/// Readings in each half of the window.
+pub const HALF: usize = 16;
+/// A step beyond this many σ is a new zero.
+pub const STEP_SIGMAS: f64 = 6.0;
+/// The longest a window may span, s: a TBM's pitch and roll follow a
+/// line over two minutes, not over ten (steering, rocking), so a slow
+/// inclinometer's readings (one every 4 s or slower) are not tested.
+pub const MAX_WINDOW_S: f64 = 120.0;
+
+/// A line fitted to readings (t, y): its value at `at` and that value's
+/// variance per unit residual variance, and the residual variance.
+fn line_at(points: impl Iterator<Item = (f64, f64)> + Clone, at: f64) -> (f64, f64, f64) {
+    let n = points.clone().count() as f64;
+    let (st, sy) = points
+        .clone()
+        .fold((0.0, 0.0), |(st, sy), (t, y)| (st + t, sy + y));
+    let (t_mean, y_mean) = (st / n, sy / n);
+    let (stt, sty) = points.clone().fold((0.0, 0.0), |(stt, sty), (t, y)| {
+        (
+            stt + (t - t_mean).powi(2),
+            sty + (t - t_mean) * (y - y_mean),
+        )
+    });
+    let slope = if stt > 0.0 { sty / stt } else { 0.0 };
+    let residual = points
+        .map(|(t, y)| (y - y_mean - slope * (t - t_mean)).powi(2))
+        .sum::<f64>()
+        / (n - 2.0).max(1.0);
+    let leverage = 1.0 / n
+        + if stt > 0.0 {
+            (at - t_mean).powi(2) / stt
+        } else {
+            0.0
+        };
+    (y_mean + slope * (at - t_mean), leverage, residual)
+}
+
+/// What the watch remembers.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct StepWatch {
+    /// The newest readings: t, corrected pitch and roll (rad), oldest first.
+    recent: VecDeque<(f64, f64, f64)>,
+    /// The largest step called since the laser last checked the
+    /// estimate, pitch and roll, rad (0: none).
+    unverified_rad: [f64; 2],
+    /// Steps called so far.
+    pub steps: u64,
+}
+
+impl StepWatch {
+    /// A reading at `t` of corrected `pitch` and `roll` (rad), with the
+    /// inclinometer's noise variances `r` (rad², pitch and roll).
+    pub fn observe(&mut self, t: f64, pitch: f64, roll: f64, r: [f64; 2]) {
+        if self.recent.len() == 2 * HALF {
+            self.recent.pop_front();
+        }
+        self.recent.push_back((t, pitch, roll));
+        if self.recent.len() < 2 * HALF {
+            return;
+        }
+        let span_s = t - self.recent[0].0;
+        if span_s > MAX_WINDOW_S {
+            return;
+        }
+        let split_t = 0.5 * (self.recent[HALF - 1].0 + self.recent[HALF].0);
+        let mut stepped = false;
+        let mut steps = [0.0; 2];
+        for (axis, step) in steps.iter_mut().enumerate() {
+            let value = |&(t, p, r): &(f64, f64, f64)| (t, if axis == 0 { p } else { r });
+            let older = self.recent.range(..HALF).map(value);
+            let newer = self.recent.range(HALF..).map(value);
+            let (y_old, lev_old, s_old) = line_at(older, split_t);
+            let (y_new, lev_new, s_new) = line_at(newer, split_t);
+            let residual = s_old.max(s_new).max(r[axis]);
+            let sigma = (residual * (lev_old + lev_new)).sqrt();
+            *step = y_new - y_old;
+            stepped |= step.abs() > STEP_SIGMAS * sigma;
+        }
+        if stepped {
+            self.steps += 1;
+            for (held, step) in self.unverified_rad.iter_mut().zip(steps) {
+                *held = held.max(step.abs());
+            }
+            self.recent.clear();
+        }
+    }
+
+    /// The variance, rad², a step not yet checked adds to pitch and roll.
+    pub fn unverified_variance(&self) -> [f64; 2] {
+        self.unverified_rad.map(|step| step * step / 3.0)
+    }
+
+    /// Whether a step awaits the laser's check.
+    pub fn unverified(&self) -> bool {
+        self.unverified_rad.iter().any(|&s| s > 0.0)
+    }
+
+    /// A laser sample checked the estimate.
+    pub fn laser_checked(&mut self) {
+        self.unverified_rad = [0.0; 2];
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_line_through_exact_points_has_no_residual_and_its_hand_computed_leverage() {
+        // y = 2 + 0.5 t at t = 0, 1, 2, 3: t̄ = 1.5, Sₜₜ = 5; at t = 3.5:
+        // 3.75, leverage 1/4 + 4/5 = 1.05.
+        let points = (0..4).map(|k| (f64::from(k), 2.0 + 0.5 * f64::from(k)));
+        let (y, leverage, residual) = line_at(points, 3.5);
+        assert!((y - 3.75).abs() < 1e-12);
+        assert!((leverage - 1.05).abs() < 1e-12);
+        assert!(residual < 1e-24);
+    }
+
+    /// Noise of ±0.01° (alternating), a trend of 0.001°/s; a step of
+    /// 0.05° in pitch at reading 40.
+    fn reading(k: usize) -> (f64, f64, f64) {
+        let noise = if k % 2 == 0 { 0.01 } else { -0.01 };
+        let step = if k >= 40 { 0.05 } else { 0.0 };
+        let t = k as f64;
+        (
+            t,
+            (0.001 * t + noise + step).to_radians(),
+            (0.2 + noise).to_radians(),
+        )
+    }
+
+    #[test]
+    fn a_step_is_called_once_and_a_trend_is_not() {
+        let r = [0.01f64.to_radians().powi(2); 2];
+        let mut watch = StepWatch::default();
+        for k in 0..40 {
+            let (t, p, q) = reading(k);
+            watch.observe(t, p, q, r);
+        }
+        assert_eq!(watch.steps, 0, "a trend with noise is no step");
+        for k in 40..120 {
+            let (t, p, q) = reading(k);
+            watch.observe(t, p, q, r);
+        }
+        assert_eq!(watch.steps, 1);
+        assert!(watch.unverified());
+        // The step found is the step made, within the noise.
+        let [pitch, roll] = watch
+            .unverified_variance()
+            .map(|v| (3.0 * v).sqrt().to_degrees());
+        assert!((pitch - 0.05).abs() < 0.01, "{pitch}");
+        assert!(roll < 0.01, "{roll}");
+        watch.laser_checked();
+        assert!(!watch.unverified());
+    }
+}
