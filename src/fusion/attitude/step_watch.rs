@@ -148,7 +148,7 @@ mod tests {
     /// Noise of ±0.01° (alternating), a trend of 0.001°/s; a step of
     /// 0.05° in pitch at reading 40.
     fn reading(k: usize) -> (f64, f64, f64) {
-        let noise = if k % 2 == 0 { 0.01 } else { -0.01 };
+        let noise = if k.is_multiple_of(2) { 0.01 } else { -0.01 };
         let step = if k >= 40 { 0.05 } else { 0.0 };
         let t = k as f64;
         (
