@@ -36,32 +36,46 @@ pub const STEP_SIGMAS: f64 = 6.0;
 /// inclinometer's readings (one every 4 s or slower) are not tested.
 pub const MAX_WINDOW_S: f64 = 120.0;
 
-/// A line fitted to readings (t, y): its value at `at` and that value's
-/// variance per unit residual variance, and the residual variance.
-fn line_at(points: impl Iterator<Item = (f64, f64)> + Clone, at: f64) -> (f64, f64, f64) {
-    let n = points.clone().count() as f64;
-    let (st, sy) = points
-        .clone()
-        .fold((0.0, 0.0), |(st, sy), (t, y)| (st + t, sy + y));
-    let (t_mean, y_mean) = (st / n, sy / n);
-    let (stt, sty) = points.clone().fold((0.0, 0.0), |(stt, sty), (t, y)| {
-        (
-            stt + (t - t_mean).powi(2),
-            sty + (t - t_mean) * (y - y_mean),
-        )
-    });
-    let slope = if stt > 0.0 { sty / stt } else { 0.0 };
-    let residual = points
-        .map(|(t, y)| (y - y_mean - slope * (t - t_mean)).powi(2))
-        .sum::<f64>()
-        / (n - 2.0).max(1.0);
-    let leverage = 1.0 / n
-        + if stt > 0.0 {
-            (at - t_mean).powi(2) / stt
-        } else {
-            0.0
-        };
-    (y_mean + slope * (at - t_mean), leverage, residual)
+/// The sums a least-squares line through readings (t, y) needs, in one
+/// pass (the watch runs at every inclinometer reading).
+#[derive(Debug, Clone, Copy, Default)]
+struct LineSums {
+    n: f64,
+    t: f64,
+    tt: f64,
+    y: f64,
+    yy: f64,
+    ty: f64,
+}
+
+impl LineSums {
+    fn add(&mut self, t: f64, y: f64) {
+        self.n += 1.0;
+        self.t += t;
+        self.tt += t * t;
+        self.y += y;
+        self.yy += y * y;
+        self.ty += t * y;
+    }
+
+    /// The line's value at t = 0, that value's variance per unit residual
+    /// variance (its leverage, 1/n + t̄²/Sₜₜ), and the residual variance.
+    fn at_zero(&self) -> (f64, f64, f64) {
+        let n = self.n;
+        let (t_mean, y_mean) = (self.t / n, self.y / n);
+        let stt = self.tt - n * t_mean * t_mean;
+        let sty = self.ty - n * t_mean * y_mean;
+        let syy = self.yy - n * y_mean * y_mean;
+        let slope = if stt > 0.0 { sty / stt } else { 0.0 };
+        let residual = (syy - slope * sty).max(0.0) / (n - 2.0).max(1.0);
+        let leverage = 1.0 / n
+            + if stt > 0.0 {
+                t_mean * t_mean / stt
+            } else {
+                0.0
+            };
+        (y_mean - slope * t_mean, leverage, residual)
+    }
 }
 
 /// What the watch remembers.
@@ -92,14 +106,20 @@ impl StepWatch {
             return;
         }
         let split_t = 0.5 * (self.recent[HALF - 1].0 + self.recent[HALF].0);
+        // Times from the split, values from the newest reading's: the sums
+        // stay small, so their differences keep their digits.
+        let (_, pitch_ref, roll_ref) = self.recent[2 * HALF - 1];
+        let mut halves = [[LineSums::default(); 2]; 2];
+        for (k, &(t, p, q)) in self.recent.iter().enumerate() {
+            let half = &mut halves[usize::from(k >= HALF)];
+            half[0].add(t - split_t, p - pitch_ref);
+            half[1].add(t - split_t, q - roll_ref);
+        }
         let mut stepped = false;
         let mut steps = [0.0; 2];
         for (axis, step) in steps.iter_mut().enumerate() {
-            let value = |&(t, p, r): &(f64, f64, f64)| (t, if axis == 0 { p } else { r });
-            let older = self.recent.range(..HALF).map(value);
-            let newer = self.recent.range(HALF..).map(value);
-            let (y_old, lev_old, s_old) = line_at(older, split_t);
-            let (y_new, lev_new, s_new) = line_at(newer, split_t);
+            let (y_old, lev_old, s_old) = halves[0][axis].at_zero();
+            let (y_new, lev_new, s_new) = halves[1][axis].at_zero();
             let residual = s_old.max(s_new).max(r[axis]);
             let sigma = (residual * (lev_old + lev_new)).sqrt();
             *step = y_new - y_old;
@@ -136,10 +156,14 @@ mod tests {
 
     #[test]
     fn a_line_through_exact_points_has_no_residual_and_its_hand_computed_leverage() {
-        // y = 2 + 0.5 t at t = 0, 1, 2, 3: t̄ = 1.5, Sₜₜ = 5; at t = 3.5:
-        // 3.75, leverage 1/4 + 4/5 = 1.05.
-        let points = (0..4).map(|k| (f64::from(k), 2.0 + 0.5 * f64::from(k)));
-        let (y, leverage, residual) = line_at(points, 3.5);
+        // y = 2 + 0.5 t at t = 0, 1, 2, 3, evaluated at t = 3.5 (times
+        // from it): t̄ = 1.5, Sₜₜ = 5; 3.75, leverage 1/4 + 4/5 = 1.05.
+        let mut sums = LineSums::default();
+        for k in 0..4 {
+            let t = f64::from(k);
+            sums.add(t - 3.5, 2.0 + 0.5 * t);
+        }
+        let (y, leverage, residual) = sums.at_zero();
         assert!((y - 3.75).abs() < 1e-12);
         assert!((leverage - 1.05).abs() < 1e-12);
         assert!(residual < 1e-24);
