@@ -360,44 +360,45 @@ impl ZuptEngine {
         attitude.inverse() * earth_rate_n(lat)
     }
 
-    /// Takes an IMU reading's time `t`: false (counted as dropped) for one
-    /// at or before the newest; a gap longer than `max_imu_gap_s` ends the
-    /// stream first.
-    fn admit_imu(&mut self, t: f64, out: &mut Vec<EngineOutput>) -> bool {
-        if let Some(newest) = self.newest_imu_t {
-            if t <= newest {
-                self.stats.imu_dropped += 1;
-                return false;
-            }
-            if t - newest > self.config.max_imu_gap_s {
-                self.stats.imu_gaps += 1;
-                self.end_stream(out);
-                if let Some(nav) = &mut self.navigation {
-                    let gap_s = t - newest;
-                    nav.filter.inflate(gap_s);
-                    // The machine may have moved in the gap, at up to its
-                    // fastest; nothing measured it.
-                    nav.unverified_m +=
-                        nav.state.attitude * V3::x() * (self.config.max_speed_mps * gap_s);
-                    nav.previous = None;
-                    // No INS distance across the gap: no odometer interval
-                    // reaching back over it is compared.
-                    nav.ins_distance_history.clear();
-                    // Rates across the gap are not compared.
-                    nav.zaru_noise.interrupted();
-                    // A push across a gap is not smoothed.
-                    nav.push = None;
-                }
+    /// Whether an IMU reading at `t` is at or before the newest taken
+    /// (counted as dropped).
+    fn is_late(&mut self, t: f64) -> bool {
+        let late = self.newest_imu_t.is_some_and(|newest| t <= newest);
+        self.stats.imu_dropped += u64::from(late);
+        late
+    }
+
+    /// Takes the time `t` of an IMU reading that is not late: a gap longer
+    /// than `max_imu_gap_s` ends the stream first.
+    fn admit_imu(&mut self, t: f64, out: &mut Vec<EngineOutput>) {
+        if let Some(newest) = self.newest_imu_t
+            && t - newest > self.config.max_imu_gap_s
+        {
+            self.stats.imu_gaps += 1;
+            self.end_stream(out);
+            if let Some(nav) = &mut self.navigation {
+                let gap_s = t - newest;
+                nav.filter.inflate(gap_s);
+                // The machine may have moved in the gap, at up to its
+                // fastest; nothing measured it.
+                nav.unverified_m +=
+                    nav.state.attitude * V3::x() * (self.config.max_speed_mps * gap_s);
+                nav.previous = None;
+                // No INS distance across the gap: no odometer interval
+                // reaching back over it is compared.
+                nav.ins_distance_history.clear();
+                // Rates across the gap are not compared.
+                nav.zaru_noise.interrupted();
+                // A push across a gap is not smoothed.
+                nav.push = None;
             }
         }
         self.newest_imu_t = Some(t);
         self.stats.imu_used += 1;
-        true
     }
 
     fn on_imu(&mut self, sample: ImuSample, out: &mut Vec<EngineOutput>) {
-        if self.newest_imu_t.is_some_and(|newest| sample.t <= newest) {
-            self.stats.imu_dropped += 1;
+        if self.is_late(sample.t) {
             return;
         }
         match self.imu_screen.screen(&sample) {
@@ -420,9 +421,7 @@ impl ZuptEngine {
             }
         }
         self.imu_frozen_said = None;
-        if !self.admit_imu(sample.t, out) {
-            return;
-        }
+        self.admit_imu(sample.t, out);
         let earth_rate_b = self.earth_rate_b(&sample.accel_mps2);
         let mut decided = std::mem::take(&mut self.decided);
         self.pipeline.push(
@@ -454,9 +453,10 @@ impl ZuptEngine {
         else {
             return self.feed(reading, out);
         };
-        if !self.admit_imu(reading.t, out) {
+        if self.is_late(reading.t) {
             return;
         }
+        self.admit_imu(reading.t, out);
         let sample = ImuSample::new(reading.t, accel_mps2, gyro_dps);
         let decision = Decision {
             zv: zero_velocity,
