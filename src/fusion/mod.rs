@@ -22,6 +22,7 @@ pub mod reading;
 pub mod registry;
 pub mod reorder;
 pub mod rings;
+pub mod robust;
 pub mod stage;
 pub mod steer;
 pub mod steering;

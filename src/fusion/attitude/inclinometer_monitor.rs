@@ -28,13 +28,12 @@ use serde::{Deserialize, Serialize};
 
 use crate::fusion::frozen::FrozenWatch;
 use crate::fusion::integrity::{Integrity, IntegrityReason};
+use crate::fusion::robust::{MAD_TO_SIGMA, median_in_place};
 
 /// An innovation beyond this many σ is a spike.
 pub const SPIKE_SIGMAS: f64 = 8.0;
 /// Fused readings whose innovations give the robust σ.
 pub const RECENT: usize = 32;
-/// σ of a Gaussian per median absolute value.
-const MAD_TO_SIGMA: f64 = 1.4826;
 /// Readings rejected in a row before a change counts as real.
 pub const MAX_REJECTED_IN_A_ROW: u32 = 3;
 
@@ -74,8 +73,7 @@ impl InclinometerMonitor {
             // The median without a heap copy.
             let mut copy = [0.0; RECENT];
             copy[..n].copy_from_slice(&recent[recent.len() - n..]);
-            let (_, median, _) = copy[..n].select_nth_unstable_by(n / 2, f64::total_cmp);
-            MAD_TO_SIGMA * *median
+            MAD_TO_SIGMA * median_in_place(&mut copy[..n])
         } else {
             0.0
         };

@@ -29,6 +29,7 @@ use serde::{Deserialize, Serialize};
 
 use super::ImuSample;
 use crate::fusion::frozen::FrozenWatch;
+use crate::fusion::robust::{MAD_TO_SIGMA, median_in_place};
 
 /// A channel this many robust σ from its recent median is a spike.
 pub const SPIKE_SIGMAS: f64 = 8.0;
@@ -43,8 +44,6 @@ pub const MAX_REJECTED_IN_A_ROW: u32 = 3;
 pub const ACCEL_FLOOR_MPS2: f64 = 0.1;
 /// The least robust σ of a gyro channel, rad/s (0.1 °/s): 8 σ is 0.8 °/s.
 pub const GYRO_FLOOR_RAD_PER_S: f64 = 0.1 * std::f64::consts::PI / 180.0;
-/// σ of a Gaussian per median absolute deviation.
-const MAD_TO_SIGMA: f64 = 1.4826;
 
 /// What the screen makes of a reading.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -124,11 +123,11 @@ impl ImuScreen {
             for (value, reading) in values.iter_mut().zip(&self.recent) {
                 *value = reading[k];
             }
-            let (_, &mut median, _) = values[..n].select_nth_unstable_by(n / 2, f64::total_cmp);
+            let median = median_in_place(&mut values[..n]);
             for value in &mut values[..n] {
                 *value = (*value - median).abs();
             }
-            let (_, &mut mad, _) = values[..n].select_nth_unstable_by(n / 2, f64::total_cmp);
+            let mad = median_in_place(&mut values[..n]);
             let floor = if k < 3 {
                 ACCEL_FLOOR_MPS2
             } else {
