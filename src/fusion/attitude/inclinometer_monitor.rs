@@ -63,9 +63,10 @@ pub struct InclinometerMonitor {
 }
 
 impl InclinometerMonitor {
-    /// How many σ an innovation `abs_innovation` with the filter's
-    /// `sqrt_s` is, on `axis` (0 pitch, 1 roll).
-    fn sigmas(&self, axis: usize, abs_innovation: f64, sqrt_s: f64) -> f64 {
+    /// The σ of an innovation on `axis` (0 pitch, 1 roll) whose filter
+    /// says `sqrt_s`: that, or the recent innovations' robust spread if
+    /// larger.
+    pub fn sigma(&self, axis: usize, sqrt_s: f64) -> f64 {
         let recent = &self.recent_abs_innovation[axis];
         // The newest RECENT at most (a restored snapshot may hold more).
         let n = recent.len().min(RECENT);
@@ -77,11 +78,11 @@ impl InclinometerMonitor {
         } else {
             0.0
         };
-        abs_innovation / sqrt_s.max(robust).max(f64::MIN_POSITIVE)
+        sqrt_s.max(robust).max(f64::MIN_POSITIVE)
     }
 
     /// A reading at `t` of `pitch_deg` and `roll_deg` (as sent) with
-    /// innovations `(|ν|, √S)` for pitch and roll (`None` before the
+    /// innovations `(ν, √S)` for pitch and roll (`None` before the
     /// filters start): whether to fuse it.
     pub fn screen(
         &mut self,
@@ -95,17 +96,17 @@ impl InclinometerMonitor {
         }
         let z = innovations.map_or(0.0, |axes| {
             (0..2)
-                .map(|k| self.sigmas(k, axes[k].0, axes[k].1))
+                .map(|k| axes[k].0.abs() / self.sigma(k, axes[k].1))
                 .fold(0.0, f64::max)
         });
         // Every live reading's innovation counts for the robust σ, spikes
         // too: the median shrugs off a few.
         if let Some(axes) = innovations {
-            for (recent, (abs_innovation, _)) in self.recent_abs_innovation.iter_mut().zip(axes) {
+            for (recent, (innovation, _)) in self.recent_abs_innovation.iter_mut().zip(axes) {
                 if recent.len() == RECENT {
                     recent.remove(0);
                 }
-                recent.push(abs_innovation);
+                recent.push(innovation.abs());
             }
         }
         if z > SPIKE_SIGMAS || !z.is_finite() {

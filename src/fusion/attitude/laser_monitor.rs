@@ -61,6 +61,24 @@ impl LaserMonitor {
         }
     }
 
+    /// Laser samples checked so far.
+    pub fn checks(&self) -> usize {
+        self.samples as usize
+    }
+
+    /// Takes back the failures since the last pass: they were the
+    /// laser's, held out by the dispute ([`super::laser_dispute`]), not the
+    /// estimate's.
+    pub fn forgive(&mut self) {
+        self.disagreeing = false;
+    }
+
+    /// Whether the engine vouches for its estimates: verified, and no
+    /// check has failed since the last pass.
+    pub fn agreeing(&self) -> bool {
+        self.verified && !self.disagreeing
+    }
+
     /// The integrity of the estimates now.
     pub fn integrity(&self) -> Integrity {
         if self.disagreeing {

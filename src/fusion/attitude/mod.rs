@@ -48,6 +48,7 @@ pub mod dual_rate;
 pub mod estimate;
 pub mod inclinometer_monitor;
 pub mod kalman;
+pub mod laser_dispute;
 pub mod laser_monitor;
 pub mod noise;
 pub mod params;
@@ -62,6 +63,7 @@ use self::dual_rate::{InclHistory, InclPoint, LaserHold, Period, fuse, local_lin
 use self::estimate::AttitudeEstimate;
 use self::inclinometer_monitor::{InclinometerMonitor, Screened};
 use self::kalman::{H_INCLINOMETER, H_LASER, N, ProcessNoise, TiltFilter, inclinometer_row};
+use self::laser_dispute::{LaserDispute, LaserVerdict};
 use self::laser_monitor::LaserMonitor;
 use self::noise::{LaserCurvature, NoiseFit, Phase, PhaseDetector, Variogram};
 pub use self::params::{
@@ -87,7 +89,8 @@ use crate::fusion::{Integrity, IntegrityReason};
 /// 6: the laser's excess errors weighted by their precision (issue 54).
 /// 7: the inclinometer monitor (spikes, a frozen sensor; issue 54).
 /// 8: the step watch (a new inclinometer zero; issue 54).
-pub const STATE_VERSION: u32 = 8;
+/// 9: the laser dispute (a wrong prism; issue 54).
+pub const STATE_VERSION: u32 = 9;
 /// Inclinometer readings kept for pairing with laser samples.
 const HISTORY_POINTS: usize = 512;
 /// Laser samples kept waiting for the inclinometer to pass their time.
@@ -340,6 +343,9 @@ pub struct AttitudeEngine {
     shown: Option<(f64, [(f64, f64); 2])>,
     /// Each laser sample against the pitch shown before it (integrity).
     laser_monitor: LaserMonitor,
+    /// A laser sample that jumped from the inclinometer's continuity is
+    /// held out while later ones keep the jump (integrity).
+    laser_dispute: LaserDispute,
     /// Each inclinometer reading against the prediction and the one
     /// before it: spikes and a frozen sensor are not fused (integrity).
     #[serde(default)]
@@ -473,6 +479,7 @@ impl AttitudeEngine {
             roll_laser_error: noise::PrecisionMean::default(),
             shown: None,
             laser_monitor: LaserMonitor::default(),
+            laser_dispute: LaserDispute::default(),
             inclinometer_monitor: InclinometerMonitor::default(),
             step_watch: StepWatch::default(),
             extrapolation: None,
@@ -602,12 +609,19 @@ impl AttitudeEngine {
         let at = phase.index();
         let noise = self.noise;
         // The raw readings: the model's correction changes at a retraining.
-        self.step_watch.observe(
+        let tested = self.step_watch.observe(
             t,
             pitch_raw,
             roll_raw,
             [noise.r_pitch[at], noise.r_roll[at]],
         );
+        // Readings too far apart for a window: each innovation is the step
+        // since the one before.
+        if !tested && let Some(axes) = innovations {
+            let monitor = &self.inclinometer_monitor;
+            self.step_watch
+                .record([0, 1].map(|k| (axes[k].0, monitor.sigma(k, axes[k].1))));
+        }
 
         // Roll: the inclinometer roll and its offset (the bias state).
         let roll = match self.roll.as_mut() {
@@ -657,7 +671,7 @@ impl AttitudeEngine {
 
         // Eq. 19 and 11; during dropout k_f1 = k_f2 = 0 (Sec. 4.3).
         let laser_ok = self.laser.is_ok(t, self.config.dropout_factor);
-        let (k_f1, k_f2) = if laser_ok {
+        let (k_f1, k_f2) = if laser_ok && !self.laser_dispute.is_open() {
             (self.config.fusion_gain_pitch, self.config.fusion_gain_roll)
         } else {
             (0.0, 0.0)
@@ -723,7 +737,13 @@ impl AttitudeEngine {
     /// `incl_deg` (pitch, roll as sent).
     fn output(&self, t: f64, shown: Shown, incl_deg: (f64, f64)) -> EngineOutput {
         let sigma = |variance: f64| Some(deg(variance.max(0.0).sqrt()));
+        // An open laser dispute: the case that the laser was right.
+        let [pitch_disputed, roll_disputed] = self.laser_dispute.variance();
         let ((pitch, pitch_variance), (roll, roll_variance)) = (shown.pitch, shown.roll);
+        let (pitch_variance, roll_variance) = (
+            pitch_variance + pitch_disputed,
+            roll_variance + roll_disputed,
+        );
         EngineOutput {
             t,
             values: EstimateValues::Attitude(AttitudeEstimate {
@@ -734,7 +754,7 @@ impl AttitudeEngine {
                 pred_t: t + shown.ahead_s,
                 pitch_sigma_deg: sigma(pitch_variance),
                 roll_sigma_deg: sigma(roll_variance),
-                pitch_pred_sigma_deg: sigma(shown.pitch_pred_variance),
+                pitch_pred_sigma_deg: sigma(shown.pitch_pred_variance + pitch_disputed),
                 laser_ok: shown.laser_ok,
                 pitch_correction_deg: deg(self.correction_rad),
                 laser_age_s: self.laser.age_s(t),
@@ -760,7 +780,7 @@ impl AttitudeEngine {
     }
 
     /// How far an inclinometer reading at `t` lies from the filters'
-    /// prediction: (|ν|, √S) of pitch and roll, with the larger of the two
+    /// prediction: (ν, √S) of pitch and roll, with the larger of the two
     /// phases' noise (`None` before the filters start).
     fn inclinometer_innovations(
         &self,
@@ -781,7 +801,7 @@ impl AttitudeEngine {
         let beyond = self.beyond_rad(roll_probe.angle());
         let z = pitch_raw + self.correction_rad;
         let pitch_i = pitch_probe.innovation(inclinometer_row(beyond), z, r(noise.r_pitch));
-        let pair = |i: kalman::Innovation| (i.value.abs(), i.variance.max(0.0).sqrt());
+        let pair = |i: kalman::Innovation| (i.value, i.variance.max(0.0).sqrt());
         Some([pair(pitch_i), pair(roll_i)])
     }
 
@@ -988,6 +1008,9 @@ impl AttitudeEngine {
 
     fn on_laser(&mut self, t: f64, pitch_deg: f64, roll_deg: f64) {
         let (pitch, roll) = (rad(pitch_deg), rad(roll_deg));
+        // Whether the inclinometer vouches for the estimate the sample
+        // meets: the check before passed and no step since.
+        let continuity = self.laser_monitor.agreeing() && !self.step_watch.unverified();
         if self.laser.accept(t, pitch, roll).is_err() {
             self.stats.laser_dropped += 1;
             return;
@@ -1001,13 +1024,32 @@ impl AttitudeEngine {
             (self.shown, self.pitch.as_ref(), self.roll.as_ref())
         {
             let dt = t - shown_t;
-            let z = |laser: f64, shown: (f64, f64), f: &TiltFilter, q| {
+            let against = |laser: f64, shown: (f64, f64), f: &TiltFilter, q| {
                 let (predicted, variance) = f.carry(shown, dt, q);
-                (laser - predicted).abs() / (variance + noise.r_laser).sqrt()
+                (laser - predicted, variance)
             };
-            let pitch_z = z(pitch, shown[0], pitch_filter, &noise.pitch);
-            let roll_z = z(roll, shown[1], roll_filter, &noise.roll);
-            self.laser_monitor.check(pitch_z.max(roll_z));
+            let (pitch_offset, pitch_variance) =
+                against(pitch, shown[0], pitch_filter, &noise.pitch);
+            let (roll_offset, roll_variance) = against(roll, shown[1], roll_filter, &noise.roll);
+            let verdict = self.laser_dispute.judge(
+                t,
+                [pitch_offset, roll_offset],
+                [pitch_variance, roll_variance],
+                noise.r_laser,
+                continuity
+                    && self.laser_monitor.checks() >= 3 * self.config.anfis.min_samples
+                    && !self.step_watch.explains([pitch_offset, roll_offset]),
+                self.config.laser_dispute_max_s,
+            );
+            if verdict == LaserVerdict::LaserBack {
+                self.laser_monitor.forgive();
+            }
+            let z = |offset: f64, variance: f64| offset.abs() / (variance + noise.r_laser).sqrt();
+            self.laser_monitor
+                .check(z(pitch_offset, pitch_variance).max(z(roll_offset, roll_variance)));
+            if verdict == LaserVerdict::HoldOut {
+                return;
+            }
         }
         self.step_watch.laser_checked();
         let roll_now = self.roll.map(|f| f.angle());
@@ -1517,6 +1559,53 @@ mod tests {
         // The laser sample at 1,020.5 s checks it (and finds the estimate
         // off: the laser monitor's own flag may follow).
         assert!(!e.step_watch.unverified());
+    }
+
+    #[test]
+    fn a_laser_that_jumps_while_the_inclinometer_does_not_is_held_out_and_widened() {
+        // A still machine, laser every 10 s; from 1,000 s to 1,300 s the
+        // laser reads 0.2° more on both axes (a wrong prism).
+        let mut e = engine(&[]);
+        let mut out = Vec::new();
+        let mut at = Vec::new();
+        for i in 0..1500 {
+            let s = f64::from(i);
+            let noise = if i % 2 == 0 { 0.002 } else { -0.002 };
+            out.clear();
+            e.feed(&incl(T0 + s, 0.3 + noise, 0.2 + noise), &mut out);
+            if let Some(o) = out.last() {
+                let a = attitude(&out);
+                at.push((s, o.integrity, a.pitch_deg, a.pitch_sigma_deg.unwrap()));
+            }
+            if i % 10 == 0 {
+                let jump = if (1000..1300).contains(&i) { 0.2 } else { 0.0 };
+                e.feed(&laser(T0 + s + 0.5, 0.3 + jump, 0.2 + jump), &mut out);
+            }
+        }
+        let before = at.iter().find(|(s, ..)| *s == 999.0).unwrap();
+        assert!(before.1.is_ok(), "{before:?}");
+        for (s, integrity, pitch_deg, sigma_deg) in
+            at.iter().filter(|(s, ..)| (1001.0..1300.0).contains(s))
+        {
+            assert_eq!(
+                integrity.reason,
+                Some(crate::fusion::IntegrityReason::LaserDisagrees),
+                "at {s} s"
+            );
+            // The estimate keeps the inclinometer's continuity; its σ
+            // covers the laser's word (0.2° from the truth, 0.175° from
+            // the estimate before, 0.3255° ± 0.0223°).
+            assert!(
+                (pitch_deg - before.2).abs() < 0.002,
+                "at {s} s: {pitch_deg}"
+            );
+            assert!(*sigma_deg >= 0.17, "at {s} s: {sigma_deg}");
+        }
+        assert!(e.laser_dispute.disputes >= 1 && e.laser_dispute.held_out >= 29);
+        // The laser is back at 1,300.5 s: it agrees, and no one is blamed.
+        let after = at.iter().find(|(s, ..)| *s == 1310.0).unwrap();
+        assert!(after.1.is_ok(), "{after:?}");
+        assert!(!e.laser_dispute.is_open());
     }
 
     #[test]
@@ -2059,7 +2148,7 @@ mod tests {
             AttitudeEngine::restore(old),
             Err(SnapshotError::Outdated {
                 found: 1,
-                expected: 8,
+                expected: 9,
                 ..
             })
         ));

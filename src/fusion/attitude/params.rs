@@ -108,6 +108,13 @@ param_table! {
             "",
             "the laser is in dropout once its sample is older than this many observed periods",
         ),
+        laser_dispute_max_s: f64 = real(
+            3600.0,
+            0.0,
+            86_400.0,
+            "s",
+            "longest a laser that jumped away from the inclinometer's continuity is held out before it is believed again (0: never held out)",
+        ),
         correction: Correction = choice(
             Correction::Anfis,
             "pitch error model: the ANFIS, a recency-weighted constant offset, or nothing (for comparison)",
@@ -287,6 +294,7 @@ pub struct AttitudeConfig {
     pub priors: NoisePriors,
     pub laser_period_s: f64,
     pub dropout_factor: f64,
+    pub laser_dispute_max_s: f64,
     pub correction: Correction,
     pub anfis: AnfisConfig,
     /// Membership counts of the candidate models (one with `anfis_select=fixed`).
@@ -359,6 +367,7 @@ impl AttitudeConfig {
             },
             laser_period_s: p.laser_period_s,
             dropout_factor: p.dropout_factor,
+            laser_dispute_max_s: p.laser_dispute_max_s,
             correction,
             anfis: AnfisConfig {
                 memberships: fewest,

@@ -86,24 +86,33 @@ pub struct StepWatch {
     /// The largest step called since the laser last checked the
     /// estimate, pitch and roll, rad (0: none).
     unverified_rad: [f64; 2],
+    /// Since the laser last checked the estimate: the most significant
+    /// step down and up seen on pitch and roll, each (step, its σ), rad
+    /// ((0, 0): none), called or not.
+    largest_since_check: [[(f64, f64); 2]; 2],
+    /// How many independent places a step could have been seen at since
+    /// the laser last checked: a recorded innovation counts one, a tested
+    /// window 1/2W (consecutive windows share all but one reading).
+    places_since_check: f64,
     /// Steps called so far.
     pub steps: u64,
 }
 
 impl StepWatch {
     /// A reading at `t` of corrected `pitch` and `roll` (rad), with the
-    /// inclinometer's noise variances `r` (rad², pitch and roll).
-    pub fn observe(&mut self, t: f64, pitch: f64, roll: f64, r: [f64; 2]) {
+    /// inclinometer's noise variances `r` (rad², pitch and roll). Whether
+    /// a window was tested.
+    pub fn observe(&mut self, t: f64, pitch: f64, roll: f64, r: [f64; 2]) -> bool {
         if self.recent.len() == 2 * HALF {
             self.recent.pop_front();
         }
         self.recent.push_back((t, pitch, roll));
         if self.recent.len() < 2 * HALF {
-            return;
+            return false;
         }
         let span_s = t - self.recent[0].0;
         if span_s > MAX_WINDOW_S {
-            return;
+            return false;
         }
         let split_t = 0.5 * (self.recent[HALF - 1].0 + self.recent[HALF].0);
         // Times from the split, values from the newest reading's: the sums
@@ -124,7 +133,9 @@ impl StepWatch {
             let sigma = (residual * (lev_old + lev_new)).sqrt();
             *step = y_new - y_old;
             stepped |= step.abs() > STEP_SIGMAS * sigma;
+            self.keep_if_largest(axis, *step, sigma);
         }
+        self.places_since_check += 1.0 / (2 * HALF) as f64;
         if stepped {
             self.steps += 1;
             for (held, step) in self.unverified_rad.iter_mut().zip(steps) {
@@ -132,6 +143,27 @@ impl StepWatch {
             }
             self.recent.clear();
         }
+        true
+    }
+
+    /// Keeps `step` (σ `sigma`) on `axis` if the most significant of its
+    /// sign since the laser last checked.
+    fn keep_if_largest(&mut self, axis: usize, step: f64, sigma: f64) {
+        let largest = &mut self.largest_since_check[axis][usize::from(step > 0.0)];
+        if sigma > 0.0 && step.abs() * largest.1 >= largest.0.abs() * sigma {
+            *largest = (step, sigma);
+        }
+    }
+
+    /// Where no window is tested (readings too far apart, or too few
+    /// since the last step): a reading's innovation and its σ, pitch and
+    /// roll, rad, as the step since the reading before, for
+    /// [`Self::explains`].
+    pub fn record(&mut self, innovations: [(f64, f64); 2]) {
+        for (axis, (innovation, sigma)) in innovations.into_iter().enumerate() {
+            self.keep_if_largest(axis, innovation, sigma);
+        }
+        self.places_since_check += 1.0;
     }
 
     /// The variance, rad², a step not yet checked adds to pitch and roll.
@@ -147,6 +179,33 @@ impl StepWatch {
     /// A laser sample checked the estimate.
     pub fn laser_checked(&mut self) {
         self.unverified_rad = [0.0; 2];
+        self.largest_since_check = [[(0.0, 0.0); 2]; 2];
+        self.places_since_check = 0.0;
+    }
+
+    /// Whether the inclinometer's readings since the laser last checked
+    /// explain a laser sample `offset_rad` (laser − estimate, pitch and
+    /// roll, rad) better than no step does. Take on each axis the most
+    /// significant step seen of the opposite sign (the estimate followed a
+    /// new zero), δ with σ; a step of −J there is likelier than none by
+    /// the log-likelihood ratio Σ (δ² − (δ + J)²) / 2σ² over the two axes.
+    /// With no place preferred a priori, a step at one of N places wins
+    /// when that ratio exceeds ln N (the best of N candidates is a
+    /// selection: the threshold pays for it). Too small or too noisy to be
+    /// called on its own, such a step is still the evidence that tells a
+    /// new inclinometer zero from a laser that jumped.
+    pub fn explains(&self, offset_rad: [f64; 2]) -> bool {
+        let mut log_ratio = 0.0;
+        let mut seen = false;
+        for (axis, offset) in offset_rad.into_iter().enumerate() {
+            let (step, sigma) = self.largest_since_check[axis][usize::from(offset < 0.0)];
+            if sigma <= 0.0 {
+                continue;
+            }
+            seen = true;
+            log_ratio += (step * step - (step + offset).powi(2)) / (2.0 * sigma * sigma);
+        }
+        seen && log_ratio > self.places_since_check.max(1.0).ln()
     }
 }
 
@@ -205,5 +264,30 @@ mod tests {
         assert!(roll < 0.01, "{roll}");
         watch.laser_checked();
         assert!(!watch.unverified());
+    }
+
+    #[test]
+    fn a_seen_step_explains_a_laser_jump_of_its_size_and_opposite_sign_only() {
+        let d = f64::to_radians;
+        let mut watch = StepWatch::default();
+        // Up 0.05° on both axes, σ 0.02°: one place, threshold ln 1 = 0.
+        watch.record([(d(0.05), d(0.02)); 2]);
+        // A laser 0.05° below the estimate: per axis
+        // (0.05² − 0²) / (2 · 0.02²) = 3.125, 6.25 in all.
+        assert!(watch.explains([d(-0.05); 2]));
+        // Above it: no step down was seen.
+        assert!(!watch.explains([d(0.05); 2]));
+        // 0.2° below: (0.05² − 0.15²) / (2 · 0.02²) = −25 per axis.
+        assert!(!watch.explains([d(-0.2); 2]));
+        // The same step as the best of 600 places: ln 600 ≈ 6.4 > 6.25.
+        for _ in 0..599 {
+            watch.record([(0.0, d(0.02)); 2]);
+        }
+        assert!(!watch.explains([d(-0.05); 2]));
+        watch.laser_checked();
+        watch.record([(d(0.05), d(0.02)); 2]);
+        assert!(watch.explains([d(-0.05); 2]));
+        watch.laser_checked();
+        assert!(!watch.explains([d(-0.05); 2]), "nothing seen since");
     }
 }
