@@ -48,6 +48,7 @@ pub mod dual_rate;
 pub mod estimate;
 pub mod inclinometer_monitor;
 pub mod kalman;
+pub mod lag_watch;
 pub mod laser_dispute;
 pub mod laser_monitor;
 pub mod noise;
@@ -63,6 +64,7 @@ use self::dual_rate::{InclHistory, InclPoint, LaserHold, Period, fuse, local_lin
 use self::estimate::AttitudeEstimate;
 use self::inclinometer_monitor::{InclinometerMonitor, Screened};
 use self::kalman::{H_INCLINOMETER, H_LASER, N, ProcessNoise, TiltFilter, inclinometer_row};
+use self::lag_watch::LagWatch;
 use self::laser_dispute::{LaserDispute, LaserVerdict};
 use self::laser_monitor::LaserMonitor;
 use self::noise::{LaserCurvature, NoiseFit, Phase, PhaseDetector, Variogram};
@@ -89,7 +91,7 @@ use crate::fusion::{Integrity, IntegrityReason};
 /// 6: the laser's excess errors weighted by their precision (issue 54).
 /// 7: the inclinometer monitor (spikes, a frozen sensor; issue 54).
 /// 8: the step watch (a new inclinometer zero; issue 54).
-/// 9: the laser dispute (a wrong prism; issue 54).
+/// 9: the laser dispute (a wrong prism) and the lag watch (issue 54).
 pub const STATE_VERSION: u32 = 9;
 /// Inclinometer readings kept for pairing with laser samples.
 const HISTORY_POINTS: usize = 512;
@@ -346,6 +348,9 @@ pub struct AttitudeEngine {
     /// A laser sample that jumped from the inclinometer's continuity is
     /// held out while later ones keep the jump (integrity).
     laser_dispute: LaserDispute,
+    /// The inclinometer innovations' recent mean: a filter lagging the
+    /// shield widens the σ (integrity).
+    lag_watch: LagWatch,
     /// Each inclinometer reading against the prediction and the one
     /// before it: spikes and a frozen sensor are not fused (integrity).
     #[serde(default)]
@@ -480,6 +485,7 @@ impl AttitudeEngine {
             shown: None,
             laser_monitor: LaserMonitor::default(),
             laser_dispute: LaserDispute::default(),
+            lag_watch: LagWatch::default(),
             inclinometer_monitor: InclinometerMonitor::default(),
             step_watch: StepWatch::default(),
             extrapolation: None,
@@ -615,12 +621,15 @@ impl AttitudeEngine {
             roll_raw,
             [noise.r_pitch[at], noise.r_roll[at]],
         );
-        // Readings too far apart for a window: each innovation is the step
-        // since the one before.
-        if !tested && let Some(axes) = innovations {
+        if let Some(axes) = innovations {
             let monitor = &self.inclinometer_monitor;
-            self.step_watch
-                .record([0, 1].map(|k| (axes[k].0, monitor.sigma(k, axes[k].1))));
+            let innovations = [0, 1].map(|k| (axes[k].0, monitor.sigma(k, axes[k].1)));
+            self.lag_watch.observe(innovations);
+            // Readings too far apart for a window: each innovation is the
+            // step since the one before.
+            if !tested {
+                self.step_watch.record(innovations);
+            }
         }
 
         // Roll: the inclinometer roll and its offset (the bias state).
@@ -708,14 +717,19 @@ impl AttitudeEngine {
         let laser_age = self.laser.age_s(t).unwrap_or(0.0);
         let held = |q: &ProcessNoise| noise.r_laser + q.angle * laser_age;
         let [step_pitch, step_roll] = self.step_watch.unverified_variance();
-        let own = pitch.p[0][0] + self.pitch_laser_error.mean.max(0.0) + unchecked + step_pitch;
+        let [lag_pitch, lag_roll] = self.lag_watch.variance();
+        let own = pitch.p[0][0]
+            + self.pitch_laser_error.mean.max(0.0)
+            + unchecked
+            + step_pitch
+            + lag_pitch;
         let pitch_variance = (1.0 - k_f1).powi(2) * own + k_f1 * k_f1 * held(&noise.pitch);
         // The prediction adds rate·a to the blend: [1 − k, a, 0, 0] P [1 − k, a, 0, 0]ᵀ
         // and the angle's motion over a.
         let pitch_pred_variance = pitch.predicted_angle_variance(1.0 - k_f1, ahead_s, &noise.pitch)
             + (1.0 - k_f1).powi(2) * (own - pitch.p[0][0])
             + k_f1 * k_f1 * held(&noise.pitch);
-        let roll_own = roll.p[0][0] + self.roll_laser_error.mean.max(0.0) + step_roll;
+        let roll_own = roll.p[0][0] + self.roll_laser_error.mean.max(0.0) + step_roll + lag_roll;
         let roll_variance = (1.0 - k_f2).powi(2) * roll_own + k_f2 * k_f2 * held(&noise.roll);
         self.shown = Some((t, [(pitch_out, pitch_variance), (roll_out, roll_variance)]));
 
