@@ -20,7 +20,11 @@
 //! (`unverified`) and their σ grows by the step (as a bound: the estimate
 //! is off by anything from nothing, if the machine did move, to the whole
 //! step, the error lying uniformly between: |δ|/√3). The readings are
-//! then forgotten, so one step is called once. A window spanning more
+//! then forgotten, so one step is called once. The next [`HALF`]
+//! readings show whether it persisted: a line through them, taken back
+//! to the step's time, nearer the level before than the step on every
+//! axis that called it is no new zero (an excursion of coloured noise, a
+//! knock that settled), and the estimates are vouched for again. A window spanning more
 //! than [`MAX_WINDOW_S`] is not tested (a slow inclinometer's readings
 //! are minutes apart, over which the machine's own motion is no line).
 //!
@@ -113,8 +117,24 @@ pub struct StepWatch {
     /// the laser last checked: a recorded innovation counts one, a tested
     /// window 1/2W (consecutive windows share all but one reading).
     places_since_check: f64,
+    /// The newest step called, until the readings after it show whether
+    /// it persisted.
+    called: Option<CalledStep>,
     /// Steps called so far.
     pub steps: u64,
+}
+
+/// A called step awaiting the readings after it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+struct CalledStep {
+    /// Between the two halves it was seen across, s.
+    split_t: f64,
+    /// The older half's line there, pitch and roll (rad).
+    before_rad: [f64; 2],
+    /// The step on each axis that called it (0 on one that did not), rad.
+    step_rad: [f64; 2],
+    /// What awaited the laser before it, rad.
+    unverified_before_rad: [f64; 2],
 }
 
 impl StepWatch {
@@ -126,6 +146,11 @@ impl StepWatch {
             self.recent.pop_front();
         }
         self.recent.push_back((t, pitch, roll));
+        if self.recent.len() == HALF
+            && let Some(called) = self.called.take()
+        {
+            self.judge_persistence(called);
+        }
         if self.recent.len() < 2 * HALF {
             return false;
         }
@@ -145,6 +170,12 @@ impl StepWatch {
         }
         let mut stepped = false;
         let mut steps = [0.0; 2];
+        let mut called = CalledStep {
+            split_t,
+            before_rad: [0.0; 2],
+            step_rad: [0.0; 2],
+            unverified_before_rad: self.unverified_rad,
+        };
         for (axis, step) in steps.iter_mut().enumerate() {
             let (y_old, lev_old, s_old) = halves[0][axis].at_zero();
             let (y_new, lev_new, s_new) = halves[1][axis].at_zero();
@@ -158,7 +189,11 @@ impl StepWatch {
                 let rho = self.residual_autocorrelation(axis, split_t, refs[axis], &halves);
                 sigma *= ((1.0 + rho) / (1.0 - rho)).sqrt();
             }
-            stepped |= step.abs() > STEP_SIGMAS * sigma;
+            if step.abs() > STEP_SIGMAS * sigma {
+                stepped = true;
+                called.step_rad[axis] = *step;
+            }
+            called.before_rad[axis] = y_old + [pitch_ref, roll_ref][axis];
             self.keep_if_largest(axis, *step, sigma);
         }
         self.places_since_check += 1.0 / (2 * HALF) as f64;
@@ -168,8 +203,35 @@ impl StepWatch {
                 *held = held.max(step.abs());
             }
             self.recent.clear();
+            self.called = Some(called);
         }
         true
+    }
+
+    /// With [`HALF`] readings after a called step: a line through them,
+    /// taken back to the step's time, nearer the level before the step
+    /// than the step on every axis that called it means the step did not
+    /// persist (an excursion of coloured noise, a knock that settled): the
+    /// estimate is vouched for again. One that persisted waits for the
+    /// laser.
+    fn judge_persistence(&mut self, called: CalledStep) {
+        let span_s = self.recent.back().map_or(f64::INFINITY, |n| n.0) - called.split_t;
+        if span_s > MAX_WINDOW_S {
+            return;
+        }
+        let mut after = [LineSums::default(); 2];
+        for &(t, p, q) in &self.recent {
+            after[0].add(t - called.split_t, p - called.before_rad[0]);
+            after[1].add(t - called.split_t, q - called.before_rad[1]);
+        }
+        let persisted = (0..2).any(|axis| {
+            let step = called.step_rad[axis];
+            let (moved, _) = after[axis].line();
+            step != 0.0 && (moved - step).abs() <= moved.abs()
+        });
+        if !persisted {
+            self.unverified_rad = called.unverified_before_rad;
+        }
     }
 
     /// The lag-1 autocorrelation of the two lines' residuals on `axis`
@@ -240,6 +302,7 @@ impl StepWatch {
         self.unverified_rad = [0.0; 2];
         self.largest_since_check = [[(0.0, 0.0); 2]; 2];
         self.places_since_check = 0.0;
+        self.called = None;
     }
 
     /// Whether the inclinometer's readings since the laser last checked
@@ -348,5 +411,31 @@ mod tests {
         assert!(watch.explains([d(-0.05); 2]));
         watch.laser_checked();
         assert!(!watch.explains([d(-0.05); 2]), "nothing seen since");
+    }
+
+    #[test]
+    fn a_step_that_does_not_persist_is_vouched_for_again() {
+        let r = [0.01f64.to_radians().powi(2); 2];
+        let mut watch = StepWatch::default();
+        // The readings of `reading`, but the pitch 0.05° up only for
+        // readings 40 to 49 (an excursion), then back.
+        let mut called_at = None;
+        for k in 0..100 {
+            let (t, p, q) = reading(k);
+            let p = if k >= 50 { p - 0.05f64.to_radians() } else { p };
+            watch.observe(t, p, q, r);
+            if watch.unverified() && called_at.is_none() {
+                called_at = Some(k);
+            }
+        }
+        called_at.expect("the excursion is called a step");
+        assert!(!watch.unverified(), "the level came back: no new zero");
+        // A step that persists (the first test's) still waits.
+        let mut watch = StepWatch::default();
+        for k in 0..100 {
+            let (t, p, q) = reading(k);
+            watch.observe(t, p, q, r);
+        }
+        assert!(watch.unverified());
     }
 }
