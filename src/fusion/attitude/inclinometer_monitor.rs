@@ -57,6 +57,10 @@ pub struct InclinometerMonitor {
     frozen: FrozenWatch<(f64, f64)>,
     /// The newest live readings' |ν| for pitch and roll, oldest first.
     recent_abs_innovation: [Vec<f64>; 2],
+    /// Their robust σ (1.4826 × the median), pitch and roll; 0 until
+    /// half of them are in. Kept, not recomputed at each use.
+    #[serde(default)]
+    robust: [f64; 2],
     /// Readings rejected as spikes in a row now, and so far.
     rejected_in_a_row: u32,
     pub spikes: u64,
@@ -67,18 +71,21 @@ impl InclinometerMonitor {
     /// says `sqrt_s`: that, or the recent innovations' robust spread if
     /// larger.
     pub fn sigma(&self, axis: usize, sqrt_s: f64) -> f64 {
+        sqrt_s.max(self.robust[axis]).max(f64::MIN_POSITIVE)
+    }
+
+    /// The robust σ of the recent innovations on `axis`.
+    fn robust_of(&self, axis: usize) -> f64 {
         let recent = &self.recent_abs_innovation[axis];
         // The newest RECENT at most (a restored snapshot may hold more).
         let n = recent.len().min(RECENT);
-        let robust = if n >= RECENT / 2 {
-            // The median without a heap copy.
-            let mut copy = [0.0; RECENT];
-            copy[..n].copy_from_slice(&recent[recent.len() - n..]);
-            MAD_TO_SIGMA * median_in_place(&mut copy[..n])
-        } else {
-            0.0
-        };
-        sqrt_s.max(robust).max(f64::MIN_POSITIVE)
+        if n < RECENT / 2 {
+            return 0.0;
+        }
+        // The median without a heap copy.
+        let mut copy = [0.0; RECENT];
+        copy[..n].copy_from_slice(&recent[recent.len() - n..]);
+        MAD_TO_SIGMA * median_in_place(&mut copy[..n])
     }
 
     /// A reading at `t` of `pitch_deg` and `roll_deg` (as sent) with
@@ -108,6 +115,7 @@ impl InclinometerMonitor {
                 }
                 recent.push(innovation.abs());
             }
+            self.robust = [self.robust_of(0), self.robust_of(1)];
         }
         if z > SPIKE_SIGMAS || !z.is_finite() {
             self.rejected_in_a_row += 1;
