@@ -1,14 +1,16 @@
 //! The `attitude` engine's wrong-prism test (issue 54): a laser sample
 //! that jumps away from the inclinometer's continuity.
 //!
-//! Between two laser samples a period apart the estimate rests on the
-//! inclinometer. When a sample fails the laser monitor's check (more than
-//! [`DISAGREE_SIGMAS`] σ from the estimate carried to it) although the one
-//! before passed, with no laser dropout between and no step called by the
-//! step watch, something changed in a step that the inclinometer did not
-//! follow: the laser (a wrong prism, a knocked station) or the
-//! inclinometer's zero (a step too slow or too small for the step watch).
-//! Pitch and roll alone cannot tell which. The engine keeps the
+//! Between two laser samples the estimate rests on the inclinometer. When
+//! a sample fails the laser monitor's check (more than [`DISAGREE_SIGMAS`]
+//! σ from the estimate carried to it, its σ grown by the time since,
+//! dropouts included) although the engine vouched for that estimate (the
+//! monitor agreeing, the error model past its learning, no step called
+//! by the step watch and none seen that explains the jump), something
+//! changed in a step that the inclinometer did not follow: the laser (a
+//! wrong prism, a knocked station) or the inclinometer's zero (a step
+//! too slow or too small for the step watch to see). Pitch and roll
+//! alone cannot tell which. The engine keeps the
 //! inclinometer's continuity, holds the sample out (it is neither fused
 //! nor paired for training), and covers the other case in σ: the disputed
 //! offset J (laser − estimate) adds J² to the variance, and the estimates
@@ -131,9 +133,10 @@ impl LaserDispute {
                 LaserVerdict::Fuse
             };
         }
-        if let Some(open) = self.open.as_mut() {
-            open.latest_rad = offset_rad;
-        }
+        self.open = Some(Open {
+            latest_rad: offset_rad,
+            ..open
+        });
         self.held_out += 1;
         LaserVerdict::HoldOut
     }

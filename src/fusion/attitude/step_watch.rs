@@ -3,8 +3,9 @@
 //! which a TBM's pitch and roll, trends of thousandths of a degree a
 //! second, do not make.
 //!
-//! At each reading the last 2W corrected readings (pitch with the error
-//! model's correction, roll as read) are split in two halves of
+//! At each reading the last 2W raw readings (the error model's
+//! correction changes at a retraining, a step does not) are split in two
+//! halves of
 //! [`HALF`]; a line is fitted to each, and both are evaluated at the time
 //! between them. Their difference δ is the step; its variance is the sum
 //! of the two lines' variances there, s²(1/W + (t − t̄)²/Sₜₜ), with s² the
@@ -24,9 +25,14 @@
 //! readings show whether it persisted: a line through them, taken back
 //! to the step's time, nearer the level before than the step on every
 //! axis that called it is no new zero (an excursion of coloured noise, a
-//! knock that settled), and the estimates are vouched for again. A window spanning more
-//! than [`MAX_WINDOW_S`] is not tested (a slow inclinometer's readings
-//! are minutes apart, over which the machine's own motion is no line).
+//! knock that settled), and the estimates are vouched for again. A window
+//! spanning more than [`MAX_WINDOW_S`] is not tested (a slow
+//! inclinometer's readings are minutes apart, over which the machine's
+//! own motion is no line).
+//!
+//! Every step tested, called or not, is also kept (the most significant
+//! of each sign since the laser last checked) as evidence for the laser
+//! dispute: [`StepWatch::explains`].
 //!
 //! With honest Gaussian noise a step of 6σ is called by chance once in
 //! 500 million tests; the rate on the envelope's drives is in
@@ -71,13 +77,20 @@ impl LineSums {
         self.ty += t * y;
     }
 
-    /// The line's value at t = 0 and its slope.
-    fn line(&self) -> (f64, f64) {
+    /// The means t̄ and ȳ, Sₜₜ and Sₜᵧ, and the slope Sₜᵧ/Sₜₜ (0 without
+    /// a spread in t).
+    fn centred(&self) -> (f64, f64, f64, f64, f64) {
         let n = self.n;
         let (t_mean, y_mean) = (self.t / n, self.y / n);
         let stt = self.tt - n * t_mean * t_mean;
         let sty = self.ty - n * t_mean * y_mean;
         let slope = if stt > 0.0 { sty / stt } else { 0.0 };
+        (t_mean, y_mean, stt, sty, slope)
+    }
+
+    /// The line's value at t = 0 and its slope.
+    fn line(&self) -> (f64, f64) {
+        let (t_mean, y_mean, _, _, slope) = self.centred();
         (y_mean - slope * t_mean, slope)
     }
 
@@ -85,11 +98,8 @@ impl LineSums {
     /// variance (its leverage, 1/n + t̄²/Sₜₜ), and the residual variance.
     fn at_zero(&self) -> (f64, f64, f64) {
         let n = self.n;
-        let (t_mean, y_mean) = (self.t / n, self.y / n);
-        let stt = self.tt - n * t_mean * t_mean;
-        let sty = self.ty - n * t_mean * y_mean;
+        let (t_mean, y_mean, stt, sty, slope) = self.centred();
         let syy = self.yy - n * y_mean * y_mean;
-        let slope = if stt > 0.0 { sty / stt } else { 0.0 };
         let residual = (syy - slope * sty).max(0.0) / (n - 2.0).max(1.0);
         let leverage = 1.0 / n
             + if stt > 0.0 {
@@ -104,7 +114,7 @@ impl LineSums {
 /// What the watch remembers.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct StepWatch {
-    /// The newest readings: t, corrected pitch and roll (rad), oldest first.
+    /// The newest readings: t, raw pitch and roll (rad), oldest first.
     recent: VecDeque<(f64, f64, f64)>,
     /// The largest step called since the laser last checked the
     /// estimate, pitch and roll, rad (0: none).
@@ -138,7 +148,7 @@ struct CalledStep {
 }
 
 impl StepWatch {
-    /// A reading at `t` of corrected `pitch` and `roll` (rad), with the
+    /// A reading at `t` of raw `pitch` and `roll` (rad), with the
     /// inclinometer's noise variances `r` (rad², pitch and roll). Whether
     /// a window was tested.
     pub fn observe(&mut self, t: f64, pitch: f64, roll: f64, r: [f64; 2]) -> bool {
@@ -162,6 +172,7 @@ impl StepWatch {
         // Times from the split, values from the newest reading's: the sums
         // stay small, so their differences keep their digits.
         let (_, pitch_ref, roll_ref) = self.recent[2 * HALF - 1];
+        let refs = [pitch_ref, roll_ref];
         let mut halves = [[LineSums::default(); 2]; 2];
         for (k, &(t, p, q)) in self.recent.iter().enumerate() {
             let half = &mut halves[usize::from(k >= HALF)];
@@ -185,7 +196,6 @@ impl StepWatch {
             if step.abs() > STEP_SIGMAS * sigma {
                 // A candidate: readings that follow each other (coloured
                 // noise) average less than independent ones would.
-                let refs = [pitch_ref, roll_ref];
                 let rho = self.residual_autocorrelation(axis, split_t, refs[axis], &halves);
                 sigma *= ((1.0 + rho) / (1.0 - rho)).sqrt();
             }
@@ -193,7 +203,7 @@ impl StepWatch {
                 stepped = true;
                 called.step_rad[axis] = *step;
             }
-            called.before_rad[axis] = y_old + [pitch_ref, roll_ref][axis];
+            called.before_rad[axis] = y_old + refs[axis];
             self.keep_if_largest(axis, *step, sigma);
         }
         self.places_since_check += 1.0 / (2 * HALF) as f64;
