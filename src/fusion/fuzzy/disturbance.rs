@@ -72,6 +72,9 @@ pub struct DisturbanceDetector {
     /// Since when every reading has agreed with those, while relearnt.
     #[serde(default)]
     back_since: Option<f64>,
+    /// The site's inclination, rad: the Earth's field dips by it
+    /// whatever the references have learnt.
+    site_dip_rad: f64,
 }
 
 impl DisturbanceDetector {
@@ -87,6 +90,7 @@ impl DisturbanceDetector {
             relearnt: false,
             calibrated: None,
             back_since: None,
+            site_dip_rad: inclination_rad,
         }
     }
 
@@ -106,6 +110,21 @@ impl DisturbanceDetector {
     /// a magnet on the vehicle is steady too, and its heading is wrong.
     pub fn relearnt(&self) -> bool {
         self.relearnt
+    }
+
+    /// How far the field the references follow may turn the compass's
+    /// heading, rad, judged by its dip against the site's inclination I:
+    /// 0 while the reference dip δ is within `tolerance_rad` of I; beyond
+    /// it the field is not the Earth's alone (a calibration fitted through
+    /// steel, a lasting disturbance relearnt), and the vertical part of
+    /// what was added, |v − h·tan I| = h·|tan δ − tan I|, over the
+    /// horizontal field h is the scale of the deflection its unseen
+    /// horizontal part may cause: atan(|tan δ − tan I|).
+    pub fn off_site_deflection_rad(&self, tolerance_rad: f64) -> f64 {
+        if (self.dip_rad - self.site_dip_rad).abs() <= tolerance_rad {
+            return 0.0;
+        }
+        (self.dip_rad.tan() - self.site_dip_rad.tan()).abs().atan()
     }
 
     /// The relearnt field's heading changes agree with the gyro's across
@@ -350,5 +369,34 @@ mod tests {
         assert!(detector.relearnt());
         detector.confirm();
         assert!(!detector.relearnt());
+    }
+
+    #[test]
+    fn a_relearnt_field_whose_dip_is_not_the_sites_may_deflect_the_heading() {
+        let mut detector = DisturbanceDetector::new(60.0_f64.to_radians());
+        for i in 0..300 {
+            let t = f64::from(i) * 0.1;
+            detector.observe(t, &earth(t * 0.3, Vector3::zeros()), false, &TOLERANCES);
+        }
+        // The Earth's field: nothing to add.
+        assert_eq!(detector.off_site_deflection_rad(0.07), 0.0);
+        // Steel adds a field that dips the total 70° (the same horizontal
+        // 25 µT, a vertical of 25·tan 70° = 68.7 µT) for longer than the
+        // relearning takes: the references are its now.
+        let steel = |t: f64| {
+            let level = earth(t * 0.3, Vector3::zeros());
+            Vector3::new(level.x, level.y, 25.0 * 70.0_f64.to_radians().tan())
+        };
+        for i in 0..1300 {
+            let t = 30.0 + f64::from(i) * 0.1;
+            detector.observe(t, &steel(t), false, &TOLERANCES);
+        }
+        assert!(detector.relearnt());
+        // atan(|tan 70° − tan 60°|) = atan(2.747477 − 1.732051)
+        // = atan(1.015426) = 45.44°.
+        let deflection = detector.off_site_deflection_rad(0.07).to_degrees();
+        assert!((deflection - 45.44).abs() < 0.01, "{deflection}");
+        // Within a tolerance wider than the 10° departure: nothing.
+        assert_eq!(detector.off_site_deflection_rad(0.2), 0.0);
     }
 }

@@ -102,8 +102,11 @@ use crate::fusion::geometry::{V3, attitude_from_euler};
 /// 6: samples with roll and pitch (the levelled planar fit), relearnt
 /// fields, the turns (issue 34);
 /// 7: the motion window's time moments of the rates (fast_spread.rs);
-/// 8: the IMU watched for a frozen sensor (issue 54).
-pub const STATE_VERSION: u32 = 8;
+/// 8: the IMU watched for a frozen sensor (issue 54);
+/// 9: an undone re-take of the heading and the deflection carried from
+/// fields not the Earth's (their σ), and a restore carries every part of
+/// the state (issue 54).
+pub const STATE_VERSION: u32 = 9;
 
 /// Plausibility caps for alignment, whatever the floor says: a MEMS
 /// sensor at rest shows less spread and less mean rate than this (a
@@ -250,9 +253,19 @@ pub struct FuzzyEngine {
     /// back within the gate.
     #[serde(default)]
     reacquired: bool,
-    /// When the first calibration re-took the heading, and by how much it
-    /// turned it (undone if its field proves disturbed at once).
-    rehead_turn: Option<(f64, f64)>,
+    /// The first calibration's re-take of the heading (undone if its
+    /// field proves disturbed at once).
+    rehead_turn: Option<Rehead>,
+    /// The heading rests on no calibration: a first calibration's re-take
+    /// was undone. Its σ is the unknown hard iron's until a compass steers.
+    #[serde(default)]
+    heading_uncalibrated: bool,
+    /// The deflection the heading took from compasses whose field's dip
+    /// was not the site's (disturbance.rs), rad: the pulls' weighted
+    /// mean of it, which pulls by an Earth's field wear off. Reported in
+    /// the heading's σ, after the field is the Earth's again too.
+    #[serde(default)]
+    carried_deflection_rad: f64,
     /// The newest static degree (the dip check allows for the tilt error
     /// of a moving sensor).
     static_degree: f64,
@@ -265,6 +278,14 @@ pub struct FuzzyEngine {
     tilt_monitor: TiltMonitor,
     #[serde(skip)]
     scratch: Scratch,
+}
+
+/// The first calibration's re-take of the heading.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+struct Rehead {
+    t: f64,
+    /// How far it turned the heading, rad.
+    turn_rad: f64,
 }
 
 /// Used only while deserialising; `restore` rebuilds it from `params`.
@@ -310,6 +331,8 @@ impl FuzzyEngine {
             relearnt_turns: TurnCheck::default(),
             reacquired: false,
             rehead_turn: None,
+            heading_uncalibrated: false,
+            carried_deflection_rad: 0.0,
             static_degree: 0.0,
             compass_state: None,
             tilt_monitor: TiltMonitor::default(),
@@ -329,30 +352,22 @@ impl FuzzyEngine {
         SnapshotError::check_version(EngineKind::Fuzzy, &snapshot, STATE_VERSION)?;
         let engine: FuzzyEngine = SnapshotError::parse(EngineKind::Fuzzy, snapshot)?;
         let params = engine.params.upgraded(PARAMS, RETIRED)?;
-        let mut fresh = FuzzyEngine::new(params)?;
+        let fresh = FuzzyEngine::new(params)?;
         if engine.window.capacity() != fresh.config.window_samples {
             return Err(SnapshotError::Invalid(
                 "motion window does not match the parameters".into(),
             ));
         }
-        fresh.window = engine.window.prepared();
-        fresh.floor = engine.floor;
-        fresh.newest_imu_t = engine.newest_imu_t;
-        fresh.start_frame = engine.start_frame;
-        fresh.solution = engine.solution;
-        fresh.calibration = engine.calibration;
-        fresh.disturbance = engine.disturbance;
-        fresh.raw_disturbance = engine.raw_disturbance;
-        fresh.magnetometer = engine.magnetometer;
-        fresh.compass = engine.compass;
-        fresh.stats = engine.stats;
-        fresh.reheading = engine.reheading;
-        fresh.compass_gated_since = engine.compass_gated_since;
-        fresh.innovations = engine.innovations;
-        fresh.rehead_turn = engine.rehead_turn;
-        fresh.static_degree = engine.static_degree;
-        fresh.compass_state = engine.compass_state;
-        Ok(fresh)
+        // Every part of the state from the snapshot; what the parameters
+        // make, from them.
+        Ok(FuzzyEngine {
+            params: fresh.params,
+            config: fresh.config,
+            expert: fresh.expert,
+            window: engine.window.prepared(),
+            scratch: Scratch::default(),
+            ..engine
+        })
     }
 
     /// The working configuration.
@@ -427,7 +442,7 @@ impl FuzzyEngine {
                 .observe(t, &(level * field_ut), false, &tolerances);
         if self
             .rehead_turn
-            .is_some_and(|(rehead_t, _)| t - rehead_t > REHEAD_WATCH_S)
+            .is_some_and(|rehead| t - rehead.t > REHEAD_WATCH_S)
         {
             self.rehead_turn = None;
         }
@@ -435,11 +450,16 @@ impl FuzzyEngine {
             self.stats.mag_disturbed += 1;
             self.innovations.clear();
             if self.disturbance.departing_for_s(t) >= REHEAD_UNDO_AFTER_S
-                && let (Some((_, turn)), Some(solution)) =
+                && let (Some(rehead), Some(solution)) =
                     (self.rehead_turn.take(), &mut self.solution)
             {
+                // The heading as it was, resting again on no calibration
+                // (or a refuted one): its σ the unknown hard iron's until
+                // a compass steers it.
                 solution.attitude =
-                    UnitQuaternion::from_axis_angle(&V3::z_axis(), -turn) * solution.attitude;
+                    UnitQuaternion::from_axis_angle(&V3::z_axis(), -rehead.turn_rad)
+                        * solution.attitude;
+                self.heading_uncalibrated = true;
             }
         } else {
             let was_calibrated = self.calibration.correction().is_some();
@@ -771,6 +791,10 @@ impl FuzzyEngine {
             return;
         };
         let compass = self.any_compass_heading(t, roll, pitch);
+        if compass.is_some() {
+            self.carried_deflection_rad = self.off_site_deflection_rad();
+            self.heading_uncalibrated = false;
+        }
         if let (None, Some(new)) = (compass, &mut self.solution) {
             let (_, _, old_yaw) = old.attitude.euler_angles();
             new.attitude = attitude_from_euler(roll, pitch, old_yaw);
@@ -796,6 +820,8 @@ impl FuzzyEngine {
         let mean_rate = self.window.mean_rate();
         let (roll, pitch) = tilt_from_accel(&self.window.mean_force());
         let compass = self.any_compass_heading(t, roll, pitch);
+        self.carried_deflection_rad = self.off_site_deflection_rad();
+        self.heading_uncalibrated = false;
         let yaw_known = compass.is_some();
         let yaw = compass.unwrap_or(0.0);
         // This window is quiet: the floors are at most its spreads.
@@ -850,6 +876,8 @@ impl FuzzyEngine {
         }
         let (roll, pitch, _) = found.attitude.euler_angles();
         let compass = self.any_compass_heading(t, roll, pitch);
+        self.carried_deflection_rad = self.off_site_deflection_rad();
+        self.heading_uncalibrated = false;
         self.turns.clear();
         self.relearnt_turns.clear();
         self.solution = Some(Solution {
@@ -1020,7 +1048,10 @@ impl FuzzyEngine {
             self.compass_gated_since = None;
             self.innovations.clear();
             let (_, _, yaw) = solution.attitude.euler_angles();
-            self.rehead_turn = Some((t, orientation::angle_difference(heading, yaw)));
+            self.rehead_turn = Some(Rehead {
+                t,
+                turn_rad: orientation::angle_difference(heading, yaw),
+            });
             1.0
         } else {
             let (_, _, yaw) = solution.attitude.euler_angles();
@@ -1113,6 +1144,16 @@ impl FuzzyEngine {
         solution.heading_sigma_rad =
             uncertainty::sigma_after_pull(solution.heading_sigma_rad, compass_sigma, gain);
         solution.attitude = pull_heading(&solution.attitude, heading, gain);
+        self.carried_deflection_rad =
+            (1.0 - gain) * self.carried_deflection_rad + gain * self.off_site_deflection_rad();
+        self.heading_uncalibrated &= gain <= 0.0;
+    }
+
+    /// How far the compass's field may deflect its heading now, rad
+    /// (disturbance.rs: its dip against the site's).
+    fn off_site_deflection_rad(&self) -> f64 {
+        self.disturbance
+            .off_site_deflection_rad(self.config.mag_disturbance.dip_rad)
     }
 
     /// The tilt's and the heading's reported 1σ, rad (uncertainty.rs):
@@ -1128,12 +1169,19 @@ impl FuzzyEngine {
             uncertainty::reported_sigma(s.tilt_sigma_rad, &[self.config.accel_bias_tilt_rad]);
         // A calibration is as sure as its residual, or as the turns show
         // (turn_check.rs) if they show it worse.
-        let calibration = fit_rms.map_or(uncertainty::UNKNOWN_ANGLE_SIGMA_RAD, |rms| {
-            self.turns.sigma_rad().map_or(rms, |turns| turns.max(rms))
-        });
+        let calibration = fit_rms
+            .filter(|_| !self.heading_uncalibrated)
+            .map_or(uncertainty::UNKNOWN_ANGLE_SIGMA_RAD, |rms| {
+                self.turns.sigma_rad().map_or(rms, |turns| turns.max(rms))
+            });
+        // What compasses whose field was not the Earth's alone turned the
+        // heading by (`carried_deflection_rad`).
+        let off_site = self.carried_deflection_rad;
         let through_tilt = self.config.mag_inclination_rad.tan().abs() * tilt;
-        let heading =
-            uncertainty::reported_sigma(s.heading_sigma_rad, &[calibration, through_tilt]);
+        let heading = uncertainty::reported_sigma(
+            s.heading_sigma_rad,
+            &[calibration, through_tilt, off_site],
+        );
         (tilt, heading)
     }
 
@@ -1578,6 +1626,12 @@ mod tests {
         }
         let text = serde_json::to_string(&first.snapshot()).unwrap();
         let mut second = FuzzyEngine::restore(serde_json::from_str(&text).unwrap()).unwrap();
+        // Every part of the state carried.
+        assert_eq!(
+            second.snapshot(),
+            first.snapshot(),
+            "split after {split} readings"
+        );
         for r in &readings[split..] {
             second.feed(r, &mut got);
         }
@@ -1944,6 +1998,63 @@ mod tests {
             gyro_yaw += rad(20.0) * 0.1;
         }
         assert!(deg(wrong.sigma_rad().unwrap()) > 10.0);
+    }
+
+    /// Level, at 100 Hz: turning at 20 °/s over 3–43 s (a calibration
+    /// circle) and over 200–220 s, still otherwise; from 60 s on, steel
+    /// fixed in the world adds (0, 0, −25) µT to a field of 50 µT dipping
+    /// 60°: the dip is then atan(18.3 / 25) = 36.2°, the horizontal (and
+    /// so the true heading) unchanged.
+    fn steel_that_bends_the_dip() -> Vec<EngineOutput> {
+        let earth = V3::new(25.0, 0.0, 43.3);
+        let hard_iron = V3::new(12.0, -8.0, 3.0);
+        let mut engine = engine_at_inclination_60();
+        let mut out = Vec::new();
+        let t0 = 1.7e9;
+        let mut yaw = 0.3;
+        for i in 0..40_000u32 {
+            let tau = f64::from(i) * 0.01;
+            let turning = (3.0..43.0).contains(&tau) || (200.0..220.0).contains(&tau);
+            let rate_dps = if turning { 20.0 } else { 0.0 };
+            yaw += rad(rate_dps) * 0.01;
+            let attitude = attitude_from_euler(0.0, 0.0, yaw);
+            let t = t0 + tau;
+            let force = attitude.inverse() * V3::new(0.0, 0.0, -G);
+            engine.feed(&imu(t, force, V3::new(0.0, 0.0, rate_dps)), &mut out);
+            if i % 10 == 0 {
+                let steel = if tau >= 60.0 {
+                    V3::new(0.0, 0.0, -25.0)
+                } else {
+                    V3::zeros()
+                };
+                engine.feed(
+                    &mag(t, attitude.inverse() * (earth + steel) + hard_iron),
+                    &mut out,
+                );
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn a_compass_whose_dip_is_not_the_sites_carries_the_deflection_it_may_cause() {
+        let out = steel_that_bends_the_dip();
+        // Calibrated and believed before the steel: a few degrees.
+        let before = fuzzy(&out[55 * 100]);
+        assert_eq!(before.compass, Some(CompassState::Believed), "{before:?}");
+        assert!(before.heading_sigma_deg.unwrap() < 5.0, "{before:?}");
+        // Relearnt (after 120 s) and confirmed by the second turn, the
+        // steel's compass steers: atan(|tan 36.2° − tan 60°|) =
+        // atan(|0.732 − 1.732|) = 45° joins the heading's σ once its pulls
+        // have carried it in.
+        let steering = fuzzy(out.last().unwrap());
+        assert_eq!(
+            steering.compass,
+            Some(CompassState::Believed),
+            "{steering:?}"
+        );
+        let sigma = steering.heading_sigma_deg.unwrap();
+        assert!(sigma > 40.0, "{steering:?}");
     }
 
     #[test]
