@@ -181,6 +181,17 @@ impl TiltFilter {
         ((0..N).map(|i| h[i] * self.x[i]).sum(), variance)
     }
 
+    /// The gain a measurement h·x of noise variance `r` would give the
+    /// angle (Eq. 5's first row: (P Hᵀ)₀ / S).
+    pub fn angle_gain(&self, h: [f64; N], r: f64) -> f64 {
+        let (_, variance) = self.combination(h);
+        let s = variance + r;
+        if !(s > 0.0 && s.is_finite()) {
+            return 0.0;
+        }
+        (0..N).map(|j| self.p[0][j] * h[j]).sum::<f64>() / s
+    }
+
     /// The innovation a measurement would have, without taking it.
     pub fn innovation(&self, h: [f64; N], z: f64, r: f64) -> Innovation {
         let (predicted, variance) = self.combination(h);
@@ -273,6 +284,25 @@ mod tests {
     /// A diagonal covariance.
     fn diag(v: [f64; N]) -> [[f64; N]; N] {
         std::array::from_fn(|i| std::array::from_fn(|j| if i == j { v[i] } else { 0.0 }))
+    }
+
+    #[test]
+    fn the_angle_gain_by_hand() {
+        // H = [1, 0, 1, 0] (angle + bias), P = diag(4, 2, 1, 1) with
+        // p_θb = −1: (P Hᵀ)₀ = 4 − 1 = 3, H P Hᵀ = 4 + 1 − 2 = 3, r = 1:
+        // gain 3 / (3 + 1) = 0.75, and the update moves the angle by it.
+        let mut f = TiltFilter {
+            x: [0.0; N],
+            p: {
+                let mut p = diag([4.0, 2.0, 1.0, 1.0]);
+                (p[0][BIAS], p[BIAS][0]) = (-1.0, -1.0);
+                p
+            },
+            t: Some(0.0),
+        };
+        assert_eq!(f.angle_gain(H_INCLINOMETER, 1.0), 0.75);
+        f.update(H_INCLINOMETER, 2.0, 1.0);
+        assert!((f.angle() - 1.5).abs() < 1e-12);
     }
 
     #[test]

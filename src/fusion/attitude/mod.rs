@@ -51,6 +51,7 @@ pub mod kalman;
 pub mod lag_watch;
 pub mod laser_dispute;
 pub mod laser_monitor;
+pub mod loud_readings;
 pub mod noise;
 pub mod params;
 pub mod residual;
@@ -67,6 +68,7 @@ use self::kalman::{H_INCLINOMETER, H_LASER, N, ProcessNoise, TiltFilter, inclino
 use self::lag_watch::LagWatch;
 use self::laser_dispute::{LaserDispute, LaserVerdict};
 use self::laser_monitor::LaserMonitor;
+use self::loud_readings::LoudReadings;
 use self::noise::{LaserCurvature, NoiseFit, Phase, PhaseDetector, Variogram};
 pub use self::params::{
     AnfisSelect, AttitudeConfig, AttitudeParams, BiasMotion, Correction, NoiseMode, NoisePriors,
@@ -92,7 +94,8 @@ use crate::fusion::{Integrity, IntegrityReason};
 /// 7: the inclinometer monitor (spikes, a frozen sensor; issue 54).
 /// 8: the step watch (a new inclinometer zero; issue 54).
 /// 9: the laser dispute (a wrong prism) and the lag watch (issue 54).
-pub const STATE_VERSION: u32 = 9;
+/// 10: loud readings ([`loud_readings`]; issue 54).
+pub const STATE_VERSION: u32 = 10;
 /// Inclinometer readings kept for pairing with laser samples.
 const HISTORY_POINTS: usize = 512;
 /// Laser samples kept waiting for the inclinometer to pass their time.
@@ -351,6 +354,10 @@ pub struct AttitudeEngine {
     /// The inclinometer innovations' recent mean: a filter lagging the
     /// shield widens the σ (integrity).
     lag_watch: LagWatch,
+    /// What readings as loud as an excavation, fused with a quiet
+    /// phase's noise, left in the angles (integrity).
+    #[serde(default)]
+    loud_readings: LoudReadings,
     /// Each inclinometer reading against the prediction and the one
     /// before it: spikes and a frozen sensor are not fused (integrity).
     #[serde(default)]
@@ -486,6 +493,7 @@ impl AttitudeEngine {
             laser_monitor: LaserMonitor::default(),
             laser_dispute: LaserDispute::default(),
             lag_watch: LagWatch::default(),
+            loud_readings: LoudReadings::default(),
             inclinometer_monitor: InclinometerMonitor::default(),
             step_watch: StepWatch::default(),
             extrapolation: None,
@@ -613,6 +621,7 @@ impl AttitudeEngine {
         let temp_c = temp_c.or(self.newest.and_then(|n| n.temp_c));
         let phase = self.tuning.phase.observe(t, pitch_raw, roll_raw);
         let at = phase.index();
+        let loud = self.tuning.phase.noise_phase().index();
         let noise = self.noise;
         // The raw readings: the model's correction changes at a retraining.
         let tested = self.step_watch.observe(
@@ -636,6 +645,9 @@ impl AttitudeEngine {
         let roll = match self.roll.as_mut() {
             Some(f) => {
                 f.predict_to(t, &noise.roll);
+                let gain = f.angle_gain(H_INCLINOMETER, noise.r_roll[at]);
+                self.loud_readings
+                    .fused(1, gain, noise.r_roll[loud] - noise.r_roll[at]);
                 f.update(H_INCLINOMETER, roll_raw, noise.r_roll[at]);
                 *f
             }
@@ -660,6 +672,9 @@ impl AttitudeEngine {
         let pitch = match self.pitch.as_mut() {
             Some(f) => {
                 f.predict_to(t, &noise.pitch);
+                let gain = f.angle_gain(inclinometer_row(beyond), noise.r_pitch[at]);
+                self.loud_readings
+                    .fused(0, gain, noise.r_pitch[loud] - noise.r_pitch[at]);
                 f.update(inclinometer_row(beyond), z, noise.r_pitch[at]);
                 *f
             }
@@ -718,18 +733,21 @@ impl AttitudeEngine {
         let held = |q: &ProcessNoise| noise.r_laser + q.angle * laser_age;
         let [step_pitch, step_roll] = self.step_watch.unverified_variance();
         let [lag_pitch, lag_roll] = self.lag_watch.variance();
+        let [loud_pitch, loud_roll] = self.loud_readings.variance();
         let own = pitch.p[0][0]
             + self.pitch_laser_error.mean.max(0.0)
             + unchecked
             + step_pitch
-            + lag_pitch;
+            + lag_pitch
+            + loud_pitch;
         let pitch_variance = (1.0 - k_f1).powi(2) * own + k_f1 * k_f1 * held(&noise.pitch);
         // The prediction adds rate·a to the blend: [1 − k, a, 0, 0] P [1 − k, a, 0, 0]ᵀ
         // and the angle's motion over a.
         let pitch_pred_variance = pitch.predicted_angle_variance(1.0 - k_f1, ahead_s, &noise.pitch)
             + (1.0 - k_f1).powi(2) * (own - pitch.p[0][0])
             + k_f1 * k_f1 * held(&noise.pitch);
-        let roll_own = roll.p[0][0] + self.roll_laser_error.mean.max(0.0) + step_roll + lag_roll;
+        let roll_own =
+            roll.p[0][0] + self.roll_laser_error.mean.max(0.0) + step_roll + lag_roll + loud_roll;
         let roll_variance = (1.0 - k_f2).powi(2) * roll_own + k_f2 * k_f2 * held(&noise.roll);
         self.shown = Some((t, [(pitch_out, pitch_variance), (roll_out, roll_variance)]));
 
@@ -2162,7 +2180,7 @@ mod tests {
             AttitudeEngine::restore(old),
             Err(SnapshotError::Outdated {
                 found: 1,
-                expected: 9,
+                expected: 10,
                 ..
             })
         ));

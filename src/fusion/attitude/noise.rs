@@ -234,6 +234,11 @@ pub struct PhaseDetector {
     centres: [f64; 2],
     counts: [f64; 2],
     phase: Phase,
+    /// The newest reading's own noise sample lies above the geometric
+    /// middle of the two phases' levels (the smoothed level has not yet
+    /// followed a phase change).
+    #[serde(default)]
+    newest_loud: bool,
 }
 
 impl Default for PhaseDetector {
@@ -245,6 +250,7 @@ impl Default for PhaseDetector {
             centres: [0.0; 2],
             counts: [0.0; 2],
             phase: Phase::Vibrating,
+            newest_loud: false,
         }
     }
 }
@@ -262,6 +268,11 @@ impl PhaseDetector {
             let e_pitch = pitch - p1 - r * (p1 - p0);
             let e_roll = roll - r1 - r * (r1 - r0);
             let sample = (e_pitch * e_pitch + e_roll * e_roll) / (2.0 * factor);
+            // Both phases seen: is this one reading as loud as the middle
+            // of their levels? (A quiet reading is, 1 time in e^{Δ/2},
+            // Δ the levels' distance in nats: 1 in 3.5 at Δ = 2.5.)
+            self.newest_loud = self.counts.iter().all(|c| *c > 0.0)
+                && (sample + 1e-300).ln() > 0.5 * (self.centres[0] + self.centres[1]);
             self.readings += 1.0;
             let forget = ((t - t1) / LEVEL_S).min(0.25);
             self.level += (sample - self.level) * (1.0 / self.readings).max(forget);
@@ -310,6 +321,19 @@ impl PhaseDetector {
     /// The current phase.
     pub fn phase(&self) -> Phase {
         self.phase
+    }
+
+    /// The phase whose noise the newest reading is fused with: vibrating
+    /// while the phase is, and also for a reading as loud as the middle of
+    /// the two levels (the first readings of an excavation, before the
+    /// smoothed level follows: fused with the quiet noise they pulled the
+    /// estimate by several quiet σ).
+    pub fn noise_phase(&self) -> Phase {
+        if self.newest_loud {
+            Phase::Vibrating
+        } else {
+            self.phase
+        }
     }
 
     /// The smoothed white-noise variance of one reading (rad²), if known.
@@ -818,6 +842,30 @@ mod tests {
             "{pitch:e} vs {q_w:e}"
         );
         assert!(roll < 0.6 * q_w, "{roll:e} vs {q_w:e}");
+    }
+
+    #[test]
+    fn a_reading_as_loud_as_an_excavation_is_fused_with_its_noise_before_the_phase_follows() {
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        let mut detector = PhaseDetector::default();
+        // Both phases learnt: 0.03 vibrating, then 0.008 quiet.
+        for k in 0..6000 {
+            let sigma = if k < 3000 { 0.03 } else { 0.008 };
+            let n: [f64; 2] = [rng.sample(StandardNormal), rng.sample(StandardNormal)];
+            detector.observe(k as f64, sigma * n[0], 1.0 + sigma * n[1]);
+        }
+        assert_eq!(detector.phase(), Phase::Quiet);
+        // One reading 0.1 off on both axes: its second difference is
+        // about 0.1, its noise sample (0.1² + 0.1²)/(2·6) = 1.7e-3, far
+        // above the middle of the levels (0.008·0.03 = 2.4e-4): vibrating
+        // noise for it, while the smoothed phase stays quiet.
+        let previous = detector.previous[1];
+        detector.observe(6000.0, previous.1 + 0.1, previous.2 + 0.1);
+        assert_eq!(detector.phase(), Phase::Quiet);
+        assert_eq!(detector.noise_phase(), Phase::Vibrating);
+        // The next reading as quiet as the phase: quiet noise again.
+        detector.observe(6001.0, previous.1 + 0.2, previous.2 + 0.2);
+        assert_eq!(detector.noise_phase(), Phase::Quiet);
     }
 
     #[test]
