@@ -768,14 +768,20 @@ impl FuzzyEngine {
         // is as good as it says.
         let fit_rms = self.calibration.correction().map(|c| c.fit_rms);
         let (tilt_sigma_rad, _) = self.reported_sigmas(solution, fit_rms);
-        let verdict = self.tilt_monitor.test(
-            t,
-            &down,
-            &self.window.mean_force(),
-            self.window.force_spread(),
+        let bias_departed = tilt_monitor::bias_departs(
+            &self.window.mean_rate(),
+            &solution.gyro_bias.bias_rad_per_s,
+            &solution.gyro_bias.variance,
+            self.window.rate_spread(),
             self.window.len(),
-            tilt_sigma_rad,
         );
+        let window = tilt_monitor::QuietWindow {
+            mean_force: self.window.mean_force(),
+            spread_mps2: self.window.force_spread(),
+            samples: self.window.len(),
+            bias_departed,
+        };
+        let verdict = self.tilt_monitor.test(t, &down, &window, tilt_sigma_rad);
         if verdict != tilt_monitor::Verdict::Realign {
             return;
         }

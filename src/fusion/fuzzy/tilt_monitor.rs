@@ -44,6 +44,20 @@ pub enum Verdict {
     Realign,
 }
 
+/// What the monitor is shown of a quiet window.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct QuietWindow {
+    /// The mean specific force, m/s².
+    pub mean_force: V3,
+    /// Its spread, m/s².
+    pub spread_mps2: f64,
+    /// Readings in it.
+    pub samples: usize,
+    /// Its mean rate departs from the bias the gyros run on
+    /// ([`bias_departs`]).
+    pub bias_departed: bool,
+}
+
 /// The monitor's state.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct TiltMonitor {
@@ -60,23 +74,30 @@ pub struct TiltMonitor {
     /// agreed since.
     #[serde(default)]
     unwatched: bool,
+    /// The newest disagreeing window's mean rate departed from the bias
+    /// the gyros run on: what could have turned the tilt.
+    #[serde(default)]
+    bias_departed: bool,
     /// Re-alignments the monitor has asked for.
     pub realignments: u64,
 }
 
 impl TiltMonitor {
-    /// Tests a quiet window at `t`: the carried `down` (unit, body frame),
-    /// the window's `mean_force` (m/s²), its `spread` (m/s²) over `samples`,
-    /// the tilt σ the estimate reports (rad).
+    /// Tests a quiet `window` at `t` against the carried `down` (unit,
+    /// body frame) and the tilt σ the estimate reports (rad).
     pub fn test(
         &mut self,
         t: f64,
         down: &V3,
-        mean_force: &V3,
-        spread_mps2: f64,
-        samples: usize,
+        window: &QuietWindow,
         tilt_sigma_rad: f64,
     ) -> Verdict {
+        let QuietWindow {
+            mean_force,
+            spread_mps2,
+            samples,
+            bias_departed,
+        } = *window;
         let norm = mean_force.norm();
         if norm <= 0.0 || samples == 0 {
             return Verdict::Agrees;
@@ -100,6 +121,7 @@ impl TiltMonitor {
             return Verdict::Agrees;
         }
         self.disagrees = true;
+        self.bias_departed = bias_departed;
         if let Some(agreeing) = &mut self.recovering {
             *agreeing = None;
         }
@@ -152,10 +174,34 @@ impl TiltMonitor {
 
     /// A window that is not quiet: the verdict of the last quiet one
     /// stands for the tilt it judged, but a disagreement that is not
-    /// seen again is not confirmed across motion.
+    /// seen again is not confirmed across motion. One whose window showed
+    /// the gyros' bias as it was is not held either: nothing turned the
+    /// tilt, and a window quiet but not still (a creep speeding up) has
+    /// a mean force that is not gravity's.
     pub fn moving(&mut self) {
         self.disagreeing_since = None;
+        if self.disagrees && !self.bias_departed {
+            self.disagrees = false;
+        }
     }
+}
+
+/// Whether a window's mean rate departs from the bias the gyros run on
+/// by more than [`GATE_SIGMAS`] on any axis (rad/s): the bias's variance
+/// and the mean's own, `rate_spread`²/(3N), each axis's noise given a
+/// third of the spread's square.
+pub fn bias_departs(
+    mean_rate: &V3,
+    bias: &V3,
+    bias_variance: &V3,
+    rate_spread: f64,
+    samples: usize,
+) -> bool {
+    let mean_variance = rate_spread * rate_spread / (3.0 * samples.max(1) as f64);
+    (0..3).any(|k| {
+        (mean_rate[k] - bias[k]).abs()
+            > GATE_SIGMAS * (bias_variance[k].max(0.0) + mean_variance).sqrt()
+    })
 }
 
 #[cfg(test)]
@@ -163,6 +209,20 @@ mod tests {
     use super::*;
 
     const G: f64 = 9.80665;
+
+    fn window(
+        mean_force: V3,
+        spread_mps2: f64,
+        samples: usize,
+        bias_departed: bool,
+    ) -> QuietWindow {
+        QuietWindow {
+            mean_force,
+            spread_mps2,
+            samples,
+            bias_departed,
+        }
+    }
 
     /// A force of gravity seen by a body tilted `angle_rad` about x.
     fn force(angle_rad: f64) -> V3 {
@@ -176,21 +236,41 @@ mod tests {
         // σ_tilt 0.1°, a noiseless window: the gate is 0.5°.
         let sigma = 0.1_f64.to_radians();
         assert_eq!(
-            m.test(0.0, &down, &force(0.49_f64.to_radians()), 0.0, 13, sigma),
+            m.test(
+                0.0,
+                &down,
+                &window(force(0.49_f64.to_radians()), 0.0, 13, true),
+                sigma
+            ),
             Verdict::Agrees
         );
         assert!(!m.disagrees());
         assert_eq!(
-            m.test(1.0, &down, &force(0.51_f64.to_radians()), 0.0, 13, sigma),
+            m.test(
+                1.0,
+                &down,
+                &window(force(0.51_f64.to_radians()), 0.0, 13, true),
+                sigma
+            ),
             Verdict::Disagrees
         );
         assert!(m.disagrees());
         assert_eq!(
-            m.test(1.5, &down, &force(3.0_f64.to_radians()), 0.0, 13, sigma),
+            m.test(
+                1.5,
+                &down,
+                &window(force(3.0_f64.to_radians()), 0.0, 13, true),
+                sigma
+            ),
             Verdict::Disagrees
         );
         assert_eq!(
-            m.test(2.0, &down, &force(3.0_f64.to_radians()), 0.0, 13, sigma),
+            m.test(
+                2.0,
+                &down,
+                &window(force(3.0_f64.to_radians()), 0.0, 13, true),
+                sigma
+            ),
             Verdict::Realign
         );
         assert_eq!(m.since_agreed_s(2.0), Some(2.0));
@@ -199,7 +279,12 @@ mod tests {
         // Agreeing for two seconds ends the recovery.
         for i in 0..=20 {
             assert_eq!(
-                m.test(3.0 + 0.1 * i as f64, &down, &force(0.0), 0.0, 13, sigma),
+                m.test(
+                    3.0 + 0.1 * i as f64,
+                    &down,
+                    &window(force(0.0), 0.0, 13, true),
+                    sigma
+                ),
                 Verdict::Agrees
             );
         }
@@ -214,18 +299,72 @@ mod tests {
         // Spread 0.5 m/s² over 16 samples: σ_window = 0.5/(g·4) = 0.7304°;
         // with σ_tilt 0 the gate is 3.652°.
         assert_eq!(
-            m.test(0.0, &down, &force(3.6_f64.to_radians()), 0.5, 16, 0.0),
+            m.test(
+                0.0,
+                &down,
+                &window(force(3.6_f64.to_radians()), 0.5, 16, true),
+                0.0
+            ),
             Verdict::Agrees
         );
         assert_eq!(
-            m.test(0.1, &down, &force(3.7_f64.to_radians()), 0.5, 16, 0.0),
+            m.test(
+                0.1,
+                &down,
+                &window(force(3.7_f64.to_radians()), 0.5, 16, true),
+                0.0
+            ),
             Verdict::Disagrees
         );
         // Motion in between: the disagreement starts again.
         m.moving();
         assert_eq!(
-            m.test(5.0, &down, &force(3.7_f64.to_radians()), 0.5, 16, 0.0),
+            m.test(
+                5.0,
+                &down,
+                &window(force(3.7_f64.to_radians()), 0.5, 16, true),
+                0.0
+            ),
             Verdict::Disagrees
         );
+    }
+
+    #[test]
+    fn a_disagreement_the_bias_cannot_explain_is_not_held_through_motion() {
+        let down = V3::new(0.0, 0.0, 1.0);
+        let sigma = 0.1_f64.to_radians();
+        // The gyros' bias as it was: a creep's acceleration, let go.
+        let mut m = TiltMonitor::default();
+        m.test(
+            0.0,
+            &down,
+            &window(force(1.0_f64.to_radians()), 0.0, 13, false),
+            sigma,
+        );
+        assert!(m.disagrees());
+        m.moving();
+        assert!(!m.disagrees());
+        // A bias that moved (a power cycle): held until a quiet window.
+        let mut m = TiltMonitor::default();
+        m.test(
+            0.0,
+            &down,
+            &window(force(1.0_f64.to_radians()), 0.0, 13, true),
+            sigma,
+        );
+        m.moving();
+        assert!(m.disagrees());
+    }
+
+    #[test]
+    fn the_bias_departs_beyond_five_sigma_of_its_own_and_the_means() {
+        // Spread 0.3 rad/s over 100 samples: the mean's variance
+        // 0.09/300 = 3e-4; with the bias's 1e-4, 5σ = 5·0.02 = 0.1 rad/s.
+        let bias = V3::new(0.01, 0.0, 0.0);
+        let variance = V3::repeat(1e-4);
+        let within = V3::new(0.109, -0.09, 0.0);
+        let beyond = V3::new(0.0, 0.0, 0.101);
+        assert!(!bias_departs(&within, &bias, &variance, 0.3, 100));
+        assert!(bias_departs(&beyond, &bias, &variance, 0.3, 100));
     }
 }
