@@ -323,11 +323,14 @@ impl PhaseDetector {
         self.phase
     }
 
-    /// The phase whose noise the newest reading is fused with: vibrating
-    /// while the phase is, and also for a reading as loud as the middle of
-    /// the two levels (the first readings of an excavation, before the
-    /// smoothed level follows: fused with the quiet noise they pulled the
-    /// estimate by several quiet σ).
+    /// The phase whose noise the newest reading carries: vibrating while
+    /// the phase is, and also for a reading as loud as the middle of the
+    /// two levels (the first readings of an excavation, before the
+    /// smoothed level follows). The reading is fused with [`phase`]'s
+    /// gain; what the louder noise lets in joins the σ
+    /// (loud_readings.rs).
+    ///
+    /// [`phase`]: Self::phase
     pub fn noise_phase(&self) -> Phase {
         if self.newest_loud {
             Phase::Vibrating
@@ -845,7 +848,7 @@ mod tests {
     }
 
     #[test]
-    fn a_reading_as_loud_as_an_excavation_is_fused_with_its_noise_before_the_phase_follows() {
+    fn a_reading_as_loud_as_an_excavation_carries_its_noise_before_the_phase_follows() {
         let mut rng = ChaCha8Rng::seed_from_u64(9);
         let mut detector = PhaseDetector::default();
         // Both phases learnt: 0.03 vibrating, then 0.008 quiet.

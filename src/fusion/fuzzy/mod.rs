@@ -796,11 +796,9 @@ impl FuzzyEngine {
             self.solution = Some(old);
             return;
         };
+        // With a compass, `try_align` took the heading from it; without,
+        // the old heading stays, with what it carried.
         let compass = self.any_compass_heading(t, roll, pitch);
-        if compass.is_some() {
-            self.carried_deflection_rad = self.off_site_deflection_rad();
-            self.heading_uncalibrated = false;
-        }
         if let (None, Some(new)) = (compass, &mut self.solution) {
             let (_, _, old_yaw) = old.attitude.euler_angles();
             new.attitude = attitude_from_euler(roll, pitch, old_yaw);
@@ -826,8 +824,9 @@ impl FuzzyEngine {
         let mean_rate = self.window.mean_rate();
         let (roll, pitch) = tilt_from_accel(&self.window.mean_force());
         let compass = self.any_compass_heading(t, roll, pitch);
-        self.carried_deflection_rad = self.off_site_deflection_rad();
-        self.heading_uncalibrated = false;
+        if compass.is_some() {
+            self.heading_taken_from_compass();
+        }
         let yaw_known = compass.is_some();
         let yaw = compass.unwrap_or(0.0);
         // This window is quiet: the floors are at most its spreads.
@@ -882,8 +881,9 @@ impl FuzzyEngine {
         }
         let (roll, pitch, _) = found.attitude.euler_angles();
         let compass = self.any_compass_heading(t, roll, pitch);
-        self.carried_deflection_rad = self.off_site_deflection_rad();
-        self.heading_uncalibrated = false;
+        if compass.is_some() {
+            self.heading_taken_from_compass();
+        }
         self.turns.clear();
         self.relearnt_turns.clear();
         self.solution = Some(Solution {
@@ -1153,6 +1153,13 @@ impl FuzzyEngine {
         self.carried_deflection_rad =
             (1.0 - gain) * self.carried_deflection_rad + gain * self.off_site_deflection_rad();
         self.heading_uncalibrated &= gain <= 0.0;
+    }
+
+    /// An alignment took the heading from the compass: it rests on the
+    /// calibration and carries the deflection the field may cause now.
+    fn heading_taken_from_compass(&mut self) {
+        self.carried_deflection_rad = self.off_site_deflection_rad();
+        self.heading_uncalibrated = false;
     }
 
     /// How far the compass's field may deflect its heading now, rad
