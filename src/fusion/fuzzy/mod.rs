@@ -106,7 +106,7 @@ use crate::fusion::geometry::{V3, attitude_from_euler};
 /// 9: an undone re-take of the heading and the deflection carried from
 /// fields not the Earth's (their σ), and a restore carries every part of
 /// the state (issue 54).
-pub const STATE_VERSION: u32 = 9;
+pub const STATE_VERSION: u32 = 10;
 
 /// Plausibility caps for alignment, whatever the floor says: a MEMS
 /// sensor at rest shows less spread and less mean rate than this (a
@@ -193,6 +193,12 @@ struct Solution {
     /// (no compass in it; unwrapped), rad.
     #[serde(default)]
     gyro_yaw_rad: f64,
+    /// What the newest accelerometer window says the tilt may be off by,
+    /// 1σ, rad (uncertainty.rs, `unexplained_residual_sigma`): reported
+    /// in the tilt's σ, not in the carried one the pulls and the monitor
+    /// work with.
+    #[serde(default)]
+    residual_sigma_rad: f64,
 }
 
 /// How many σ of the bias and of the wander of the mean rate at rest the
@@ -764,10 +770,11 @@ impl FuzzyEngine {
             return;
         }
         let down = solution.attitude.inverse_transform_vector(&V3::z());
-        // The σ the estimate reports: the test asks whether the tilt shown
-        // is as good as it says.
-        let fit_rms = self.calibration.correction().map(|c| c.fit_rms);
-        let (tilt_sigma_rad, _) = self.reported_sigmas(solution, fit_rms);
+        // The σ the gyros carry the tilt with: the test asks whether the
+        // tilt is as good as that says (the σ the estimate reports adds
+        // the residual this window shows, which at rest is the very
+        // error under test).
+        let tilt_sigma_rad = self.carried_tilt_sigma(solution);
         let bias_departed = tilt_monitor::bias_departs(
             &self.window.mean_rate(),
             &solution.gyro_bias.bias_rad_per_s,
@@ -852,6 +859,7 @@ impl FuzzyEngine {
             bias_walk: WalkLearner::default(),
             rest_rate: RestRate::default(),
             gyro_yaw_rad: 0.0,
+            residual_sigma_rad: 0.0,
             heading_sigma_rad: if yaw_known {
                 UNCALIBRATED_HEADING_SIGMA_RAD
             } else {
@@ -896,6 +904,7 @@ impl FuzzyEngine {
             bias_walk: WalkLearner::default(),
             rest_rate: RestRate::default(),
             gyro_yaw_rad: 0.0,
+            residual_sigma_rad: 0.0,
             heading_sigma_rad: if compass.is_some() {
                 UNCALIBRATED_HEADING_SIGMA_RAD
             } else {
@@ -946,6 +955,11 @@ impl FuzzyEngine {
             // tilt less sure than that widens the gate (two σ of the
             // residual) and takes the accelerometer faster.
             let accel_sigma = 0.5 * c.tilt_gate_rad;
+            // The residual is the tilt's error plus what the vehicle's
+            // acceleration turns the force by; beyond the accelerometer's
+            // own noise, nothing tells the two apart (uncertainty.rs).
+            solution.residual_sigma_rad =
+                uncertainty::unexplained_residual_sigma(measured.angle(&predicted), accel_sigma);
             // The reference's σ adds the acceleration the window shows
             // (uncertainty.rs); it sets how fast the tilt takes it and how
             // sure that leaves the tilt, not the gate (a steady
@@ -1169,17 +1183,27 @@ impl FuzzyEngine {
             .off_site_deflection_rad(self.config.mag_disturbance.dip_rad)
     }
 
+    /// The tilt's 1σ as the gyros carry it, rad: its own σ and the
+    /// accelerometer bias levelling cannot see, without what the newest
+    /// window's residual adds (the rest monitor tests the carried tilt
+    /// against that very residual).
+    fn carried_tilt_sigma(&self, s: &Solution) -> f64 {
+        uncertainty::reported_sigma(s.tilt_sigma_rad, &[self.config.accel_bias_tilt_rad])
+    }
+
     /// The tilt's and the heading's reported 1σ, rad (uncertainty.rs):
     /// the engine's own σ and what no averaging removes: for tilt, the
-    /// accelerometer bias levelling cannot see (`accel_bias_sigma_mps2`
-    /// over g); for heading, the calibration's residual (its relative
+    /// carried σ and what the newest accelerometer window's residual
+    /// leaves unexplained; for heading, the calibration's residual (its relative
     /// radius RMS, `fit_rms`, is about the heading error it leaves, in
     /// rad; before a calibration the compass's hard iron is unknown and so
     /// is the heading) and the tilt's error turned into heading by the
     /// tilt compensation, |tan I|·σ_tilt.
     fn reported_sigmas(&self, s: &Solution, fit_rms: Option<f64>) -> (f64, f64) {
-        let tilt =
-            uncertainty::reported_sigma(s.tilt_sigma_rad, &[self.config.accel_bias_tilt_rad]);
+        let tilt = self
+            .carried_tilt_sigma(s)
+            .hypot(s.residual_sigma_rad)
+            .min(uncertainty::UNKNOWN_ANGLE_SIGMA_RAD);
         // A calibration is as sure as its residual, or as the turns show
         // (turn_check.rs) if they show it worse.
         let calibration = fit_rms

@@ -53,6 +53,17 @@ pub fn moving_reference_sigma(
     (base_sigma_rad.powi(2) + shown.powi(2)).sqrt()
 }
 
+/// The 1σ, rad, that a window's residual ρ against the carried gravity
+/// leaves on the tilt: ρ is the tilt's error plus the angle the vehicle's
+/// acceleration turns the force by, and beyond the accelerometer's own
+/// noise σ_a nothing tells the two apart, so the tilt may be off by all
+/// of the rest: √max(0, ρ² − σ_a²), which two σ cover.
+pub fn unexplained_residual_sigma(residual_rad: f64, accel_sigma_rad: f64) -> f64 {
+    0.5 * (residual_rad.powi(2) - accel_sigma_rad.powi(2))
+        .max(0.0)
+        .sqrt()
+}
+
 /// The angle's σ after a pull by the fraction `gain` towards the sensor, rad.
 pub fn sigma_after_pull(sigma_rad: f64, reference_sigma_rad: f64, gain: f64) -> f64 {
     ((1.0 - gain).powi(2) * sigma_rad.powi(2) + gain.powi(2) * reference_sigma_rad.powi(2)).sqrt()
@@ -83,6 +94,15 @@ mod tests {
         let shown = (1.0f64 / 14.0).atan();
         let sigma = moving_reference_sigma(0.02, -0.3, 0.4, 9.8);
         assert!((sigma - (0.0004 + shown * shown).sqrt()).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_residual_beyond_the_accelerometers_noise_may_all_be_tilt() {
+        // ρ = 5, σ_a = 3: √(25 − 9) = 4, two σ of 2.
+        assert_eq!(unexplained_residual_sigma(5.0, 3.0), 2.0);
+        // Within the noise: nothing.
+        assert_eq!(unexplained_residual_sigma(2.0, 3.0), 0.0);
+        assert_eq!(unexplained_residual_sigma(3.0, 3.0), 0.0);
     }
 
     #[test]
