@@ -177,7 +177,15 @@ fn the_engine_flags_little_and_no_misleading_run_is_long() {
 /// is at most 30 s (before the monitor: up to 123 s frozen, 349 s with
 /// spikes, on seeds 1–40). The 10 s bar itself is printed, met or not.
 fn faulty(fault: tunnelnav::sim::faults::FaultKind) -> tunnelnav::eval::integrity::FaultSummary {
-    let configs: Vec<AttitudeEvalConfig> = (41..=80)
+    faulty_on(fault, 41..=80)
+}
+
+fn faulty_on(
+    fault: tunnelnav::sim::faults::FaultKind,
+    seeds: std::ops::RangeInclusive<u64>,
+) -> tunnelnav::eval::integrity::FaultSummary {
+    let first = *seeds.start();
+    let configs: Vec<AttitudeEvalConfig> = seeds
         .map(|seed| AttitudeEvalConfig {
             fault: Some(fault),
             ..AttitudeEvalConfig::on(Drive::Envelope(Box::new(EnvelopeDrive::draw(seed))))
@@ -186,8 +194,24 @@ fn faulty(fault: tunnelnav::sim::faults::FaultKind) -> tunnelnav::eval::integrit
     let threads = std::thread::available_parallelism().map_or(1, usize::from);
     let evaluations = evaluate_all(&configs, threads).unwrap();
     let summary = summarise(&evaluations);
-    eprintln!("{}", render_summary(&summary, 41));
+    eprintln!("{}", render_summary(&summary, first));
     summary.fault.expect("fault figures")
+}
+
+/// Issue 54, item 7: a new inclinometer zero (+0.05° on pitch and roll,
+/// `power-cycle`) at 40 % of each drive. The step watch's suspicion (a
+/// step too small to call, more significant than chance, carried in the
+/// σ) was built on seeds 1–40 and 41–80 (misleading runs over 10 s on 20
+/// and 20 drives before it, 14 and 16 with it; median 9.5 → 3.0 s and
+/// 9.4 → 3.2 s). Seeds 81–100 were fixed for this test before any figure
+/// on them was looked at. Asserted: every drive recovers and the median
+/// misleading run begun in the fault's reach is at most 10 s; the 10 s
+/// bar on every drive is NOT met (docs/engines/attitude.md).
+#[test]
+fn a_new_inclinometer_zero_is_carried_in_the_sigma_on_most_drives() {
+    let fault = faulty_on(tunnelnav::sim::faults::FaultKind::PowerCycle, 81..=100);
+    assert_eq!(fault.recovered, fault.drives, "{fault:?}");
+    assert!(fault.misleading_run_s.median <= 10.0, "{fault:?}");
 }
 
 #[test]

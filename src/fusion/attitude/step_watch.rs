@@ -32,7 +32,10 @@
 //!
 //! Every step tested, called or not, is also kept (the most significant
 //! of each sign since the laser last checked) as evidence for the laser
-//! dispute: [`StepWatch::explains`].
+//! dispute ([`StepWatch::explains`]) and, where chance among the places
+//! it was the best of does not explain it, in the estimate's σ
+//! ([`StepWatch::suspected_rad`]): the estimate may have followed a new
+//! zero too small to call.
 //!
 //! With honest Gaussian noise a step of 6σ is called by chance once in
 //! 500 million tests; the rate on the envelope's drives is in
@@ -46,6 +49,9 @@ use serde::{Deserialize, Serialize};
 pub const HALF: usize = 16;
 /// A step beyond this many σ is a new zero.
 pub const STEP_SIGMAS: f64 = 6.0;
+/// The chance that noise alone makes the most significant step seen
+/// since the laser's last check suspect ([`StepWatch::suspected_rad`]).
+pub const SUSPECT_ALPHA: f64 = 0.05;
 /// The longest a window may span, s: a TBM's pitch and roll follow a
 /// line over two minutes, not over ten (steering, rocking), so a slow
 /// inclinometer's readings (one every 4 s or slower) are not tested.
@@ -297,9 +303,36 @@ impl StepWatch {
         self.places_since_check += 1.0;
     }
 
-    /// The variance, rad², a step not yet checked adds to pitch and roll.
+    /// The variance, rad², a step not yet checked adds to pitch and roll:
+    /// a called one's, or one too small to be called that is more
+    /// significant than chance explains ([`Self::suspected_rad`]), each
+    /// as a bound (|δ|/√3).
     pub fn unverified_variance(&self) -> [f64; 2] {
-        self.unverified_rad.map(|step| step * step / 3.0)
+        let suspected = self.suspected_rad();
+        [0, 1].map(|axis| {
+            let step = self.unverified_rad[axis].max(suspected[axis]);
+            step * step / 3.0
+        })
+    }
+
+    /// Per axis, the most significant step seen since the laser last
+    /// checked (called or not), rad, if it is more significant than the
+    /// best of the places it was chosen from would be by chance; else 0.
+    /// With N independent places and two signs, the largest of 2N
+    /// standard normal |z| passes √(2 ln(2N/α)) with probability about α
+    /// ([`SUSPECT_ALPHA`]). Such a step is not called (the estimate stays
+    /// vouched for), but the estimate may have followed a new zero that
+    /// small: its σ carries the step until the laser checks.
+    pub fn suspected_rad(&self) -> [f64; 2] {
+        let places = self.places_since_check.max(1.0);
+        let threshold = (2.0 * (2.0 * places / SUSPECT_ALPHA).ln()).sqrt();
+        self.largest_since_check.map(|signs| {
+            signs
+                .iter()
+                .filter(|(step, sigma)| *sigma > 0.0 && step.abs() > threshold * sigma)
+                .map(|(step, _)| step.abs())
+                .fold(0.0, f64::max)
+        })
     }
 
     /// Whether a step awaits the laser's check.
@@ -421,6 +454,30 @@ mod tests {
         assert!(watch.explains([d(-0.05); 2]));
         watch.laser_checked();
         assert!(!watch.explains([d(-0.05); 2]), "nothing seen since");
+    }
+
+    #[test]
+    fn a_step_too_small_to_call_is_carried_in_the_sigma_if_chance_does_not_explain_it() {
+        let d = f64::to_radians;
+        let mut watch = StepWatch::default();
+        // One place: the threshold is √(2 ln(2/0.05)) = √(2 ln 40) ≈ 2.716.
+        // A step of 0.05° with σ 0.02° (2.5σ) is within chance.
+        watch.record([(d(0.05), d(0.02)), (0.0, d(0.02))]);
+        assert_eq!(watch.suspected_rad(), [0.0; 2]);
+        assert_eq!(watch.unverified_variance(), [0.0; 2]);
+        // σ 0.016° (3.125σ): suspect on pitch; its variance is δ²/3.
+        watch.laser_checked();
+        watch.record([(d(-0.05), d(0.016)), (0.0, d(0.016))]);
+        assert_eq!(watch.suspected_rad(), [d(0.05), 0.0]);
+        let [pitch, roll] = watch.unverified_variance();
+        assert!((pitch - d(0.05).powi(2) / 3.0).abs() < 1e-18);
+        assert_eq!(roll, 0.0);
+        assert!(!watch.unverified(), "suspect is not called");
+        // The best of 100 places: √(2 ln 4000) ≈ 4.07 > 3.125.
+        for _ in 0..99 {
+            watch.record([(0.0, d(0.016)); 2]);
+        }
+        assert_eq!(watch.suspected_rad(), [0.0; 2]);
     }
 
     #[test]
