@@ -95,7 +95,8 @@ use crate::fusion::{Integrity, IntegrityReason};
 /// 8: the step watch (a new inclinometer zero; issue 54).
 /// 9: the laser dispute (a wrong prism) and the lag watch (issue 54).
 /// 10: loud readings ([`loud_readings`]; issue 54).
-pub const STATE_VERSION: u32 = 10;
+/// 11: the step watch keeps the readings its extrapolated test needs.
+pub const STATE_VERSION: u32 = 11;
 /// Inclinometer readings kept for pairing with laser samples.
 const HISTORY_POINTS: usize = 512;
 /// Laser samples kept waiting for the inclinometer to pass their time.
@@ -2180,7 +2181,7 @@ mod tests {
             AttitudeEngine::restore(old),
             Err(SnapshotError::Outdated {
                 found: 1,
-                expected: 10,
+                expected: 11,
                 ..
             })
         ));

@@ -49,6 +49,9 @@ use serde::{Deserialize, Serialize};
 pub const HALF: usize = 16;
 /// A step beyond this many σ is a new zero.
 pub const STEP_SIGMAS: f64 = 6.0;
+/// The most readings before the newest [`HALF`] that the extrapolated
+/// test fits its line to ([`StepWatch::observe`]); at least `2 × HALF`.
+pub const LONG_OLD: usize = 64;
 /// The chance that noise alone makes the most significant step seen
 /// since the laser's last check suspect ([`StepWatch::suspected_rad`]).
 pub const SUSPECT_ALPHA: f64 = 0.05;
@@ -92,6 +95,15 @@ impl LineSums {
         let sty = self.ty - n * t_mean * y_mean;
         let slope = if stt > 0.0 { sty / stt } else { 0.0 };
         (t_mean, y_mean, stt, sty, slope)
+    }
+
+    /// The variance of the values about their mean (n − 1), 0 for one.
+    fn spread_about_mean(&self) -> f64 {
+        if self.n < 2.0 {
+            return 0.0;
+        }
+        let mean = self.y / self.n;
+        (self.yy - self.n * mean * mean).max(0.0) / (self.n - 1.0)
     }
 
     /// The line's value at t = 0 and its slope.
@@ -158,7 +170,7 @@ impl StepWatch {
     /// inclinometer's noise variances `r` (rad², pitch and roll). Whether
     /// a window was tested.
     pub fn observe(&mut self, t: f64, pitch: f64, roll: f64, r: [f64; 2]) -> bool {
-        if self.recent.len() == 2 * HALF {
+        if self.recent.len() == LONG_OLD + HALF {
             self.recent.pop_front();
         }
         self.recent.push_back((t, pitch, roll));
@@ -167,20 +179,22 @@ impl StepWatch {
         {
             self.judge_persistence(called);
         }
-        if self.recent.len() < 2 * HALF {
+        let len = self.recent.len();
+        if len < 2 * HALF {
             return false;
         }
-        let span_s = t - self.recent[0].0;
+        let base = len - 2 * HALF;
+        let span_s = t - self.recent[base].0;
         if span_s > MAX_WINDOW_S {
             return false;
         }
-        let split_t = 0.5 * (self.recent[HALF - 1].0 + self.recent[HALF].0);
+        let split_t = 0.5 * (self.recent[base + HALF - 1].0 + self.recent[base + HALF].0);
         // Times from the split, values from the newest reading's: the sums
         // stay small, so their differences keep their digits.
-        let (_, pitch_ref, roll_ref) = self.recent[2 * HALF - 1];
+        let (_, pitch_ref, roll_ref) = self.recent[len - 1];
         let refs = [pitch_ref, roll_ref];
         let mut halves = [[LineSums::default(); 2]; 2];
-        for (k, &(t, p, q)) in self.recent.iter().enumerate() {
+        for (k, &(t, p, q)) in self.recent.iter().skip(base).enumerate() {
             let half = &mut halves[usize::from(k >= HALF)];
             half[0].add(t - split_t, p - pitch_ref);
             half[1].add(t - split_t, q - roll_ref);
@@ -213,6 +227,9 @@ impl StepWatch {
             self.keep_if_largest(axis, *step, sigma);
         }
         self.places_since_check += 1.0 / (2 * HALF) as f64;
+        if !stepped {
+            self.extrapolated_test(r, refs);
+        }
         if stepped {
             self.steps += 1;
             for (held, step) in self.unverified_rad.iter_mut().zip(steps) {
@@ -222,6 +239,100 @@ impl StepWatch {
             self.called = Some(called);
         }
         true
+    }
+
+    /// The extrapolated test, for the record only (never a call): the
+    /// line through the readings before the newest [`HALF`] (at least
+    /// `2 × HALF`, at most [`LONG_OLD`], the whole within
+    /// [`MAX_WINDOW_S`]), carried to the newest readings' mean time, and
+    /// their mean there. Their difference is a step at the newest
+    /// readings' start; its variance s²(1/n_new + 1/n_old + (t̄_new −
+    /// t̄_old)²/Sₜₜ), s² the larger of the two sides' residual variances
+    /// and r, inflated by the old line's residual lag-1 autocorrelation ρ,
+    /// (1 + ρ)/(1 − ρ). The longer line sees a step the two short ones
+    /// miss (about half their σ at 64 readings); the TBM's trend over the
+    /// newest readings is the old line's, which the machine keeps over a
+    /// minute or two. Each test is a place for 1/[`HALF`] (the newest
+    /// readings' tests overlap).
+    fn extrapolated_test(&mut self, r: [f64; 2], refs: [f64; 2]) {
+        let len = self.recent.len();
+        let Some(newest_t) = self.recent.back().map(|n| n.0) else {
+            return;
+        };
+        let first_old = (0..len.saturating_sub(HALF))
+            .find(|&k| newest_t - self.recent[k].0 <= MAX_WINDOW_S)
+            .unwrap_or(len);
+        let n_old = len.saturating_sub(HALF).saturating_sub(first_old);
+        if n_old < 2 * HALF {
+            return;
+        }
+        let new_t_mean = self
+            .recent
+            .iter()
+            .skip(len - HALF)
+            .map(|n| n.0)
+            .sum::<f64>()
+            / HALF as f64;
+        let mut old = [LineSums::default(); 2];
+        let mut new = [LineSums::default(); 2];
+        for (k, &(t, p, q)) in self.recent.iter().enumerate().skip(first_old) {
+            let side = if k >= len - HALF { &mut new } else { &mut old };
+            side[0].add(t - new_t_mean, p - refs[0]);
+            side[1].add(t - new_t_mean, q - refs[1]);
+        }
+        for axis in 0..2 {
+            let (old_there, leverage, s_old) = old[axis].at_zero();
+            let (_, new_mean, _, _, _) = new[axis].centred();
+            let s_new = new[axis].spread_about_mean();
+            let rho = self.old_line_autocorrelation(axis, first_old, new_t_mean, refs[axis], &old);
+            let variance =
+                s_old.max(s_new).max(r[axis]) * (leverage + 1.0 / HALF as f64) * (1.0 + rho)
+                    / (1.0 - rho);
+            self.keep_if_largest(axis, new_mean - old_there, variance.sqrt());
+        }
+        self.places_since_check += 1.0 / HALF as f64;
+    }
+
+    /// The lag-1 autocorrelation of the old line's residuals on `axis`,
+    /// between 0 and [`MAX_AUTOCORRELATION`] (times from `t0`, values
+    /// from `reference`, as the sums were built).
+    fn old_line_autocorrelation(
+        &self,
+        axis: usize,
+        first_old: usize,
+        t0: f64,
+        reference: f64,
+        old: &[LineSums; 2],
+    ) -> f64 {
+        let end = self.recent.len() - HALF;
+        let (lagged, squares) =
+            self.residual_products(first_old..end, axis, t0, reference, old[axis].line());
+        clamped_autocorrelation(lagged, squares)
+    }
+
+    /// Over the readings in `range`: the sums of their residuals' lag-1
+    /// products and of their squares on `axis` about `line` (its value
+    /// at `t0` and its slope; values from `reference`).
+    fn residual_products(
+        &self,
+        range: std::ops::Range<usize>,
+        axis: usize,
+        t0: f64,
+        reference: f64,
+        (at_zero, slope): (f64, f64),
+    ) -> (f64, f64) {
+        let (mut lagged, mut squares) = (0.0, 0.0);
+        let mut previous: Option<f64> = None;
+        for &(t, p, q) in self.recent.range(range) {
+            let y = if axis == 0 { p } else { q } - reference;
+            let e = y - (at_zero + slope * (t - t0));
+            if let Some(before) = previous {
+                lagged += e * before;
+            }
+            squares += e * e;
+            previous = Some(e);
+        }
+        (lagged, squares)
     }
 
     /// With [`HALF`] readings after a called step: a line through them,
@@ -262,25 +373,21 @@ impl StepWatch {
         reference: f64,
         halves: &[[LineSums; 2]; 2],
     ) -> f64 {
+        let base = self.recent.len() - 2 * HALF;
         let (mut lagged, mut squares) = (0.0, 0.0);
         for (half, sums) in halves.iter().enumerate() {
-            let (at_zero, slope) = sums[axis].line();
-            let mut previous: Option<f64> = None;
-            for &(t, p, q) in self.recent.iter().skip(half * HALF).take(HALF) {
-                let y = if axis == 0 { p } else { q } - reference;
-                let e = y - (at_zero + slope * (t - split_t));
-                if let Some(before) = previous {
-                    lagged += e * before;
-                }
-                squares += e * e;
-                previous = Some(e);
-            }
+            let from = base + half * HALF;
+            let (l, q) = self.residual_products(
+                from..from + HALF,
+                axis,
+                split_t,
+                reference,
+                sums[axis].line(),
+            );
+            lagged += l;
+            squares += q;
         }
-        if squares > 0.0 {
-            (lagged / squares).clamp(0.0, MAX_AUTOCORRELATION)
-        } else {
-            0.0
-        }
+        clamped_autocorrelation(lagged, squares)
     }
 
     /// Keeps `step` (σ `sigma`) on `axis` if the most significant of its
@@ -371,6 +478,16 @@ impl StepWatch {
             log_ratio += (step * step - (step + offset).powi(2)) / (2.0 * sigma * sigma);
         }
         seen && log_ratio > self.places_since_check.max(1.0).ln()
+    }
+}
+
+/// Σ eₖeₖ₋₁ / Σ eₖ², between 0 and [`MAX_AUTOCORRELATION`] (0 without
+/// residuals).
+fn clamped_autocorrelation(lagged: f64, squares: f64) -> f64 {
+    if squares > 0.0 {
+        (lagged / squares).clamp(0.0, MAX_AUTOCORRELATION)
+    } else {
+        0.0
     }
 }
 
@@ -476,6 +593,35 @@ mod tests {
         // The best of 100 places: √(2 ln 4000) ≈ 4.07 > 3.125.
         for _ in 0..99 {
             watch.record([(0.0, d(0.016)); 2]);
+        }
+        assert_eq!(watch.suspected_rad(), [0.0; 2]);
+    }
+
+    #[test]
+    fn the_extrapolated_line_sees_a_step_the_two_short_ones_miss() {
+        // Readings 1 s apart, ±0.01° alternating noise on a level; from
+        // reading 48 the pitch is 0.02° up. The short lines (16 each side)
+        // see it at 0.02/√(1.14e-4 · 0.5) ≈ 2.6σ; the line through the 48
+        // older readings, carried to the newest 16's mean time (leverage
+        // 1/48 + 32²/9212 ≈ 0.132, plus 1/16), at 0.02/√(1.07e-4 · 0.195)
+        // ≈ 4.4σ, beyond chance among the ≈ 2 places tested (√(2 ln 84)
+        // ≈ 2.98). Nothing is called.
+        let d = f64::to_radians;
+        let r = [d(0.01).powi(2); 2];
+        let noise = |k: usize| if k.is_multiple_of(2) { 0.01 } else { -0.01 };
+        let mut watch = StepWatch::default();
+        for k in 0..64 {
+            let step = if k >= 48 { 0.02 } else { 0.0 };
+            watch.observe(k as f64, d(noise(k) + step), d(noise(k)), r);
+        }
+        assert_eq!(watch.steps, 0);
+        let [pitch, roll] = watch.suspected_rad().map(f64::to_degrees);
+        assert!((pitch - 0.02).abs() < 0.003, "{pitch}");
+        assert_eq!(roll, 0.0);
+        // The same level without the step: nothing suspect.
+        let mut watch = StepWatch::default();
+        for k in 0..64 {
+            watch.observe(k as f64, d(noise(k)), d(noise(k)), r);
         }
         assert_eq!(watch.suspected_rad(), [0.0; 2]);
     }
