@@ -35,7 +35,10 @@
 //! dispute ([`StepWatch::explains`]) and, where chance among the places
 //! it was the best of does not explain it, in the estimate's σ
 //! ([`StepWatch::suspected_rad`]): the estimate may have followed a new
-//! zero too small to call.
+//! zero too small to call. A second, longer test records too (never
+//! calls): the line through up to [`LONG_OLD`] older readings carried to
+//! the newest [`HALF`] (`extrapolated_test`), about half the short
+//! lines' σ.
 //!
 //! With honest Gaussian noise a step of 6σ is called by chance once in
 //! 500 million tests; the rate on the envelope's drives is in
