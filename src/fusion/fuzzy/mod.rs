@@ -105,7 +105,8 @@ use crate::fusion::geometry::{V3, attitude_from_euler};
 /// 8: the IMU watched for a frozen sensor (issue 54);
 /// 9: an undone re-take of the heading and the deflection carried from
 /// fields not the Earth's (their σ), and a restore carries every part of
-/// the state (issue 54).
+/// the state (issue 54);
+/// 10: the accelerometer residual's share of the tilt σ (issue 54).
 pub const STATE_VERSION: u32 = 10;
 
 /// Plausibility caps for alignment, whatever the floor says: a MEMS
@@ -193,7 +194,8 @@ struct Solution {
     /// (no compass in it; unwrapped), rad.
     #[serde(default)]
     gyro_yaw_rad: f64,
-    /// What the newest accelerometer window says the tilt may be off by,
+    /// What the tilt window's older half (its accelerometer mean against
+    /// the carried gravity) says the tilt may be off by,
     /// 1σ, rad (uncertainty.rs, `unexplained_residual_sigma`): reported
     /// in the tilt's σ, not in the carried one the pulls and the monitor
     /// work with.

@@ -10,10 +10,10 @@
 //! cycle) makes it call a standing vehicle moving. The residual is the
 //! angle between the carried "down" and the window's mean force; the
 //! gate is five σ of it: √(σ_tilt² + σ_window²), σ_tilt the tilt σ the
-//! estimate reports (the test asks whether the tilt shown is as good as
-//! its σ says), σ_window = spread/(g·√N), the mean force's direction
-//! noise with each axis given the whole spread (vibration makes samples
-//! correlated).
+//! gyros carry (the reported σ without the residual's share, which at
+//! rest is the very error under test), σ_window = spread/(g·√N), the
+//! mean force's direction noise with each axis given the whole spread
+//! (vibration makes samples correlated).
 //!
 //! A residual beyond the gate makes the estimate `lost` (`tilt_disagrees`)
 //! at once; held for [`CONFIRM_S`] of quiet windows, the engine aligns
@@ -84,7 +84,7 @@ pub struct TiltMonitor {
 
 impl TiltMonitor {
     /// Tests a quiet `window` at `t` against the carried `down` (unit,
-    /// body frame) and the tilt σ the estimate reports (rad).
+    /// body frame) and the tilt σ the gyros carry (rad).
     pub fn test(
         &mut self,
         t: f64,

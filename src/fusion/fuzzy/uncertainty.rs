@@ -57,7 +57,9 @@ pub fn moving_reference_sigma(
 /// leaves on the tilt: ρ is the tilt's error plus the angle the vehicle's
 /// acceleration turns the force by, and beyond the accelerometer's own
 /// noise σ_a nothing tells the two apart, so the tilt may be off by all
-/// of the rest: √max(0, ρ² − σ_a²), which two σ cover.
+/// of the rest: √max(0, ρ² − σ_a²), which two σ cover. σ_a is the σ
+/// the engine gives the residual angle itself (its gate is 2σ_a), not a
+/// per-axis σ.
 pub fn unexplained_residual_sigma(residual_rad: f64, accel_sigma_rad: f64) -> f64 {
     0.5 * (residual_rad.powi(2) - accel_sigma_rad.powi(2))
         .max(0.0)
