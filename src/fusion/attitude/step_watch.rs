@@ -232,9 +232,6 @@ impl StepWatch {
             self.keep_if_largest(axis, *step, sigma);
         }
         self.places_since_check += 1.0 / (2 * HALF) as f64;
-        if !stepped {
-            self.extrapolated_test(r, refs);
-        }
         if stepped {
             self.steps += 1;
             for (held, step) in self.unverified_rad.iter_mut().zip(steps) {
@@ -242,6 +239,8 @@ impl StepWatch {
             }
             self.recent.clear();
             self.called = Some(called);
+        } else {
+            self.extrapolated_test(r, refs);
         }
         true
     }
@@ -255,8 +254,7 @@ impl StepWatch {
     /// t̄_old)²/Sₜₜ), s² the larger of the old line's residual variance,
     /// the newest readings' spread about their mean (which a trend there
     /// only widens) and r, inflated by the old line's residual lag-1
-    /// autocorrelation ρ,
-    /// (1 + ρ)/(1 − ρ). The longer line sees a step the two short ones
+    /// autocorrelation ρ by (1 + ρ)/(1 − ρ). The longer line sees a step the two short ones
     /// miss (about half their σ at 64 readings); the TBM's trend over the
     /// newest readings is the old line's, which the machine keeps over a
     /// minute or two. Each test is a place for 1/[`HALF`] (the newest

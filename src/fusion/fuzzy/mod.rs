@@ -953,6 +953,7 @@ impl FuzzyEngine {
             && let Some((measured, predicted)) = solution.tilt_window.older_means()
         {
             let residual = (measured - predicted).norm();
+            let residual_rad = measured.angle(&predicted);
             // The accelerometer's own σ while moving: half the gate. A
             // tilt less sure than that widens the gate (two σ of the
             // residual) and takes the accelerometer faster.
@@ -961,7 +962,7 @@ impl FuzzyEngine {
             // acceleration turns the force by; beyond the accelerometer's
             // own noise, nothing tells the two apart (uncertainty.rs).
             solution.residual_sigma_rad =
-                uncertainty::unexplained_residual_sigma(measured.angle(&predicted), accel_sigma);
+                uncertainty::unexplained_residual_sigma(residual_rad, accel_sigma);
             // The reference's σ adds the acceleration the window shows
             // (uncertainty.rs); it sets how fast the tilt takes it and how
             // sure that leaves the tilt, not the gate (a steady
@@ -994,7 +995,7 @@ impl FuzzyEngine {
             // While moving, a residual the pull keeps taking out is the
             // gyro bias's (bias_feedback.rs).
             if let Some(axis) = nalgebra::Unit::try_new(measured.cross(&predicted), 1e-12) {
-                let residual = axis.into_inner() * measured.angle(&predicted);
+                let residual = axis.into_inner() * residual_rad;
                 solution.gyro_bias.bias_rad_per_s += bias_feedback::bias_step(
                     &solution.attitude,
                     &residual,
@@ -1186,21 +1187,21 @@ impl FuzzyEngine {
     }
 
     /// The tilt's 1σ as the gyros carry it, rad: its own σ and the
-    /// accelerometer bias levelling cannot see, without what the newest
-    /// window's residual adds (the rest monitor tests the carried tilt
-    /// against that very residual).
+    /// accelerometer bias levelling cannot see, without the accelerometer
+    /// residual's share (the rest monitor tests the carried tilt against
+    /// the accelerometer at rest, that very residual).
     fn carried_tilt_sigma(&self, s: &Solution) -> f64 {
         uncertainty::reported_sigma(s.tilt_sigma_rad, &[self.config.accel_bias_tilt_rad])
     }
 
     /// The tilt's and the heading's reported 1σ, rad (uncertainty.rs):
     /// the engine's own σ and what no averaging removes: for tilt, the
-    /// carried σ and what the newest accelerometer window's residual
-    /// leaves unexplained; for heading, the calibration's residual (its relative
-    /// radius RMS, `fit_rms`, is about the heading error it leaves, in
-    /// rad; before a calibration the compass's hard iron is unknown and so
-    /// is the heading) and the tilt's error turned into heading by the
-    /// tilt compensation, |tan I|·σ_tilt.
+    /// carried σ and what the accelerometer residual leaves unexplained
+    /// (`residual_sigma_rad`); for heading, the calibration's residual
+    /// (its relative radius RMS, `fit_rms`, is about the heading error it
+    /// leaves, in rad; before a calibration the compass's hard iron is
+    /// unknown and so is the heading) and the tilt's error turned into
+    /// heading by the tilt compensation, |tan I|·σ_tilt.
     fn reported_sigmas(&self, s: &Solution, fit_rms: Option<f64>) -> (f64, f64) {
         let tilt = self
             .carried_tilt_sigma(s)
