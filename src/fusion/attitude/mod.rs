@@ -96,7 +96,9 @@ use crate::fusion::{Integrity, IntegrityReason};
 /// 9: the laser dispute (a wrong prism) and the lag watch (issue 54).
 /// 10: loud readings ([`loud_readings`]; issue 54).
 /// 11: the step watch keeps the readings its extrapolated test needs.
-pub const STATE_VERSION: u32 = 11;
+/// 12: the step watch keeps places (both axes at one time) for the laser
+/// dispute.
+pub const STATE_VERSION: u32 = 12;
 /// Inclinometer readings kept for pairing with laser samples.
 const HISTORY_POINTS: usize = 512;
 /// Laser samples kept waiting for the inclinometer to pass their time.
@@ -638,7 +640,7 @@ impl AttitudeEngine {
             // Readings too far apart for a window: each innovation is the
             // step since the one before.
             if !tested {
-                self.step_watch.record(innovations);
+                self.step_watch.record(t, innovations);
             }
         }
 
@@ -2181,7 +2183,7 @@ mod tests {
             AttitudeEngine::restore(old),
             Err(SnapshotError::Outdated {
                 found: 1,
-                expected: 11,
+                expected: 12,
                 ..
             })
         ));

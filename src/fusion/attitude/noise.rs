@@ -21,7 +21,7 @@
 //! E[D_k²] = 6σ_w² + σ_c² (6 − 8ρ^k + 2ρ^{2k}) + 2 q_w h_k + ⅔ q_a h_k³   (N2)
 //! for white noise σ_w², coloured (AR(1), ρ = e^{−Δ/τ}) noise σ_c², a
 //! random walk q_w of the signal and a random walk q_a of its rate. With
-//! q_a from the laser (N3), N2 is fitted by weighted non-negative least
+//! q_a at most the laser's (N3, N2c), N2 is fitted by weighted non-negative least
 //! squares for each τ of [`COLOUR_TAUS_S`]; colour is kept only if it
 //! clearly fits better and is more than a trace. Per phase the result is
 //! scaled by that phase's one-lag level E[D₁²]/6.
@@ -31,6 +31,14 @@
 //! reading it must take is σ_w² + σ_c² g(n) with the AR(1) mean-of-n factor
 //! g(n) = (1 + ρ)/(1 − ρ) − 2ρ (1 − ρⁿ) / (n (1 − ρ)²)                  (N2b)
 //! and n ≈ min(√(R/(q_w Δ)), (R/(q_a Δ³))^¼), the inverse steady gain.
+//!
+//! **The laser's walk bounds the lags' (N2c).** N3's q_a is fitted over
+//! minutes. A motion smoother than a rate walk (a roll that sways over
+//! half an hour) grows like h⁴, not h³, so carried down to the
+//! inclinometer's lags ⅔ q_a h³ overstates it and, taken out of E[D²], it
+//! left nothing for the noise (on the envelope a 20 s inclinometer's roll
+//! noise fitted 0.0001° against 0.037°, and the roll σ followed). The fit
+//! therefore takes its own rate walk q_a′ ≤ q_a as a fourth column.
 //!
 //! **The machine's slow motion (N3).** The inclinometer's lags are too
 //! short to see the shield turn; the laser's are long enough. Laser second
@@ -463,48 +471,59 @@ impl Variogram {
     /// N2 fitted for each τ of [`COLOUR_TAUS_S`] by weighted non-negative
     /// least squares (weights: count over E[D²] squared), the best τ
     /// kept: E[D_k²] = 6σ_w² + σ_c² (6 − 8ρ^k + 2ρ^{2k}) + 2 q_w h_k +
-    /// (2/3) q_a h_k³ with ρ^k = e^{−h_k/τ}. `q_a` comes from elsewhere
-    /// (the laser): these lags are too short to see the machine's slow
-    /// turns.
-    pub fn fit(&self, q_a: f64) -> Option<NoiseFit> {
-        let rows: Vec<(f64, f64, f64, f64)> = self
+    /// (2/3) q_a h_k³ with ρ^k = e^{−h_k/τ}. `q_a_max` comes from
+    /// elsewhere (the laser, over minutes): at these short lags a motion
+    /// smoother than a rate walk (a turn that builds over minutes) shows
+    /// less than (2/3) q_a h³, so the fit takes its own q_a up to
+    /// `q_a_max`; what the lags do not show of the laser's walk is not
+    /// taken out of the noise (N2c).
+    pub fn fit(&self, q_a_max: f64) -> Option<NoiseFit> {
+        let rows: Vec<(f64, f64, f64)> = self
             .d2
             .iter()
             .zip(&self.lag_s)
             .filter(|(d2, _)| d2.count >= MIN_VARIOGRAM_SAMPLES)
             .map(|(d2, h)| {
-                let y = d2.mean - 2.0 / 3.0 * q_a * h.mean.powi(3);
                 let w = d2.count.min(VARIOGRAM_MEMORY) / (d2.mean * d2.mean).max(1e-300);
-                (h.mean, y, w, d2.mean)
+                (h.mean, d2.mean, w)
             })
             .collect();
         let one = self.d2[0];
         if rows.len() < 3 || one.count < MIN_SAMPLES || one.mean <= 0.0 {
             return None;
         }
+        let rate_column = |h: f64| 2.0 / 3.0 * h.powi(3);
         let mut best: Option<(f64, NoiseFit)> = None;
         for &tau in &COLOUR_TAUS_S {
-            // Columns: white, coloured, random walk; without colour the
-            // walk moves into the second column.
+            // Columns: white, coloured (none without colour), random walk,
+            // rate walk.
             let columns = |h: f64| {
-                if tau > 0.0 {
+                let colour = if tau > 0.0 {
                     let rho = (-h / tau).exp();
-                    [6.0, 6.0 - 8.0 * rho + 2.0 * rho * rho, 2.0 * h]
+                    6.0 - 8.0 * rho + 2.0 * rho * rho
                 } else {
-                    [6.0, 2.0 * h, 0.0]
-                }
+                    0.0
+                };
+                [6.0, colour, 2.0 * h, rate_column(h)]
             };
-            let system: Vec<([f64; 3], f64, f64)> = rows
-                .iter()
-                .map(|&(h, y, w, _)| (columns(h), y, w))
-                .collect();
-            let unknowns = if tau > 0.0 { 3 } else { 2 };
-            let (c, residual) = nonnegative_least_squares(&system, unknowns);
-            let (white, coloured, q_w) = if tau > 0.0 {
-                (c[0], c[1], c[2])
-            } else {
-                (c[0], 0.0, c[1])
-            };
+            let free: Vec<([f64; 4], f64, f64)> =
+                rows.iter().map(|&(h, y, w)| (columns(h), y, w)).collect();
+            let (mut c, mut residual) = nonnegative_least_squares(&free);
+            if c[3] > q_a_max {
+                // Bounded: the rate walk at its bound (a convex fit whose
+                // free optimum lies beyond it has its bounded one on it).
+                let bounded: Vec<([f64; 4], f64, f64)> = rows
+                    .iter()
+                    .map(|&(h, y, w)| {
+                        let mut x = columns(h);
+                        x[3] = 0.0;
+                        (x, y - q_a_max * rate_column(h), w)
+                    })
+                    .collect();
+                (c, residual) = nonnegative_least_squares(&bounded);
+                c[3] = q_a_max;
+            }
+            let [white, coloured, q_w, _] = c;
             let fit = NoiseFit {
                 white,
                 coloured,
@@ -531,38 +550,38 @@ impl Variogram {
     }
 }
 
-/// Weighted least squares y ≈ Σ x_j c_j with every c_j ≥ 0 over the first
-/// `unknowns` columns: each subset of the columns is solved and the best
-/// fit with no negative coefficient kept. Returns the coefficients and the
-/// weighted residual.
-fn nonnegative_least_squares(rows: &[([f64; 3], f64, f64)], unknowns: usize) -> ([f64; 3], f64) {
+/// Weighted least squares y ≈ Σ x_j c_j with every c_j ≥ 0: each subset of
+/// the columns is solved and the best fit with no negative coefficient
+/// kept (a column of zeros makes its subsets singular, so it stays 0).
+/// Returns the coefficients and the weighted residual.
+fn nonnegative_least_squares(rows: &[([f64; 4], f64, f64)]) -> ([f64; 4], f64) {
     // The normal equations once: A = Σ w x xᵀ, b = Σ w x y, and Σ w y².
-    let (mut a, mut b, mut yy) = ([[0.0; 3]; 3], [0.0; 3], 0.0);
+    let (mut a, mut b, mut yy) = ([[0.0; 4]; 4], [0.0; 4], 0.0);
     for (x, y, w) in rows {
-        for i in 0..3 {
+        for i in 0..4 {
             b[i] += w * x[i] * y;
-            for j in 0..3 {
+            for j in 0..4 {
                 a[i][j] += w * x[i] * x[j];
             }
         }
         yy += w * y * y;
     }
-    let mut best = ([0.0; 3], f64::INFINITY);
-    for mask in 1..(1u32 << unknowns) {
-        let mut cols = [0usize; 3];
+    let mut best = ([0.0; 4], f64::INFINITY);
+    for mask in 1..(1u32 << 4) {
+        let mut cols = [0usize; 4];
         let mut k = 0;
-        for j in 0..unknowns {
+        for j in 0..4 {
             if mask & (1 << j) != 0 {
                 cols[k] = j;
                 k += 1;
             }
         }
-        let mut m = [[0.0; 4]; 3];
+        let mut m = [[0.0; 5]; 4];
         for r in 0..k {
             for c in 0..k {
                 m[r][c] = a[cols[r]][cols[c]];
             }
-            m[r][3] = b[cols[r]];
+            m[r][4] = b[cols[r]];
         }
         let Some(solution) = solve_small(&mut m, k) else {
             continue;
@@ -570,15 +589,15 @@ fn nonnegative_least_squares(rows: &[([f64; 3], f64, f64)], unknowns: usize) -> 
         if solution[..k].iter().any(|c| !(c.is_finite() && *c >= 0.0)) {
             continue;
         }
-        let mut c = [0.0; 3];
+        let mut c = [0.0; 4];
         for r in 0..k {
             c[cols[r]] = solution[r];
         }
         // Σ w (y − xᵀc)² = Σ w y² − 2 cᵀb + cᵀ A c
         let mut residual = yy;
-        for i in 0..3 {
+        for i in 0..4 {
             residual -= 2.0 * c[i] * b[i];
-            for j in 0..3 {
+            for j in 0..4 {
                 residual += c[i] * a[i][j] * c[j];
             }
         }
@@ -590,8 +609,8 @@ fn nonnegative_least_squares(rows: &[([f64; 3], f64, f64)], unknowns: usize) -> 
 }
 
 /// Gaussian elimination with partial pivoting on the first `k` rows of the
-/// augmented matrix `m` (k ≤ 3); `None` if it is singular.
-fn solve_small(m: &mut [[f64; 4]; 3], k: usize) -> Option<[f64; 3]> {
+/// augmented matrix `m` (k ≤ 4); `None` if it is singular.
+fn solve_small(m: &mut [[f64; 5]; 4], k: usize) -> Option<[f64; 4]> {
     for col in 0..k {
         let pivot = (col..k).max_by(|&x, &y| m[x][col].abs().total_cmp(&m[y][col].abs()))?;
         if m[pivot][col].abs() <= 1e-300 {
@@ -606,9 +625,9 @@ fn solve_small(m: &mut [[f64; 4]; 3], k: usize) -> Option<[f64; 3]> {
             }
         }
     }
-    let mut x = [0.0; 3];
+    let mut x = [0.0; 4];
     for row in (0..k).rev() {
-        let mut v = m[row][3];
+        let mut v = m[row][4];
         for c in row + 1..k {
             v -= m[row][c] * x[c];
         }

@@ -144,6 +144,12 @@ pub struct StepWatch {
     /// step down and up seen on pitch and roll, each (step, its σ), rad
     /// ((0, 0): none), called or not.
     largest_since_check: [[(f64, f64); 2]; 2],
+    /// Since the laser last checked, the places a new zero of both axes
+    /// at once may have been seen at, for [`Self::explains`]: per axis and
+    /// sign the place of that axis's most significant step (with what the
+    /// other axis did there), and per pair of signs the place jointly most
+    /// significant (Σ (δ/σ)² over the axes).
+    places: [Place; 8],
     /// How many independent places a step could have been seen at since
     /// the laser last checked: a recorded innovation counts one, a tested
     /// window 1/2W (consecutive windows share all but one reading), an
@@ -155,6 +161,51 @@ pub struct StepWatch {
     called: Option<CalledStep>,
     /// Steps called so far.
     pub steps: u64,
+}
+
+/// One place a step was tested at: the step on pitch and roll and their
+/// σ, rad (σ 0: no place), where it lies (s) and how far from there
+/// another test could see the same step (the readings after the split
+/// its test averaged, s).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+struct Place {
+    step: [f64; 2],
+    sigma: [f64; 2],
+    t: f64,
+    reach_s: f64,
+}
+
+impl Place {
+    /// `axis`'s share of the log-likelihood ratio of a new zero here that
+    /// the estimate followed (a step of −J) against none, for a laser
+    /// sample off by `offset` (J, laser − estimate): (δ² − (δ + J)²) / 2σ².
+    fn axis_log_ratio(&self, axis: usize, offset: f64) -> f64 {
+        let (step, sigma) = (self.step[axis], self.sigma[axis]);
+        (step * step - (step + offset).powi(2)) / (2.0 * sigma * sigma)
+    }
+
+    /// Over both axes.
+    fn log_ratio(&self, offset: [f64; 2]) -> f64 {
+        (0..2)
+            .map(|axis| self.axis_log_ratio(axis, offset[axis]))
+            .sum()
+    }
+
+    /// Whether `other` may have seen the same step.
+    fn coincides(&self, other: &Place) -> bool {
+        (self.t - other.t).abs() <= self.reach_s.max(other.reach_s)
+    }
+
+    /// Σ (δ/σ)² over the axes.
+    fn significance(&self) -> f64 {
+        (0..2)
+            .map(|axis| (self.step[axis] / self.sigma[axis]).powi(2))
+            .sum()
+    }
+
+    fn is_seen(&self) -> bool {
+        self.sigma.iter().all(|&s| s > 0.0)
+    }
 }
 
 /// A called step awaiting the readings after it.
@@ -206,6 +257,7 @@ impl StepWatch {
         }
         let mut stepped = false;
         let mut steps = [0.0; 2];
+        let mut sigmas = [0.0; 2];
         let mut called = CalledStep {
             split_t,
             before_rad: [0.0; 2],
@@ -230,7 +282,14 @@ impl StepWatch {
             }
             called.before_rad[axis] = y_old + refs[axis];
             self.keep_if_largest(axis, *step, sigma);
+            sigmas[axis] = sigma;
         }
+        self.keep_place(Place {
+            step: steps,
+            sigma: sigmas,
+            t: split_t,
+            reach_s: t - split_t,
+        });
         self.places_since_check += 1.0 / (2 * HALF) as f64;
         if stepped {
             self.steps += 1;
@@ -285,6 +344,12 @@ impl StepWatch {
             side[0].add(t - new_t_mean, p - refs[0]);
             side[1].add(t - new_t_mean, q - refs[1]);
         }
+        let newest_from_t = self.recent[len - HALF].0;
+        let mut place = Place {
+            t: newest_from_t,
+            reach_s: newest_t - newest_from_t,
+            ..Place::default()
+        };
         for axis in 0..2 {
             let (old_there, leverage, s_old) = old[axis].at_zero();
             let (_, new_mean, _, _, _) = new[axis].centred();
@@ -293,8 +358,11 @@ impl StepWatch {
             let variance =
                 s_old.max(s_new).max(r[axis]) * (leverage + 1.0 / HALF as f64) * (1.0 + rho)
                     / (1.0 - rho);
-            self.keep_if_largest(axis, new_mean - old_there, variance.sqrt());
+            place.step[axis] = new_mean - old_there;
+            place.sigma[axis] = variance.sqrt();
+            self.keep_if_largest(axis, place.step[axis], place.sigma[axis]);
         }
+        self.keep_place(place);
         self.places_since_check += 1.0 / HALF as f64;
     }
 
@@ -370,6 +438,13 @@ impl StepWatch {
                     *slot = (0.0, 0.0);
                 }
             }
+            for place in &mut self.places {
+                if (0..2).any(|axis| {
+                    called.step_rad[axis] != 0.0 && place.step[axis] == called.step_rad[axis]
+                }) {
+                    *place = Place::default();
+                }
+            }
         }
     }
 
@@ -411,14 +486,45 @@ impl StepWatch {
         }
     }
 
+    /// Keeps `place` where it is the most significant of its kind since
+    /// the laser last checked (see `places`).
+    fn keep_place(&mut self, place: Place) {
+        if !place.is_seen() {
+            return;
+        }
+        let sign = |axis: usize| usize::from(place.step[axis] > 0.0);
+        let by_axis = |axis: usize| {
+            move |kept: &Place| {
+                (place.step[axis] / place.sigma[axis]).abs()
+                    >= (kept.step[axis] / kept.sigma[axis]).abs()
+            }
+        };
+        for axis in 0..2 {
+            let slot = &mut self.places[2 * axis + sign(axis)];
+            if !slot.is_seen() || by_axis(axis)(slot) {
+                *slot = place;
+            }
+        }
+        let slot = &mut self.places[4 + 2 * sign(0) + sign(1)];
+        if !slot.is_seen() || place.significance() >= slot.significance() {
+            *slot = place;
+        }
+    }
+
     /// Where no window is tested (readings too far apart, or too few
     /// since the last step): a reading's innovation and its σ, pitch and
     /// roll, rad, as the step since the reading before, for
     /// [`Self::explains`].
-    pub fn record(&mut self, innovations: [(f64, f64); 2]) {
+    pub fn record(&mut self, t: f64, innovations: [(f64, f64); 2]) {
         for (axis, (innovation, sigma)) in innovations.into_iter().enumerate() {
             self.keep_if_largest(axis, innovation, sigma);
         }
+        self.keep_place(Place {
+            step: innovations.map(|(innovation, _)| innovation),
+            sigma: innovations.map(|(_, sigma)| sigma),
+            t,
+            reach_s: 0.0,
+        });
         self.places_since_check += 1.0;
     }
 
@@ -466,33 +572,47 @@ impl StepWatch {
     pub fn laser_checked(&mut self) {
         self.unverified_rad = [0.0; 2];
         self.largest_since_check = [[(0.0, 0.0); 2]; 2];
+        self.places = [Place::default(); 8];
         self.places_since_check = 0.0;
         self.called = None;
     }
 
     /// Whether the inclinometer's readings since the laser last checked
     /// explain a laser sample `offset_rad` (laser − estimate, pitch and
-    /// roll, rad) better than no step does. Take on each axis the most
-    /// significant step seen of the opposite sign (the estimate followed a
-    /// new zero), δ with σ; a step of −J there is likelier than none by
-    /// the log-likelihood ratio Σ (δ² − (δ + J)²) / 2σ² over the two axes.
+    /// roll, rad) better than no step does. A new zero is one event: at
+    /// one place a step (δ with σ per axis) that the estimate followed
+    /// makes a step of −J there likelier than none by the log-likelihood
+    /// ratio Σ (δ² − (δ + J)²) / 2σ² over the two axes at that place. The
+    /// best of the places kept (`places`: each axis's most
+    /// significant step of either sign with what the other axis did there,
+    /// and the jointly most significant of each pair of signs) is taken,
+    /// and the two axes' own most significant steps together where they
+    /// lie within a test's reach of each other (overlapping windows see
+    /// one step at neighbouring places).
     /// With no place preferred a priori, a step at one of N places wins
     /// when that ratio exceeds ln N (the best of N candidates is a
     /// selection: the threshold pays for it). Too small or too noisy to be
     /// called on its own, such a step is still the evidence that tells a
-    /// new inclinometer zero from a laser that jumped.
+    /// new inclinometer zero from a laser that jumped; steps on the two
+    /// axes at different places (a sway on one, noise on the other) are
+    /// not one new zero.
     pub fn explains(&self, offset_rad: [f64; 2]) -> bool {
-        let mut log_ratio = 0.0;
-        let mut seen = false;
-        for (axis, offset) in offset_rad.into_iter().enumerate() {
-            let (step, sigma) = self.largest_since_check[axis][usize::from(offset < 0.0)];
-            if sigma <= 0.0 {
-                continue;
-            }
-            seen = true;
-            log_ratio += (step * step - (step + offset).powi(2)) / (2.0 * sigma * sigma);
-        }
-        seen && log_ratio > self.places_since_check.max(1.0).ln()
+        let best = self
+            .places
+            .iter()
+            .filter(|place| place.is_seen())
+            .map(|place| place.log_ratio(offset_rad))
+            .fold(f64::NEG_INFINITY, f64::max);
+        // Each axis's most significant step of the sign that follows the
+        // offset (a laser above the estimate: the zero stepped down).
+        let [pitch, roll] =
+            [0, 1].map(|axis| self.places[2 * axis + usize::from(offset_rad[axis] < 0.0)]);
+        let together = if pitch.is_seen() && roll.is_seen() && pitch.coincides(&roll) {
+            pitch.axis_log_ratio(0, offset_rad[0]) + roll.axis_log_ratio(1, offset_rad[1])
+        } else {
+            f64::NEG_INFINITY
+        };
+        best.max(together) > self.places_since_check.max(1.0).ln()
     }
 }
 
@@ -568,7 +688,7 @@ mod tests {
         let d = f64::to_radians;
         let mut watch = StepWatch::default();
         // Up 0.05° on both axes, σ 0.02°: one place, threshold ln 1 = 0.
-        watch.record([(d(0.05), d(0.02)); 2]);
+        watch.record(0.0, [(d(0.05), d(0.02)); 2]);
         // A laser 0.05° below the estimate: per axis
         // (0.05² − 0²) / (2 · 0.02²) = 3.125, 6.25 in all.
         assert!(watch.explains([d(-0.05); 2]));
@@ -578,14 +698,51 @@ mod tests {
         assert!(!watch.explains([d(-0.2); 2]));
         // The same step as the best of 600 places: ln 600 ≈ 6.4 > 6.25.
         for _ in 0..599 {
-            watch.record([(0.0, d(0.02)); 2]);
+            watch.record(0.0, [(0.0, d(0.02)); 2]);
         }
         assert!(!watch.explains([d(-0.05); 2]));
         watch.laser_checked();
-        watch.record([(d(0.05), d(0.02)); 2]);
+        watch.record(0.0, [(d(0.05), d(0.02)); 2]);
         assert!(watch.explains([d(-0.05); 2]));
         watch.laser_checked();
         assert!(!watch.explains([d(-0.05); 2]), "nothing seen since");
+    }
+
+    #[test]
+    fn steps_on_the_two_axes_explain_a_laser_jump_together_only_if_one_event_could_make_them() {
+        let d = f64::to_radians;
+        // Pitch stepped up 0.05° at one reading, roll 100 s later (σ
+        // 0.02°): two places, threshold ln 2 ≈ 0.69. For a laser 0.05°
+        // below the estimate on both axes, each place explains its own
+        // axis ((0.05² − 0²) / (2 · 0.02²) = 3.125) and counts against
+        // the other ((0² − 0.05²) / (2 · 0.02²) = −3.125): 0 in all.
+        let mut apart = StepWatch::default();
+        apart.record(0.0, [(d(0.05), d(0.02)), (0.0, d(0.02))]);
+        apart.record(100.0, [(0.0, d(0.02)), (d(0.05), d(0.02))]);
+        assert!(!apart.explains([d(-0.05); 2]));
+        // The pitch step alone (a laser off on pitch only) is explained.
+        assert!(apart.explains([d(-0.05), 0.0]));
+        // At one reading: 6.25.
+        let mut together = StepWatch::default();
+        together.record(0.0, [(0.0, d(0.02)); 2]);
+        together.record(100.0, [(d(0.05), d(0.02)); 2]);
+        assert!(together.explains([d(-0.05); 2]));
+        // A window's test reaches over the readings after its split.
+        let window = Place {
+            t: 0.0,
+            reach_s: 30.0,
+            ..Place::default()
+        };
+        let near = Place { t: 25.0, ..window };
+        let far = Place { t: 31.0, ..window };
+        assert!(window.coincides(&Place {
+            reach_s: 0.0,
+            ..near
+        }));
+        assert!(!window.coincides(&Place {
+            reach_s: 0.0,
+            ..far
+        }));
     }
 
     #[test]
@@ -594,12 +751,12 @@ mod tests {
         let mut watch = StepWatch::default();
         // One place: the threshold is √(2 ln(2/0.05)) = √(2 ln 40) ≈ 2.716.
         // A step of 0.05° with σ 0.02° (2.5σ) is within chance.
-        watch.record([(d(0.05), d(0.02)), (0.0, d(0.02))]);
+        watch.record(0.0, [(d(0.05), d(0.02)), (0.0, d(0.02))]);
         assert_eq!(watch.suspected_rad(), [0.0; 2]);
         assert_eq!(watch.unverified_variance(), [0.0; 2]);
         // σ 0.016° (3.125σ): suspect on pitch; its variance is δ²/3.
         watch.laser_checked();
-        watch.record([(d(-0.05), d(0.016)), (0.0, d(0.016))]);
+        watch.record(0.0, [(d(-0.05), d(0.016)), (0.0, d(0.016))]);
         assert_eq!(watch.suspected_rad(), [d(0.05), 0.0]);
         let [pitch, roll] = watch.unverified_variance();
         assert!((pitch - d(0.05).powi(2) / 3.0).abs() < 1e-18);
@@ -607,7 +764,7 @@ mod tests {
         assert!(!watch.unverified(), "suspect is not called");
         // The best of 100 places: √(2 ln 4000) ≈ 4.07 > 3.125.
         for _ in 0..99 {
-            watch.record([(0.0, d(0.016)); 2]);
+            watch.record(0.0, [(0.0, d(0.016)); 2]);
         }
         assert_eq!(watch.suspected_rad(), [0.0; 2]);
     }
