@@ -506,23 +506,29 @@ impl Variogram {
                 };
                 [6.0, colour, 2.0 * h, rate_column(h)]
             };
-            let free: Vec<([f64; 4], f64, f64)> =
+            let mut system: Vec<([f64; 4], f64, f64)> =
                 rows.iter().map(|&(h, y, w)| (columns(h), y, w)).collect();
-            let (mut c, mut residual) = nonnegative_least_squares(&free);
-            if c[3] > q_a_max {
+            // The rate walk is free where the lags leave the fit a row to
+            // spare (colour has one column more, so it needs five lags;
+            // without colour an exact fit of three is allowed: it is the
+            // default, and colour must beat it).
+            let unknowns = if tau > 0.0 { 4 } else { 3 };
+            let free = system.len() > unknowns || (tau == 0.0 && system.len() == unknowns);
+            let mut fitted = free.then(|| nonnegative_least_squares(&system));
+            if fitted.is_none_or(|(c, _)| c[3] > q_a_max) {
                 // Bounded: the rate walk at its bound (a convex fit whose
                 // free optimum lies beyond it has its bounded one on it).
-                let bounded: Vec<([f64; 4], f64, f64)> = rows
-                    .iter()
-                    .map(|&(h, y, w)| {
-                        let mut x = columns(h);
-                        x[3] = 0.0;
-                        (x, y - q_a_max * rate_column(h), w)
-                    })
-                    .collect();
-                (c, residual) = nonnegative_least_squares(&bounded);
+                for (x, y, _) in &mut system {
+                    *y -= q_a_max * x[3];
+                    x[3] = 0.0;
+                }
+                let (mut c, residual) = nonnegative_least_squares(&system);
                 c[3] = q_a_max;
+                fitted = Some((c, residual));
             }
+            let Some((c, residual)) = fitted else {
+                continue;
+            };
             let [white, coloured, q_w, _] = c;
             let fit = NoiseFit {
                 white,
@@ -553,10 +559,13 @@ impl Variogram {
 /// Weighted least squares y ≈ Σ x_j c_j with every c_j ≥ 0: each subset of
 /// the columns is solved and the best fit with no negative coefficient
 /// kept (a column of zeros makes its subsets singular, so it stays 0).
-/// Returns the coefficients and the weighted residual.
+/// The normal equations are solved with each column scaled to a unit
+/// diagonal (the columns span ten decades: 6 against ⅔h³), and a subset
+/// whose pivot falls below [`RELATIVE_PIVOT`] of that is singular.
+/// Returns the coefficients and the weighted residual Σ w (y − xᵀc)².
 fn nonnegative_least_squares(rows: &[([f64; 4], f64, f64)]) -> ([f64; 4], f64) {
-    // The normal equations once: A = Σ w x xᵀ, b = Σ w x y, and Σ w y².
-    let (mut a, mut b, mut yy) = ([[0.0; 4]; 4], [0.0; 4], 0.0);
+    // The normal equations once: A = Σ w x xᵀ, b = Σ w x y.
+    let (mut a, mut b) = ([[0.0; 4]; 4], [0.0; 4]);
     for (x, y, w) in rows {
         for i in 0..4 {
             b[i] += w * x[i] * y;
@@ -564,9 +573,17 @@ fn nonnegative_least_squares(rows: &[([f64; 4], f64, f64)]) -> ([f64; 4], f64) {
                 a[i][j] += w * x[i] * x[j];
             }
         }
-        yy += w * y * y;
     }
-    let mut best = ([0.0; 4], f64::INFINITY);
+    let scale = [0, 1, 2, 3].map(|j| a[j][j].sqrt());
+    let residual_of = |c: &[f64; 4]| {
+        rows.iter()
+            .map(|(x, y, w)| {
+                let fitted: f64 = x.iter().zip(c).map(|(x, c)| x * c).sum();
+                w * (y - fitted).powi(2)
+            })
+            .sum::<f64>()
+    };
+    let mut best = ([0.0; 4], residual_of(&[0.0; 4]));
     for mask in 1..(1u32 << 4) {
         let mut cols = [0usize; 4];
         let mut k = 0;
@@ -576,31 +593,30 @@ fn nonnegative_least_squares(rows: &[([f64; 4], f64, f64)]) -> ([f64; 4], f64) {
                 k += 1;
             }
         }
+        if cols[..k]
+            .iter()
+            .any(|&j| !(scale[j] > 0.0 && scale[j].is_finite()))
+        {
+            continue;
+        }
         let mut m = [[0.0; 5]; 4];
         for r in 0..k {
             for c in 0..k {
-                m[r][c] = a[cols[r]][cols[c]];
+                m[r][c] = a[cols[r]][cols[c]] / (scale[cols[r]] * scale[cols[c]]);
             }
-            m[r][4] = b[cols[r]];
+            m[r][4] = b[cols[r]] / scale[cols[r]];
         }
         let Some(solution) = solve_small(&mut m, k) else {
             continue;
         };
-        if solution[..k].iter().any(|c| !(c.is_finite() && *c >= 0.0)) {
-            continue;
-        }
         let mut c = [0.0; 4];
         for r in 0..k {
-            c[cols[r]] = solution[r];
+            c[cols[r]] = solution[r] / scale[cols[r]];
         }
-        // Σ w (y − xᵀc)² = Σ w y² − 2 cᵀb + cᵀ A c
-        let mut residual = yy;
-        for i in 0..4 {
-            residual -= 2.0 * c[i] * b[i];
-            for j in 0..4 {
-                residual += c[i] * a[i][j] * c[j];
-            }
+        if c.iter().any(|c| !(c.is_finite() && *c >= 0.0)) {
+            continue;
         }
+        let residual = residual_of(&c);
         if residual < best.1 {
             best = (c, residual);
         }
@@ -608,12 +624,16 @@ fn nonnegative_least_squares(rows: &[([f64; 4], f64, f64)]) -> ([f64; 4], f64) {
     best
 }
 
+/// A pivot below this (of a unit diagonal) is a singular subset.
+const RELATIVE_PIVOT: f64 = 1e-12;
+
 /// Gaussian elimination with partial pivoting on the first `k` rows of the
-/// augmented matrix `m` (k ≤ 4); `None` if it is singular.
+/// augmented matrix `m` (k ≤ 4, scaled to a unit diagonal); `None` if it
+/// is singular.
 fn solve_small(m: &mut [[f64; 5]; 4], k: usize) -> Option<[f64; 4]> {
     for col in 0..k {
         let pivot = (col..k).max_by(|&x, &y| m[x][col].abs().total_cmp(&m[y][col].abs()))?;
-        if m[pivot][col].abs() <= 1e-300 {
+        if m[pivot][col].abs() <= RELATIVE_PIVOT {
             return None;
         }
         m.swap(col, pivot);
@@ -733,6 +753,34 @@ mod tests {
             m.add(10.0);
         }
         assert!((m.mean - 10.0).abs() < 1e-9);
+    }
+
+    /// N2c: a 20 s inclinometer's lags (20, 40, 80 s) over white noise
+    /// σ² = 10⁻⁷ rad² and a rate walk of 10⁻¹³ rad²/s³, with the laser's
+    /// walk (N3) a hundred times larger. Taken out whole, ⅔·10⁻¹¹·80³ =
+    /// 3.41·10⁻⁶ would exceed E[D²] at 80 s (6·10⁻⁷ + 3.41·10⁻⁸); fitted
+    /// up to its bound, the noise and the walk are found exactly.
+    #[test]
+    fn the_lags_fit_their_own_rate_walk_up_to_the_lasers() {
+        let (white, q_a) = (1e-7_f64, 1e-13_f64);
+        let mut v = Variogram::default();
+        for (i, h) in [20.0_f64, 40.0, 80.0].into_iter().enumerate() {
+            v.d2[i] = RunningMean {
+                mean: 6.0 * white + 2.0 / 3.0 * q_a * h.powi(3),
+                count: 2000.0,
+            };
+            v.lag_s[i] = RunningMean {
+                mean: h,
+                count: 2000.0,
+            };
+        }
+        let fit = v.fit(100.0 * q_a).unwrap();
+        assert!((fit.white / white - 1.0).abs() < 1e-9, "{fit:?}");
+        assert!(fit.q_w < 1e-9 * white && fit.coloured == 0.0, "{fit:?}");
+        // Held at the laser's bound of 0 the walk leaves, at 80 s, E[D²]
+        // that a line in h cannot bend to: the noise is no longer exact.
+        let held = v.fit(0.0).unwrap();
+        assert!((held.white / white - 1.0).abs() > 1e-3, "{held:?}");
     }
 
     /// White noise of σ on a slow ramp: R is σ², no colour, no walk.

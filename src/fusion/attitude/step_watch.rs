@@ -30,10 +30,13 @@
 //! inclinometer's readings are minutes apart, over which the machine's
 //! own motion is no line).
 //!
-//! Every step tested, called or not, is also kept (the most significant
-//! of each sign since the laser last checked) as evidence for the laser
-//! dispute ([`StepWatch::explains`]) and, where chance among the places
-//! it was the best of does not explain it, in the estimate's σ
+//! Every step tested, called or not, is also kept (the places of each
+//! axis's most significant step of each sign since the laser last
+//! checked, with what the other axis did there, and of the jointly most
+//! significant) as evidence for the laser dispute
+//! ([`StepWatch::explains`]: a new zero is one event, both axes' evidence
+//! taken at one place) and, where chance among the places it was the best
+//! of does not explain it, in the estimate's σ
 //! ([`StepWatch::suspected_rad`]): the estimate may have followed a new
 //! zero too small to call. A second, longer test records too (never
 //! calls): the line through up to [`LONG_OLD`] older readings carried to
@@ -140,14 +143,11 @@ pub struct StepWatch {
     /// The largest step called since the laser last checked the
     /// estimate, pitch and roll, rad (0: none).
     unverified_rad: [f64; 2],
-    /// Since the laser last checked the estimate: the most significant
-    /// step down and up seen on pitch and roll, each (step, its σ), rad
-    /// ((0, 0): none), called or not.
-    largest_since_check: [[(f64, f64); 2]; 2],
-    /// Since the laser last checked, the places a new zero of both axes
-    /// at once may have been seen at, for [`Self::explains`]: per axis and
-    /// sign the place of that axis's most significant step (with what the
-    /// other axis did there), and per pair of signs the place jointly most
+    /// Since the laser last checked the estimate, the places a step was
+    /// seen at (called or not), for the suspicion and [`Self::explains`]:
+    /// at `2 × axis + sign` (sign 0 down, 1 up) the place of that axis's
+    /// most significant step of that sign (with what the other axis did
+    /// there), at `4 + 2 × pitch sign + roll sign` the place jointly most
     /// significant (Σ (δ/σ)² over the axes).
     places: [Place; 8],
     /// How many independent places a step could have been seen at since
@@ -281,7 +281,6 @@ impl StepWatch {
                 called.step_rad[axis] = *step;
             }
             called.before_rad[axis] = y_old + refs[axis];
-            self.keep_if_largest(axis, *step, sigma);
             sigmas[axis] = sigma;
         }
         self.keep_place(Place {
@@ -360,7 +359,6 @@ impl StepWatch {
                     / (1.0 - rho);
             place.step[axis] = new_mean - old_there;
             place.sigma[axis] = variance.sqrt();
-            self.keep_if_largest(axis, place.step[axis], place.sigma[axis]);
         }
         self.keep_place(place);
         self.places_since_check += 1.0 / HALF as f64;
@@ -431,17 +429,15 @@ impl StepWatch {
         });
         if !persisted {
             self.unverified_rad = called.unverified_before_rad;
-            // Nor is it suspect: its record goes with it.
-            for (axis, &step) in called.step_rad.iter().enumerate() {
-                let slot = &mut self.largest_since_check[axis][usize::from(step > 0.0)];
-                if step != 0.0 && slot.0 == step {
-                    *slot = (0.0, 0.0);
-                }
-            }
+            // Nor is it suspect, nor evidence: the places that saw it (the
+            // tests whose reach covers its time) go with it.
+            let excursion = Place {
+                t: called.split_t,
+                reach_s: span_s,
+                ..Place::default()
+            };
             for place in &mut self.places {
-                if (0..2).any(|axis| {
-                    called.step_rad[axis] != 0.0 && place.step[axis] == called.step_rad[axis]
-                }) {
+                if place.is_seen() && place.coincides(&excursion) {
                     *place = Place::default();
                 }
             }
@@ -477,15 +473,6 @@ impl StepWatch {
         clamped_autocorrelation(lagged, squares)
     }
 
-    /// Keeps `step` (σ `sigma`) on `axis` if the most significant of its
-    /// sign since the laser last checked.
-    fn keep_if_largest(&mut self, axis: usize, step: f64, sigma: f64) {
-        let largest = &mut self.largest_since_check[axis][usize::from(step > 0.0)];
-        if sigma > 0.0 && step.abs() * largest.1 >= largest.0.abs() * sigma {
-            *largest = (step, sigma);
-        }
-    }
-
     /// Keeps `place` where it is the most significant of its kind since
     /// the laser last checked (see `places`).
     fn keep_place(&mut self, place: Place) {
@@ -516,9 +503,6 @@ impl StepWatch {
     /// roll, rad, as the step since the reading before, for
     /// [`Self::explains`].
     pub fn record(&mut self, t: f64, innovations: [(f64, f64); 2]) {
-        for (axis, (innovation, sigma)) in innovations.into_iter().enumerate() {
-            self.keep_if_largest(axis, innovation, sigma);
-        }
         self.keep_place(Place {
             step: innovations.map(|(innovation, _)| innovation),
             sigma: innovations.map(|(_, sigma)| sigma),
@@ -554,11 +538,11 @@ impl StepWatch {
     pub fn suspected_rad(&self) -> [f64; 2] {
         let places = self.places_since_check.max(1.0);
         let threshold = (2.0 * (2.0 * places / SUSPECT_ALPHA).ln()).sqrt();
-        self.largest_since_check.map(|signs| {
-            signs
+        [0, 1].map(|axis| {
+            self.places[2 * axis..2 * axis + 2]
                 .iter()
-                .filter(|(step, sigma)| *sigma > 0.0 && step.abs() > threshold * sigma)
-                .map(|(step, _)| step.abs())
+                .filter(|p| p.is_seen() && p.step[axis].abs() > threshold * p.sigma[axis])
+                .map(|p| p.step[axis].abs())
                 .fold(0.0, f64::max)
         })
     }
@@ -571,7 +555,6 @@ impl StepWatch {
     /// A laser sample checked the estimate.
     pub fn laser_checked(&mut self) {
         self.unverified_rad = [0.0; 2];
-        self.largest_since_check = [[(0.0, 0.0); 2]; 2];
         self.places = [Place::default(); 8];
         self.places_since_check = 0.0;
         self.called = None;
@@ -727,22 +710,24 @@ mod tests {
         together.record(0.0, [(0.0, d(0.02)); 2]);
         together.record(100.0, [(d(0.05), d(0.02)); 2]);
         assert!(together.explains([d(-0.05); 2]));
-        // A window's test reaches over the readings after its split.
-        let window = Place {
-            t: 0.0,
-            reach_s: 30.0,
-            ..Place::default()
+        // Windows reach over the readings after their split (30 s here):
+        // the same two steps seen 20 s apart are one event (6.25 > ln 2),
+        // 40 s apart two.
+        let windows = |apart_s: f64| {
+            let mut watch = StepWatch::default();
+            for (t, step) in [(0.0, [d(0.05), 0.0]), (apart_s, [0.0, d(0.05)])] {
+                watch.keep_place(Place {
+                    step,
+                    sigma: [d(0.02); 2],
+                    t,
+                    reach_s: 30.0,
+                });
+                watch.places_since_check += 1.0;
+            }
+            watch
         };
-        let near = Place { t: 25.0, ..window };
-        let far = Place { t: 31.0, ..window };
-        assert!(window.coincides(&Place {
-            reach_s: 0.0,
-            ..near
-        }));
-        assert!(!window.coincides(&Place {
-            reach_s: 0.0,
-            ..far
-        }));
+        assert!(windows(20.0).explains([d(-0.05); 2]));
+        assert!(!windows(40.0).explains([d(-0.05); 2]));
     }
 
     #[test]
