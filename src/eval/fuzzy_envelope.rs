@@ -8,6 +8,8 @@
 //! - `madgwick`: Madgwick's MARG filter with β = [`MADGWICK_BETA`] (the
 //!   value his report derives for MARG), fed the magnetometer **calibrated
 //!   with the truth's own hard and soft iron**, m_c = S⁻¹(m − b);
+//! - `vqf`: VQF (Laidig and Seel 2023) with its defaults, the best open
+//!   filter (issue 55), fed the same calibrated magnetometer;
 //! - `mahony`: Mahony's complementary filter (k_P 0.5, k_I 0.05), fed the
 //!   same calibrated magnetometer;
 //! - `gyro`: the gyros integrated from the true initial attitude, their
@@ -30,7 +32,7 @@
 
 use serde::Serialize;
 
-use super::ahrs::{Madgwick, Mahony, initial_attitude};
+use super::ahrs::{Madgwick, Mahony, Vqf, initial_attitude};
 use super::attitude::Spread;
 use super::integrity::{self, FaultSummary, IntegrityScore};
 use super::{Bar, ErrorStats, parallel_map};
@@ -57,7 +59,7 @@ pub const COVERED_BINS_FOR_HEADING: usize = 33;
 /// The engine's window: half a second of readings (docs/engines/fuzzy.md).
 const WINDOW_S: f64 = 0.5;
 /// The methods, in table order.
-pub const METHODS: [&str; 4] = ["engine", "madgwick", "mahony", "gyro"];
+pub const METHODS: [&str; 5] = ["engine", "madgwick", "vqf", "mahony", "gyro"];
 
 /// One method's errors on one drive, degrees.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
@@ -243,7 +245,7 @@ pub fn evaluate_drive_with(
     let (mut aligned_after, mut calibrated_after, mut heading_from) = (None, None, None);
     let mut bins = [false; 36];
     let mut field: Option<V3> = None;
-    let mut filters: Option<(Madgwick, Mahony)> = None;
+    let mut filters: Option<(Madgwick, Vqf, Mahony)> = None;
     let mut gyro: Option<nalgebra::UnitQuaternion<f64>> = None;
     let (mut bias_sum, mut bias_n) = (V3::zeros(), 0u32);
     let mut previous: Option<(f64, V3)> = None;
@@ -263,7 +265,11 @@ pub fn evaluate_drive_with(
         ) = (&reading.data, event.truth)
         else {
             if let SensorData::Magnetometer { field_ut } = &reading.data {
-                field = Some(calibrate(V3::from(*field_ut)));
+                let calibrated = calibrate(V3::from(*field_ut));
+                if let Some((_, vqf, _)) = &mut filters {
+                    vqf.update_mag(&calibrated);
+                }
+                field = Some(calibrated);
             }
             engine.feed(&reading, &mut out);
             continue;
@@ -276,14 +282,21 @@ pub fn evaluate_drive_with(
         // The baselines.
         let dt = previous.map_or(0.0, |(t, _)| reading.t - t);
         match &mut filters {
-            Some((madgwick, mahony)) => {
+            Some((madgwick, vqf, mahony)) => {
                 madgwick.update(&rate, &force, field.as_ref(), dt);
+                vqf.update_imu(&rate, &force, dt);
                 mahony.update(&rate, &force, field.as_ref(), dt);
             }
             None => {
                 let q = initial_attitude(&force, field.as_ref());
+                let mut vqf = Vqf::new(1.0 / scenario.imu_rate_hz, 1.0 / scenario.mag_rate_hz);
+                vqf.update_imu(&rate, &force, 0.0);
+                if let Some(field) = &field {
+                    vqf.update_mag(field);
+                }
                 filters = Some((
                     Madgwick::new(MADGWICK_BETA, q),
+                    vqf,
                     Mahony::new(MAHONY_KP, MAHONY_KI, q),
                 ));
             }
@@ -339,10 +352,15 @@ pub fn evaluate_drive_with(
             continue;
         }
         let score_heading = heading_from.is_some();
-        let (Some((madgwick, mahony)), Some(gyro_q)) = (&filters, &gyro) else {
+        let (Some((madgwick, vqf, mahony)), Some(gyro_q)) = (&filters, &gyro) else {
             continue;
         };
-        let attitudes = [madgwick.attitude(), mahony.attitude(), *gyro_q];
+        let attitudes = [
+            madgwick.attitude(),
+            vqf.attitude(),
+            mahony.attitude(),
+            *gyro_q,
+        ];
         for (k, q) in attitudes.iter().enumerate() {
             let (roll, pitch, yaw) = q.euler_angles();
             let e = &mut errors[k + 1];
@@ -488,17 +506,20 @@ pub fn summarise(drives: &[DriveScores]) -> Summary {
     let heading_scored = headings.len();
     let heading = Spread::of(&headings);
     let tilt = Spread::of(&finite(drives, |d| engine(d, MethodScores::tilt_rmse_deg)));
-    let worse_than_madgwick: Vec<u64> = drives
-        .iter()
-        .filter(|d| {
-            let ours = engine(d, |m| m.heading_rmse_deg);
-            let theirs = d
-                .method("madgwick")
-                .map_or(f64::NAN, |m| m.heading_rmse_deg);
-            ours.is_finite() && theirs.is_finite() && ours > theirs
-        })
-        .map(|d| d.seed)
-        .collect();
+    // The drives whose heading the engine has worse than `label`'s.
+    let worse_than = |label: &str| -> Vec<u64> {
+        drives
+            .iter()
+            .filter(|d| {
+                let ours = engine(d, |m| m.heading_rmse_deg);
+                let theirs = d.method(label).map_or(f64::NAN, |m| m.heading_rmse_deg);
+                ours.is_finite() && theirs.is_finite() && ours > theirs
+            })
+            .map(|d| d.seed)
+            .collect()
+    };
+    let worse_than_madgwick = worse_than("madgwick");
+    let worse_than_vqf = worse_than("vqf");
     let mut bars = vec![
         Bar {
             bar: "motion accuracy ≥ 0.98 at the median".into(),
@@ -528,6 +549,26 @@ pub fn summarise(drives: &[DriveScores]) -> Summary {
                 )
             },
             met: heading_scored > 0 && worse_than_madgwick.is_empty(),
+        },
+        Bar {
+            bar: "heading worse than the calibrated VQF on at most a tenth of the drives".into(),
+            measured: format!(
+                "worse on {} of {heading_scored}{}",
+                worse_than_vqf.len(),
+                if worse_than_vqf.is_empty() {
+                    String::new()
+                } else {
+                    format!(
+                        ": seeds {}",
+                        worse_than_vqf
+                            .iter()
+                            .map(u64::to_string)
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    )
+                }
+            ),
+            met: heading_scored > 0 && 10 * worse_than_vqf.len() <= heading_scored,
         },
         Bar {
             bar: "heading RMSE ≤ 2° at the median".into(),
@@ -614,7 +655,7 @@ pub fn render(drives: &[DriveScores], summary: &Summary) -> String {
     );
     let _ = writeln!(
         out,
-        "{:>5} {:>4} {:>4} {:>5} {:>5} {:>5} {:>4} {:>3} {:>4} | {:>6} {:>7} {:>7} | {:>7} {:>7} {:>7} {:>7} | {:>6} {:>6} {:>6} | {:>6} {:>6}",
+        "{:>5} {:>4} {:>4} {:>5} {:>5} {:>5} {:>4} {:>3} {:>4} | {:>6} {:>7} {:>7} | {:>7} {:>7} {:>7} {:>7} {:>7} | {:>6} {:>6} {:>6} {:>6} | {:>6} {:>6}",
         "seed",
         "min",
         "Hz",
@@ -629,10 +670,12 @@ pub fn render(drives: &[DriveScores], summary: &Summary) -> String {
         "calib s",
         "hdg eng",
         "madgw",
+        "vqf",
         "mahony",
         "gyro",
         "tilt e",
         "madgw",
+        "vqf",
         "gyro",
         "flag%",
         "run s"
@@ -646,7 +689,7 @@ pub fn render(drives: &[DriveScores], summary: &Summary) -> String {
         let seconds = |x: Option<f64>| x.map_or("never".to_string(), |s| format!("{s:.0}"));
         let _ = writeln!(
             out,
-            "{:>5} {:>4.0} {:>4.0} {:>5.2} {:>5.0} {:>5.2} {:>4} {:>3} {:>4.0} | {:>6.4} {:>7} {:>7} | {:>7.3} {:>7.3} {:>7.3} {:>7.3} | {:>6.3} {:>6.3} {:>6.3} | {:>6.2} {:>6.1}",
+            "{:>5} {:>4.0} {:>4.0} {:>5.2} {:>5.0} {:>5.2} {:>4} {:>3} {:>4.0} | {:>6.4} {:>7} {:>7} | {:>7.3} {:>7.3} {:>7.3} {:>7.3} {:>7.3} | {:>6.3} {:>6.3} {:>6.3} {:>6.3} | {:>6.2} {:>6.1}",
             d.seed,
             d.duration_s / 60.0,
             s.imu_rate_hz,
@@ -665,10 +708,12 @@ pub fn render(drives: &[DriveScores], summary: &Summary) -> String {
             seconds(d.calibrated_after_s),
             method("engine", |m| m.heading_rmse_deg),
             method("madgwick", |m| m.heading_rmse_deg),
+            method("vqf", |m| m.heading_rmse_deg),
             method("mahony", |m| m.heading_rmse_deg),
             method("gyro", |m| m.heading_rmse_deg),
             method("engine", MethodScores::tilt_rmse_deg),
             method("madgwick", MethodScores::tilt_rmse_deg),
+            method("vqf", MethodScores::tilt_rmse_deg),
             method("gyro", MethodScores::tilt_rmse_deg),
             100.0 * d.integrity.flagged_share(),
             d.integrity.worst_run_s,

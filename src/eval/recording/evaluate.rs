@@ -117,6 +117,8 @@ pub const GYRO_REST_BIAS: &str = "gyro only, rest bias";
 pub const ACCEL_COMPASS: &str = "accel + compass";
 pub const MADGWICK_DEFAULT: &str = "Madgwick β=0.041";
 pub const MADGWICK_TUNED: &str = "Madgwick, tuned with truth";
+/// VQF with its defaults (Laidig and Seel 2023), the best open filter.
+pub const VQF_DEFAULT: &str = "VQF, defaults";
 
 /// One trial's scores.
 #[derive(Debug, Clone, Serialize)]
@@ -195,6 +197,7 @@ pub fn evaluate_recording(
         ACCEL_COMPASS,
         MADGWICK_DEFAULT,
         MADGWICK_TUNED,
+        VQF_DEFAULT,
     ]
     .iter()
     .map(|s| s.to_string())
@@ -265,6 +268,10 @@ pub fn evaluate_trial(
         .iter()
         .map(|b| (*b, None, ErrorSeries::default()))
         .collect();
+    let mut vqf = (
+        Vqf::new(1.0 / rate_hz, 1.0 / rate_hz),
+        ErrorSeries::default(),
+    );
     let mut previous_t = None;
     let mut diagnostics = EngineDiagnostics::default();
     let (mut rest_sums, mut moving_sums) = (ExpertSums::default(), ExpertSums::default());
@@ -295,6 +302,12 @@ pub fn evaluate_trial(
                 }
             }
         }
+        vqf.0.update_imu(
+            &sample.gyro_rad_per_s,
+            &sample.accel_mps2,
+            previous_t.map_or(0.0, |t| sample.t_s - t),
+        );
+        vqf.0.update_mag(&sample.field_ut);
         previous_t = Some(sample.t_s);
         let Some(estimate) = estimate else { continue };
         let since_start = sample.t_s - t0;
@@ -337,6 +350,7 @@ pub fn evaluate_trial(
                     series.add(&f.attitude(), &truth);
                 }
             }
+            vqf.1.add(&vqf.0.attitude(), &truth);
             for (series, attitude) in [&mut gyro_raw.1, &mut gyro_rest.1].into_iter().zip(gyro) {
                 if let Some(q) = attitude {
                     series.add(&q, &truth);
@@ -366,6 +380,7 @@ pub fn evaluate_trial(
     errors.insert(GYRO_RAW.to_string(), gyro_raw.1.summary());
     errors.insert(GYRO_REST_BIAS.to_string(), gyro_rest.1.summary());
     errors.insert(ACCEL_COMPASS.to_string(), accel_compass.summary());
+    errors.insert(VQF_DEFAULT.to_string(), vqf.1.summary());
     Ok(TrialEvaluation {
         name: info.name.clone(),
         group: trial_group(&info.name).to_string(),

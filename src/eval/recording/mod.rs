@@ -56,6 +56,9 @@
 //!   common default β = 0.041 rad/s and at the β with the lowest mean raw
 //!   total error over the trials (BROAD's criterion for its "TAGP"; tuned
 //!   with the truth: a bound, not a setting a user could know).
+//! - VQF ([`crate::eval::ahrs::Vqf`], issue 55) with its defaults, its
+//!   filters set for the trial's rate, from the first sample: the best
+//!   open filter.
 
 mod baselines;
 mod evaluate;
@@ -78,7 +81,7 @@ use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
 use super::ErrorStats;
-use super::ahrs::{Madgwick, initial_attitude};
+use super::ahrs::{Madgwick, Vqf, initial_attitude};
 use crate::fusion::angles::{deg, rad};
 use crate::fusion::fuzzy::{FuzzyEngine, FuzzyParams};
 use crate::fusion::params::TypedParams;

@@ -117,6 +117,7 @@ fn abbreviate(method: &str) -> String {
         ACCEL_COMPASS => "acc+mag".into(),
         MADGWICK_DEFAULT => "mw 0.041".into(),
         MADGWICK_TUNED => "mw tuned".into(),
+        VQF_DEFAULT => "vqf".into(),
         other => other.chars().take(8).collect(),
     }
 }
