@@ -306,6 +306,7 @@ fn eval_fuzzy_prints_the_engine_and_its_baselines() {
         "raw compass",
         "Madgwick β=",
         "Mahony",
+        "VQF",
         "motion status",
         "calibrated (planar)",
     ] {
@@ -342,6 +343,7 @@ fn eval_fuzzy_over_seeds_prints_a_summary() {
     assert_eq!(lines.len(), 3);
     assert_eq!(lines[2]["summary"]["drives"], 2);
     assert!(lines[0]["madgwick_tuned"]["pitch_deg"].is_number());
+    assert!(lines[0]["vqf"]["heading_deg"].is_number());
 }
 
 #[test]

@@ -23,7 +23,10 @@
 //!     reported with the β of the smallest pitch + roll + heading RMSE on
 //!     this drive. That choice is made with the truth, which no filter in
 //!     the field has: an optimistic yardstick;
-//!   - Mahony: fixed gains [`MAHONY_KP`], [`MAHONY_KI`].
+//!   - Mahony: fixed gains [`MAHONY_KP`], [`MAHONY_KI`];
+//!   - VQF ([`super::ahrs::Vqf`], issue 55) with its defaults, its
+//!     filters set for the IMU's rate, the held magnetometer reading fed
+//!     at every IMU reading (a sample-and-hold magnetometer).
 //!
 //! An engine that never aligns (or never calibrates) has an infinite RMSE
 //! for the angles it never estimated (`never` in the table, null in JSON),
@@ -35,7 +38,7 @@
 use serde::Serialize;
 
 use super::ErrorStats;
-use super::ahrs::{Madgwick, Mahony, initial_attitude};
+use super::ahrs::{Madgwick, Mahony, Vqf, initial_attitude};
 use super::attitude::Spread;
 use crate::fusion::angles::{deg, rad};
 use crate::fusion::fuzzy::magcal::CalibrationState;
@@ -153,13 +156,18 @@ impl Accumulator {
 struct AhrsBaselines {
     madgwick: Vec<Madgwick>,
     mahony: Mahony,
+    vqf: Vqf,
     previous_t: f64,
 }
 
 impl AhrsBaselines {
-    fn start(t: f64, force: &V3, field: &V3) -> AhrsBaselines {
+    fn start(t: f64, force: &V3, field: &V3, imu_period_s: f64) -> AhrsBaselines {
         let q = initial_attitude(force, Some(field));
+        let mut vqf = Vqf::new(imu_period_s, imu_period_s);
+        vqf.update_imu(&V3::zeros(), force, 0.0);
+        vqf.update_mag(field);
         AhrsBaselines {
+            vqf,
             madgwick: MADGWICK_BETAS
                 .iter()
                 .map(|&beta| Madgwick::new(beta, q))
@@ -176,6 +184,8 @@ impl AhrsBaselines {
             filter.update(rate, force, Some(field), dt);
         }
         self.mahony.update(rate, force, Some(field), dt);
+        self.vqf.update_imu(rate, force, dt);
+        self.vqf.update_mag(field);
     }
 }
 
@@ -197,6 +207,7 @@ struct BaselineScores {
     raw_compass: Accumulator,
     madgwick: Vec<Accumulator>,
     mahony: Accumulator,
+    vqf: Accumulator,
 }
 
 impl BaselineScores {
@@ -224,6 +235,8 @@ impl BaselineScores {
             }
             self.mahony
                 .attitude(truth, &ahrs.mahony.attitude(), declination, heading_too);
+            self.vqf
+                .attitude(truth, &ahrs.vqf.attitude(), declination, heading_too);
         }
     }
 }
@@ -268,6 +281,8 @@ pub struct FuzzyEvaluation {
     pub madgwick_by_beta: Vec<BetaScore>,
     /// Mahony (raw magnetometer, fixed gains).
     pub mahony: AttitudeErrors,
+    /// VQF (raw magnetometer, defaults).
+    pub vqf: AttitudeErrors,
     /// The engine over the first and last `DRIFT_WINDOW_S` after calibration.
     pub first_5_min: AttitudeErrors,
     pub last_5_min: AttitudeErrors,
@@ -367,7 +382,14 @@ pub fn evaluate(config: &FuzzyEvalConfig) -> Result<FuzzyEvaluation, FuzzyEvalEr
                 if let Some(field) = &newest_field {
                     match &mut ahrs {
                         Some(filters) => filters.update(reading.t, &rate, &force, field),
-                        None => ahrs = Some(AhrsBaselines::start(reading.t, &force, field)),
+                        None => {
+                            ahrs = Some(AhrsBaselines::start(
+                                reading.t,
+                                &force,
+                                field,
+                                1.0 / scenario.imu_rate_hz,
+                            ))
+                        }
                     }
                 }
                 let Some(estimate) = out.last().and_then(|o| o.values.as_fuzzy()) else {
@@ -505,6 +527,7 @@ pub fn evaluate(config: &FuzzyEvalConfig) -> Result<FuzzyEvaluation, FuzzyEvalEr
         madgwick_beta: tuned.beta,
         madgwick_by_beta,
         mahony: baselines.mahony.rmse(),
+        vqf: baselines.vqf.rmse(),
         first_5_min: rmse_or_never(&first),
         last_5_min: rmse_or_never(&last),
         gyro_only_first_5_min: gyro_first.rmse(),
@@ -565,6 +588,7 @@ pub fn render_table(e: &FuzzyEvaluation) -> String {
         &e.madgwick_tuned,
     ));
     text.push_str(&row("Mahony", &e.mahony));
+    text.push_str(&row("VQF", &e.vqf));
     if e.baselines_on_fallback_windows {
         text.push_str(
             "(the engine never calibrated: baselines scored from 10 s, heading from 150 s)\n",
@@ -574,7 +598,7 @@ pub fn render_table(e: &FuzzyEvaluation) -> String {
     text.push_str(&row("engine, last 5 min", &e.last_5_min));
     let best = e.best_baseline();
     text.push_str(&format!(
-        "* β of {:?} rad/s with the smallest total RMSE, chosen with the truth; Mahony k_P {MAHONY_KP}, k_I {MAHONY_KI}; both with the raw magnetometer\n",
+        "* β of {:?} rad/s with the smallest total RMSE, chosen with the truth; Mahony k_P {MAHONY_KP}, k_I {MAHONY_KI}; VQF its defaults; all three with the raw magnetometer\n",
         MADGWICK_BETAS
     ));
     text.push_str(&format!(
@@ -626,13 +650,14 @@ pub struct FuzzySummary {
 type MethodErrors = fn(&FuzzyEvaluation) -> AttitudeErrors;
 
 /// The methods of the summary and how to read each from an evaluation.
-const SUMMARY_METHODS: [(&str, MethodErrors); 6] = [
+const SUMMARY_METHODS: [(&str, MethodErrors); 7] = [
     ("fuzzy engine", |e| e.engine),
     ("gyro only", |e| e.gyro_only),
     ("accelerometer only", |e| e.accel_only_tilt),
     ("raw compass", |e| e.raw_compass),
     ("Madgwick, tuned β", |e| e.madgwick_tuned),
     ("Mahony", |e| e.mahony),
+    ("VQF", |e| e.vqf),
 ];
 
 /// Summarises evaluations of several drives.
@@ -839,6 +864,7 @@ mod tests {
             madgwick_beta: 0.05,
             madgwick_by_beta: Vec::new(),
             mahony: errors(0.3),
+            vqf: errors(0.3),
             first_5_min: errors(engine),
             last_5_min: errors(engine),
             gyro_only_first_5_min: errors(1.0),
@@ -863,7 +889,7 @@ mod tests {
             .fold(f64::INFINITY, f64::min);
         assert_eq!(e.madgwick_tuned.total(), best);
         assert!(MADGWICK_BETAS.contains(&e.madgwick_beta));
-        for a in [e.madgwick_tuned, e.mahony] {
+        for a in [e.madgwick_tuned, e.mahony, e.vqf] {
             for x in [a.pitch_deg, a.roll_deg, a.heading_deg] {
                 // Scored, and not absurd for filters fed a raw compass.
                 assert!(x > 0.0 && x < 45.0, "{e:?}");
