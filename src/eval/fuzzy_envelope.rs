@@ -476,6 +476,15 @@ fn finite(drives: &[DriveScores], f: impl Fn(&DriveScores) -> f64) -> Vec<f64> {
     drives.iter().map(f).filter(|x| x.is_finite()).collect()
 }
 
+/// Seeds as "1, 5, 12".
+fn seed_list(seeds: &[u64]) -> String {
+    seeds
+        .iter()
+        .map(u64::to_string)
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
 /// The spread of every method and the bars.
 pub fn summarise(drives: &[DriveScores]) -> Summary {
     let methods = METHODS
@@ -541,11 +550,7 @@ pub fn summarise(drives: &[DriveScores]) -> Summary {
                 format!(
                     "worse on {} drives: seeds {}",
                     worse_than_madgwick.len(),
-                    worse_than_madgwick
-                        .iter()
-                        .map(u64::to_string)
-                        .collect::<Vec<_>>()
-                        .join(", ")
+                    seed_list(&worse_than_madgwick)
                 )
             },
             met: heading_scored > 0 && worse_than_madgwick.is_empty(),
@@ -558,14 +563,7 @@ pub fn summarise(drives: &[DriveScores]) -> Summary {
                 if worse_than_vqf.is_empty() {
                     String::new()
                 } else {
-                    format!(
-                        ": seeds {}",
-                        worse_than_vqf
-                            .iter()
-                            .map(u64::to_string)
-                            .collect::<Vec<_>>()
-                            .join(", ")
-                    )
+                    format!(": seeds {}", seed_list(&worse_than_vqf))
                 }
             ),
             met: heading_scored > 0 && 10 * worse_than_vqf.len() <= heading_scored,

@@ -514,8 +514,10 @@ impl Variogram {
             // default, and colour must beat it).
             let unknowns = if tau > 0.0 { 4 } else { 3 };
             let free = system.len() > unknowns || (tau == 0.0 && system.len() == unknowns);
-            let mut fitted = free.then(|| nonnegative_least_squares(&system));
-            if fitted.is_none_or(|(c, _)| c[3] > q_a_max) {
+            let free_fit = free
+                .then(|| nonnegative_least_squares(&system))
+                .filter(|(c, _)| c[3] <= q_a_max);
+            let (c, residual) = free_fit.unwrap_or_else(|| {
                 // Bounded: the rate walk at its bound (a convex fit whose
                 // free optimum lies beyond it has its bounded one on it).
                 for (x, y, _) in &mut system {
@@ -524,11 +526,8 @@ impl Variogram {
                 }
                 let (mut c, residual) = nonnegative_least_squares(&system);
                 c[3] = q_a_max;
-                fitted = Some((c, residual));
-            }
-            let Some((c, residual)) = fitted else {
-                continue;
-            };
+                (c, residual)
+            });
             let [white, coloured, q_w, _] = c;
             let fit = NoiseFit {
                 white,

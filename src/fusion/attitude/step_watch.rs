@@ -196,11 +196,14 @@ impl Place {
         (self.t - other.t).abs() <= self.reach_s.max(other.reach_s)
     }
 
+    /// |δ|/σ on `axis`.
+    fn z(&self, axis: usize) -> f64 {
+        (self.step[axis] / self.sigma[axis]).abs()
+    }
+
     /// Σ (δ/σ)² over the axes.
     fn significance(&self) -> f64 {
-        (0..2)
-            .map(|axis| (self.step[axis] / self.sigma[axis]).powi(2))
-            .sum()
+        (0..2).map(|axis| self.z(axis).powi(2)).sum()
     }
 
     fn is_seen(&self) -> bool {
@@ -480,15 +483,9 @@ impl StepWatch {
             return;
         }
         let sign = |axis: usize| usize::from(place.step[axis] > 0.0);
-        let by_axis = |axis: usize| {
-            move |kept: &Place| {
-                (place.step[axis] / place.sigma[axis]).abs()
-                    >= (kept.step[axis] / kept.sigma[axis]).abs()
-            }
-        };
         for axis in 0..2 {
             let slot = &mut self.places[2 * axis + sign(axis)];
-            if !slot.is_seen() || by_axis(axis)(slot) {
+            if !slot.is_seen() || place.z(axis) >= slot.z(axis) {
                 *slot = place;
             }
         }
@@ -541,7 +538,7 @@ impl StepWatch {
         [0, 1].map(|axis| {
             self.places[2 * axis..2 * axis + 2]
                 .iter()
-                .filter(|p| p.is_seen() && p.step[axis].abs() > threshold * p.sigma[axis])
+                .filter(|p| p.is_seen() && p.z(axis) > threshold)
                 .map(|p| p.step[axis].abs())
                 .fold(0.0, f64::max)
         })
