@@ -35,7 +35,8 @@ tn.registerEngine('fuzzy', {
       absent: 'not used: no recent reading',
     };
     const CALIBRATION_TEXT = {
-      collecting: 'collecting directions: turn the vehicle through a full circle',
+      collecting: 'collecting directions: turn the vehicle through 90° or more',
+      arc: 'calibrated from a partial turn with the gyros (provisional until a full turn)',
       raw: 'the raw field is consistent in every direction seen: used as it is (factory-calibrated)',
       planar: 'calibrated in the horizontal plane (hard and soft iron)',
       ellipsoid: 'calibrated in 3-D (hard and soft iron)',

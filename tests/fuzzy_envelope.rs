@@ -68,3 +68,31 @@ fn a_frozen_imu_is_flagged_and_every_drive_recovers() {
     assert_eq!(fault.alerted, fault.drives, "{fault:?}");
     assert_eq!(fault.recovered, fault.drives, "{fault:?}");
 }
+
+/// Issue 55: north on any road. Seeds 121–132 were fixed before any
+/// result on them was looked at (the partial-arc calibration was written
+/// on seeds 1–40). Asserted: every drive that turned 90° and on which the
+/// engine aligned within 30 s calibrates its magnetometer (with or without
+/// a circle). The median heading RMSE, scored from 90° of turning on, was
+/// to be asserted within issue 34's 2° too: it is 2.72° on these seeds
+/// (not met; docs/engines/fuzzy.md), and is printed, not asserted.
+#[test]
+fn envelope_drives_calibrate_from_a_partial_turn_seeds_121_to_132() {
+    let seeds: Vec<u64> = (121..=132).collect();
+    let params = Params::defaults(PARAMS);
+    let drives = evaluate_all(&seeds, &params, 2).unwrap();
+    let summary = summarise(&drives);
+    eprintln!("{}", render(&drives, &summary));
+    let mut turned = 0;
+    for d in &drives {
+        if d.heading_scored_from_s.is_some() && d.aligned_after_s.is_some_and(|s| s <= 30.0) {
+            turned += 1;
+            assert!(
+                d.calibrated_after_s.is_some(),
+                "seed {}: turned 90° but never calibrated",
+                d.seed
+            );
+        }
+    }
+    assert!(turned > 0);
+}

@@ -7,7 +7,8 @@
 //! - pitch and roll RMSE from alignment on; heading RMSE from the first
 //!   magnetometer calibration on;
 //! - drift: the same RMSEs over the first and the last 5 minutes after
-//!   calibration;
+//!   the first planar or full calibration (not a partial arc's, issue 55:
+//!   the windows are those the drift test was written with);
 //! - baselines, each over the same readings:
 //!   - gyro only: the gyros integrated (quaternions) from the true initial
 //!     attitude, their bias taken as the mean of the first 10 s (parked);
@@ -283,7 +284,8 @@ pub struct FuzzyEvaluation {
     pub mahony: AttitudeErrors,
     /// VQF (raw magnetometer, defaults).
     pub vqf: AttitudeErrors,
-    /// The engine over the first and last `DRIFT_WINDOW_S` after calibration.
+    /// The engine over the first and last `DRIFT_WINDOW_S` after the
+    /// first planar or full calibration.
     pub first_5_min: AttitudeErrors,
     pub last_5_min: AttitudeErrors,
     /// The gyro-only baseline over the same windows (it drifts).
@@ -341,6 +343,9 @@ pub fn evaluate(config: &FuzzyEvalConfig) -> Result<FuzzyEvaluation, FuzzyEvalEr
     let mut out: Vec<EngineOutput> = Vec::with_capacity(2);
     let mut imu_readings = 0u64;
     let (mut aligned_at, mut calibrated_at) = (None, None);
+    // The first calibration other than a partial arc's: the drift
+    // windows start there.
+    let mut fully_calibrated_at: Option<f64> = None;
     let (mut motion_right, mut motion_total) = (0u64, 0u64);
     let (mut moving_total, mut moving_as_static) = (0u64, 0u64);
     let (mut static_total, mut static_as_moving) = (0u64, 0u64);
@@ -450,15 +455,20 @@ pub fn evaluate(config: &FuzzyEvalConfig) -> Result<FuzzyEvaluation, FuzzyEvalEr
                     continue;
                 }
                 calibration = estimate.mag_calibration;
-                let calibrated = *calibrated_at.get_or_insert(s);
+                calibrated_at.get_or_insert(s);
                 ours.heading(&truth, estimate.heading_deg);
+                if calibration != CalibrationState::Arc {
+                    fully_calibrated_at.get_or_insert(s);
+                }
                 let (g_roll, g_pitch, g_yaw) = gyro_attitude.euler_angles();
-                let window = if s - calibrated < DRIFT_WINDOW_S {
-                    Some((&mut first, &mut gyro_first))
-                } else if reading.t > end_t - DRIFT_WINDOW_S {
-                    Some((&mut last, &mut gyro_last))
-                } else {
-                    None
+                let window = match fully_calibrated_at {
+                    Some(calibrated) if s - calibrated < DRIFT_WINDOW_S => {
+                        Some((&mut first, &mut gyro_first))
+                    }
+                    Some(_) if reading.t > end_t - DRIFT_WINDOW_S => {
+                        Some((&mut last, &mut gyro_last))
+                    }
+                    _ => None,
                 };
                 if let Some((engine_window, gyro_window)) = window {
                     engine_window.tilt(&truth, estimate.pitch_deg, estimate.roll_deg);

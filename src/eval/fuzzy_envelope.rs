@@ -22,10 +22,11 @@
 //!   standing, swaying or not: static);
 //! - pitch and roll RMSE from [`SCORE_FROM_S`] on; the drive's tilt RMSE
 //!   is the larger of the two;
-//! - heading RMSE from the reading at which the true heading has covered
-//!   [`COVERED_BINS_FOR_HEADING`] of 36 10° bins (a magnetometer cannot be
-//!   calibrated before the vehicle has turned; none of the baselines needs
-//!   to, since they are given the calibration), and the largest error;
+//! - heading RMSE from the reading at which the vehicle has turned through
+//!   [`TURNED_FOR_HEADING_DEG`] (the true heading's unwrapped range; a
+//!   magnetometer cannot be calibrated before the vehicle has turned;
+//!   none of the baselines needs to, since they are given the
+//!   calibration), and the largest error;
 //! - the engine's 2σ coverage: the share of scored estimates with |error|
 //!   ≤ 2σ (`pitch_sigma_deg`, `roll_sigma_deg`, `heading_sigma_deg`); an
 //!   estimate without a σ counts as not covered.
@@ -53,9 +54,13 @@ const MAHONY_KP: f64 = 0.5;
 const MAHONY_KI: f64 = 0.05;
 /// Tilt is scored from this many seconds after the first reading.
 pub const SCORE_FROM_S: f64 = 10.0;
-/// Heading is scored once the true heading has visited this many of 36
-/// 10° bins.
-pub const COVERED_BINS_FOR_HEADING: usize = 33;
+/// Heading is scored once the vehicle has turned through this much,
+/// degrees (issue 55: a calibration from 90° of turning).
+pub const TURNED_FOR_HEADING_DEG: f64 = 90.0;
+/// Issue 55's bars on every drive: heading RMSE (drives that turned
+/// [`TURNED_FOR_HEADING_DEG`]) and tilt RMSE, degrees.
+pub const MAX_HEADING_RMSE_DEG: f64 = 4.0;
+pub const MAX_TILT_RMSE_DEG: f64 = 1.0;
 /// The engine's window: half a second of readings (docs/engines/fuzzy.md).
 const WINDOW_S: f64 = 0.5;
 /// The methods, in table order.
@@ -243,7 +248,8 @@ pub fn evaluate_drive_with(
     let (mut right, mut total) = (0u64, 0u64);
     let (mut moving, mut moving_as_static, mut still, mut still_as_moving) = (0u64, 0, 0u64, 0);
     let (mut aligned_after, mut calibrated_after, mut heading_from) = (None, None, None);
-    let mut bins = [false; 36];
+    // The true heading unwrapped, and its range so far.
+    let mut turned: Option<(f64, f64, f64)> = None;
     let mut field: Option<V3> = None;
     let mut filters: Option<(Madgwick, Vqf, Mahony)> = None;
     let mut gyro: Option<nalgebra::UnitQuaternion<f64>> = None;
@@ -343,9 +349,15 @@ pub fn evaluate_drive_with(
                 still_as_moving += u64::from(estimate.motion == Motion::Moving);
             }
         }
-        bins[((truth.heading_deg.rem_euclid(360.0) / 10.0) as usize).min(35)] = true;
-        if heading_from.is_none() && bins.iter().filter(|b| **b).count() >= COVERED_BINS_FOR_HEADING
-        {
+        let (unwrapped, lowest, highest) = match turned {
+            None => (truth.heading_deg, truth.heading_deg, truth.heading_deg),
+            Some((last, lowest, highest)) => {
+                let now = last + heading_error_deg(truth.heading_deg, last);
+                (now, lowest.min(now), highest.max(now))
+            }
+        };
+        turned = Some((unwrapped, lowest, highest));
+        if heading_from.is_none() && highest - lowest >= TURNED_FOR_HEADING_DEG {
             heading_from = Some(s);
         }
         if s < SCORE_FROM_S {
@@ -527,6 +539,19 @@ pub fn summarise(drives: &[DriveScores]) -> Summary {
             .map(|d| d.seed)
             .collect()
     };
+    // The drives over a per-drive bar, or the worst when none.
+    let over_on = |value: &dyn Fn(&DriveScores) -> f64, limit: f64, worst: f64| -> String {
+        let over: Vec<String> = drives
+            .iter()
+            .filter(|d| value(d) > limit)
+            .map(|d| format!("{} ({:.2}°)", d.seed, value(d)))
+            .collect();
+        if over.is_empty() {
+            format!("worst {worst:.3}°")
+        } else {
+            format!("over on {} drives: seeds {}", over.len(), over.join(", "))
+        }
+    };
     let worse_than_madgwick = worse_than("madgwick");
     let worse_than_vqf = worse_than("vqf");
     let mut bars = vec![
@@ -567,6 +592,26 @@ pub fn summarise(drives: &[DriveScores]) -> Summary {
                 }
             ),
             met: heading_scored > 0 && 10 * worse_than_vqf.len() <= heading_scored,
+        },
+        Bar {
+            bar: format!(
+                "heading RMSE ≤ {MAX_HEADING_RMSE_DEG}° on every drive that turned {TURNED_FOR_HEADING_DEG}°"
+            ),
+            measured: over_on(
+                &|d| engine(d, |m| m.heading_rmse_deg),
+                MAX_HEADING_RMSE_DEG,
+                heading.worst,
+            ),
+            met: heading_scored > 0 && heading.worst <= MAX_HEADING_RMSE_DEG,
+        },
+        Bar {
+            bar: format!("tilt RMSE ≤ {MAX_TILT_RMSE_DEG}° on every drive"),
+            measured: over_on(
+                &|d| engine(d, MethodScores::tilt_rmse_deg),
+                MAX_TILT_RMSE_DEG,
+                tilt.worst,
+            ),
+            met: !drives.is_empty() && tilt.worst <= MAX_TILT_RMSE_DEG,
         },
         Bar {
             bar: "heading RMSE ≤ 2° at the median".into(),

@@ -84,6 +84,7 @@ use std::collections::VecDeque;
 use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, UnitQuaternion};
 use serde::{Deserialize, Serialize};
 
+use super::arc_fit::{ArcCalibration, GyroHeading};
 use super::planar_fit::{fit_levelled, fit_planar};
 use crate::fusion::geometry::{V3, attitude_from_euler};
 
@@ -154,6 +155,9 @@ pub enum CalibrationState {
     Planar,
     /// Full 3-D hard and soft iron.
     Ellipsoid,
+    /// Fitted to a partial arc with the gyros' heading (arc_fit.rs), until
+    /// the directions seen allow a planar or full fit.
+    Arc,
     /// No fit improves on the raw field, which is consistent over the
     /// directions seen (a factory-calibrated magnetometer): used as it is.
     Raw,
@@ -166,6 +170,7 @@ impl CalibrationState {
             CalibrationState::Collecting => "collecting",
             CalibrationState::Planar => "planar",
             CalibrationState::Ellipsoid => "ellipsoid",
+            CalibrationState::Arc => "arc",
             CalibrationState::Raw => "raw",
         }
     }
@@ -267,6 +272,9 @@ pub struct MagCalibration {
     /// ([`fit_levelled`]), not to level ones alone.
     #[serde(default)]
     levelled: bool,
+    /// The gyro-aided partial-arc calibration, used until this one fits.
+    #[serde(default)]
+    arc: ArcCalibration,
 }
 
 impl MagCalibration {
@@ -300,6 +308,7 @@ impl MagCalibration {
             checked_t: None,
             since_check: 0,
             levelled: false,
+            arc: ArcCalibration::default(),
         }
     }
 
@@ -363,26 +372,39 @@ impl MagCalibration {
         true
     }
 
-    /// Candidate fits refused by a gate (module documentation).
+    /// Candidate fits refused by a gate (module documentation), the
+    /// partial arcs' included.
     pub fn refused_fits(&self) -> u64 {
-        self.refused
+        self.refused + self.arc.refused_fits()
     }
 
     /// The state reached.
     pub fn state(&self) -> CalibrationState {
-        self.state
+        if self.correction.is_none() && self.arc.correction().is_some() {
+            CalibrationState::Arc
+        } else {
+            self.state
+        }
     }
 
-    /// The current correction, once fitted.
+    /// The current correction, once fitted: the planar or full fit's, or
+    /// before it the partial arc's.
     pub fn correction(&self) -> Option<&Correction> {
-        self.correction.as_ref()
+        self.correction.as_ref().or(self.arc.correction())
+    }
+
+    /// The gyro heading restarted: the partial arc's samples are of no use.
+    pub fn restart_arc(&mut self) {
+        self.arc.restart();
     }
 
     /// The calibrated field's magnitude (µT; horizontal for a planar
     /// calibration): the median over the readings kept, `None` before a
     /// calibration.
     pub fn field_magnitude_ut(&self) -> Option<f64> {
-        let c = self.correction.as_ref()?;
+        let Some(c) = self.correction.as_ref() else {
+            return self.arc.field_magnitude_ut();
+        };
         let planar = self.state == CalibrationState::Planar;
         let mut magnitudes: Vec<f64> = fields(&self.samples, planar && !self.levelled)
             .iter()
@@ -436,11 +458,32 @@ impl MagCalibration {
     }
 
     /// Adds a raw reading (µT) taken at the filter's roll and pitch
-    /// (rad); refits when due. Returns true when the correction changed.
-    pub fn add(&mut self, field_ut: V3, roll_rad: f64, pitch_rad: f64) -> bool {
+    /// (rad) and, once aligned, with the engine's gyro heading; refits
+    /// when due. Returns true when the correction changed.
+    pub fn add(
+        &mut self,
+        field_ut: V3,
+        roll_rad: f64,
+        pitch_rad: f64,
+        gyro: Option<GyroHeading>,
+    ) -> bool {
         if !field_ut.iter().all(|x| x.is_finite()) {
             return false;
         }
+        // Until a planar or full fit, the partial arc's (every reading: it
+        // keeps its own samples).
+        let arc_changed = match gyro {
+            Some(gyro) if self.correction.is_none() => {
+                self.arc
+                    .add(field_ut, (roll_rad, pitch_rad), gyro, self.inclination_rad)
+            }
+            _ => false,
+        };
+        self.add_binned(field_ut, roll_rad, pitch_rad) || arc_changed
+    }
+
+    /// [`add`](Self::add) for the planar and full fits.
+    fn add_binned(&mut self, field_ut: V3, roll_rad: f64, pitch_rad: f64) -> bool {
         self.offered += 1;
         if self.offered.is_multiple_of(HOLDOUT_EVERY) {
             // Held back one per direction bin (the newest), so the ring
@@ -701,7 +744,7 @@ pub fn direction_span_deg(c: &Correction, samples: &[Tilted], planar: bool) -> f
 }
 
 /// 360° less the widest gap between the azimuths of 2-D vectors, degrees.
-fn azimuth_span_deg(vectors: impl Iterator<Item = (f64, f64)>) -> f64 {
+pub(super) fn azimuth_span_deg(vectors: impl Iterator<Item = (f64, f64)>) -> f64 {
     let mut azimuths: Vec<f64> = vectors.map(|(x, y)| y.atan2(x).to_degrees()).collect();
     if azimuths.len() < 2 {
         return 0.0;
@@ -934,7 +977,7 @@ mod tests {
             );
             let body = attitude.inverse() * earth;
             let raw = a * body + b;
-            calibration.add(raw, 0.5, 0.0);
+            calibration.add(raw, 0.5, 0.0, None);
             cases.push((body, raw));
         }
         assert_eq!(calibration.state(), CalibrationState::Ellipsoid);
@@ -987,7 +1030,7 @@ mod tests {
         // A calibration turn of a little over a full circle.
         for i in 0..=380 {
             let attitude = UnitQuaternion::from_euler_angles(0.0, 0.0, f64::from(i).to_radians());
-            calibration.add(a * (attitude.inverse() * earth) + b, 0.0, 0.0);
+            calibration.add(a * (attitude.inverse() * earth) + b, 0.0, 0.0, None);
             if i < 290 {
                 assert_eq!(calibration.state(), CalibrationState::Collecting, "{i}");
             }
@@ -1060,7 +1103,7 @@ mod tests {
             for i in 0..=380 {
                 let yaw = f64::from(i).to_radians();
                 let attitude = UnitQuaternion::from_euler_angles(roll, pitch, yaw);
-                calibration.add(a * (attitude.inverse() * earth) + b, told.0, told.1);
+                calibration.add(a * (attitude.inverse() * earth) + b, told.0, told.1, None);
             }
             calibration
         };
@@ -1092,7 +1135,7 @@ mod tests {
             // A slow swing over 80° of heading, back and forth.
             let yaw = (40.0 * (f64::from(i) * 0.01).sin()).to_radians();
             let attitude = UnitQuaternion::from_euler_angles(0.0, 0.0, yaw);
-            calibration.add(a * (attitude.inverse() * earth) + b, 0.0, 0.0);
+            calibration.add(a * (attitude.inverse() * earth) + b, 0.0, 0.0, None);
         }
         assert_eq!(calibration.state(), CalibrationState::Collecting);
         assert!(calibration.refused_fits() > 0);
@@ -1101,7 +1144,7 @@ mod tests {
         for i in 0..2000 {
             let yaw = (60.0 * (f64::from(i) * 0.01).sin()).to_radians();
             let attitude = UnitQuaternion::from_euler_angles(0.0, 0.0, yaw);
-            wide.add(a * (attitude.inverse() * earth) + b, 0.0, 0.0);
+            wide.add(a * (attitude.inverse() * earth) + b, 0.0, 0.0, None);
         }
         assert_eq!(wide.state(), CalibrationState::Planar);
     }
@@ -1117,7 +1160,7 @@ mod tests {
             };
             // ±1 µT of noise on each axis (a noisy MEMS magnetometer).
             let field = V3::new(20.0 + noise(), 1.0 + noise(), 44.0 + noise());
-            calibration.add(field, 0.0, 0.0);
+            calibration.add(field, 0.0, 0.0, None);
         }
         assert_eq!(calibration.coverage_deg(), 0.0);
         assert_eq!(calibration.state(), CalibrationState::Collecting);
@@ -1127,9 +1170,14 @@ mod tests {
     fn too_few_directions_or_bad_data_give_no_calibration() {
         let mut calibration = MagCalibration::new(300.0, 1.0, 0.03, 10);
         for i in 0..200 {
-            calibration.add(V3::new(20.0 + f64::from(i % 7) * 0.01, 1.0, 44.0), 0.0, 0.0);
+            calibration.add(
+                V3::new(20.0 + f64::from(i % 7) * 0.01, 1.0, 44.0),
+                0.0,
+                0.0,
+                None,
+            );
         }
-        calibration.add(V3::new(f64::NAN, 0.0, 0.0), 0.0, 0.0);
+        calibration.add(V3::new(f64::NAN, 0.0, 0.0), 0.0, 0.0, None);
         assert_eq!(calibration.state(), CalibrationState::Collecting);
         assert!(calibration.correction().is_none());
         assert!(fit_ellipsoid(&[V3::zeros(); 20]).is_none());

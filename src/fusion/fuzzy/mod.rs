@@ -44,6 +44,7 @@
 //! The Earth's rotation (≤ 0.0042 °/s) is below a MEMS gyro's noise and is
 //! absorbed into the estimated bias while static.
 
+pub mod arc_fit;
 pub mod bias_feedback;
 pub mod disturbance;
 pub mod estimate;
@@ -67,6 +68,7 @@ pub mod uncertainty;
 use nalgebra::UnitQuaternion;
 use serde::{Deserialize, Serialize};
 
+use self::arc_fit::GyroHeading;
 use self::disturbance::{DisturbanceDetector, Tolerances};
 use self::estimate::{CompassState, FuzzyEstimate, Motion};
 use self::gyro_bias::{GyroBias, WalkLearner};
@@ -194,6 +196,10 @@ struct Solution {
     /// (no compass in it; unwrapped), rad.
     #[serde(default)]
     gyro_yaw_rad: f64,
+    /// The bias estimate subtracted from that rate, integrated likewise,
+    /// rad (arc_fit.rs corrects older gyro headings with it).
+    #[serde(default)]
+    bias_yaw_rad: f64,
     /// What the tilt window's older half (its accelerometer mean against
     /// the carried gravity) says the tilt may be off by,
     /// 1σ, rad (uncertainty.rs, `unexplained_residual_sigma`): reported
@@ -469,15 +475,29 @@ impl FuzzyEngine {
                         * solution.attitude;
                 self.heading_uncalibrated = true;
             }
-        } else {
-            let was_calibrated = self.calibration.correction().is_some();
-            if self.calibration.add(field_ut, roll, pitch) {
+        }
+        // A partial arc's calibration is provisional: a reading it calls
+        // disturbed still reaches the planar and full fits (and the arc's
+        // own refits), or a wrong arc would keep them from ever fitting.
+        if !disturbed || self.calibration.state() == CalibrationState::Arc {
+            let was_calibrated = self.calibration.correction().is_some()
+                && self.calibration.state() != CalibrationState::Arc;
+            let gyro = self.solution.as_ref().map(|s| GyroHeading {
+                t,
+                yaw_rad: s.gyro_yaw_rad,
+                bias_integral_rad: s.bias_yaw_rad,
+                bias_rad_per_s: (s.attitude * s.gyro_bias.bias_rad_per_s).z,
+                bias_sigma_rad_per_s: s.gyro_bias.sigma_rad_per_s().norm(),
+                tilt_sigma_rad: self.carried_tilt_sigma(s).hypot(s.residual_sigma_rad),
+            });
+            if self.calibration.add(field_ut, roll, pitch, gyro) {
                 self.stats.mag_fits += 1;
                 // A new calibration moves the compass in one step.
                 self.innovations.clear();
                 self.turns.clear();
-                // The heading so far rests on the raw compass at alignment:
-                // the first calibration replaces it at the next IMU reading.
+                // The heading so far rests on the raw compass at alignment
+                // (or a partial arc): the first calibration replaces it at
+                // the next IMU reading.
                 if !was_calibrated {
                     self.reheading = true;
                 }
@@ -815,6 +835,7 @@ impl FuzzyEngine {
             let turned = since_agreed_s.map_or(std::f64::consts::PI, |s| bias_change * s);
             new.heading_sigma_rad = old.heading_sigma_rad.hypot(turned);
             new.gyro_yaw_rad = old.gyro_yaw_rad;
+            new.bias_yaw_rad = old.bias_yaw_rad;
         }
     }
 
@@ -851,6 +872,8 @@ impl FuzzyEngine {
             .max(MIN_FLOOR * MIN_FLOOR);
         self.turns.clear();
         self.relearnt_turns.clear();
+        // The gyro heading starts again from zero.
+        self.calibration.restart_arc();
         self.solution = Some(Solution {
             attitude: attitude_from_euler(roll, pitch, yaw),
             gyro_bias: GyroBias::new(mean_rate, bias_variance),
@@ -861,6 +884,7 @@ impl FuzzyEngine {
             bias_walk: WalkLearner::default(),
             rest_rate: RestRate::default(),
             gyro_yaw_rad: 0.0,
+            bias_yaw_rad: 0.0,
             residual_sigma_rad: 0.0,
             heading_sigma_rad: if yaw_known {
                 UNCALIBRATED_HEADING_SIGMA_RAD
@@ -896,6 +920,8 @@ impl FuzzyEngine {
         }
         self.turns.clear();
         self.relearnt_turns.clear();
+        // The gyro heading starts again from zero.
+        self.calibration.restart_arc();
         self.solution = Some(Solution {
             attitude: attitude_from_euler(roll, pitch, compass.unwrap_or(0.0)),
             gyro_bias: GyroBias::new(V3::zeros(), (prior * prior).max(MIN_FLOOR * MIN_FLOOR)),
@@ -906,6 +932,7 @@ impl FuzzyEngine {
             bias_walk: WalkLearner::default(),
             rest_rate: RestRate::default(),
             gyro_yaw_rad: 0.0,
+            bias_yaw_rad: 0.0,
             residual_sigma_rad: 0.0,
             heading_sigma_rad: if compass.is_some() {
                 UNCALIBRATED_HEADING_SIGMA_RAD
@@ -935,6 +962,7 @@ impl FuzzyEngine {
         };
         solution.attitude = integrate(&solution.attitude, &mean_rate, dt_s);
         solution.gyro_yaw_rad += (solution.attitude * mean_rate).z * dt_s;
+        solution.bias_yaw_rad += (solution.attitude * solution.gyro_bias.bias_rad_per_s).z * dt_s;
         solution.previous_rate_rad_per_s = Some(compensated);
         // Linear growth: the gyro errors are correlated over a turn.
         let bias_sigma = solution.gyro_bias.sigma_rad_per_s().norm();
