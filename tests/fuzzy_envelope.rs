@@ -58,6 +58,7 @@ fn a_frozen_imu_is_flagged_and_every_drive_recovers() {
         &seeds,
         &Params::defaults(PARAMS),
         Some(tunnelnav::sim::faults::FaultKind::Frozen),
+        tunnelnav::sim::vehicle_envelope::VehicleCategory::Ordinary,
         2,
     )
     .unwrap();

@@ -201,8 +201,13 @@ pub fn run(target: EvalTarget) -> Result<(), CliError> {
             if args.drive.envelope {
                 let seeds: Vec<u64> =
                     envelope_seeds(args.drive.seed, args.seeds.unwrap_or(40)).collect();
-                let drives =
-                    fuzzy_envelope::evaluate_all_with(&seeds, &params, args.fault, cores())?;
+                let drives = fuzzy_envelope::evaluate_all_with(
+                    &seeds,
+                    &params,
+                    args.fault,
+                    args.drive.category,
+                    cores(),
+                )?;
                 let summary = fuzzy_envelope::summarise(&drives);
                 return print_envelope(args.json, &summary, &drives, || {
                     fuzzy_envelope::render(&drives, &summary)

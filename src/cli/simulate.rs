@@ -18,7 +18,7 @@ use crate::sim::tbm_envelope::EnvelopeDrive;
 use crate::sim::vehicle::{
     DriveProfile, ImuErrors, MagnetDisturbance, VehicleDrive, VehicleScenario,
 };
-use crate::sim::vehicle_envelope::VehicleEnvelope;
+use crate::sim::vehicle_envelope::{VehicleCategory, VehicleEnvelope};
 
 #[derive(Debug, Subcommand)]
 pub enum Scenario {
@@ -111,6 +111,10 @@ pub struct VehicleDriveArgs {
     /// with --envelope.
     #[arg(long = "power-cycle-at-s", value_name = "S", value_parser = non_negative)]
     pub power_cycle_at_s: Vec<f64>,
+    /// With --envelope: draw the drive in this category (issue 55; see
+    /// `src/sim/vehicle_envelope.rs`).
+    #[arg(long, value_enum, default_value = "ordinary", requires = "envelope")]
+    pub category: VehicleCategory,
     /// Draw the vehicle, its sensors, the site and the drive at random
     /// from the envelope the fuzzy engine must hold over (seeded by
     /// --seed). See `src/sim/vehicle_envelope.rs`.
@@ -138,7 +142,7 @@ impl VehicleDriveArgs {
             return VehicleScenario {
                 start_t: self.start_t,
                 power_cycles_s: self.power_cycle_at_s.clone(),
-                ..VehicleEnvelope::draw(self.seed).scenario
+                ..VehicleEnvelope::draw_in(self.seed, self.category).scenario
             };
         }
         let preset = if self.hard {

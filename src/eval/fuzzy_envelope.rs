@@ -44,7 +44,7 @@ use crate::fusion::geometry::{V3, attitude_from_euler};
 use crate::fusion::{EngineKind, EngineOutput, Motion, ParamError, ParamValue, Params, SensorData};
 use crate::sim::faults::{FAULT_AT, FaultInjector, FaultKind, FaultWindow};
 use crate::sim::vehicle::{VehicleDrive, VehicleScenario, VehicleTruth};
-use crate::sim::vehicle_envelope::VehicleEnvelope;
+use crate::sim::vehicle_envelope::{VehicleCategory, VehicleEnvelope};
 
 /// Madgwick's β for MARG, rad/s: √(3/4)·ω̃ with a gyro error ω̃ of
 /// 2.7 °/s (Madgwick 2010, section 7).
@@ -141,6 +141,8 @@ pub struct DriveScores {
     pub integrity: IntegrityScore,
     /// The fault injected, if any.
     pub fault: Option<FaultKind>,
+    /// The category the drive was drawn in.
+    pub category: VehicleCategory,
 }
 
 /// A tilt error is misleading beyond this, degrees (and 5σ).
@@ -203,16 +205,17 @@ pub fn installer_params(scenario: &VehicleScenario, params: &Params) -> Result<P
 
 /// Runs one envelope drive through the engine and the baselines.
 pub fn evaluate_drive(seed: u64, params: &Params) -> Result<DriveScores, ParamError> {
-    evaluate_drive_with(seed, params, None)
+    evaluate_drive_with(seed, params, None, VehicleCategory::Ordinary)
 }
 
-/// Like [`evaluate_drive`], with a fault injected.
+/// Like [`evaluate_drive`], with a fault injected, drawn in a category.
 pub fn evaluate_drive_with(
     seed: u64,
     params: &Params,
     fault: Option<FaultKind>,
+    category: VehicleCategory,
 ) -> Result<DriveScores, ParamError> {
-    let mut scenario = VehicleEnvelope::draw(seed).scenario;
+    let mut scenario = VehicleEnvelope::draw_in(seed, category).scenario;
     let window =
         fault.map(|kind| FaultWindow::in_drive(kind, scenario.start_t, scenario.duration_s));
     let mut injector = window
@@ -422,6 +425,7 @@ pub fn evaluate_drive_with(
         coverage,
         integrity,
         fault,
+        category,
     })
 }
 
@@ -436,18 +440,20 @@ pub fn evaluate_all(
     params: &Params,
     threads: usize,
 ) -> Result<Vec<DriveScores>, ParamError> {
-    evaluate_all_with(seeds, params, None, threads)
+    evaluate_all_with(seeds, params, None, VehicleCategory::Ordinary, threads)
 }
 
-/// Like [`evaluate_all`], with a fault injected into every drive.
+/// Like [`evaluate_all`], with a fault injected into every drive, each
+/// drawn in `category`.
 pub fn evaluate_all_with(
     seeds: &[u64],
     params: &Params,
     fault: Option<FaultKind>,
+    category: VehicleCategory,
     threads: usize,
 ) -> Result<Vec<DriveScores>, ParamError> {
     parallel_map(seeds, threads, |&seed| {
-        evaluate_drive_with(seed, params, fault)
+        evaluate_drive_with(seed, params, fault, category)
     })
     .into_iter()
     .collect()
@@ -466,6 +472,8 @@ pub struct MethodSpread {
 #[derive(Debug, Clone, Serialize)]
 pub struct Summary {
     pub drives: usize,
+    /// The category the drives were drawn in (issue 55).
+    pub category: VehicleCategory,
     /// Drives on which heading was scored (the truth turned enough).
     pub drives_with_heading: usize,
     /// Motion accuracy: median and lowest.
@@ -673,6 +681,9 @@ pub fn summarise(drives: &[DriveScores]) -> Summary {
     }
     Summary {
         drives: drives.len(),
+        category: drives
+            .first()
+            .map_or(VehicleCategory::Ordinary, |d| d.category),
         drives_with_heading: drives
             .iter()
             .filter(|d| d.heading_scored_from_s.is_some())
@@ -693,8 +704,10 @@ pub fn render(drives: &[DriveScores], summary: &Summary) -> String {
     let mut out = String::new();
     let _ = writeln!(
         out,
-        "fuzzy envelope: {} drives ({} turned enough to score heading); RMSE in degrees; tilt is the larger of pitch and roll",
-        summary.drives, summary.drives_with_heading
+        "fuzzy envelope: {} {} drives ({} turned enough to score heading); RMSE in degrees; tilt is the larger of pitch and roll",
+        summary.drives,
+        summary.category.as_str(),
+        summary.drives_with_heading
     );
     let _ = writeln!(
         out,

@@ -29,6 +29,17 @@
 //!
 //! The motion truth is the simulator's: rolling or turning is moving;
 //! swaying while standing is not.
+//!
+//! **Categories** (issue 55; [`VehicleCategory`]): a drive of a category
+//! is the ordinary draw of its seed with a few quantities drawn again, from
+//! a stream of their own, within the category's ranges:
+//!
+//! | category | redrawn |
+//! |---|---|
+//! | `ordinary` | nothing |
+//! | `site` | a slow site vehicle: top speeds 1–6 m/s (slowest 1 m/s), no calibration circle, 2–4 pieces of steel fixed in the world (10–80 µT, 10–120 s) |
+//! | `cruising` | smooth cruising: top speeds 6–14 m/s, cruises of 30–120 s, rolling vibration 0.05–0.15 m/s² (growth ≤ 0.01 per m/s), bumps 0.2–0.5° |
+//! | `never-still` | rolling from the first reading, stops of 0.05–0.3 s reached by braking (none by coasting), no calibration circle: the truth stands at most about 2 s at a time (the ends of the raised-cosine speed changes under 1 cm/s) until its last leg |
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -57,6 +68,33 @@ fn direction(rng: &mut ChaCha8Rng) -> [f64; 3] {
     [r * phi.cos(), r * phi.sin(), z]
 }
 
+/// A category of drives (module documentation).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum VehicleCategory {
+    #[default]
+    Ordinary,
+    /// A slow site vehicle without a calibration circle, steel nearby.
+    Site,
+    /// Smooth cruising at 6–14 m/s.
+    Cruising,
+    /// Rolling from the first reading, standing at most about 2 s at a
+    /// time.
+    NeverStill,
+}
+
+impl VehicleCategory {
+    /// The command-line name.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            VehicleCategory::Ordinary => "ordinary",
+            VehicleCategory::Site => "site",
+            VehicleCategory::Cruising => "cruising",
+            VehicleCategory::NeverStill => "never-still",
+        }
+    }
+}
+
 /// One drive drawn from the envelope (module documentation): the scenario
 /// the simulator runs.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -66,6 +104,51 @@ pub struct VehicleEnvelope {
 }
 
 impl VehicleEnvelope {
+    /// The drive of `seed` in `category`: the ordinary draw with the
+    /// category's quantities drawn again from their own stream.
+    pub fn draw_in(seed: u64, category: VehicleCategory) -> VehicleEnvelope {
+        let mut drive = VehicleEnvelope::draw(seed);
+        let mut rng = ChaCha8Rng::seed_from_u64(
+            seed.wrapping_mul(0x9e37_79b9)
+                .wrapping_add(55 + category as u64),
+        );
+        let scenario = &mut drive.scenario;
+        let Some(m) = scenario.manoeuvres.as_mut() else {
+            return drive;
+        };
+        match category {
+            VehicleCategory::Ordinary => {}
+            VehicleCategory::Site => {
+                m.speed_mps = (1.0, uniform(&mut rng, (1.5, 6.0)));
+                m.calibration_circle_dps = None;
+                let duration_s = scenario.duration_s;
+                for _ in 0..rng.random_range(2..=4) {
+                    let size = uniform(&mut rng, (10.0, 80.0));
+                    scenario.disturbances.push(FieldDisturbance {
+                        at_s: uniform(&mut rng, (0.0, duration_s)),
+                        for_s: uniform(&mut rng, (10.0, 120.0)),
+                        field_ut: direction(&mut rng).map(|x| x * size),
+                        frame: DisturbanceFrame::World,
+                    });
+                }
+            }
+            VehicleCategory::Cruising => {
+                m.speed_mps = (6.0, uniform(&mut rng, (8.0, 14.0)));
+                m.cruise_s = (30.0, 120.0);
+                m.bump_deg = (0.2, uniform(&mut rng, (0.2, 0.5)));
+                scenario.imu.vibration_mps2 = uniform(&mut rng, (0.05, 0.15));
+                scenario.imu.vibration_growth_per_mps = uniform(&mut rng, (0.0, 0.01));
+            }
+            VehicleCategory::NeverStill => {
+                m.parked_start_s = 0.0;
+                m.stop_s = (0.05, 0.3);
+                m.coast_share = 0.0;
+                m.calibration_circle_dps = None;
+            }
+        }
+        drive
+    }
+
     /// The drive of `seed`.
     pub fn draw(seed: u64) -> VehicleEnvelope {
         // Its own stream: the simulator seeds its noise from `seed` too.
@@ -197,7 +280,11 @@ mod tests {
     use nalgebra::UnitQuaternion;
 
     fn truths(seed: u64) -> (VehicleScenario, Vec<VehicleTruth>) {
-        let scenario = VehicleEnvelope::draw(seed).scenario;
+        truths_in(seed, VehicleCategory::Ordinary)
+    }
+
+    fn truths_in(seed: u64, category: VehicleCategory) -> (VehicleScenario, Vec<VehicleTruth>) {
+        let scenario = VehicleEnvelope::draw_in(seed, category).scenario;
         let truths = VehicleDrive::new(scenario.clone())
             .unwrap()
             .filter_map(|e| e.truth)
@@ -245,6 +332,55 @@ mod tests {
         assert!((30..=70).contains(&rolling), "{rolling}");
         assert!((75..=125).contains(&circles), "{circles}");
         assert!((75..=125).contains(&swaying), "{swaying}");
+    }
+
+    #[test]
+    fn a_category_redraws_only_its_own_quantities_within_its_ranges() {
+        for seed in 1..=40 {
+            let ordinary = VehicleEnvelope::draw(seed).scenario;
+            assert_eq!(
+                VehicleEnvelope::draw_in(seed, VehicleCategory::Ordinary).scenario,
+                ordinary
+            );
+            let site = VehicleEnvelope::draw_in(seed, VehicleCategory::Site).scenario;
+            let m = site.manoeuvres.unwrap();
+            assert!(m.calibration_circle_dps.is_none());
+            assert!(m.speed_mps.0 == 1.0 && (1.5..6.0).contains(&m.speed_mps.1));
+            let steel = site.disturbances.len() - ordinary.disturbances.len();
+            assert!((2..=4).contains(&steel), "{steel}");
+            assert_eq!(site.iron, ordinary.iron);
+            assert_eq!(site.imu, ordinary.imu);
+            let cruising = VehicleEnvelope::draw_in(seed, VehicleCategory::Cruising).scenario;
+            let m = cruising.manoeuvres.unwrap();
+            assert!(m.speed_mps.0 == 6.0 && (8.0..14.0).contains(&m.speed_mps.1));
+            assert!(cruising.imu.vibration_mps2 < 0.15);
+            assert_eq!(cruising.disturbances, ordinary.disturbances);
+            let never = VehicleEnvelope::draw_in(seed, VehicleCategory::NeverStill).scenario;
+            let m = never.manoeuvres.unwrap();
+            assert_eq!(m.parked_start_s, 0.0);
+            assert!(m.stop_s.1 <= 0.3 && m.calibration_circle_dps.is_none());
+        }
+    }
+
+    #[test]
+    fn a_never_still_drive_never_stands_long() {
+        for seed in 1..=10 {
+            let (scenario, truths) = truths_in(seed, VehicleCategory::NeverStill);
+            let step_s = 1.0 / scenario.imu_rate_hz;
+            let mut standing_s: f64 = 0.0;
+            let mut longest: f64 = 0.0;
+            // After its last leg a drive stands until its end.
+            let last_moving = truths.iter().rposition(|t| t.moving).unwrap();
+            for truth in &truths[..last_moving] {
+                standing_s = if truth.moving {
+                    0.0
+                } else {
+                    standing_s + step_s
+                };
+                longest = longest.max(standing_s);
+            }
+            assert!(longest < 2.5, "seed {seed}: stood {longest} s");
+        }
     }
 
     #[test]
