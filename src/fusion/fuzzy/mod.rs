@@ -131,6 +131,12 @@ const GRAVITY_TIME_CONSTANT_S: f64 = 5.0;
 const REHEAD_WATCH_S: f64 = 3.0;
 /// ... a disturbance lasting this long, s (not one odd reading).
 const REHEAD_UNDO_AFTER_S: f64 = 0.15;
+/// A partial arc's calibration is provisional (arc_fit.rs): if its field
+/// departs within this time of the fit, s, the arc may have been fitted to
+/// a field that was not the Earth's alone, and the heading's σ is the
+/// unknown calibration's until a compass steers again. The heading itself
+/// is kept (a steel pass right after a good arc is as likely a cause).
+const ARC_WATCH_S: f64 = 60.0;
 /// How far the uncalibrated compass at alignment may be off (1σ), rad.
 const UNCALIBRATED_HEADING_SIGMA_RAD: f64 = 0.17;
 /// A reading this still (stillness) is part of a static spell for
@@ -274,6 +280,10 @@ pub struct FuzzyEngine {
     /// was undone. Its σ is the unknown hard iron's until a compass steers.
     #[serde(default)]
     heading_uncalibrated: bool,
+    /// Until when a new partial arc's calibration is watched
+    /// ([`ARC_WATCH_S`]).
+    #[serde(default)]
+    arc_watch_until: Option<f64>,
     /// The deflection the heading took from compasses whose field's dip
     /// was not the site's (disturbance.rs), rad: the pulls' weighted
     /// mean of it, which pulls by an Earth's field wear off. Reported in
@@ -345,6 +355,7 @@ impl FuzzyEngine {
             relearnt_turns: TurnCheck::default(),
             reacquired: false,
             rehead_turn: None,
+            arc_watch_until: None,
             heading_uncalibrated: false,
             carried_deflection_rad: 0.0,
             static_degree: 0.0,
@@ -475,6 +486,11 @@ impl FuzzyEngine {
                         * solution.attitude;
                 self.heading_uncalibrated = true;
             }
+            if self.disturbance.departing_for_s(t) >= REHEAD_UNDO_AFTER_S
+                && self.arc_watch_until.take().is_some_and(|until| t <= until)
+            {
+                self.heading_uncalibrated = true;
+            }
         }
         // A partial arc's calibration is provisional: a reading it calls
         // disturbed still reaches the planar and full fits (and the arc's
@@ -492,6 +508,8 @@ impl FuzzyEngine {
             });
             if self.calibration.add(field_ut, roll, pitch, gyro) {
                 self.stats.mag_fits += 1;
+                self.arc_watch_until =
+                    (self.calibration.state() == CalibrationState::Arc).then_some(t + ARC_WATCH_S);
                 // A new calibration moves the compass in one step.
                 self.innovations.clear();
                 self.turns.clear();
@@ -1923,6 +1941,59 @@ mod tests {
             }
         }
         out
+    }
+
+    /// A level sensor still for 3 s, turning at 20 °/s for 6 s (120°), then
+    /// still, with hard iron; from `magnet_from_s` on, a magnet adds
+    /// `extra_ut` (body-fixed). The estimates.
+    fn partial_turn_then_magnet(magnet_from_s: f64, extra_ut: V3) -> Vec<EngineOutput> {
+        let earth = V3::new(25.0, 0.0, 43.3);
+        let hard_iron = V3::new(12.0, -8.0, 3.0);
+        let mut engine = engine_at_inclination_60();
+        let mut out = Vec::new();
+        let t0 = 1.7e9;
+        for i in 0..6000u32 {
+            let tau = f64::from(i) * 0.01;
+            let turned_steps = (i + 1).saturating_sub(300).min(600);
+            let attitude =
+                attitude_from_euler(0.0, 0.0, rad(20.0) * 0.01 * f64::from(turned_steps));
+            let force = attitude.inverse() * V3::new(0.0, 0.0, -G);
+            let rate_dps = if (3.0..9.0).contains(&tau) { 20.0 } else { 0.0 };
+            engine.feed(&imu(t0 + tau, force, V3::new(0.0, 0.0, rate_dps)), &mut out);
+            if i % 10 == 0 {
+                let mut field = attitude.inverse() * earth + hard_iron;
+                if tau >= magnet_from_s {
+                    field += extra_ut;
+                }
+                engine.feed(&mag(t0 + tau, field), &mut out);
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn a_partial_arc_calibrates_and_a_field_departing_soon_after_makes_its_heading_unknown() {
+        // No magnet: the arc calibrates the compass and its heading is sure.
+        let calm = partial_turn_then_magnet(f64::INFINITY, V3::zeros());
+        let last = fuzzy(calm.last().unwrap());
+        assert_eq!(last.mag_calibration, magcal::CalibrationState::Arc);
+        let true_heading = 120.0;
+        assert!(
+            (last.heading_deg - true_heading).abs() < 2.0,
+            "{}",
+            last.heading_deg
+        );
+        assert!(last.heading_sigma_deg.unwrap() < 10.0, "{last:?}");
+        // A magnet 20 s after the arc's fit: the fit may have held a field
+        // that was not the Earth's; the heading is kept, its σ unknown.
+        let magnet = partial_turn_then_magnet(30.0, V3::new(15.0, 10.0, 0.0));
+        let last = fuzzy(magnet.last().unwrap());
+        assert!(
+            (last.heading_deg - true_heading).abs() < 2.0,
+            "{}",
+            last.heading_deg
+        );
+        assert!(last.heading_sigma_deg.unwrap() > 90.0, "{last:?}");
     }
 
     /// Calibrates on a turn, rests, then is shaken on a constant heading
