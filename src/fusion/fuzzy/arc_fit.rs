@@ -196,7 +196,8 @@ pub struct GyroHeading {
     pub yaw_rad: f64,
     /// The bias estimate subtracted from it, integrated, rad.
     pub bias_integral_rad: f64,
-    /// The bias about the vertical now and its σ, rad/s.
+    /// The bias about the vertical now and its σ about the vertical,
+    /// rad/s.
     pub bias_rad_per_s: f64,
     pub bias_sigma_rad_per_s: f64,
     /// The tilt's σ now, rad.
@@ -328,30 +329,31 @@ impl ArcCalibration {
             })
             .collect();
         let drift_sigma = gyro.bias_sigma_rad_per_s.max(MIN_DRIFT_SIGMA_RAD_PER_S);
-        let accepted = fit(&samples, inclination_rad, drift_sigma).filter(|f| {
+        let passed = fit(&samples, inclination_rad, drift_sigma).filter(|f| {
             let horizontal = f.model.soft_inverse().determinant().abs().cbrt();
             f.relative_rms <= MAX_RESIDUAL
                 && f.heading_sigma_rad <= MAX_HEADING_SIGMA_RAD
                 && (HORIZONTAL_UT.0..=HORIZONTAL_UT.1).contains(&horizontal)
-                && self
-                    .heading_sigma_rad
-                    .is_none_or(|current| f.heading_sigma_rad < current)
         });
-        match accepted.and_then(|f| {
+        let Some((correction, sigma)) = passed.and_then(|f| {
             f.model
                 .correction(f.heading_sigma_rad.max(f.relative_rms))
                 .map(|c| (c, f.heading_sigma_rad))
-        }) {
-            Some((correction, sigma)) => {
-                self.correction = Some(correction);
-                self.heading_sigma_rad = Some(sigma);
-                true
-            }
-            None => {
-                self.refused += 1;
-                false
-            }
+        }) else {
+            self.refused += 1;
+            return false;
+        };
+        // A refit that passes but is no surer changes nothing (and is no
+        // refusal).
+        if self
+            .heading_sigma_rad
+            .is_some_and(|current| sigma >= current)
+        {
+            return false;
         }
+        self.correction = Some(correction);
+        self.heading_sigma_rad = Some(sigma);
+        true
     }
 }
 

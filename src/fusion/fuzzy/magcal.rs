@@ -479,7 +479,14 @@ impl MagCalibration {
             }
             _ => false,
         };
-        self.add_binned(field_ut, roll_rad, pitch_rad) || arc_changed
+        let had_fit = self.correction.is_some();
+        let changed = self.add_binned(field_ut, roll_rad, pitch_rad);
+        if !had_fit && self.correction.is_some() {
+            // The planar or full fit takes over: the arc's samples would
+            // only weigh on every snapshot.
+            self.arc.restart();
+        }
+        changed || arc_changed
     }
 
     /// [`add`](Self::add) for the planar and full fits.

@@ -503,7 +503,16 @@ impl FuzzyEngine {
                 yaw_rad: s.gyro_yaw_rad,
                 bias_integral_rad: s.bias_yaw_rad,
                 bias_rad_per_s: (s.attitude * s.gyro_bias.bias_rad_per_s).z,
-                bias_sigma_rad_per_s: s.gyro_bias.sigma_rad_per_s().norm(),
+                // The bias's σ about the world vertical: its per-axis σ
+                // through the attitude's vertical row.
+                bias_sigma_rad_per_s: s
+                    .attitude
+                    .to_rotation_matrix()
+                    .matrix()
+                    .row(2)
+                    .transpose()
+                    .component_mul(&s.gyro_bias.sigma_rad_per_s())
+                    .norm(),
                 tilt_sigma_rad: self.carried_tilt_sigma(s).hypot(s.residual_sigma_rad),
             });
             if self.calibration.add(field_ut, roll, pitch, gyro) {
