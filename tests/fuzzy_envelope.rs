@@ -75,7 +75,7 @@ fn a_frozen_imu_is_flagged_and_every_drive_recovers() {
 /// on seeds 1–40). Asserted: every drive that turned 90° and on which the
 /// engine aligned within 30 s calibrates its magnetometer (with or without
 /// a circle). The median heading RMSE, scored from 90° of turning on, was
-/// to be asserted within issue 34's 2° too: it is 2.72° on these seeds
+/// to be asserted within issue 34's 2° too: it is 2.70° on these seeds
 /// (not met; docs/engines/fuzzy.md), and is printed, not asserted.
 #[test]
 fn envelope_drives_calibrate_from_a_partial_turn_seeds_121_to_132() {
