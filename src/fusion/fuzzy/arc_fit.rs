@@ -55,7 +55,9 @@ use nalgebra::{Matrix3, SMatrix, SVector, UnitQuaternion};
 use serde::{Deserialize, Serialize};
 
 use super::magcal::{Correction, azimuth_span_deg};
+use super::orientation::{angle_difference, magnetic_heading};
 use crate::fusion::geometry::{V3, attitude_from_euler};
+use crate::fusion::robust::median_in_place;
 
 /// Gyro heading the samples must span, degrees (issue 55).
 pub const MIN_ARC_DEG: f64 = 90.0;
@@ -255,11 +257,7 @@ impl ArcCalibration {
             .iter()
             .map(|s| c.apply(&s.field_ut).norm())
             .collect();
-        if magnitudes.is_empty() {
-            return None;
-        }
-        magnitudes.sort_by(f64::total_cmp);
-        Some(magnitudes[magnitudes.len() / 2])
+        (!magnitudes.is_empty()).then(|| median_in_place(&mut magnitudes))
     }
 
     /// Adds a raw reading (µT) taken at the filter's roll and pitch with
@@ -408,14 +406,15 @@ fn fit(samples: &[ArcSample], inclination_rad: f64, sigma_d: f64) -> Option<Fit>
             .map(|s| (s.field_ut - m.predict(s, mean_t)).norm_squared())
             .collect()
     };
-    let data_residual = |m: &Model| -> f64 { squared_residuals(m).iter().sum() };
     let dof = (3 * samples.len()).saturating_sub(PARAMS).max(1) as f64;
     let mut lambda = 1e-3;
     let mut normal = Square::zeros();
+    let mut squared = squared_residuals(&model);
     for _ in 0..MAX_ITERATIONS {
-        let sigmas = sample_sigmas(&model, samples, &squared_residuals(&model), dof);
-        let cost = |m: &Model| -> f64 {
-            squared_residuals(m)
+        let sigmas = sample_sigmas(&model, samples, &squared, dof);
+        // The cost of a model whose squared data residuals are `squared`.
+        let cost = |m: &Model, squared: &[f64]| -> f64 {
+            squared
                 .iter()
                 .zip(&sigmas)
                 .map(|(r2, sigma)| r2 / (sigma * sigma))
@@ -428,7 +427,7 @@ fn fit(samples: &[ArcSample], inclination_rad: f64, sigma_d: f64) -> Option<Fit>
         let priors = (tan_inclination, sigma_v, sigma_d);
         let (jtj, jtr) = normal_equations(&model, samples, mean_t, &sigmas, priors);
         normal = jtj;
-        let before = cost(&model);
+        let before = cost(&model, &squared);
         let mut improved = false;
         for _ in 0..6 {
             let damped = jtj + Square::from_diagonal(&jtj.diagonal()) * lambda;
@@ -437,8 +436,10 @@ fn fit(samples: &[ArcSample], inclination_rad: f64, sigma_d: f64) -> Option<Fit>
                 continue;
             };
             let candidate = Model { p: model.p + step };
-            if cost(&candidate) < before {
+            let candidate_squared = squared_residuals(&candidate);
+            if cost(&candidate, &candidate_squared) < before {
                 model = candidate;
+                squared = candidate_squared;
                 lambda = (lambda * 0.3).max(1e-9);
                 improved = step.norm() > 1e-9 * model.p.norm();
                 break;
@@ -452,7 +453,7 @@ fn fit(samples: &[ArcSample], inclination_rad: f64, sigma_d: f64) -> Option<Fit>
     let covariance = normal.try_inverse()?;
     // Relative to the horizontal field, whose direction is the heading.
     let horizontal = model.soft_inverse().determinant().abs().cbrt();
-    let relative_rms = (data_residual(&model) / samples.len() as f64).sqrt() / horizontal;
+    let relative_rms = (squared.iter().sum::<f64>() / samples.len() as f64).sqrt() / horizontal;
     Some(Fit {
         model,
         relative_rms,
@@ -559,7 +560,7 @@ fn normal_equations(
 fn heading_sigma_rad(model: &Model, covariance: &Square) -> f64 {
     let heading_of = |m: &Model, raw: &V3| -> Option<f64> {
         let body = m.soft_inverse().try_inverse()? * (raw - m.hard_iron());
-        Some((-body.y).atan2(body.x))
+        Some(magnetic_heading(&body, 0.0, 0.0))
     };
     let mut sum = 0.0;
     let count = 12;
@@ -579,9 +580,7 @@ fn heading_sigma_rad(model: &Model, covariance: &Square) -> f64 {
             let Some(moved) = heading_of(&Model { p }, &raw) else {
                 return f64::INFINITY;
             };
-            let change = (moved - base + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
-                - std::f64::consts::PI;
-            gradient[j] = change / step;
+            gradient[j] = angle_difference(moved, base) / step;
         }
         sum += (gradient.transpose() * covariance * gradient)[(0, 0)].max(0.0);
     }
@@ -651,9 +650,7 @@ mod tests {
             let attitude = attitude_from_euler(0.0, 0.0, heading);
             let raw = soft * (attitude.inverse() * world) + hard;
             let body = c.apply(&raw);
-            let error = ((-body.y).atan2(body.x) - heading + std::f64::consts::PI)
-                .rem_euclid(std::f64::consts::TAU)
-                - std::f64::consts::PI;
+            let error = angle_difference(magnetic_heading(&body, 0.0, 0.0), heading);
             assert!(
                 error.abs().to_degrees() < 1.0,
                 "{k}: {}",

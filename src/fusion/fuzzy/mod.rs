@@ -474,7 +474,9 @@ impl FuzzyEngine {
         if disturbed {
             self.stats.mag_disturbed += 1;
             self.innovations.clear();
-            if self.disturbance.departing_for_s(t) >= REHEAD_UNDO_AFTER_S
+            // Not one odd reading: the field has departed for a while.
+            let departed = self.disturbance.departing_for_s(t) >= REHEAD_UNDO_AFTER_S;
+            if departed
                 && let (Some(rehead), Some(solution)) =
                     (self.rehead_turn.take(), &mut self.solution)
             {
@@ -486,9 +488,7 @@ impl FuzzyEngine {
                         * solution.attitude;
                 self.heading_uncalibrated = true;
             }
-            if self.disturbance.departing_for_s(t) >= REHEAD_UNDO_AFTER_S
-                && self.arc_watch_until.take().is_some_and(|until| t <= until)
-            {
+            if departed && self.arc_watch_until.take().is_some_and(|until| t <= until) {
                 self.heading_uncalibrated = true;
             }
         }
