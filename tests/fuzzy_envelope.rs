@@ -97,3 +97,47 @@ fn envelope_drives_calibrate_from_a_partial_turn_seeds_121_to_132() {
     }
     assert!(turned > 0);
 }
+
+/// Issue 55: motion from events (rolling.rs). Seeds 141–152 were fixed
+/// before any result on them was looked at (the rule was written on seeds
+/// 1–80 and 1001–1040), in the categories the rule is for: smooth
+/// cruising, a vehicle never still, and ordinary drives with an IMU power
+/// cycle (a bias step the engine must relearn at rest, not take for a
+/// turn). Asserted: the lowest motion accuracy each set showed when
+/// first run, rounded down (cruising 0.886: seed 146, a standing vehicle
+/// whose sway at rest varies twofold; never still 0.974; power cycle
+/// 0.648: seed 146 again, whose power cycle while rolling turns the tilt
+/// 4.6° off, as before issue 55's rule: 0.656). The issue's bar, 0.97 on
+/// every drive, is printed, met or not: met only never still.
+#[test]
+fn motion_from_events_seeds_141_to_152() {
+    use tunnelnav::sim::faults::FaultKind;
+    use tunnelnav::sim::vehicle_envelope::VehicleCategory;
+    let seeds: Vec<u64> = (141..=152).collect();
+    let params = Params::defaults(PARAMS);
+    for (fault, category, floor) in [
+        (None, VehicleCategory::Cruising, 0.88),
+        (None, VehicleCategory::NeverStill, 0.97),
+        (Some(FaultKind::PowerCycle), VehicleCategory::Ordinary, 0.64),
+    ] {
+        let drives =
+            tunnelnav::eval::fuzzy_envelope::evaluate_all_with(&seeds, &params, fault, category, 2)
+                .unwrap();
+        let lowest = drives
+            .iter()
+            .map(|d| d.motion_accuracy)
+            .fold(f64::INFINITY, f64::min);
+        eprintln!(
+            "{category:?} {fault:?}: motion lowest {lowest:.4}: bar 0.97 on every drive {}",
+            if lowest >= 0.97 { "met" } else { "NOT MET" }
+        );
+        for d in &drives {
+            assert!(
+                d.motion_accuracy >= floor,
+                "{category:?} {fault:?} seed {}: motion {}",
+                d.seed,
+                d.motion_accuracy
+            );
+        }
+    }
+}

@@ -59,6 +59,7 @@ pub mod orientation;
 pub mod params;
 pub mod planar_fit;
 pub mod rest_rate;
+pub mod rolling;
 pub mod start_frame;
 pub mod tilt;
 pub mod tilt_monitor;
@@ -80,6 +81,7 @@ use self::noise_floor::NoiseFloor;
 use self::orientation::{integrate, magnetic_heading, pull_heading, tilt_from_accel};
 pub use self::params::{FuzzyConfig, FuzzyParams, PARAMS, RETIRED};
 use self::rest_rate::RestRate;
+use self::rolling::RollingWatch;
 use self::start_frame::StartFrame;
 use self::tilt::TiltWindow;
 use self::tilt_monitor::TiltMonitor;
@@ -171,6 +173,10 @@ pub struct FuzzyStats {
     /// IMU readings taken for a frozen sensor's (not used).
     #[serde(default)]
     pub imu_frozen: u64,
+    /// Bias steps seen at rest, whose variance was widened to relearn
+    /// them (gyro_bias.rs).
+    #[serde(default)]
+    pub bias_steps: u64,
 }
 
 /// The attitude solution once aligned.
@@ -293,6 +299,12 @@ pub struct FuzzyEngine {
     /// The newest static degree (the dip check allows for the tilt error
     /// of a moving sensor).
     static_degree: f64,
+    /// Motion from events: rolling until stopped (rolling.rs).
+    #[serde(default)]
+    rolling: RollingWatch,
+    /// Since when a bias step at rest has been seen ([`FuzzyEngine::watch_bias_step`]).
+    #[serde(default)]
+    bias_step_since: Option<f64>,
     /// Whether the compass steers the heading, and since when.
     #[serde(default)]
     compass_state: Option<(CompassState, f64)>,
@@ -359,6 +371,8 @@ impl FuzzyEngine {
             heading_uncalibrated: false,
             carried_deflection_rad: 0.0,
             static_degree: 0.0,
+            rolling: RollingWatch::default(),
+            bias_step_since: None,
             compass_state: None,
             tilt_monitor: TiltMonitor::default(),
             imu_frozen: FrozenWatch::default(),
@@ -612,6 +626,41 @@ impl FuzzyEngine {
         }
     }
 
+    /// A bias that stepped at rest (gyro_bias.rs, [`gyro_bias::STEP_AT_REST_S`]):
+    /// not rolling, every input but the mean rate's distance from the
+    /// bias `low`, for that long: the bias's variance grows to that
+    /// distance, so the expert sees rest again and the bias is learnt.
+    fn watch_bias_step(&mut self, t: f64, static_degree: f64, shaking_degree: f64, rolling: bool) {
+        let stepped = !rolling
+            && static_degree < self.config.static_threshold
+            && shaking_degree >= rolling::QUIET_DEGREE;
+        if !stepped {
+            self.bias_step_since = None;
+            return;
+        }
+        let since = *self.bias_step_since.get_or_insert(t);
+        if t - since < gyro_bias::STEP_AT_REST_S {
+            return;
+        }
+        if let Some(solution) = &mut self.solution {
+            let offset = self.window.mean_rate() - solution.gyro_bias.bias_rad_per_s;
+            solution.gyro_bias.widen_for_step(&offset);
+            self.stats.bias_steps += 1;
+        }
+        self.bias_step_since = None;
+    }
+
+    /// The expert's static degree for signals relative to the floors; 0
+    /// for a window no sensor at rest shows.
+    fn expert_degree(&mut self, relative: &MotionSignals, plausible_at_rest: bool) -> f64 {
+        if !plausible_at_rest {
+            return 0.0;
+        }
+        motion::decided_by_breakpoints(&self.config.motion, relative)
+            .or_else(|| motion::static_degree(&self.expert, relative, &mut self.scratch))
+            .unwrap_or(0.0)
+    }
+
     fn feed_imu(&mut self, t: f64, force: V3, rate: V3, out: &mut Vec<EngineOutput>) {
         let dt_s = match self.newest_imu_t {
             Some(newest) if t <= newest => {
@@ -655,6 +704,7 @@ impl FuzzyEngine {
             self.innovations.clear();
             self.turns.clear();
             self.relearnt_turns.clear();
+            self.rolling.interrupted();
             if let Some(solution) = &mut self.solution {
                 solution.previous_rate_rad_per_s = None;
                 solution.tilt_window.clear();
@@ -662,7 +712,8 @@ impl FuzzyEngine {
             }
         }
         self.window.push(force, rate);
-        if self.window.is_full() {
+        // Floors from confirmed rest only (rolling.rs).
+        if self.window.is_full() && !self.rolling.is_rolling() {
             let rise = self.config.floor_rise_s;
             self.floor
                 .accel
@@ -697,13 +748,41 @@ impl FuzzyEngine {
         let plausible_at_rest = signals.accel_activity_mps2 <= ALIGN_MAX_ACCEL_SPREAD_MPS2
             && self.window.rate_spread() <= ALIGN_MAX_RATE_SPREAD_RAD_PER_S
             && (self.window.mean_rate() - bias).norm() <= ALIGN_MAX_MEAN_RATE_RAD_PER_S;
-        let static_degree = if plausible_at_rest {
-            motion::decided_by_breakpoints(&self.config.motion, &relative)
-                .or_else(|| motion::static_degree(&self.expert, &relative, &mut self.scratch))
-                .unwrap_or(0.0)
+        let static_degree = self.expert_degree(&relative, plausible_at_rest);
+        // The latch reads the shaking and the acceleration, not the mean
+        // rate's distance from the bias: a gyro whose bias stepped (a power
+        // cycle) looks turning, and a latch on that would keep it from
+        // ever resting to learn the new bias (rolling.rs).
+        let fast_spread = self.window.fast_rate_spread();
+        let shaking_degree = if signals.gyro_activity_rad_per_s > fast_spread {
+            let shaking = self.relative_signals(&MotionSignals {
+                gyro_activity_rad_per_s: fast_spread,
+                ..signals
+            });
+            self.expert_degree(&shaking, plausible_at_rest)
         } else {
-            0.0
+            static_degree
         };
+        // The horizontal force in the level frame turned with the vehicle.
+        let horizontal = self
+            .solution
+            .as_ref()
+            .filter(|_| self.rolling.sample_due(t))
+            .and_then(|s| {
+                let f = s.tilt_window.mean_measured()?;
+                let (sin, cos) = s.attitude.euler_angles().2.sin_cos();
+                Some([cos * f.x + sin * f.y, cos * f.y - sin * f.x])
+            });
+        let rolling = self
+            .rolling
+            .step(&self.config.rolling, t, shaking_degree, horizontal);
+        if self.rolling.ended_louder_than_floors() && self.window.is_full() {
+            // At rest by events, louder than the floors: this is the rest.
+            self.floor.accel.raise_to(self.window.force_spread());
+            self.floor.gyro.raise_to(fast_spread);
+        }
+        let static_degree = if rolling { 0.0 } else { static_degree };
+        self.watch_bias_step(t, static_degree, shaking_degree, rolling);
 
         self.static_degree = static_degree;
         if continuous && let Some(solution) = self.solution.take() {
@@ -1675,6 +1754,129 @@ mod tests {
         );
     }
 
+    /// A level vehicle heading north at 100 Hz: 20 s at rest, 3 s
+    /// accelerating at 2 m/s² with 0.3 m/s² of vibration, then rolling
+    /// as smoothly as it idles (0.05 m/s², 0.1 °/s per axis) until
+    /// `quiet_end_s`; then, if `brake`, 3 s braking at 2 m/s² with
+    /// vibration; then at rest (idle) to `end_s`.
+    fn smooth_roll(quiet_end_s: f64, brake: bool, end_s: f64) -> Vec<Reading> {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, StandardNormal};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let mut noise = |sigma: f64| {
+            let n: f64 = StandardNormal.sample(&mut rng);
+            sigma * n
+        };
+        let bias_dps = V3::new(0.2, -0.1, 0.15);
+        (0..(end_s * 100.0) as usize)
+            .map(|i| {
+                let tau = i as f64 * 0.01;
+                let brake_end_s = if brake {
+                    quiet_end_s + 3.0
+                } else {
+                    quiet_end_s
+                };
+                let (along_mps2, shake) = if (20.0..23.0).contains(&tau) {
+                    (2.0, 0.3)
+                } else if (quiet_end_s..brake_end_s).contains(&tau) {
+                    (-2.0, 0.3)
+                } else {
+                    (0.0, 0.05)
+                };
+                let force = V3::new(along_mps2 + noise(shake), noise(shake), -G + noise(shake));
+                let rate = bias_dps + V3::new(noise(0.1), noise(0.1), noise(0.1));
+                imu(1.7e9 + tau, force, rate)
+            })
+            .collect()
+    }
+
+    fn motions(readings: &[Reading]) -> Vec<(f64, Motion)> {
+        let mut engine = FuzzyEngine::with_defaults();
+        let mut out = Vec::new();
+        for r in readings {
+            engine.feed(r, &mut out);
+        }
+        out.iter().map(|o| (o.t - 1.7e9, fuzzy(o).motion)).collect()
+    }
+
+    /// Issue 55, motion from events (rolling.rs): rolling as quietly as
+    /// it idles is still rolling until a braking and a quiet (the end of
+    /// the start's acceleration is no braking); without a braking, until
+    /// the quiet has lasted `stop_settle_s` (10 s).
+    #[test]
+    fn a_vehicle_that_started_rolling_rolls_until_it_has_stopped() {
+        let called = |from_s: f64, to_s: f64, motion: Motion, of: &[(f64, Motion)]| {
+            of.iter()
+                .filter(|(t, _)| (from_s..to_s).contains(t))
+                .all(|(_, m)| *m == motion)
+        };
+        // Accelerating 20–23 s, rolling quietly 23–31 s, braking 31–34 s.
+        let braked = motions(&smooth_roll(31.0, true, 60.0));
+        assert!(called(5.0, 19.9, Motion::Static, &braked));
+        assert!(
+            called(20.5, 34.0, Motion::Moving, &braked),
+            "the smooth roll"
+        );
+        assert!(
+            called(36.0, 60.0, Motion::Static, &braked),
+            "after the braking"
+        );
+        // Before issue 55 the expert alone called the quiet roll static.
+        let expert_only = Params::from_assignments(PARAMS, ["rolling_start_s=60"]).unwrap();
+        let mut engine = FuzzyEngine::new(expert_only).unwrap();
+        let mut out = Vec::new();
+        for r in &smooth_roll(31.0, true, 60.0) {
+            engine.feed(r, &mut out);
+        }
+        assert!(out.iter().any(|o| {
+            (25.0..30.0).contains(&(o.t - 1.7e9)) && fuzzy(o).motion == Motion::Static
+        }));
+        // No braking: quiet from 23 s, at rest once that has lasted 10 s.
+        let coasted = motions(&smooth_roll(23.0, false, 60.0));
+        assert!(called(20.5, 32.5, Motion::Moving, &coasted));
+        assert!(called(34.0, 60.0, Motion::Static, &coasted));
+    }
+
+    /// Issue 55: a bias that steps at rest is relearnt within seconds. A
+    /// still, level platform (0.05 m/s², 0.01 °/s of noise per axis); at
+    /// 30 s the bias about the vertical steps by 0.2 °/s (a power cycle):
+    /// the tilt does not show it, only the mean rate's distance from the
+    /// bias, which the expert calls a turn. Before, the platform was
+    /// `moving` from then on and its bias never learnt again.
+    #[test]
+    fn a_bias_that_steps_at_rest_is_relearnt_within_seconds() {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, StandardNormal};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let mut noise = |sigma: f64| {
+            let n: f64 = StandardNormal.sample(&mut rng);
+            sigma * n
+        };
+        let mut engine = FuzzyEngine::with_defaults();
+        let mut out = Vec::new();
+        for i in 0..6000 {
+            let tau = f64::from(i) * 0.01;
+            let bias_dps = V3::new(0.3, -0.2, if tau < 30.0 { 0.1 } else { 0.3 });
+            let force = V3::new(noise(0.05), noise(0.05), -G + noise(0.05));
+            let rate = bias_dps + V3::new(noise(0.01), noise(0.01), noise(0.01));
+            engine.feed(&imu(1.7e9 + tau, force, rate), &mut out);
+        }
+        assert_eq!(engine.stats.bias_steps, 1);
+        let since_step = |o: &&EngineOutput| o.t - 1.7e9 - 30.0;
+        let last_moving_s = out
+            .iter()
+            .filter(|o| since_step(o) > 0.0 && fuzzy(o).motion == Motion::Moving)
+            .map(|o| since_step(&o))
+            .fold(0.0, f64::max);
+        assert!(last_moving_s < 6.0, "moving until {last_moving_s} s after");
+        let last = fuzzy(out.last().unwrap());
+        assert!(
+            (last.gyro_bias_dps[2] - 0.3).abs() < 0.01,
+            "{:?}",
+            last.gyro_bias_dps
+        );
+    }
+
     #[test]
     fn a_turn_is_moving_and_integrated_without_euler_rates() {
         let mut engine = FuzzyEngine::with_defaults();
@@ -1803,7 +2005,10 @@ mod tests {
         // Not aligning while it is waved about (that is the next test).
         let patient = Params::from_assignments(PARAMS, ["align_without_rest_s=1000000"]).unwrap();
         for seed in 1..=5 {
-            let (readings, _) = noisy_readings(10.0, seed);
+            // 15 s at rest: waved before it aligned, the sensor shows no
+            // deceleration, and is at rest once quiet for `stop_settle_s`
+            // (10 s, rolling.rs).
+            let (readings, _) = noisy_readings(15.0, seed);
             let rest_t = 1.7e9 + 5.0;
             let mut engine = FuzzyEngine::new(patient.clone()).unwrap();
             let mut out = Vec::new();

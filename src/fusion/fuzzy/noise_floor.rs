@@ -8,7 +8,8 @@
 //!   L ← L · exp((q − 1[x < L]) · dt / (q · T_rise)),
 //! which falls e-fold in T_rise·q/(1 − q) seconds of quieter windows and
 //! rises e-fold in T_rise seconds of louder ones: a stop of a few seconds
-//! finds the floor again, a drive of minutes does not lift it much. The
+//! finds the floor again. The engine shows it no window while the vehicle
+//! rolls (rolling.rs): floors come from rest, never from motion. The
 //! first value taken starts it, so alignment can use it at once, and the
 //! engine lowers it to the window it aligns on ([`Floor::lower_to`]).
 
@@ -73,6 +74,17 @@ impl Floor {
         if value.is_finite() && value >= 0.0 {
             let value = value.max(f64::MIN_POSITIVE);
             self.level = Some(self.level.map_or(value, |level| level.min(value)));
+        }
+    }
+}
+
+impl Floor {
+    /// Takes `value` as the floor if it is higher (a window known at rest
+    /// by events, louder than the rests the floor was learnt at).
+    pub fn raise_to(&mut self, value: f64) {
+        if value.is_finite() && value >= 0.0 {
+            let value = value.max(f64::MIN_POSITIVE);
+            self.level = Some(self.level.map_or(value, |level| level.max(value)));
         }
     }
 }

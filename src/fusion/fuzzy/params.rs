@@ -5,6 +5,7 @@ use serde::{Deserialize, Serialize};
 
 use super::disturbance::Tolerances;
 use super::motion::{Breakpoints, MotionConfig};
+use super::rolling::RollingConfig;
 use crate::fusion::angles::rad;
 use crate::fusion::params::{ParamError, Params, Retired, TypedParams, param_table};
 
@@ -87,6 +88,27 @@ param_table! {
             1.0,
             "",
             "`motion` is static from this static degree up; bias learning starts above it",
+        ),
+        rolling_start_s: f64 = real(
+            1.0,
+            0.0,
+            60.0,
+            "s",
+            "`moving` without a break for this long means the vehicle is rolling until it stops (rolling.rs)",
+        ),
+        stop_speed_mps: f64 = real(
+            0.25,
+            0.01,
+            10.0,
+            "m/s",
+            "the speed a roll's start must gain to give its direction, and a deceleration before a quiet must take off along it to stop rolling (rolling.rs)",
+        ),
+        stop_settle_s: f64 = real(
+            10.0,
+            0.0,
+            600.0,
+            "s",
+            "no input of the motion expert fully `high` for this long stops rolling without a deceleration (rolling.rs)",
         ),
         tilt_time_constant_s: f64 = real(
             4.0,
@@ -275,6 +297,8 @@ pub struct FuzzyConfig {
     pub motion: MotionConfig,
     pub floor_rise_s: f64,
     pub static_threshold: f64,
+    /// Motion from events (rolling.rs).
+    pub rolling: RollingConfig,
     pub tilt_time_constant_s: f64,
     pub tilt_moving_time_constant_s: f64,
     /// Fraction of the gyros' turn the tilt may always be pulled by while moving.
@@ -349,6 +373,12 @@ impl FuzzyConfig {
             },
             floor_rise_s: p.noise_floor_rise_s,
             static_threshold: p.static_threshold,
+            rolling: RollingConfig {
+                static_threshold: p.static_threshold,
+                start_s: p.rolling_start_s,
+                speed_mps: p.stop_speed_mps,
+                settle_s: p.stop_settle_s,
+            },
             tilt_time_constant_s: p.tilt_time_constant_s,
             tilt_moving_time_constant_s: p.tilt_moving_time_constant_s,
             tilt_turn_pull: p.tilt_turn_pull,

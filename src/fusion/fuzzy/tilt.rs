@@ -147,6 +147,11 @@ impl TiltWindow {
         ((old - new).norm_squared() - scatter).max(0.0).sqrt()
     }
 
+    /// Mean of the measured force over every reading held, m/s².
+    pub fn mean_measured(&self) -> Option<V3> {
+        (!self.pairs.is_empty()).then(|| self.all_measured / self.pairs.len() as f64)
+    }
+
     /// Means of the measured and predicted force over the older half.
     pub fn older_means(&self) -> Option<(V3, V3)> {
         (self.older_len > 0).then(|| {
