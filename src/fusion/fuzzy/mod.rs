@@ -146,6 +146,9 @@ const UNCALIBRATED_HEADING_SIGMA_RAD: f64 = 0.17;
 const SPELL_STILLNESS: f64 = 0.9;
 /// The smallest floor used as a divisor (far below any sensor's noise).
 const MIN_FLOOR: f64 = 1e-9;
+/// While the vehicle rolls the noise floors only rise, this many times
+/// slower than at rest (noise_floor.rs, rolling.rs).
+const ROLLING_FLOOR_RISE_FACTOR: f64 = 100.0;
 
 /// What the engine has done with its readings.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
@@ -305,6 +308,10 @@ pub struct FuzzyEngine {
     /// Since when a bias step at rest has been seen ([`FuzzyEngine::watch_bias_step`]).
     #[serde(default)]
     bias_step_since: Option<f64>,
+    /// The quietest accelerometer and gyro spreads of the calm a roll may
+    /// end in ([`FuzzyEngine::watch_calm_spreads`]).
+    #[serde(default)]
+    calm_spreads: Option<[f64; 2]>,
     /// Whether the compass steers the heading, and since when.
     #[serde(default)]
     compass_state: Option<(CompassState, f64)>,
@@ -373,6 +380,7 @@ impl FuzzyEngine {
             static_degree: 0.0,
             rolling: RollingWatch::default(),
             bias_step_since: None,
+            calm_spreads: None,
             compass_state: None,
             tilt_monitor: TiltMonitor::default(),
             imu_frozen: FrozenWatch::default(),
@@ -632,6 +640,7 @@ impl FuzzyEngine {
     /// distance, so the expert sees rest again and the bias is learnt.
     fn watch_bias_step(&mut self, t: f64, static_degree: f64, shaking_degree: f64, rolling: bool) {
         let stepped = !rolling
+            && self.window.is_full()
             && static_degree < self.config.static_threshold
             && shaking_degree >= rolling::QUIET_DEGREE;
         if !stepped {
@@ -642,12 +651,46 @@ impl FuzzyEngine {
         if t - since < gyro_bias::STEP_AT_REST_S {
             return;
         }
+        // A step within what a turn-on bias may be (the declared prior's
+        // 4σ); beyond, a slow slew on the spot is likelier than a bias.
+        let largest_rad_per_s = 4.0 * self.config.gyro_bias_prior_rad_per_s;
         if let Some(solution) = &mut self.solution {
             let offset = self.window.mean_rate() - solution.gyro_bias.bias_rad_per_s;
-            solution.gyro_bias.widen_for_step(&offset);
-            self.stats.bias_steps += 1;
+            if offset.norm() <= largest_rad_per_s {
+                solution.gyro_bias.widen_for_step(&offset);
+                self.stats.bias_steps += 1;
+            }
         }
         self.bias_step_since = None;
+    }
+
+    /// The quietest spreads of the calm a roll may end in (rolling.rs:
+    /// no input fully `high`): what a rest louder than the floors shows.
+    fn watch_calm_spreads(&mut self, shaking_degree: f64, rolling: bool) {
+        if !rolling || shaking_degree <= 0.0 || !self.window.is_full() {
+            self.calm_spreads = None;
+            return;
+        }
+        let now = [self.window.force_spread(), self.window.fast_rate_spread()];
+        let quietest = self.calm_spreads.get_or_insert(now);
+        quietest[0] = quietest[0].min(now[0]);
+        quietest[1] = quietest[1].min(now[1]);
+    }
+
+    /// A roll ended in a calm the expert still called `moving`: at rest by
+    /// events, louder than the rests before. The calm's quietest spreads
+    /// become the floors, and the force's norm now the norm at rest (an
+    /// alignment while moving may have left it off).
+    fn take_louder_rest(&mut self) {
+        if let Some([accel, gyro]) = self.calm_spreads.take() {
+            self.floor.accel.raise_to(accel);
+            self.floor.gyro.raise_to(gyro);
+        }
+        if let Some(solution) = &mut self.solution
+            && self.window.is_full()
+        {
+            solution.static_gravity_mps2 = self.window.mean_force_norm();
+        }
     }
 
     /// The expert's static degree for signals relative to the floors; 0
@@ -705,6 +748,7 @@ impl FuzzyEngine {
             self.turns.clear();
             self.relearnt_turns.clear();
             self.rolling.interrupted();
+            self.bias_step_since = None;
             if let Some(solution) = &mut self.solution {
                 solution.previous_rate_rad_per_s = None;
                 solution.tilt_window.clear();
@@ -712,15 +756,19 @@ impl FuzzyEngine {
             }
         }
         self.window.push(force, rate);
-        // Floors from confirmed rest only (rolling.rs).
-        if self.window.is_full() && !self.rolling.is_rolling() {
+        // Floors from rest (rolling.rs); while rolling they only rise,
+        // a hundred times slower (noise_floor.rs).
+        if self.window.is_full() {
             let rise = self.config.floor_rise_s;
-            self.floor
-                .accel
-                .observe(t, self.window.force_spread(), rise);
-            self.floor
-                .gyro
-                .observe(t, self.window.fast_rate_spread(), rise);
+            let (accel, gyro) = (self.window.force_spread(), self.window.fast_rate_spread());
+            if self.rolling.is_rolling() {
+                let slow = ROLLING_FLOOR_RISE_FACTOR * rise;
+                self.floor.accel.observe_rising(t, accel, slow);
+                self.floor.gyro.observe_rising(t, gyro, slow);
+            } else {
+                self.floor.accel.observe(t, accel, rise);
+                self.floor.gyro.observe(t, gyro, rise);
+            }
         }
 
         if self.solution.is_none() {
@@ -776,10 +824,9 @@ impl FuzzyEngine {
         let rolling = self
             .rolling
             .step(&self.config.rolling, t, shaking_degree, horizontal);
-        if self.rolling.ended_louder_than_floors() && self.window.is_full() {
-            // At rest by events, louder than the floors: this is the rest.
-            self.floor.accel.raise_to(self.window.force_spread());
-            self.floor.gyro.raise_to(fast_spread);
+        self.watch_calm_spreads(shaking_degree, rolling);
+        if self.rolling.ended_louder_than_floors() {
+            self.take_louder_rest();
         }
         let static_degree = if rolling { 0.0 } else { static_degree };
         self.watch_bias_step(t, static_degree, shaking_degree, rolling);

@@ -8,8 +8,9 @@
 //!   L ← L · exp((q − 1[x < L]) · dt / (q · T_rise)),
 //! which falls e-fold in T_rise·q/(1 − q) seconds of quieter windows and
 //! rises e-fold in T_rise seconds of louder ones: a stop of a few seconds
-//! finds the floor again. The engine shows it no window while the vehicle
-//! rolls (rolling.rs): floors come from rest, never from motion. The
+//! finds the floor again. While the vehicle rolls (rolling.rs) the engine
+//! lets the floor only rise, a hundred times slower: floors come from rest, and
+//! a rest louder than the floors is found in time. The
 //! first value taken starts it, so alignment can use it at once, and the
 //! engine lowers it to the window it aligns on ([`Floor::lower_to`]).
 
@@ -79,6 +80,19 @@ impl Floor {
 }
 
 impl Floor {
+    /// While the vehicle rolls: only the rise of [`Floor::observe`], at
+    /// T_rise `rise_s` (the engine takes a hundred times the floor's own), so a
+    /// rest louder than every rest before (an engine started after the
+    /// floors were learnt with it off) is found again in time, while a
+    /// drive of minutes lifts the floor by a few per cent only.
+    pub fn observe_rising(&mut self, t: f64, value: f64, rise_s: f64) {
+        if self.level.is_some_and(|level| value < level) {
+            self.t = Some(t);
+            return;
+        }
+        self.observe(t, value, rise_s);
+    }
+
     /// Takes `value` as the floor if it is higher (a window known at rest
     /// by events, louder than the rests the floor was learnt at).
     pub fn raise_to(&mut self, value: f64) {
@@ -137,6 +151,22 @@ mod tests {
         }
         let level = floor.level().unwrap();
         assert!((level - 1.01).abs() < 0.01, "{level}");
+    }
+
+    #[test]
+    fn while_rolling_the_floor_only_rises() {
+        let mut floor = Floor::new();
+        floor.observe(0.0, 1.0, 10.0);
+        // Quieter windows while rolling do not lower it.
+        for i in 1..=100 {
+            floor.observe_rising(f64::from(i) * 0.01, 0.1, 100.0);
+        }
+        assert_eq!(floor.level(), Some(1.0));
+        // Louder ones lift it e-fold per rise_s: 1 s of them at 100 s.
+        for i in 101..=200 {
+            floor.observe_rising(f64::from(i) * 0.01, 50.0, 100.0);
+        }
+        assert!((floor.level().unwrap() - 0.01_f64.exp()).abs() < 1e-9);
     }
 
     #[test]

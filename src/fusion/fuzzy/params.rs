@@ -91,7 +91,7 @@ param_table! {
         ),
         rolling_start_s: f64 = real(
             1.0,
-            0.0,
+            0.1,
             60.0,
             "s",
             "`moving` without a break for this long means the vehicle is rolling until it stops (rolling.rs)",
@@ -105,7 +105,7 @@ param_table! {
         ),
         stop_settle_s: f64 = real(
             10.0,
-            0.0,
+            1.0,
             600.0,
             "s",
             "no input of the motion expert fully `high` for this long stops rolling without a deceleration (rolling.rs)",

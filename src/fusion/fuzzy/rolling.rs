@@ -28,12 +28,13 @@
 //!      degree above 0) for `settle_s`: a coast's end decelerates too
 //!      gently to tell (0.01–0.05 m/s²: the tilt's own error), and a
 //!      vehicle that drifts to a stop is at rest once it has been calm
-//!      that long. A roll that ends so while the expert is still unsure
-//!      (some input `medium`) ended at a rest louder than the one the
-//!      floors were learnt at: the engine takes this rest's spreads as
+//!      that long. A roll that ends so while the expert still says
+//!      `moving` ended at a rest louder than the one the floors were
+//!      learnt at: the engine takes the quietest spreads of the calm as
 //!      its floors ([`RollingWatch::ended_louder_than_floors`]), or a
 //!      standing vehicle that sways more than it idled would look like
-//!      motion for good (floors are not learnt while rolling).
+//!      motion for good (floors are not learnt while rolling, beyond a
+//!      slow rise: noise_floor.rs).
 //!
 //! **The deceleration** is read from h, the horizontal specific force
 //! (tilt.rs: the window's mean C·f) turned by the heading into the
@@ -45,7 +46,7 @@
 //! direction** u is that of the speed the roll first gained,
 //! s = ∫ (h − h₀) dτ from [`START_LEAD_S`] before the first `moving`
 //! reading on (h₀ the force then: at rest, before a smooth start shows),
-//! once ‖s‖ ≥ `speed_mps`:
+//! once ‖s‖ ≥ `speed_mps` within [`START_SEARCH_S`]:
 //!
 //! ```text
 //! u = s / ‖s‖                                                    (1)
@@ -87,6 +88,9 @@ pub const QUIET_DEGREE: f64 = 0.99;
 /// s: the expert's window and the tilt window's lag (half a window each)
 /// see a smooth start late, with the force already the acceleration's.
 pub const START_LEAD_S: f64 = 1.0;
+/// How long after the first `moving` reading the start's direction is
+/// looked for, s: a start gains its 0.25 m/s within seconds.
+pub const START_SEARCH_S: f64 = 10.0;
 /// Spacing of the kept horizontal forces, s.
 pub const SAMPLE_EVERY_S: f64 = 0.1;
 /// Longest spacing integrated, s: a gap is not time at that force.
@@ -117,6 +121,9 @@ pub struct RollingWatch {
     /// Since when no input of the expert has been fully `high`.
     #[serde(default)]
     calm_since: Option<f64>,
+    /// When the start of (1) was first seen.
+    #[serde(default)]
+    start_t: Option<f64>,
     /// The roll ended by (b) at this reading with the expert unsure.
     #[serde(default)]
     ended_louder: bool,
@@ -137,11 +144,10 @@ impl RollingWatch {
         self.rolling
     }
 
-    /// Takes one reading's static degree from the expert, the gyro yaw
-    /// once the engine has one (rad) and, when a sample is due
-    /// ([`RollingWatch::sample_due`]) and the engine has an attitude, the
-    /// horizontal specific force in the vehicle's level frame, m/s².
-    /// Returns whether the vehicle is rolling after it.
+    /// Takes one reading's static degree from the expert and, when a
+    /// sample is due ([`RollingWatch::sample_due`]) and the engine has an
+    /// attitude, the horizontal specific force in the vehicle's level
+    /// frame, m/s². Returns whether the vehicle is rolling after it.
     pub fn step(
         &mut self,
         config: &RollingConfig,
@@ -198,21 +204,27 @@ impl RollingWatch {
                     .is_some_and(|since| self.speed_lost(since) >= config.speed_mps));
         self.ended_louder = stopped && settled && moving;
         if stopped {
-            // A roll that starts again counts its own time.
+            // A roll that starts again counts its own time, from its own
+            // start.
             self.calm_since = None;
-            self.moving_since = moving.then_some(t);
             self.rolling = false;
-            self.start_base = None;
-            self.start_direction = None;
+            self.moving_since = moving.then_some(t);
+            if moving {
+                self.start_from(t);
+            } else {
+                self.start_base = None;
+                self.start_direction = None;
+            }
         }
         self.rolling
     }
 
-    /// True at the reading a roll ended by (b) while the expert was
-    /// unsure (no input `high`, some `medium`): a rest louder than the
-    /// one the floors were learnt at, whose spreads the engine then takes
-    /// as its floors (floors are not learnt while rolling, so without
-    /// this such a rest would look like motion for good).
+    /// True at the reading a roll ended by (b) while the expert still
+    /// said `moving` (no input fully `high`, the degree below the
+    /// threshold): a rest louder than the one the floors were learnt at,
+    /// whose quietest spreads the engine then takes as its floors (floors
+    /// are not learnt while rolling, so without this such a rest would
+    /// look like motion for good).
     pub fn ended_louder_than_floors(&self) -> bool {
         self.ended_louder
     }
@@ -243,6 +255,7 @@ impl RollingWatch {
     fn start_from(&mut self, t: f64) {
         self.start_gain = [0.0, 0.0];
         self.start_direction = None;
+        self.start_t = Some(t);
         let lead_t = t - START_LEAD_S;
         let Some(base_index) = self
             .forces
@@ -271,7 +284,13 @@ impl RollingWatch {
         }
         self.forces.push_back((t, h));
         // Equation (1): the speed the start gains, until it is clear.
+        // Only over the start's first seconds: later, a turn's or the
+        // tilt's drift would set a direction no braking follows.
+        let searching = self
+            .start_t
+            .is_some_and(|start| t - start <= START_SEARCH_S);
         if self.start_direction.is_none()
+            && searching
             && let Some(base) = self.start_base
         {
             let dt_s = last_t.map_or(0.0, |last| (t - last).min(MAX_STEP_S));
