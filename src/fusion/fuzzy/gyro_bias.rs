@@ -16,11 +16,6 @@ use serde::{Deserialize, Serialize};
 
 use crate::fusion::geometry::V3;
 
-/// A vehicle at rest (no roll since its last stop: rolling.rs) whose
-/// readings are as quiet as the floors but whose mean rate stays off the
-/// bias this long has a stepped bias, not a turn: no land vehicle turns
-/// without rolling, s.
-pub const STEP_AT_REST_S: f64 = 3.0;
 /// A static spell shorter than this says too little about the bias, s.
 const MIN_SPELL_S: f64 = 3.0;
 /// The learnt density averages this many spells at most (then follows).
@@ -61,17 +56,6 @@ impl GyroBias {
             let gain = p / (p + r);
             self.bias_rad_per_s[axis] += gain * (rate[axis] - self.bias_rad_per_s[axis]);
             self.variance[axis] = (1.0 - gain) * p;
-        }
-    }
-
-    /// A step of the bias (a power cycle, a temperature shock): the
-    /// random walk's process noise grows by what the evidence shows, so
-    /// that each axis's variance is at least the square of the rate's
-    /// `offset` from the bias there (rad/s). The next static readings
-    /// then take the new bias within a block or two.
-    pub fn widen_for_step(&mut self, offset: &V3) {
-        for axis in 0..3 {
-            self.variance[axis] = self.variance[axis].max(offset[axis] * offset[axis]);
         }
     }
 

@@ -176,10 +176,6 @@ pub struct FuzzyStats {
     /// IMU readings taken for a frozen sensor's (not used).
     #[serde(default)]
     pub imu_frozen: u64,
-    /// Bias steps seen at rest, whose variance was widened to relearn
-    /// them (gyro_bias.rs).
-    #[serde(default)]
-    pub bias_steps: u64,
 }
 
 /// The attitude solution once aligned.
@@ -305,9 +301,6 @@ pub struct FuzzyEngine {
     /// Motion from events: rolling until stopped (rolling.rs).
     #[serde(default)]
     rolling: RollingWatch,
-    /// Since when a bias step at rest has been seen ([`FuzzyEngine::watch_bias_step`]).
-    #[serde(default)]
-    bias_step_since: Option<f64>,
     /// The quietest accelerometer and gyro spreads of the calm a roll may
     /// end in ([`FuzzyEngine::watch_calm_spreads`]).
     #[serde(default)]
@@ -379,7 +372,6 @@ impl FuzzyEngine {
             carried_deflection_rad: 0.0,
             static_degree: 0.0,
             rolling: RollingWatch::default(),
-            bias_step_since: None,
             calm_spreads: None,
             compass_state: None,
             tilt_monitor: TiltMonitor::default(),
@@ -634,36 +626,6 @@ impl FuzzyEngine {
         }
     }
 
-    /// A bias that stepped at rest (gyro_bias.rs, [`gyro_bias::STEP_AT_REST_S`]):
-    /// not rolling, every input but the mean rate's distance from the
-    /// bias `low`, for that long: the bias's variance grows to that
-    /// distance, so the expert sees rest again and the bias is learnt.
-    fn watch_bias_step(&mut self, t: f64, static_degree: f64, shaking_degree: f64, rolling: bool) {
-        let stepped = !rolling
-            && self.window.is_full()
-            && static_degree < self.config.static_threshold
-            && shaking_degree >= rolling::QUIET_DEGREE;
-        if !stepped {
-            self.bias_step_since = None;
-            return;
-        }
-        let since = *self.bias_step_since.get_or_insert(t);
-        if t - since < gyro_bias::STEP_AT_REST_S {
-            return;
-        }
-        // A step within what a turn-on bias may be (the declared prior's
-        // 4σ); beyond, a slow slew on the spot is likelier than a bias.
-        let largest_rad_per_s = 4.0 * self.config.gyro_bias_prior_rad_per_s;
-        if let Some(solution) = &mut self.solution {
-            let offset = self.window.mean_rate() - solution.gyro_bias.bias_rad_per_s;
-            if offset.norm() <= largest_rad_per_s {
-                solution.gyro_bias.widen_for_step(&offset);
-                self.stats.bias_steps += 1;
-            }
-        }
-        self.bias_step_since = None;
-    }
-
     /// The quietest spreads of the calm a roll may end in (rolling.rs:
     /// no input fully `high`): what a rest louder than the floors shows.
     fn watch_calm_spreads(&mut self, shaking_degree: f64, rolling: bool) {
@@ -748,7 +710,6 @@ impl FuzzyEngine {
             self.turns.clear();
             self.relearnt_turns.clear();
             self.rolling.interrupted();
-            self.bias_step_since = None;
             if let Some(solution) = &mut self.solution {
                 solution.previous_rate_rad_per_s = None;
                 solution.tilt_window.clear();
@@ -829,7 +790,6 @@ impl FuzzyEngine {
             self.take_louder_rest();
         }
         let static_degree = if rolling { 0.0 } else { static_degree };
-        self.watch_bias_step(t, static_degree, shaking_degree, rolling);
 
         self.static_degree = static_degree;
         if continuous && let Some(solution) = self.solution.take() {
@@ -1882,46 +1842,6 @@ mod tests {
         let coasted = motions(&smooth_roll(23.0, false, 60.0));
         assert!(called(20.5, 32.5, Motion::Moving, &coasted));
         assert!(called(34.0, 60.0, Motion::Static, &coasted));
-    }
-
-    /// Issue 55: a bias that steps at rest is relearnt within seconds. A
-    /// still, level platform (0.05 m/s², 0.01 °/s of noise per axis); at
-    /// 30 s the bias about the vertical steps by 0.2 °/s (a power cycle):
-    /// the tilt does not show it, only the mean rate's distance from the
-    /// bias, which the expert calls a turn. Before, the platform was
-    /// `moving` from then on and its bias never learnt again.
-    #[test]
-    fn a_bias_that_steps_at_rest_is_relearnt_within_seconds() {
-        use rand::SeedableRng;
-        use rand_distr::{Distribution, StandardNormal};
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
-        let mut noise = |sigma: f64| {
-            let n: f64 = StandardNormal.sample(&mut rng);
-            sigma * n
-        };
-        let mut engine = FuzzyEngine::with_defaults();
-        let mut out = Vec::new();
-        for i in 0..6000 {
-            let tau = f64::from(i) * 0.01;
-            let bias_dps = V3::new(0.3, -0.2, if tau < 30.0 { 0.1 } else { 0.3 });
-            let force = V3::new(noise(0.05), noise(0.05), -G + noise(0.05));
-            let rate = bias_dps + V3::new(noise(0.01), noise(0.01), noise(0.01));
-            engine.feed(&imu(1.7e9 + tau, force, rate), &mut out);
-        }
-        assert_eq!(engine.stats.bias_steps, 1);
-        let since_step = |o: &&EngineOutput| o.t - 1.7e9 - 30.0;
-        let last_moving_s = out
-            .iter()
-            .filter(|o| since_step(o) > 0.0 && fuzzy(o).motion == Motion::Moving)
-            .map(|o| since_step(&o))
-            .fold(0.0, f64::max);
-        assert!(last_moving_s < 6.0, "moving until {last_moving_s} s after");
-        let last = fuzzy(out.last().unwrap());
-        assert!(
-            (last.gyro_bias_dps[2] - 0.3).abs() < 0.01,
-            "{:?}",
-            last.gyro_bias_dps
-        );
     }
 
     #[test]
