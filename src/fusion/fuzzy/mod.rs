@@ -628,12 +628,12 @@ impl FuzzyEngine {
 
     /// The quietest spreads of the calm a roll may end in (rolling.rs:
     /// no input fully `high`): what a rest louder than the floors shows.
-    fn watch_calm_spreads(&mut self, shaking_degree: f64, rolling: bool) {
+    /// `now` is the window's [accelerometer, gyro fast] spreads.
+    fn watch_calm_spreads(&mut self, now: [f64; 2], shaking_degree: f64, rolling: bool) {
         if !rolling || shaking_degree <= 0.0 || !self.window.is_full() {
             self.calm_spreads = None;
             return;
         }
-        let now = [self.window.force_spread(), self.window.fast_rate_spread()];
         let quietest = self.calm_spreads.get_or_insert(now);
         quietest[0] = quietest[0].min(now[0]);
         quietest[1] = quietest[1].min(now[1]);
@@ -717,11 +717,15 @@ impl FuzzyEngine {
             }
         }
         self.window.push(force, rate);
+        // The window's spreads, once per reading: the floors, the latch's
+        // shaking and its calm read them.
+        let (accel_spread, fast_spread) =
+            (self.window.force_spread(), self.window.fast_rate_spread());
         // Floors from rest (rolling.rs); while rolling they only rise,
         // a hundred times slower (noise_floor.rs).
         if self.window.is_full() {
             let rise = self.config.floor_rise_s;
-            let (accel, gyro) = (self.window.force_spread(), self.window.fast_rate_spread());
+            let (accel, gyro) = (accel_spread, fast_spread);
             if self.rolling.is_rolling() {
                 let slow = ROLLING_FLOOR_RISE_FACTOR * rise;
                 self.floor.accel.observe_rising(t, accel, slow);
@@ -762,7 +766,6 @@ impl FuzzyEngine {
         // rate's distance from the bias: a gyro whose bias stepped (a power
         // cycle) looks turning, and a latch on that would keep it from
         // ever resting to learn the new bias (rolling.rs).
-        let fast_spread = self.window.fast_rate_spread();
         let shaking_degree = if signals.gyro_activity_rad_per_s > fast_spread {
             let shaking = self.relative_signals(&MotionSignals {
                 gyro_activity_rad_per_s: fast_spread,
@@ -785,7 +788,7 @@ impl FuzzyEngine {
         let rolling = self
             .rolling
             .step(&self.config.rolling, t, shaking_degree, horizontal);
-        self.watch_calm_spreads(shaking_degree, rolling);
+        self.watch_calm_spreads([accel_spread, fast_spread], shaking_degree, rolling);
         if self.rolling.ended_louder_than_floors() {
             self.take_louder_rest();
         }
