@@ -141,3 +141,58 @@ fn motion_from_events_seeds_141_to_152() {
         }
     }
 }
+
+/// Issue 55: a power cycle while driving (the gyro bias steps with no stop
+/// to relearn it), on seeds 201–240, fixed for this test before any
+/// result on them was looked at (the evidence, bias_doubt.rs, was written
+/// on seeds 1–80 and 1001–1040; seeds 161–200 judged an earlier version
+/// of it and are reported in docs/engines/fuzzy.md). Ordinary drives and
+/// smooth cruising, the power cycle at 40 % of each. Asserted: the worst
+/// tilt RMSE each set showed when first run, rounded up (ordinary 3.13°,
+/// 3.14° after a review's fixes, cruising 2.59°; before the evidence
+/// 30.6° and 47.8°). The issue's
+/// bars, tilt ≤ 1° on every drive and no run of a wrong tilt or heading
+/// shown `ok` for more than 10 s (ordinary: seeds 208, 218, 232; cruising:
+/// 230), are printed, met or not.
+#[test]
+fn a_power_cycle_while_driving_seeds_201_to_240() {
+    use tunnelnav::sim::faults::FaultKind;
+    use tunnelnav::sim::vehicle_envelope::VehicleCategory;
+    let seeds: Vec<u64> = (201..=240).collect();
+    let params = Params::defaults(PARAMS);
+    for (category, worst_tilt_deg) in [
+        (VehicleCategory::Ordinary, 3.2),
+        (VehicleCategory::Cruising, 2.6),
+    ] {
+        let drives = tunnelnav::eval::fuzzy_envelope::evaluate_all_with(
+            &seeds,
+            &params,
+            Some(FaultKind::PowerCycle),
+            category,
+            2,
+        )
+        .unwrap();
+        let tilt = |d: &tunnelnav::eval::fuzzy_envelope::DriveScores| {
+            d.method("engine").unwrap().tilt_rmse_deg()
+        };
+        let over = drives.iter().filter(|d| tilt(d) > 1.0).count();
+        let run = drives
+            .iter()
+            .map(|d| d.integrity.worst_run_s)
+            .fold(0.0, f64::max);
+        eprintln!(
+            "{category:?} power cycle: tilt > 1° on {over} of {} drives ({}); longest misleading run {run:.1} s ({})",
+            drives.len(),
+            if over == 0 { "met" } else { "NOT MET" },
+            if run <= 10.0 { "met" } else { "NOT MET" },
+        );
+        for d in &drives {
+            assert!(
+                tilt(d) <= worst_tilt_deg,
+                "{category:?} seed {}: tilt RMSE {}°",
+                d.seed,
+                tilt(d)
+            );
+        }
+    }
+}

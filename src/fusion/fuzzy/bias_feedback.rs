@@ -52,6 +52,43 @@ pub fn bias_step(
         .component_mul(&weight)
 }
 
+/// The settling time of the critically damped loop in pull time
+/// constants: what the pulls tell of the bias, they tell once per this.
+const LOOP_TIME_CONSTANTS: f64 = 4.0;
+
+/// The bias variance per axis after a pull, (rad/s)²: the pulls measure
+/// the bias with the variance R_fb once per loop time 4τ, so a variance
+/// far above R_fb (a bias called into doubt, bias_doubt.rs) falls as the
+/// loop learns it, dP = −P²/(P + R_fb)·g·(1 − σ)/4·h per reading (about
+/// −P·g(1 − σ)/4 while P ≫ R_fb, a continuous Kalman filter's
+/// −P²/(R_fb·4τ) once P ≪ R_fb), h = 1 − (C·e_k)_z² how horizontal body
+/// axis k lies: the accelerometer's residual is horizontal and tells
+/// nothing of a bias about the vertical (the compass's). Arguments as
+/// [`bias_step`]'s.
+pub fn variance_after(
+    attitude: &UnitQuaternion<f64>,
+    bias_variance: &V3,
+    pull_gain: f64,
+    moving: f64,
+    reference_sigma_rad: f64,
+    dt_s: f64,
+) -> V3 {
+    if dt_s <= 0.0 || pull_gain <= 0.0 || !pull_gain.is_finite() {
+        return *bias_variance;
+    }
+    let told = (reference_sigma_rad * pull_gain / dt_s).powi(2);
+    let rate = (pull_gain * moving.clamp(0.0, 1.0) / LOOP_TIME_CONSTANTS).min(1.0);
+    let mut after = *bias_variance;
+    for (k, p) in after.iter_mut().enumerate() {
+        let vertical = (attitude * V3::ith(k, 1.0)).z;
+        let horizontal = (1.0 - vertical * vertical).clamp(0.0, 1.0);
+        if *p > 0.0 {
+            *p -= *p * *p / (*p + told) * rate * horizontal;
+        }
+    }
+    after
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -108,5 +145,32 @@ mod tests {
         }
         assert!((bias - true_error).abs() < 1e-4, "{bias}");
         assert!(theta.abs() < 1e-3, "{theta}");
+    }
+
+    #[test]
+    fn a_doubted_variance_falls_as_the_loop_learns_and_a_sure_one_barely_moves() {
+        // g = 0.001 per 0.01 s (k_P = 0.1/s), σ_ref 0.02 rad: R_fb =
+        // (0.002)² = 4e-6. Level: body x and y horizontal, z vertical.
+        // P = 4e-4 ≫ R_fb: dP = −(1.6e-7/4.04e-4)·0.001/4 = −9.90e-8;
+        // P = R_fb: −2e-6·0.00025 = −5e-10; z (vertical): unchanged;
+        // half moving: half.
+        let level = UnitQuaternion::identity();
+        let after = variance_after(&level, &V3::new(4e-4, 4e-6, 4e-4), 0.001, 1.0, 0.02, 0.01);
+        assert!(
+            (after.x - (4e-4 - 1.6e-7 / 4.04e-4 * 0.00025)).abs() < 1e-15,
+            "{after}"
+        );
+        assert!((after.y - (4e-6 - 5e-10)).abs() < 1e-18, "{after}");
+        assert_eq!(after.z, 4e-4);
+        let half = variance_after(&level, &V3::repeat(4e-6), 0.001, 0.5, 0.02, 0.01);
+        assert!((half.x - (4e-6 - 2.5e-10)).abs() < 1e-18);
+        // Rolled 90° about x: body y is vertical, z horizontal.
+        let rolled = attitude_from_euler(std::f64::consts::FRAC_PI_2, 0.0, 0.0);
+        let after = variance_after(&rolled, &V3::repeat(4e-6), 0.001, 1.0, 0.02, 0.01);
+        assert!((after.y - 4e-6).abs() < 1e-18 && (after.z - (4e-6 - 5e-10)).abs() < 1e-18);
+        // At rest or without a pull: unchanged.
+        let p = V3::repeat(4e-4);
+        assert_eq!(variance_after(&level, &p, 0.0, 1.0, 0.02, 0.01), p);
+        assert_eq!(variance_after(&level, &p, 0.001, 0.0, 0.02, 0.01), p);
     }
 }

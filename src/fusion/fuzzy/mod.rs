@@ -45,6 +45,7 @@
 //! absorbed into the estimated bias while static.
 
 pub mod arc_fit;
+pub mod bias_doubt;
 pub mod bias_feedback;
 pub mod disturbance;
 pub mod estimate;
@@ -70,6 +71,7 @@ use nalgebra::UnitQuaternion;
 use serde::{Deserialize, Serialize};
 
 use self::arc_fit::GyroHeading;
+use self::bias_doubt::BiasDoubt;
 use self::disturbance::{DisturbanceDetector, Tolerances};
 use self::estimate::{CompassState, FuzzyEstimate, Motion};
 use self::gyro_bias::{GyroBias, WalkLearner};
@@ -171,6 +173,10 @@ pub struct FuzzyStats {
     /// (heading_drift.rs) and was taken again.
     #[serde(default)]
     pub heading_drifts: u64,
+    /// Times a tilt residual that persisted while moving called the gyro
+    /// bias into doubt (bias_doubt.rs).
+    #[serde(default)]
+    pub bias_doubts: u64,
     /// Times the attitude became non-finite and alignment started again.
     pub resets: u64,
     /// IMU readings taken for a frozen sensor's (not used).
@@ -218,6 +224,10 @@ struct Solution {
     /// work with.
     #[serde(default)]
     residual_sigma_rad: f64,
+    /// The persisting tilt residual's evidence against the bias while
+    /// moving (bias_doubt.rs).
+    #[serde(default)]
+    bias_doubt: BiasDoubt,
 }
 
 /// How many σ of the bias and of the wander of the mean rate at rest the
@@ -796,8 +806,9 @@ impl FuzzyEngine {
 
         self.static_degree = static_degree;
         if continuous && let Some(solution) = self.solution.take() {
-            let updated = self.advance(solution, t, dt_s, force, rate, static_degree);
-            let mut updated = updated;
+            let doubts_before = solution.bias_doubt.doubts;
+            let mut updated = self.advance(solution, t, dt_s, force, rate, static_degree);
+            self.stats.bias_doubts += updated.bias_doubt.doubts - doubts_before;
             self.steer_heading(&mut updated, t, dt_s, static_degree);
             let finite = updated.attitude.coords.iter().all(|x| x.is_finite())
                 && updated
@@ -1002,6 +1013,7 @@ impl FuzzyEngine {
             gyro_yaw_rad: 0.0,
             bias_yaw_rad: 0.0,
             residual_sigma_rad: 0.0,
+            bias_doubt: BiasDoubt::default(),
             heading_sigma_rad: if yaw_known {
                 UNCALIBRATED_HEADING_SIGMA_RAD
             } else {
@@ -1050,6 +1062,7 @@ impl FuzzyEngine {
             gyro_yaw_rad: 0.0,
             bias_yaw_rad: 0.0,
             residual_sigma_rad: 0.0,
+            bias_doubt: BiasDoubt::default(),
             heading_sigma_rad: if compass.is_some() {
                 UNCALIBRATED_HEADING_SIGMA_RAD
             } else {
@@ -1137,18 +1150,60 @@ impl FuzzyEngine {
             );
             let gain = gain.max((1.0 - still) * turn_gain).min(1.0);
             // While moving, a residual the pull keeps taking out is the
-            // gyro bias's (bias_feedback.rs).
+            // gyro bias's (bias_feedback.rs); one that persists beyond
+            // what a vehicle's acceleration explains calls the bias into
+            // doubt (bias_doubt.rs).
             if let Some(axis) = nalgebra::Unit::try_new(measured.cross(&predicted), 1e-12) {
                 let residual = axis.into_inner() * residual_rad;
+                let pull_gain = moving_weight * dt_s / c.tilt_moving_time_constant_s;
+                if let Some(doubt) = solution.bias_doubt.observe(
+                    &residual,
+                    1.0 - still,
+                    dt_s,
+                    c.top_speed_mps,
+                    c.tilt_moving_time_constant_s,
+                    &solution.gyro_bias.variance,
+                ) {
+                    solution.gyro_bias.variance = solution
+                        .gyro_bias
+                        .variance
+                        .map(|p| p.max(doubt.bias_variance));
+                    solution.tilt_sigma_rad = solution
+                        .tilt_sigma_rad
+                        .max(doubt.tilt_off_rad)
+                        .min(std::f64::consts::FRAC_PI_2);
+                }
+                // In doubt, the loop's integral follows the boosted pull
+                // (critically damped with it): a bias learnt within
+                // seconds, not minutes. The residual comes most of a
+                // window late, so the loop's time constant is kept at four
+                // windows or more (or the unboosted pull's, if shorter).
+                let loop_gain = if solution.bias_doubt.doubted() {
+                    (pull_gain * boost).min(pull_gain.max(0.25 / c.window_samples as f64))
+                } else {
+                    pull_gain
+                };
                 solution.gyro_bias.bias_rad_per_s += bias_feedback::bias_step(
                     &solution.attitude,
                     &residual,
-                    moving_weight * dt_s / c.tilt_moving_time_constant_s,
+                    loop_gain,
                     dt_s,
                     1.0 - still,
                     &solution.gyro_bias.variance,
                     accel_sigma,
                 );
+                // Once in doubt, what the pulls learn of the bias makes it
+                // surer again (before, P is the rest's and left alone).
+                if solution.bias_doubt.doubted() {
+                    solution.gyro_bias.variance = bias_feedback::variance_after(
+                        &solution.attitude,
+                        &solution.gyro_bias.variance,
+                        pull_gain,
+                        1.0 - still,
+                        accel_sigma,
+                        dt_s,
+                    );
+                }
             }
             solution.tilt_sigma_rad =
                 uncertainty::sigma_after_pull(solution.tilt_sigma_rad, reference_sigma, gain);
@@ -1168,6 +1223,8 @@ impl FuzzyEngine {
             solution
                 .gyro_bias
                 .update(&block.rate_rad_per_s, block.noise_variance, 1.0);
+            // The rest has the bias: what the road said of it is old.
+            solution.bias_doubt.restart();
         }
         if weight > 0.0 {
             let gain = (weight * dt_s / GRAVITY_TIME_CONSTANT_S).min(1.0);
@@ -1845,6 +1902,113 @@ mod tests {
         let coasted = motions(&smooth_roll(23.0, false, 60.0));
         assert!(called(20.5, 32.5, Motion::Moving, &coasted));
         assert!(called(34.0, 60.0, Motion::Static, &coasted));
+    }
+
+    /// Level readings at 100 Hz: still for 20 s with the gyro bias
+    /// (0.2, −0.1, 0.15) °/s, then driven straight at a steady speed and
+    /// shaken (spread 0.3 m/s², 0.1 °/s), the bias stepping by `step_dps`
+    /// at 40 s (a power cycle on the road); `forward_mps2` the along-track
+    /// acceleration from 25 to 45 s.
+    fn straight_drive(step_dps: V3, forward_mps2: f64, end_s: f64) -> Vec<Reading> {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, StandardNormal};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let mut noise = |sigma: f64| {
+            let n: f64 = StandardNormal.sample(&mut rng);
+            sigma * n
+        };
+        (0..(end_s * 100.0) as usize)
+            .map(|i| {
+                let tau = i as f64 * 0.01;
+                let shake = if tau < 20.0 { 0.01 } else { 0.3 };
+                let along = if (25.0..45.0).contains(&tau) {
+                    forward_mps2
+                } else {
+                    0.0
+                };
+                let force = V3::new(along + noise(shake), noise(shake), -G + noise(shake));
+                let bias =
+                    V3::new(0.2, -0.1, 0.15) + if tau >= 40.0 { step_dps } else { V3::zeros() };
+                let rate = bias + V3::repeat(shake / 3.0).map(&mut noise);
+                imu(1.7e9 + tau, force, rate)
+            })
+            .collect()
+    }
+
+    /// Issue 55: a gyro bias that steps while the vehicle drives, with no
+    /// stop to relearn it, is called into doubt by the tilt residual that
+    /// persists (bias_doubt.rs) and learnt from the accelerometer; the
+    /// tilt's σ covers the error meanwhile. Before, the bias learnt at the
+    /// rest was sure of itself, the residual left the gate and the tilt
+    /// ran away at the step's 0.64 °/s (38° after a minute).
+    #[test]
+    fn a_bias_that_steps_while_driving_is_doubted_and_learnt_from_the_accelerometer() {
+        let drive = straight_drive(V3::new(0.5, -0.4, 0.0), 0.0, 200.0);
+        let mut engine = FuzzyEngine::with_defaults();
+        let mut out = Vec::new();
+        for r in &drive {
+            engine.feed(r, &mut out);
+        }
+        assert_eq!(engine.stats().bias_doubts, 1);
+        let tilt_error = |e: &FuzzyEstimate| e.pitch_deg.abs().max(e.roll_deg.abs());
+        for o in &out {
+            let e = fuzzy(o);
+            let tau = o.t - 1.7e9;
+            let sigma = e
+                .pitch_sigma_deg
+                .unwrap_or(0.0)
+                .max(e.roll_sigma_deg.unwrap_or(0.0));
+            // The evidence needs tens of seconds of driving after the step.
+            if tau >= 70.0 {
+                assert!(
+                    tilt_error(e) <= 2.0 * sigma,
+                    "{tau:.1}: {}° σ {sigma}°",
+                    tilt_error(e)
+                );
+            }
+            if tau >= 100.0 {
+                assert!(tilt_error(e) <= 0.5, "{tau:.1}: {}°", tilt_error(e));
+            }
+        }
+        let last = fuzzy(out.last().unwrap());
+        assert!(
+            (last.gyro_bias_dps[0] - 0.7).abs() < 0.05,
+            "{:?}",
+            last.gyro_bias_dps
+        );
+        assert!(
+            (last.gyro_bias_dps[1] + 0.5).abs() < 0.05,
+            "{:?}",
+            last.gyro_bias_dps
+        );
+        // Without the evidence (an allowance no mean residual passes) the
+        // tilt runs away.
+        let never = Params::from_assignments(PARAMS, ["top_speed_mps=1000"]).unwrap();
+        let mut engine = FuzzyEngine::new(never).unwrap();
+        let mut out = Vec::new();
+        for r in &drive {
+            engine.feed(r, &mut out);
+        }
+        let at_100_s = out
+            .iter()
+            .find(|o| o.t - 1.7e9 >= 100.0)
+            .map(fuzzy)
+            .unwrap();
+        assert!(tilt_error(at_100_s) > 10.0, "{}", tilt_error(at_100_s));
+    }
+
+    /// What a vehicle's acceleration explains is no evidence: 0.5 m/s²
+    /// for 20 s (10 m/s gained, below `top_speed_mps`) does not call a
+    /// right bias into doubt.
+    #[test]
+    fn an_acceleration_within_the_speed_change_does_not_doubt_the_bias() {
+        let mut engine = FuzzyEngine::with_defaults();
+        let mut out = Vec::new();
+        for r in &straight_drive(V3::zeros(), 0.5, 120.0) {
+            engine.feed(r, &mut out);
+        }
+        assert!(engine.solution.is_some());
+        assert_eq!(engine.stats().bias_doubts, 0);
     }
 
     #[test]

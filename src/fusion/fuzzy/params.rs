@@ -110,6 +110,13 @@ param_table! {
             "s",
             "no input of the motion expert fully `high` for this long stops rolling without a deceleration (rolling.rs)",
         ),
+        top_speed_mps: f64 = real(
+            15.0,
+            0.1,
+            1000.0,
+            "m/s",
+            "the vehicle's top speed: a mean of its acceleration over a minute tilts the force by at most atan(2·this/(g·60 s)), and a tilt residual that persists beyond that calls the gyro bias into doubt (bias_doubt.rs)",
+        ),
         tilt_time_constant_s: f64 = real(
             4.0,
             0.001,
@@ -305,6 +312,8 @@ pub struct FuzzyConfig {
     pub tilt_turn_pull: f64,
     /// `tilt_gate_deg`, rad.
     pub tilt_gate_rad: f64,
+    /// `top_speed_mps`, m/s (bias_doubt.rs: v_max).
+    pub top_speed_mps: f64,
     pub heading_time_constant_s: f64,
     pub heading_moving_time_constant_s: f64,
     pub heading_gate_rad: f64,
@@ -383,6 +392,7 @@ impl FuzzyConfig {
             tilt_moving_time_constant_s: p.tilt_moving_time_constant_s,
             tilt_turn_pull: p.tilt_turn_pull,
             tilt_gate_rad: rad(p.tilt_gate_deg),
+            top_speed_mps: p.top_speed_mps,
             heading_time_constant_s: p.heading_time_constant_s,
             heading_moving_time_constant_s: p.heading_moving_time_constant_s,
             heading_gate_rad: rad(p.heading_gate_deg),
