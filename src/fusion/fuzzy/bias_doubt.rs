@@ -8,11 +8,12 @@
 //! grows slowly: a new bias then turns the tilt faster than the gated pull
 //! takes it back, the residual leaves the gate and every correction is
 //! refused because the tilt is already wrong. The evidence against the
-//! bias is a tilt residual e (the rotation from the carried gravity to the
-//! accelerometer's, world frame, horizontal) that persists: the world-frame
-//! mean of a vehicle's acceleration over a time T is its change of
-//! velocity over T divided by T, bounded whatever it does (a turn
-//! included), while the tilt a bias error turns in stays.
+//! bias is a tilt error that persists: the window's mean specific force
+//! in the world frame, its horizontal part over g, e ≈ the tilt's error
+//! (rad) plus the vehicle's horizontal acceleration over g. Linear in the
+//! acceleration, its mean over a time T is the change of velocity over T
+//! divided by g·T, bounded whatever the vehicle does (a turn included),
+//! while the tilt a bias error turns in stays.
 //!
 //! Over moving readings the engine keeps an exponentially weighted mean ē
 //! of e's two horizontal components, time constant T = [`EVIDENCE_TIME_S`],
@@ -40,11 +41,13 @@
 //! every axis
 //!
 //! ```text
-//! P_k ← max(P_k, (d/τ)²),   σ_tilt ← max(σ_tilt, d),   d = max(‖ē‖, ‖e‖)   (2)
+//! P_k ← max(P_k, (d/τ)²),   σ_tilt ← max(σ_tilt, d),   d = max(‖ē‖, ‖ē₅‖)   (2)
 //! ```
 //!
-//! (the mean lags a tilt that runs away; the residual now, e, is the
-//! tilt's error too, as far as it goes)
+//! with ē₅ the same mean over the last [`RECENT_S`]: the 60 s mean lags a
+//! tilt that runs away, a reading's own e is the acceleration of the
+//! moment too (taking it opened the gate to a hand's to-and-fro on real
+//! recordings), and a to-and-fro averages out within seconds.
 //!
 //! and the pulls learn the bias again (bias_feedback.rs, the compass's
 //! for the vertical axis), the widened σ opening the gate to the
@@ -57,6 +60,10 @@ use crate::fusion::geometry::V3;
 
 /// The evidence's time constant T, s.
 pub const EVIDENCE_TIME_S: f64 = 60.0;
+/// The time constant of the mean that says how far the tilt is off
+/// when the evidence is found, s: a tilt running away moves far within
+/// it, a hand's or a vehicle's to-and-fro averages out.
+pub const RECENT_S: f64 = 5.0;
 /// The evidence's threshold in σ of its mean.
 pub const EVIDENCE_SIGMAS: f64 = 3.0;
 
@@ -76,6 +83,10 @@ pub struct BiasDoubt {
     /// Weighted mean of e's north and east components since the last
     /// rest or doubt, rad.
     mean_rad: [f64; 2],
+    /// The same mean over the last [`RECENT_S`] (normalised once that
+    /// is covered): how far the tilt is off now, rad.
+    #[serde(default)]
+    recent_rad: [f64; 2],
     /// Moving time (weighted) the mean covers, s.
     #[serde(default)]
     covered_s: f64,
@@ -90,7 +101,8 @@ pub struct BiasDoubt {
 }
 
 impl BiasDoubt {
-    /// Takes one reading's world-frame residual `residual_world_rad`
+    /// Takes one reading's e, `residual_world_rad` (the horizontal world
+    /// force over g; its z is ignored),
     /// counted with `weight` ∈ [0, 1] (how far the vehicle moves) over
     /// `dt_s`; `top_speed_mps` is v_max in (1), `pull_time_constant_s` τ
     /// and `bias_variance` the bias's P per body axis.
@@ -108,8 +120,10 @@ impl BiasDoubt {
             return None;
         }
         let alpha = (weight * dt_s / EVIDENCE_TIME_S).min(1.0);
+        let recent_alpha = (weight * dt_s / RECENT_S).min(1.0);
         for k in 0..2 {
             self.mean_rad[k] += alpha * (residual_world_rad[k] - self.mean_rad[k]);
+            self.recent_rad[k] += recent_alpha * (residual_world_rad[k] - self.recent_rad[k]);
         }
         self.covered_s += weight * dt_s;
         let reach = if self.from_rest {
@@ -126,14 +140,15 @@ impl BiasDoubt {
         if margin_rad.is_nan() || margin_rad <= 0.0 {
             return None;
         }
+        // The mean lags a tilt that runs away: the last seconds' mean
+        // shows how far it has gone (a reading's own residual would be
+        // the acceleration of the moment, too).
+        let off_rad = off_rad.max(self.recent_rad[0].hypot(self.recent_rad[1]));
         *self = BiasDoubt {
             doubts: self.doubts + 1,
             doubted: true,
             ..BiasDoubt::default()
         };
-        // The mean lags a tilt that runs away: the residual now is the
-        // tilt's error too, as far as it goes.
-        let off_rad = off_rad.max(residual_world_rad.xy().norm());
         Some(Doubt {
             bias_variance: (off_rad / tau).powi(2),
             tilt_off_rad: off_rad,
@@ -180,15 +195,22 @@ mod tests {
     fn a_steady_residual_beyond_the_allowance_doubts_the_bias() {
         // e = 0.05 rad east held, P = 1e-8 (3σ = 3·1e-4·10 = 0.003): the
         // mean 0.05·(1 − e^(−t/60)) passes 0.019997 + 0.003 at t = 36.97 s.
-        // Then d = max(0.023, 0.05): P = (0.05/10)² on every axis.
+        // Then d = max(0.023, the 5 s mean ≈ 0.05): P = (d/10)² on every
+        // axis.
         let east = V3::new(0.0, 0.05, 0.0);
         let sure = V3::repeat(1e-8);
         let mut doubt = BiasDoubt::default();
         assert!(feed(&mut doubt, east, 36.9, &sure).is_none());
         assert!(!doubt.doubted());
         let found = feed(&mut doubt, east, 0.2, &sure).expect("a steady 2.9° residual");
-        assert!((found.bias_variance - 2.5e-5).abs() < 1e-15, "{found:?}");
-        assert!((found.tilt_off_rad - 0.05).abs() < 1e-15);
+        // d is the 5 s mean after 3697 readings: 0.05·(1 − (1 − 0.002)^3697).
+        let recent = 0.05 * (1.0 - (1.0 - DT / RECENT_S).powi(3697));
+        assert!((recent - 0.05).abs() < 1e-4);
+        assert!(
+            (found.bias_variance - (recent / 10.0).powi(2)).abs() < 1e-12,
+            "{found:?}"
+        );
+        assert!((found.tilt_off_rad - recent).abs() < 1e-10);
         assert!(doubt.doubted());
         assert_eq!(doubt.doubts, 1);
         // The mean starts again from 0: 30 s more reach only 0.0197.

@@ -1156,8 +1156,12 @@ impl FuzzyEngine {
             if let Some(axis) = nalgebra::Unit::try_new(measured.cross(&predicted), 1e-12) {
                 let residual = axis.into_inner() * residual_rad;
                 let pull_gain = moving_weight * dt_s / c.tilt_moving_time_constant_s;
+                // Linear in the acceleration (the bound is on its mean):
+                // the horizontal force over g, not the residual's angle.
+                let horizontal = V3::new(measured.x, measured.y, 0.0)
+                    / solution.static_gravity_mps2.max(f64::EPSILON);
                 if let Some(doubt) = solution.bias_doubt.observe(
-                    &residual,
+                    &horizontal,
                     1.0 - still,
                     dt_s,
                     c.top_speed_mps,
