@@ -44,14 +44,13 @@
 //! P_k ← max(P_k, (d/τ)²),   σ_tilt ← max(σ_tilt, d),   d = max(‖ē‖, ‖ē₅‖)   (2)
 //! ```
 //!
-//! with ē₅ the same mean over the last [`RECENT_S`]: the 60 s mean lags a
+//! with ē₅ the same mean over the last [`RECENT_S`] (the 60 s mean lags a
 //! tilt that runs away, a reading's own e is the acceleration of the
-//! moment too (taking it opened the gate to a hand's to-and-fro on real
-//! recordings), and a to-and-fro averages out within seconds.
-//!
-//! and the pulls learn the bias again (bias_feedback.rs, the compass's
-//! for the vertical axis), the widened σ opening the gate to the
-//! accelerometer; the mean starts again from 0.
+//! moment too — taking it opened the gate to a hand's to-and-fro on real
+//! recordings — and a to-and-fro averages out within seconds), and the
+//! pulls learn the bias again (bias_feedback.rs, the compass's for the
+//! vertical axis), the widened σ opening the gate to the accelerometer;
+//! the mean starts again from 0.
 
 use serde::{Deserialize, Serialize};
 
@@ -85,30 +84,25 @@ pub struct BiasDoubt {
     mean_rad: [f64; 2],
     /// The same mean over the last [`RECENT_S`] (normalised once that
     /// is covered): how far the tilt is off now, rad.
-    #[serde(default)]
     recent_rad: [f64; 2],
     /// Moving time (weighted) the mean covers, s.
-    #[serde(default)]
     covered_s: f64,
     /// The mean started at a rest (the vehicle's speed was 0).
-    #[serde(default)]
     from_rest: bool,
     /// The evidence called the bias into doubt since the last rest.
-    #[serde(default)]
     doubted: bool,
     /// Times the evidence called the bias into doubt.
     pub doubts: u64,
 }
 
 impl BiasDoubt {
-    /// Takes one reading's e, `residual_world_rad` (the horizontal world
-    /// force over g; its z is ignored),
-    /// counted with `weight` ∈ [0, 1] (how far the vehicle moves) over
-    /// `dt_s`; `top_speed_mps` is v_max in (1), `pull_time_constant_s` τ
+    /// Takes one reading's e, `horizontal_over_g` (the window's mean
+    /// force in the world frame over g, rad; its z is ignored), counted
+    /// with `weight` ∈ [0, 1] (how far the vehicle moves) over `dt_s`; `top_speed_mps` is v_max in (1), `pull_time_constant_s` τ
     /// and `bias_variance` the bias's P per body axis.
     pub fn observe(
         &mut self,
-        residual_world_rad: &V3,
+        horizontal_over_g: &V3,
         weight: f64,
         dt_s: f64,
         top_speed_mps: f64,
@@ -116,14 +110,14 @@ impl BiasDoubt {
         bias_variance: &V3,
     ) -> Option<Doubt> {
         let weight = weight.clamp(0.0, 1.0);
-        if weight <= 0.0 || dt_s <= 0.0 || !residual_world_rad.iter().all(|e| e.is_finite()) {
+        if weight <= 0.0 || dt_s <= 0.0 || !horizontal_over_g.iter().all(|e| e.is_finite()) {
             return None;
         }
         let alpha = (weight * dt_s / EVIDENCE_TIME_S).min(1.0);
         let recent_alpha = (weight * dt_s / RECENT_S).min(1.0);
         for k in 0..2 {
-            self.mean_rad[k] += alpha * (residual_world_rad[k] - self.mean_rad[k]);
-            self.recent_rad[k] += recent_alpha * (residual_world_rad[k] - self.recent_rad[k]);
+            self.mean_rad[k] += alpha * (horizontal_over_g[k] - self.mean_rad[k]);
+            self.recent_rad[k] += recent_alpha * (horizontal_over_g[k] - self.recent_rad[k]);
         }
         self.covered_s += weight * dt_s;
         let reach = if self.from_rest {

@@ -1825,19 +1825,24 @@ mod tests {
         );
     }
 
+    /// Normal noise of the σ asked for, from its own seeded stream.
+    fn gaussian(seed: u64) -> impl FnMut(f64) -> f64 {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, StandardNormal};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        move |sigma: f64| {
+            let n: f64 = StandardNormal.sample(&mut rng);
+            sigma * n
+        }
+    }
+
     /// A level vehicle heading north at 100 Hz: 20 s at rest, 3 s
     /// accelerating at 2 m/s² with 0.3 m/s² of vibration, then rolling
     /// as smoothly as it idles (0.05 m/s², 0.1 °/s per axis) until
     /// `quiet_end_s`; then, if `brake`, 3 s braking at 2 m/s² with
     /// vibration; then at rest (idle) to `end_s`.
     fn smooth_roll(quiet_end_s: f64, brake: bool, end_s: f64) -> Vec<Reading> {
-        use rand::SeedableRng;
-        use rand_distr::{Distribution, StandardNormal};
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
-        let mut noise = |sigma: f64| {
-            let n: f64 = StandardNormal.sample(&mut rng);
-            sigma * n
-        };
+        let mut noise = gaussian(7);
         let bias_dps = V3::new(0.2, -0.1, 0.15);
         (0..(end_s * 100.0) as usize)
             .map(|i| {
@@ -1914,13 +1919,7 @@ mod tests {
     /// at 40 s (a power cycle on the road); `forward_mps2` the along-track
     /// acceleration from 25 to 45 s.
     fn straight_drive(step_dps: V3, forward_mps2: f64, end_s: f64) -> Vec<Reading> {
-        use rand::SeedableRng;
-        use rand_distr::{Distribution, StandardNormal};
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
-        let mut noise = |sigma: f64| {
-            let n: f64 = StandardNormal.sample(&mut rng);
-            sigma * n
-        };
+        let mut noise = gaussian(11);
         (0..(end_s * 100.0) as usize)
             .map(|i| {
                 let tau = i as f64 * 0.01;
@@ -2095,13 +2094,7 @@ mod tests {
     /// A noisy hand-held-grade sensor (0.1 m/s² and 0.5 °/s per axis at
     /// rest, 1 °/s of bias): waved about for 5 s, then put down tilted.
     fn noisy_readings(rest_s: f64, seed: u64) -> (Vec<Reading>, UnitQuaternion<f64>) {
-        use rand::SeedableRng;
-        use rand_distr::{Distribution, StandardNormal};
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-        let mut noise = |sigma: f64| {
-            let n: f64 = StandardNormal.sample(&mut rng);
-            sigma * n
-        };
+        let mut noise = gaussian(seed);
         let bias = V3::new(1.0, -0.7, 0.4);
         let mut attitude = attitude_from_euler(0.0, 0.0, rad(10.0));
         let mut readings = Vec::new();
