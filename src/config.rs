@@ -318,7 +318,7 @@ impl MachineSpec {
             geometry: self.geometry,
             tolerances: self.tolerances,
             start: self.start,
-            steering: self.steering,
+            steering: self.steering.clone(),
             ..Declaration::of_engines(self.engines.keys().copied())
         }
     }
@@ -375,7 +375,7 @@ impl MachineSpec {
             start: self.start,
             alignment: self.alignment.clone(),
             alarms: (self.alarms != AlarmConfig::default()).then_some(self.alarms),
-            steering: self.steering,
+            steering: self.steering.clone(),
         }
     }
 }

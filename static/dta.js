@@ -171,14 +171,16 @@ tn.registerEngine('dta', {
       fetchSteering();
     }
 
-    // The curve's points per step: {k, s, h, v, sh, sv} (sh, sv: the
-    // stroke differences over the step from that point).
+    // The curve's points per step: {k, s, h, v, sh, sv, outside} (sh, sv:
+    // the stroke differences over the step from that point; outside:
+    // beyond a warn limit).
     function curvePoints() {
       const c = state.steering;
       if (!c || !c.feasible) return [];
       return c.horizontal.points.map((p, k) => ({
         k, s: p.station_m, h: p.deviation_mm, v: c.vertical.points[k].deviation_mm,
         sh: p.stroke_difference_mm, sv: c.vertical.points[k].stroke_difference_mm,
+        outside: Boolean(p.outside_warn || c.vertical.points[k].outside_warn),
       }));
     }
 
@@ -188,31 +190,47 @@ tn.registerEngine('dta', {
       const body = $('dta-steer-table').tBodies[0];
       if (!c) return;
       const one = (v) => (num(v) ? `${v > 0 ? '+' : v < 0 ? '\u2212' : ''}${Math.abs(v).toFixed(1)}` : '—');
+      const groupsBox = $('dta-steer-groups-box');
       if (!c.feasible) {
         badge.dataset.status = 'alarm';
         badge.className = 'badge bad';
         setText(badge, 'no curve back within the radius');
+        setText($('dta-steer-words'), 'no curve: steer by hand');
         setText($('dta-steer-summary'), c.reason || 'no curve back to the axis');
         body.replaceChildren();
+        groupsBox.hidden = true;
         return;
       }
-      badge.dataset.status = 'ok';
-      badge.className = 'badge ok';
-      setText(badge, `${c.steps} steps to the axis`);
-      setText($('dta-steer-summary'), `${c.steps} steps (${fixed(c.length_m, 1)} m) from ${chainage(c.horizontal.points[0].station_m)}`
-        + ` to ${chainage(c.horizontal.points[c.steps].station_m)}; curve from the estimate of ${tn.timeOfDay(c.t)}`);
       const points = curvePoints();
-      const rows = points.slice(1).map((p) => {
-        const from = points[p.k - 1];
+      const outside = points.filter((p) => p.outside).length;
+      badge.dataset.status = outside ? 'warn' : 'ok';
+      badge.className = outside ? 'badge warn' : 'badge ok';
+      setText(badge, outside ? `${c.steps} steps; ${outside} beyond the warn limit` : `${c.steps} steps to the axis`);
+      setText($('dta-steer-words'), c.words || '');
+      setText($('dta-steer-summary'), `${c.steps} steps (${fixed(c.length_m, 1)} m) from ${chainage(c.horizontal.points[0].station_m)}`
+        + ` to ${chainage(c.horizontal.points[c.steps].station_m)}; ${c.replanned ? 'planned' : 'held'} at the estimate of ${tn.timeOfDay(c.t)}`);
+      const cells = (texts) => {
         const row = document.createElement('tr');
-        for (const text of [String(p.k), chainage(p.s), one(p.h), one(p.v), one(from.sh), one(from.sv)]) {
+        for (const text of texts) {
           const cell = document.createElement('td');
           cell.textContent = text;
           row.appendChild(cell);
         }
         return row;
+      };
+      const rows = points.slice(1).map((p) => {
+        const from = points[p.k - 1];
+        const row = cells([String(p.k), chainage(p.s), one(p.h), one(p.v), one(from.sh), one(from.sv),
+          p.outside ? '\u26a0 beyond warn' : '']);
+        if (p.outside) row.className = 'outside-warn';
+        return row;
       });
       body.replaceChildren(...rows);
+      const groups = c.groups || [];
+      groupsBox.hidden = groups.length === 0;
+      $('dta-steer-groups').tBodies[0].replaceChildren(...groups.map((g) => cells([
+        g.name, fixed(g.angle_deg, 0), one(g.extension_difference_mm),
+        num(g.target_stroke_mm) ? fixed(g.target_stroke_mm, 1) : '—'])));
     }
 
     async function loadDrive() {

@@ -225,11 +225,9 @@ fn declaration_for(stage: StageKind, engine: EngineKind) -> Option<Declaration> 
         StageKind::Dta => zupt_on_an_axis(engine),
         // On the axis, 0.1 m off it: a curve back every time.
         StageKind::Steer => zupt_on_an_axis(engine).map(|declaration| Declaration {
-            steering: Some(tunnelnav::fusion::steering::SteeringSpec {
-                min_radius_m: 300.0,
-                step_m: 1.2,
-                cylinder_circle_m: 2.0,
-            }),
+            steering: Some(tunnelnav::fusion::steering::SteeringSpec::new(
+                300.0, 1.2, 2.0,
+            )),
             ..declaration
         }),
         // Rings log the dta estimates of a zupt machine; an attitude

@@ -646,11 +646,7 @@ mod tests {
         use crate::fusion::pipeline::Pipeline;
         use crate::fusion::steering::SteeringSpec;
         let declaration = Declaration {
-            steering: Some(SteeringSpec {
-                min_radius_m: 1500.0,
-                step_m: 1.5,
-                cylinder_circle_m: 6.0,
-            }),
+            steering: Some(SteeringSpec::new(1500.0, 1.5, 6.0)),
             ..declaration(&[EngineKind::Attitude])
         };
         let engines = vec![
@@ -679,11 +675,10 @@ mod tests {
         let EstimateValues::Steer(steer) = &out[1].values else {
             panic!("{out:?}")
         };
-        // d0 = 50 mm, g0 = 0, R 1500 m, 1.5 m steps: L = 30 m is the
-        // issue's first check value (κ(0) = 3.333e-4 /m); the fewest whole
-        // steps within 1/1500 = 6.667e-4 /m: 6·0.05/L² ≤ 6.667e-4, L ≥
-        // 21.21 m, so 15 steps (22.5 m).
-        assert_eq!((steer.steps, steer.station_m), (Some(15), 14.0));
+        // d0 = 50 mm, g0 = 0, R 1500 m, 1.5 m steps, a 9 m shield (at
+        // least 18 m): the quintic's largest curvature 10/√3·d0/L² is
+        // within 1/1500 from L ≥ 20.8 m, so 14 steps (21 m).
+        assert_eq!((steer.steps, steer.station_m), (Some(14), 14.0));
         // A ring closed now logs the dta estimate the pipeline made.
         out.clear();
         let ring = Reading {

@@ -64,6 +64,14 @@ impl<'a> JsonFields<'a> {
         self.out.push(b'"');
     }
 
+    /// `,"key":"text"` for any text, escaped as serde_json escapes it.
+    pub fn text(&mut self, key: &str, value: &str) {
+        self.key(key);
+        // Writing into a Vec cannot fail; a failure would leave the
+        // field empty, never a panic.
+        let _ = serde_json::to_writer(&mut *self.out, value);
+    }
+
     /// `,"key":null`
     pub fn null(&mut self, key: &str) {
         self.key(key);

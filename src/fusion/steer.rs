@@ -1,25 +1,44 @@
 //! The `steer` stage: the correction curve back to the design axis
-//! (`fusion/steering.rs`) from every `dta` estimate of a machine that
-//! declares its `steering`. It stores the curve's compact form (where it
-//! starts, its length, the next step's target and stroke differences);
-//! `GET .../steering` expands the points of every step. A position from
-//! which no curve within the minimum radius reaches the axis tells the
-//! alarm rules (`steering_infeasible`).
+//! (`fusion/steering.rs`) for a machine that declares its `steering`.
+//!
+//! It plans a curve from a `dta` estimate's front (its deviation, its
+//! tendency and how the machine is curving now, from the tendency's rate
+//! over the last shield length of advance) and holds it while the front
+//! stays within `hold_margin_mm` of it in both planes: a laser's noise does
+//! not move the target every minute, and a machine that follows the curve
+//! arrives on the axis. A front that has left the curve by more gets a new
+//! one from where it is. Per `dta` estimate it stores the curve's compact
+//! form (where it starts, its length, the next step's target, stroke
+//! differences, each cylinder group's stroke from the last `advance`'s, the
+//! next step in words); `GET .../steering` expands a point per step. A
+//! position from which no curve within the machine's limits reaches the
+//! axis tells the alarm rules (`steering_infeasible`).
+
+use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
 
+use super::alignment::Alignment;
 use super::descriptor::{SignalKind, Signals, StageDescriptor, StreamValues};
+use super::dta::{DtaEstimate, Tolerances};
 use super::estimate::{EngineOutput, EstimateValues};
 use super::json_fields::JsonFields;
+use super::reading::{Reading, SensorData, SensorKind};
 use super::registry::StageKind;
 use super::stage::{Declaration, Stage};
-use super::steering::{self, Start, SteeringSpec};
-use super::{SnapshotError, StreamKind};
+use super::steering::{self, Front, GroupTarget, Plan, PlaneStart, Start, SteeringSpec};
 
-/// Version of the stage's snapshot.
-pub const STATE_VERSION: u32 = 1;
-/// Version of the stored [`SteerEstimate`].
-pub const CODEC_VERSION: u32 = 1;
+mod response;
+
+use super::{SnapshotError, StreamKind};
+use response::{Measured, PlaneFilter, Steered};
+
+/// Version of the stage's snapshot. 1: kept nothing (a curve per
+/// estimate, issue 39).
+pub const STATE_VERSION: u32 = 2;
+/// Version of the stored [`SteerEstimate`]. 1: before the held plan, the
+/// words and the groups ([`SteerEstimateV1`]).
+pub const CODEC_VERSION: u32 = 2;
 
 /// One plane's part of a [`SteerEstimate`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
@@ -35,56 +54,99 @@ pub struct SteerPlane {
     /// right, bottom less top) over the next step, mm; `null` without a
     /// curve.
     pub stroke_difference_mm: Option<f64>,
+    /// The path's curvature at the front (the axis's and the
+    /// correction's), 1/m; `null` without a curve.
+    pub curvature_per_m: Option<f64>,
+    /// The articulation's angle over the next step, degrees (+ right, up);
+    /// `null` without a declared articulation or a curve.
+    pub articulation_deg: Option<f64>,
+    /// Whether a point of the rest of the curve lies beyond the plane's
+    /// warn limit.
+    pub outside_warn: bool,
+    /// The curvature the machine adds of itself to the one it is steered
+    /// (its response filter's), 1/m: the strokes steer against it.
+    pub own_curvature_per_m: Option<f64>,
 }
 
 /// What the `steer` stage emits per `dta` estimate.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct SteerEstimate {
-    /// Station of the front, where the curve starts.
+    /// Station of the front, as the stationing reads.
     pub station_m: f64,
-    /// Whether a curve within the minimum radius reaches the axis within
+    /// Whether a curve within the machine's limits reaches the axis within
     /// 500 m.
     pub feasible: bool,
-    /// Whole steps (rings, pipes) to the axis; `null` when not feasible.
+    /// Whole steps (rings, pipes) from the front to the curve's end;
+    /// `null` when not feasible.
     pub steps: Option<u32>,
+    /// From the front to the curve's end, m.
     pub length_m: Option<f64>,
     pub horizontal: SteerPlane,
     pub vertical: SteerPlane,
+    /// Whether the curve was planned at this estimate (else held from an
+    /// earlier one).
+    pub replanned: bool,
+    /// The next step in words ("steer right 18 mm, down 4 mm over the next
+    /// ring; extend more: L +9 mm"), or why there is no curve.
+    pub words: String,
+    /// Each declared cylinder group's share of the next step.
+    pub groups: Vec<GroupTarget>,
+    /// Internal station of the front (continuous along the axis).
+    #[schema(value_type = f64)]
+    pub internal_station_m: f64,
+    /// The curve held: where it starts and from what.
+    #[schema(value_type = Object)]
+    pub plan: Option<Plan>,
 }
 
-impl SteerEstimate {
-    /// The curve from `start` under `spec`, compact.
-    pub fn new(spec: &SteeringSpec, start: &Start) -> SteerEstimate {
-        let correction = steering::correction(spec, start).ok();
-        let plane =
-            |deviation_mm: f64, tendency_mm_per_m: f64, curve: Option<&steering::PlaneCurve>| {
-                // A curve has a point per step k = 0…steps, steps ≥ 1.
-                let (now, next) = match curve.map(|c| c.points.as_slice()) {
-                    Some([now, next, ..]) => (Some(now), Some(next)),
-                    _ => (None, None),
-                };
-                SteerPlane {
-                    deviation_mm,
-                    tendency_mm_per_m,
-                    next_deviation_mm: next.map(|p| p.deviation_mm),
-                    stroke_difference_mm: now.map(|p| p.stroke_difference_mm),
-                }
-            };
+/// A [`SteerEstimate`] as codec 1 stored it.
+#[derive(Deserialize)]
+struct SteerEstimateV1 {
+    station_m: f64,
+    feasible: bool,
+    steps: Option<u32>,
+    length_m: Option<f64>,
+    horizontal: SteerPlaneV1,
+    vertical: SteerPlaneV1,
+}
+
+#[derive(Deserialize)]
+struct SteerPlaneV1 {
+    deviation_mm: f64,
+    tendency_mm_per_m: f64,
+    next_deviation_mm: Option<f64>,
+    stroke_difference_mm: Option<f64>,
+}
+
+impl From<SteerPlaneV1> for SteerPlane {
+    fn from(p: SteerPlaneV1) -> SteerPlane {
+        SteerPlane {
+            deviation_mm: p.deviation_mm,
+            tendency_mm_per_m: p.tendency_mm_per_m,
+            next_deviation_mm: p.next_deviation_mm,
+            stroke_difference_mm: p.stroke_difference_mm,
+            curvature_per_m: None,
+            articulation_deg: None,
+            outside_warn: false,
+            own_curvature_per_m: None,
+        }
+    }
+}
+
+impl From<SteerEstimateV1> for SteerEstimate {
+    fn from(e: SteerEstimateV1) -> SteerEstimate {
         SteerEstimate {
-            station_m: start.station_m,
-            feasible: correction.is_some(),
-            steps: correction.as_ref().map(|c| c.steps),
-            length_m: correction.as_ref().map(|c| c.length_m),
-            horizontal: plane(
-                start.horizontal_mm,
-                start.tendency_horizontal_mm_per_m,
-                correction.as_ref().map(|c| &c.horizontal),
-            ),
-            vertical: plane(
-                start.vertical_mm,
-                start.tendency_vertical_mm_per_m,
-                correction.as_ref().map(|c| &c.vertical),
-            ),
+            station_m: e.station_m,
+            feasible: e.feasible,
+            steps: e.steps,
+            length_m: e.length_m,
+            horizontal: e.horizontal.into(),
+            vertical: e.vertical.into(),
+            replanned: true,
+            words: String::new(),
+            groups: Vec::new(),
+            internal_station_m: e.station_m,
+            plan: None,
         }
     }
 }
@@ -110,16 +172,46 @@ impl StreamValues for SteerEstimate {
                 w.number("tendency_mm_per_m", p.tendency_mm_per_m);
                 w.optional("next_deviation_mm", p.next_deviation_mm);
                 w.optional("stroke_difference_mm", p.stroke_difference_mm);
+                w.optional("curvature_per_m", p.curvature_per_m);
+                w.optional("articulation_deg", p.articulation_deg);
+                w.flag("outside_warn", p.outside_warn);
+                w.optional("own_curvature_per_m", p.own_curvature_per_m);
             });
+        }
+        w.flag("replanned", self.replanned);
+        w.text("words", &self.words);
+        w.objects("groups", &self.groups, |g, w| {
+            w.text("name", &g.name);
+            w.number("angle_deg", g.angle_deg);
+            w.number("extension_difference_mm", g.extension_difference_mm);
+            w.optional("target_stroke_mm", g.target_stroke_mm);
+        });
+        w.number("internal_station_m", self.internal_station_m);
+        match &self.plan {
+            Some(plan) => w.object("plan", |w| {
+                w.number("start_station_m", plan.start_station_m);
+                w.integer("steps", u64::from(plan.steps));
+                w.number("length_m", plan.length_m);
+                for (key, p) in [
+                    ("horizontal", &plan.horizontal),
+                    ("vertical", &plan.vertical),
+                ] {
+                    w.object(key, |w| {
+                        w.number("deviation_mm", p.deviation_mm);
+                        w.number("tendency_mm_per_m", p.tendency_mm_per_m);
+                        w.number("curvature_per_m", p.curvature_per_m);
+                    });
+                }
+            }),
+            None => w.null("plan"),
         }
     }
 
-    /// A form that has never changed.
     fn decode(version: u32, bytes: &[u8]) -> Result<SteerEstimate, postcard::Error> {
-        if version <= CODEC_VERSION {
-            postcard::from_bytes(bytes)
-        } else {
-            Err(postcard::Error::DeserializeBadEncoding)
+        match version {
+            1 => postcard::from_bytes::<SteerEstimateV1>(bytes).map(SteerEstimate::from),
+            CODEC_VERSION => postcard::from_bytes(bytes),
+            _ => Err(postcard::Error::DeserializeBadEncoding),
         }
     }
 
@@ -144,12 +236,279 @@ impl StreamValues for SteerEstimate {
 #[derive(Debug, Clone, PartialEq)]
 pub struct SteerStage {
     spec: SteeringSpec,
+    alignment: Arc<Alignment>,
+    tolerances: Option<Tolerances>,
+    /// Front to rear, m: the shortest curve is two of it, and the
+    /// machine's present curvature is taken over one.
+    shield_m: f64,
+    state: SteerState,
 }
 
-/// The stage's snapshot: it keeps nothing between estimates.
-#[derive(Serialize, Deserialize)]
+/// The stage's snapshot.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 struct SteerState {
     state_version: u32,
+    /// The curve being steered.
+    plan: Option<Plan>,
+    /// What the machine does with what it is told, horizontal and
+    /// vertical.
+    response: Option<[PlaneFilter; 2]>,
+    /// The last `advance`'s strokes, mm.
+    strokes_mm: Option<Vec<f64>>,
+    /// The front's internal station at the last estimate.
+    internal_station_m: Option<f64>,
+    /// The curvature against the axis the machine was steered over the
+    /// last shield length: (internal station, horizontal, vertical), 1/m,
+    /// every quarter step.
+    steered: Vec<[f64; 3]>,
+}
+
+/// How much the front's heading exceeds the chord from the rear (`shield_m`
+/// behind) on a path steered with `steered` curvatures (station, per
+/// plane), m/m: (1/ℓ)·∫ (x − s + ℓ)·κ(x) dx over the shield, κ held between
+/// samples, 0 before the first.
+fn chord_lag(steered: &[[f64; 3]], station_m: f64, shield_m: f64) -> [f64; 2] {
+    let from = station_m - shield_m;
+    let mut lag = [0.0; 2];
+    for pair in steered.windows(2) {
+        let (a, b) = (pair[0][0].max(from), pair[1][0].min(station_m));
+        if b <= a {
+            continue;
+        }
+        // ∫ₐᵇ (x − from) dx, the curvature of the later sample over it.
+        let weight = 0.5 * ((b - from).powi(2) - (a - from).powi(2));
+        for i in 0..2 {
+            lag[i] += weight * pair[1][i + 1];
+        }
+    }
+    lag.map(|l| if shield_m > 0.0 { l / shield_m } else { 0.0 })
+}
+
+impl SteerStage {
+    /// The response filters after the front's newest deviation and
+    /// tendency at internal station `station_m`, from the advance since
+    /// the last along the curve held.
+    fn follow(&mut self, dta: &DtaEstimate, station_m: f64) -> [PlaneFilter; 2] {
+        let spec = &self.spec;
+        let axis = &*self.alignment;
+        let plan = self.state.plan;
+        // What was steered since the last estimate, then the chord's lag
+        // behind the front's heading over it.
+        let from_m = self.state.internal_station_m;
+        if let Some(from_m) = from_m.filter(|from| *from < station_m) {
+            let quarter = spec.step_m / 4.0;
+            let samples = ((station_m - from_m) / quarter).ceil().min(4096.0) as usize;
+            for k in 1..=samples {
+                let at = (from_m + k as f64 * quarter).min(station_m);
+                let c = plan.map_or([0.0; 2], |p| {
+                    steering::planned_relative_curvature(axis, &p, at)
+                });
+                self.state.steered.push([at, c[0], c[1]]);
+            }
+        }
+        let keep_from = station_m - self.shield_m - spec.step_m;
+        self.state
+            .steered
+            .retain(|p| p[0] >= keep_from && p[0] <= station_m);
+        let lag = chord_lag(&self.state.steered, station_m, self.shield_m);
+        let front = &dta.front;
+        let measured = [
+            (
+                front.horizontal_mm,
+                dta.tendency_horizontal_mm_per_m,
+                front.sigma_horizontal_mm,
+            ),
+            (
+                front.vertical_mm,
+                dta.tendency_vertical_mm_per_m,
+                front.sigma_vertical_mm,
+            ),
+        ];
+        let measured = [0, 1].map(|i| {
+            let (deviation_mm, tendency, sigma_mm) = measured[i];
+            Measured {
+                deviation_m: deviation_mm / 1000.0,
+                tendency: tendency / 1000.0,
+                chord_lag: lag[i],
+                sigma_m: sigma_mm
+                    .filter(|s| s.is_finite() && *s > 0.0)
+                    .unwrap_or(spec.guidance_sigma_mm)
+                    / 1000.0,
+            }
+        });
+        let start = || measured.map(|m| PlaneFilter::start(&m, self.shield_m));
+        let advance_m = self.state.internal_station_m.map(|s| (s, station_m - s));
+        let Some((mut filters, (from_m, advance_m))) = self.state.response.clone().zip(advance_m)
+        else {
+            return start();
+        };
+        // A front that moved back, or on by more than a few shields
+        // between estimates, is a new start.
+        if !(-spec.step_m..=4.0 * self.shield_m.max(spec.step_m)).contains(&advance_m) {
+            return start();
+        }
+        let steered = plan.map_or([(0.0, 0.0); 2], |p| {
+            steering::planned_increments(axis, &p, from_m, station_m)
+        });
+        let heading_var_per_m =
+            (spec.stroke_sigma_mm / 1000.0 / spec.cylinder_circle_m).powi(2) / spec.step_m;
+        for (i, filter) in filters.iter_mut().enumerate() {
+            filter.predict(
+                advance_m,
+                Steered {
+                    deviation_m: steered[i].0,
+                    slope: steered[i].1,
+                },
+                heading_var_per_m,
+            );
+            if !filter.update(&measured[i], self.shield_m) {
+                return start();
+            }
+        }
+        filters
+    }
+
+    /// How the machine curves now against the axis, 1/m per plane: what
+    /// it is steered (the held curve's) and what it adds of itself, kept
+    /// within its own limit.
+    fn present_curvature(&self, station_m: f64, filters: &[PlaneFilter; 2]) -> [f64; 2] {
+        let axis = steering::Axis::curvatures_per_m(&*self.alignment, station_m);
+        let steered = self.state.plan.map_or([0.0; 2], |p| {
+            steering::planned_relative_curvature(&*self.alignment, &p, station_m)
+        });
+        let relative =
+            [0, 1].map(|i| steered[i] + filters[i].bias_per_m() - filters[i].served_bias_per_m);
+        let absolute = [axis[0] + relative[0], axis[1] + relative[1]];
+        let size = absolute[0].hypot(absolute[1]);
+        let limit = 1.0 / self.spec.min_radius_m;
+        if size > limit {
+            let scale = limit / size;
+            [0, 1].map(|i| absolute[i] * scale - axis[i])
+        } else {
+            relative
+        }
+    }
+
+    fn steer(&mut self, dta: &DtaEstimate) -> SteerEstimate {
+        let front = &dta.front;
+        let internal = self
+            .alignment
+            .internal_of(front.station_m, self.state.internal_station_m)
+            .unwrap_or(front.station_m);
+        let mut filters = self.follow(dta, internal);
+        self.state.internal_station_m = Some(internal);
+        // Held while the front is within the margin of the curve, now and
+        // a shield length ahead on its present heading.
+        let margin = self.spec.hold_margin_mm;
+        let ahead_m = self.shield_m;
+        let held = self.state.plan.filter(|plan| {
+            let axis = &*self.alignment;
+            let planned = steering::planned_deviation_mm(axis, plan, internal);
+            let slope_now = steering::planned_slope(axis, plan, internal);
+            internal >= plan.start_station_m - self.spec.step_m
+                && (0..2).all(|i| {
+                    let off = filters[i].x[0] * 1000.0 - planned[i];
+                    let heading_off = (filters[i].x[1] - slope_now[i]) * 1000.0;
+                    off.abs() <= margin && (off + heading_off * ahead_m).abs() <= margin
+                })
+        });
+        let replanned = held.is_none();
+        let outcome = match held {
+            Some(plan) => Ok(plan),
+            None => {
+                let c = self.present_curvature(internal, &filters);
+                let plane = |f: &PlaneFilter, curvature_per_m| PlaneStart {
+                    deviation_mm: f.x[0] * 1000.0,
+                    tendency_mm_per_m: f.x[1] * 1000.0,
+                    curvature_per_m,
+                };
+                let start = Start {
+                    station_m: internal,
+                    horizontal: plane(&filters[0], c[0]),
+                    vertical: plane(&filters[1], c[1]),
+                };
+                steering::plan(&self.spec, &*self.alignment, &start, 2.0 * self.shield_m)
+            }
+        };
+        // The strokes steer against what the machine adds of itself while
+        // a curve is served.
+        let own = filters.each_ref().map(|f| f.bias_per_m());
+        for f in &mut filters {
+            f.served_bias_per_m = if outcome.is_ok() { f.bias_per_m() } else { 0.0 };
+        }
+        self.state.response = Some(filters);
+        self.state.plan = outcome.ok();
+        let plane = |deviation_mm, tendency_mm_per_m| SteerPlane {
+            deviation_mm,
+            tendency_mm_per_m,
+            next_deviation_mm: None,
+            stroke_difference_mm: None,
+            curvature_per_m: None,
+            articulation_deg: None,
+            outside_warn: false,
+            own_curvature_per_m: None,
+        };
+        let mut estimate = SteerEstimate {
+            station_m: front.station_m,
+            feasible: false,
+            steps: None,
+            length_m: None,
+            horizontal: plane(front.horizontal_mm, dta.tendency_horizontal_mm_per_m),
+            vertical: plane(front.vertical_mm, dta.tendency_vertical_mm_per_m),
+            replanned,
+            words: String::new(),
+            groups: Vec::new(),
+            internal_station_m: internal,
+            plan: None,
+        };
+        let plan = match outcome {
+            Ok(plan) => plan,
+            Err(why) => {
+                estimate.words = format!("no curve: {why}");
+                return estimate;
+            }
+        };
+        let correction = steering::expand(
+            &self.spec,
+            &*self.alignment,
+            &plan,
+            &Front {
+                internal_station_m: internal,
+                station_m: front.station_m,
+                horizontal_mm: front.horizontal_mm,
+                vertical_mm: front.vertical_mm,
+                tendency_horizontal_mm_per_m: dta.tendency_horizontal_mm_per_m,
+                tendency_vertical_mm_per_m: dta.tendency_vertical_mm_per_m,
+            },
+            self.tolerances.as_ref(),
+            own,
+        );
+        let strokes = [&correction.horizontal, &correction.vertical]
+            .map(|c| c.points.first().map_or(0.0, |p| p.stroke_difference_mm));
+        let articulation = steering::articulation_deg(&self.spec, strokes);
+        for (i, (out, curve)) in [
+            (&mut estimate.horizontal, &correction.horizontal),
+            (&mut estimate.vertical, &correction.vertical),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            out.next_deviation_mm = curve.points.get(1).map(|p| p.deviation_mm);
+            out.stroke_difference_mm = curve.points.first().map(|p| p.stroke_difference_mm);
+            out.curvature_per_m = curve.points.first().map(|p| p.curvature_per_m);
+            out.articulation_deg = articulation.map(|a| a[i]);
+            out.outside_warn = curve.points.iter().any(|p| p.outside_warn);
+            out.own_curvature_per_m = Some(own[i]);
+        }
+        estimate.groups =
+            steering::group_targets(&self.spec, strokes, self.state.strokes_mm.as_deref());
+        estimate.words = steering::words(&self.spec, strokes, &estimate.groups);
+        estimate.feasible = true;
+        estimate.steps = Some(correction.steps);
+        estimate.length_m = Some(correction.length_m);
+        estimate.plan = Some(plan);
+        estimate
+    }
 }
 
 impl Stage for SteerStage {
@@ -157,26 +516,36 @@ impl Stage for SteerStage {
         StageKind::Steer
     }
 
+    fn reads(&self, sensor: SensorKind) -> bool {
+        sensor == SensorKind::Advance
+    }
+
+    /// An advance's strokes: the base of the groups' targets.
+    fn reading(&mut self, reading: &Reading, _out: &mut Vec<EngineOutput>) {
+        if let SensorData::Advance {
+            strokes_mm: Some(strokes),
+            ..
+        } = &reading.data
+        {
+            self.state.strokes_mm = Some(strokes.clone());
+        }
+    }
+
     fn estimate(&mut self, estimate: &EngineOutput, out: &mut Vec<EngineOutput>) {
         let EstimateValues::Dta(dta) = &estimate.values else {
             return;
         };
-        let start = Start {
-            station_m: dta.front.station_m,
-            horizontal_mm: dta.front.horizontal_mm,
-            vertical_mm: dta.front.vertical_mm,
-            tendency_horizontal_mm_per_m: dta.tendency_horizontal_mm_per_m,
-            tendency_vertical_mm_per_m: dta.tendency_vertical_mm_per_m,
-        };
+        let steer = self.steer(dta);
         out.push(EngineOutput {
             t: estimate.t,
-            values: EstimateValues::Steer(SteerEstimate::new(&self.spec, &start)),
+            values: EstimateValues::Steer(steer),
             integrity: estimate.integrity.inherited(),
         });
     }
 
     fn snapshot(&self) -> serde_json::Value {
-        serde_json::json!({ "state_version": STATE_VERSION })
+        // A struct of numbers and vectors always serialises.
+        serde_json::to_value(&self.state).unwrap_or_default()
     }
 }
 
@@ -184,125 +553,45 @@ impl Stage for SteerStage {
 pub struct Steer;
 
 impl StageDescriptor for Steer {
-    const SUMMARY: &'static str = "the correction curve back to the design axis from each dta estimate, for machines that declare their steering";
+    const SUMMARY: &'static str = "the correction curve back to the design axis from each dta estimate, held while followed, for machines that declare their steering";
     type Stage = SteerStage;
     type Output = SteerEstimate;
 
     fn create(declaration: &Declaration) -> Option<SteerStage> {
         // Only where a dta stage runs: the curve starts from its estimates.
         super::dta::Dta::create(declaration)?;
-        declaration.steering.map(|spec| SteerStage { spec })
+        let geometry = declaration.geometry?;
+        let shield_m = geometry
+            .front_m
+            .iter()
+            .zip(geometry.rear_m)
+            .map(|(f, r)| (f - r).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        Some(SteerStage {
+            spec: declaration.steering.clone()?,
+            alignment: declaration.alignment.clone()?,
+            tolerances: declaration.tolerances,
+            shield_m,
+            state: SteerState {
+                state_version: STATE_VERSION,
+                ..SteerState::default()
+            },
+        })
     }
     fn restore(
         declaration: &Declaration,
         snapshot: serde_json::Value,
     ) -> Result<SteerStage, SnapshotError> {
         SnapshotError::check_version(StreamKind::Steer, &snapshot, STATE_VERSION)?;
-        let _: SteerState = SnapshotError::parse(StreamKind::Steer, snapshot)?;
-        Steer::create(declaration).ok_or(SnapshotError::Invalid(
+        let state: SteerState = SnapshotError::parse(StreamKind::Steer, snapshot)?;
+        let mut stage = Steer::create(declaration).ok_or(SnapshotError::Invalid(
             "a steer snapshot for a machine without a dta stage and a steering".into(),
-        ))
+        ))?;
+        stage.state = state;
+        Ok(stage)
     }
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::fusion::dta::{DtaEstimate, DtaSource, PointDeviation};
-
-    fn spec() -> SteeringSpec {
-        SteeringSpec {
-            min_radius_m: 1500.0,
-            step_m: 1.5,
-            cylinder_circle_m: 6.0,
-        }
-    }
-
-    fn dta(front_h_mm: f64, tendency_h: f64) -> EngineOutput {
-        let point = |station_m, horizontal_mm| PointDeviation {
-            station_m,
-            horizontal_mm,
-            vertical_mm: 0.0,
-            sigma_horizontal_mm: None,
-            sigma_vertical_mm: None,
-        };
-        EngineOutput {
-            integrity: crate::fusion::Integrity::OK,
-            t: 1000.0,
-            values: EstimateValues::Dta(DtaEstimate {
-                source: DtaSource::Laser,
-                station_m: 1001.0,
-                front: point(1004.0, front_h_mm),
-                rear: point(995.0, front_h_mm - 9.0 * tendency_h),
-                tendency_horizontal_mm_per_m: tendency_h,
-                tendency_vertical_mm_per_m: 0.0,
-                status: None,
-            }),
-        }
-    }
-
-    #[test]
-    fn the_issue_check_values_compact() {
-        // d0 = 50 mm, g0 = +2 mm/m, R 1500 m, 1.5 m rings, 6.0 m circle:
-        // 19 steps (28.5 m). By hand: a = −(0.15 + 0.114)/812.25 =
-        // −3.2502e-4, κ(0) = 2a = −6.5004e-4, stroke 6·1.5·κ = −5.850 mm;
-        // b = (0.1 + 0.057)/23149.125 = 6.7822e-6, d(1.5) = 0.05 + 0.003
-        // − 7.3130e-4 + 2.2890e-5 = 0.0522916 m.
-        let mut stage = SteerStage { spec: spec() };
-        let mut out = Vec::new();
-        stage.estimate(&dta(50.0, 2.0), &mut out);
-        let [
-            EngineOutput {
-                t,
-                values: EstimateValues::Steer(s),
-                ..
-            },
-        ] = out.as_slice()
-        else {
-            panic!("{out:?}")
-        };
-        assert_eq!(*t, 1000.0);
-        assert!(s.feasible);
-        assert_eq!((s.steps, s.station_m), (Some(19), 1004.0));
-        assert!((s.length_m.unwrap() - 28.5).abs() < 1e-9);
-        let h = s.horizontal;
-        assert!(
-            (h.stroke_difference_mm.unwrap() + 5.850).abs() < 5e-3,
-            "{h:?}"
-        );
-        assert!(
-            (h.next_deviation_mm.unwrap() - 52.2916).abs() < 1e-3,
-            "{h:?}"
-        );
-        assert_eq!((h.deviation_mm, h.tendency_mm_per_m), (50.0, 2.0));
-        // The vertical plane is on the axis and stays there.
-        assert_eq!(s.vertical.stroke_difference_mm, Some(0.0));
-        assert_eq!(s.signals().steering_feasible, Some(true));
-    }
-
-    #[test]
-    fn a_deviation_no_curve_can_take_back_is_infeasible() {
-        // 50 m off with a 1500 m radius: the cubic's κ(0) = 6·d0/L² is
-        // within 1/1500 only from L = √(6·50·1500) = 671 m, beyond 500 m.
-        let mut stage = SteerStage { spec: spec() };
-        let mut out = Vec::new();
-        stage.estimate(&dta(50_000.0, 0.0), &mut out);
-        let EstimateValues::Steer(s) = &out[0].values else {
-            panic!()
-        };
-        assert!(!s.feasible);
-        assert_eq!((s.steps, s.length_m), (None, None));
-        assert_eq!(s.horizontal.next_deviation_mm, None);
-        assert_eq!(s.horizontal.deviation_mm, 50_000.0);
-        assert_eq!(s.signals().steering_feasible, Some(false));
-        // Other streams pass by.
-        let mut none = Vec::new();
-        let other = EngineOutput {
-            integrity: crate::fusion::Integrity::OK,
-            t: 1.0,
-            values: out[0].values.clone(),
-        };
-        stage.estimate(&other, &mut none);
-        assert!(none.is_empty());
-    }
-}
+mod tests;

@@ -197,7 +197,7 @@ pub fn stage_section(
                 warn_v: limit(t.map(|t| t.vertical_mm.warn)),
                 alarm_v: limit(t.map(|t| t.vertical_mm.alarm)),
                 length_m: spec.geometry.map_or(0.0, |g| g.front_m[0] - g.rear_m[0]),
-                steering: spec.steering,
+                steering: spec.steering.clone(),
             }
             .render()
         }

@@ -969,6 +969,10 @@ mod tests {
                 tendency_mm_per_m: 0.0,
                 next_deviation_mm: None,
                 stroke_difference_mm: None,
+                curvature_per_m: None,
+                articulation_deg: None,
+                outside_warn: false,
+                own_curvature_per_m: None,
             };
             EngineOutput {
                 integrity: crate::fusion::Integrity::OK,
@@ -980,6 +984,11 @@ mod tests {
                     length_m: None,
                     horizontal: plane,
                     vertical: plane,
+                    replanned: true,
+                    words: String::new(),
+                    groups: Vec::new(),
+                    internal_station_m: 0.0,
+                    plan: None,
                 }),
             }
         };

@@ -147,6 +147,19 @@ pub struct Deviation {
     pub vertical_m: f64,
 }
 
+/// The axis's direction and curvature at a station.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AxisDirection {
+    /// Azimuth, clockwise from grid north.
+    pub heading_rad: f64,
+    /// Its rate along the station, + turning right, 1/m.
+    pub curvature_horizontal_per_m: f64,
+    /// atan of the design grade, + rising.
+    pub pitch_rad: f64,
+    /// Its rate along the station, + bending upward (a sag), 1/m.
+    pub curvature_vertical_per_m: f64,
+}
+
 /// A point of the axis, for drawing it.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct AxisPoint {
@@ -442,6 +455,67 @@ impl Alignment {
         }
     }
 
+    /// The internal station that reads `station_m`, nearest to `near_m`
+    /// where station equations make a station read twice; `None` for a
+    /// station no part of the stationing reads (inside a gap an equation
+    /// jumps over).
+    pub fn internal_of(&self, station_m: f64, near_m: Option<f64>) -> Option<f64> {
+        // Each stretch between equations reads its internal station shifted.
+        let mut stretches = vec![(f64::NEG_INFINITY, 0.0)];
+        stretches.extend(self.equations.iter().map(|e| {
+            (
+                e.station_internal_m,
+                e.station_ahead_m - e.station_internal_m,
+            )
+        }));
+        let ends: Vec<f64> = stretches
+            .iter()
+            .skip(1)
+            .map(|s| s.0)
+            .chain([f64::INFINITY])
+            .collect();
+        stretches
+            .iter()
+            .zip(ends)
+            .map(|(&(from, shift), to)| (station_m - shift, from, to))
+            .filter(|&(internal, from, to)| internal >= from && internal < to)
+            .map(|(internal, _, _)| internal)
+            .min_by(|a, b| {
+                let near = near_m.unwrap_or(a.min(*b));
+                (a - near).abs().total_cmp(&(b - near).abs())
+            })
+    }
+
+    /// The axis's direction and curvature in each plane at internal
+    /// station `station_m`: the azimuth and its rate (+ to the right), the
+    /// pitch atan(grade) and its rate (+ upward), per metre of station.
+    /// Beyond either end the tangent continues (curvature 0).
+    pub fn direction_at(&self, station_m: f64) -> AxisDirection {
+        let (grade, grade_rate) = self.profile.grade_at(station_m);
+        let (heading_rad, curvature_horizontal_per_m) = match (
+            self.elements.first(),
+            self.elements
+                .iter()
+                .find(|e| station_m <= e.start_station_m + e.length_m),
+        ) {
+            (Some(first), _) if station_m < first.start_station_m => (first.start.azimuth_rad, 0.0),
+            (_, Some(e)) => {
+                let s = station_m - e.start_station_m;
+                (e.azimuth(s), e.curvature(s))
+            }
+            (_, None) => (
+                self.elements.last().map_or(0.0, |e| e.end().azimuth_rad),
+                0.0,
+            ),
+        };
+        AxisDirection {
+            heading_rad,
+            curvature_horizontal_per_m,
+            pitch_rad: grade.atan(),
+            curvature_vertical_per_m: grade_rate / (1.0 + grade * grade),
+        }
+    }
+
     /// Internal station of the start and the end.
     pub fn station_range_m(&self) -> (f64, f64) {
         let first = self.elements.first().map_or(0.0, |e| e.start_station_m);
@@ -548,6 +622,21 @@ mod tests {
         let last = alignment.elements.last().unwrap().start;
         let turned = 0.05 + 50.0 / 300.0 + 0.05;
         assert!((last.azimuth_rad - (30f64.to_radians() + turned)).abs() < 1e-12);
+        // The direction along it: in the arc 1/300 to the right, halfway
+        // up the first spiral half that (and turned 15/(2·30)·15/300 =
+        // 0.0125 rad), past the end straight on; in the vertical curve of
+        // 60 m about 120 m from +0.5 % to −0.5 % (by the profile's end
+        // grade) the pitch bends down by 0.01/60 per metre.
+        let at = |s| alignment.direction_at(s);
+        assert!((at(90.0).curvature_horizontal_per_m - 1.0 / 300.0).abs() < 1e-15);
+        let spiral = at(55.0);
+        assert!((spiral.curvature_horizontal_per_m - 0.5 / 300.0).abs() < 1e-15);
+        assert!((spiral.heading_rad - (30f64.to_radians() + 0.0125)).abs() < 1e-12);
+        assert_eq!(at(300.0).curvature_horizontal_per_m, 0.0);
+        assert!((at(300.0).heading_rad - last.azimuth_rad).abs() < 1e-12);
+        let crest = at(120.0);
+        assert!(crest.pitch_rad.abs() < 1e-12, "{crest:?}");
+        assert!((crest.curvature_vertical_per_m + 0.01 / 60.0).abs() < 1e-12);
     }
 
     #[test]
@@ -694,6 +783,13 @@ mod tests {
         let points = alignment.sampled(50.0);
         let last = points.last().unwrap();
         assert_eq!((last.internal_station_m, last.station_m), (250.0, 1050.0));
+        // Back from the stationing: 90 reads twice (internal 90 and 110),
+        // the nearer one wins; 500 reads nowhere (the jump to 1+000).
+        let back = |reads, near| alignment.internal_of(reads, near);
+        assert_eq!(back(90.0, None), Some(90.0));
+        assert_eq!(back(90.0, Some(108.0)), Some(110.0));
+        assert_eq!(back(1050.0, Some(0.0)), Some(250.0));
+        assert_eq!(back(500.0, None), None);
         // Round trip through the JSON; a missing field reads as none.
         let json = serde_json::to_string(&alignment.to_spec()).unwrap();
         assert_eq!(

@@ -98,6 +98,27 @@ impl Profile {
         }
     }
 
+    /// The grade (rise over run) at `station_m` and its rate of change
+    /// along the station, 1/m: on a tangent its grade and 0, within a
+    /// curve about a PVI g₁ + (g₂ − g₁)·d/L and (g₂ − g₁)/L, d from the
+    /// curve's beginning (the derivatives of [`Profile::height_at`]). At a
+    /// PVI without a curve the grade steps: the one leaving it.
+    pub fn grade_at(&self, station_m: f64) -> (f64, f64) {
+        let last_before = self.pvis.iter().rposition(|p| p.station_m <= station_m);
+        let mut grade = (self.grade_after(last_before), 0.0);
+        for (i, pvi) in self.pvis.iter().enumerate() {
+            let half = 0.5 * pvi.curve_length_m;
+            if half <= 0.0 || (station_m - pvi.station_m).abs() >= half {
+                continue;
+            }
+            let g1 = self.grade_after(i.checked_sub(1));
+            let g2 = self.grade_after(Some(i));
+            let rate = (g2 - g1) / pvi.curve_length_m;
+            grade = (g1 + rate * (station_m - (pvi.station_m - half)), rate);
+        }
+        grade
+    }
+
     /// The design height at `station_m` (the profile's tangents continue
     /// beyond its ends).
     pub fn height_at(&self, station_m: f64) -> f64 {
@@ -167,6 +188,27 @@ mod tests {
             assert!((slope_before - grade).abs() < 1e-6, "{x}: {slope_before}");
             assert!((slope_after - grade).abs() < 1e-6, "{x}: {slope_after}");
         }
+    }
+
+    #[test]
+    fn the_grade_and_its_rate_through_a_crest_curve() {
+        // The crest: +0.5 % into a 60 m curve about 120 m, −0.5 % out of
+        // it: the rate is −0.01/60 = −1.6667e-4 /m from 90 m to 150 m, the
+        // grade 0 at the PVI and 0.005 − 1.6667e-4·15 = 0.0025 at 105 m.
+        let p = crest();
+        for (station_m, expected) in [(50.0, 0.005), (200.0, -0.005)] {
+            let (grade, rate) = p.grade_at(station_m);
+            assert!(
+                (grade - expected).abs() < 1e-12 && rate == 0.0,
+                "{station_m}"
+            );
+        }
+        let (grade, rate) = p.grade_at(105.0);
+        assert!((grade - 0.0025).abs() < 1e-12 && (rate + 1.666_667e-4).abs() < 1e-9);
+        assert!(p.grade_at(120.0).0.abs() < 1e-12);
+        // It is the height's derivative.
+        let slope = (p.height_at(105.001) - p.height_at(104.999)) / 0.002;
+        assert!((slope - grade).abs() < 1e-9, "{slope}");
     }
 
     #[test]
