@@ -4,8 +4,11 @@
 //! push the engine has closed (its estimate carrying `smoothed_push`, the
 //! push's track smoothed between its two rests) becomes one record: when,
 //! how long and how far, how fast, and which way the head went in plan and
-//! profile. A "push" of less than [`MIN_ADVANCE_M`] is a moment of motion
-//! the detector saw at rest, not a stroke, and is not logged.
+//! profile. A push too long for the engine to smooth (its
+//! `smooth_max_push_s`; a pipe jacked at 2 mm/s takes ten minutes) is
+//! logged from the filter's own estimates at its two rests instead. A
+//! "push" of less than [`MIN_ADVANCE_M`] is a moment of motion the detector
+//! saw at rest, not a stroke, and is not logged.
 
 use serde::{Deserialize, Serialize};
 
@@ -17,8 +20,9 @@ use super::registry::{EngineKind, StageKind};
 use super::stage::{Declaration, Stage};
 use super::{SnapshotError, StreamKind};
 
-/// Version of the stage's snapshot.
-pub const STATE_VERSION: u32 = 1;
+/// Version of the stage's snapshot. 1: before the unsmoothed pushes (no
+/// rest kept).
+pub const STATE_VERSION: u32 = 2;
 /// Version of the stored [`PushRecord`].
 pub const CODEC_VERSION: u32 = 1;
 /// Below this much plan displacement a push has no direction.
@@ -125,6 +129,10 @@ pub struct PushLog {
     state_version: u32,
     /// Pushes logged so far.
     pushes: u64,
+    /// The newest still estimate's point: where an unsmoothed push starts.
+    rest: Option<TrackPoint>,
+    /// Whether the machine moved since `rest`.
+    moving: bool,
 }
 
 impl PushLog {
@@ -133,6 +141,27 @@ impl PushLog {
         PushLog {
             state_version: STATE_VERSION,
             pushes: 0,
+            rest: None,
+            moving: false,
+        }
+    }
+
+    /// Logs the push along `points` if it advanced.
+    fn log(
+        &mut self,
+        t: f64,
+        points: &[TrackPoint],
+        integrity: super::Integrity,
+        out: &mut Vec<EngineOutput>,
+    ) {
+        let record = PushRecord::from_track(self.pushes + 1, points);
+        if let Some(record) = record.filter(|r| r.length_m.abs() >= MIN_ADVANCE_M) {
+            self.pushes += 1;
+            out.push(EngineOutput {
+                t,
+                values: EstimateValues::Pushes(record),
+                integrity,
+            });
         }
     }
 }
@@ -152,18 +181,31 @@ impl Stage for PushLog {
         let EstimateValues::Zupt(zupt) = &estimate.values else {
             return;
         };
-        let Some(points) = &zupt.smoothed_push else {
+        // Before the platform is levelled its position is not navigated.
+        if !zupt.aligned {
             return;
-        };
-        let record = PushRecord::from_track(self.pushes + 1, points);
-        if let Some(record) = record.filter(|r| r.length_m.abs() >= MIN_ADVANCE_M) {
-            self.pushes += 1;
-            out.push(EngineOutput {
-                t: estimate.t,
-                values: EstimateValues::Pushes(record),
-                integrity: estimate.integrity.inherited(),
-            });
         }
+        if !zupt.zv {
+            self.moving |= self.rest.is_some();
+            return;
+        }
+        let here = TrackPoint {
+            t: estimate.t,
+            position_m: zupt.position_m,
+            distance_m: zupt.distance_m,
+            position_sigma_m: zupt.position_sigma_m,
+        };
+        let integrity = estimate.integrity.inherited();
+        match (&zupt.smoothed_push, self.rest.take()) {
+            (Some(points), _) => self.log(estimate.t, points, integrity, out),
+            // Not smoothed: from the rest before it to this one.
+            (None, Some(rest)) if self.moving => {
+                self.log(estimate.t, &[rest, here.clone()], integrity, out)
+            }
+            _ => {}
+        }
+        self.rest = Some(here);
+        self.moving = false;
     }
 
     fn snapshot(&self) -> serde_json::Value {
@@ -281,6 +323,50 @@ mod tests {
         assert!((records[1].course_deg.unwrap() - 270.0).abs() < 1e-12);
         assert_eq!(records[1].grade_pct, Some(0.0));
         assert!((records[1].speed_mm_per_s - 100.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_push_too_long_to_smooth_is_logged_from_its_two_rests() {
+        // Still at 1.4 m north of the start, then 700 s moving (the
+        // engine smooths none: no smoothed_push), still again 1.4 m
+        // further: one push of 1.4 m at 2 mm/s, due north, level.
+        let at = |t: f64, zv: bool, north: f64| {
+            let mut e = zupt_estimate(t, None);
+            if let EstimateValues::Zupt(z) = &mut e.values {
+                z.zv = zv;
+                z.position_m = [north, 0.0, 0.0];
+                z.distance_m = north;
+                z.position_sigma_m = [0.01, 0.01, 0.002];
+            }
+            e
+        };
+        let mut log = PushLog::new();
+        let mut out = Vec::new();
+        for e in [
+            at(0.0, true, 1.4),
+            at(10.0, true, 1.4),
+            at(20.0, false, 1.41),
+            at(400.0, false, 2.17),
+            at(710.0, true, 2.8),
+            at(720.0, true, 2.8),
+        ] {
+            log.estimate(&e, &mut out);
+        }
+        let [
+            EngineOutput {
+                t,
+                values: EstimateValues::Pushes(p),
+                ..
+            },
+        ] = out.as_slice()
+        else {
+            panic!("{out:?}")
+        };
+        assert_eq!(*t, 710.0);
+        assert_eq!((p.push, p.start_t, p.end_t), (1, 10.0, 710.0));
+        assert!((p.length_m - 1.4).abs() < 1e-12 && (p.speed_mm_per_s - 2.0).abs() < 1e-9);
+        assert_eq!((p.course_deg, p.grade_pct), (Some(0.0), Some(0.0)));
+        assert_eq!(p.end_position_sigma_m, [0.01, 0.01, 0.002]);
     }
 
     #[test]

@@ -31,7 +31,7 @@ use super::steering::{self, Front, GroupTarget, Plan, PlaneStart, Start, Steerin
 mod response;
 
 use super::{SnapshotError, StreamKind};
-use response::{Measured, PlaneFilter, Steered};
+use response::{Measured, PlaneFilter};
 
 /// Version of the stage's snapshot. 1: kept nothing (a curve per
 /// estimate, issue 39).
@@ -60,7 +60,7 @@ pub struct SteerPlane {
     /// The articulation's angle over the next step, degrees (+ right, up);
     /// `null` without a declared articulation or a curve.
     pub articulation_deg: Option<f64>,
-    /// Whether a point of the rest of the curve lies beyond the plane's
+    /// Whether a point of the curve from the front on lies beyond the plane's
     /// warn limit.
     pub outside_warn: bool,
     /// The curvature the machine adds of itself to the one it is steered
@@ -257,6 +257,9 @@ struct SteerState {
     strokes_mm: Option<Vec<f64>>,
     /// The front's internal station at the last estimate.
     internal_station_m: Option<f64>,
+    /// The curvature against the axis served with the strokes at the last
+    /// estimate (the offset for the machine's own included), 1/m.
+    served_per_m: [f64; 2],
     /// The curvature against the axis the machine was steered over the
     /// last shield length: (internal station, horizontal, vertical), 1/m,
     /// every quarter step.
@@ -287,23 +290,19 @@ fn chord_lag(steered: &[[f64; 3]], station_m: f64, shield_m: f64) -> [f64; 2] {
 impl SteerStage {
     /// The response filters after the front's newest deviation and
     /// tendency at internal station `station_m`, from the advance since
-    /// the last along the curve held.
+    /// the last on what was served.
     fn follow(&mut self, dta: &DtaEstimate, station_m: f64) -> [PlaneFilter; 2] {
         let spec = &self.spec;
-        let axis = &*self.alignment;
-        let plan = self.state.plan;
-        // What was steered since the last estimate, then the chord's lag
+        // What was served since the last estimate, then the chord's lag
         // behind the front's heading over it.
         let from_m = self.state.internal_station_m;
+        let served = self.state.served_per_m;
         if let Some(from_m) = from_m.filter(|from| *from < station_m) {
             let quarter = spec.step_m / 4.0;
             let samples = ((station_m - from_m) / quarter).ceil().min(4096.0) as usize;
             for k in 1..=samples {
                 let at = (from_m + k as f64 * quarter).min(station_m);
-                let c = plan.map_or([0.0; 2], |p| {
-                    steering::planned_relative_curvature(axis, &p, at)
-                });
-                self.state.steered.push([at, c[0], c[1]]);
+                self.state.steered.push([at, served[0], served[1]]);
             }
         }
         let keep_from = station_m - self.shield_m - spec.step_m;
@@ -338,8 +337,7 @@ impl SteerStage {
         });
         let start = || measured.map(|m| PlaneFilter::start(&m, self.shield_m));
         let advance_m = self.state.internal_station_m.map(|s| (s, station_m - s));
-        let Some((mut filters, (from_m, advance_m))) = self.state.response.clone().zip(advance_m)
-        else {
+        let Some((mut filters, (_, advance_m))) = self.state.response.clone().zip(advance_m) else {
             return start();
         };
         // A front that moved back, or on by more than a few shields
@@ -347,21 +345,11 @@ impl SteerStage {
         if !(-spec.step_m..=4.0 * self.shield_m.max(spec.step_m)).contains(&advance_m) {
             return start();
         }
-        let steered = plan.map_or([(0.0, 0.0); 2], |p| {
-            steering::planned_increments(axis, &p, from_m, station_m)
-        });
         let heading_var_per_m =
             (spec.stroke_sigma_mm / 1000.0 / spec.cylinder_circle_m).powi(2) / spec.step_m;
         for (i, filter) in filters.iter_mut().enumerate() {
-            filter.predict(
-                advance_m,
-                Steered {
-                    deviation_m: steered[i].0,
-                    slope: steered[i].1,
-                },
-                heading_var_per_m,
-            );
-            if !filter.update(&measured[i], self.shield_m) {
+            filter.predict(advance_m, served[i], heading_var_per_m);
+            if !filter.update(&measured[i], self.shield_m, heading_var_per_m) {
                 return start();
             }
         }
@@ -373,11 +361,8 @@ impl SteerStage {
     /// within its own limit.
     fn present_curvature(&self, station_m: f64, filters: &[PlaneFilter; 2]) -> [f64; 2] {
         let axis = steering::Axis::curvatures_per_m(&*self.alignment, station_m);
-        let steered = self.state.plan.map_or([0.0; 2], |p| {
-            steering::planned_relative_curvature(&*self.alignment, &p, station_m)
-        });
-        let relative =
-            [0, 1].map(|i| steered[i] + filters[i].bias_per_m() - filters[i].served_bias_per_m);
+        let served = self.state.served_per_m;
+        let relative = [0, 1].map(|i| served[i] + filters[i].bias_per_m());
         let absolute = [axis[0] + relative[0], axis[1] + relative[1]];
         let size = absolute[0].hypot(absolute[1]);
         let limit = 1.0 / self.spec.min_radius_m;
@@ -395,7 +380,7 @@ impl SteerStage {
             .alignment
             .internal_of(front.station_m, self.state.internal_station_m)
             .unwrap_or(front.station_m);
-        let mut filters = self.follow(dta, internal);
+        let filters = self.follow(dta, internal);
         self.state.internal_station_m = Some(internal);
         // Held while the front is within the margin of the curve, now and
         // a shield length ahead on its present heading.
@@ -433,10 +418,9 @@ impl SteerStage {
         // The strokes steer against what the machine adds of itself while
         // a curve is served.
         let own = filters.each_ref().map(|f| f.bias_per_m());
-        for f in &mut filters {
-            f.served_bias_per_m = if outcome.is_ok() { f.bias_per_m() } else { 0.0 };
-        }
         self.state.response = Some(filters);
+        // Nothing served without a curve: the machine is steered by hand.
+        self.state.served_per_m = [0.0; 2];
         self.state.plan = outcome.ok();
         let plane = |deviation_mm, tendency_mm_per_m| SteerPlane {
             deviation_mm,
@@ -485,6 +469,16 @@ impl SteerStage {
         );
         let strokes = [&correction.horizontal, &correction.vertical]
             .map(|c| c.points.first().map_or(0.0, |p| p.stroke_difference_mm));
+        // What the strokes steer against the axis over the next step.
+        let axis = &*self.alignment;
+        let (here, ahead) = (
+            steering::Axis::angles_rad(axis, internal),
+            steering::Axis::angles_rad(axis, internal + self.spec.step_m),
+        );
+        self.state.served_per_m = [0, 1].map(|i| {
+            (strokes[i] / 1000.0 / self.spec.cylinder_circle_m - (ahead[i] - here[i]))
+                / self.spec.step_m
+        });
         let articulation = steering::articulation_deg(&self.spec, strokes);
         for (i, (out, curve)) in [
             (&mut estimate.horizontal, &correction.horizontal),
@@ -568,8 +562,12 @@ impl StageDescriptor for Steer {
             .map(|(f, r)| (f - r).powi(2))
             .sum::<f64>()
             .sqrt();
+        let spec = declaration.steering.clone()?;
+        // Front and rear declared at one point give no tendency: a chord
+        // of 10 cm keeps the filter's arithmetic finite.
+        let shield_m = shield_m.max(0.1);
         Some(SteerStage {
-            spec: declaration.steering.clone()?,
+            spec,
             alignment: declaration.alignment.clone()?,
             tolerances: declaration.tolerances,
             shield_m,

@@ -22,8 +22,9 @@
 //! a5 = (12·R0 − 6·R1·L + R2·L²)/(2L⁵). From rest on a parallel offset
 //! (g0 = c0 = 0) it is d0·(1 − 10u³ + 15u⁴ − 6u⁵), u = x/L: no overshoot.
 //!
-//! L is the fewest whole steps (rings or pipes, `step_m`), at least the
-//! declared minimum (two shield lengths), for which the path's curvature
+//! L is the fewest whole steps (rings or pipes, `step_m`; beyond 100
+//! candidates within 5 %), at least the declared minimum (two shield
+//! lengths), for which the path's curvature
 //! of both planes together, √(κh² + κv²), stays within 1/`min_radius_m` at
 //! every point (checked every quarter step: the axis's curvature may vary
 //! along the curve), and the stroke difference changes by at most
@@ -437,6 +438,77 @@ pub enum Infeasible {
     },
 }
 
+/// Every whole step from `first` for [`EXACT_STEPS`] candidates, then 5 %
+/// longer each (a short step far from the axis would otherwise try
+/// thousands of lengths, each sampled along its whole length), `most`
+/// last.
+fn candidate_steps(first: u32, most: u32) -> impl Iterator<Item = u32> {
+    let mut next = Some(first);
+    std::iter::from_fn(move || {
+        let steps = next?;
+        next = (steps < most).then(|| {
+            let grown = if steps < first.saturating_add(EXACT_STEPS) {
+                steps + 1
+            } else {
+                (f64::from(steps) * 1.05).ceil() as u32
+            };
+            grown.min(most)
+        });
+        Some(steps)
+    })
+}
+
+/// Candidate lengths tried one step apart before they grow by 5 %.
+const EXACT_STEPS: u32 = 100;
+
+/// An axis sampled every `dx_m` from `start_m`: the plan's candidates look
+/// at the same stations, each read once; any other station is read from
+/// the axis.
+struct Sampled<'a, A: Axis + ?Sized> {
+    axis: &'a A,
+    start_m: f64,
+    dx_m: f64,
+    angles: Vec<[f64; 2]>,
+    curvatures: Vec<[f64; 2]>,
+}
+
+impl<'a, A: Axis + ?Sized> Sampled<'a, A> {
+    fn new(axis: &'a A, start_m: f64, dx_m: f64, samples: u32) -> Self {
+        let at = |j: u32| start_m + f64::from(j) * dx_m;
+        Sampled {
+            axis,
+            start_m,
+            dx_m,
+            angles: (0..=samples).map(|j| axis.angles_rad(at(j))).collect(),
+            curvatures: (0..=samples)
+                .map(|j| axis.curvatures_per_m(at(j)))
+                .collect(),
+        }
+    }
+
+    /// The sample at `station_m`, if it is one.
+    fn index(&self, station_m: f64) -> Option<usize> {
+        let j = (station_m - self.start_m) / self.dx_m;
+        let rounded = j.round();
+        ((j - rounded).abs() < 1e-6 && rounded >= 0.0).then_some(rounded as usize)
+    }
+}
+
+impl<A: Axis + ?Sized> Axis for Sampled<'_, A> {
+    fn angles_rad(&self, station_m: f64) -> [f64; 2] {
+        match self.index(station_m).and_then(|j| self.angles.get(j)) {
+            Some(a) => *a,
+            None => self.axis.angles_rad(station_m),
+        }
+    }
+    fn curvatures_per_m(&self, station_m: f64) -> [f64; 2] {
+        match self.index(station_m).and_then(|j| self.curvatures.get(j)) {
+            Some(c) => *c,
+            None => self.axis.curvatures_per_m(station_m),
+        }
+    }
+}
+
 /// The shortest correction the machine may be given, m: at least one step
 /// and `min_length_m` (two shield lengths), whole steps.
 fn first_steps(spec: &SteeringSpec, min_length_m: f64) -> u32 {
@@ -464,7 +536,14 @@ pub fn plan<A: Axis + ?Sized>(
         axis_now[1] + start.vertical.curvature_per_m,
     ]
     .map(|k| spec.cylinder_circle_m * spec.step_m * k * 1000.0);
-    for steps in first..=most {
+    // Every candidate samples the same stations: the axis once for all.
+    let sampled = Sampled::new(
+        axis,
+        start.station_m,
+        spec.step_m / f64::from(SAMPLES_PER_STEP),
+        (most + 1) * SAMPLES_PER_STEP,
+    );
+    for steps in candidate_steps(first, most) {
         let length_m = f64::from(steps) * spec.step_m;
         let candidate = Plan {
             start_station_m: start.station_m,
@@ -473,7 +552,7 @@ pub fn plan<A: Axis + ?Sized>(
             horizontal: start.horizontal,
             vertical: start.vertical,
         };
-        if Path::new(axis, &candidate).drivable(spec, steps, present_mm) {
+        if Path::new(&sampled, &candidate).drivable(spec, steps, present_mm) {
             return Ok(candidate);
         }
     }

@@ -98,7 +98,27 @@ pub async fn show(
         tendency_mm_per_m,
         points: Vec::new(),
     };
+    let feasible = estimate["feasible"].as_bool().unwrap_or(plan.is_some());
     let body = match plan {
+        // A curve stored by a release before the held plan (codec 1):
+        // feasible, its points drawn from the next position.
+        None if feasible => SteeringBody {
+            machine,
+            t: steer.t,
+            feasible: true,
+            steps: estimate["steps"].as_u64().and_then(|s| u32::try_from(s).ok()),
+            length_m: estimate["length_m"].as_f64(),
+            horizontal: empty(front.horizontal_mm, front.tendency_horizontal_mm_per_m),
+            vertical: empty(front.vertical_mm, front.tendency_vertical_mm_per_m),
+            words,
+            groups,
+            replanned,
+            steering: spec,
+            reason: Some(
+                "the newest curve was stored by an earlier release without its points: the next position plans it again"
+                    .into(),
+            ),
+        },
         Some(plan) => {
             let c = steering::expand(
                 &spec,

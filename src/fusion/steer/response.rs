@@ -4,22 +4,23 @@
 //! (the ground, its weight: a machine that dives, a face that pushes it
 //! aside), from each `dta` estimate's front deviation and tendency:
 //!
-//! - between estimates the front advances Δs along the curve it was
-//!   steered (the held plan, its strokes less the b̂ₛ served to offset the
-//!   machine's own): d += g·Δs + Δd_plan + (b − b̂ₛ)·Δs²/2,
-//!   g += Δg_plan + (b − b̂ₛ)·Δs, with the thrust's own scatter
-//!   (`stroke_sigma_mm` per step over the cylinder circle) as a random
-//!   curvature, and b a slow random walk;
+//! - between estimates the front advances Δs on the curvature served with
+//!   the strokes, κₛ against the axis (a push steers one stroke
+//!   difference: a constant curvature), and its own:
+//!   d += g·Δs + (κₛ + b)·Δs²/2, g += (κₛ + b)·Δs, with the thrust's
+//!   scatter (`stroke_sigma_mm` per step over the cylinder circle) as a
+//!   random curvature, and b a slow random walk;
 //! - the front's deviation measures d, the tendency the slope of the chord
-//!   from the rear: g less the plan's lag of chord behind tangent less
-//!   (b − b̂ₛ)·ℓ/2 over the shield length ℓ; both with the guidance's σ
-//!   (`guidance_sigma_mm`, or the estimate's own), correlated through the
-//!   front.
+//!   from the rear: g less the chord's lag behind the front's heading from
+//!   what was served under the shield, less b·ℓ/2 over the shield length
+//!   ℓ; both with the guidance's σ (`guidance_sigma_mm`, or the estimate's
+//!   own), correlated through the front, the chord also with the thrust's
+//!   scatter under the shield.
 //!
 //! It gives the curve its start (d, g and the machine's present curvature
-//! against the axis, what it is steered plus b − b̂ₛ) and the strokes their
-//! offset (b̂, steered against). A front that jumps against the filter
-//! (a new set-up of the guidance) restarts it.
+//! against the axis, κₛ + b) and the strokes their offset (b̂, steered
+//! against). A front that jumps against the filter (a new set-up of the
+//! guidance) restarts it.
 
 use nalgebra::{Matrix2, Matrix2x3, Matrix3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
@@ -39,16 +40,6 @@ pub struct PlaneFilter {
     /// d (m), g, b (1/m).
     pub x: Vector3<f64>,
     pub p: Matrix3<f64>,
-    /// The offset served with the strokes since the last estimate, 1/m.
-    pub served_bias_per_m: f64,
-}
-
-/// What the plan steered over an advance: the change of deviation beyond
-/// the start's slope, and of the slope.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct Steered {
-    pub deviation_m: f64,
-    pub slope: f64,
 }
 
 /// One plane's measurement.
@@ -57,7 +48,9 @@ pub struct Measured {
     pub deviation_m: f64,
     /// The chord's slope (the `dta` tendency), m/m.
     pub tendency: f64,
-    /// The plan's slope at the front less its chord's, m/m.
+    /// How much the front's heading exceeds the chord's slope by what
+    /// was served under the shield, m/m; the machine's own curvature adds
+    /// b·ℓ/2.
     pub chord_lag: f64,
     pub sigma_m: f64,
 }
@@ -73,24 +66,19 @@ impl PlaneFilter {
                 2.0 * var / (shield_m * shield_m),
                 BIAS_PRIOR_PER_M * BIAS_PRIOR_PER_M,
             )),
-            served_bias_per_m: 0.0,
         }
     }
 
-    /// Advance `ds_m` along what was steered; `heading_var_per_m` the
-    /// thrust's scatter as heading variance per metre.
-    pub fn predict(&mut self, ds_m: f64, steered: Steered, heading_var_per_m: f64) {
+    /// Advance `ds_m` on the served curvature `served_per_m` (against the
+    /// axis); `heading_var_per_m` the thrust's scatter as heading variance
+    /// per metre.
+    pub fn predict(&mut self, ds_m: f64, served_per_m: f64, heading_var_per_m: f64) {
         if ds_m <= 0.0 {
             return;
         }
         let f = Matrix3::new(1.0, ds_m, 0.5 * ds_m * ds_m, 0.0, 1.0, ds_m, 0.0, 0.0, 1.0);
-        let offset = self.served_bias_per_m;
-        self.x = f * self.x
-            + Vector3::new(
-                steered.deviation_m - 0.5 * offset * ds_m * ds_m,
-                steered.slope - offset * ds_m,
-                0.0,
-            );
+        self.x =
+            f * self.x + Vector3::new(0.5 * served_per_m * ds_m * ds_m, served_per_m * ds_m, 0.0);
         let q = heading_var_per_m;
         let noise = Matrix3::new(
             q * ds_m.powi(3) / 3.0,
@@ -107,21 +95,21 @@ impl PlaneFilter {
     }
 
     /// Corrects with `m`; false if it departs so far that the filter
-    /// should restart.
-    pub fn update(&mut self, m: &Measured, shield_m: f64) -> bool {
+    /// should restart. The thrust's scatter `heading_var_per_m` also bends
+    /// the path under the shield: the chord's slope is off the front's
+    /// heading by its integral, variance q·ℓ/3 (the mean of a random walk's
+    /// increments over ℓ).
+    pub fn update(&mut self, m: &Measured, shield_m: f64, heading_var_per_m: f64) -> bool {
         let half = 0.5 * shield_m;
         let h = Matrix2x3::new(1.0, 0.0, 0.0, 0.0, 1.0, -half);
-        let predicted = Vector2::new(
-            self.x[0],
-            self.x[1] - m.chord_lag - half * (self.x[2] - self.served_bias_per_m),
-        );
+        let predicted = Vector2::new(self.x[0], self.x[1] - m.chord_lag - half * self.x[2]);
         let innovation = Vector2::new(m.deviation_m, m.tendency) - predicted;
         let var = m.sigma_m * m.sigma_m;
         let r = Matrix2::new(
             var,
             var / shield_m,
             var / shield_m,
-            2.0 * var / (shield_m * shield_m),
+            2.0 * var / (shield_m * shield_m) + heading_var_per_m * shield_m / 3.0,
         );
         let s = h * self.p * h.transpose() + r;
         let Some(s_inv) = s.try_inverse() else {
@@ -166,21 +154,21 @@ mod tests {
             sigma_m: 0.001,
         };
         let mut f = PlaneFilter::start(&measured(0.0), shield);
-        // Before s = 0 the machine went straight: the first chord is a
-        // guess; the filter starts near it.
+        // The first chord (on the same parabola behind s = 0): the filter
+        // starts from it as the slope.
         assert!((f.x[1] - measured(0.0).tendency).abs() < 1e-12);
         for k in 1..=30 {
             let s = f64::from(k) * 1.5;
-            f.predict(1.5, Steered::default(), 1e-9);
-            assert!(f.update(&measured(s), shield), "{k}");
+            f.predict(1.5, 0.0, 1e-9);
+            assert!(f.update(&measured(s), shield, 1e-9), "{k}");
         }
         assert!((f.bias_per_m() + 1e-4).abs() < 1e-5, "{f:?}");
         assert!((f.x[0] - truth(45.0)).abs() < 1e-3, "{f:?}");
         assert!((f.x[1] - slope(45.0)).abs() < 1e-4, "{f:?}");
         // A jump of half a metre (a new set-up) is not believed.
-        f.predict(1.5, Steered::default(), 1e-9);
+        f.predict(1.5, 0.0, 1e-9);
         let mut jumped = measured(46.5);
         jumped.deviation_m += 0.5;
-        assert!(!f.update(&jumped, shield));
+        assert!(!f.update(&jumped, shield, 1e-9));
     }
 }

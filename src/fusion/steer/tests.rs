@@ -228,15 +228,17 @@ fn against_arc(radius_m: f64, (e, n): (f64, f64)) -> (f64, f64) {
 
 /// One closed-loop drive: 50 mm outside (left of) an 800 m right-hand arc,
 /// parallel to it; each ring the machine steers the served stroke
-/// difference with 3 % of gain error and 0.5 mm of noise, and the
-/// guidance measures front and rear with 0.5 mm of noise. The front's true
-/// deviation after each of 80 rings.
+/// difference (a constant curvature over the push) with a gain error of
+/// 1σ `gain_sigma` drawn once and `stroke_sigma_mm` of noise, and the
+/// guidance measures front and rear with `guidance_sigma_mm` of noise; the
+/// machine declares those accuracies. The front's true deviation after
+/// each of 80 rings.
 fn closed_loop(seed: u64, [gain_sigma, guidance_sigma_mm, stroke_sigma_mm]: [f64; 3]) -> Vec<f64> {
     let radius_m = 800.0;
     // The machine declares the accuracies the simulation gives it.
     let spec = SteeringSpec {
-        guidance_sigma_mm: 0.5,
-        stroke_sigma_mm: 0.5,
+        guidance_sigma_mm: guidance_sigma_mm.max(0.01),
+        stroke_sigma_mm: stroke_sigma_mm.max(0.01),
         ..SteeringSpec::new(500.0, 1.5, 6.0)
     };
     let arc = axis(r#"{"type": "arc", "length_m": 1000.0, "radius_m": 800.0}"#);
@@ -317,11 +319,12 @@ fn closed_loop_from_50_mm_off_an_800_m_arc_seeds_1_to_20() {
         overshoot <= 5.0 && after <= 3.0 && outside <= 40,
         "{overshoot} {after} {outside}"
     );
-    // With 3 % of gain, 0.5 mm of stroke and 0.5 mm of guidance noise the
-    // bar is not met: the curve may not be shorter than two shields nor
-    // change its curvature at once, so ring-to-ring thrust scatter is
-    // taken out over 12 rings or more (docs/api.md, "Steering"). What
-    // holds there, on every seed:
+    // With 3 % of gain, 0.5 mm of guidance and 0.5 mm of stroke noise the
+    // overshoot bar holds and the ±3 mm one does not: the curve may not be
+    // shorter than two shields nor change its curvature at once, so a
+    // ring-to-ring scatter of the thrust is taken out over 12 rings or
+    // more, and the hold margin lets the front wander 2 mm first
+    // (docs/api.md, "Steering"). What holds there, on every seed:
     let (overshoot, after, _) = closed_loops([0.03, 0.5, 0.5]);
-    assert!(overshoot <= 8.0 && after <= 8.0, "{overshoot} {after}");
+    assert!(overshoot <= 5.0 && after <= 6.0, "{overshoot} {after}");
 }
