@@ -145,6 +145,22 @@ const tn = (function () {
     return parts.filter(Boolean).join(' · ');
   }
 
+  // A station as chainage, kilometres + metres, rounded to `digits`
+  // decimals of a metre as whole units (as the reports do: 1234.5 →
+  // "1+234.500"; no sign on what rounds to nothing).
+  function chainage(s, digits = 3) {
+    if (!num(s)) return '\u2014';
+    const scale = 10 ** digits;
+    const units = Math.round(Math.abs(s) * scale);
+    const sign = s < 0 && units > 0 ? '\u2212' : '';
+    const perKm = 1000 * scale;
+    const km = Math.floor(units / perKm);
+    const rest = units - km * perKm;
+    const m = Math.floor(rest / scale);
+    const fraction = digits > 0 ? `.${String(rest - m * scale).padStart(digits, '0')}` : '';
+    return `${sign}${km}+${String(m).padStart(3, '0')}${fraction}`;
+  }
+
   function timeOfDay(t) {
     if (typeof t !== 'number' || !isFinite(t)) return '—';
     return new Date(t * 1000).toLocaleString([], { hour12: false });
@@ -470,7 +486,7 @@ const tn = (function () {
   }
 
   return {
-    clock, link, silenceWatchdog, latestOnly, fixed, mmPerM, duration, freshness, integrityWords, trustNote, timeOfDay, json, ndjson, setText, css,
+    clock, link, silenceWatchdog, latestOnly, fixed, mmPerM, duration, freshness, integrityWords, trustNote, timeOfDay, chainage, json, ndjson, setText, css,
     showConnection, follow, showSensors, pollStatus, windowButtons, axis, num,
     shadeSpans, line, followEngine, debounce, runSection, engines, registerEngine,
   };

@@ -40,16 +40,10 @@ tn.registerEngine('dta', {
     return `${r > 0 ? '+' : '\u2212'}${Math.abs(r)}`;
   },
 
-  // A station as chainage, kilometres + metres: 1234.5 → "1+234.500".
+  // A station as chainage, kilometres + metres: 1234.5 → "1+234.500"
+  // (common.js's, as the reports write it).
   chainage(s, digits = 3) {
-    if (!tn.num(s)) return '—';
-    const sign = s < 0 ? '\u2212' : '';
-    const m = Math.abs(s);
-    let km = Math.floor(m / 1000);
-    let rest = (m - km * 1000).toFixed(digits);
-    if (Number(rest) >= 1000) { km += 1; rest = (0).toFixed(digits); }
-    const width = digits > 0 ? 4 + digits : 3;
-    return `${sign}${km}+${rest.padStart(width, '0')}`;
+    return tn.chainage(s, digits);
   },
 
   // One deviation against its limits: ok, warn, alarm (over the limit, as

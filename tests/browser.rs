@@ -856,6 +856,9 @@ return {
   steer_t: d.state.steering ? d.state.steering.t : null,
   steer_rows: $('dta-steer-table') ? [...$('dta-steer-table').tBodies[0].rows].map((r) => [...r.cells].map((c) => c.textContent)) : null,
   steer_badge: $('dta-steer-status') ? $('dta-steer-status').textContent : null,
+  steer_words: $('dta-steer-words') ? $('dta-steer-words').textContent : null,
+  report_links: [...document.querySelectorAll('#ring-log a')].map((a) => a.getAttribute('href')),
+  ring_rows: [...document.querySelectorAll('#ring-log-table tbody tr')].map((r) => [...r.cells].map((c) => c.textContent)),
   next: d.marks.next,
   curve_points: d.charts.h ? d.charts.h.data[3].filter((v) => v !== null).length : 0,
 };
@@ -952,6 +955,14 @@ async fn dta_panel_draws_moves_and_shows_warn_and_alarm_colours() {
                            "easting_m": 1000.0 + station * sin + right * cos,
                            "northing_m": 5000.0 + station * cos - right * sin,
                            "height_m": 50.0 + grade * station + up})
+                    .to_string(),
+                );
+            }
+            // A ring every 100 s (1.5 m), with its strokes.
+            if s % 100 == 50 {
+                lines.push(
+                    json!({"t": t + 0.5, "sensor": "advance", "ring": 200 + s / 100,
+                           "strokes_mm": [1500.0, 1504.0, 1500.0, 1496.0]})
                     .to_string(),
                 );
             }
@@ -1085,6 +1096,11 @@ async fn dta_panel_draws_moves_and_shows_warn_and_alarm_colours() {
         one(&v[1]["deviation_mm"]),
         one(&h[0]["stroke_difference_mm"]),
         one(&v[0]["stroke_difference_mm"]),
+        if h[1]["outside_warn"] == true || v[1]["outside_warn"] == true {
+            "\u{26a0} beyond warn"
+        } else {
+            ""
+        },
     ]);
     let curve = wait_for_dta(&browser, "the correction curve", 15, |view| {
         view["steer_t"].as_f64() == served["t"].as_f64()
@@ -1095,6 +1111,42 @@ async fn dta_panel_draws_moves_and_shows_warn_and_alarm_colours() {
     })
     .await;
     assert_eq!(curve["next"]["h"], h[1]["deviation_mm"], "{curve:#}");
+    // The next step in words, as served; the shift report and the
+    // as-built report linked from the machine page.
+    assert_eq!(curve["steer_words"], served["words"], "{curve:#}");
+    let links: Vec<&str> = curve["report_links"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(Value::as_str)
+        .collect();
+    for wanted in [
+        "/report?format=pdf",
+        "/report?format=html",
+        "/as-built?format=pdf",
+        "engine=rings",
+    ] {
+        assert!(
+            links.iter().any(|l| l.contains(wanted)),
+            "{wanted}: {links:?}"
+        );
+    }
+    // The ring log: the rings posted so far (one every 100 s from 50 s),
+    // newest first, with their strokes.
+    let rings = wait_for_dta(&browser, "the ring log", 10, |v| {
+        v["ring_rows"]
+            .as_array()
+            .is_some_and(|rows| rows.len() >= 3)
+    })
+    .await;
+    let rows = rings["ring_rows"].as_array().unwrap();
+    assert_eq!(
+        rows[0][0],
+        format!("{}", 200 + (rows.len() - 1)),
+        "{rows:?}"
+    );
+    assert_eq!(rows[0][8], "1500 1504 1500 1496", "{rows:?}");
+    assert_eq!(rows.last().unwrap()[0], "200", "{rows:?}");
     assert!(
         curve["steer_badge"]
             .as_str()
@@ -1515,7 +1567,7 @@ async fn the_api_docs_page_draws_every_operation_and_tries_one() {
         .values()
         .map(|item| item.as_object().unwrap().len())
         .sum();
-    assert_eq!(operations, 26);
+    assert_eq!(operations, 27);
 
     let driver = Driver::start(&driver_program);
     let browser = connect(&driver, chromium.as_deref()).await;

@@ -209,7 +209,8 @@ impl Stage for PushLog {
     }
 
     fn snapshot(&self) -> serde_json::Value {
-        // Two integers: serialising cannot fail.
+        // Integers, a flag and an optional point of numbers: serialising
+        // cannot fail.
         serde_json::to_value(self).unwrap_or(serde_json::Value::Null)
     }
 }

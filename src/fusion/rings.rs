@@ -20,6 +20,10 @@ use super::registry::StageKind;
 use super::stage::{Declaration, Stage};
 use super::{SnapshotError, StreamKind};
 
+/// A station this far behind the last ring's is no advance, m (a machine
+/// never backs a metre).
+pub const BACKWARD_JUMP_M: f64 = 1.0;
+
 /// Version of the stage's snapshot.
 pub const STATE_VERSION: u32 = 1;
 /// Version of the stored [`RingRecord`].
@@ -38,7 +42,9 @@ pub struct RingRecord {
     /// Station of the machine's reference point (newest `dta` estimate);
     /// `null` without one (no alignment or no position yet).
     pub station_m: Option<f64>,
-    /// Station gained since the last ring completed with a station.
+    /// Station gained since the last ring completed with a station;
+    /// `null` for the first, and where the station went back by more than
+    /// [`BACKWARD_JUMP_M`] (a new drive, a new set-up of the guidance).
     pub advance_m: Option<f64>,
     /// Deviations from the axis at completion, mm.
     pub front_horizontal_mm: Option<f64>,
@@ -187,9 +193,12 @@ impl Stage for RingLog {
             start_t,
             duration_s: start_t.map(|start| reading.t - start),
             station_m,
+            // A station far behind the last ring's is a new drive or a new
+            // set-up of the guidance, not an advance: unknown.
             advance_m: station_m
                 .zip(self.previous_station_m)
-                .map(|(now, then)| now - then),
+                .map(|(now, then)| now - then)
+                .filter(|gained| *gained > -BACKWARD_JUMP_M),
             front_horizontal_mm: position.map(|p| p.front_mm[0]),
             front_vertical_mm: position.map(|p| p.front_mm[1]),
             rear_horizontal_mm: position.map(|p| p.rear_mm[0]),
@@ -361,6 +370,14 @@ mod tests {
             (r.ring, r.duration_s, r.advance_m),
             (43, Some(1700.0), Some(1.5))
         );
+        // A new drive from the axis's start (its rings numbered from 1):
+        // no advance, not −1001 m; the next ring's is known again.
+        log.estimate(&dta(3700.0, 2.0, 0.0), &mut out);
+        log.reading(&advance(3800.0, 1, None), &mut out);
+        assert_eq!(records(&out).last().unwrap().advance_m, None);
+        log.estimate(&dta(4700.0, 3.5, 0.0), &mut out);
+        log.reading(&advance(4800.0, 2, None), &mut out);
+        assert_eq!(records(&out).last().unwrap().advance_m, Some(1.5));
     }
 
     #[test]

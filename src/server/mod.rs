@@ -122,6 +122,7 @@ fn api_routes(state: &SharedState) -> OpenApiRouter<SharedState> {
         .routes(guard(Read, routes!(alignment::axis)))
         .routes(guard(Read, routes!(steering::show)))
         .routes(guard(Read, routes!(report::show)))
+        .routes(guard(Read, routes!(report::as_built::show)))
         .routes(guard(Read, routes!(alarms::list)))
         .routes(guard(Read, routes!(live::alarms_websocket)))
         .routes(guard(Read, routes!(alarms::ack)))

@@ -1,7 +1,9 @@
 //! The report as CSV, for spreadsheets: one table per section, each row's
-//! first cell naming its table (`advance`, `deviation`, `ring`, `chart`, …), the
-//! first row of each its column names. Every value is the JSON report's
-//! own, written as the JSON writes it (so the CSV equals the API).
+//! first cell naming its table (`advance`, `ring_run`, `stretch`,
+//! `deviation`, `ring`, `chart`, …), the first row of each its column
+//! names. Every value is the JSON report's own, written as the JSON writes
+//! it (so the CSV equals the API); the advance's lists are tables of their
+//! own, the tolerances are the machine's declaration.
 
 use serde_json::Value;
 
@@ -9,9 +11,11 @@ use super::Report;
 
 /// The sections: the table name, the report's field, and whether it is a
 /// list of rows (else one object).
-const SECTIONS: [(&str, &str, bool); 8] = [
+const SECTIONS: [(&str, &str, bool); 10] = [
     ("report", "", false),
     ("advance", "advance", false),
+    ("ring_run", "ring_numbers", true),
+    ("stretch", "stretches", true),
     ("deviation", "deviations", true),
     ("ring", "rings", true),
     ("push", "pushes", true),
@@ -26,10 +30,15 @@ pub fn write(report: &Report) -> String {
     let value = serde_json::to_value(report).unwrap_or(Value::Null);
     let mut out = String::new();
     for (table, field, is_list) in SECTIONS {
+        // The advance's own lists have tables of their own.
+        let list = match table {
+            "ring_run" | "stretch" => &value["advance"][field],
+            _ => &value[field],
+        };
         let rows: Vec<&Value> = match (field, is_list) {
             ("", _) => vec![&value],
             (_, false) => vec![&value[field]],
-            (_, true) => value[field]
+            (_, true) => list
                 .as_array()
                 .map(|rows| rows.iter().collect())
                 .unwrap_or_default(),
@@ -43,12 +52,23 @@ pub fn write(report: &Report) -> String {
     out
 }
 
+/// One table of `rows` (JSON objects) under its columns.
+pub(super) fn table(table: &str, rows: &[Value]) -> String {
+    let mut out = String::new();
+    let columns = columns(table);
+    line(&mut out, table, columns.iter().map(|c| c.to_string()));
+    for row in rows {
+        line(&mut out, table, columns.iter().map(|c| cell(row.get(*c))));
+    }
+    out
+}
+
 /// A table's columns in the order its struct declares its fields (the
 /// JSON object's keys are sorted; an empty list has no object to ask).
 /// The HTTP test checks them against the JSON's keys.
 fn columns(table: &str) -> &'static [&'static str] {
     match table {
-        "report" => &["machine", "name", "from", "to"],
+        "report" => &["machine", "name", "from", "to", "project", "generated_t"],
         "advance" => &[
             "rings",
             "first_ring",
@@ -58,7 +78,10 @@ fn columns(table: &str) -> &'static [&'static str] {
             "advance_m",
             "pushes",
             "pushed_m",
+            "advance_from",
         ],
+        "ring_run" => &["first", "last"],
+        "stretch" => &["from_t", "to_t", "from_station_m", "to_station_m"],
         "deviation" => &["point", "plane", "deviation_mm", "t", "station_m"],
         "ring" => &[
             "ring",

@@ -7,6 +7,7 @@
 //! printable HTML page or a PDF; the page and the PDF lay out the same
 //! tables ([`layout`]).
 
+pub mod as_built;
 mod csv;
 mod layout;
 mod pdf;
@@ -23,7 +24,7 @@ use super::openapi::MachinePath;
 use super::state::SharedState;
 use crate::fusion::Integrity;
 use crate::fusion::pushes::PushRecord;
-use crate::fusion::rings::RingRecord;
+use crate::fusion::rings::{BACKWARD_JUMP_M, RingRecord};
 use crate::fusion::{EngineKind, EstimateValues, SensorKind, StreamKind};
 use crate::machine::MachineHandle;
 use crate::store::alarms::{AlarmFilter, StoredAlarm};
@@ -75,11 +76,51 @@ pub struct Advance {
     /// estimate of the range; `null` without one.
     pub start_station_m: Option<f64>,
     pub end_station_m: Option<f64>,
-    /// `end_station_m` − `start_station_m`.
+    /// The station gained: the sum of the range's rings' `advance_m`
+    /// (those known), or without rings the stretches' lengths.
     pub advance_m: Option<f64>,
     /// Pushes of a jacked string (`pushes` log) and their total length.
     pub pushes: u64,
     pub pushed_m: f64,
+    /// What `advance_m` is from: `rings` or `stations`; `null` without
+    /// either.
+    pub advance_from: Option<&'static str>,
+    /// The ring numbers as logged, in runs of consecutive numbers
+    /// (`[{"first": 7, "last": 8}, {"first": 1, "last": 9}]`: rings 7 and
+    /// 8, then a count from 1 again).
+    pub ring_numbers: Vec<RingRun>,
+    /// The stations the reference point covered, in stretches split where
+    /// the station went back by more than a metre (a new drive, a new
+    /// set-up of the guidance).
+    pub stretches: Vec<Stretch>,
+}
+
+/// A stretch of the range's stations without a step back.
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct Stretch {
+    pub from_t: f64,
+    pub to_t: f64,
+    pub from_station_m: f64,
+    pub to_station_m: f64,
+}
+
+/// Consecutive ring numbers as logged.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct RingRun {
+    pub first: u64,
+    pub last: u64,
+}
+
+/// Runs of consecutive numbers in `numbers`, as logged.
+fn number_runs(numbers: impl IntoIterator<Item = u64>) -> Vec<RingRun> {
+    let mut runs: Vec<RingRun> = Vec::new();
+    for n in numbers {
+        match runs.last_mut() {
+            Some(run) if run.last.checked_add(1) == Some(n) => run.last = n,
+            _ => runs.push(RingRun { first: n, last: n }),
+        }
+    }
+    runs
 }
 
 /// The largest deviation of one point in one plane over the range.
@@ -143,6 +184,13 @@ pub struct Report {
     pub name: String,
     pub from: f64,
     pub to: f64,
+    /// The drive: the design axis's name; `null` without an axis.
+    pub project: Option<String>,
+    /// When the report was made (the server's clock).
+    pub generated_t: f64,
+    /// The declared tolerances the chart's bands show; `null` without.
+    #[schema(value_type = Option<Object>)]
+    pub tolerances: Option<crate::fusion::dta::Tolerances>,
     pub advance: Advance,
     /// Front and rear, horizontal and vertical: empty without `dta`
     /// estimates in the range.
@@ -211,9 +259,11 @@ pub async fn show(
     }
     let handle = state.machine(&machine)?;
     let store = state.store.clone();
-    let report = tokio::task::spawn_blocking(move || gather(&store, &handle, from, to))
-        .await
-        .map_err(|e| ApiError::Internal(e.to_string()))??;
+    let generated_t = state.clock.now_s();
+    let report =
+        tokio::task::spawn_blocking(move || gather(&store, &handle, from, to, generated_t))
+            .await
+            .map_err(|e| ApiError::Internal(e.to_string()))??;
     let attachment = |extension: &str| {
         format!(
             "inline; filename=\"{}-report-{}-{}.{extension}\"",
@@ -258,6 +308,7 @@ fn gather(
     machine: &MachineHandle,
     from: f64,
     to: f64,
+    generated_t: f64,
 ) -> Result<Report, StoreError> {
     let spec = &machine.spec;
     let db_id = machine.db_id;
@@ -297,9 +348,16 @@ fn gather(
         },
     )?;
 
+    // A shift is [from, to): a ring completed at `to` is the next one's.
+    let mut rings = rings;
+    rings.retain(|r| r.t < to);
+    let mut pushes = pushes;
+    pushes.retain(|p| p.t < to);
+
     // Every dta estimate of the range: the largest deviations are exact.
     let mut deviations: Vec<LargestDeviation> = Vec::new();
     let mut stations: Option<(f64, f64)> = None;
+    let mut stretches: Vec<Stretch> = Vec::new();
     if runs(StreamKind::Dta) {
         store.export_estimates(db_id, StreamKind::Dta, from, to, |e| {
             let EstimateValues::Dta(d) = &e.values else {
@@ -309,6 +367,17 @@ fn gather(
                 Some((first, _)) => (first, d.station_m),
                 None => (d.station_m, d.station_m),
             });
+            match stretches.last_mut() {
+                Some(s) if d.station_m > s.to_station_m - BACKWARD_JUMP_M => {
+                    (s.to_t, s.to_station_m) = (e.t, d.station_m);
+                }
+                _ => stretches.push(Stretch {
+                    from_t: e.t,
+                    to_t: e.t,
+                    from_station_m: d.station_m,
+                    to_station_m: d.station_m,
+                }),
+            }
             let values = [
                 (
                     "front",
@@ -381,22 +450,51 @@ fn gather(
         None
     };
 
+    // The rings' own advance where they know it (a ring stored before
+    // the backward jump was refused may carry one: not an advance); else
+    // the stations'.
+    let ring_advances: Vec<f64> = rings
+        .iter()
+        .filter_map(|r| r.ring.advance_m)
+        .filter(|a| *a > -BACKWARD_JUMP_M)
+        .collect();
+    let (advance_m, advance_from) = if !ring_advances.is_empty() {
+        (Some(ring_advances.iter().sum::<f64>()), Some("rings"))
+    } else if !stretches.is_empty() {
+        let gained = stretches
+            .iter()
+            .fold(0.0, |sum, s| sum + (s.to_station_m - s.from_station_m));
+        (Some(gained), Some("stations"))
+    } else {
+        (None, None)
+    };
     let advance = Advance {
         rings: rings.len() as u64,
         first_ring: rings.first().map(|r| r.ring.ring),
         last_ring: rings.last().map(|r| r.ring.ring),
         start_station_m: stations.map(|s| s.0),
         end_station_m: stations.map(|s| s.1),
-        advance_m: stations.map(|(first, last)| last - first),
+        advance_m,
         pushes: pushes.len() as u64,
         // A fold from +0: an empty f64 sum is −0.
         pushed_m: pushes.iter().fold(0.0, |sum, p| sum + p.push.length_m),
+        advance_from,
+        ring_numbers: number_runs(rings.iter().map(|r| r.ring.ring)),
+        stretches,
     };
     Ok(Report {
         machine: spec.id.clone(),
         name: spec.name.clone(),
         from,
         to,
+        project: machine
+            .spec
+            .built_alignment
+            .as_ref()
+            .map(|a| a.name.clone())
+            .filter(|n| !n.is_empty()),
+        generated_t,
+        tolerances: spec.tolerances,
         advance,
         deviations,
         rings,
@@ -477,4 +575,23 @@ fn dropouts(
         }
     }
     Ok(gaps)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ring_numbers_run_as_logged() {
+        let pairs = |runs: Vec<RingRun>| runs.iter().map(|r| (r.first, r.last)).collect::<Vec<_>>();
+        assert_eq!(
+            pairs(number_runs([7, 8, 1, 2, 3, 5])),
+            [(7, 8), (1, 3), (5, 5)]
+        );
+        assert_eq!(
+            pairs(number_runs([u64::MAX, 0])),
+            [(u64::MAX, u64::MAX), (0, 0)]
+        );
+        assert!(number_runs([]).is_empty());
+    }
 }
