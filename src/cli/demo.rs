@@ -48,14 +48,14 @@ name = "TBM North · S-1 drive"
 engines = { attitude = {} }
 geometry = { front_m = [4.2, 0.4, 1.1], rear_m = [-5.1, 0.4, 1.1] }
 tolerances = { horizontal_mm = { warn = 50, alarm = 100 }, vertical_mm = { warn = 30, alarm = 60 } }
-steering = { min_radius_m = 250, step_m = 1.5, cylinder_circle_m = 6.0 }
+steering = { min_radius_m = 250, step_m = 1.5, cylinder_circle_m = 6.0, max_stroke_change_mm = 6.0, cylinder_groups = [{ name = "A top", angle_deg = 0, cylinders = [0, 1] }, { name = "B right", angle_deg = 90, cylinders = [2, 3] }, { name = "C bottom", angle_deg = 180, cylinders = [4, 5] }, { name = "D left", angle_deg = 270, cylinders = [6, 7] }] }
 
 [machines.tbm-south]
 name = "TBM South · S-2 drive (WebSocket gateway)"
 engines = { attitude = {} }
 geometry = { front_m = [4.6, -0.3, 1.2], rear_m = [-5.4, -0.3, 1.2] }
 tolerances = { horizontal_mm = { warn = 50, alarm = 100 }, vertical_mm = { warn = 30, alarm = 60 } }
-steering = { min_radius_m = 250, step_m = 1.5, cylinder_circle_m = 6.0 }
+steering = { min_radius_m = 250, step_m = 1.5, cylinder_circle_m = 6.0, max_stroke_change_mm = 6.0, cylinder_groups = [{ name = "A top", angle_deg = 0, cylinders = [0, 1] }, { name = "B right", angle_deg = 90, cylinders = [2, 3] }, { name = "C bottom", angle_deg = 180, cylinders = [4, 5] }, { name = "D left", angle_deg = 270, cylinders = [6, 7] }] }
 
 [machines.pipejack-3]
 name = "Pipe jack P-3 · laser blocked 20 min per hour"

@@ -98,51 +98,63 @@ impl Profile {
         }
     }
 
+    /// The vertical curve `station_m` lies in: its PVI, the incoming and
+    /// outgoing grades and the distance from its beginning (the last such
+    /// curve if curves overlap, which validation refuses).
+    fn curve_at(&self, station_m: f64) -> Option<(&Pvi, f64, f64, f64)> {
+        self.pvis
+            .iter()
+            .enumerate()
+            .rev()
+            .find(|(_, pvi)| {
+                let half = 0.5 * pvi.curve_length_m;
+                half > 0.0 && (station_m - pvi.station_m).abs() < half
+            })
+            .map(|(i, pvi)| {
+                let d = station_m - (pvi.station_m - 0.5 * pvi.curve_length_m);
+                (
+                    pvi,
+                    self.grade_after(i.checked_sub(1)),
+                    self.grade_after(Some(i)),
+                    d,
+                )
+            })
+    }
+
     /// The grade (rise over run) at `station_m` and its rate of change
     /// along the station, 1/m: on a tangent its grade and 0, within a
     /// curve about a PVI g₁ + (g₂ − g₁)·d/L and (g₂ − g₁)/L, d from the
     /// curve's beginning (the derivatives of [`Profile::height_at`]). At a
     /// PVI without a curve the grade steps: the one leaving it.
     pub fn grade_at(&self, station_m: f64) -> (f64, f64) {
-        let last_before = self.pvis.iter().rposition(|p| p.station_m <= station_m);
-        let mut grade = (self.grade_after(last_before), 0.0);
-        for (i, pvi) in self.pvis.iter().enumerate() {
-            let half = 0.5 * pvi.curve_length_m;
-            if half <= 0.0 || (station_m - pvi.station_m).abs() >= half {
-                continue;
+        match self.curve_at(station_m) {
+            Some((pvi, g1, g2, d)) => {
+                let rate = (g2 - g1) / pvi.curve_length_m;
+                (g1 + rate * d, rate)
             }
-            let g1 = self.grade_after(i.checked_sub(1));
-            let g2 = self.grade_after(Some(i));
-            let rate = (g2 - g1) / pvi.curve_length_m;
-            grade = (g1 + rate * (station_m - (pvi.station_m - half)), rate);
+            None => {
+                let last_before = self.pvis.iter().rposition(|p| p.station_m <= station_m);
+                (self.grade_after(last_before), 0.0)
+            }
         }
-        grade
     }
 
     /// The design height at `station_m` (the profile's tangents continue
     /// beyond its ends).
     pub fn height_at(&self, station_m: f64) -> f64 {
+        // Within a curve, the parabola lies off the incoming tangent by
+        // (g₂ − g₁)·d²/(2L), d from the curve's beginning.
+        if let Some((pvi, g1, g2, d)) = self.curve_at(station_m) {
+            let tangent_in = pvi.height_m + g1 * (station_m - pvi.station_m);
+            return tangent_in + (g2 - g1) * d * d / (2.0 * pvi.curve_length_m);
+        }
         // The tangent the station lies on: after the last PVI at or before it.
         let last_before = self.pvis.iter().rposition(|p| p.station_m <= station_m);
         let (x0, z0) = match last_before {
             None => (self.start_station_m, self.start_height_m),
             Some(i) => (self.pvis[i].station_m, self.pvis[i].height_m),
         };
-        let mut z = z0 + self.grade_after(last_before) * (station_m - x0);
-        // Within a curve, the parabola lies off the tangents by
-        // (g₂ − g₁)·d²/(2L), d from the curve's beginning or end.
-        for (i, pvi) in self.pvis.iter().enumerate() {
-            let half = 0.5 * pvi.curve_length_m;
-            if half <= 0.0 || (station_m - pvi.station_m).abs() >= half {
-                continue;
-            }
-            let g1 = self.grade_after(i.checked_sub(1));
-            let g2 = self.grade_after(Some(i));
-            let d = station_m - (pvi.station_m - half);
-            let tangent_in = pvi.height_m + g1 * (station_m - pvi.station_m);
-            z = tangent_in + (g2 - g1) * d * d / (2.0 * pvi.curve_length_m);
-        }
-        z
+        z0 + self.grade_after(last_before) * (station_m - x0)
     }
 }
 

@@ -5,14 +5,12 @@
 //! report's columns), a printable HTML page or a PDF with the shift
 //! report's header block, chart and lines to sign.
 
-use askama::Template;
 use axum::extract::{Path, Query, State};
-use axum::http::header;
-use axum::response::{IntoResponse, Response};
+use axum::response::Response;
 use serde::{Deserialize, Serialize};
 
 use super::layout::{self, ReportPage};
-use super::{ChartPoint, RingRow, csv, pdf};
+use super::{ChartPoint, ReportFormat, RingRow, csv, respond};
 use crate::fusion::dta::Tolerances;
 use crate::fusion::{EstimateValues, StreamKind};
 use crate::server::error::ApiError;
@@ -68,12 +66,7 @@ pub async fn show(
 ) -> Result<Response, ApiError> {
     let Query(query) =
         query.map_err(|e| ApiError::BadRequest(format!("bad query string: {}", e.body_text())))?;
-    let format = query.format.unwrap_or_else(|| "json".to_string());
-    if !["json", "csv", "html", "pdf"].contains(&format.as_str()) {
-        return Err(ApiError::BadRequest(format!(
-            "`format` = `{format}`: expected json, csv, html or pdf"
-        )));
-    }
+    let format = ReportFormat::parse(query.format.as_deref())?;
     let handle = state.machine(&machine)?;
     let store = state.store.clone();
     let generated_t = state.clock.now_s();
@@ -118,41 +111,14 @@ pub async fn show(
             tolerances: spec.tolerances,
             rings,
         };
-        let filename = |extension: &str| {
-            format!(
-                "inline; filename=\"{}-as-built.{extension}\"",
-                report.machine
-            )
-        };
-        Ok(match format.as_str() {
-            "csv" => (
-                [
-                    (header::CONTENT_TYPE, "text/csv; charset=utf-8".to_string()),
-                    (header::CONTENT_DISPOSITION, filename("csv")),
-                ],
-                write_csv(&report),
-            )
-                .into_response(),
-            "html" => {
-                let html = page(&report)
-                    .render()
-                    .map_err(|e| ApiError::Internal(format!("the as-built page: {e}")))?;
-                ([(header::CONTENT_TYPE, "text/html; charset=utf-8")], html).into_response()
-            }
-            "pdf" => {
-                let bytes = pdf::write(&page(&report))
-                    .map_err(|e| ApiError::Internal(format!("the as-built PDF: {e}")))?;
-                (
-                    [
-                        (header::CONTENT_TYPE, "application/pdf".to_string()),
-                        (header::CONTENT_DISPOSITION, filename("pdf")),
-                    ],
-                    bytes,
-                )
-                    .into_response()
-            }
-            _ => axum::Json(report).into_response(),
-        })
+        let stem = format!("{}-as-built", report.machine);
+        respond(
+            format,
+            &report,
+            &stem,
+            || write_csv(&report),
+            || page(&report),
+        )
     });
     answer
         .await

@@ -227,17 +227,7 @@ pub async fn show(
 ) -> Result<Response, ApiError> {
     let Query(query) =
         query.map_err(|e| ApiError::BadRequest(format!("bad query string: {}", e.body_text())))?;
-    let format = match query.format.as_deref() {
-        None | Some("json") => ReportFormat::Json,
-        Some("csv") => ReportFormat::Csv,
-        Some("html") => ReportFormat::Html,
-        Some("pdf") => ReportFormat::Pdf,
-        Some(other) => {
-            return Err(ApiError::BadRequest(format!(
-                "`format` = `{other}`: expected json, csv, html or pdf"
-            )));
-        }
-    };
+    let format = ReportFormat::parse(query.format.as_deref())?;
     let to = match &query.to {
         Some(text) => parse_time("to", text)?,
         None => state.clock.now_s(),
@@ -260,16 +250,47 @@ pub async fn show(
     let handle = state.machine(&machine)?;
     let store = state.store.clone();
     let generated_t = state.clock.now_s();
-    let report =
-        tokio::task::spawn_blocking(move || gather(&store, &handle, from, to, generated_t))
-            .await
-            .map_err(|e| ApiError::Internal(e.to_string()))??;
-    let attachment = |extension: &str| {
-        format!(
-            "inline; filename=\"{}-report-{}-{}.{extension}\"",
-            report.machine, report.from, report.to
+    // Read, laid out and drawn off the async workers.
+    tokio::task::spawn_blocking(move || {
+        let report = gather(&store, &handle, from, to, generated_t)?;
+        let stem = format!("{}-report-{}-{}", report.machine, report.from, report.to);
+        respond(
+            format,
+            &report,
+            &stem,
+            || csv::write(&report),
+            || layout::ReportPage::new(&report),
         )
-    };
+    })
+    .await
+    .map_err(|e| ApiError::Internal(e.to_string()))?
+}
+
+impl ReportFormat {
+    /// The `format` query parameter (default `json`).
+    pub fn parse(format: Option<&str>) -> Result<ReportFormat, ApiError> {
+        match format {
+            None | Some("json") => Ok(ReportFormat::Json),
+            Some("csv") => Ok(ReportFormat::Csv),
+            Some("html") => Ok(ReportFormat::Html),
+            Some("pdf") => Ok(ReportFormat::Pdf),
+            Some(other) => Err(ApiError::BadRequest(format!(
+                "`format` = `{other}`: expected json, csv, html or pdf"
+            ))),
+        }
+    }
+}
+
+/// `report` answered as `format`: its JSON, `csv`, or the `page` as HTML
+/// or PDF, files named `stem`.
+fn respond<T: Serialize>(
+    format: ReportFormat,
+    report: &T,
+    stem: &str,
+    csv: impl FnOnce() -> String,
+    page: impl FnOnce() -> layout::ReportPage,
+) -> Result<Response, ApiError> {
+    let attachment = |extension: &str| format!("inline; filename=\"{stem}.{extension}\"");
     Ok(match format {
         ReportFormat::Json => axum::Json(report).into_response(),
         ReportFormat::Csv => (
@@ -277,18 +298,17 @@ pub async fn show(
                 (header::CONTENT_TYPE, "text/csv; charset=utf-8".to_string()),
                 (header::CONTENT_DISPOSITION, attachment("csv")),
             ],
-            csv::write(&report),
+            csv(),
         )
             .into_response(),
         ReportFormat::Html => {
-            let page = layout::ReportPage::new(&report);
-            let html = page
+            let html = page()
                 .render()
                 .map_err(|e| ApiError::Internal(format!("the report page: {e}")))?;
             ([(header::CONTENT_TYPE, "text/html; charset=utf-8")], html).into_response()
         }
         ReportFormat::Pdf => {
-            let bytes = pdf::write(&layout::ReportPage::new(&report))
+            let bytes = pdf::write(&page())
                 .map_err(|e| ApiError::Internal(format!("the report PDF: {e}")))?;
             (
                 [
