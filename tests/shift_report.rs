@@ -73,7 +73,16 @@ fn pdf_text(path: &std::path::Path) -> Option<String> {
 fn csv_of(value: &Value) -> String {
     match value {
         Value::Null => String::new(),
-        Value::Array(items) => items.iter().map(csv_of).collect::<Vec<_>>().join(" "),
+        // A list is text: one starting as a formula would is neutralised.
+        Value::Array(items) => {
+            let joined = items.iter().map(csv_of).collect::<Vec<_>>().join(" ");
+            match joined.starts_with(['=', '+', '-', '@']) {
+                true => format!("'{joined}"),
+                false => joined,
+            }
+        }
+        // Text that could start a formula is prefixed with a quote.
+        Value::String(s) if s.starts_with(['=', '+', '-', '@', '\t', '\r']) => format!("'{s}"),
         Value::String(s) => s.clone(),
         other => other.to_string(),
     }

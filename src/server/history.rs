@@ -276,14 +276,15 @@ fn export_estimates(
 }
 
 /// One CSV cell: numbers and booleans as they are, nothing for null,
-/// strings, arrays and objects quoted (quotes doubled).
+/// strings, arrays and objects quoted (quotes doubled), a string that
+/// could start a formula neutralised ([`super::csv_text`]).
 fn csv_cell(value: Option<&serde_json::Value>) -> String {
     use serde_json::Value;
     match value {
         None | Some(Value::Null) => String::new(),
         Some(Value::Number(n)) => n.to_string(),
         Some(Value::Bool(b)) => b.to_string(),
-        Some(Value::String(s)) => format!("\"{}\"", s.replace('"', "\"\"")),
+        Some(Value::String(s)) => super::csv_text::text_cell(s, true),
         Some(other) => format!("\"{}\"", other.to_string().replace('"', "\"\"")),
     }
 }

@@ -7,6 +7,7 @@ mod alarms;
 mod alignment;
 pub mod auth;
 pub mod cluster;
+pub mod csv_text;
 mod error;
 mod feeds;
 pub mod forward;

@@ -146,21 +146,27 @@ fn line(out: &mut String, table: &str, cells: impl Iterator<Item = String>) {
 }
 
 /// Numbers as the JSON has them, nothing for null, text quoted where it
-/// must be (quotes doubled), lists as their numbers separated by spaces.
+/// must be (quotes doubled) and never read as a formula
+/// ([`crate::server::csv_text`]), lists as their numbers separated by
+/// spaces.
 fn cell(value: Option<&Value>) -> String {
     match value {
         None | Some(Value::Null) => String::new(),
         Some(Value::Number(n)) => n.to_string(),
         Some(Value::Bool(b)) => b.to_string(),
-        Some(Value::String(s)) if s.contains([',', '"', '\n', '\r']) => {
-            format!("\"{}\"", s.replace('"', "\"\""))
+        Some(Value::String(s)) => crate::server::csv_text::text_cell(s, false),
+        // A list is text, not a number: "-1.2 3.4" is neutralised too.
+        Some(Value::Array(items)) => {
+            let joined = items
+                .iter()
+                .map(|item| cell(Some(item)))
+                .collect::<Vec<_>>()
+                .join(" ");
+            match crate::server::csv_text::could_be_formula(&joined) {
+                true => crate::server::csv_text::text_cell(&joined, false),
+                false => joined,
+            }
         }
-        Some(Value::String(s)) => s.clone(),
-        Some(Value::Array(items)) => items
-            .iter()
-            .map(|item| cell(Some(item)))
-            .collect::<Vec<_>>()
-            .join(" "),
         Some(other) => format!("\"{}\"", other.to_string().replace('"', "\"\"")),
     }
 }
