@@ -156,6 +156,8 @@ pub fn router(state: SharedState) -> Router {
         ))
         .layer(DefaultBodyLimit::max(limit))
         .layer(axum::middleware::from_fn(metrics::count_responses))
+        .layer(axum::middleware::from_fn(errors_as_json))
+        .layer(axum::middleware::from_fn(security_headers))
         .layer(
             TraceLayer::new_for_http()
                 .make_span_with(request_span(state.access_log))
@@ -167,6 +169,77 @@ pub fn router(state: SharedState) -> Router {
                 ),
         )
         .with_state(state)
+}
+
+/// The pages' Content-Security-Policy: scripts only from the service's own
+/// files (no inline script, no eval), styles also inline (the printable
+/// reports and the API docs' viewer set theirs), no framing by other sites.
+pub const CONTENT_SECURITY_POLICY: &str = "default-src 'self'; script-src 'self'; \
+style-src 'self' 'unsafe-inline'; img-src 'self' data: blob:; media-src 'self' data: blob:; font-src 'self' data:; \
+connect-src 'self'; object-src 'none'; base-uri 'self'; form-action 'self'; \
+frame-ancestors 'none'";
+
+/// An error the framework answered in plain text (a path that is not
+/// UTF-8, a query it cannot read) answered as every error is: JSON naming
+/// what was wrong.
+async fn errors_as_json(
+    request: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> axum::response::Response {
+    use axum::response::IntoResponse;
+    let response = next.run(request).await;
+    let plain = response
+        .headers()
+        .get(axum::http::header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.starts_with("text/plain"));
+    if !(plain && (response.status().is_client_error() || response.status().is_server_error())) {
+        return response;
+    }
+    let (parts, body) = response.into_parts();
+    // The framework's messages are a line; more is not read.
+    let text = match axum::body::to_bytes(body, 64 * 1024).await {
+        Ok(bytes) => String::from_utf8_lossy(&bytes).trim().to_string(),
+        Err(_) => parts
+            .status
+            .canonical_reason()
+            .unwrap_or("error")
+            .to_string(),
+    };
+    let mut json = (
+        parts.status,
+        axum::Json(serde_json::json!({ "error": text })),
+    )
+        .into_response();
+    for (name, value) in parts.headers.iter() {
+        if name != axum::http::header::CONTENT_TYPE && name != axum::http::header::CONTENT_LENGTH {
+            json.headers_mut().insert(name.clone(), value.clone());
+        }
+    }
+    json
+}
+
+/// Security headers on every answer (where a handler set none): the
+/// Content-Security-Policy, no MIME sniffing, no referrer to other sites,
+/// no framing.
+async fn security_headers(
+    request: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> axum::response::Response {
+    use axum::http::{HeaderValue, header};
+    let mut response = next.run(request).await;
+    let headers = response.headers_mut();
+    for (name, value) in [
+        (header::CONTENT_SECURITY_POLICY, CONTENT_SECURITY_POLICY),
+        (header::X_CONTENT_TYPE_OPTIONS, "nosniff"),
+        (header::REFERRER_POLICY, "same-origin"),
+        (header::X_FRAME_OPTIONS, "DENY"),
+    ] {
+        headers
+            .entry(name)
+            .or_insert(HeaderValue::from_static(value));
+    }
+    response
 }
 
 /// The span of one request, so its one INFO line (on the response: status
