@@ -37,13 +37,12 @@
   // logged (the status's newest `rings` record).
   const RINGS_SHOWN = 10;
   let ringsFor = null;
-  const chainage = (s) => tn.chainage(s);
   const signed = (v, digits) => (tn.num(v) ? `${v > 0 ? '+' : v < 0 ? '\u2212' : ''}${Math.abs(v).toFixed(digits)}` : '—');
   const showRings = (page) => {
     const rings = (page.estimates || []).slice(-RINGS_SHOWN).reverse();
     const rows = rings.map((r) => {
       const row = document.createElement('tr');
-      for (const text of [String(r.ring), tn.timeOfDay(r.t), chainage(r.station_m),
+      for (const text of [String(r.ring), tn.timeOfDay(r.t), tn.chainage(r.station_m),
         tn.num(r.advance_m) ? r.advance_m.toFixed(3) : '—',
         signed(r.front_horizontal_mm, 1), signed(r.front_vertical_mm, 1),
         signed(r.tendency_horizontal_mm_per_m, 2), signed(r.tendency_vertical_mm_per_m, 2),

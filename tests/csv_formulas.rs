@@ -9,30 +9,11 @@ mod common;
 use common::{TestServer, declare_machine, post_ndjson};
 use serde_json::json;
 
-/// One CSV line's cells, unquoted (quoted cells with doubled quotes).
-fn cells(line: &str) -> Vec<String> {
-    let (mut cells, mut cell, mut quoted) = (Vec::new(), String::new(), false);
-    let mut chars = line.chars().peekable();
-    while let Some(c) = chars.next() {
-        match (c, quoted) {
-            ('"', true) if chars.peek() == Some(&'"') => {
-                cell.push('"');
-                chars.next();
-            }
-            ('"', _) => quoted = !quoted,
-            (',', false) => cells.push(std::mem::take(&mut cell)),
-            _ => cell.push(c),
-        }
-    }
-    cells.push(cell);
-    cells
-}
-
 /// The cells of `csv` a spreadsheet would read as a formula: starting with
 /// `=`, `+`, `-`, `@`, a tab or a carriage return and not a number.
 fn formulas(csv: &str) -> Vec<String> {
     csv.lines()
-        .flat_map(cells)
+        .flat_map(common::csv_cells)
         .filter(|c| c.starts_with(['=', '+', '-', '@', '\t', '\r']) && c.parse::<f64>().is_err())
         .collect()
 }

@@ -88,28 +88,12 @@ fn csv_of(value: &Value) -> String {
     }
 }
 
-/// One CSV line's cells (quoted cells with doubled quotes).
-fn csv_cells(line: &str) -> Vec<String> {
-    let (mut cells, mut cell, mut quoted) = (Vec::new(), String::new(), false);
-    let mut chars = line.chars().peekable();
-    while let Some(c) = chars.next() {
-        match (c, quoted) {
-            ('"', true) if chars.peek() == Some(&'"') => {
-                cell.push('"');
-                chars.next();
-            }
-            ('"', _) => quoted = !quoted,
-            (',', false) => cells.push(std::mem::take(&mut cell)),
-            _ => cell.push(c),
-        }
-    }
-    cells.push(cell);
-    cells
-}
-
 /// The CSV's rows of `table`, as column name → cell.
 fn csv_table(csv: &str, table: &str) -> Vec<Vec<(String, String)>> {
-    let mut rows = csv.lines().map(csv_cells).filter(|cells| cells[0] == table);
+    let mut rows = csv
+        .lines()
+        .map(common::csv_cells)
+        .filter(|cells| cells[0] == table);
     let header: Vec<String> = rows
         .next()
         .unwrap_or_else(|| panic!("no {table} table"))

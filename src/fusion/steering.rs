@@ -702,51 +702,6 @@ pub fn planned_slope<A: Axis + ?Sized>(axis: &A, plan: &Plan, station_m: f64) ->
     Path::new(axis, plan).planes.map(|q| q.at(x).1)
 }
 
-/// The plan's curvature against the axis at internal station `station_m`,
-/// 1/m per plane.
-pub fn planned_relative_curvature<A: Axis + ?Sized>(
-    axis: &A,
-    plan: &Plan,
-    station_m: f64,
-) -> [f64; 2] {
-    let x = station_m - plan.start_station_m;
-    Path::new(axis, plan).planes.map(|q| q.at(x).2)
-}
-
-/// What the plan steers from internal station `from_m` to `to_m`, per
-/// plane: the change of deviation beyond the start's slope (m) and of the
-/// slope.
-pub fn planned_increments<A: Axis + ?Sized>(
-    axis: &A,
-    plan: &Plan,
-    from_m: f64,
-    to_m: f64,
-) -> [(f64, f64); 2] {
-    let (x0, x1) = (from_m - plan.start_station_m, to_m - plan.start_station_m);
-    Path::new(axis, plan).planes.map(|q| {
-        let (a, b) = (q.at(x0), q.at(x1));
-        (b.0 - a.0 - a.1 * (x1 - x0), b.1 - a.1)
-    })
-}
-
-/// How much the plan's slope at the front exceeds the slope of its chord
-/// over the last `chord_m` (the shield: the `dta` tendency is that chord's
-/// slope), mm/m per plane, at internal station `station_m`.
-pub fn planned_chord_to_tangent<A: Axis + ?Sized>(
-    axis: &A,
-    plan: &Plan,
-    station_m: f64,
-    chord_m: f64,
-) -> [f64; 2] {
-    let x = station_m - plan.start_station_m;
-    let path = Path::new(axis, plan);
-    [0, 1].map(|i| {
-        let q = path.planes[i];
-        let chord = (q.at(x).0 - q.at(x - chord_m).0) / chord_m;
-        (q.at(x).1 - chord) * 1000.0
-    })
-}
-
 /// One cylinder group's share of the next step.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct GroupTarget {

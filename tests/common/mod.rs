@@ -519,3 +519,22 @@ pub fn laser_pairs(from_t: f64, count: u32, east_m: f64) -> Vec<String> {
         .map(|reading| reading.to_string())
         .collect()
 }
+
+/// One CSV line's cells, unquoted (quoted cells with doubled quotes).
+pub fn csv_cells(line: &str) -> Vec<String> {
+    let (mut cells, mut cell, mut quoted) = (Vec::new(), String::new(), false);
+    let mut chars = line.chars().peekable();
+    while let Some(c) = chars.next() {
+        match (c, quoted) {
+            ('"', true) if chars.peek() == Some(&'"') => {
+                cell.push('"');
+                chars.next();
+            }
+            ('"', _) => quoted = !quoted,
+            (',', false) => cells.push(std::mem::take(&mut cell)),
+            _ => cell.push(c),
+        }
+    }
+    cells.push(cell);
+    cells
+}
