@@ -326,6 +326,7 @@ async fn conformance(open: impl AsyncFn() -> Store) -> Vec<String> {
     let active = AlarmFilter {
         machine: Some("tbm-a".into()),
         active_only: true,
+        ..AlarmFilter::default()
     };
     let listed = read(&store, {
         let active = active.clone();
@@ -350,6 +351,26 @@ async fn conformance(open: impl AsyncFn() -> Store) -> Vec<String> {
         (every[0].raised_t, every[0].cleared_t),
         (100.0, Some(160.0))
     );
+    // Only those active in a range (raised by its end, not cleared before
+    // its start), at most `limit`.
+    for (during, expected) in [
+        ((90.0, 99.0), 0),
+        ((90.0, 100.0), 1),
+        ((160.0, 200.0), 1),
+        ((160.5, 200.0), 0),
+    ] {
+        let filter = AlarmFilter {
+            during: Some(during),
+            ..AlarmFilter::default()
+        };
+        let found = read(&store, move |s| s.alarms(&filter)).await;
+        assert_eq!(found.len(), expected, "{during:?}");
+    }
+    let none = AlarmFilter {
+        limit: Some(0),
+        ..AlarmFilter::default()
+    };
+    assert!(read(&store, move |s| s.alarms(&none)).await.is_empty());
     seen.push(format!(
         "{:?}",
         every

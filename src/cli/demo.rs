@@ -396,6 +396,7 @@ async fn summarise(state: crate::server::state::SharedState, clock: Clock) {
             store.alarms(&crate::store::alarms::AlarmFilter {
                 machine: None,
                 active_only: true,
+                ..Default::default()
             })
         })
         .await

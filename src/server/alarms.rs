@@ -88,6 +88,7 @@ pub async fn list(
     let filter = AlarmFilter {
         machine: query.machine,
         active_only,
+        ..Default::default()
     };
     if let Some(site) = &query.site
         && !crate::config::valid_machine_id(site)

@@ -158,6 +158,7 @@ impl Channels {
         let filter = AlarmFilter {
             machine,
             active_only: true,
+            ..Default::default()
         };
         let active = super::alarms::stored(state, filter).await?;
         let channels = Channels {

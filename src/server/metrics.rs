@@ -338,6 +338,7 @@ async fn set_active_alarms(state: &SharedState) {
     let filter = AlarmFilter {
         machine: None,
         active_only: true,
+        ..Default::default()
     };
     let active = match super::alarms::stored(state, filter).await {
         Ok(active) => active,

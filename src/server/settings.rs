@@ -198,6 +198,30 @@ const MAX_LIVE_CLIENTS_PER_MACHINE: Setting = setting(
     (1.0, 100_000.0),
     Whole,
 );
+const MAX_REPORT_ROWS: Setting = setting(
+    "limits",
+    "max_report_rows",
+    "",
+    Some(100_000.0),
+    (1.0, 1e7),
+    Whole,
+);
+const MAX_PRINTED_REPORT_ROWS: Setting = setting(
+    "limits",
+    "max_printed_report_rows",
+    "",
+    Some(10_000.0),
+    (1.0, 1e6),
+    Whole,
+);
+const REPORTS_AT_ONCE: Setting = setting(
+    "limits",
+    "reports_at_once",
+    "",
+    Some(2.0),
+    (1.0, 64.0),
+    Whole,
+);
 const MAX_ALARM_CLIENTS: Setting = setting(
     "limits",
     "max_alarm_clients",
@@ -261,11 +285,14 @@ const BACKLOG_ALARM_S: Setting = setting(
 
 /// Every number of the config file's `[limits]`, `[mqtt]`, `[webhooks]`
 /// and `[sites]`.
-pub const SETTINGS: [Setting; 17] = [
+pub const SETTINGS: [Setting; 20] = [
     MAX_BODY_MB,
     MAX_READINGS_PER_REQUEST,
     MAX_FRAME_MB,
     MAX_POINTS_LIMIT,
+    MAX_REPORT_ROWS,
+    MAX_PRINTED_REPORT_ROWS,
+    REPORTS_AT_ONCE,
     LIVE_PING_INTERVAL_S,
     MAX_FUTURE_S,
     MACHINE_QUEUE,
@@ -305,6 +332,14 @@ pub struct Limits {
     pub max_frame_bytes: usize,
     /// Most points a history query returns.
     pub max_points_limit: usize,
+    /// Most rows (rings, pushes, alarms, laser dropouts) a report as JSON
+    /// or CSV holds (413 beyond, naming the limit).
+    pub max_report_rows: usize,
+    /// Most rows a report as a page or PDF holds (413 beyond).
+    pub max_printed_report_rows: usize,
+    /// Reports read and drawn at once (each holds its rows in memory);
+    /// more wait their turn.
+    pub reports_at_once: usize,
     /// Interval between `ping` events on live sockets (at most 15 s).
     pub live_ping_interval: Duration,
     /// How far ahead of the server clock a reading's time may be.
@@ -345,6 +380,9 @@ pub struct LimitsConfig {
     pub max_readings_per_request: Option<f64>,
     pub max_frame_mb: Option<f64>,
     pub max_points_limit: Option<f64>,
+    pub max_report_rows: Option<f64>,
+    pub max_printed_report_rows: Option<f64>,
+    pub reports_at_once: Option<f64>,
     pub live_ping_interval_s: Option<f64>,
     pub max_future_s: Option<f64>,
     pub machine_queue: Option<f64>,
@@ -371,6 +409,9 @@ impl LimitsConfig {
             )?,
             max_frame_bytes: megabytes(value(self.max_frame_mb, MAX_FRAME_MB)?),
             max_points_limit: count(self.max_points_limit, MAX_POINTS_LIMIT)?,
+            max_report_rows: count(self.max_report_rows, MAX_REPORT_ROWS)?,
+            max_printed_report_rows: count(self.max_printed_report_rows, MAX_PRINTED_REPORT_ROWS)?,
+            reports_at_once: count(self.reports_at_once, REPORTS_AT_ONCE)?,
             live_ping_interval: seconds(self.live_ping_interval_s, LIVE_PING_INTERVAL_S)?,
             max_future_s: value(self.max_future_s, MAX_FUTURE_S)?,
             machine_queue: count(self.machine_queue, MACHINE_QUEUE)?,

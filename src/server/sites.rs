@@ -392,6 +392,7 @@ pub async fn forward(
                         item.sequence
                     )));
                 }
+                bounded_alarm_texts(item.sequence, &change.alarm)?;
                 parts.push((item.sequence, ForwardedPart::Alarm(Box::new(change))));
             }
             _ => {
@@ -410,6 +411,37 @@ pub async fn forward(
         machine,
         applied: committed.min(applied),
     }))
+}
+
+/// The longest alarm message a site may forward (this release's own are
+/// under 200 characters; reports print every one).
+pub const MAX_ALARM_MESSAGE_CHARS: usize = 1000;
+
+/// A forwarded alarm's texts within bounds, as any declared name is:
+/// `message` at most [`MAX_ALARM_MESSAGE_CHARS`], the others at most
+/// [`crate::config::MAX_NAME_CHARS`].
+fn bounded_alarm_texts(
+    sequence: i64,
+    alarm: &crate::store::alarms::StoredAlarm,
+) -> Result<(), ApiError> {
+    let name = crate::config::MAX_NAME_CHARS;
+    let texts = [
+        ("machine", alarm.machine.as_str(), name),
+        ("kind", alarm.kind.as_str(), name),
+        ("severity", alarm.severity.as_str(), name),
+        ("subject", alarm.subject.as_str(), name),
+        ("message", alarm.message.as_str(), MAX_ALARM_MESSAGE_CHARS),
+        ("acked_by", alarm.acked_by.as_deref().unwrap_or(""), name),
+    ];
+    for (field, text, most) in texts {
+        let chars = text.chars().count();
+        if chars > most {
+            return Err(ApiError::BadRequest(format!(
+                "sequence {sequence}: the alarm's `{field}` has {chars} characters; at most {most}"
+            )));
+        }
+    }
+    Ok(())
 }
 
 /// Fuses and stores a run of readings and alarm changes in the machine.

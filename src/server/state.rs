@@ -91,6 +91,9 @@ pub struct AppState {
     pub site_backlog_alarm_s: f64,
     /// [`ServerOptions::access_log`].
     pub access_log: tracing::Level,
+    /// Reports being read and drawn ([`Limits::reports_at_once`] permits):
+    /// each holds its rows in memory, so more wait their turn.
+    pub reports: Arc<tokio::sync::Semaphore>,
 }
 
 /// Counts an open live socket while it lives.
@@ -185,6 +188,7 @@ impl AppState {
                 let open = store.alarms(&crate::store::alarms::AlarmFilter {
                     machine: None,
                     active_only: true,
+                    ..Default::default()
                 })?;
                 let raised: Vec<String> = open
                     .into_iter()
@@ -207,6 +211,7 @@ impl AppState {
             store,
             machines: RwLock::new(BTreeMap::new()),
             admin: tokio::sync::Mutex::new(()),
+            reports: Arc::new(tokio::sync::Semaphore::new(options.limits.reports_at_once)),
             limits: options.limits,
             clock: options.clock,
             shutdown: watch::channel(false).0,

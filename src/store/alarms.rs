@@ -200,16 +200,31 @@ pub struct AlarmFilter {
     pub machine: Option<String>,
     /// Only those not cleared yet.
     pub active_only: bool,
+    /// Only those active at some time of [`from`, `to`]: raised at or
+    /// before `to` and not cleared before `from`.
+    pub during: Option<(f64, f64)>,
+    /// At most this many (the newest).
+    pub limit: Option<usize>,
 }
 
 fn list(conn: &Connection, filter: &AlarmFilter) -> Result<Vec<StoredAlarm>, StoreError> {
     let sql = format!(
         "SELECT {COLUMNS} FROM alarms a JOIN machines m ON m.id = a.machine_id \
          WHERE (?1 IS NULL OR m.machine = ?1) AND (?2 = 0 OR a.cleared_t IS NULL) \
-         ORDER BY a.raised_t DESC, a.id DESC"
+         AND (?3 IS NULL OR a.raised_t <= ?3) \
+         AND (?4 IS NULL OR a.cleared_t IS NULL OR a.cleared_t >= ?4) \
+         ORDER BY a.raised_t DESC, a.id DESC LIMIT ?5"
     );
     let mut stmt = conn.prepare_cached(&sql)?;
-    let rows = stmt.query_map(params![filter.machine, filter.active_only], stored)?;
+    let (from, to) = (filter.during.map(|d| d.0), filter.during.map(|d| d.1));
+    // SQLite reads a negative limit as none.
+    let limit = filter
+        .limit
+        .map_or(-1, |n| i64::try_from(n).unwrap_or(i64::MAX));
+    let rows = stmt.query_map(
+        params![filter.machine, filter.active_only, to, from, limit],
+        stored,
+    )?;
     Ok(rows.collect::<Result<_, _>>()?)
 }
 
@@ -386,6 +401,7 @@ mod tests {
             .alarms(&AlarmFilter {
                 machine: None,
                 active_only: true,
+                ..Default::default()
             })
             .unwrap();
         assert_eq!(active.len(), 1);
@@ -393,6 +409,7 @@ mod tests {
             .alarms(&AlarmFilter {
                 machine: Some("m1".into()),
                 active_only: false,
+                ..Default::default()
             })
             .unwrap();
         assert_eq!(mine.len(), 1);

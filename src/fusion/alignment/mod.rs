@@ -121,7 +121,12 @@ pub enum AlignmentError {
     Equation { index: usize, reason: String },
     #[error("{0}")]
     Scale(String),
+    #[error("`name` must be at most {MAX_NAME_CHARS} printable characters")]
+    Name,
 }
+
+/// The longest alignment name (a project's drive, printed on reports).
+pub const MAX_NAME_CHARS: usize = 200;
 
 /// A validated alignment, its elements placed.
 #[derive(Debug, Clone, PartialEq)]
@@ -226,6 +231,9 @@ pub fn check_equations(
 impl AlignmentSpec {
     /// The alignment with its elements placed end to end, or what is wrong.
     pub fn build(&self) -> Result<Alignment, AlignmentError> {
+        if self.name.chars().count() > MAX_NAME_CHARS || self.name.chars().any(char::is_control) {
+            return Err(AlignmentError::Name);
+        }
         if self.horizontal.is_empty() {
             return Err(AlignmentError::Empty);
         }
@@ -693,6 +701,13 @@ mod tests {
     #[test]
     fn bad_declarations_name_the_element_and_what_is_wrong() {
         let mut spec: AlignmentSpec = serde_json::from_str(S1).unwrap();
+        // A name is bounded as a machine's is (it is printed on reports).
+        spec.name = "x".repeat(MAX_NAME_CHARS + 1);
+        assert_eq!(spec.build().unwrap_err(), AlignmentError::Name);
+        spec.name = "S-1\u{7}".into();
+        assert_eq!(spec.build().unwrap_err(), AlignmentError::Name);
+        spec.name = "x".repeat(MAX_NAME_CHARS);
+        assert!(spec.build().is_ok());
         spec.horizontal[2] = ElementSpec::Arc {
             length_m: 50.0,
             radius_m: 0.0,

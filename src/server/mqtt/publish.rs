@@ -171,6 +171,7 @@ async fn republish_active(state: &SharedState, client: &AsyncClient) {
     let filter = AlarmFilter {
         machine: None,
         active_only: true,
+        ..Default::default()
     };
     let Ok(active) = crate::server::alarms::stored(state, filter).await else {
         return;

@@ -10,22 +10,24 @@ use axum::response::Response;
 use serde::{Deserialize, Serialize};
 
 use super::layout::{self, ReportPage};
-use super::{ChartPoint, ReportFormat, RingRow, csv, respond};
+use super::{ChartPoint, ReportFormat, RingRow, csv, report_permit, respond, too_many_rows};
 use crate::fusion::dta::Tolerances;
 use crate::fusion::{EstimateValues, StreamKind};
 use crate::server::error::ApiError;
+use crate::server::history::parse_time;
 use crate::server::openapi::MachinePath;
 use crate::server::state::SharedState;
-
-/// The most rings an as-built report holds (a drive of 150 km of 1.5 m
-/// rings): a log longer than that is refused rather than read into memory.
-pub const MAX_RINGS: usize = 100_000;
 
 /// The as-built report's query.
 #[derive(Debug, Deserialize, utoipa::IntoParams)]
 #[serde(deny_unknown_fields)]
 #[into_params(parameter_in = Query)]
 pub struct AsBuiltQuery {
+    /// Only the rings built from this time on: Unix seconds or RFC 3339
+    /// (default: the drive's start).
+    from: Option<String>,
+    /// Only the rings built before this time (default: now).
+    to: Option<String>,
     /// `json` (default), `csv`, `html` or `pdf`.
     #[param(inline, value_type = Option<super::ReportFormat>)]
     format: Option<String>,
@@ -41,7 +43,8 @@ pub struct AsBuilt {
     pub generated_t: f64,
     #[schema(value_type = Option<Object>)]
     pub tolerances: Option<Tolerances>,
-    /// Every ring the machine logged, in the order built.
+    /// The rings built in [`from`, `to`) (every ring of the drive
+    /// without them), in the order built.
     pub rings: Vec<RingRow>,
 }
 
@@ -57,8 +60,9 @@ pub struct AsBuilt {
             (String = "text/csv"),
             (String = "text/html"),
             (Vec<u8> = "application/pdf"))),
-        (status = BAD_REQUEST, description = "A bad format", body = crate::server::error::ErrorBody),
-        (status = NOT_FOUND, description = "No such machine", body = crate::server::error::ErrorBody)))]
+        (status = BAD_REQUEST, description = "A bad time or format", body = crate::server::error::ErrorBody),
+        (status = NOT_FOUND, description = "No such machine", body = crate::server::error::ErrorBody),
+        (status = PAYLOAD_TOO_LARGE, description = "More rings than a report in this format holds (`[limits] max_report_rows`, `max_printed_report_rows`): the error names the limit; narrow it with `from` and `to`", body = crate::server::error::ErrorBody)))]
 pub async fn show(
     State(state): State<SharedState>,
     Path(MachinePath { machine }): Path<MachinePath>,
@@ -67,19 +71,43 @@ pub async fn show(
     let Query(query) =
         query.map_err(|e| ApiError::BadRequest(format!("bad query string: {}", e.body_text())))?;
     let format = ReportFormat::parse(query.format.as_deref())?;
+    let from = query
+        .from
+        .as_deref()
+        .map(|text| parse_time("from", text))
+        .transpose()?;
+    let to = query
+        .to
+        .as_deref()
+        .map(|text| parse_time("to", text))
+        .transpose()?;
+    if let (Some(from), Some(to)) = (from, to)
+        && from >= to
+    {
+        return Err(ApiError::BadRequest(format!(
+            "`from` ({from}) is not before `to` ({to})"
+        )));
+    }
     let handle = state.machine(&machine)?;
     let store = state.store.clone();
     let generated_t = state.clock.now_s();
+    let limit = format.row_limit(&state.limits);
+    let permit = report_permit(&state).await?;
     // Reading, laying out and drawing all happen off the async workers.
     let answer = tokio::task::spawn_blocking(move || -> Result<Response, ApiError> {
+        let _permit = permit;
         let spec = &handle.spec;
         let mut rings = Vec::new();
         let mut too_many = false;
+        let (read_from, read_to) = (from.unwrap_or(f64::MIN), to.unwrap_or(f64::MAX));
         if spec.streams().contains(&StreamKind::Rings) {
             store
-                .export_estimates(handle.db_id, StreamKind::Rings, f64::MIN, f64::MAX, |e| {
+                .export_estimates(handle.db_id, StreamKind::Rings, read_from, read_to, |e| {
+                    if e.t >= read_to {
+                        return true;
+                    }
                     if let EstimateValues::Rings(ring) = &e.values {
-                        if rings.len() == MAX_RINGS {
+                        if rings.len() == limit {
                             too_many = true;
                             return false;
                         }
@@ -94,10 +122,13 @@ pub async fn show(
                 .map_err(ApiError::from)?;
         }
         if too_many {
-            return Err(ApiError::BadRequest(format!(
-                "machine `{}` logged more than {MAX_RINGS} rings: an as-built report holds at most that many (the ring log itself: GET .../estimates?engine=rings&format=csv)",
-                spec.id
-            )));
+            return Err(too_many_rows(
+                &format!("the as-built report of `{}`", spec.id),
+                "rings",
+                "narrow it with `from` and `to` (the times the rings were built)",
+                format,
+                limit,
+            ));
         }
         let report = AsBuilt {
             machine: spec.id.clone(),

@@ -219,7 +219,8 @@ pub struct Report {
             (String = "text/html"),
             (Vec<u8> = "application/pdf"))),
         (status = BAD_REQUEST, description = "A bad time or format", body = super::error::ErrorBody),
-        (status = NOT_FOUND, description = "No such machine", body = super::error::ErrorBody)))]
+        (status = NOT_FOUND, description = "No such machine", body = super::error::ErrorBody),
+        (status = PAYLOAD_TOO_LARGE, description = "More rows than a report in this format holds (`[limits] max_report_rows`, `max_printed_report_rows`): the error names the limit; narrow `from` and `to`", body = super::error::ErrorBody)))]
 pub async fn show(
     State(state): State<SharedState>,
     Path(MachinePath { machine }): Path<MachinePath>,
@@ -250,9 +251,22 @@ pub async fn show(
     let handle = state.machine(&machine)?;
     let store = state.store.clone();
     let generated_t = state.clock.now_s();
+    let limit = format.row_limit(&state.limits);
+    let permit = report_permit(&state).await?;
     // Read, laid out and drawn off the async workers.
     tokio::task::spawn_blocking(move || {
-        let report = gather(&store, &handle, from, to, generated_t)?;
+        let _permit = permit;
+        let report =
+            gather(&store, &handle, from, to, generated_t, limit).map_err(|e| match e {
+                GatherError::Store(e) => ApiError::from(e),
+                GatherError::TooManyRows => too_many_rows(
+                    &format!("the report of `{}` from {from} to {to}", handle.spec.id),
+                    "rows (rings, pushes, alarms, laser dropouts)",
+                    "narrow `from` and `to`",
+                    format,
+                    limit,
+                ),
+            })?;
         let stem = format!("{}-report-{}-{}", report.machine, report.from, report.to);
         respond(
             format,
@@ -266,7 +280,104 @@ pub async fn show(
     .map_err(|e| ApiError::Internal(e.to_string()))?
 }
 
+/// Why a report could not be gathered.
+#[derive(Debug)]
+enum GatherError {
+    Store(StoreError),
+    /// More rows than the format's limit.
+    TooManyRows,
+}
+
+impl From<StoreError> for GatherError {
+    fn from(e: StoreError) -> Self {
+        GatherError::Store(e)
+    }
+}
+
+/// The rows a report may still take: [`ReportFormat::row_limit`] in all.
+struct RowBudget {
+    left: usize,
+    exceeded: bool,
+}
+
+impl RowBudget {
+    fn new(limit: usize) -> RowBudget {
+        RowBudget {
+            left: limit,
+            exceeded: false,
+        }
+    }
+
+    /// Takes one row; false (and exceeded) when none is left.
+    fn take(&mut self) -> bool {
+        if self.left == 0 {
+            self.exceeded = true;
+            return false;
+        }
+        self.left -= 1;
+        true
+    }
+
+    /// Takes `n` rows at once.
+    fn take_all(&mut self, n: usize) -> Result<(), GatherError> {
+        if n > self.left {
+            self.exceeded = true;
+            return Err(GatherError::TooManyRows);
+        }
+        self.left -= n;
+        Ok(())
+    }
+
+    fn check(&self) -> Result<(), GatherError> {
+        if self.exceeded {
+            Err(GatherError::TooManyRows)
+        } else {
+            Ok(())
+        }
+    }
+}
+
+/// A permit to read and draw a report ([`Limits::reports_at_once`]):
+/// more wait their turn.
+///
+/// [`Limits::reports_at_once`]: super::settings::Limits::reports_at_once
+async fn report_permit(state: &SharedState) -> Result<tokio::sync::OwnedSemaphorePermit, ApiError> {
+    state
+        .reports
+        .clone()
+        .acquire_owned()
+        .await
+        .map_err(|e| ApiError::Internal(format!("the reports' queue: {e}")))
+}
+
+/// The 413 of a report (`what`) holding more `rows` than `format` may:
+/// it names the limits, the settings and how to narrow it (`narrow`).
+fn too_many_rows(
+    what: &str,
+    rows: &str,
+    narrow: &str,
+    format: ReportFormat,
+    limit: usize,
+) -> ApiError {
+    let (kind, setting) = match format {
+        ReportFormat::Html | ReportFormat::Pdf => ("a page or PDF", "max_printed_report_rows"),
+        ReportFormat::Json | ReportFormat::Csv => ("JSON or CSV", "max_report_rows"),
+    };
+    ApiError::TooLarge(format!(
+        "{what} holds more than {limit} {rows}: as {kind} a report holds at most {limit} \
+         (`[limits] {setting}`); {narrow}"
+    ))
+}
+
 impl ReportFormat {
+    /// The most rows a report in this format holds under `limits`.
+    pub fn row_limit(self, limits: &super::settings::Limits) -> usize {
+        match self {
+            ReportFormat::Html | ReportFormat::Pdf => limits.max_printed_report_rows,
+            ReportFormat::Json | ReportFormat::Csv => limits.max_report_rows,
+        }
+    }
+
     /// The `format` query parameter (default `json`).
     pub fn parse(format: Option<&str>) -> Result<ReportFormat, ApiError> {
         match format {
@@ -329,7 +440,9 @@ fn gather(
     from: f64,
     to: f64,
     generated_t: f64,
-) -> Result<Report, StoreError> {
+    limit: usize,
+) -> Result<Report, GatherError> {
+    let mut budget = RowBudget::new(limit);
     let spec = &machine.spec;
     let db_id = machine.db_id;
     let streams = spec.streams();
@@ -337,9 +450,9 @@ fn gather(
 
     let rings = rows(
         store,
-        db_id,
+        (db_id, StreamKind::Rings),
         runs(StreamKind::Rings),
-        StreamKind::Rings,
+        &mut budget,
         from,
         to,
         |e| match &e.values {
@@ -353,9 +466,9 @@ fn gather(
     )?;
     let pushes = rows(
         store,
-        db_id,
+        (db_id, StreamKind::Pushes),
         runs(StreamKind::Pushes),
-        StreamKind::Pushes,
+        &mut budget,
         from,
         to,
         |e| match &e.values {
@@ -451,11 +564,14 @@ fn gather(
         Vec::new()
     };
 
+    // Only the range's alarms are read, and one more than the budget.
     let mut alarms = store.alarms(&AlarmFilter {
         machine: Some(spec.id.clone()),
         active_only: false,
+        during: Some((from, to)),
+        limit: Some(budget.left.saturating_add(1)),
     })?;
-    alarms.retain(|a| a.raised_t <= to && a.cleared_t.is_none_or(|cleared| cleared >= from));
+    budget.take_all(alarms.len())?;
     alarms.sort_by(|a, b| a.raised_t.total_cmp(&b.raised_t).then(a.id.cmp(&b.id)));
 
     let laser_dropouts = if spec.engines.contains_key(&EngineKind::Attitude) {
@@ -469,6 +585,7 @@ fn gather(
     } else {
         None
     };
+    budget.take_all(laser_dropouts.as_ref().map_or(0, Vec::len))?;
 
     // The rings' own advance where they know it (a ring stored before
     // the backward jump was refused may carry one: not an advance); else
@@ -525,24 +642,30 @@ fn gather(
     })
 }
 
-/// A row per estimate of `stream` in [`from`, `to`] that `row` makes
-/// one of; none if the machine does not run the stream.
+/// A row per estimate of machine `db_id`'s `stream` in [`from`, `to`]
+/// that `row` makes one of, each taken from `budget` (reading stops when
+/// it is spent); none if the machine does not run the stream.
 fn rows<T>(
     store: &Store,
-    db_id: i64,
+    (db_id, stream): (i64, StreamKind),
     runs: bool,
-    stream: StreamKind,
+    budget: &mut RowBudget,
     from: f64,
     to: f64,
     row: impl Fn(&crate::fusion::EngineOutput) -> Option<T>,
-) -> Result<Vec<T>, StoreError> {
+) -> Result<Vec<T>, GatherError> {
     let mut rows = Vec::new();
     if runs {
-        store.export_estimates(db_id, stream, from, to, |e| {
-            rows.extend(row(e));
-            true
+        store.export_estimates(db_id, stream, from, to, |e| match row(e) {
+            Some(r) if budget.take() => {
+                rows.push(r);
+                true
+            }
+            Some(_) => false,
+            None => true,
         })?;
     }
+    budget.check()?;
     Ok(rows)
 }
 

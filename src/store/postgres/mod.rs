@@ -428,10 +428,18 @@ impl PgStore {
             let sql = format!(
                 "SELECT {ALARM_COLUMNS} FROM alarms a JOIN machines m ON m.id = a.machine_id \
                  WHERE ($1::text IS NULL OR m.machine = $1) AND (NOT $2 OR a.cleared_t IS NULL) \
-                 ORDER BY a.raised_t DESC, a.id DESC"
+                 AND ($3::float8 IS NULL OR a.raised_t <= $3) \
+                 AND ($4::float8 IS NULL OR a.cleared_t IS NULL OR a.cleared_t >= $4) \
+                 ORDER BY a.raised_t DESC, a.id DESC LIMIT $5"
             );
+            let (from, to) = (filter.during.map(|d| d.0), filter.during.map(|d| d.1));
+            // PostgreSQL reads a null limit as none.
+            let limit = filter.limit.map(|n| i64::try_from(n).unwrap_or(i64::MAX));
             let rows = client
-                .query(&sql, &[&filter.machine, &filter.active_only])
+                .query(
+                    &sql,
+                    &[&filter.machine, &filter.active_only, &to, &from, &limit],
+                )
                 .await?;
             Ok(rows.iter().map(writer::stored_alarm).collect())
         })
