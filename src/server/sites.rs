@@ -40,6 +40,18 @@ use crate::store::outbox::{Backlog, Declared, SiteRecord};
 /// every [`super::forward::REPORT_EVERY`]).
 pub const LINK_DOWN_AFTER: Duration = Duration::from_secs(10);
 
+/// How far beyond this office's clock a site's sequence may be, seconds.
+/// A site numbers its rows from its wall clock in microseconds when it
+/// starts forwarding, then one a row: a day covers any clock's error and
+/// more rows than a site writes in years.
+pub const SEQUENCE_AHEAD_S: f64 = 86_400.0;
+
+/// The highest sequence a site can have issued by `now_s` (this office's
+/// clock): [`SEQUENCE_AHEAD_S`] beyond it, in microseconds.
+pub fn highest_possible_sequence(now_s: f64) -> i64 {
+    ((now_s + SEQUENCE_AHEAD_S) * 1e6) as i64
+}
+
 /// One outbox row of a site, as sent: its sequence and exactly one of
 /// `machine`, `readings`, `alarm`.
 #[derive(Debug, Serialize, Deserialize, utoipa::ToSchema)]
@@ -353,6 +365,15 @@ pub async fn forward(
             "`{machine}`: this office holds its rows up to sequence {committed:?}, but the site \
              had them committed up to {after}: the office lost rows (restored from an older \
              backup?); declare the machine afresh at the site"
+        )));
+    }
+    let highest = highest_possible_sequence(crate::clock::wall_clock_s());
+    if let Some(item) = body.items.iter().find(|i| i.sequence > highest) {
+        return Err(ApiError::BadRequest(format!(
+            "sequence {} is beyond any a site can have issued by now (at most {highest}: sites \
+             number their rows from their clock in microseconds, and this office allows a day \
+             ahead of its own)",
+            item.sequence
         )));
     }
     let mut applied = 0;
