@@ -8,6 +8,9 @@
 //! - `ingest` for one named machine: post its readings, use its ingest
 //!   WebSocket (a field gateway);
 //! - `read`: the dashboard, history, exports, live sockets, metrics;
+//!   it changes nothing;
+//! - `operator`: what `read` may, and acknowledge alarms (the driver's
+//!   and the control room's token);
 //! - `admin`: everything, including declaring machines;
 //! - `site` for one named site: forward that site's machines to this
 //!   office and report its link (a site server's token at its office).
@@ -22,6 +25,7 @@ use sha2::{Digest, Sha256};
 pub enum Scope {
     Ingest,
     Read,
+    Operator,
     Admin,
     Site,
 }
@@ -32,6 +36,7 @@ impl Scope {
         match self {
             Scope::Ingest => "ingest",
             Scope::Read => "read",
+            Scope::Operator => "operator",
             Scope::Admin => "admin",
             Scope::Site => "site",
         }
@@ -39,9 +44,15 @@ impl Scope {
 
     /// Parses a name.
     pub fn from_name(name: &str) -> Option<Scope> {
-        [Scope::Ingest, Scope::Read, Scope::Admin, Scope::Site]
-            .into_iter()
-            .find(|s| s.as_str() == name)
+        [
+            Scope::Ingest,
+            Scope::Read,
+            Scope::Operator,
+            Scope::Admin,
+            Scope::Site,
+        ]
+        .into_iter()
+        .find(|s| s.as_str() == name)
     }
 }
 
@@ -52,6 +63,8 @@ pub enum Need {
     Nothing,
     /// Reading anything.
     Read,
+    /// Acknowledging alarms.
+    Acknowledge,
     /// Sending readings of this machine.
     Ingest(String),
     /// Declaring machines.
@@ -77,7 +90,8 @@ impl Token {
     pub fn allows(&self, need: &Need) -> bool {
         match (self.scope, need) {
             (_, Need::Nothing) | (Scope::Admin, _) => true,
-            (Scope::Read, Need::Read) => true,
+            (Scope::Read | Scope::Operator, Need::Read) => true,
+            (Scope::Operator, Need::Acknowledge) => true,
             (Scope::Ingest, Need::Ingest(machine)) => self.machine.as_deref() == Some(machine),
             (Scope::Site, Need::Site(site)) => self.machine.as_deref() == Some(site),
             _ => false,
@@ -123,7 +137,9 @@ pub fn check_new(scope: Scope, machine: Option<&str>) -> Result<(), TokenError> 
     match (scope, machine) {
         (Scope::Ingest, None) => Err(TokenError::MachineMissing),
         (Scope::Site, None) => Err(TokenError::SiteMissing),
-        (Scope::Read | Scope::Admin, Some(_)) => Err(TokenError::MachineNotAllowed(scope)),
+        (Scope::Read | Scope::Operator | Scope::Admin, Some(_)) => {
+            Err(TokenError::MachineNotAllowed(scope))
+        }
         (_, Some(m)) if !crate::config::valid_machine_id(m) => {
             Err(TokenError::MachineId(m.to_string()))
         }
@@ -153,7 +169,7 @@ fn row_to_token(row: &rusqlite::Row<'_>) -> rusqlite::Result<Token> {
     Ok(Token {
         id: row.get(0)?,
         name: row.get(1)?,
-        // The table's CHECK constraint admits only the three names.
+        // The table's CHECK constraint admits only the scopes' names.
         scope: Scope::from_name(&scope).unwrap_or(Scope::Read),
         machine: row.get(3)?,
         created_t: row.get(4)?,
@@ -218,10 +234,21 @@ mod tests {
         assert!(!gateway.allows(&Need::Admin));
         let reader = token(Scope::Read, None);
         assert!(reader.allows(&Need::Read));
+        assert!(!reader.allows(&Need::Acknowledge));
         assert!(!reader.allows(&Need::Ingest("tbm-1".into())));
         assert!(!reader.allows(&Need::Admin));
+        let operator = token(Scope::Operator, None);
+        assert!(operator.allows(&Need::Read));
+        assert!(operator.allows(&Need::Acknowledge));
+        assert!(!operator.allows(&Need::Admin));
+        assert!(!operator.allows(&Need::Ingest("tbm-1".into())));
         let admin = token(Scope::Admin, None);
-        for need in [Need::Read, Need::Admin, Need::Ingest("x".into())] {
+        for need in [
+            Need::Read,
+            Need::Acknowledge,
+            Need::Admin,
+            Need::Ingest("x".into()),
+        ] {
             assert!(admin.allows(&need));
         }
     }

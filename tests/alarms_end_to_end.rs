@@ -235,7 +235,7 @@ async fn a_drive_off_its_axis_without_laser_then_silent_raises_three_alarms_once
         };
         (
             token("site-admin", tunnelnav::auth::Scope::Admin),
-            token("night-shift", tunnelnav::auth::Scope::Read),
+            token("night-shift", tunnelnav::auth::Scope::Operator),
         )
     };
     let server = ServerProcess::start(dir.path());

@@ -138,12 +138,18 @@ async fn alarms_are_raised_listed_acknowledged_by_name_and_kept_across_a_restart
         .unwrap();
     assert_eq!(unknown.status(), 404);
 
-    // A read token acknowledges it: its name is recorded.
-    let token = common::read_token(dir.path(), "shift-lead");
+    // A read token changes nothing; an operator token acknowledges it:
+    // its name is recorded.
+    let reader = common::read_token(dir.path(), "visitor");
+    let token = common::operator_token(dir.path(), "shift-lead");
     tokio::time::sleep(std::time::Duration::from_millis(2100)).await;
     let url = format!("{base}/api/v1/alarms/{}/ack", deviation["id"]);
     let refused = client.post(&url).send().await.unwrap();
     assert_eq!(refused.status(), 401, "a token is now required");
+    let read_only = client.post(&url).bearer_auth(&reader).send().await.unwrap();
+    assert_eq!(read_only.status(), 403);
+    let why = read_only.text().await.unwrap();
+    assert!(why.contains("operator scope needed"), "{why}");
     let acked = client.post(&url).bearer_auth(&token).send().await.unwrap();
     assert_eq!(acked.status(), 200);
     let acked: Value = serde_json::from_slice(&acked.bytes().await.unwrap()).unwrap();

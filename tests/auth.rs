@@ -69,6 +69,10 @@ async fn tokens_gate_every_route_by_scope_and_machine() {
     let admin = create(dir.path(), &["--scope", "admin", "--name", "site office"]);
     let reader = create(dir.path(), &["--scope", "read"]);
     let gateway = create(dir.path(), &["--scope", "ingest", "--machine", "tbm-1"]);
+    let operator = create(
+        dir.path(),
+        &["--scope", "operator", "--name", "night shift"],
+    );
     assert!(admin.starts_with("tnv_") && admin != reader && reader != gateway);
     let db = std::fs::read(dir.path().join("tunnelnav.sqlite3")).unwrap();
     assert!(
@@ -224,7 +228,7 @@ async fn tokens_gate_every_route_by_scope_and_machine() {
         (Method::GET, "/api/v1/machines/tbm-1/alignment/axis", "read"),
         (Method::GET, "/api/v1/alarms", "read"),
         (Method::GET, "/api/v1/alarms/live", "read"),
-        (Method::POST, "/api/v1/alarms/1/ack", "read"),
+        (Method::POST, "/api/v1/alarms/1/ack", "operator"),
         (Method::GET, "/nowhere", "read"),
         (Method::DELETE, "/api/v1/machines/tbm-1", "read"),
     ];
@@ -259,6 +263,25 @@ async fn tokens_gate_every_route_by_scope_and_machine() {
                 "{what}"
             ),
         }
+    }
+
+    // An operator reads and acknowledges (past the gate: alarm 1 does not
+    // exist), and does nothing else.
+    for (method, path, past_gate) in [
+        (Method::GET, "/api/v1/machines/tbm-1", true),
+        (Method::POST, "/api/v1/alarms/1/ack", true),
+        (Method::PUT, "/api/v1/machines/tbm-1", false),
+        (Method::POST, "/api/v1/machines/tbm-1/readings", false),
+    ] {
+        let (status, body) = call(
+            &client,
+            method.clone(),
+            server.url(path),
+            Some(&operator),
+            None,
+        )
+        .await;
+        assert_eq!(status != 403, past_gate, "{method} {path}: {status} {body}");
     }
 
     // The ingest WebSocket takes the bearer header too; without it, 401.

@@ -35,6 +35,17 @@ fn held(report: &serde_json::Value, node: &str) -> Vec<String> {
         .collect()
 }
 
+/// A cluster key file in `dir` (a 64-character key); its path.
+fn cluster_key(dir: &std::path::Path) -> String {
+    let path = dir.join("cluster.key");
+    std::fs::write(
+        &path,
+        "# the nodes' shared key\n3f9c2a7be1d04c5a8f6e2b19d7c3a0e54b8f1c6d2e7a9b3f0c5d8e1a4b7c2f60\n",
+    )
+    .unwrap();
+    path.to_str().unwrap().to_string()
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn a_node_killed_under_load_hands_its_machines_over_within_ten_seconds() {
     let Some(pg) = PgCluster::start() else {
@@ -42,8 +53,15 @@ async fn a_node_killed_under_load_hands_its_machines_over_within_ten_seconds() {
     };
     let url = pg.database("cluster");
     let (dir_a, dir_b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
-    let a = ServerProcess::start_with_args(dir_a.path(), &["--store", &url, "--node", "a"]);
-    let b = ServerProcess::start_with_args(dir_b.path(), &["--store", &url, "--node", "b"]);
+    let key = cluster_key(dir_a.path());
+    let node = |dir: &std::path::Path, name: &str| {
+        ServerProcess::start_with_args(
+            dir,
+            &["--store", &url, "--node", name, "--cluster-key-file", &key],
+        )
+    };
+    let a = node(dir_a.path(), "a");
+    let b = node(dir_b.path(), "b");
     let bases = [a.url(""), b.url("")];
     let client = reqwest::Client::new();
     let names: Vec<String> = (0..MACHINES).map(|i| format!("m{i}")).collect();
@@ -233,4 +251,248 @@ async fn a_node_killed_under_load_hands_its_machines_over_within_ten_seconds() {
         worst.as_secs_f64(),
         live.len()
     );
+}
+
+/// Creates a token of `scope` named `name` in the store at `url`; its id
+/// (from `token list`) and text.
+fn token(url: &str, scope: &str, name: &str) -> (i64, String) {
+    let program = env!("CARGO_BIN_EXE_tunnelnav");
+    let created = std::process::Command::new(program)
+        .args([
+            "token", "create", "--store", url, "--scope", scope, "--name", name,
+        ])
+        .output()
+        .unwrap();
+    assert!(created.status.success(), "{created:?}");
+    let text = String::from_utf8(created.stdout)
+        .unwrap()
+        .trim()
+        .to_string();
+    let listed = std::process::Command::new(program)
+        .args(["token", "list", "--store", url])
+        .output()
+        .unwrap();
+    let list = String::from_utf8(listed.stdout).unwrap();
+    let id = list
+        .lines()
+        .find(|line| line.split_whitespace().any(|word| word == name))
+        .and_then(|line| line.split_whitespace().next())
+        .and_then(|id| id.parse().ok())
+        .unwrap_or_else(|| panic!("token {name} not listed: {list}"));
+    (id, text)
+}
+
+/// Sends `method path` to `base` signed by `keys` as node `node` for
+/// `grant` at `signed_t`; the status and the raw headers it carried.
+async fn signed_call(
+    keys: &tunnelnav::server::signing::ClusterKeys,
+    base: &str,
+    (method, path): (reqwest::Method, &str),
+    node: &str,
+    grant: &tunnelnav::server::signing::Grant,
+    signed_t: f64,
+) -> (u16, reqwest::header::HeaderMap) {
+    let signed = keys
+        .sign(
+            &tunnelnav::server::signing::Signable {
+                method: method.as_str(),
+                target: path,
+                body: b"",
+            },
+            node,
+            grant,
+            signed_t,
+        )
+        .unwrap();
+    let headers: reqwest::header::HeaderMap = signed.into_iter().collect();
+    let status = reqwest::Client::new()
+        .request(method, format!("{base}{path}"))
+        .headers(headers.clone())
+        .send()
+        .await
+        .unwrap()
+        .status()
+        .as_u16();
+    (status, headers)
+}
+
+/// Issue 57: a node's request is signed with the cluster key, never the
+/// key itself; the database holds only the key's SHA-256, which signs
+/// nothing; a replayed or stale request is refused; and the node that
+/// serves a request checks the caller's token against its route.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stolen_node_key_signs_nothing_and_the_serving_node_checks_the_role() {
+    use reqwest::Method;
+    use tunnelnav::server::signing::{ClusterKeys, Grant};
+    let Some(pg) = PgCluster::start() else {
+        return;
+    };
+    let url = pg.database("signing");
+    let dir = tempfile::tempdir().unwrap();
+    let key_file = cluster_key(dir.path());
+    let (admin_id, admin) = token(&url, "admin", "office-admin");
+    let (reader_id, _reader) = token(&url, "read", "office-reader");
+    let node = ServerProcess::start_with_args(
+        dir.path(),
+        &[
+            "--store",
+            &url,
+            "--node",
+            "b",
+            "--cluster-key-file",
+            &key_file,
+        ],
+    );
+    let base = node.url("");
+    let client = reqwest::Client::new();
+    // A machine to read, declared with the admin token; the node is live.
+    let declared = client
+        .put(format!("{base}/api/v1/machines/m1"))
+        .bearer_auth(&admin)
+        .header("content-type", "application/json")
+        .body(r#"{"engines": {"attitude": {}}}"#)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(declared.status(), 201);
+    for _ in 0..100 {
+        let running = client
+            .get(format!("{base}/api/v1/machines/m1"))
+            .bearer_auth(&admin)
+            .send()
+            .await
+            .unwrap();
+        if running.status() == 200 {
+            break;
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+    }
+
+    // What the database holds for the node: the key's SHA-256, not a key.
+    let (db, connection) = tokio_postgres::connect(&url, tokio_postgres::NoTls)
+        .await
+        .unwrap();
+    tokio::spawn(connection);
+    let stored: String = db
+        .query_one("SELECT key_sha256 FROM nodes WHERE node = 'b'", &[])
+        .await
+        .unwrap()
+        .get(0);
+    let keys = ClusterKeys::load(Some(std::path::Path::new(&key_file))).unwrap();
+    assert_eq!(stored, keys.fingerprint());
+    assert!(!stored.contains("3f9c2a7be1d04c5a"));
+
+    // The stored value presented as a key (as the old header did): refused.
+    let refused = client
+        .get(format!("{base}/api/v1/machines"))
+        .header("x-tunnelnav-node", "b")
+        .header("x-tunnelnav-node-key", &stored)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(refused.status(), 401);
+    // The stored value used as the signing key: refused.
+    let thief_dir = tempfile::tempdir().unwrap();
+    let thief_file = thief_dir.path().join("stolen.key");
+    std::fs::write(&thief_file, &stored).unwrap();
+    let thief = ClusterKeys::load(Some(&thief_file)).unwrap();
+    let now = tunnelnav::clock::wall_clock_s();
+    let as_admin = Grant::Token {
+        id: admin_id,
+        name: "office-admin".into(),
+    };
+    let (status, _) = signed_call(
+        &thief,
+        &base,
+        (Method::GET, "/api/v1/machines"),
+        "b",
+        &as_admin,
+        now,
+    )
+    .await;
+    assert_eq!(status, 401, "signed with what the database holds");
+
+    // Signed with the cluster key for the reader: served; sent again: a
+    // replay, refused; signed a minute ago: refused.
+    let as_reader = Grant::Token {
+        id: reader_id,
+        name: "office-reader".into(),
+    };
+    let (status, headers) = signed_call(
+        &keys,
+        &base,
+        (Method::GET, "/api/v1/machines/m1"),
+        "b",
+        &as_reader,
+        now,
+    )
+    .await;
+    assert_eq!(status, 200);
+    let replayed = client
+        .get(format!("{base}/api/v1/machines/m1"))
+        .headers(headers)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(replayed.status(), 401, "a replay");
+    let (status, _) = signed_call(
+        &keys,
+        &base,
+        (Method::GET, "/api/v1/machines/m1"),
+        "b",
+        &as_reader,
+        now - 60.0,
+    )
+    .await;
+    assert_eq!(status, 401, "outside the replay window");
+
+    // The serving node checks the route: a reader may not declare, a
+    // node's own grant may not read, a token not in force is nobody.
+    let (status, _) = signed_call(
+        &keys,
+        &base,
+        (Method::PUT, "/api/v1/machines/m2"),
+        "b",
+        &as_reader,
+        now,
+    )
+    .await;
+    assert_eq!(
+        status, 403,
+        "a reader's request forwarded to an admin route"
+    );
+    let (status, _) = signed_call(
+        &keys,
+        &base,
+        (Method::GET, "/api/v1/machines/m1"),
+        "b",
+        &Grant::Node,
+        now,
+    )
+    .await;
+    assert_eq!(status, 403, "a node's own grant is for readings only");
+    let (status, _) = signed_call(
+        &keys,
+        &base,
+        (Method::GET, "/api/v1/machines/m1"),
+        "b",
+        &Grant::Token {
+            id: 9999,
+            name: "nobody".into(),
+        },
+        now,
+    )
+    .await;
+    assert_eq!(status, 401, "a token not in force");
+    // A node not registered: refused.
+    let (status, _) = signed_call(
+        &keys,
+        &base,
+        (Method::GET, "/api/v1/machines/m1"),
+        "z",
+        &as_reader,
+        now,
+    )
+    .await;
+    assert_eq!(status, 401, "a node that is not live");
 }

@@ -54,7 +54,7 @@ async fn no_csv_cell_is_a_formula() {
         tokio::time::sleep(std::time::Duration::from_millis(100)).await;
     }
     assert!(alarm.is_object(), "the deviation alarm is raised");
-    let token = common::read_token(dir.path(), "@lead");
+    let token = common::operator_token(dir.path(), "@lead");
     tokio::time::sleep(std::time::Duration::from_millis(2100)).await;
     let acked = client
         .post(format!("{base}/api/v1/alarms/{}/ack", alarm["id"]))

@@ -135,6 +135,7 @@ async fn the_document_describes_every_operation_and_the_docs_list_them() {
         "ingest"
     );
     assert_eq!(role("get", "/api/v1/machines/{machine}/readings"), "read");
+    assert_eq!(role("post", "/api/v1/alarms/{id}/ack"), "operator");
 
     // A reading's schema holds the validator's bounds.
     let reading = &document["components"]["schemas"]["Reading"];

@@ -83,6 +83,13 @@ async fn tokens_made_on_postgres_guard_a_server_on_postgres() {
     // The store named by the config file this time; the data dir is empty.
     let config = dir.path().join("office.toml");
     std::fs::write(&config, format!("[store]\nurl = \"{url}\"\n")).unwrap();
+    // The key file several nodes of one store share (the second node below).
+    let key_file = dir.path().join("cluster.key");
+    std::fs::write(
+        &key_file,
+        "0f1e2d3c4b5a69788796a5b4c3d2e1f00f1e2d3c4b5a6978\n",
+    )
+    .unwrap();
     let empty = tempfile::tempdir().unwrap();
     let (mut child, base) = spawn_serving(
         tunnelnav()
@@ -120,6 +127,8 @@ async fn tokens_made_on_postgres_guard_a_server_on_postgres() {
         tunnelnav()
             .args(["serve", "--listen", "127.0.0.1:0", "--config"])
             .arg(&config)
+            .arg("--cluster-key-file")
+            .arg(&key_file)
             .arg("--data-dir")
             .arg(empty.path()),
     );
@@ -167,8 +176,10 @@ async fn tokens_made_on_postgres_guard_a_server_on_postgres() {
                 "127.0.0.1:0",
                 "--store",
                 &url,
-                "--data-dir",
+                "--cluster-key-file",
             ])
+            .arg(&key_file)
+            .arg("--data-dir")
             .arg(empty.path()),
     );
     let report: serde_json::Value = serde_json::from_str(

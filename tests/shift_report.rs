@@ -214,7 +214,7 @@ async fn rings_steer_and_the_shift_report_hold_the_streams_numbers() {
         tokio::time::sleep(std::time::Duration::from_millis(100)).await;
     }
     assert!(deviation.is_object(), "the deviation alarm is raised");
-    let token = common::read_token(dir.path(), "shift-lead");
+    let token = common::operator_token(dir.path(), "shift-lead");
     // The server reads new tokens within 2 s.
     tokio::time::sleep(std::time::Duration::from_millis(2100)).await;
     let acked = client

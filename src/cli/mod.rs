@@ -80,6 +80,8 @@ pub enum CliError {
     Store(#[from] crate::store::StoreError),
     #[error(transparent)]
     Token(#[from] crate::auth::TokenError),
+    #[error(transparent)]
+    ClusterKey(#[from] crate::server::signing::KeyFileError),
     #[error("{0}")]
     Refused(String),
 }

@@ -42,6 +42,11 @@ pub struct ServeArgs {
     /// the address listened on, the host's name for 0.0.0.0).
     #[arg(long, env = "TUNNELNAV_ADVERTISE", value_name = "URL")]
     pub advertise: Option<String>,
+    /// The cluster key file every node of one PostgreSQL store shares: one
+    /// key a line (at least 32 characters), the first signs, any verifies;
+    /// reread when it changes (docs/operations.md, "Several nodes").
+    #[arg(long, env = "TUNNELNAV_CLUSTER_KEY_FILE", value_name = "FILE")]
+    pub cluster_key_file: Option<PathBuf>,
     /// The office this site forwards everything it stores to,
     /// `http://HOST:PORT` (also the config file's `[forward] url`); needs
     /// --site.
@@ -126,9 +131,12 @@ pub fn run(args: ServeArgs) -> Result<(), CliError> {
         },
         &settings.store,
     )?;
-    if postgres.is_none() && (args.node.is_some() || args.advertise.is_some()) {
+    if postgres.is_none()
+        && (args.node.is_some() || args.advertise.is_some() || args.cluster_key_file.is_some())
+    {
         return Err(CliError::Refused(
-            "--node and --advertise are for several nodes on one PostgreSQL store: \
+            "--node, --advertise and --cluster-key-file are for several nodes on one \
+             PostgreSQL store: \
              give --store postgres://... too"
                 .into(),
         ));
@@ -136,6 +144,7 @@ pub fn run(args: ServeArgs) -> Result<(), CliError> {
     let node = NodeArgs {
         node: args.node.clone(),
         advertise: args.advertise.clone(),
+        cluster_key_file: args.cluster_key_file.clone(),
     };
     let forward = forward_options(&args, &settings.forward)?;
     let runtime = tokio::runtime::Builder::new_multi_thread()
@@ -266,7 +275,9 @@ pub async fn start(
                 "--node `{name}` is not a node name: use 1 to 64 letters, digits, `.`, `-` or `_`"
             )));
         }
+        let keys = server::signing::ClusterKeys::load(node.cluster_key_file.as_deref())?;
         options.cluster = Some(server::cluster::ClusterOptions {
+            keys: std::sync::Arc::new(keys),
             node: node.node.unwrap_or_else(|| host.clone()),
             advertise: node
                 .advertise
@@ -313,6 +324,7 @@ pub async fn start(
 pub struct NodeArgs {
     pub node: Option<String>,
     pub advertise: Option<String>,
+    pub cluster_key_file: Option<PathBuf>,
 }
 
 /// A node name: 1 to 64 letters, digits, `.`, `-` or `_` (it travels in

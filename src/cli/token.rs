@@ -102,8 +102,9 @@ impl Tokens {
 pub struct CreateArgs {
     #[command(flatten)]
     pub dir: DataDir,
-    /// ingest (one machine's gateway), read (dashboard, history), admin,
-    /// or site (a site server forwarding to this office).
+    /// ingest (one machine's gateway), read (dashboard, history; changes
+    /// nothing), operator (read, and acknowledge alarms), admin, or site
+    /// (a site server forwarding to this office).
     #[arg(long, value_parser = parse_scope)]
     pub scope: Scope,
     /// The machine an ingest token may send readings for.
@@ -126,7 +127,8 @@ pub struct RevokeArgs {
 }
 
 fn parse_scope(text: &str) -> Result<Scope, String> {
-    Scope::from_name(text).ok_or_else(|| format!("`{text}`: expected ingest, read, admin or site"))
+    Scope::from_name(text)
+        .ok_or_else(|| format!("`{text}`: expected ingest, read, operator, admin or site"))
 }
 
 pub fn run(command: TokenCommand) -> Result<(), CliError> {

@@ -147,8 +147,9 @@ pub async fn ack(
         .parse()
         .map_err(|_| ApiError::BadRequest(format!("alarm id `{id}` is not a number")))?;
     let by = caller
-        .and_then(|Extension(Caller(name))| name)
-        .unwrap_or_else(|| ANONYMOUS.to_string());
+        .as_ref()
+        .and_then(|Extension(caller)| caller.name())
+        .map_or_else(|| ANONYMOUS.to_string(), str::to_string);
     let notifier = state.alarms.clone();
     let (alarm, _) = state
         .store

@@ -25,6 +25,7 @@ use axum::response::{Html, IntoResponse, Redirect, Response};
 use serde::Deserialize;
 
 use super::error::ApiError;
+use super::signing::{self, Grant};
 use super::state::SharedState;
 use crate::auth::{self, Need, Token};
 use crate::store::Store;
@@ -76,13 +77,13 @@ impl Gate {
     }
 
     /// Whether `presented` (a token text, if any) may do `need`: the
-    /// token's name if it was checked, `None` while access is open.
+    /// token if it was checked, `None` while access is open.
     async fn check(
         &self,
         store: &Store,
         presented: Option<&str>,
         need: &Need,
-    ) -> Result<Option<String>, ApiError> {
+    ) -> Result<Option<Token>, ApiError> {
         if *need == Need::Nothing {
             return Ok(None);
         }
@@ -101,31 +102,73 @@ impl Gate {
             ));
         };
         if token.allows(need) {
-            return Ok(Some(token.name.clone()));
+            return Ok(Some(token.clone()));
         }
-        Err(ApiError::Forbidden(match need {
-            Need::Ingest(machine) => format!(
-                "token `{}` ({}) may not send readings of machine `{machine}`",
-                token.name,
-                describe(token)
-            ),
-            Need::Admin => format!(
-                "token `{}` ({}) may not change the configuration: admin scope needed",
-                token.name,
-                describe(token)
-            ),
-            Need::Site(site) => format!(
-                "token `{}` ({}) may not forward as site `{site}`: a site token for it needed",
-                token.name,
-                describe(token)
-            ),
-            _ => format!(
-                "token `{}` ({}) may not read: read scope needed",
-                token.name,
-                describe(token)
-            ),
-        }))
+        Err(refused(token, need))
     }
+
+    /// Whether the caller another node vouches for (`grant`, signed) may do
+    /// `need` here: its token as this node's store has it (in force, with
+    /// its scope), access open here too, or the node itself for ingest.
+    async fn check_grant(
+        &self,
+        store: &Store,
+        grant: &Grant,
+        need: &Need,
+    ) -> Result<Option<Token>, ApiError> {
+        match grant {
+            Grant::Open => self.check(store, None, need).await,
+            Grant::Node if Grant::node_allows(need) => Ok(None),
+            Grant::Node => Err(ApiError::Forbidden(
+                "a node forwards readings in its own name, nothing else".into(),
+            )),
+            Grant::Token { id, name } => {
+                let tokens = self.current(store).await?;
+                let Some(token) = tokens.values().find(|t| t.id == *id) else {
+                    return Err(ApiError::Unauthorized(format!(
+                        "token `{name}` (#{id}) the forwarding node checked is not in force here"
+                    )));
+                };
+                if token.allows(need) {
+                    Ok(Some(token.clone()))
+                } else {
+                    Err(refused(token, need))
+                }
+            }
+        }
+    }
+}
+
+/// The 403 of `token`, which does not grant `need`.
+fn refused(token: &Token, need: &Need) -> ApiError {
+    ApiError::Forbidden(match need {
+        Need::Ingest(machine) => format!(
+            "token `{}` ({}) may not send readings of machine `{machine}`",
+            token.name,
+            describe(token)
+        ),
+        Need::Admin => format!(
+            "token `{}` ({}) may not change the configuration: admin scope needed",
+            token.name,
+            describe(token)
+        ),
+        Need::Site(site) => format!(
+            "token `{}` ({}) may not forward as site `{site}`: a site token for it needed",
+            token.name,
+            describe(token)
+        ),
+        Need::Acknowledge => format!(
+            "token `{}` ({}) may not acknowledge alarms: operator scope needed (a read \
+                 token changes nothing)",
+            token.name,
+            describe(token)
+        ),
+        _ => format!(
+            "token `{}` ({}) may not read: read scope needed",
+            token.name,
+            describe(token)
+        ),
+    })
 }
 
 fn describe(token: &Token) -> String {
@@ -191,29 +234,44 @@ pub async fn site(
     require(&state, Need::Site(site.to_string()), request, next).await
 }
 
+/// The route layer of routes that acknowledge alarms.
+pub async fn acknowledge(
+    State(state): State<SharedState>,
+    request: Request,
+    next: Next,
+) -> Response {
+    require(&state, Need::Acknowledge, request, next).await
+}
+
 /// The route layer of routes that change the configuration.
 pub async fn admin(State(state): State<SharedState>, request: Request, next: Next) -> Response {
     require(&state, Need::Admin, request, next).await
 }
 
-/// Who a request came from: the name of the token it carried, `None`
-/// while access is open (no tokens). Set by the route layers.
+/// Who a request came from: the token it carried, `None` while access is
+/// open (no tokens) or for a node's own readings. Set by the route layers.
 #[derive(Debug, Clone)]
-pub struct Caller(pub Option<String>);
+pub struct Caller(pub Option<Token>);
+
+impl Caller {
+    /// The token's name, if a token was checked.
+    pub fn name(&self) -> Option<&str> {
+        self.0.as_ref().map(|t| t.name.as_str())
+    }
+}
 
 /// Lets the request through if its token grants `need`, telling the
 /// handler who it is ([`Caller`]).
 async fn require(state: &SharedState, need: Need, mut request: Request, next: Next) -> Response {
-    // Another node checked the caller's token before forwarding.
-    if let Some(cluster) = &state.cluster {
-        match cluster.forwarded_caller(request.headers()).await {
-            Ok(Some(caller)) => {
-                request.extensions_mut().insert(caller);
-                return next.run(request).await;
-            }
-            Ok(None) => {}
-            Err(e) => return e.into_response(),
-        }
+    // Signed by another node: its signature, then the caller it vouches
+    // for, checked here against this route.
+    if let Some(cluster) = &state.cluster
+        && request.headers().contains_key(signing::NODE_HEADER)
+    {
+        return match from_node(state, cluster, &need, request).await {
+            Ok(request) => next.run(request).await,
+            Err(e) => e.into_response(),
+        };
     }
     let token = presented(request.headers());
     match state
@@ -221,8 +279,8 @@ async fn require(state: &SharedState, need: Need, mut request: Request, next: Ne
         .check(&state.store, token.as_deref(), &need)
         .await
     {
-        Ok(name) => {
-            request.extensions_mut().insert(Caller(name));
+        Ok(token) => {
+            request.extensions_mut().insert(Caller(token));
             next.run(request).await
         }
         Err(ApiError::Unauthorized(_)) if wants_page(&request) => {
@@ -239,6 +297,43 @@ async fn require(state: &SharedState, need: Need, mut request: Request, next: Ne
             response
         }
     }
+}
+
+/// A request another node signed, checked (signature, then its caller
+/// against `need`) and given back with its body and [`Caller`].
+async fn from_node(
+    state: &SharedState,
+    cluster: &super::cluster::Cluster,
+    need: &Need,
+    request: Request,
+) -> Result<Request, ApiError> {
+    let (mut parts, body) = request.into_parts();
+    let body = axum::body::to_bytes(body, state.limits.max_body_bytes)
+        .await
+        .map_err(|e| {
+            ApiError::TooLarge(format!(
+                "body larger than {} bytes or broken off: {e}",
+                state.limits.max_body_bytes
+            ))
+        })?;
+    let target = parts
+        .uri
+        .path_and_query()
+        .map_or("/", |p| p.as_str())
+        .to_string();
+    let grant = cluster
+        .forwarded(
+            &parts.headers,
+            &signing::Signable {
+                method: parts.method.as_str(),
+                target: &target,
+                body: &body,
+            },
+        )
+        .await?;
+    let token = state.gate.check_grant(&state.store, &grant, need).await?;
+    parts.extensions.insert(Caller(token));
+    Ok(Request::from_parts(parts, axum::body::Body::from(body)))
 }
 
 /// `GET /login`: a form that posts a token (never in a URL).

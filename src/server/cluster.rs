@@ -12,8 +12,9 @@
 //! snapshot and the readings after it.
 //!
 //! A request for a machine another node fuses is forwarded to that node
-//! (after this node checked the caller's token) with this node's name and
-//! key, which the other node checks against the `nodes` table; a
+//! (after this node checked the caller's token), signed with the cluster
+//! key and naming the caller's token ([`super::signing`]); the other node
+//! checks the signature and the token against the route's need itself. A
 //! forwarded request is never forwarded again. Readings that arrive by
 //! WebSocket or MQTT go on by HTTP the same way. While a machine changes
 //! hands, its requests are answered 503 (`machine_moving`): retry.
@@ -24,12 +25,13 @@ use std::time::{Duration, Instant};
 
 use axum::body::Body;
 use axum::extract::{Request, State};
-use axum::http::{HeaderMap, HeaderName, HeaderValue, StatusCode};
+use axum::http::{HeaderMap, HeaderName, StatusCode};
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 
 use super::auth::Caller;
 use super::error::{ApiError, Refusal};
+use super::signing::{ClusterKeys, Grant, NODE_HEADER, Signable};
 use super::state::SharedState;
 use crate::fusion::Reading;
 use crate::store::postgres::PgStore;
@@ -46,18 +48,13 @@ const START_RETRY: Duration = Duration::from_secs(10);
 /// leases are about to lapse and another node to take them.
 const SELF_FENCE: Duration = Duration::from_secs(4);
 
-/// The forwarding node's name.
-pub const NODE_HEADER: &str = "x-tunnelnav-node";
-/// Its key, as registered in `nodes`.
-pub const KEY_HEADER: &str = "x-tunnelnav-node-key";
-/// The name of the token the forwarding node checked, if any.
-pub const CALLER_HEADER: &str = "x-tunnelnav-caller";
-
-/// How a node joins: the name it wants and where the others reach it.
+/// How a node joins: the name it wants, where the others reach it and
+/// the cluster keys it signs and checks requests with.
 #[derive(Debug, Clone)]
 pub struct ClusterOptions {
     pub node: String,
     pub advertise: String,
+    pub keys: Arc<ClusterKeys>,
 }
 
 /// What a node knows of the others, refreshed every second and when a
@@ -72,7 +69,7 @@ struct View {
 /// This node's part in the cluster.
 pub struct Cluster {
     node: String,
-    key: String,
+    keys: Arc<ClusterKeys>,
     membership: tokio::sync::Mutex<Membership>,
     store: PgStore,
     view: RwLock<View>,
@@ -131,7 +128,19 @@ impl Cluster {
                 "several nodes need the PostgreSQL store".into(),
             ));
         };
-        let membership = postgres.join(&options.node, &options.advertise).await?;
+        if !options.keys.has_key() {
+            tracing::warn!(
+                "no cluster key (serve --cluster-key-file): this node neither forwards requests \
+                 to other nodes nor accepts theirs; give every node the same key file"
+            );
+        }
+        let membership = postgres
+            .join(
+                &options.node,
+                &options.advertise,
+                &options.keys.fingerprint(),
+            )
+            .await?;
         tracing::info!(node = membership.node(), url = %options.advertise, "joined the cluster");
         let http = reqwest::Client::builder()
             .connect_timeout(Duration::from_secs(2))
@@ -140,7 +149,7 @@ impl Cluster {
             .map_err(|e| crate::store::StoreError::Location(e.to_string()))?;
         Ok(Cluster {
             node: membership.node().to_string(),
-            key: membership.key().to_string(),
+            keys: options.keys.clone(),
             membership: tokio::sync::Mutex::new(membership),
             store: postgres.clone(),
             view: RwLock::new(View::default()),
@@ -220,53 +229,46 @@ impl Cluster {
             .is_ok_and(|v| v.placements.contains_key(machine))
     }
 
-    /// The caller a request forwarded by another node speaks for, if the
-    /// request carries a node's name and its registered key; `Err` if it
-    /// claims a node but the key does not match.
-    pub async fn forwarded_caller(&self, headers: &HeaderMap) -> Result<Option<Caller>, ApiError> {
-        let Some(node) = headers.get(NODE_HEADER).and_then(|v| v.to_str().ok()) else {
-            return Ok(None);
-        };
-        let key = headers
-            .get(KEY_HEADER)
-            .and_then(|v| v.to_str().ok())
-            .unwrap_or("");
-        let matches = |view: &View| {
-            view.nodes.get(node).is_some_and(|row| {
-                row.live && !key.is_empty() && constant_time_eq(row.key.as_bytes(), key.as_bytes())
-            })
-        };
-        let mut known = self.view.read().map(|v| matches(&v)).unwrap_or(false);
+    /// The node and the grant of a request another node signed, or why it
+    /// is refused (401): a signature under none of this node's keys, out
+    /// of the replay window or replayed, or a node not live in `nodes`.
+    pub async fn forwarded(
+        &self,
+        headers: &HeaderMap,
+        request: &Signable<'_>,
+    ) -> Result<Grant, ApiError> {
+        let (node, grant) = self
+            .keys
+            .verify(headers, request, crate::clock::wall_clock_s())?;
+        let live = |view: &View| view.nodes.get(&node).is_some_and(|row| row.live);
+        let mut known = self.view.read().map(|v| live(&v)).unwrap_or(false);
         if !known {
             self.refresh_if_stale().await;
-            known = self.view.read().map(|v| matches(&v)).unwrap_or(false);
+            known = self.view.read().map(|v| live(&v)).unwrap_or(false);
         }
         if !known {
             return Err(ApiError::Unauthorized(format!(
-                "a request forwarded as node `{node}` without that node's key"
+                "a request signed as node `{node}`, which is not a live node of this store"
             )));
         }
-        let caller = headers
-            .get(CALLER_HEADER)
-            .and_then(|v| v.to_str().ok())
-            .map(str::to_string);
-        Ok(Some(Caller(caller)))
+        Ok(grant)
     }
 
-    /// The headers that make a request this node's.
-    fn sign(&self, headers: &mut HeaderMap, caller: Option<&Caller>) {
-        if let (Ok(node), Ok(key)) = (
-            HeaderValue::from_str(&self.node),
-            HeaderValue::from_str(&self.key),
-        ) {
-            headers.insert(HeaderName::from_static(NODE_HEADER), node);
-            headers.insert(HeaderName::from_static(KEY_HEADER), key);
-        }
-        if let Some(Caller(Some(name))) = caller
-            && let Ok(name) = HeaderValue::from_str(name)
-        {
-            headers.insert(HeaderName::from_static(CALLER_HEADER), name);
-        }
+    /// The headers that sign `request` as this node's, for `grant`; an
+    /// error without a cluster key.
+    fn sign(&self, request: &Signable<'_>, grant: &Grant) -> Result<HeaderMap, ApiError> {
+        let signed = self
+            .keys
+            .sign(request, &self.node, grant, crate::clock::wall_clock_s())
+            .ok_or_else(|| ApiError::Unavailable {
+                reason: Refusal::MachineMoving,
+                message: format!(
+                    "node `{}` has no cluster key (serve --cluster-key-file) to reach the node \
+                     that fuses this machine with",
+                    self.node
+                ),
+            })?;
+        Ok(signed.into_iter().collect())
     }
 
     /// Sends `readings` of `machine` to the node at `url` (WebSocket and
@@ -283,11 +285,18 @@ impl Cluster {
             body.push_str(&reading.to_json());
             body.push('\n');
         }
-        let mut headers = HeaderMap::new();
-        self.sign(&mut headers, None);
+        let target = format!("/api/v1/machines/{machine}/readings");
+        let headers = self.sign(
+            &Signable {
+                method: "POST",
+                target: &target,
+                body: body.as_bytes(),
+            },
+            &Grant::Node,
+        )?;
         let answer = self
             .http
-            .post(format!("{url}/api/v1/machines/{machine}/readings"))
+            .post(format!("{url}{target}"))
             .headers(headers)
             .header("content-type", "application/x-ndjson")
             .body(body)
@@ -633,11 +642,6 @@ pub async fn claim(cluster: &Cluster, machine_id: i64) -> Result<Option<i64>, Ap
     Ok(epoch)
 }
 
-/// Compares two secrets in time independent of where they differ.
-fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
-    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
-}
-
 /// The machine a path is about: `/api/v1/machines/{m}[/...]` or
 /// `/machines/{m}`.
 fn machine_of(path: &str) -> Option<String> {
@@ -746,14 +750,33 @@ async fn proxy(
     let mut headers = HeaderMap::new();
     for (name, value) in &parts.headers {
         // A client's own `x-tunnelnav-*` never passes: only this node's.
-        if !hop_by_hop(name) && !name.as_str().starts_with("x-tunnelnav-") {
+        // Nor does its token: the signature names it.
+        if !hop_by_hop(name)
+            && !name.as_str().starts_with("x-tunnelnav-")
+            && name != axum::http::header::AUTHORIZATION
+            && name != axum::http::header::COOKIE
+        {
             headers.append(name.clone(), value.clone());
         }
     }
-    cluster.sign(&mut headers, parts.extensions.get::<Caller>());
+    // Signed as the URL is sent (its path and query after parsing).
+    let sent = reqwest::Url::parse(&target).map_err(|e| ApiError::Internal(e.to_string()))?;
+    let sent_target = match sent.query() {
+        Some(query) => format!("{}?{query}", sent.path()),
+        None => sent.path().to_string(),
+    };
+    let grant = Grant::of(parts.extensions.get::<Caller>().and_then(|c| c.0.as_ref()));
+    headers.extend(cluster.sign(
+        &Signable {
+            method: parts.method.as_str(),
+            target: &sent_target,
+            body: &body,
+        },
+        &grant,
+    )?);
     let answer = cluster
         .http
-        .request(parts.method.clone(), &target)
+        .request(parts.method.clone(), sent)
         .headers(headers)
         .body(body)
         .send()
@@ -775,13 +798,6 @@ async fn proxy(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn secrets_compare_whole() {
-        assert!(constant_time_eq(b"abc", b"abc"));
-        assert!(!constant_time_eq(b"abc", b"abd"));
-        assert!(!constant_time_eq(b"abc", b"ab"));
-    }
 
     #[test]
     fn the_machine_of_a_path() {

@@ -22,6 +22,7 @@ pub(crate) mod openapi;
 pub mod pages;
 mod report;
 pub mod settings;
+pub mod signing;
 pub mod sites;
 pub mod state;
 mod steering;
@@ -47,6 +48,8 @@ pub use state::{AppState, ServerError, ServerOptions, SharedState};
 #[derive(Debug, Clone, Copy)]
 enum Role {
     Read,
+    /// Read, and acknowledge alarms.
+    Operator,
     Ingest,
     Admin,
     /// A site forwarding to this office (a `site` token for the site the
@@ -58,6 +61,7 @@ impl Role {
     fn as_str(self) -> &'static str {
         match self {
             Role::Read => "read",
+            Role::Operator => "operator",
             Role::Ingest => "ingest",
             Role::Admin => "admin",
             Role::Site => "site",
@@ -92,6 +96,10 @@ fn guarded(
     ));
     let routes = match role {
         Role::Read => routes.layer(axum::middleware::from_fn_with_state(state, auth::read)),
+        Role::Operator => routes.layer(axum::middleware::from_fn_with_state(
+            state,
+            auth::acknowledge,
+        )),
         Role::Ingest => routes.layer(axum::middleware::from_fn_with_state(state, auth::ingest)),
         Role::Admin => routes.layer(axum::middleware::from_fn_with_state(state, auth::admin)),
         Role::Site => routes.layer(axum::middleware::from_fn_with_state(state, auth::site)),
@@ -101,7 +109,7 @@ fn guarded(
 
 /// The API's routes, each with its description (`openapi`).
 fn api_routes(state: &SharedState) -> OpenApiRouter<SharedState> {
-    use Role::{Admin, Ingest, Read, Site};
+    use Role::{Admin, Ingest, Operator, Read, Site};
     let guard = |role, routes| guarded(state, role, routes);
     OpenApiRouter::with_openapi(openapi::ApiDoc::openapi())
         .routes(guard(Read, routes!(pages::fleet)))
@@ -126,7 +134,7 @@ fn api_routes(state: &SharedState) -> OpenApiRouter<SharedState> {
         .routes(guard(Read, routes!(report::as_built::show)))
         .routes(guard(Read, routes!(alarms::list)))
         .routes(guard(Read, routes!(live::alarms_websocket)))
-        .routes(guard(Read, routes!(alarms::ack)))
+        .routes(guard(Operator, routes!(alarms::ack)))
         .routes(guard(Read, routes!(cluster::show)))
         .routes(guard(Site, routes!(sites::forward)))
         .routes(guard(Site, routes!(sites::report)))

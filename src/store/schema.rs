@@ -174,6 +174,22 @@ const MIGRATIONS: &[&str] = &[
     DROP TABLE tokens;
     ALTER TABLE tokens_v5 RENAME TO tokens;
     ",
+    // 6: tokens of a fifth scope, `operator` (read, and acknowledge
+    // alarms; issue 57).
+    "
+    CREATE TABLE tokens_v6 (
+        id INTEGER PRIMARY KEY,
+        name TEXT NOT NULL,
+        scope TEXT NOT NULL CHECK (scope IN ('ingest', 'read', 'operator', 'admin', 'site')),
+        machine TEXT,
+        hash TEXT NOT NULL UNIQUE,
+        created_t REAL NOT NULL,
+        revoked_t REAL
+    );
+    INSERT INTO tokens_v6 SELECT id, name, scope, machine, hash, created_t, revoked_t FROM tokens;
+    DROP TABLE tokens;
+    ALTER TABLE tokens_v6 RENAME TO tokens;
+    ",
 ];
 
 /// The schema version this build writes.

@@ -474,16 +474,21 @@ pub fn spawn_serving(command: &mut Command) -> (Child, String) {
 /// `tunnelnav token create` makes one; a running server takes it up within
 /// its token refresh (2 s).
 pub fn read_token(dir: &Path, name: &str) -> String {
+    token_of(dir, name, tunnelnav::auth::Scope::Read)
+}
+
+/// Creates an `operator` token named `name` (read, and acknowledge
+/// alarms) in the SQLite store in `dir`.
+pub fn operator_token(dir: &Path, name: &str) -> String {
+    token_of(dir, name, tunnelnav::auth::Scope::Operator)
+}
+
+/// Creates a token of `scope` (for no machine) in the SQLite store in `dir`.
+fn token_of(dir: &Path, name: &str, scope: tunnelnav::auth::Scope) -> String {
     let conn = tunnelnav::store::Store::connect(dir).unwrap();
-    tunnelnav::auth::create(
-        &conn,
-        name,
-        tunnelnav::auth::Scope::Read,
-        None,
-        tunnelnav::clock::wall_clock_s(),
-    )
-    .unwrap()
-    .1
+    tunnelnav::auth::create(&conn, name, scope, None, tunnelnav::clock::wall_clock_s())
+        .unwrap()
+        .1
 }
 
 /// An attitude machine on a straight axis due north from (1000, 5000),

@@ -2,7 +2,7 @@
 //! fuses which machine.
 //!
 //! A node registers in `nodes` (its name, the URL other nodes forward to,
-//! a key it proves itself with) and holds a session advisory lock on its
+//! the SHA-256 of the cluster key it signs with: never a key) and holds a session advisory lock on its
 //! name, so two live processes never share one. It fuses a machine only
 //! while it holds the machine's row in `leases`, renewed every heartbeat
 //! and lapsing `ttl` after the last; a lapsed lease may be taken by any
@@ -27,8 +27,8 @@ pub struct NodeRow {
     pub node: String,
     /// Where the node answers, e.g. `http://10.0.0.5:8080`.
     pub url: String,
-    /// What the node's forwarded requests carry to prove they are its.
-    pub key: String,
+    /// The SHA-256 (hex) of the cluster key it signs with; empty if none.
+    pub key_sha256: String,
     /// Its heartbeat is younger than the lease time.
     pub live: bool,
 }
@@ -50,7 +50,7 @@ pub struct Membership {
     endpoint: Endpoint,
     node: String,
     url: String,
-    key: String,
+    key_sha256: String,
 }
 
 /// The lock the previous release's one writer held exclusively.
@@ -87,11 +87,13 @@ async fn try_lock(client: &Client, node: &str) -> Result<bool, StoreError> {
 
 impl Membership {
     /// Joins as `wanted`, or, if a live process holds that name, as
-    /// `wanted-2`, `wanted-3`, ... (up to 16); answers at `url`.
+    /// `wanted-2`, `wanted-3`, ... (up to 16); answers at `url`, signs
+    /// with the key whose SHA-256 is `key_sha256`.
     pub(super) async fn join(
         endpoint: Endpoint,
         wanted: &str,
         url: &str,
+        key_sha256: &str,
     ) -> Result<Membership, StoreError> {
         let client = connect(&endpoint).await?;
         settle_session(&client).await?;
@@ -136,13 +138,12 @@ impl Membership {
                 "node names `{wanted}` to `{wanted}-16` are all held by live servers"
             ))
         })?;
-        let key = hex::encode(rand::random::<[u8; 16]>());
         let mut membership = Membership {
             client,
             endpoint,
             node,
             url: url.to_string(),
-            key,
+            key_sha256: key_sha256.to_string(),
         };
         membership.register().await?;
         membership.supersede().await?;
@@ -174,18 +175,13 @@ impl Membership {
         &self.node
     }
 
-    /// The key its forwarded requests carry.
-    pub fn key(&self) -> &str {
-        &self.key
-    }
-
     async fn register(&self) -> Result<(), StoreError> {
         self.client
             .execute(
-                "INSERT INTO nodes (node, url, key, seen_at) VALUES ($1, $2, $3, now()) \
-                 ON CONFLICT (node) DO UPDATE SET url = excluded.url, key = excluded.key, \
-                 seen_at = excluded.seen_at",
-                &[&self.node, &self.url, &self.key],
+                "INSERT INTO nodes (node, url, key_sha256, seen_at) VALUES ($1, $2, $3, now()) \
+                 ON CONFLICT (node) DO UPDATE SET url = excluded.url, \
+                 key_sha256 = excluded.key_sha256, seen_at = excluded.seen_at",
+                &[&self.node, &self.url, &self.key_sha256],
             )
             .await?;
         Ok(())
@@ -319,7 +315,7 @@ impl Membership {
             .await?;
         self.client
             .execute(
-                "UPDATE nodes SET seen_at = '-infinity', key = '' WHERE node = $1",
+                "UPDATE nodes SET seen_at = '-infinity' WHERE node = $1",
                 &[&self.node],
             )
             .await?;
@@ -357,7 +353,7 @@ pub(super) async fn nodes(
 ) -> Result<Vec<NodeRow>, StoreError> {
     let rows = client
         .query(
-            "SELECT node, url, key, seen_at > now() - make_interval(secs => $1) FROM nodes \
+            "SELECT node, url, key_sha256, seen_at > now() - make_interval(secs => $1) FROM nodes \
                  ORDER BY node",
             &[&ttl_s],
         )
@@ -367,7 +363,7 @@ pub(super) async fn nodes(
         .map(|row| NodeRow {
             node: row.get(0),
             url: row.get(1),
-            key: row.get(2),
+            key_sha256: row.get(2),
             live: row.get(3),
         })
         .collect())

@@ -255,10 +255,17 @@ impl PgStore {
     }
 
     /// Joins the database's nodes as `wanted` (or a free variant of it),
-    /// answering at `url`; from then on a machine's rows are committed
-    /// only while this node holds its lease.
-    pub async fn join(&self, wanted: &str, url: &str) -> Result<cluster::Membership, StoreError> {
-        let membership = cluster::Membership::join((*self.endpoint).clone(), wanted, url).await?;
+    /// answering at `url`, signing with the cluster key whose SHA-256 is
+    /// `key_sha256`; from then on a machine's rows are committed only
+    /// while this node holds its lease.
+    pub async fn join(
+        &self,
+        wanted: &str,
+        url: &str,
+        key_sha256: &str,
+    ) -> Result<cluster::Membership, StoreError> {
+        let membership =
+            cluster::Membership::join((*self.endpoint).clone(), wanted, url, key_sha256).await?;
         if self.fence.set(membership.node().to_string()).is_err() {
             return Err(StoreError::Location(
                 "this store already serves a node".into(),

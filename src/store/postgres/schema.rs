@@ -144,6 +144,16 @@ const MIGRATIONS: &[&str] = &[
     ALTER TABLE tokens ADD CONSTRAINT tokens_scope_check
         CHECK (scope IN ('ingest', 'read', 'admin', 'site'));
     ",
+    // 4: tokens of a fifth scope, `operator` (read, and acknowledge
+    // alarms); a node's key is no longer stored, only the SHA-256 of the
+    // cluster key it signs with (the keys stored before are wiped).
+    "
+    ALTER TABLE tokens DROP CONSTRAINT tokens_scope_check;
+    ALTER TABLE tokens ADD CONSTRAINT tokens_scope_check
+        CHECK (scope IN ('ingest', 'read', 'operator', 'admin', 'site'));
+    ALTER TABLE nodes RENAME COLUMN key TO key_sha256;
+    UPDATE nodes SET key_sha256 = '';
+    ",
 ];
 
 /// The schema version this build writes.
