@@ -322,10 +322,17 @@ enum Command {
         readings: Vec<Reading>,
         reply: oneshot::Sender<Result<WriteOutcome, StoreError>>,
     },
-    /// An office: what a site forwarded, each part with its sequence.
+    /// An office: what a site forwarded, each part with its sequence, and
+    /// the last sequence the site says is committed here.
     Forwarded {
         parts: Vec<(i64, ForwardedPart)>,
+        confirmed: Option<i64>,
         reply: oneshot::Sender<Result<WriteOutcome, StoreError>>,
+    },
+    /// An office: the mark an admin set back in the store (after it).
+    SetForwardMark {
+        sequence: i64,
+        reply: oneshot::Sender<()>,
     },
     /// Alarms the server raises or clears for the machine (an office's
     /// `site_link`).
@@ -376,13 +383,29 @@ impl MachineHandle {
     pub async fn forwarded(
         &self,
         parts: Vec<(i64, ForwardedPart)>,
+        confirmed: Option<i64>,
     ) -> Result<WriteOutcome, MachineError> {
         let (reply, answer) = oneshot::channel();
         self.commands
-            .send(Command::Forwarded { parts, reply })
+            .send(Command::Forwarded {
+                parts,
+                confirmed,
+                reply,
+            })
             .await
             .map_err(|_| self.stopped())?;
         Ok(answer.await.map_err(|_| self.stopped())??)
+    }
+
+    /// An office: the machine's mark was set back to `sequence` in the
+    /// store; the task goes on from it.
+    pub async fn set_forward_mark(&self, sequence: i64) -> Result<(), MachineError> {
+        let (reply, answer) = oneshot::channel();
+        self.commands
+            .send(Command::SetForwardMark { sequence, reply })
+            .await
+            .map_err(|_| self.stopped())?;
+        answer.await.map_err(|_| self.stopped())
     }
 
     /// Stores alarm rows the server decided for this machine.
@@ -729,7 +752,15 @@ impl Actor {
                 Command::Ingest { readings, reply } => {
                     self.ingest(readings, None, Vec::new(), reply).await
                 }
-                Command::Forwarded { parts, reply } => self.forwarded(parts, reply).await,
+                Command::Forwarded {
+                    parts,
+                    confirmed,
+                    reply,
+                } => self.forwarded(parts, confirmed, reply).await,
+                Command::SetForwardMark { sequence, reply } => {
+                    self.forward_mark = Some(sequence);
+                    let _ = reply.send(());
+                }
                 Command::Alarms { rows, reply } => self.ingest(Vec::new(), None, rows, reply).await,
                 Command::Models { reply } => {
                     let _ = reply.send(self.core.models());
@@ -868,16 +899,21 @@ impl Actor {
     async fn forwarded(
         &mut self,
         parts: Vec<(i64, ForwardedPart)>,
+        confirmed: Option<i64>,
         reply: oneshot::Sender<Result<WriteOutcome, StoreError>>,
     ) {
         let mark = self.forward_mark.unwrap_or(i64::MIN);
         let mut readings = Vec::new();
         let mut forwarded = crate::store::outbox::Forwarded {
             after: self.forward_mark,
+            confirmed,
             ..Default::default()
         };
         let mut rows = Vec::new();
         for (sequence, part) in parts.into_iter().filter(|(s, _)| *s > mark) {
+            if forwarded.sequence == 0 {
+                forwarded.first = sequence;
+            }
             forwarded.sequence = sequence;
             match part {
                 ForwardedPart::Readings(batch) => readings.extend(batch),
@@ -974,7 +1010,7 @@ impl Actor {
             })),
             reply: Some(reply),
             lease_epoch: self.lease_epoch.get(),
-            forwarded,
+            forwarded: forwarded.map(Box::new),
         };
         if let Err(e) = self.store.write(write).await {
             tracing::error!(error = %e, "store closed");

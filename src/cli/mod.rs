@@ -9,6 +9,7 @@ pub mod params;
 pub mod replay;
 pub mod serve;
 pub mod simulate;
+pub mod site;
 pub mod token;
 
 use clap::{Parser, Subcommand};
@@ -46,6 +47,9 @@ pub enum Command {
     Token(token::TokenCommand),
     /// Move a site's SQLite store into an empty PostgreSQL database, verified.
     Migrate(migrate::MigrateArgs),
+    /// An office's sites: set a site's machine's mark back (audited).
+    #[command(subcommand)]
+    Site(site::SiteCommand),
 }
 
 /// Why a command failed.
@@ -99,5 +103,6 @@ pub fn run(cli: Cli) -> Result<(), CliError> {
         Command::Token(command) => token::run(command),
         Command::Backup(args) => backup::run(args),
         Command::Migrate(args) => migrate::run(args),
+        Command::Site(command) => site::run(command),
     }
 }

@@ -15,7 +15,7 @@ use crate::machine::AlarmSink;
 use crate::store::alarms::{AlarmFilter, StoredAlarm};
 
 /// Who acknowledged, while access is open (no tokens exist).
-const ANONYMOUS: &str = "anonymous";
+pub(super) const ANONYMOUS: &str = "anonymous";
 
 #[derive(Debug, Deserialize, utoipa::IntoParams)]
 #[serde(deny_unknown_fields)]

@@ -137,6 +137,7 @@ fn api_routes(state: &SharedState) -> OpenApiRouter<SharedState> {
         .routes(guard(Operator, routes!(alarms::ack)))
         .routes(guard(Read, routes!(cluster::show)))
         .routes(guard(Site, routes!(sites::forward)))
+        .routes(guard(Admin, routes!(sites::reset_mark)))
         .routes(guard(Site, routes!(sites::report)))
         .routes(guard(Read, routes!(sites::list)))
 }

@@ -31,6 +31,7 @@ use serde_json::value::RawValue;
 use super::error::ApiError;
 use super::state::SharedState;
 use crate::config::{MachineSpec, forwarded_site, valid_machine_id};
+use crate::fusion::alarms::AlarmKind;
 use crate::fusion::reading::parse_reading;
 use crate::machine::ForwardedPart;
 use crate::store::alarms::{AlarmChange, AlarmRow};
@@ -367,64 +368,28 @@ pub async fn forward(
              backup?); declare the machine afresh at the site"
         )));
     }
+    // Every row checked and read before any is applied.
     let highest = highest_possible_sequence(crate::clock::wall_clock_s());
-    if let Some(item) = body.items.iter().find(|i| i.sequence > highest) {
-        return Err(ApiError::BadRequest(format!(
-            "sequence {} is beyond any a site can have issued by now (at most {highest}: sites \
-             number their rows from their clock in microseconds, and this office allows a day \
-             ahead of its own)",
-            item.sequence
-        )));
+    let rows = read_rows(body.items, highest)?;
+    if let Some(mark) = committed {
+        let sequences: Vec<i64> = rows.iter().map(|(sequence, _)| *sequence).collect();
+        held_or_refused(&state, (&machine, site), mark, &sequences, body.after).await?;
     }
-    let mut applied = 0;
+    let applied = rows.last().map_or(0, |(sequence, _)| *sequence);
     let mut parts = Vec::new();
-    for item in body.items {
-        if item.sequence <= applied {
-            return Err(ApiError::BadRequest(format!(
-                "sequence {} is not above the one before it ({applied})",
-                item.sequence
-            )));
-        }
-        applied = item.sequence;
-        match (item.machine, item.readings, item.alarm) {
-            (Some(declared), None, None) => {
-                apply_parts(&state, &machine, std::mem::take(&mut parts)).await?;
+    for (sequence, row) in rows {
+        match row {
+            Row::Declared(declared) => {
+                apply_parts(&state, &machine, std::mem::take(&mut parts), body.after).await?;
                 let spec = forwarded_spec(&machine, declared.spec)?;
                 state
-                    .declare_forwarded(spec, declared.snapshot, item.sequence)
+                    .declare_forwarded(spec, declared.snapshot, sequence)
                     .await?;
             }
-            (None, Some(raw), None) => {
-                let mut readings = Vec::with_capacity(raw.len());
-                for (index, raw) in raw.iter().enumerate() {
-                    readings.push(parse_reading(raw.get().as_bytes()).map_err(|e| {
-                        ApiError::BadRequest(format!(
-                            "sequence {}, reading {index}: {e}",
-                            item.sequence
-                        ))
-                    })?);
-                }
-                parts.push((item.sequence, ForwardedPart::Readings(readings)));
-            }
-            (None, None, Some(change)) => {
-                if change.alarm.kind == crate::fusion::alarms::AlarmKind::SiteLink.as_str() {
-                    return Err(ApiError::BadRequest(format!(
-                        "sequence {}: `site_link` is the office's own alarm",
-                        item.sequence
-                    )));
-                }
-                bounded_alarm_texts(item.sequence, &change.alarm)?;
-                parts.push((item.sequence, ForwardedPart::Alarm(Box::new(change))));
-            }
-            _ => {
-                return Err(ApiError::BadRequest(format!(
-                    "sequence {}: a row holds exactly one of `machine`, `readings`, `alarm`",
-                    item.sequence
-                )));
-            }
+            Row::Part(part) => parts.push((sequence, part)),
         }
     }
-    apply_parts(&state, &machine, parts).await?;
+    apply_parts(&state, &machine, parts, body.after).await?;
     // What is committed now (each part answered after its commit): a row
     // whose write failed behind an earlier answer is not claimed.
     let committed = state.forward_mark(&machine).await?.unwrap_or(0);
@@ -465,11 +430,71 @@ fn bounded_alarm_texts(
     Ok(())
 }
 
+/// A forwarded row, read.
+enum Row {
+    Declared(Declared),
+    Part(ForwardedPart),
+}
+
+/// The site's rows checked (sequences increasing and within `highest`,
+/// one thing each, no office alarm, texts within bounds) and read.
+fn read_rows(items: Vec<ForwardItem>, highest: i64) -> Result<Vec<(i64, Row)>, ApiError> {
+    let mut rows = Vec::with_capacity(items.len());
+    let mut before = 0;
+    for item in items {
+        let sequence = item.sequence;
+        if sequence <= before {
+            return Err(ApiError::BadRequest(format!(
+                "sequence {sequence} is not above the one before it ({before})"
+            )));
+        }
+        if sequence > highest {
+            return Err(ApiError::BadRequest(format!(
+                "sequence {sequence} is beyond any a site can have issued by now (at most \
+                 {highest}: sites number their rows from their clock in microseconds, and this \
+                 office allows a day ahead of its own)"
+            )));
+        }
+        before = sequence;
+        let row = match (item.machine, item.readings, item.alarm) {
+            (Some(declared), None, None) => Row::Declared(declared),
+            (None, Some(raw), None) => {
+                let mut readings = Vec::with_capacity(raw.len());
+                for (index, raw) in raw.iter().enumerate() {
+                    readings.push(parse_reading(raw.get().as_bytes()).map_err(|e| {
+                        ApiError::BadRequest(format!("sequence {sequence}, reading {index}: {e}"))
+                    })?);
+                }
+                Row::Part(ForwardedPart::Readings(readings))
+            }
+            (None, None, Some(change)) => {
+                let own = [AlarmKind::SiteLink, AlarmKind::ForwardRefused];
+                if own.iter().any(|kind| change.alarm.kind == kind.as_str()) {
+                    return Err(ApiError::BadRequest(format!(
+                        "sequence {sequence}: `{}` is the office's own alarm",
+                        change.alarm.kind
+                    )));
+                }
+                bounded_alarm_texts(sequence, &change.alarm)?;
+                Row::Part(ForwardedPart::Alarm(Box::new(change)))
+            }
+            _ => {
+                return Err(ApiError::BadRequest(format!(
+                    "sequence {sequence}: a row holds exactly one of `machine`, `readings`, `alarm`"
+                )));
+            }
+        };
+        rows.push((sequence, row));
+    }
+    Ok(rows)
+}
+
 /// Fuses and stores a run of readings and alarm changes in the machine.
 async fn apply_parts(
     state: &SharedState,
     machine: &str,
     parts: Vec<(i64, ForwardedPart)>,
+    confirmed: Option<i64>,
 ) -> Result<(), ApiError> {
     if parts.is_empty() {
         return Ok(());
@@ -477,10 +502,164 @@ async fn apply_parts(
     state
         .on_machine(machine, |handle| {
             let parts = parts.clone();
-            async move { handle.forwarded(parts).await }
+            async move { handle.forwarded(parts, confirmed).await }
         })
         .await?;
     Ok(())
+}
+
+/// Rows at or below the machine's `mark` are skipped as applied only if
+/// this office holds them (a span of what it applied) or the site says it
+/// confirmed them (`after`). Any other is refused (409) with
+/// `forward_refused` raised: the mark moved past rows this office never
+/// had (a forged or foreign sequence), and claiming them applied would
+/// have the site delete them.
+async fn held_or_refused(
+    state: &SharedState,
+    (machine, site): (&str, &str),
+    mark: i64,
+    sequences: &[i64],
+    after: Option<i64>,
+) -> Result<(), ApiError> {
+    let confirmed = after.unwrap_or(i64::MIN);
+    let below: Vec<i64> = sequences
+        .iter()
+        .copied()
+        .filter(|&sequence| sequence <= mark && sequence > confirmed)
+        .collect();
+    if below.is_empty() {
+        return Ok(());
+    }
+    let handle = state.machine(machine)?;
+    let store = state.store.clone();
+    let db_id = handle.db_id;
+    let spans = tokio::task::spawn_blocking(move || store.forward_spans(db_id))
+        .await
+        .map_err(|e| ApiError::Internal(e.to_string()))??;
+    let held = |sequence: &i64| {
+        spans
+            .iter()
+            .any(|(first, last)| (first..=last).contains(&sequence))
+    };
+    let Some(&unheld) = below.iter().find(|sequence| !held(sequence)) else {
+        return Ok(());
+    };
+    let back_to = after.unwrap_or(0);
+    let message = format!(
+        "site `{site}` forwarded rows of `{machine}` from sequence {unheld}, at or below this \
+         office's mark {mark}, which it does not hold (a forged or foreign sequence moved the \
+         mark?): they are refused and stay at the site. Once checked, an admin sets the mark \
+         back to the site's last confirmed sequence: PUT /api/v1/machines/{machine}/forward-mark \
+         {{\"sequence\": {back_to}}} or `tunnelnav site reset-mark {machine} --to {back_to}`"
+    );
+    tracing::warn!(%machine, %site, unheld, mark, "forwarded rows below the mark not held here: refused");
+    let row = AlarmRow {
+        kind: AlarmKind::ForwardRefused.as_str(),
+        severity: crate::fusion::alarms::Severity::Alarm.as_str(),
+        subject: site.to_string(),
+        raised: true,
+        t: state.clock.now_s(),
+        message: message.clone(),
+    };
+    if let Err(e) = handle.alarms(vec![row]).await {
+        tracing::warn!(%machine, error = %e, "forward_refused not stored");
+    }
+    Err(ApiError::Conflict(message))
+}
+
+/// A forwarded machine's mark, set back.
+#[derive(Debug, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct MarkReset {
+    /// The sequence the office's mark goes back to: the site's last
+    /// confirmed one (the `forward_refused` alarm names it); never
+    /// forward.
+    pub sequence: i64,
+}
+
+/// The mark as set back.
+#[derive(Debug, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct MarkAnswer {
+    pub machine: String,
+    /// The mark now.
+    pub sequence: i64,
+    /// The mark before.
+    pub was: i64,
+}
+
+/// Set a site's machine's mark back.
+///
+/// `PUT /api/v1/machines/{site}.{machine}/forward-mark`: after a
+/// `forward_refused` alarm, the office's mark of the machine goes back to
+/// the sequence given (never forward), recorded in the audit log with the
+/// admin's token name; the alarm clears and the site's refused rows apply
+/// at its next try (rows the office already holds are not applied twice).
+#[utoipa::path(put, path = "/api/v1/machines/{machine}/forward-mark", operation_id = "reset_forward_mark", tag = "sites",
+    params(super::openapi::MachinePath),
+    request_body(content = MarkReset, description = "The sequence the mark goes back to"),
+    responses(
+        (status = OK, description = "The mark set back (audited)", body = MarkAnswer),
+        (status = BAD_REQUEST, description = "Not a site's machine, or a sequence above the mark or below 0", body = super::error::ErrorBody),
+        (status = NOT_FOUND, description = "No such machine", body = super::error::ErrorBody),
+        (status = CONFLICT, description = "The machine has no mark yet: nothing forwarded", body = super::error::ErrorBody)))]
+pub async fn reset_mark(
+    State(state): State<SharedState>,
+    Path(super::openapi::MachinePath { machine }): Path<super::openapi::MachinePath>,
+    caller: Option<axum::Extension<super::auth::Caller>>,
+    body: Result<Bytes, BytesRejection>,
+) -> Result<Json<MarkAnswer>, ApiError> {
+    let Some((site, _)) = machine.split_once('.') else {
+        return Err(ApiError::BadRequest(format!(
+            "`{machine}` is not a site's machine: forwarded machines are named `{{site}}.{{machine}}`"
+        )));
+    };
+    let body = body.map_err(|e| ApiError::BadRequest(format!("could not read the body: {e}")))?;
+    let reset: MarkReset = serde_json::from_slice(&body)
+        .map_err(|e| ApiError::BadRequest(format!("body is not {{\"sequence\": N}}: {e}")))?;
+    let handle = state.machine(&machine)?;
+    let Some(mark) = state.forward_mark(&machine).await? else {
+        return Err(ApiError::Conflict(format!(
+            "`{machine}` has no mark: nothing was forwarded for it"
+        )));
+    };
+    if !(0..=mark).contains(&reset.sequence) {
+        return Err(ApiError::BadRequest(format!(
+            "`{machine}`'s mark is {mark}: it goes back to a sequence from 0 to {mark}, not {}",
+            reset.sequence
+        )));
+    }
+    let actor = caller
+        .as_ref()
+        .and_then(|axum::Extension(caller)| caller.name())
+        .unwrap_or(super::alarms::ANONYMOUS)
+        .to_string();
+    let now_t = state.clock.now_s();
+    let was = state
+        .store
+        .reset_forward_mark(machine.clone(), reset.sequence, actor.clone(), now_t)
+        .await?
+        .unwrap_or(mark);
+    handle
+        .set_forward_mark(reset.sequence)
+        .await
+        .map_err(|e| ApiError::Internal(e.to_string()))?;
+    tracing::warn!(%machine, %actor, was, sequence = reset.sequence, "forward mark set back");
+    let cleared = AlarmRow {
+        kind: AlarmKind::ForwardRefused.as_str(),
+        severity: crate::fusion::alarms::Severity::Alarm.as_str(),
+        subject: site.to_string(),
+        raised: false,
+        t: now_t,
+        message: format!("mark set back from {was} to {} by {actor}", reset.sequence),
+    };
+    if let Err(e) = handle.alarms(vec![cleared]).await {
+        tracing::warn!(%machine, error = %e, "forward_refused not cleared");
+    }
+    Ok(Json(MarkAnswer {
+        machine,
+        sequence: reset.sequence,
+        was,
+    }))
 }
 
 /// The site's stored declaration as this office's machine `id`

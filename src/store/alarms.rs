@@ -39,15 +39,17 @@ impl AlarmRow {
 /// change its site made left them (the raise, stored once, before a clear
 /// or an acknowledgement, so the office holds the alarm even if it missed
 /// the raise), and the acknowledgement; `None` for a kind or severity this
-/// release does not know, or an office's own `site_link`.
+/// release does not know, or an office's own `site_link` or
+/// `forward_refused`.
 pub fn forwarded_rows(
     change: &AlarmChange,
 ) -> Option<(Vec<AlarmRow>, Option<super::outbox::ForwardedAck>)> {
     use crate::fusion::alarms::{AlarmKind, Severity};
     let alarm = &change.alarm;
-    // `site_link` is an office's own: no site raises it.
+    // `site_link` and `forward_refused` are an office's own: no site
+    // raises them.
     let kind = AlarmKind::from_name(&alarm.kind)
-        .filter(|kind| *kind != AlarmKind::SiteLink)?
+        .filter(|kind| !matches!(kind, AlarmKind::SiteLink | AlarmKind::ForwardRefused))?
         .as_str();
     let severity = Severity::from_name(&alarm.severity)?.as_str();
     let row = |raised: bool, t: f64| AlarmRow {

@@ -151,6 +151,31 @@ impl Store {
         on_backend!(self, b => b.forward_mark(machine_id))
     }
 
+    /// An office: the spans of sequences of forwarded machine
+    /// `machine_id` applied here and not yet confirmed by its site
+    /// (blocking).
+    pub fn forward_spans(&self, machine_id: i64) -> Result<Vec<(i64, i64)>, StoreError> {
+        on_backend!(self, b => b.forward_spans(machine_id))
+    }
+
+    /// An office: sets forwarded machine `machine`'s mark back to
+    /// `sequence` (never forward), audited as `actor`'s at `t`; the mark it
+    /// had (`None`: not a forwarded machine).
+    pub async fn reset_forward_mark(
+        &self,
+        machine: String,
+        sequence: i64,
+        actor: String,
+        t: f64,
+    ) -> Result<Option<i64>, StoreError> {
+        on_backend!(self, b => b.reset_forward_mark(machine, sequence, actor, t).await)
+    }
+
+    /// The audit log, oldest first (blocking).
+    pub fn audit(&self) -> Result<Vec<super::outbox::AuditEntry>, StoreError> {
+        on_backend!(self, b => b.audit())
+    }
+
     /// An office: every site's record (blocking).
     pub fn sites(&self) -> Result<Vec<SiteRecord>, StoreError> {
         on_backend!(self, b => b.sites())

@@ -117,7 +117,7 @@ pub struct Write {
     pub lease_epoch: Option<i64>,
     /// An office: the site's sequence this write of a forwarded machine
     /// brings it to (stored with it), and the acknowledgements in it.
-    pub forwarded: Option<outbox::Forwarded>,
+    pub forwarded: Option<Box<outbox::Forwarded>>,
 }
 
 /// What a committed [`Write`] stored.

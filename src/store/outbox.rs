@@ -113,8 +113,31 @@ pub struct ForwardedAck {
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Forwarded {
     pub after: Option<i64>,
+    /// The first sequence this write applies (its span is `first` to
+    /// `sequence`).
+    pub first: i64,
     pub sequence: i64,
+    /// The last sequence the site says the office answered committed: the
+    /// spans up to it are forgotten (the site never sends those again).
+    pub confirmed: Option<i64>,
     pub acks: Vec<ForwardedAck>,
+}
+
+/// A row of the audit log: what an admin changed by hand.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct AuditEntry {
+    pub id: i64,
+    /// Unix seconds.
+    pub t: f64,
+    /// The admin token's name (`cli` from the command line, `anonymous`
+    /// while access is open).
+    pub actor: String,
+    /// What was done, e.g. `reset_forward_mark`.
+    pub action: String,
+    /// What it was done to (a machine's id).
+    pub subject: String,
+    /// The change, e.g. `mark 9000 -> 120`.
+    pub detail: String,
 }
 
 /// An alarm change owed to a webhook.
@@ -281,7 +304,13 @@ pub(super) fn apply_forwarded(
             }
         }
     }
-    set_mark(tx, machine_id, forwarded.sequence)?;
+    set_mark(tx, machine_id, forwarded.first, forwarded.sequence)?;
+    if let Some(confirmed) = forwarded.confirmed {
+        tx.prepare_cached(
+            "DELETE FROM forward_spans WHERE machine_id = ?1 AND last_sequence <= ?2",
+        )?
+        .execute(params![machine_id, confirmed])?;
+    }
     Ok(changes)
 }
 
@@ -298,8 +327,67 @@ pub(crate) fn mark_moved(
     ))
 }
 
-/// An office: a forwarded machine's mark is `sequence` (never lowered).
-pub(super) fn set_mark(tx: &Connection, machine_id: i64, sequence: i64) -> Result<(), StoreError> {
+/// An office: sets forwarded machine `machine`'s (its protocol id) mark
+/// back to `sequence` (never forward: a higher one leaves it), with a row
+/// of the audit log saying `actor` did it at `t`; the mark it had (`None`:
+/// no such forwarded machine, nothing done). Its own transaction: the
+/// server's writer, or a plain connection beside it (the command line).
+pub fn reset_mark(
+    conn: &mut Connection,
+    machine: &str,
+    sequence: i64,
+    actor: &str,
+    t: f64,
+) -> Result<Option<i64>, StoreError> {
+    let tx = conn.transaction()?;
+    let found: Option<(i64, i64)> = tx
+        .query_row(
+            "SELECT f.machine_id, f.sequence FROM forward_marks f \
+             JOIN machines m ON m.id = f.machine_id WHERE m.machine = ?1",
+            [machine],
+            |row| Ok((row.get(0)?, row.get(1)?)),
+        )
+        .optional()?;
+    let Some((machine_id, was)) = found else {
+        return Ok(None);
+    };
+    // Back only: a mark set forward would skip rows.
+    let sequence = sequence.min(was);
+    tx.execute(
+        "UPDATE forward_marks SET sequence = ?2 WHERE machine_id = ?1",
+        params![machine_id, sequence],
+    )?;
+    tx.execute(
+        "INSERT INTO audit (t, actor, action, subject, detail) VALUES (?1, ?2, ?3, ?4, ?5)",
+        params![
+            t,
+            actor,
+            RESET_FORWARD_MARK,
+            machine,
+            format!("mark {was} -> {sequence}")
+        ],
+    )?;
+    tx.commit()?;
+    Ok(Some(was))
+}
+
+/// The audit log's action of a mark set back.
+pub const RESET_FORWARD_MARK: &str = "reset_forward_mark";
+
+/// An office: a forwarded machine's mark is `sequence` (never lowered
+/// here), and it holds the rows `first` to `sequence`.
+pub(super) fn set_mark(
+    tx: &Connection,
+    machine_id: i64,
+    first: i64,
+    sequence: i64,
+) -> Result<(), StoreError> {
+    tx.prepare_cached(
+        "INSERT INTO forward_spans (machine_id, first_sequence, last_sequence) VALUES (?1, ?2, ?3) \
+         ON CONFLICT (machine_id, first_sequence) DO UPDATE \
+         SET last_sequence = max(last_sequence, ?3)",
+    )?
+    .execute(params![machine_id, first, sequence])?;
     tx.prepare_cached(
         "INSERT INTO forward_marks (machine_id, sequence) VALUES (?1, ?2) \
          ON CONFLICT (machine_id) DO UPDATE SET sequence = max(sequence, ?2)",
@@ -322,6 +410,56 @@ struct Row {
 }
 
 impl SqliteStore {
+    /// An office: the spans of machine `machine_id`'s sequences this office
+    /// applied and the site has not confirmed yet, (first, last).
+    pub fn forward_spans(&self, machine_id: i64) -> Result<Vec<(i64, i64)>, StoreError> {
+        self.read(|conn| {
+            let mut stmt = conn.prepare_cached(
+                "SELECT first_sequence, last_sequence FROM forward_spans WHERE machine_id = ?1 \
+                 ORDER BY first_sequence",
+            )?;
+            let spans = stmt
+                .query_map([machine_id], |row| Ok((row.get(0)?, row.get(1)?)))?
+                .collect::<Result<_, _>>()?;
+            Ok(spans)
+        })
+    }
+
+    /// An office: sets forwarded machine `machine`'s mark back to
+    /// `sequence` ([`reset_mark`]), on the writing connection.
+    pub async fn reset_forward_mark(
+        &self,
+        machine: String,
+        sequence: i64,
+        actor: String,
+        t: f64,
+    ) -> Result<Option<i64>, StoreError> {
+        self.maintain(move |conn| reset_mark(conn, &machine, sequence, &actor, t))
+            .await
+    }
+
+    /// The audit log, oldest first.
+    pub fn audit(&self) -> Result<Vec<AuditEntry>, StoreError> {
+        self.read(|conn| {
+            let mut stmt = conn.prepare_cached(
+                "SELECT id, t, actor, action, subject, detail FROM audit ORDER BY id",
+            )?;
+            let rows = stmt
+                .query_map([], |row| {
+                    Ok(AuditEntry {
+                        id: row.get(0)?,
+                        t: row.get(1)?,
+                        actor: row.get(2)?,
+                        action: row.get(3)?,
+                        subject: row.get(4)?,
+                        detail: row.get(5)?,
+                    })
+                })?
+                .collect::<Result<_, _>>()?;
+            Ok(rows)
+        })
+    }
+
     /// An office: the last sequence of machine `machine_id` its site sent
     /// that is committed here.
     pub fn forward_mark(&self, machine_id: i64) -> Result<Option<i64>, StoreError> {
@@ -692,7 +830,7 @@ mod tests {
                 after_commit: None,
                 reply: Some(reply),
                 lease_epoch: None,
-                forwarded,
+                forwarded: forwarded.map(Box::new),
             })
             .await
             .unwrap();
@@ -805,7 +943,9 @@ mod tests {
         let forwarded = |after, sequence| {
             Some(Forwarded {
                 after,
+                first: sequence,
                 sequence,
+                confirmed: None,
                 acks: Vec::new(),
             })
         };

@@ -190,6 +190,25 @@ const MIGRATIONS: &[&str] = &[
     DROP TABLE tokens;
     ALTER TABLE tokens_v6 RENAME TO tokens;
     ",
+    // 7: an office's spans of each forwarded machine's sequences it
+    // applied (a skipped row is claimed only if a span holds it), and the
+    // audit log of what an admin changed by hand (issue 57).
+    "
+    CREATE TABLE forward_spans (
+        machine_id INTEGER NOT NULL REFERENCES machines(id),
+        first_sequence INTEGER NOT NULL,
+        last_sequence INTEGER NOT NULL,
+        PRIMARY KEY (machine_id, first_sequence)
+    );
+    CREATE TABLE audit (
+        id INTEGER PRIMARY KEY,
+        t REAL NOT NULL,
+        actor TEXT NOT NULL,
+        action TEXT NOT NULL,
+        subject TEXT NOT NULL,
+        detail TEXT NOT NULL
+    );
+    ",
 ];
 
 /// The schema version this build writes.

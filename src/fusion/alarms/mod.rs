@@ -77,11 +77,16 @@ pub enum AlarmKind {
     SiteLink,
     /// An engine's estimates degraded or lost (the engine the subject).
     Integrity,
+    /// An office's: a site forwarded rows at or below the machine's mark
+    /// that the office does not hold (a forged or foreign sequence moved
+    /// the mark); refused until an admin sets the mark back (the server
+    /// raises it).
+    ForwardRefused,
 }
 
 impl AlarmKind {
     /// Every kind.
-    pub const ALL: [AlarmKind; 9] = [
+    pub const ALL: [AlarmKind; 10] = [
         AlarmKind::Deviation,
         AlarmKind::LaserDropout,
         AlarmKind::StaleSensor,
@@ -91,6 +96,7 @@ impl AlarmKind {
         AlarmKind::SteeringInfeasible,
         AlarmKind::SiteLink,
         AlarmKind::Integrity,
+        AlarmKind::ForwardRefused,
     ];
 
     /// The kind of a protocol name.
@@ -110,6 +116,7 @@ impl AlarmKind {
             AlarmKind::SteeringInfeasible => "steering_infeasible",
             AlarmKind::SiteLink => "site_link",
             AlarmKind::Integrity => "integrity",
+            AlarmKind::ForwardRefused => "forward_refused",
         }
     }
 }

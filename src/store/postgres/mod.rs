@@ -752,6 +752,90 @@ impl PgStore {
         })
     }
 
+    /// An office: the spans of machine `machine_id`'s sequences this office
+    /// applied and the site has not confirmed yet, (first, last).
+    pub fn forward_spans(&self, machine_id: i64) -> Result<Vec<(i64, i64)>, StoreError> {
+        self.read(async |client| {
+            Ok(client
+                .query(
+                    "SELECT first_sequence, last_sequence FROM forward_spans \
+                     WHERE machine_id = $1 ORDER BY first_sequence",
+                    &[&machine_id],
+                )
+                .await?
+                .iter()
+                .map(|row| (row.get(0), row.get(1)))
+                .collect())
+        })
+    }
+
+    /// An office: sets forwarded machine `machine`'s mark back to
+    /// `sequence` (never forward), with an audit row, as on SQLite
+    /// ([`crate::store::outbox::reset_mark`]); the mark it had.
+    pub async fn reset_forward_mark(
+        &self,
+        machine: String,
+        sequence: i64,
+        actor: String,
+        t: f64,
+    ) -> Result<Option<i64>, StoreError> {
+        let mut client = self.pooled().await?;
+        let tx = client.transaction().await?;
+        let Some((machine_id, was)) = tx
+            .query_opt(
+                "SELECT f.machine_id, f.sequence FROM forward_marks f \
+                 JOIN machines m ON m.id = f.machine_id WHERE m.machine = $1 FOR UPDATE OF f",
+                &[&machine],
+            )
+            .await?
+            .map(|row| (row.get::<_, i64>(0), row.get::<_, i64>(1)))
+        else {
+            return Ok(None);
+        };
+        // Back only: a mark set forward would skip rows.
+        let sequence = sequence.min(was);
+        tx.execute(
+            "UPDATE forward_marks SET sequence = $2 WHERE machine_id = $1",
+            &[&machine_id, &sequence],
+        )
+        .await?;
+        tx.execute(
+            "INSERT INTO audit (t, actor, action, subject, detail) VALUES ($1, $2, $3, $4, $5)",
+            &[
+                &t,
+                &actor,
+                &crate::store::outbox::RESET_FORWARD_MARK,
+                &machine,
+                &format!("mark {was} -> {sequence}"),
+            ],
+        )
+        .await?;
+        tx.commit().await?;
+        Ok(Some(was))
+    }
+
+    /// The audit log, oldest first.
+    pub fn audit(&self) -> Result<Vec<crate::store::outbox::AuditEntry>, StoreError> {
+        self.read(async |client| {
+            Ok(client
+                .query(
+                    "SELECT id, t, actor, action, subject, detail FROM audit ORDER BY id",
+                    &[],
+                )
+                .await?
+                .iter()
+                .map(|row| crate::store::outbox::AuditEntry {
+                    id: row.get(0),
+                    t: row.get(1),
+                    actor: row.get(2),
+                    action: row.get(3),
+                    subject: row.get(4),
+                    detail: row.get(5),
+                })
+                .collect())
+        })
+    }
+
     /// An office: records a site's contact.
     pub async fn put_site(&self, site: crate::store::outbox::SiteRecord) -> Result<(), StoreError> {
         let client = self.pooled().await?;

@@ -154,6 +154,24 @@ const MIGRATIONS: &[&str] = &[
     ALTER TABLE nodes RENAME COLUMN key TO key_sha256;
     UPDATE nodes SET key_sha256 = '';
     ",
+    // 5: an office's spans of each forwarded machine's sequences it
+    // applied, and the audit log (as in SQLite's 7).
+    "
+    CREATE TABLE forward_spans (
+        machine_id bigint NOT NULL REFERENCES machines(id),
+        first_sequence bigint NOT NULL,
+        last_sequence bigint NOT NULL,
+        PRIMARY KEY (machine_id, first_sequence)
+    );
+    CREATE TABLE audit (
+        id bigserial PRIMARY KEY,
+        t double precision NOT NULL,
+        actor text NOT NULL,
+        action text NOT NULL,
+        subject text NOT NULL,
+        detail text NOT NULL
+    );
+    ",
 ];
 
 /// The schema version this build writes.
