@@ -902,6 +902,10 @@ impl Actor {
         confirmed: Option<i64>,
         reply: oneshot::Sender<Result<WriteOutcome, StoreError>>,
     ) {
+        if let Err(e) = self.held(&parts, confirmed).await {
+            let _ = reply.send(Err(e));
+            return;
+        }
         let mark = self.forward_mark.unwrap_or(i64::MIN);
         let mut readings = Vec::new();
         let mut forwarded = crate::store::outbox::Forwarded {
@@ -911,9 +915,7 @@ impl Actor {
         };
         let mut rows = Vec::new();
         for (sequence, part) in parts.into_iter().filter(|(s, _)| *s > mark) {
-            if forwarded.sequence == 0 {
-                forwarded.first = sequence;
-            }
+            forwarded.applied.push(sequence);
             forwarded.sequence = sequence;
             match part {
                 ForwardedPart::Readings(batch) => readings.extend(batch),
@@ -940,6 +942,45 @@ impl Actor {
         }
         self.forward_mark = Some(forwarded.sequence);
         self.ingest(readings, Some(forwarded), rows, reply).await;
+    }
+
+    /// An office: whether every part at or below the mark (and above
+    /// what the site `confirmed`) is a row this office holds, checked here
+    /// against the mark the machine goes on from, so no request between
+    /// the check and the write moves it. The store's record is read only
+    /// for such rows (a resend, or a forged mark).
+    async fn held(
+        &mut self,
+        parts: &[(i64, ForwardedPart)],
+        confirmed: Option<i64>,
+    ) -> Result<(), StoreError> {
+        let below = |mark: Option<i64>| -> Vec<i64> {
+            let mark = mark.unwrap_or(i64::MIN);
+            let confirmed = confirmed.unwrap_or(i64::MIN);
+            parts
+                .iter()
+                .map(|(sequence, _)| *sequence)
+                .filter(|&sequence| sequence <= mark && sequence > confirmed)
+                .collect()
+        };
+        if below(self.forward_mark).is_empty() {
+            return Ok(());
+        }
+        let store = self.store.clone();
+        let db_id = self.db_id;
+        let held = tokio::task::spawn_blocking(move || store.forward_held(db_id))
+            .await
+            .map_err(|e| StoreError::Unavailable(e.to_string()))??;
+        match below(self.forward_mark)
+            .into_iter()
+            .find(|&sequence| !held.holds(sequence))
+        {
+            Some(sequence) => Err(StoreError::NotHeld {
+                sequence,
+                mark: self.forward_mark.unwrap_or_default(),
+            }),
+            None => Ok(()),
+        }
     }
 
     /// Fuses `readings` (sorted first, unless `forwarded`: a site's are

@@ -295,6 +295,7 @@ async fn signed_call(
     let signed = keys
         .sign(
             &tunnelnav::server::signing::Signable {
+                to: base,
                 method: method.as_str(),
                 target: path,
                 body: b"",

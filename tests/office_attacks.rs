@@ -313,4 +313,10 @@ async fn a_forged_mark_refuses_the_sites_rows_with_an_alarm_until_an_admin_sets_
         "{audit:?}"
     );
     assert_eq!(audit[1].0, "cli");
+    // The same log over HTTP.
+    let served = common::get_json(&client, &office_base, "/api/v1/audit").await;
+    let entries = served["entries"].as_array().unwrap();
+    assert_eq!(entries.len(), 2, "{served}");
+    assert_eq!(entries[1]["actor"], "cli");
+    assert_eq!(entries[0]["subject"], "north.tbm");
 }

@@ -1,9 +1,10 @@
 //! `tunnelnav site reset-mark MACHINE --to SEQUENCE --data-dir DIR | --store
 //! URL`: an office's mark of a site's machine set back (never forward),
 //! after a `forward_refused` alarm, recorded in the audit log as done from
-//! the command line. A running server notices at the machine's next
-//! forwarded write (which fails once and is sent again after the machine
-//! is rebuilt from the store); `PUT .../forward-mark` does it at once.
+//! the command line. For an office that is stopped: a running one keeps
+//! the mark its machine holds until it restarts; use `PUT
+//! /api/v1/machines/{site}.{machine}/forward-mark` there, which takes
+//! effect at once.
 
 use clap::{Args, Subcommand};
 

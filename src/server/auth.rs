@@ -322,14 +322,7 @@ async fn from_node(
         .map_or("/", |p| p.as_str())
         .to_string();
     let grant = cluster
-        .forwarded(
-            &parts.headers,
-            &signing::Signable {
-                method: parts.method.as_str(),
-                target: &target,
-                body: &body,
-            },
-        )
+        .forwarded(&parts.headers, (parts.method.as_str(), &target, &body))
         .await?;
     let token = state.gate.check_grant(&state.store, &grant, need).await?;
     parts.extensions.insert(Caller(token));

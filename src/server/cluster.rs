@@ -69,6 +69,9 @@ struct View {
 /// This node's part in the cluster.
 pub struct Cluster {
     node: String,
+    /// Where the others reach this node (what requests for it are signed
+    /// for).
+    url: String,
     keys: Arc<ClusterKeys>,
     membership: tokio::sync::Mutex<Membership>,
     store: PgStore,
@@ -149,6 +152,7 @@ impl Cluster {
             .map_err(|e| crate::store::StoreError::Location(e.to_string()))?;
         Ok(Cluster {
             node: membership.node().to_string(),
+            url: options.advertise.clone(),
             keys: options.keys.clone(),
             membership: tokio::sync::Mutex::new(membership),
             store: postgres.clone(),
@@ -235,11 +239,17 @@ impl Cluster {
     pub async fn forwarded(
         &self,
         headers: &HeaderMap,
-        request: &Signable<'_>,
+        (method, target, body): (&str, &str, &[u8]),
     ) -> Result<Grant, ApiError> {
+        let request = Signable {
+            to: &self.url,
+            method,
+            target,
+            body,
+        };
         let (node, grant) = self
             .keys
-            .verify(headers, request, crate::clock::wall_clock_s())?;
+            .verify(headers, &request, crate::clock::wall_clock_s())?;
         let live = |view: &View| view.nodes.get(&node).is_some_and(|row| row.live);
         let mut known = self.view.read().map(|v| live(&v)).unwrap_or(false);
         if !known {
@@ -288,6 +298,7 @@ impl Cluster {
         let target = format!("/api/v1/machines/{machine}/readings");
         let headers = self.sign(
             &Signable {
+                to: url,
                 method: "POST",
                 target: &target,
                 body: body.as_bytes(),
@@ -768,6 +779,7 @@ async fn proxy(
     let grant = Grant::of(parts.extensions.get::<Caller>().and_then(|c| c.0.as_ref()));
     headers.extend(cluster.sign(
         &Signable {
+            to: url,
             method: parts.method.as_str(),
             target: &sent_target,
             body: &body,

@@ -122,6 +122,7 @@ impl From<StoreError> for ApiError {
                     "the store cannot write now ({e}); nothing of this request was stored, retry"
                 ),
             },
+            not_held @ StoreError::NotHeld { .. } => ApiError::Conflict(not_held.to_string()),
             other => ApiError::Internal(other.to_string()),
         }
     }

@@ -5,6 +5,7 @@
 
 mod alarms;
 mod alignment;
+mod audit;
 pub mod auth;
 pub mod cluster;
 pub mod csv_text;
@@ -138,6 +139,7 @@ fn api_routes(state: &SharedState) -> OpenApiRouter<SharedState> {
         .routes(guard(Read, routes!(cluster::show)))
         .routes(guard(Site, routes!(sites::forward)))
         .routes(guard(Admin, routes!(sites::reset_mark)))
+        .routes(guard(Admin, routes!(audit::list)))
         .routes(guard(Site, routes!(sites::report)))
         .routes(guard(Read, routes!(sites::list)))
 }

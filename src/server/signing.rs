@@ -3,8 +3,9 @@
 //! Every node reads the same cluster key file (`serve --cluster-key-file`,
 //! one key a line, each at least 32 characters). A node signs each request
 //! it sends another with HMAC-SHA256 under the file's first key, over the
-//! method, the path and query, the body's SHA-256, a timestamp, a nonce,
-//! its own name and the caller it speaks for; the key never travels. The
+//! node it is for (its URL), the method, the path and query, the body's
+//! SHA-256, a timestamp, a nonce, its own name and the caller it speaks
+//! for; the key never travels. The
 //! receiving node accepts a signature under any key of its file, within
 //! [`REPLAY_WINDOW_S`] of its clock and with a nonce it has not seen in
 //! that window, and then checks the caller against the route's need
@@ -102,6 +103,9 @@ impl Grant {
 /// A request as signed.
 #[derive(Debug, Clone, Copy)]
 pub struct Signable<'a> {
+    /// The node it is for: the URL it advertises (a request signed for one
+    /// node is refused by the others).
+    pub to: &'a str,
     pub method: &'a str,
     /// The path and query, as sent.
     pub target: &'a str,
@@ -177,6 +181,7 @@ fn canonical(
     let body = hex::encode(Sha256::digest(request.body));
     [
         "tunnelnav-node-request-1",
+        request.to,
         request.method,
         request.target,
         &body,
@@ -231,7 +236,11 @@ impl ClusterKeys {
                             tracing::info!(file = %path.display(), keys = keys.len(), "cluster keys reread");
                             (loaded.keys, loaded.modified) = (keys, modified);
                         }
-                        Err(e) => tracing::warn!(error = %e, "cluster keys kept as they were"),
+                        Err(e) => {
+                            // Said once a change, not every second.
+                            loaded.modified = modified;
+                            tracing::warn!(error = %e, "cluster keys kept as they were");
+                        }
                     }
                 }
             }
@@ -336,16 +345,20 @@ impl ClusterKeys {
                 "signed at {sent_s}, more than {REPLAY_WINDOW_S} s from this node's clock ({now_s:.3})"
             )));
         }
-        if let Ok(mut seen) = self.seen.lock() {
-            if seen.len() >= 4096 {
-                seen.retain(|_, until| *until >= now_s);
-            }
-            let key = (node.to_string(), nonce.to_string());
-            if seen.contains_key(&key) {
-                return Err(refused("its nonce was used before (a replay)"));
-            }
-            seen.insert(key, now_s + 2.0 * REPLAY_WINDOW_S);
+        let Ok(mut seen) = self.seen.lock() else {
+            return Err(refused(
+                "this node cannot tell a replay now (its nonce record failed)",
+            ));
+        };
+        if seen.len() >= 4096 {
+            seen.retain(|_, until| *until >= now_s);
         }
+        let key = (node.to_string(), nonce.to_string());
+        if seen.contains_key(&key) {
+            return Err(refused("its nonce was used before (a replay)"));
+        }
+        seen.insert(key, now_s + 2.0 * REPLAY_WINDOW_S);
+        drop(seen);
         let grant = hex::decode(caller)
             .ok()
             .and_then(|bytes| serde_json::from_slice::<Grant>(&bytes).ok())
@@ -373,6 +386,7 @@ mod tests {
     }
 
     const REQUEST: Signable<'static> = Signable {
+        to: "http://10.0.0.2:8080",
         method: "POST",
         target: "/api/v1/machines/m1/readings",
         body: b"{\"t\": 1}\n",
@@ -410,7 +424,11 @@ mod tests {
             target: "/api/v1/machines/m2/readings",
             ..REQUEST
         };
-        for changed in [other_body, other_path] {
+        let other_node = Signable {
+            to: "http://10.0.0.3:8080",
+            ..REQUEST
+        };
+        for changed in [other_body, other_path, other_node] {
             let error = keys
                 .verify(&signed, &changed, 1000.0)
                 .unwrap_err()
@@ -473,6 +491,28 @@ mod tests {
             rotating.fingerprint(),
             hex::encode(Sha256::digest(new.as_bytes()))
         );
+    }
+
+    #[test]
+    fn a_changed_key_file_is_read_again_within_a_second() {
+        let old = "0123456789abcdef0123456789abcdef";
+        let new = "fedcba9876543210fedcba9876543210";
+        let (dir, keys) = key_file(old);
+        let path = dir.path().join("cluster.key");
+        std::fs::write(&path, format!("{new}\n{old}\n")).unwrap();
+        // A modification time the file system tells apart from the first.
+        let file = std::fs::File::options().write(true).open(&path).unwrap();
+        file.set_modified(SystemTime::now() + Duration::from_secs(5))
+            .unwrap();
+        std::thread::sleep(REREAD + Duration::from_millis(50));
+        assert_eq!(
+            keys.fingerprint(),
+            hex::encode(Sha256::digest(new.as_bytes()))
+        );
+        // A file that became unreadable keeps the keys it had.
+        std::fs::remove_file(&path).unwrap();
+        std::thread::sleep(REREAD + Duration::from_millis(50));
+        assert!(keys.has_key());
     }
 
     #[test]

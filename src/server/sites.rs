@@ -18,7 +18,7 @@
 //! its machines here.
 
 use std::collections::BTreeMap;
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use axum::Json;
@@ -33,7 +33,8 @@ use super::state::SharedState;
 use crate::config::{MachineSpec, forwarded_site, valid_machine_id};
 use crate::fusion::alarms::AlarmKind;
 use crate::fusion::reading::parse_reading;
-use crate::machine::ForwardedPart;
+use crate::machine::{ForwardedPart, MachineError};
+use crate::store::StoreError;
 use crate::store::alarms::{AlarmChange, AlarmRow};
 use crate::store::outbox::{Backlog, Declared, SiteRecord};
 
@@ -154,6 +155,10 @@ pub struct SitePath {
 #[derive(Default)]
 pub struct SiteLinks {
     links: Mutex<BTreeMap<String, Link>>,
+    /// One forwarding request of a site at a time (per site: sites are as
+    /// many as their tokens), so a mark read and checked stays the mark
+    /// until the answer.
+    forwarding: Mutex<BTreeMap<String, Arc<tokio::sync::Mutex<()>>>>,
 }
 
 #[derive(Debug, Clone)]
@@ -187,6 +192,17 @@ impl SiteLinks {
             .collect();
         SiteLinks {
             links: Mutex::new(links),
+            forwarding: Mutex::default(),
+        }
+    }
+
+    /// The lock that serialises `site`'s forwarding requests.
+    fn forwarding(&self, site: &str) -> Arc<tokio::sync::Mutex<()>> {
+        match self.forwarding.lock() {
+            Ok(mut locks) => locks.entry(site.to_string()).or_default().clone(),
+            // A poisoned map: a lock of its own (serialises nothing more
+            // than before; the actor's check still holds).
+            Err(_) => Arc::default(),
         }
     }
 
@@ -358,6 +374,8 @@ pub async fn forward(
         )));
     }
     note_contact(&state, site, None).await;
+    let serial = state.sites.forwarding(site);
+    let _serial = serial.lock().await;
     let committed = state.forward_mark(&machine).await?;
     if let Some(after) = body.after
         && committed.is_none_or(|mark| mark < after)
@@ -371,16 +389,19 @@ pub async fn forward(
     // Every row checked and read before any is applied.
     let highest = highest_possible_sequence(crate::clock::wall_clock_s());
     let rows = read_rows(body.items, highest)?;
-    if let Some(mark) = committed {
-        let sequences: Vec<i64> = rows.iter().map(|(sequence, _)| *sequence).collect();
-        held_or_refused(&state, (&machine, site), mark, &sequences, body.after).await?;
-    }
     let applied = rows.last().map_or(0, |(sequence, _)| *sequence);
     let mut parts = Vec::new();
     for (sequence, row) in rows {
         match row {
             Row::Declared(declared) => {
-                apply_parts(&state, &machine, std::mem::take(&mut parts), body.after).await?;
+                apply_parts(
+                    &state,
+                    (&machine, site),
+                    std::mem::take(&mut parts),
+                    body.after,
+                )
+                .await?;
+                declaration_held(&state, (&machine, site), sequence, body.after).await?;
                 let spec = forwarded_spec(&machine, declared.spec)?;
                 state
                     .declare_forwarded(spec, declared.snapshot, sequence)
@@ -389,7 +410,7 @@ pub async fn forward(
             Row::Part(part) => parts.push((sequence, part)),
         }
     }
-    apply_parts(&state, &machine, parts, body.after).await?;
+    apply_parts(&state, (&machine, site), parts, body.after).await?;
     // What is committed now (each part answered after its commit): a row
     // whose write failed behind an earlier answer is not claimed.
     let committed = state.forward_mark(&machine).await?.unwrap_or(0);
@@ -489,70 +510,85 @@ fn read_rows(items: Vec<ForwardItem>, highest: i64) -> Result<Vec<(i64, Row)>, A
     Ok(rows)
 }
 
-/// Fuses and stores a run of readings and alarm changes in the machine.
+/// Fuses and stores a run of readings and alarm changes in the machine;
+/// refused with `forward_refused` if a part at or below its mark is not
+/// a row this office holds (the machine's task checks, against the mark it
+/// goes on from).
 async fn apply_parts(
     state: &SharedState,
-    machine: &str,
+    (machine, site): (&str, &str),
     parts: Vec<(i64, ForwardedPart)>,
     confirmed: Option<i64>,
 ) -> Result<(), ApiError> {
     if parts.is_empty() {
         return Ok(());
     }
-    state
+    let not_held = state
         .on_machine(machine, |handle| {
             let parts = parts.clone();
-            async move { handle.forwarded(parts, confirmed).await }
+            async move {
+                match handle.forwarded(parts, confirmed).await {
+                    Ok(_) => Ok(None),
+                    Err(MachineError::Store(StoreError::NotHeld { sequence, mark })) => {
+                        Ok(Some((sequence, mark)))
+                    }
+                    Err(e) => Err(e),
+                }
+            }
         })
         .await?;
-    Ok(())
+    match not_held {
+        None => Ok(()),
+        Some((sequence, mark)) => {
+            Err(refuse_not_held(state, (machine, site), (sequence, mark), confirmed).await)
+        }
+    }
 }
 
-/// Rows at or below the machine's `mark` are skipped as applied only if
-/// this office holds them (a span of what it applied) or the site says it
-/// confirmed them (`after`). Any other is refused (409) with
-/// `forward_refused` raised: the mark moved past rows this office never
-/// had (a forged or foreign sequence), and claiming them applied would
-/// have the site delete them.
-async fn held_or_refused(
+/// A redeclaration at or below the machine's mark is skipped as applied
+/// only if this office holds it; else refused as [`apply_parts`] does.
+async fn declaration_held(
     state: &SharedState,
     (machine, site): (&str, &str),
-    mark: i64,
-    sequences: &[i64],
-    after: Option<i64>,
+    sequence: i64,
+    confirmed: Option<i64>,
 ) -> Result<(), ApiError> {
-    let confirmed = after.unwrap_or(i64::MIN);
-    let below: Vec<i64> = sequences
-        .iter()
-        .copied()
-        .filter(|&sequence| sequence <= mark && sequence > confirmed)
-        .collect();
-    if below.is_empty() {
+    let Some(mark) = state.forward_mark(machine).await? else {
+        return Ok(());
+    };
+    if sequence > mark || confirmed.is_some_and(|c| sequence <= c) {
         return Ok(());
     }
-    let handle = state.machine(machine)?;
+    let db_id = state.machine(machine)?.db_id;
     let store = state.store.clone();
-    let db_id = handle.db_id;
-    let spans = tokio::task::spawn_blocking(move || store.forward_spans(db_id))
+    let held = tokio::task::spawn_blocking(move || store.forward_held(db_id))
         .await
         .map_err(|e| ApiError::Internal(e.to_string()))??;
-    let held = |sequence: &i64| {
-        spans
-            .iter()
-            .any(|(first, last)| (first..=last).contains(&sequence))
-    };
-    let Some(&unheld) = below.iter().find(|sequence| !held(sequence)) else {
+    if held.holds(sequence) {
         return Ok(());
-    };
-    let back_to = after.unwrap_or(0);
+    }
+    Err(refuse_not_held(state, (machine, site), (sequence, mark), confirmed).await)
+}
+
+/// The 409 of a site's row at or below the machine's `mark` that this
+/// office does not hold, with `forward_refused` raised: the mark moved past
+/// rows this office never had (a forged or foreign sequence), and claiming
+/// them applied would have the site delete them.
+async fn refuse_not_held(
+    state: &SharedState,
+    (machine, site): (&str, &str),
+    (sequence, mark): (i64, i64),
+    confirmed: Option<i64>,
+) -> ApiError {
+    let back_to = confirmed.unwrap_or(0);
     let message = format!(
-        "site `{site}` forwarded rows of `{machine}` from sequence {unheld}, at or below this \
+        "site `{site}` forwarded rows of `{machine}` from sequence {sequence}, at or below this \
          office's mark {mark}, which it does not hold (a forged or foreign sequence moved the \
          mark?): they are refused and stay at the site. Once checked, an admin sets the mark \
-         back to the site's last confirmed sequence: PUT /api/v1/machines/{machine}/forward-mark \
-         {{\"sequence\": {back_to}}} or `tunnelnav site reset-mark {machine} --to {back_to}`"
+         back to the site's last confirmed sequence (not lower): PUT \
+         /api/v1/machines/{machine}/forward-mark {{\"sequence\": {back_to}}}"
     );
-    tracing::warn!(%machine, %site, unheld, mark, "forwarded rows below the mark not held here: refused");
+    tracing::warn!(%machine, %site, sequence, mark, "forwarded rows below the mark not held here: refused");
     let row = AlarmRow {
         kind: AlarmKind::ForwardRefused.as_str(),
         severity: crate::fusion::alarms::Severity::Alarm.as_str(),
@@ -561,10 +597,15 @@ async fn held_or_refused(
         t: state.clock.now_s(),
         message: message.clone(),
     };
-    if let Err(e) = handle.alarms(vec![row]).await {
-        tracing::warn!(%machine, error = %e, "forward_refused not stored");
+    match state.machine(machine) {
+        Ok(handle) => {
+            if let Err(e) = handle.alarms(vec![row]).await {
+                tracing::warn!(%machine, error = %e, "forward_refused not stored");
+            }
+        }
+        Err(e) => tracing::warn!(%machine, error = %e, "forward_refused not stored"),
     }
-    Err(ApiError::Conflict(message))
+    ApiError::Conflict(message)
 }
 
 /// A forwarded machine's mark, set back.

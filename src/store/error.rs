@@ -24,6 +24,12 @@ pub enum StoreError {
     Corrupt(String),
     #[error("the machine's engines could not be rebuilt after a failed write ({0})")]
     Unrebuilt(String),
+    /// An office: a site's row at or below the machine's mark that this
+    /// office does not hold (nothing of the request is applied).
+    #[error(
+        "forwarded row {sequence} lies at or below the mark {mark}, but this office does not hold it"
+    )]
+    NotHeld { sequence: i64, mark: i64 },
 }
 
 /// A PostgreSQL failure that may pass: the connection lost or refused,

@@ -151,11 +151,10 @@ impl Store {
         on_backend!(self, b => b.forward_mark(machine_id))
     }
 
-    /// An office: the spans of sequences of forwarded machine
-    /// `machine_id` applied here and not yet confirmed by its site
-    /// (blocking).
-    pub fn forward_spans(&self, machine_id: i64) -> Result<Vec<(i64, i64)>, StoreError> {
-        on_backend!(self, b => b.forward_spans(machine_id))
+    /// An office: what this office holds of forwarded machine
+    /// `machine_id`'s rows (blocking).
+    pub fn forward_held(&self, machine_id: i64) -> Result<super::outbox::ForwardHeld, StoreError> {
+        on_backend!(self, b => b.forward_held(machine_id))
     }
 
     /// An office: sets forwarded machine `machine`'s mark back to

@@ -113,9 +113,8 @@ pub struct ForwardedAck {
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Forwarded {
     pub after: Option<i64>,
-    /// The first sequence this write applies (its span is `first` to
-    /// `sequence`).
-    pub first: i64,
+    /// Every sequence this write applies (the office holds those rows).
+    pub applied: Vec<i64>,
     pub sequence: i64,
     /// The last sequence the site says the office answered committed: the
     /// spans up to it are forgotten (the site never sends those again).
@@ -304,12 +303,10 @@ pub(super) fn apply_forwarded(
             }
         }
     }
-    set_mark(tx, machine_id, forwarded.first, forwarded.sequence)?;
+    set_mark(tx, machine_id, &forwarded.applied, forwarded.sequence)?;
     if let Some(confirmed) = forwarded.confirmed {
-        tx.prepare_cached(
-            "DELETE FROM forward_spans WHERE machine_id = ?1 AND last_sequence <= ?2",
-        )?
-        .execute(params![machine_id, confirmed])?;
+        tx.prepare_cached("DELETE FROM forward_applied WHERE machine_id = ?1 AND sequence <= ?2")?
+            .execute(params![machine_id, confirmed])?;
     }
     Ok(changes)
 }
@@ -351,10 +348,16 @@ pub fn reset_mark(
     let Some((machine_id, was)) = found else {
         return Ok(None);
     };
-    // Back only: a mark set forward would skip rows.
+    // Back only: a mark set forward would skip rows. What lies above it
+    // is applied again when the site sends it (readings are stored once).
     let sequence = sequence.min(was);
     tx.execute(
-        "UPDATE forward_marks SET sequence = ?2 WHERE machine_id = ?1",
+        "UPDATE forward_marks SET sequence = ?2, trusted_to = min(trusted_to, ?2) \
+         WHERE machine_id = ?1",
+        params![machine_id, sequence],
+    )?;
+    tx.execute(
+        "DELETE FROM forward_applied WHERE machine_id = ?1 AND sequence > ?2",
         params![machine_id, sequence],
     )?;
     tx.execute(
@@ -371,23 +374,42 @@ pub fn reset_mark(
     Ok(Some(was))
 }
 
+/// What an office holds of a forwarded machine's rows.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ForwardHeld {
+    /// The mark: the last sequence committed here.
+    pub mark: Option<i64>,
+    /// Rows up to this sequence were applied before the office kept a
+    /// record of each (an upgrade): trusted as held.
+    pub trusted_to: i64,
+    /// The sequences applied and not yet confirmed by the site.
+    pub applied: std::collections::BTreeSet<i64>,
+}
+
+impl ForwardHeld {
+    /// Whether this office holds the row of `sequence`.
+    pub fn holds(&self, sequence: i64) -> bool {
+        sequence <= self.trusted_to || self.applied.contains(&sequence)
+    }
+}
+
 /// The audit log's action of a mark set back.
 pub const RESET_FORWARD_MARK: &str = "reset_forward_mark";
 
 /// An office: a forwarded machine's mark is `sequence` (never lowered
-/// here), and it holds the rows `first` to `sequence`.
+/// here), and it holds the rows `applied`.
 pub(super) fn set_mark(
     tx: &Connection,
     machine_id: i64,
-    first: i64,
+    applied: &[i64],
     sequence: i64,
 ) -> Result<(), StoreError> {
-    tx.prepare_cached(
-        "INSERT INTO forward_spans (machine_id, first_sequence, last_sequence) VALUES (?1, ?2, ?3) \
-         ON CONFLICT (machine_id, first_sequence) DO UPDATE \
-         SET last_sequence = max(last_sequence, ?3)",
-    )?
-    .execute(params![machine_id, first, sequence])?;
+    let mut hold = tx.prepare_cached(
+        "INSERT INTO forward_applied (machine_id, sequence) VALUES (?1, ?2) ON CONFLICT DO NOTHING",
+    )?;
+    for applied in applied {
+        hold.execute(params![machine_id, applied])?;
+    }
     tx.prepare_cached(
         "INSERT INTO forward_marks (machine_id, sequence) VALUES (?1, ?2) \
          ON CONFLICT (machine_id) DO UPDATE SET sequence = max(sequence, ?2)",
@@ -410,18 +432,25 @@ struct Row {
 }
 
 impl SqliteStore {
-    /// An office: the spans of machine `machine_id`'s sequences this office
-    /// applied and the site has not confirmed yet, (first, last).
-    pub fn forward_spans(&self, machine_id: i64) -> Result<Vec<(i64, i64)>, StoreError> {
+    /// An office: what this office holds of forwarded machine
+    /// `machine_id`'s rows ([`ForwardHeld`]).
+    pub fn forward_held(&self, machine_id: i64) -> Result<ForwardHeld, StoreError> {
         self.read(|conn| {
-            let mut stmt = conn.prepare_cached(
-                "SELECT first_sequence, last_sequence FROM forward_spans WHERE machine_id = ?1 \
-                 ORDER BY first_sequence",
-            )?;
-            let spans = stmt
-                .query_map([machine_id], |row| Ok((row.get(0)?, row.get(1)?)))?
+            let mark: Option<(i64, i64)> = conn
+                .prepare_cached(
+                    "SELECT sequence, trusted_to FROM forward_marks WHERE machine_id = ?1",
+                )?
+                .query_row([machine_id], |row| Ok((row.get(0)?, row.get(1)?)))
+                .optional()?;
+            let applied = conn
+                .prepare_cached("SELECT sequence FROM forward_applied WHERE machine_id = ?1")?
+                .query_map([machine_id], |row| row.get(0))?
                 .collect::<Result<_, _>>()?;
-            Ok(spans)
+            Ok(ForwardHeld {
+                mark: mark.map(|m| m.0),
+                trusted_to: mark.map_or(-1, |m| m.1),
+                applied,
+            })
         })
     }
 
@@ -943,7 +972,7 @@ mod tests {
         let forwarded = |after, sequence| {
             Some(Forwarded {
                 after,
-                first: sequence,
+                applied: vec![sequence],
                 sequence,
                 confirmed: None,
                 acks: Vec::new(),

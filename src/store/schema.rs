@@ -190,16 +190,19 @@ const MIGRATIONS: &[&str] = &[
     DROP TABLE tokens;
     ALTER TABLE tokens_v6 RENAME TO tokens;
     ",
-    // 7: an office's spans of each forwarded machine's sequences it
-    // applied (a skipped row is claimed only if a span holds it), and the
-    // audit log of what an admin changed by hand (issue 57).
+    // 7: an office's record of each sequence of a forwarded machine it
+    // applied (a skipped row is claimed only if it holds it), kept until
+    // the site confirms it, and the mark up to which rows applied before
+    // this record existed are trusted; the audit log of what an admin
+    // changed by hand (issue 57).
     "
-    CREATE TABLE forward_spans (
+    CREATE TABLE forward_applied (
         machine_id INTEGER NOT NULL REFERENCES machines(id),
-        first_sequence INTEGER NOT NULL,
-        last_sequence INTEGER NOT NULL,
-        PRIMARY KEY (machine_id, first_sequence)
+        sequence INTEGER NOT NULL,
+        PRIMARY KEY (machine_id, sequence)
     );
+    ALTER TABLE forward_marks ADD COLUMN trusted_to INTEGER NOT NULL DEFAULT -1;
+    UPDATE forward_marks SET trusted_to = sequence;
     CREATE TABLE audit (
         id INTEGER PRIMARY KEY,
         t REAL NOT NULL,

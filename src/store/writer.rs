@@ -386,7 +386,7 @@ fn apply_put_machine(
         .query_row(params![spec.id, json], |row| row.get(0))?;
     save_snapshot(tx, id, snapshot)?;
     match forwarded {
-        Some(sequence) => outbox::set_mark(tx, id, sequence, sequence)?,
+        Some(sequence) => outbox::set_mark(tx, id, &[sequence], sequence)?,
         None if outbox.forward => outbox::record_machine(tx, id, &json, snapshot)?,
         None => {}
     }

@@ -481,12 +481,6 @@ fn gather(
         },
     )?;
 
-    // A shift is [from, to): a ring completed at `to` is the next one's.
-    let mut rings = rings;
-    rings.retain(|r| r.t < to);
-    let mut pushes = pushes;
-    pushes.retain(|p| p.t < to);
-
     // Every dta estimate of the range: the largest deviations are exact.
     let mut deviations: Vec<LargestDeviation> = Vec::new();
     let mut stations: Option<(f64, f64)> = None;
@@ -642,7 +636,7 @@ fn gather(
     })
 }
 
-/// A row per estimate of machine `db_id`'s `stream` in [`from`, `to`]
+/// A row per estimate of machine `db_id`'s `stream` in [`from`, `to`)
 /// that `row` makes one of, each taken from `budget` (reading stops when
 /// it is spent); none if the machine does not run the stream.
 fn rows<T>(
@@ -657,6 +651,8 @@ fn rows<T>(
     let mut rows = Vec::new();
     if runs {
         store.export_estimates(db_id, stream, from, to, |e| match row(e) {
+            // A shift is [from, to): a row at `to` is the next one's.
+            _ if e.t >= to => true,
             Some(r) if budget.take() => {
                 rows.push(r);
                 true

@@ -171,6 +171,18 @@ fn tables() -> Vec<(&'static str, Vec<Column>, &'static str)> {
             ],
             "id",
         ),
+        (
+            "audit",
+            vec![
+                ("id", T::INT8),
+                ("t", T::FLOAT8),
+                ("actor", T::TEXT),
+                ("action", T::TEXT),
+                ("subject", T::TEXT),
+                ("detail", T::TEXT),
+            ],
+            "id",
+        ),
     ]
 }
 
@@ -241,6 +253,7 @@ pub async fn from_sqlite(
         ("readings", "readings_id_seq"),
         ("tokens", "tokens_id_seq"),
         ("alarms", "alarms_id_seq"),
+        ("audit", "audit_id_seq"),
     ] {
         tx.execute(
             &format!(

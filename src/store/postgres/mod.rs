@@ -752,20 +752,34 @@ impl PgStore {
         })
     }
 
-    /// An office: the spans of machine `machine_id`'s sequences this office
-    /// applied and the site has not confirmed yet, (first, last).
-    pub fn forward_spans(&self, machine_id: i64) -> Result<Vec<(i64, i64)>, StoreError> {
+    /// An office: what this office holds of forwarded machine
+    /// `machine_id`'s rows, as on SQLite.
+    pub fn forward_held(
+        &self,
+        machine_id: i64,
+    ) -> Result<crate::store::outbox::ForwardHeld, StoreError> {
         self.read(async |client| {
-            Ok(client
+            let mark = client
+                .query_opt(
+                    "SELECT sequence, trusted_to FROM forward_marks WHERE machine_id = $1",
+                    &[&machine_id],
+                )
+                .await?
+                .map(|row| (row.get::<_, i64>(0), row.get::<_, i64>(1)));
+            let applied = client
                 .query(
-                    "SELECT first_sequence, last_sequence FROM forward_spans \
-                     WHERE machine_id = $1 ORDER BY first_sequence",
+                    "SELECT sequence FROM forward_applied WHERE machine_id = $1",
                     &[&machine_id],
                 )
                 .await?
                 .iter()
-                .map(|row| (row.get(0), row.get(1)))
-                .collect())
+                .map(|row| row.get(0))
+                .collect();
+            Ok(crate::store::outbox::ForwardHeld {
+                mark: mark.map(|m| m.0),
+                trusted_to: mark.map_or(-1, |m| m.1),
+                applied,
+            })
         })
     }
 
@@ -792,10 +806,18 @@ impl PgStore {
         else {
             return Ok(None);
         };
-        // Back only: a mark set forward would skip rows.
+        // Back only: a mark set forward would skip rows. What lies above
+        // it is applied again when the site sends it (readings are stored
+        // once).
         let sequence = sequence.min(was);
         tx.execute(
-            "UPDATE forward_marks SET sequence = $2 WHERE machine_id = $1",
+            "UPDATE forward_marks SET sequence = $2, trusted_to = least(trusted_to, $2) \
+             WHERE machine_id = $1",
+            &[&machine_id, &sequence],
+        )
+        .await?;
+        tx.execute(
+            "DELETE FROM forward_applied WHERE machine_id = $1 AND sequence > $2",
             &[&machine_id, &sequence],
         )
         .await?;

@@ -154,15 +154,17 @@ const MIGRATIONS: &[&str] = &[
     ALTER TABLE nodes RENAME COLUMN key TO key_sha256;
     UPDATE nodes SET key_sha256 = '';
     ",
-    // 5: an office's spans of each forwarded machine's sequences it
-    // applied, and the audit log (as in SQLite's 7).
+    // 5: an office's record of each forwarded sequence it applied, the
+    // mark up to which earlier rows are trusted, and the audit log (as in
+    // SQLite's 7).
     "
-    CREATE TABLE forward_spans (
+    CREATE TABLE forward_applied (
         machine_id bigint NOT NULL REFERENCES machines(id),
-        first_sequence bigint NOT NULL,
-        last_sequence bigint NOT NULL,
-        PRIMARY KEY (machine_id, first_sequence)
+        sequence bigint NOT NULL,
+        PRIMARY KEY (machine_id, sequence)
     );
+    ALTER TABLE forward_marks ADD COLUMN trusted_to bigint NOT NULL DEFAULT -1;
+    UPDATE forward_marks SET trusted_to = sequence;
     CREATE TABLE audit (
         id bigserial PRIMARY KEY,
         t double precision NOT NULL,

@@ -214,7 +214,7 @@ async fn apply_group(
             } => {
                 let id = apply_put_machine(&tx, spec, snapshot, node).await?;
                 if let Some(sequence) = forwarded {
-                    set_mark(&tx, id, *sequence, *sequence).await?;
+                    set_mark(&tx, id, &[*sequence], *sequence).await?;
                 }
                 Outcome::Put(id)
             }
@@ -617,10 +617,10 @@ async fn apply_forwarded(
             }
         }
     }
-    set_mark(tx, machine_id, forwarded.first, forwarded.sequence).await?;
+    set_mark(tx, machine_id, &forwarded.applied, forwarded.sequence).await?;
     if let Some(confirmed) = forwarded.confirmed {
         tx.execute(
-            "DELETE FROM forward_spans WHERE machine_id = $1 AND last_sequence <= $2",
+            "DELETE FROM forward_applied WHERE machine_id = $1 AND sequence <= $2",
             &[&machine_id, &confirmed],
         )
         .await?;
@@ -629,18 +629,17 @@ async fn apply_forwarded(
 }
 
 /// An office: a forwarded machine's mark is `sequence` (never lowered
-/// here), and it holds the rows `first` to `sequence`.
+/// here), and it holds the rows `applied`.
 async fn set_mark(
     tx: &Transaction<'_>,
     machine_id: i64,
-    first: i64,
+    applied: &[i64],
     sequence: i64,
 ) -> Result<(), StoreError> {
     tx.execute(
-        "INSERT INTO forward_spans (machine_id, first_sequence, last_sequence) VALUES ($1, $2, $3) \
-         ON CONFLICT (machine_id, first_sequence) DO UPDATE \
-         SET last_sequence = greatest(forward_spans.last_sequence, $3)",
-        &[&machine_id, &first, &sequence],
+        "INSERT INTO forward_applied (machine_id, sequence) SELECT $1, unnest($2::bigint[]) \
+         ON CONFLICT DO NOTHING",
+        &[&machine_id, &applied],
     )
     .await?;
     tx.execute(
