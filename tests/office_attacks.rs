@@ -56,6 +56,33 @@ fn readings(t0: f64, count: usize) -> Vec<String> {
         .collect()
 }
 
+/// An office and site `north` forwarding to it, with machine `tbm`
+/// declared at the site: their directories and processes.
+async fn office_and_site(
+    client: &reqwest::Client,
+) -> (
+    tempfile::TempDir,
+    ServerProcess,
+    tempfile::TempDir,
+    ServerProcess,
+) {
+    let office_dir = tempfile::tempdir().unwrap();
+    let office = ServerProcess::start(office_dir.path());
+    let site_dir = tempfile::tempdir().unwrap();
+    let site = ServerProcess::start_with_args(
+        site_dir.path(),
+        &["--forward-to", &office.url(""), "--site", "north"],
+    );
+    declare_machine(
+        client,
+        &site.url(""),
+        "tbm",
+        r#"{"engines": {"attitude": {}}}"#,
+    )
+    .await;
+    (office_dir, office, site_dir, site)
+}
+
 /// POSTs a forged forwarding of `north.tbm` to the office.
 async fn forge(client: &reqwest::Client, office: &str, body: Value) -> (u16, String) {
     let response = client
@@ -72,22 +99,8 @@ async fn forge(client: &reqwest::Client, office: &str, body: Value) -> (u16, Str
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn a_forged_sequence_or_alarm_text_is_refused_and_the_site_goes_on() {
     let client = reqwest::Client::new();
-    let office_dir = tempfile::tempdir().unwrap();
-    let office = ServerProcess::start(office_dir.path());
-    let office_base = office.url("");
-    let site_dir = tempfile::tempdir().unwrap();
-    let site = ServerProcess::start_with_args(
-        site_dir.path(),
-        &["--forward-to", &office_base, "--site", "north"],
-    );
-    let site_base = site.url("");
-    declare_machine(
-        &client,
-        &site_base,
-        "tbm",
-        r#"{"engines": {"attitude": {}}}"#,
-    )
-    .await;
+    let (_office_dir, office, _site_dir, site) = office_and_site(&client).await;
+    let (office_base, site_base) = (office.url(""), site.url(""));
     let t0 = (wall_clock_s() - 3600.0).floor();
     post_ndjson(&client, &site_base, "tbm", &readings(t0, 100)).await;
     office_holds(
@@ -169,22 +182,8 @@ async fn refused_alarms(client: &reqwest::Client, base: &str, machine: &str) -> 
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn a_forged_mark_refuses_the_sites_rows_with_an_alarm_until_an_admin_sets_it_back() {
     let client = reqwest::Client::new();
-    let office_dir = tempfile::tempdir().unwrap();
-    let office = ServerProcess::start(office_dir.path());
-    let office_base = office.url("");
-    let site_dir = tempfile::tempdir().unwrap();
-    let site = ServerProcess::start_with_args(
-        site_dir.path(),
-        &["--forward-to", &office_base, "--site", "north"],
-    );
-    let site_base = site.url("");
-    declare_machine(
-        &client,
-        &site_base,
-        "tbm",
-        r#"{"engines": {"attitude": {}}}"#,
-    )
-    .await;
+    let (office_dir, office, _site_dir, site) = office_and_site(&client).await;
+    let (office_base, site_base) = (office.url(""), site.url(""));
     let t0 = (wall_clock_s() - 3600.0).floor();
     post_ndjson(&client, &site_base, "tbm", &readings(t0, 10)).await;
     office_holds(

@@ -308,14 +308,7 @@ async fn from_node(
     request: Request,
 ) -> Result<Request, ApiError> {
     let (mut parts, body) = request.into_parts();
-    let body = axum::body::to_bytes(body, state.limits.max_body_bytes)
-        .await
-        .map_err(|e| {
-            ApiError::TooLarge(format!(
-                "body larger than {} bytes or broken off: {e}",
-                state.limits.max_body_bytes
-            ))
-        })?;
+    let body = super::cluster::whole_body(body, state.limits.max_body_bytes).await?;
     let target = parts
         .uri
         .path_and_query()

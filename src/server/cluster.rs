@@ -733,6 +733,14 @@ pub async fn forward(State(state): State<SharedState>, request: Request, next: N
     }
 }
 
+/// A request's whole body, at most `limit` bytes (413 beyond): what a
+/// signature between nodes covers.
+pub(super) async fn whole_body(body: Body, limit: usize) -> Result<axum::body::Bytes, ApiError> {
+    axum::body::to_bytes(body, limit).await.map_err(|e| {
+        ApiError::TooLarge(format!("body larger than {limit} bytes or broken off: {e}"))
+    })
+}
+
 /// Sends `request` to the node at `url`; its answer, streamed back.
 async fn proxy(
     state: &SharedState,
@@ -750,14 +758,7 @@ async fn proxy(
             .map(|p| p.as_str())
             .unwrap_or("/")
     );
-    let body = axum::body::to_bytes(body, state.limits.max_body_bytes)
-        .await
-        .map_err(|e| {
-            ApiError::TooLarge(format!(
-                "body larger than {} bytes or broken off: {e}",
-                state.limits.max_body_bytes
-            ))
-        })?;
+    let body = whole_body(body, state.limits.max_body_bytes).await?;
     let mut headers = HeaderMap::new();
     for (name, value) in &parts.headers {
         // A client's own `x-tunnelnav-*` never passes: only this node's.
