@@ -14,9 +14,6 @@ use crate::fusion::alarms::AlarmKind;
 use crate::machine::AlarmSink;
 use crate::store::alarms::{AlarmFilter, StoredAlarm};
 
-/// Who acknowledged, while access is open (no tokens exist).
-pub(super) const ANONYMOUS: &str = "anonymous";
-
 #[derive(Debug, Deserialize, utoipa::IntoParams)]
 #[serde(deny_unknown_fields)]
 #[into_params(parameter_in = Query)]
@@ -146,10 +143,7 @@ pub async fn ack(
     let id: i64 = id
         .parse()
         .map_err(|_| ApiError::BadRequest(format!("alarm id `{id}` is not a number")))?;
-    let by = caller
-        .as_ref()
-        .and_then(|Extension(caller)| caller.name())
-        .map_or_else(|| ANONYMOUS.to_string(), str::to_string);
+    let by = Caller::recorded(caller.as_ref().map(|Extension(caller)| caller));
     let notifier = state.alarms.clone();
     let (alarm, _) = state
         .store

@@ -253,10 +253,23 @@ pub async fn admin(State(state): State<SharedState>, request: Request, next: Nex
 #[derive(Debug, Clone)]
 pub struct Caller(pub Option<Token>);
 
+/// Who a record (an acknowledgement, an audit row) names while access is
+/// open (no tokens exist).
+const ANONYMOUS: &str = "anonymous";
+
 impl Caller {
     /// The token's name, if a token was checked.
     pub fn name(&self) -> Option<&str> {
         self.0.as_ref().map(|t| t.name.as_str())
+    }
+
+    /// The name a record gives the request's caller: its token's, or
+    /// `anonymous` while access is open.
+    pub fn recorded(caller: Option<&Caller>) -> String {
+        caller
+            .and_then(Caller::name)
+            .unwrap_or(ANONYMOUS)
+            .to_string()
     }
 }
 

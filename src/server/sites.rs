@@ -570,6 +570,18 @@ async fn declaration_held(
     Err(refuse_not_held(state, (machine, site), (sequence, mark), confirmed).await)
 }
 
+/// A `forward_refused` row of `site`'s machine: raised (or cleared) at `t`.
+fn forward_refused(site: &str, raised: bool, t: f64, message: String) -> AlarmRow {
+    AlarmRow {
+        kind: AlarmKind::ForwardRefused.as_str(),
+        severity: crate::fusion::alarms::Severity::Alarm.as_str(),
+        subject: site.to_string(),
+        raised,
+        t,
+        message,
+    }
+}
+
 /// The 409 of a site's row at or below the machine's `mark` that this
 /// office does not hold, with `forward_refused` raised: the mark moved past
 /// rows this office never had (a forged or foreign sequence), and claiming
@@ -589,14 +601,7 @@ async fn refuse_not_held(
          /api/v1/machines/{machine}/forward-mark {{\"sequence\": {back_to}}}"
     );
     tracing::warn!(%machine, %site, sequence, mark, "forwarded rows below the mark not held here: refused");
-    let row = AlarmRow {
-        kind: AlarmKind::ForwardRefused.as_str(),
-        severity: crate::fusion::alarms::Severity::Alarm.as_str(),
-        subject: site.to_string(),
-        raised: true,
-        t: state.clock.now_s(),
-        message: message.clone(),
-    };
+    let row = forward_refused(site, true, state.clock.now_s(), message.clone());
     match state.machine(machine) {
         Ok(handle) => {
             if let Err(e) = handle.alarms(vec![row]).await {
@@ -669,11 +674,8 @@ pub async fn reset_mark(
             reset.sequence
         )));
     }
-    let actor = caller
-        .as_ref()
-        .and_then(|axum::Extension(caller)| caller.name())
-        .unwrap_or(super::alarms::ANONYMOUS)
-        .to_string();
+    let actor =
+        super::auth::Caller::recorded(caller.as_ref().map(|axum::Extension(caller)| caller));
     let now_t = state.clock.now_s();
     let was = state
         .store
@@ -685,14 +687,12 @@ pub async fn reset_mark(
         .await
         .map_err(|e| ApiError::Internal(e.to_string()))?;
     tracing::warn!(%machine, %actor, was, sequence = reset.sequence, "forward mark set back");
-    let cleared = AlarmRow {
-        kind: AlarmKind::ForwardRefused.as_str(),
-        severity: crate::fusion::alarms::Severity::Alarm.as_str(),
-        subject: site.to_string(),
-        raised: false,
-        t: now_t,
-        message: format!("mark set back from {was} to {} by {actor}", reset.sequence),
-    };
+    let cleared = forward_refused(
+        site,
+        false,
+        now_t,
+        format!("mark set back from {was} to {} by {actor}", reset.sequence),
+    );
     if let Err(e) = handle.alarms(vec![cleared]).await {
         tracing::warn!(%machine, error = %e, "forward_refused not cleared");
     }
