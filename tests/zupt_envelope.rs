@@ -4,7 +4,7 @@
 //! Seeds 1–12 were fixed before any result was looked at (the rules were
 //! developed on seeds 1001–1020). Each test asserts only what holds on
 //! all of its drives; the bars of the issue that are not met are printed
-//! as not met (docs/evaluation.md has the 40-drive figures of
+//! as not met (docs/engines/zupt.md has the 40-drive figures of
 //! `eval zupt --envelope --seeds 40`).
 
 use tunnelnav::eval::zupt_envelope::{evaluate_all, evaluate_envelope, render, summarise};
@@ -20,8 +20,22 @@ fn envelope_drives_seeds_1_to_12() {
     let summary = summarise(&drives);
     eprintln!("{}", render(&drives, &summary));
     assert_eq!(summary.drives, 12);
-    // Issue 33's eleven, and issue 54's two on integrity.
-    assert_eq!(summary.bars.len(), 13);
+    // Issue 33's eleven, issue 54's two on integrity, issue 58's odometer.
+    assert_eq!(summary.bars.len(), 14);
+    // Issue 58, on these twelve: the recall's median, and an odometer
+    // never making a drive worse than the same drive without it.
+    let recall = summary
+        .bars
+        .iter()
+        .find(|b| b.bar.starts_with("recall"))
+        .unwrap();
+    assert!(recall.met, "{recall:?}");
+    let odometer = summary
+        .bars
+        .iter()
+        .find(|b| b.bar.starts_with("with an odometer"))
+        .unwrap();
+    assert!(odometer.met, "{odometer:?}");
     for d in &drives {
         let oracle = d.run("oracle").unwrap();
         // The oracle's flags are the truth.
@@ -175,4 +189,61 @@ fn imu_spikes_are_refused_and_mislead_no_drive_for_long() {
     let drives = evaluated(Some(tunnelnav::sim::faults::FaultKind::Spikes));
     assert_eq!(drives.len(), 20);
     no_drive_misled_longer_for_the_fault(&drives);
+}
+
+/// Issue 58: the rolling trolley of issue 33 with an odometer 4–5 % wrong
+/// either way (seeds 1–3, push/rest 30/30 and 45/15 s, fixed before
+/// this step was run on them), each with and without four slips of
+/// 5–100 mm. Asserted on all 24: every rest called is one (precision
+/// 1.000), and the slips are refused: the distance with them is within
+/// 0.5 % of the distance of the same drive without them. Printed, met or
+/// not: the independent harness's 0.6 % and never worse than the same
+/// drive without its odometer by more than 0.1 % of the distance (first
+/// written as the assertions; both are not met on seeds 2 and 3,
+/// docs/engines/zupt.md).
+#[test]
+fn a_wrong_odometer_on_the_trolley_is_calibrated_and_its_slips_refused() {
+    let mut within_bar = 0;
+    let mut not_worse = 0;
+    let mut runs = 0;
+    for (push_s, rest_s) in [(30.0, 30.0), (45.0, 15.0)] {
+        for seed in 1..=3 {
+            for scale_error in [0.045, -0.04] {
+                let mut by_slips = Vec::new();
+                for slips in [0, 4] {
+                    let drive = PipeJackEnvelope {
+                        odometer_scale_error: Some(scale_error),
+                        odometer_slips: slips,
+                        level: true,
+                        ..rolling_trolley(seed, push_s, rest_s)
+                    };
+                    let d = evaluate_envelope(&drive, &Params::defaults(PARAMS)).unwrap();
+                    let engine = d.run("engine").unwrap().clone();
+                    let without = d.run("no-odo").unwrap().distance_error_pct;
+                    eprintln!(
+                        "{push_s}/{rest_s} s seed {seed} scale {scale_error:+} slips {slips}: distance {:.3} % (without the odometer {without:.3} %), precision {:.4}, recall {:.4}",
+                        engine.distance_error_pct, engine.precision, engine.recall
+                    );
+                    assert_eq!(engine.precision, 1.0, "{engine:?}");
+                    runs += 1;
+                    within_bar += usize::from(engine.distance_error_pct <= 0.6);
+                    not_worse += usize::from(engine.distance_error_pct <= without + 0.1);
+                    by_slips.push(engine.distance_error_pct);
+                }
+                assert!(
+                    (by_slips[1] - by_slips[0]).abs() <= 0.5,
+                    "{push_s}/{rest_s} seed {seed} scale {scale_error}: {by_slips:?}"
+                );
+            }
+        }
+    }
+    let verdict = |n: usize| if n == runs { "met    " } else { "NOT MET" };
+    eprintln!(
+        "{} distance ≤ 0.6 % with a 4–5 % wrong odometer: {within_bar} of {runs}",
+        verdict(within_bar)
+    );
+    eprintln!(
+        "{} never worse than without the odometer by more than 0.1 %: {not_worse} of {runs}",
+        verdict(not_worse)
+    );
 }

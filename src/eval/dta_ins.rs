@@ -806,6 +806,8 @@ mod tests {
                     pitch_sigma_deg: None,
                     roll_sigma_deg: None,
                     smoothed_push: None,
+                    odometer_scale: None,
+                    odometer_scale_sigma: None,
                 }),
             };
             let mut outputs = vec![zupt.clone()];

@@ -73,6 +73,8 @@ pub(crate) fn zupt_for_tests(t: f64, smoothed_push: Option<Vec<TrackPoint>>) -> 
             pitch_sigma_deg: None,
             roll_sigma_deg: None,
             smoothed_push,
+            odometer_scale: None,
+            odometer_scale_sigma: None,
         }),
     }
 }
@@ -266,6 +268,8 @@ mod tests {
                             position_sigma_m: [0.003, 0.004, 0.0],
                         },
                     ]),
+                    odometer_scale: (i % 4 == 0).then_some(1.0 + x * 1e-4),
+                    odometer_scale_sigma: (i % 4 == 0).then_some(0.01),
                 }),
             };
             let mut ours = Vec::new();

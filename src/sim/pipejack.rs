@@ -530,6 +530,27 @@ pub(super) struct Parts {
     pub roll0_rad: f64,
     pub sensors: SensorGrade,
     pub odometer_scale: Option<f64>,
+    /// Where the odometer's wheel slips (none in the cases).
+    pub odometer_slips: Vec<OdometerSlip>,
+    /// Whether a level instrument reads the height (always in the cases).
+    pub level: bool,
+}
+
+/// A slip of the odometer's wheel: from `at_s` (drive seconds) for
+/// `for_s` it counts `excess_m` more than the machine advanced, evenly;
+/// the counter keeps the excess after.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct OdometerSlip {
+    pub at_s: f64,
+    pub for_s: f64,
+    pub excess_m: f64,
+}
+
+impl OdometerSlip {
+    /// What the slip has added to the counter by drive second `s`, m.
+    pub fn counted_m(&self, s: f64) -> f64 {
+        self.excess_m * ((s - self.at_s) / self.for_s).clamp(0.0, 1.0)
+    }
 }
 
 /// The drive: schedule, shaking and sensor errors, generated from the seed.
@@ -544,6 +565,8 @@ pub struct PipeJackDrive {
     sensors: SensorGrade,
     /// The odometer's scale error (1.002: reads 0.2 % long); `None`: no odometer.
     odometer_scale: Option<f64>,
+    odometer_slips: Vec<OdometerSlip>,
+    level: bool,
     site: Site,
     heading_rad: f64,
     slope_rad: f64,
@@ -632,6 +655,8 @@ impl PipeJackDrive {
             roll0_rad,
             sensors: SensorGrade::PAPER,
             odometer_scale: Some(1.002),
+            odometer_slips: Vec::new(),
+            level: true,
         }))
     }
 
@@ -647,6 +672,8 @@ impl PipeJackDrive {
             roll0_rad,
             sensors,
             odometer_scale,
+            odometer_slips,
+            level,
         } = parts;
         let mut imu_rng = ChaCha8Rng::seed_from_u64(scenario.seed);
         imu_rng.set_stream(1);
@@ -671,6 +698,8 @@ impl PipeJackDrive {
             vibrations,
             sensors,
             odometer_scale,
+            odometer_slips,
+            level,
             gyro_bias_rad_per_s,
             accel_bias_mps2,
             imu_rng,
@@ -844,8 +873,11 @@ impl PipeJackDrive {
         // after it do not depend on whether the drive has one.
         let odometer_noise_m = 0.001 * normal(&mut self.aid_rng);
         if let Some(scale) = self.odometer_scale {
-            let distance_m =
-                self.scenario.start_odometer_m + k.distance_m * scale + odometer_noise_m;
+            let slipped_m: f64 = self.odometer_slips.iter().map(|x| x.counted_m(s)).sum();
+            let distance_m = self.scenario.start_odometer_m
+                + k.distance_m * scale
+                + slipped_m
+                + odometer_noise_m;
             self.queued.push(Reading {
                 t,
                 data: SensorData::Odometer {
@@ -853,12 +885,14 @@ impl PipeJackDrive {
                 },
             });
         }
-        self.queued.push(Reading {
-            t,
-            data: SensorData::Level {
-                height_m: (height_m * 1e4).round() / 1e4,
-            },
-        });
+        if self.level {
+            self.queued.push(Reading {
+                t,
+                data: SensorData::Level {
+                    height_m: (height_m * 1e4).round() / 1e4,
+                },
+            });
+        }
     }
 }
 

@@ -17,7 +17,9 @@
 //! | vibration while pushing | none (a quarter of the drives), else 0.5–50 mg log-uniform, 3–60 Hz, one to four steady tones or broadband (24 tones over a band of 1.5–4 ×), angular jitter on half of them (0.002–0.05 °/s); steady or switching on and off (10–300 s each); rising and falling with the speed |
 //! | vibration while standing | drawn the same way, independently; present during rests only |
 //! | vibration velocity | every vibration's amplitude capped so that its velocity stays within 5 mm/s (heavy machinery; ISO 10816's upper zones) |
-//! | odometer | present on half the drives, scale error 0–5 % either way, 1 mm noise |
+//! | odometer | present on half the drives, scale error 0–8 % either way, 1 mm noise |
+//! | odometer slips | on half the drives with an odometer: 1–4 slips of the wheel during pushes, each counting 5–100 mm (log-uniform) too many over 0.2–2 s |
+//! | level instrument | on half the drives (a height once a second to 0.5 mm); none on the others |
 //! | slope, heading, latitude | −3…3°, 0…360°, −60…60° |
 //! | gyro | turn-on bias 0.1–0.5 °/h, bias random walk 0.01–0.05 °/h/√h, ARW 0.01–0.05 °/√h |
 //! | accelerometer | turn-on bias 0.2–1 mg, white noise 20–50 µg/√Hz |
@@ -37,8 +39,8 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use super::pipejack::{
-    Case, Gate, Parts, PipeJackDrive, PipeJackScenario, Push, SensorGrade, Shaking, Tones,
-    Vibration, Window,
+    Case, Gate, OdometerSlip, Parts, PipeJackDrive, PipeJackScenario, Push, SensorGrade, Shaking,
+    Tones, Vibration, Window,
 };
 use super::tbm::DEFAULT_START_T;
 use crate::fusion::angles::rad;
@@ -50,7 +52,10 @@ const PHASE_RANGE_S: (f64, f64) = (5.0, 600.0);
 const MAX_VIBRATION_VELOCITY_MPS: f64 = 0.005;
 /// The largest odometer scale error drawn (either sign): drawn uniformly
 /// within ±this, on the drives that have an odometer.
-pub const ODOMETER_SCALE_ERROR_MAX: f64 = 0.05;
+pub const ODOMETER_SCALE_ERROR_MAX: f64 = 0.08;
+/// A slip's excess count, m (log-uniform), and its length, s.
+const SLIP_EXCESS_M: (f64, f64) = (0.005, 0.1);
+const SLIP_LENGTH_S: (f64, f64) = (0.2, 2.0);
 
 /// What a vibration's spectrum is made of.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -96,9 +101,20 @@ pub struct PipeJackEnvelope {
     pub rest_vibration: Option<VibrationDraw>,
     /// The odometer's scale error (0.01: reads 1 % long); `None`: no odometer.
     pub odometer_scale_error: Option<f64>,
+    /// Slips of the odometer's wheel (placed on pushes by [`Self::drive`]).
+    #[serde(default)]
+    pub odometer_slips: usize,
+    /// Whether a level instrument reads the height.
+    #[serde(default = "level_by_default")]
+    pub level: bool,
     pub sensors: SensorGrade,
     /// The drive lasts at least this long, s.
     pub duration_s: f64,
+}
+
+/// Drives drawn before the level was drawn had one.
+fn level_by_default() -> bool {
+    true
 }
 
 fn log_uniform(rng: &mut ChaCha8Rng, (lo, hi): (f64, f64)) -> f64 {
@@ -203,6 +219,16 @@ impl PipeJackEnvelope {
         } else {
             rng.random_range(1.0..6.0)
         };
+        // Issue 58's draws from a stream of their own: the others stay
+        // as they were.
+        let mut aids = ChaCha8Rng::seed_from_u64(seed);
+        aids.set_stream(12);
+        let odometer_slips = if aids.random_bool(0.5) {
+            aids.random_range(1..=4)
+        } else {
+            0
+        };
+        let level = aids.random_bool(0.5);
         PipeJackEnvelope {
             seed,
             start_t: DEFAULT_START_T,
@@ -219,6 +245,8 @@ impl PipeJackEnvelope {
             odometer_scale_error: rng
                 .random_bool(0.5)
                 .then(|| rng.random_range(-ODOMETER_SCALE_ERROR_MAX..ODOMETER_SCALE_ERROR_MAX)),
+            odometer_slips,
+            level,
             sensors: SensorGrade {
                 gyro_bias_deg_per_h: rng.random_range(0.1..0.5),
                 gyro_bias_rw_deg_per_h_per_sqrt_h: rng.random_range(0.01..0.05),
@@ -337,6 +365,7 @@ impl PipeJackEnvelope {
                 .collect();
             vibrations.push(v.vibration(&mut rng, during, end_t));
         }
+        let odometer_slips = self.slips(&pushes);
         PipeJackDrive::from_parts(Parts {
             scenario,
             pushes,
@@ -346,8 +375,70 @@ impl PipeJackEnvelope {
             roll0_rad: rad(rng.random_range(-1.0..1.0)),
             sensors: self.sensors,
             odometer_scale: self.odometer_scale_error.map(|e| 1.0 + e),
+            odometer_slips,
+            level: self.level,
         })
     }
+
+    /// The odometer's slips, each in a push drawn at random, within its
+    /// steady part; none without an odometer.
+    fn slips(&self, pushes: &[Push]) -> Vec<OdometerSlip> {
+        if self.odometer_scale_error.is_none() || pushes.is_empty() {
+            return Vec::new();
+        }
+        let mut rng = ChaCha8Rng::seed_from_u64(self.seed);
+        rng.set_stream(13);
+        (0..self.odometer_slips)
+            .map(|_| {
+                let w = pushes[rng.random_range(0..pushes.len())].window;
+                let (from, to) = (w.start + w.rise_s, w.end - w.fall_s);
+                let for_s = rng.random_range(SLIP_LENGTH_S.0..SLIP_LENGTH_S.1);
+                let at_s = if to - for_s > from {
+                    rng.random_range(from..to - for_s)
+                } else {
+                    from
+                };
+                OdometerSlip {
+                    at_s,
+                    for_s,
+                    excess_m: log_uniform(&mut rng, SLIP_EXCESS_M),
+                }
+            })
+            .collect()
+    }
+
+    /// The drive's categories (issue 58): its odometer, slips and level.
+    pub fn categories(&self) -> DriveCategories {
+        DriveCategories {
+            odometer: match self.odometer_scale_error {
+                None => OdometerCategory::None,
+                Some(e) if e.abs() < 0.04 => OdometerCategory::Within4Pct,
+                Some(_) => OdometerCategory::Beyond4Pct,
+            },
+            slips: self.odometer_scale_error.is_some() && self.odometer_slips > 0,
+            level: self.level,
+        }
+    }
+}
+
+/// How a drive's odometer reads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum OdometerCategory {
+    None,
+    /// Its scale error is under 4 %.
+    Within4Pct,
+    /// 4–8 %.
+    Beyond4Pct,
+}
+
+/// The categories a drive falls in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct DriveCategories {
+    pub odometer: OdometerCategory,
+    /// An odometer that slips.
+    pub slips: bool,
+    pub level: bool,
 }
 
 #[cfg(test)]
@@ -361,6 +452,9 @@ mod tests {
             draws.iter().filter(|d| f(d)).count() as f64 / draws.len() as f64
         };
         assert!((0.35..0.65).contains(&share(&|d| d.odometer_scale_error.is_some())));
+        assert!((0.35..0.65).contains(&share(&|d| d.level)));
+        assert!(share(&|d| d.odometer_scale_error.is_some_and(|e| e.abs() > 0.05)) > 0.1);
+        assert!(share(&|d| d.categories().slips) > 0.15);
         assert!((0.6..0.9).contains(&share(&|d| d.rest_vibration.is_some())));
         assert!(share(&|d| d.speed_mps < 0.005) > 0.15);
         assert!(share(&|d| d.speed_mps > 0.03) > 0.15);

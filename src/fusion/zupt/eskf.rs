@@ -1,7 +1,10 @@
-//! The 15-state error-state Kalman filter (Zhang et al. 2024, Sec. 4):
-//! δx = [δp, δv, φ, δb_a, δb_g] with closed-loop feedback, so the error
-//! state is zero after every correction and only the covariance is
-//! propagated.
+//! The error-state Kalman filter (Zhang et al. 2024, Sec. 4), its 15
+//! states δx = [δp, δv, φ, δb_a, δb_g] and three of the odometer's
+//! (issue 58): its scale error δs and the small angles δa_y, δa_z of its
+//! axis toward the body's y and z (mounting misalignment), constants the
+//! zero-velocity-bounded INS makes observable. Closed-loop feedback, so
+//! the error state is zero after every correction and only the
+//! covariance is propagated.
 //!
 //! Conventions: δp = p̂ − p, δv = v̂ − v, Ĉ = (I − [φ×])·C (φ is the
 //! attitude error in the navigation frame), δb = b − b̂. The paper's F
@@ -13,6 +16,7 @@
 //! - δv̇ = [fⁿ×]·φ − [(2ω_ie + ω_en)×]·δv + Ĉ·δb_a + (2g/R)·δp_D·e_D + Ĉ·w_a
 //! - φ̇ = −[ω_in×]·φ − Ĉ·δb_g − Ĉ·w_g
 //! - δḃ_a = w_ba, δḃ_g = w_bg (random walks)
+//! - δṡ = 0, δȧ = 0 (the odometer's calibration and mounting)
 
 use nalgebra::{Matrix3, SMatrix, SVector};
 use serde::{Deserialize, Serialize};
@@ -20,13 +24,16 @@ use serde::{Deserialize, Serialize};
 use crate::fusion::geometry::{V3, skew};
 
 /// Number of error states.
-pub const N: usize = 15;
+pub const N: usize = 18;
 /// Offsets of the state blocks.
 pub const POS: usize = 0;
 pub const VEL: usize = 3;
 pub const ATT: usize = 6;
 pub const ACCEL_BIAS: usize = 9;
 pub const GYRO_BIAS: usize = 12;
+/// The odometer block: scale error, then its axis's angles toward body
+/// y and z.
+pub const ODOMETER: usize = 15;
 
 /// The covariance.
 pub type Covariance = SMatrix<f64, N, N>;
@@ -80,8 +87,9 @@ impl ErrorStateFilter {
     /// A filter with a diagonal initial covariance given as standard
     /// deviations per block: position (m), velocity (m/s), attitude (rad,
     /// as [roll/pitch, roll/pitch, heading] about north, east, down),
-    /// accel bias (m/s²), gyro bias (rad/s).
-    pub fn new(initial_sigma: [V3; 5], noise: ProcessNoise) -> ErrorStateFilter {
+    /// accel bias (m/s²), gyro bias (rad/s), odometer (scale error as a
+    /// fraction, axis angles in rad).
+    pub fn new(initial_sigma: [V3; 6], noise: ProcessNoise) -> ErrorStateFilter {
         let mut p = Covariance::zeros();
         for (block, sigma) in initial_sigma.iter().enumerate() {
             for axis in 0..3 {
@@ -145,13 +153,31 @@ impl ErrorStateFilter {
     /// predicted measurement minus the measured one. Joseph form. Returns
     /// the estimated error state, which the caller feeds back. With a
     /// `gate`, an innovation whose squared Mahalanobis distance exceeds it
-    /// is refused.
+    /// is refused. The odometer's scale is only considered here: it is
+    /// learned from whole pushes alone ([`super::odometer_scale`]), which
+    /// update it with [`Self::update_considering`] and no state considered.
     pub fn update<const M: usize>(
         &mut self,
         h: &SMatrix<f64, M, N>,
         innovation: &SVector<f64, M>,
         r: &SMatrix<f64, M, M>,
         gate: Option<f64>,
+    ) -> Result<ErrorState, UpdateError> {
+        self.update_considering(h, innovation, r, gate, ODOMETER..ODOMETER + 1)
+    }
+
+    /// [`Self::update`] with the states `consider` only considered
+    /// (Schmidt–Kalman): their uncertainty widens the innovation's
+    /// covariance and is carried into the others' through the
+    /// correlations, but this measurement does not move them (their gain
+    /// rows are zero; the Joseph form holds for any gain).
+    pub fn update_considering<const M: usize>(
+        &mut self,
+        h: &SMatrix<f64, M, N>,
+        innovation: &SVector<f64, M>,
+        r: &SMatrix<f64, M, M>,
+        gate: Option<f64>,
+        consider: std::ops::Range<usize>,
     ) -> Result<ErrorState, UpdateError> {
         let ph_t = self.p * h.transpose();
         let s = h * ph_t + r;
@@ -161,7 +187,10 @@ impl ErrorStateFilter {
         {
             return Err(UpdateError::Gated);
         }
-        let k = ph_t * s_inv;
+        let mut k = ph_t * s_inv;
+        for state in consider {
+            k.row_mut(state).fill(0.0);
+        }
         let i_kh = Covariance::identity() - k * h;
         self.p = i_kh * self.p * i_kh.transpose() + k * r * k.transpose();
         self.symmetrise();
@@ -217,14 +246,81 @@ pub fn height_matrix() -> SMatrix<f64, 1, N> {
     h
 }
 
-/// H of a body-frame velocity measurement (odometer speed along x, zero
-/// across: the non-holonomic constraint): v̂_b − v_b = Ĉᵀ·δv − Ĉᵀ·[v̂×]·φ.
-pub fn body_velocity_matrix(c_bn: &Matrix3<f64>, velocity_n: &V3) -> SMatrix<f64, 3, N> {
-    let mut h = SMatrix::<f64, 3, N>::zeros();
+/// H of a measurement of the odometer's scale error itself: ŝ − s = δs.
+pub fn scale_matrix() -> SMatrix<f64, 1, N> {
+    let mut h = SMatrix::<f64, 1, N>::zeros();
+    h[(0, ODOMETER)] = 1.0;
+    h
+}
+
+/// The odometer as the filter models it: its count is (1 + `scale_error`)
+/// times the distance travelled along its axis, which leans from the
+/// body's x by the small angles `axis_rad` toward y and z (the machine
+/// moves along it, so across it the body's speed is zero).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct OdometerModel {
+    pub scale_error: f64,
+    pub axis_rad: [f64; 2],
+}
+
+impl OdometerModel {
+    /// 1 + ŝ.
+    pub fn scale(&self) -> f64 {
+        1.0 + self.scale_error
+    }
+
+    /// The innovation of an odometer reading (predicted − measured): the
+    /// count `counted_m` since the origin against the scale times the
+    /// engine's along-track advance since then `travelled_m`, and zero
+    /// speed across the odometer's axis for the body velocity now
+    /// `velocity_b`.
+    pub fn innovation(&self, travelled_m: f64, counted_m: f64, velocity_b: &V3) -> V3 {
+        let [a_y, a_z] = self.axis_rad;
+        V3::new(
+            self.scale() * travelled_m - counted_m,
+            velocity_b.y - a_y * velocity_b.x,
+            velocity_b.z - a_z * velocity_b.x,
+        )
+    }
+
+    /// Feeds back the odometer block of an estimated error state.
+    pub fn correct(&mut self, dx: &ErrorState) {
+        self.scale_error -= dx[ODOMETER];
+        self.axis_rad[0] -= dx[ODOMETER + 1];
+        self.axis_rad[1] -= dx[ODOMETER + 2];
+    }
+}
+
+/// H of an odometer reading ([`OdometerModel::innovation`]):
+/// - the count: (1 + ŝ)·f̂ᵀ·δp + d·δs, with f̂ the machine's forward axis
+///   (NED) and d the advance since the origin, `travelled_m` (a distance
+///   of metres against a counter of millimetres: no noise of the count
+///   multiplies the scale);
+/// - across, with the body-velocity error δv_b = Ĉᵀ·δv − Ĉᵀ·[v̂×]·φ:
+///   δv_b,y − â_y·δv_b,x − v_x·δa_y, likewise for z.
+pub fn odometer_matrix(
+    c_bn: &Matrix3<f64>,
+    velocity_n: &V3,
+    model: &OdometerModel,
+    travelled_m: f64,
+) -> SMatrix<f64, 3, N> {
     let c_nb = c_bn.transpose();
-    h.fixed_view_mut::<3, 3>(0, VEL).copy_from(&c_nb);
-    h.fixed_view_mut::<3, 3>(0, ATT)
+    let mut body = SMatrix::<f64, 3, N>::zeros();
+    body.fixed_view_mut::<3, 3>(0, VEL).copy_from(&c_nb);
+    body.fixed_view_mut::<3, 3>(0, ATT)
         .copy_from(&(-c_nb * skew(velocity_n)));
+    let forward_mps = (c_nb * velocity_n).x;
+    let forward = c_bn.column(0);
+    let [a_y, a_z] = model.axis_rad;
+    let mut h = SMatrix::<f64, 3, N>::zeros();
+    for axis in 0..3 {
+        h[(0, POS + axis)] = model.scale() * forward[axis];
+    }
+    h[(0, ODOMETER)] = travelled_m;
+    h.set_row(1, &(body.row(1) - body.row(0) * a_y));
+    h.set_row(2, &(body.row(2) - body.row(0) * a_z));
+    h[(1, ODOMETER + 1)] = -forward_mps;
+    h[(2, ODOMETER + 2)] = -forward_mps;
     h
 }
 
@@ -271,6 +367,7 @@ mod tests {
             V3::new(1e-3, 1e-3, 1e-2),
             V3::repeat(1e-2),
             V3::repeat(1e-6),
+            V3::repeat(1e-3),
         ];
         let mut filter = ErrorStateFilter::new(sigma, noise());
         for _ in 0..100 {
@@ -303,7 +400,7 @@ mod tests {
 
     #[test]
     fn the_gate_refuses_an_absurd_height() {
-        let mut filter = ErrorStateFilter::new([V3::repeat(0.01); 5], noise());
+        let mut filter = ErrorStateFilter::new([V3::repeat(0.01); 6], noise());
         let r = SMatrix::<f64, 1, 1>::new(1e-4);
         let absurd = SVector::<f64, 1>::new(10.0);
         let err = filter.update(&height_matrix(), &absurd, &r, Some(25.0));
@@ -314,5 +411,67 @@ mod tests {
             .unwrap();
         // ĥ − h = 0.01 means δp_D = −0.01·(gain).
         assert!(dx[POS + 2] < 0.0);
+    }
+
+    #[test]
+    fn an_odometer_counting_long_is_taken_for_its_scale_when_the_position_is_known() {
+        // Position known to 1 µm after 10 m north on a level body; the
+        // odometer counted 10.4 m. With σ_s = 0.05 and R = (1 mm)²: S =
+        // 10²·0.0025 + 1e-6 (+1e-12), the scale's gain 10·0.0025 / S, so
+        // ŝ = 0.4 × 0.025 / 0.250001.
+        let sigma = [
+            V3::repeat(1e-6),
+            V3::repeat(1e-6),
+            V3::repeat(1e-6),
+            V3::repeat(1e-6),
+            V3::repeat(1e-9),
+            V3::new(0.05, 0.0, 0.0),
+        ];
+        let mut filter = ErrorStateFilter::new(sigma, noise());
+        let mut model = OdometerModel::default();
+        let velocity_n = V3::zeros();
+        let innovation = model.innovation(10.0, 10.4, &velocity_n);
+        let h = odometer_matrix(&Matrix3::identity(), &velocity_n, &model, 10.0);
+        assert_eq!(h[(0, POS)], 1.0);
+        let r = SMatrix::<f64, 3, 3>::identity() * 1e-6;
+        // As the filter does it, the scale only considered: it stays.
+        let considered = filter.clone().update(&h, &innovation, &r, None).unwrap();
+        assert_eq!(considered[ODOMETER], 0.0);
+        let dx = filter
+            .update_considering(&h, &innovation, &r, None, 0..0)
+            .unwrap();
+        model.correct(&dx);
+        let expected = 0.4 * 0.025 / (0.250001 + 1e-12);
+        assert!((model.scale_error - expected).abs() < 1e-9, "{model:?}");
+        // The position barely moves: it is known far better than the scale.
+        assert!(dx[POS].abs() < 1e-6, "{dx}");
+        // σ_s² after: P_s·(R + P_p) / S.
+        assert!((filter.p[(ODOMETER, ODOMETER)] - 0.0025 * 1.000001e-6 / 0.250001).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_sideways_speed_along_the_odometer_axis_is_taken_for_its_misalignment() {
+        // The INS moves at 0.1 m/s forward and 0.001 m/s right (known to
+        // 1e-6): an axis 0.01 rad toward y explains it. σ_a = 0.02, R =
+        // (1 mm/s)²: the gain on −v_x·δa_y is P_a·v_x / (v_x²·P_a + R) =
+        // 4e-5 / 5e-6 = 8, so â_y = 8 × 0.001 = 0.008 (4/5 of the way).
+        let sigma = [
+            V3::repeat(0.01),
+            V3::repeat(1e-6),
+            V3::repeat(1e-6),
+            V3::repeat(1e-6),
+            V3::repeat(1e-9),
+            V3::new(0.0, 0.02, 0.02),
+        ];
+        let mut filter = ErrorStateFilter::new(sigma, noise());
+        let mut model = OdometerModel::default();
+        let velocity_n = V3::new(0.1, 0.001, 0.0);
+        let innovation = model.innovation(0.0, 0.0, &velocity_n);
+        let h = odometer_matrix(&Matrix3::identity(), &velocity_n, &model, 0.0);
+        let r = SMatrix::<f64, 3, 3>::identity() * 1e-6;
+        let dx = filter.update(&h, &innovation, &r, None).unwrap();
+        model.correct(&dx);
+        assert!((model.axis_rad[0] - 0.008).abs() < 1e-6, "{model:?}");
+        assert!(model.axis_rad[1].abs() < 1e-9 && model.scale_error.abs() < 1e-9);
     }
 }

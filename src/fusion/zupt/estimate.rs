@@ -55,6 +55,12 @@ pub struct ZuptEstimate {
     /// from the last still epoch before it, about one point a second;
     /// `null` on every other estimate.
     pub smoothed_push: Option<Vec<TrackPoint>>,
+    /// The odometer's scale as the filter estimates it (its distance ÷
+    /// the true distance: 1.04 reads 4 % long) and its 1σ; `null` before
+    /// alignment, before the first odometer reading, and in estimates
+    /// stored before they were reported.
+    pub odometer_scale: Option<f64>,
+    pub odometer_scale_sigma: Option<f64>,
 }
 
 /// A point of a smoothed track.
@@ -72,8 +78,9 @@ pub struct TrackPoint {
 /// Stored estimates of this release: postcard of [`ZuptEstimate`].
 /// 1: before the heading σ and the smoothed push ([`ZuptEstimateV1`]);
 /// 2: before the attitude σ ([`ZuptEstimateV2`]); 3: before the pitch and
-/// roll σ ([`ZuptEstimateV3`]).
-pub const CODEC_VERSION: u32 = 4;
+/// roll σ ([`ZuptEstimateV3`]); 4: before the odometer's scale
+/// ([`ZuptEstimateV4`]).
+pub const CODEC_VERSION: u32 = 5;
 
 impl StreamValues for ZuptEstimate {
     const CODEC_VERSION: u32 = CODEC_VERSION;
@@ -111,6 +118,8 @@ impl StreamValues for ZuptEstimate {
                 w.triple("position_sigma_m", &point.position_sigma_m);
             }),
         }
+        w.optional("odometer_scale", self.odometer_scale);
+        w.optional("odometer_scale_sigma", self.odometer_scale_sigma);
     }
 
     /// 0: stored before rows carried their version: version 2, or 1
@@ -119,12 +128,14 @@ impl StreamValues for ZuptEstimate {
         let v1 = |bytes| postcard::from_bytes::<ZuptEstimateV1>(bytes).map(ZuptEstimate::from);
         let v2 = |bytes| postcard::from_bytes::<ZuptEstimateV2>(bytes).map(ZuptEstimate::from);
         let v3 = |bytes| postcard::from_bytes::<ZuptEstimateV3>(bytes).map(ZuptEstimate::from);
+        let v4 = |bytes| postcard::from_bytes::<ZuptEstimateV4>(bytes).map(ZuptEstimate::from);
         match version {
             0 => v2(bytes).or_else(|_| v1(bytes)),
             1 => v1(bytes),
             2 => v2(bytes),
             3 => v3(bytes),
-            4 => postcard::from_bytes(bytes),
+            4 => v4(bytes),
+            5 => postcard::from_bytes(bytes),
             _ => Err(postcard::Error::DeserializeBadEncoding),
         }
     }
@@ -204,6 +215,8 @@ impl ZuptEstimateV1 {
             pitch_sigma_deg: None,
             roll_sigma_deg: None,
             smoothed_push,
+            odometer_scale: None,
+            odometer_scale_sigma: None,
         }
     }
 }
@@ -243,6 +256,29 @@ impl From<ZuptEstimateV3> for ZuptEstimate {
     fn from(v: ZuptEstimateV3) -> ZuptEstimate {
         v.core
             .upgrade(v.yaw_sigma_deg, v.attitude_sigma_deg, v.smoothed_push)
+    }
+}
+
+/// A `zupt` estimate as releases before the odometer's scale stored it
+/// (codec version 4).
+#[derive(Deserialize)]
+struct ZuptEstimateV4 {
+    core: ZuptEstimateV1,
+    yaw_sigma_deg: Option<f64>,
+    attitude_sigma_deg: Option<[f64; 3]>,
+    pitch_sigma_deg: Option<f64>,
+    roll_sigma_deg: Option<f64>,
+    smoothed_push: Option<Vec<TrackPoint>>,
+}
+
+impl From<ZuptEstimateV4> for ZuptEstimate {
+    fn from(v: ZuptEstimateV4) -> ZuptEstimate {
+        ZuptEstimate {
+            pitch_sigma_deg: v.pitch_sigma_deg,
+            roll_sigma_deg: v.roll_sigma_deg,
+            ..v.core
+                .upgrade(v.yaw_sigma_deg, v.attitude_sigma_deg, v.smoothed_push)
+        }
     }
 }
 
@@ -308,6 +344,20 @@ mod tests {
         assert_eq!(
             ZuptEstimate::decode(CODEC_VERSION, &current.encode()).unwrap(),
             current
+        );
+        // Codec 4's layout is codec 5's without the two odometer fields
+        // at the end, each `None` one zero byte in postcard.
+        let mut v4 = current.encode();
+        assert_eq!(v4.split_off(v4.len() - 2), [0, 0]);
+        assert_eq!(ZuptEstimate::decode(4, &v4).unwrap(), current);
+        let with_scale = ZuptEstimate {
+            odometer_scale: Some(1.04),
+            odometer_scale_sigma: Some(0.002),
+            ..current
+        };
+        assert_eq!(
+            ZuptEstimate::decode(CODEC_VERSION, &with_scale.encode()).unwrap(),
+            with_scale
         );
     }
 }

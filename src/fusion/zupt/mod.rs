@@ -27,6 +27,7 @@ pub mod detectors;
 pub mod eskf;
 pub mod estimate;
 pub mod imu_screen;
+pub mod odometer_scale;
 pub mod params;
 pub mod rest_check;
 pub mod smoother;
@@ -41,11 +42,12 @@ use serde::{Deserialize, Serialize};
 
 use self::detectors::Statistics;
 use self::eskf::{
-    ACCEL_BIAS, ATT, Dynamics, ErrorStateFilter, GYRO_BIAS, POS, VEL, body_velocity_matrix,
-    height_matrix, zaru_matrix, zupt_matrix,
+    ACCEL_BIAS, ATT, Dynamics, ErrorStateFilter, GYRO_BIAS, ODOMETER, OdometerModel, POS, VEL,
+    height_matrix, odometer_matrix, scale_matrix, zaru_matrix, zupt_matrix,
 };
 use self::estimate::{TrackPoint, ZuptEstimate};
 use self::imu_screen::{ImuScreen, Screened};
+use self::odometer_scale::{InsPush, MeasuredPush};
 pub use self::params::{PARAMS, ZuptConfig, ZuptParams};
 use self::rest_check::{Refusal, RestCheck, RestCheckConfig, Velocity};
 use self::smoother::{Point, PushRecord};
@@ -72,11 +74,13 @@ use crate::fusion::geometry::{
 /// confirms rests, refuses a run at once, and aligns; 6: the noise of the
 /// zero-angular-rate update is estimated from the rates; 7: the distance
 /// the odometer carried (its scale error in the position σ); 8: the creep
-/// a rest no odometer confirmed may hide (in the position σ).
-pub const STATE_VERSION: u32 = 8;
+/// a rest no odometer confirmed may hide (in the position σ); 9: the
+/// odometer's scale and axis as filter states (issue 58).
+pub const STATE_VERSION: u32 = 9;
 /// Level or odometer readings kept waiting for the navigation time.
 const MAX_PENDING_AIDS: usize = 1024;
-/// Two odometer readings further apart than this give no speed.
+/// Two odometer readings further apart than this bound no interval for
+/// the slip check (the count since the origin is fused still).
 const ODOMETER_MAX_GAP_S: f64 = 10.0;
 /// Odometer intervals refused this long in a row open the INS velocity's
 /// covariance (a wheel slips for seconds; an INS that drifted stays
@@ -88,6 +92,9 @@ const ODOMETER_DISAGREE_SIGMAS: f64 = 3.0;
 /// The least σ of that disagreement: the odometer's resolution and the
 /// reading's age against the engine's distance, m.
 const ODOMETER_DISAGREE_FLOOR_M: f64 = 0.01;
+/// How much older than the newest rest the odometer confirmed the rest a
+/// push is measured from is at least, s ([`Navigation::ins_push`]).
+const PUSH_ANCHOR_STAGGER_S: f64 = 3.0;
 /// The spacing of the INS distance kept to compare with the odometer, s.
 const INS_DISTANCE_STEP_S: f64 = 0.05;
 
@@ -131,8 +138,14 @@ pub struct ZuptStats {
     /// Heights refused by the gate.
     pub heights_refused: u64,
     pub odometer_updates: u64,
-    /// Odometer speeds refused by the gate (a slipping wheel, a reset counter).
+    /// Odometer readings refused (a slipping wheel, a reset counter).
     pub odometer_refused: u64,
+    /// Pushes that measured the odometer's scale, and those the gate
+    /// refused ([`odometer_scale`]).
+    #[serde(default)]
+    pub odometer_scale_pushes: u64,
+    #[serde(default)]
+    pub odometer_scale_refused: u64,
     /// Readings the detector called still whose rest the check refused:
     /// for the filter's velocity, and for the odometer's advance.
     #[serde(default)]
@@ -187,15 +200,12 @@ struct Navigation {
     push: Option<PushRecord>,
     /// Height of the start point, set by the first level reading.
     height_datum_m: Option<f64>,
-    /// The newest height not yet used, and odometer speed not yet used.
+    /// The newest height not yet used, and odometer reading not yet used.
     pending_height_m: Option<f64>,
-    pending_odometer: Option<OdometerSpeed>,
-    /// Where the fused odometer carried the machine, NED m (each applied
-    /// interval's signed advance along the machine's axis then): its
-    /// scale error, not estimated, enters the reported position σ
-    /// ([`with_scale_error`]). Signed, so the counter's jitter at rest
-    /// cancels.
-    odometer_carried_m: V3,
+    pending_odometer: Option<OdometerFix>,
+    /// The odometer's scale error and axis as estimated (their
+    /// covariance is the filter's [`ODOMETER`] block).
+    odometer: OdometerModel,
     /// How far the position could be off along the machine's axis (NED m,
     /// along the axis at each step) by what no evidence checked, a bound
     /// the reported position σ grows by ([`with_creep_bound`]): the creep
@@ -205,31 +215,63 @@ struct Navigation {
     /// wrongly loses that distance unseen). The down part is dropped at
     /// each height the level gives.
     unverified_m: V3,
-    /// The odometer's distance when the engine's was zero (set at the
-    /// first odometer reading after alignment), and by how much the
-    /// odometer's distance since then and the engine's along-track
-    /// distance disagree at the newest odometer reading, m: which of the
+    /// Where the odometer's count is compared from (the first odometer
+    /// reading after alignment; moved on by every slip), and by how much
+    /// its count since then, scale-corrected, and the engine's along-track
+    /// advance disagree at the newest odometer reading, m: which of the
     /// two is wrong is not known, so the reported σ along the axis grows
     /// by it, and beyond [`ODOMETER_DISAGREE_SIGMAS`] the estimate is
     /// `degraded` (`odometer_disagrees`).
-    odometer_origin_m: Option<f64>,
+    odometer_origin: Option<OdometerOrigin>,
     odometer_disagreement_m: f64,
-    /// The first refusal of the current run of odometer intervals the
-    /// gate refused, and the newest refusal's time (the monitor of the
-    /// odometer against the INS, [`ODOMETER_LOCKOUT_S`]).
+    /// The first refusal of the current run of odometer readings refused
+    /// (a slip, or a count the gate refused), the newest refusal's time,
+    /// and what the run's slips moved the origin by, m (the monitor of
+    /// the odometer against the INS, [`ODOMETER_LOCKOUT_S`]).
     odometer_refused_from_t: Option<f64>,
     odometer_refused_t: Option<f64>,
+    odometer_slipped_m: f64,
+    /// The newest odometer count, every slip's excess so far, m, and the
+    /// INS's own motion since a rest the odometer confirmed
+    /// ([`odometer_scale`]): the one measured when the push ends, and a
+    /// newer one (anchored at `t`) that takes its place once
+    /// [`PUSH_ANCHOR_STAGGER_S`] old while the machine stands. The one
+    /// measured is so anchored at least that long before the last rest
+    /// the odometer confirmed, never in the second the odometer takes to
+    /// see a push begin.
+    newest_count_m: Option<f64>,
+    slipped_total_m: f64,
+    ins_push: Option<InsPush>,
+    ins_push_next: Option<(f64, InsPush)>,
 }
 
-/// An odometer interval not yet fused: the odometer's mean speed over
-/// it, and the INS's mean forward speed over the same interval, m/s.
+/// An odometer reading not yet fused.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-struct OdometerSpeed {
-    odometer_mps: f64,
-    ins_mps: f64,
-    /// The odometer's and the INS's advance over the interval, m.
+struct OdometerFix {
+    /// Its count, and the engine's along-track distance at its time, m.
+    counted_m: f64,
+    engine_m: f64,
+    /// The interval since the reading before; `None` across a gap.
+    interval: Option<OdometerInterval>,
+}
+
+/// The interval between two odometer readings: the count's and the
+/// INS's advance over it, m, and its length, s.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+struct OdometerInterval {
     advance_m: f64,
     ins_advance_m: f64,
+    dt_s: f64,
+}
+
+/// Where the odometer's count is compared from: its count and the
+/// engine's along-track distance there, m, and that distance's 1σ then
+/// (added to the noise of every comparison).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+struct OdometerOrigin {
+    counted_m: f64,
+    engine_m: f64,
+    sigma_m: f64,
 }
 
 /// The `zupt` engine; see the module documentation.
@@ -384,6 +426,8 @@ impl ZuptEngine {
                 nav.unverified_m +=
                     nav.state.attitude * V3::x() * (self.config.max_speed_mps * gap_s);
                 nav.previous = None;
+                nav.ins_push = None;
+                nav.ins_push_next = None;
                 // No INS distance across the gap: no odometer interval
                 // reaching back over it is compared.
                 nav.ins_distance_history.clear();
@@ -523,23 +567,8 @@ impl ZuptEngine {
                 self.stats.aids_dropped += 1;
                 continue;
             }
-            if let (Some((prev_t, prev_m)), Some(nav)) = (self.odometer, &mut self.navigation)
-                && odo_t - prev_t <= ODOMETER_MAX_GAP_S
-                && let (Some(from_m), Some(to_m)) =
-                    (nav.ins_distance_at(prev_t), nav.ins_distance_at(odo_t))
-            {
-                nav.pending_odometer = Some(OdometerSpeed {
-                    odometer_mps: (distance_m - prev_m) / (odo_t - prev_t),
-                    ins_mps: (to_m - from_m) / (odo_t - prev_t),
-                    advance_m: distance_m - prev_m,
-                    ins_advance_m: to_m - from_m,
-                });
-            }
             if let Some(nav) = &mut self.navigation {
-                let origin_m = *nav
-                    .odometer_origin_m
-                    .get_or_insert(distance_m - nav.distance_m);
-                nav.odometer_disagreement_m = distance_m - origin_m - nav.distance_m;
+                nav.odometer_read(self.odometer, odo_t, distance_m);
             }
             if let Some(check) = &self.config.rest_check {
                 self.rest_check.odometer(check, odo_t, distance_m);
@@ -580,6 +609,7 @@ impl ZuptEngine {
             self.take_aids(sample.t);
             return self.unaligned_estimate(sample.t, &decision);
         };
+        let mut raw_step = None;
         if let Some(previous) = nav.previous {
             let dt_s = sample.t - previous.t;
             let increment = Increment {
@@ -590,6 +620,11 @@ impl ZuptEngine {
             };
             let before = nav.state.position_m;
             let force_n = nav.state.advance(&config.site, &increment);
+            raw_step = Some((
+                (previous.accel_mps2 + sample.accel_mps2) * 0.5,
+                (previous.gyro_rad_per_s + sample.gyro_rad_per_s) * 0.5,
+                dt_s,
+            ));
             let advance_m = along_track(&nav.state, &(nav.state.position_m - before));
             nav.distance_m += advance_m;
             nav.ins_distance_m += advance_m;
@@ -623,6 +658,12 @@ impl ZuptEngine {
         }
         if nav.previous.is_some() {
             nav.interval_still &= decision.zv;
+        }
+        if let Some((accel, gyro, dt_s)) = raw_step {
+            let next = nav.ins_push_next.as_mut().map(|(_, push)| push);
+            for push in nav.ins_push.iter_mut().chain(next) {
+                push.advance(&config.site, &accel, &gyro, dt_s, decision.zv);
+            }
         }
         nav.previous = Some(sample);
         let mut smoothed_push = None;
@@ -703,14 +744,7 @@ impl ZuptEngine {
             }
             None => &nav.filter,
         };
-        let sigma = with_creep_bound(
-            &with_scale_error(
-                &filter.sigma(POS),
-                &nav.odometer_carried_m,
-                config.odometer_scale_sigma,
-            ),
-            &unverified_m,
-        );
+        let sigma = with_creep_bound(&filter.sigma(POS), &unverified_m);
         let attitude_sigma = filter.sigma(ATT);
         let yaw_sigma_deg = deg(attitude_sigma.z);
         let tilt_sigma_deg = tilt_sigma(&filter.p, yaw).map(deg);
@@ -734,8 +768,12 @@ impl ZuptEngine {
                 ]),
                 Some(tilt_sigma_deg),
                 smoothed_push,
+                nav.odometer_origin.map(|_| {
+                    let sigma = filter.p[(ODOMETER, ODOMETER)].max(0.0).sqrt();
+                    (1.0 + nav.odometer.scale_error, sigma)
+                }),
             )),
-            integrity: nav.integrity(config, t),
+            integrity: nav.integrity(t),
         }
     }
 
@@ -752,6 +790,7 @@ impl ZuptEngine {
                 [0.0; 3],
                 (roll, pitch, self.config.initial_yaw_rad),
                 [0.0; 3],
+                None,
                 None,
                 None,
                 None,
@@ -777,6 +816,7 @@ impl ZuptEngine {
         attitude_sigma_deg: Option<[f64; 3]>,
         tilt_sigma_deg: Option<[f64; 2]>,
         smoothed_push: Option<Vec<TrackPoint>>,
+        odometer_scale: Option<(f64, f64)>,
     ) -> ZuptEstimate {
         let s = &decision.statistics;
         let g = &decision.thresholds;
@@ -808,6 +848,8 @@ impl ZuptEngine {
             pitch_sigma_deg: tilt_sigma_deg.map(|[pitch, _]| pitch),
             roll_sigma_deg: tilt_sigma_deg.map(|[_, roll]| roll),
             smoothed_push,
+            odometer_scale: odometer_scale.map(|(scale, _)| scale),
+            odometer_scale_sigma: odometer_scale.map(|(_, sigma)| sigma),
         }
     }
 
@@ -832,6 +874,11 @@ impl ZuptEngine {
                 V3::new(tilt_sigma, tilt_sigma, c.initial_yaw_sigma_rad.max(1e-6)),
                 V3::repeat(c.accel_bias_sigma_mps2.max(1e-7)),
                 V3::repeat(c.gyro_bias_sigma_rad_per_s.max(1e-10)),
+                V3::new(
+                    c.odometer_scale_sigma.max(1e-9),
+                    c.odometer_axis_sigma_rad.max(1e-9),
+                    c.odometer_axis_sigma_rad.max(1e-9),
+                ),
             ],
             c.process_noise,
         );
@@ -853,10 +900,15 @@ impl ZuptEngine {
             height_datum_m: None,
             pending_height_m: None,
             pending_odometer: None,
-            odometer_carried_m: V3::zeros(),
+            odometer: OdometerModel::default(),
             unverified_m: V3::zeros(),
-            odometer_origin_m: None,
+            odometer_origin: None,
             odometer_disagreement_m: 0.0,
+            odometer_slipped_m: 0.0,
+            newest_count_m: None,
+            slipped_total_m: 0.0,
+            ins_push: None,
+            ins_push_next: None,
             odometer_refused_from_t: None,
             odometer_refused_t: None,
         }
@@ -885,15 +937,6 @@ fn check_rest(
         Some(Refusal::Velocity | Refusal::StillMoving) => stats.rests_refused_velocity += 1,
     }
     decision.zv = false;
-}
-
-/// The position σ (NED, m) with the odometer's scale error, which the
-/// filter does not estimate (a consider term): after the odometer carried
-/// the machine by `carried_m` (NED), the position is off by s·carried_m,
-/// so σ_i² grows by (σ_s·carried_i)².
-fn with_scale_error(sigma: &V3, carried_m: &V3, scale_sigma: f64) -> V3 {
-    let off = carried_m * scale_sigma;
-    sigma.zip_map(&off, |s, a| (s * s + a * a).sqrt())
 }
 
 /// A position σ widened by the creep a rest no odometer confirmed may
@@ -1002,6 +1045,10 @@ impl Navigation {
             gravity_gradient: 2.0 * normal_gravity_mps2(lat, height) / radius,
         };
         let phi = self.filter.propagate(&dynamics, self.interval_s);
+        let next = self.ins_push_next.as_mut().map(|(_, push)| push);
+        for push in self.ins_push.iter_mut().chain(next) {
+            push.epoch(&dynamics, config.zupt_sigma_mps);
+        }
         if let Some(push) = &mut self.push {
             push.propagated(&phi, &self.filter.p);
         }
@@ -1067,31 +1114,14 @@ impl Navigation {
                 }
             }
         }
-        if let Some(odometer) = self.pending_odometer.take()
+        if let Some(fix) = self.pending_odometer.take()
             && config.odometer_aiding
+            && let Some(origin) = self.odometer_origin
         {
-            // The odometer's speed is a mean over its interval (a second,
-            // say: half a second late, and during a stop or a start far
-            // from the speed at its end): it is compared with the INS's
-            // mean forward speed over the same interval, its error taken
-            // for the error of the velocity now. Sideways and vertical:
-            // the body's speed now, zero.
-            let mut velocity_b = self.state.attitude.inverse() * self.state.velocity_mps;
-            velocity_b.x = odometer.ins_mps;
-            let innovation = velocity_b - V3::new(odometer.odometer_mps, 0.0, 0.0);
-            let r = SMatrix::<f64, 3, 3>::identity() * config.odometer_sigma_mps.powi(2);
-            let h = body_velocity_matrix(&c_bn, &self.state.velocity_mps);
-            let result = self.filter.update(&h, &innovation, &r, gate);
-            if result == Err(eskf::UpdateError::Gated) {
-                stats.odometer_refused += 1;
-                self.odometer_refused(odometer, t);
-            } else {
-                self.odometer_refused_from_t = None;
-                if result.is_ok() {
-                    self.odometer_carried_m += self.state.attitude * V3::x() * odometer.advance_m;
-                }
-                self.apply(result, stats, |s| s.odometer_updates += 1);
-            }
+            self.fuse_odometer(config, &fix, &origin, &c_bn, gate, t, stats);
+        }
+        if zv && interval_still && rest_confirmed && config.odometer_aiding {
+            self.confirmed_rest(config, t, gate, stats);
         }
         if config.smooth_pushes {
             self.record_push(config, zv && interval_still, stats)
@@ -1100,19 +1130,229 @@ impl Navigation {
         }
     }
 
-    /// The monitor of the odometer against the INS, at an odometer
-    /// interval the gate refused at `t`. Refused for [`ODOMETER_LOCKOUT_S`] or longer (longer than a
-    /// wheel slips), the INS is taken to have drifted: the velocity's
-    /// covariance along the axis opens by the disagreement, so that the
-    /// next interval is fused rather than refused for the rest of the drive.
-    fn odometer_refused(&mut self, odometer: OdometerSpeed, t: f64) {
+    /// Takes an odometer reading of `counted_m` at `t` (`previous`: the
+    /// one before): the first after alignment is the origin the count is
+    /// compared from, each later one waits for the next epoch; the two
+    /// distances' disagreement is updated.
+    fn odometer_read(&mut self, previous: Option<(f64, f64)>, t: f64, counted_m: f64) {
+        let engine_m = match self.ins_distance_at(t) {
+            Some(at_m) => self.distance_m - (self.ins_distance_m - at_m),
+            None => self.distance_m,
+        };
+        let interval = previous
+            .filter(|&(prev_t, _)| t - prev_t <= ODOMETER_MAX_GAP_S)
+            .and_then(|(prev_t, prev_m)| {
+                Some(OdometerInterval {
+                    advance_m: counted_m - prev_m,
+                    ins_advance_m: self.ins_distance_at(t)? - self.ins_distance_at(prev_t)?,
+                    dt_s: t - prev_t,
+                })
+            });
+        self.newest_count_m = Some(counted_m);
+        let origin = match self.odometer_origin {
+            Some(origin) => {
+                self.pending_odometer = Some(OdometerFix {
+                    counted_m,
+                    engine_m,
+                    interval,
+                });
+                origin
+            }
+            None => *self.odometer_origin.insert(OdometerOrigin {
+                counted_m,
+                engine_m,
+                sigma_m: self.along_variance_m2().sqrt(),
+            }),
+        };
+        self.odometer_disagreement_m =
+            (counted_m - origin.counted_m) / self.odometer.scale() - (engine_m - origin.engine_m);
+    }
+
+    /// The filter's variance of the position along the machine's axis, m².
+    fn along_variance_m2(&self) -> f64 {
         let forward = self.state.attitude * V3::x();
+        let p_pos = self.filter.p.fixed_view::<3, 3>(POS, POS);
+        (forward.transpose() * p_pos * forward)[(0, 0)].max(0.0)
+    }
+
+    /// Fuses an odometer reading (the monitor first): an interval whose
+    /// count exceeds the scale times the INS's advance by more than
+    /// `aid_gate_sigma` σ (the count's noise twice, the INS's velocity σ
+    /// over the interval, the scale's σ) is a slip, not fused, and the
+    /// origin moves on by the excess; otherwise the count since the origin
+    /// is compared with the scale times the engine's advance since then
+    /// (Eq. of [`odometer_matrix`]) with zero speed across the odometer's
+    /// axis, gated as a whole.
+    #[allow(clippy::too_many_arguments)]
+    fn fuse_odometer(
+        &mut self,
+        config: &ZuptConfig,
+        fix: &OdometerFix,
+        origin: &OdometerOrigin,
+        c_bn: &nalgebra::Matrix3<f64>,
+        gate: Option<f64>,
+        t: f64,
+        stats: &mut ZuptStats,
+    ) {
+        let scale = self.odometer.scale();
+        let forward = self.state.attitude * V3::x();
+        let slip = fix.interval.and_then(|interval| {
+            let excess_m = interval.advance_m - scale * interval.ins_advance_m;
+            let p_v = self.filter.p.fixed_view::<3, 3>(VEL, VEL);
+            let along_v = (forward.transpose() * p_v * forward)[(0, 0)].max(0.0);
+            let p_s = self.filter.p[(ODOMETER, ODOMETER)].max(0.0);
+            let sigma_m = (2.0 * config.odometer_distance_sigma_m.powi(2)
+                + scale * scale * along_v * interval.dt_s.powi(2)
+                + p_s * interval.ins_advance_m.powi(2))
+            .sqrt();
+            (gate.is_some() && excess_m.abs() > config.aid_gate_sigma * sigma_m)
+                .then_some((excess_m, interval))
+        });
+        if let Some((excess_m, interval)) = slip {
+            stats.odometer_refused += 1;
+            self.odometer_refused(t, excess_m, excess_m / interval.dt_s);
+            return;
+        }
+        let velocity_b = self.state.attitude.inverse() * self.state.velocity_mps;
+        let travelled_m = fix.engine_m - origin.engine_m;
+        let innovation =
+            self.odometer
+                .innovation(travelled_m, fix.counted_m - origin.counted_m, &velocity_b);
+        let h = odometer_matrix(c_bn, &self.state.velocity_mps, &self.odometer, travelled_m);
+        // Across the axis first: zero speed there tells the velocity and
+        // the platform's attitude.
+        let across = config.odometer_sigma_mps.powi(2);
+        let result = self.filter.update(
+            &h.fixed_rows::<2>(1).into_owned(),
+            &nalgebra::Vector2::new(innovation.y, innovation.z),
+            &(SMatrix::<f64, 2, 2>::identity() * across),
+            gate,
+        );
+        if result != Err(eskf::UpdateError::Gated) {
+            self.apply(result, stats, |_| {});
+        }
+        // The count corrects position and velocity only: a platform tilted
+        // (or a bias moved) to fit the count would carry the scale's error
+        // into the next push's own measurement ([`odometer_scale`]).
+        let r = SMatrix::<f64, 1, 1>::new(
+            config.odometer_distance_sigma_m.powi(2) + origin.sigma_m.powi(2),
+        );
+        let result = self.filter.update_considering(
+            &h.fixed_rows::<1>(0).into_owned(),
+            &SVector::<f64, 1>::new(innovation.x),
+            &r,
+            gate,
+            ATT..ODOMETER + 1,
+        );
+        if result == Err(eskf::UpdateError::Gated) {
+            stats.odometer_refused += 1;
+            let speed_mps = fix
+                .interval
+                .map_or(0.0, |i| (i.advance_m - scale * i.ins_advance_m) / i.dt_s);
+            self.odometer_refused(t, 0.0, speed_mps);
+        } else {
+            self.odometer_refused_from_t = None;
+            self.odometer_slipped_m = 0.0;
+            self.apply(result, stats, |s| s.odometer_updates += 1);
+        }
+    }
+
+    /// At a still epoch the odometer confirms: a push since the last such
+    /// rest is measured and its scale fused ([`odometer_scale`]), and the
+    /// next push is anchored here.
+    fn confirmed_rest(
+        &mut self,
+        config: &ZuptConfig,
+        t: f64,
+        gate: Option<f64>,
+        stats: &mut ZuptStats,
+    ) {
+        let Some(counted_m) = self.newest_count_m.map(|c| c - self.slipped_total_m) else {
+            return;
+        };
+        let anchor = InsPush::anchored(
+            counted_m,
+            &self.state,
+            &self.filter,
+            &self.accel_bias_mps2,
+            &self.gyro_bias_rad_per_s,
+        );
+        if self.ins_push.as_ref().is_some_and(InsPush::moved) {
+            let forward = self.state.attitude * V3::x();
+            if let Some(measured) = self
+                .ins_push
+                .as_ref()
+                .and_then(|push| push.measure(counted_m, &forward))
+            {
+                self.fuse_push_scale(config, &measured, gate, stats);
+            }
+            self.ins_push = None;
+            self.ins_push_next = Some((t, anchor));
+            return;
+        }
+        match &self.ins_push_next {
+            None => self.ins_push_next = Some((t, anchor)),
+            Some((anchored_t, _)) if t - anchored_t >= PUSH_ANCHOR_STAGGER_S => {
+                self.ins_push = self.ins_push_next.take().map(|(_, push)| push);
+                self.ins_push_next = Some((t, anchor));
+            }
+            Some(_) => {}
+        }
+    }
+
+    /// Updates the scale with the one a measured push says.
+    fn fuse_push_scale(
+        &mut self,
+        config: &ZuptConfig,
+        measured: &MeasuredPush,
+        gate: Option<f64>,
+        stats: &mut ZuptStats,
+    ) {
+        let (scale, sigma) = measured.scale(config.odometer_distance_sigma_m);
+        let innovation = SVector::<f64, 1>::new(self.odometer.scale() - scale);
+        let r = SMatrix::<f64, 1, 1>::new(sigma * sigma);
+        let result = self
+            .filter
+            .update_considering(&scale_matrix(), &innovation, &r, gate, 0..0);
+        if result == Err(eskf::UpdateError::Gated) {
+            stats.odometer_scale_refused += 1;
+        } else {
+            self.apply(result, stats, |s| s.odometer_scale_pushes += 1);
+        }
+    }
+
+    /// The monitor of the odometer against the INS, at an odometer reading
+    /// refused at `t`: a slip of `slipped_m` (0 for a count the gate
+    /// refused) moves the origin on, so the count after it compares again.
+    /// Refused for [`ODOMETER_LOCKOUT_S`] or longer (longer than a wheel
+    /// slips), the INS is taken to have drifted instead: the slips of the
+    /// run are taken back and the position's and velocity's covariance
+    /// along the axis open by the disagreement (`speed_mps` the newest
+    /// interval's), so that the next reading is fused rather than refused
+    /// for the rest of the drive.
+    fn odometer_refused(&mut self, t: f64, slipped_m: f64, speed_mps: f64) {
+        let scale = self.odometer.scale();
+        if let Some(origin) = &mut self.odometer_origin {
+            origin.counted_m += slipped_m;
+            self.odometer_disagreement_m -= slipped_m / scale;
+            self.odometer_slipped_m += slipped_m;
+            self.slipped_total_m += slipped_m;
+        }
         let from_t = *self.odometer_refused_from_t.get_or_insert(t);
         self.odometer_refused_t = Some(t);
         if t - from_t >= ODOMETER_LOCKOUT_S {
-            let dv = odometer.odometer_mps - odometer.ins_mps;
+            let forward = self.state.attitude * V3::x();
+            let slipped_m = std::mem::take(&mut self.odometer_slipped_m);
+            if let Some(origin) = &mut self.odometer_origin {
+                origin.counted_m -= slipped_m;
+                self.odometer_disagreement_m += slipped_m / scale;
+                self.slipped_total_m -= slipped_m;
+            }
+            let along = forward * forward.transpose();
+            let mut p_p = self.filter.p.fixed_view_mut::<3, 3>(POS, POS);
+            p_p += along * self.odometer_disagreement_m.powi(2);
             let mut p_v = self.filter.p.fixed_view_mut::<3, 3>(VEL, VEL);
-            p_v += forward * forward.transpose() * (dv * dv);
+            p_v += along * speed_mps.powi(2);
             self.odometer_refused_from_t = None;
         }
     }
@@ -1123,14 +1363,12 @@ impl Navigation {
     /// [`ODOMETER_DISAGREE_SIGMAS`] σ of what each may be off by (the
     /// filter's along-track σ, the odometer's scale error over its
     /// distance, [`ODOMETER_DISAGREE_FLOOR_M`]); else `ok`.
-    fn integrity(&self, config: &ZuptConfig, t: f64) -> Integrity {
+    fn integrity(&self, t: f64) -> Integrity {
         let refused = self
             .odometer_refused_t
             .is_some_and(|refused_t| t - refused_t < ODOMETER_LOCKOUT_S);
-        let forward = self.state.attitude * V3::x();
-        let p_pos = self.filter.p.fixed_view::<3, 3>(POS, POS);
-        let along_variance = (forward.transpose() * p_pos * forward)[(0, 0)].max(0.0);
-        let scale_m = config.odometer_scale_sigma * self.distance_m.abs();
+        let along_variance = self.along_variance_m2();
+        let scale_m = self.filter.p[(ODOMETER, ODOMETER)].max(0.0).sqrt() * self.distance_m.abs();
         let sigma_m = (along_variance + scale_m.powi(2) + ODOMETER_DISAGREE_FLOOR_M.powi(2)).sqrt();
         if refused || self.odometer_disagreement_m.abs() > ODOMETER_DISAGREE_SIGMAS * sigma_m {
             Integrity::degraded(IntegrityReason::OdometerDisagrees)
@@ -1202,6 +1440,7 @@ impl Navigation {
         self.state.attitude = UnitQuaternion::from_scaled_axis(block(ATT)) * self.state.attitude;
         self.accel_bias_mps2 += block(ACCEL_BIAS);
         self.gyro_bias_rad_per_s += block(GYRO_BIAS);
+        self.odometer.correct(&dx);
     }
 }
 
@@ -1358,20 +1597,6 @@ mod tests {
                 last.distance_m
             );
         }
-    }
-
-    #[test]
-    fn the_odometer_scale_error_widens_the_position_sigma_along_the_axis() {
-        // σ (0.03, 0.04, 0.01) m, carried 10 m along (0.6, 0.8, 0) NED =
-        // (6, 8, 0) m at 1 %: (0.06, 0.08, 0) per axis, so
-        // √(0.03² + 0.06²) = 0.067082, √(0.04² + 0.08²) = 0.089443, 0.01.
-        let sigma = with_scale_error(&V3::new(0.03, 0.04, 0.01), &V3::new(6.0, 8.0, 0.0), 0.01);
-        assert!((sigma.x - 0.067082).abs() < 1e-6, "{sigma}");
-        assert!((sigma.y - 0.089443).abs() < 1e-6, "{sigma}");
-        assert_eq!(sigma.z, 0.01);
-        // Nothing carried (or back and forth): the filter's σ.
-        let same = with_scale_error(&V3::new(0.03, 0.04, 0.01), &V3::zeros(), 0.05);
-        assert_eq!(same, V3::new(0.03, 0.04, 0.01));
     }
 
     #[test]
@@ -1564,7 +1789,7 @@ mod tests {
             ZuptEngine::restore(old),
             Err(SnapshotError::Outdated {
                 found: 1,
-                expected: 8,
+                expected: 9,
                 ..
             })
         ));

@@ -283,21 +283,35 @@ param_table! {
         ),
         odometer_aiding: bool = flag(
             true,
-            "fuse the odometer's speed, compared with the INS's mean speed over the odometer's interval (and zero sideways/vertical body speed); off: the odometer only vetoes and confirms rests (rest_check) and is shown",
+            "fuse the odometer: its count since the first after alignment against the estimated scale times the engine's advance (position and velocity), zero speed across its axis, and the scale from each push between two rests it confirms; off: the odometer only vetoes and confirms rests (rest_check) and is shown",
         ),
         odometer_sigma_mps: f64 = real(
             0.005,
             1.0e-6,
             10.0,
             "m/s",
-            "noise of the odometer speed (and of the zero sideways speed)",
+            "noise of the zero speed across the odometer's axis (the machine moves along it)",
+        ),
+        odometer_distance_sigma_m: f64 = real(
+            0.002,
+            1.0e-6,
+            10.0,
+            "m",
+            "noise of an odometer's count: each count is compared, times the estimated scale, with the engine's advance since the first count after alignment; an interval counting more than aid_gate_sigma of its σ beyond the INS's advance is a slip, not fused",
         ),
         odometer_scale_sigma_pct: f64 = real(
-            1.0,
+            5.0,
             0.0,
             50.0,
             "%",
-            "1σ of the odometer's scale (calibration) error, which the filter does not estimate: the reported position σ grows by it times where the fused odometer carried the machine",
+            "1σ of the odometer's scale (calibration) error before the drive: the filter estimates the scale from the zero-velocity-bounded INS (odometer_scale in the estimate) and starts from this",
+        ),
+        odometer_axis_sigma_deg: f64 = real(
+            0.5,
+            0.0,
+            10.0,
+            "deg",
+            "1σ of the angles between the odometer's axis (the way the machine moves) and the IMU's x axis, toward its y and z, before the drive: estimated by the filter like the scale",
         ),
         max_imu_gap_s: f64 = real(
             0.5,
@@ -333,8 +347,11 @@ pub struct ZuptConfig {
     pub aid_gate_sigma: f64,
     pub odometer_aiding: bool,
     pub odometer_sigma_mps: f64,
-    /// 1σ of the odometer's scale error, a fraction.
+    pub odometer_distance_sigma_m: f64,
+    /// 1σ of the odometer's scale error before the drive, a fraction,
+    /// and of its axis's angles to the IMU's x, rad.
     pub odometer_scale_sigma: f64,
+    pub odometer_axis_sigma_rad: f64,
     /// The fastest the machine advances, m/s: what a rest no odometer
     /// confirms may hide.
     pub max_speed_mps: f64,
@@ -413,7 +430,9 @@ impl ZuptConfig {
             aid_gate_sigma: p.aid_gate_sigma,
             odometer_aiding: p.odometer_aiding,
             odometer_sigma_mps: p.odometer_sigma_mps,
+            odometer_distance_sigma_m: p.odometer_distance_sigma_m,
             odometer_scale_sigma: p.odometer_scale_sigma_pct / 100.0,
+            odometer_axis_sigma_rad: p.odometer_axis_sigma_deg.to_radians(),
             max_speed_mps: p.max_speed_mps,
             max_imu_gap_s: p.max_imu_gap_s,
         }
