@@ -65,7 +65,7 @@ tolerances = { horizontal_mm = { warn = 30, alarm = 60 }, vertical_mm = { warn =
 
 [machines.pipejack-ins]
 name = "Pipe jack P-7 · FOG INS, zero-velocity updates, odometer"
-engines = { zupt = { latitude_deg = 30, initial_yaw_deg = 30, window_samples = 25, median_samples = 25, odometer_aiding = true } }
+engines = { zupt = { latitude_deg = 30, initial_yaw_deg = 30, window_samples = 25, median_samples = 25, odometer_aiding = true, odometer_scale_sigma_pct = 1 } }
 geometry = { front_m = [2.0, 0.0, 0.3], rear_m = [-1.5, 0.0, 0.3] }
 tolerances = { horizontal_mm = { warn = 30, alarm = 60 }, vertical_mm = { warn = 20, alarm = 40 } }
 start = { easting_m = 1200.0, northing_m = 5600.0, height_m = 12.0 }

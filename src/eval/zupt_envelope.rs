@@ -93,14 +93,14 @@ impl DriveScores {
     }
 }
 
-/// Runs the three runs on the drive of `seed`, with `params` as the
+/// Runs the four runs on the drive of `seed`, with `params` as the
 /// engine's (site, heading and the runs' own settings are set here).
 pub fn evaluate_drive(seed: u64, params: &Params) -> Result<DriveScores, ParamError> {
     evaluate_envelope(&PipeJackEnvelope::draw(seed), params)
 }
 
 /// Like [`evaluate_drive`], with `fault` injected into the drive's
-/// readings (the same faulty readings for the three runs).
+/// readings (the same faulty readings for every run).
 pub fn evaluate_drive_with(
     seed: u64,
     params: &Params,
@@ -109,7 +109,7 @@ pub fn evaluate_drive_with(
     evaluate_envelope_with(&PipeJackEnvelope::draw(seed), params, fault)
 }
 
-/// Runs the three runs on the drive `envelope` describes (its seed draws
+/// Runs the four runs on the drive `envelope` describes (its seed draws
 /// the start heading's error).
 pub fn evaluate_envelope(
     envelope: &PipeJackEnvelope,
@@ -515,7 +515,8 @@ pub fn summarise(drives: &[DriveScores]) -> Summary {
     let over: Vec<String> = with_odometer
         .iter()
         .zip(&behind_ins)
-        .filter(|(_, excess)| **excess > NO_ODOMETER_TOLERANCE_PCT)
+        // A run that never aligned (NaN) is over too.
+        .filter(|(_, excess)| excess.is_nan() || **excess > NO_ODOMETER_TOLERANCE_PCT)
         .map(|(d, excess)| format!("{} (+{excess:.2} %)", d.drive.seed))
         .collect();
     bar(

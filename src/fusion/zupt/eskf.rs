@@ -155,7 +155,7 @@ impl ErrorStateFilter {
     /// `gate`, an innovation whose squared Mahalanobis distance exceeds it
     /// is refused. The odometer's scale is only considered here: it is
     /// learned from whole pushes alone ([`super::odometer_scale`]), which
-    /// update it with [`Self::update_considering`] and no state considered.
+    /// update it with [`Self::update_considering`].
     pub fn update<const M: usize>(
         &mut self,
         h: &SMatrix<f64, M, N>,
@@ -177,7 +177,7 @@ impl ErrorStateFilter {
         innovation: &SVector<f64, M>,
         r: &SMatrix<f64, M, M>,
         gate: Option<f64>,
-        consider: std::ops::Range<usize>,
+        consider: impl IntoIterator<Item = usize>,
     ) -> Result<ErrorState, UpdateError> {
         let ph_t = self.p * h.transpose();
         let s = h * ph_t + r;
@@ -438,7 +438,7 @@ mod tests {
         let considered = filter.clone().update(&h, &innovation, &r, None).unwrap();
         assert_eq!(considered[ODOMETER], 0.0);
         let dx = filter
-            .update_considering(&h, &innovation, &r, None, 0..0)
+            .update_considering(&h, &innovation, &r, None, std::iter::empty())
             .unwrap();
         model.correct(&dx);
         let expected = 0.4 * 0.025 / (0.250001 + 1e-12);

@@ -82,9 +82,10 @@ const MAX_PENDING_AIDS: usize = 1024;
 /// Two odometer readings further apart than this bound no interval for
 /// the slip check (the count since the origin is fused still).
 const ODOMETER_MAX_GAP_S: f64 = 10.0;
-/// Odometer intervals refused this long in a row open the INS velocity's
-/// covariance (a wheel slips for seconds; an INS that drifted stays
-/// refused); an estimate this close to a refusal is `degraded`, s.
+/// Odometer readings refused this long in a row take back the run's slips
+/// and open the INS position's and velocity's covariance along the axis
+/// (a wheel slips for seconds; an INS that drifted stays refused); an
+/// estimate this close to a refusal is `degraded`, s.
 const ODOMETER_LOCKOUT_S: f64 = 10.0;
 /// The odometer's distance and the engine's disagreeing by more than this
 /// many σ make an estimate `degraded`.
@@ -177,8 +178,8 @@ struct Navigation {
     /// Along-track metres the strapdown integrated since alignment (no
     /// filter corrections), and (t, metres) over the last
     /// [`ODOMETER_MAX_GAP_S`] at least every [`INS_DISTANCE_STEP_S`]: the
-    /// INS's mean speed over any odometer interval, interpolated at its
-    /// two readings' times.
+    /// INS's advance over any odometer interval (the slip check) and the
+    /// engine's distance at a reading's time, interpolated.
     ins_distance_m: f64,
     ins_distance_history: VecDeque<(f64, f64)>,
     /// The previous IMU reading (the input is averaged over each interval);
@@ -248,10 +249,12 @@ struct Navigation {
 /// An odometer reading not yet fused.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 struct OdometerFix {
-    /// Its count, and the engine's along-track distance at its time, m.
+    /// Its time and count, m.
+    t: f64,
     counted_m: f64,
-    engine_m: f64,
-    /// The interval since the reading before; `None` across a gap.
+    /// The interval since the reading before (since the one before that
+    /// was fused, when readings came faster than the epochs); `None`
+    /// across a gap.
     interval: Option<OdometerInterval>,
 }
 
@@ -570,9 +573,10 @@ impl ZuptEngine {
             if let Some(nav) = &mut self.navigation {
                 nav.odometer_read(self.odometer, odo_t, distance_m);
             }
-            if let Some(check) = &self.config.rest_check {
-                self.rest_check.odometer(check, odo_t, distance_m);
-            }
+            // Kept whether or not the rest check is on: the odometer's
+            // window confirms rests for the creep bound and the scale.
+            self.rest_check
+                .odometer(&self.config.odometer_window, odo_t, distance_m);
             self.odometer = Some((odo_t, distance_m));
         }
     }
@@ -668,10 +672,9 @@ impl ZuptEngine {
         nav.previous = Some(sample);
         let mut smoothed_push = None;
         if nav.interval_s >= config.filter_period_s {
-            let rest_confirmed = config
+            let rest_confirmed = self
                 .rest_check
-                .as_ref()
-                .is_some_and(|check| self.rest_check.odometer_still(check, sample.t));
+                .odometer_still(&config.odometer_window, sample.t);
             smoothed_push = nav.epoch(
                 &config,
                 sample.t,
@@ -751,28 +754,33 @@ impl ZuptEngine {
         let velocity = nav.state.velocity_mps;
         EngineOutput {
             t,
-            values: EstimateValues::Zupt(self.estimate(
-                decision,
-                true,
-                [position.x, position.y, position.z],
-                nav.distance_m,
-                [velocity.x, velocity.y, velocity.z],
-                (roll, pitch, yaw),
-                [sigma.x, sigma.y, sigma.z],
-                nav.height_datum_m.map(|datum| datum - position.z),
-                Some(yaw_sigma_deg),
-                Some([
-                    deg(attitude_sigma.x),
-                    deg(attitude_sigma.y),
-                    deg(attitude_sigma.z),
-                ]),
-                Some(tilt_sigma_deg),
-                smoothed_push,
-                nav.odometer_origin.map(|_| {
-                    let sigma = filter.p[(ODOMETER, ODOMETER)].max(0.0).sqrt();
-                    (1.0 + nav.odometer.scale_error, sigma)
-                }),
-            )),
+            values: EstimateValues::Zupt(
+                self.estimate(
+                    decision,
+                    true,
+                    [position.x, position.y, position.z],
+                    nav.distance_m,
+                    [velocity.x, velocity.y, velocity.z],
+                    (roll, pitch, yaw),
+                    [sigma.x, sigma.y, sigma.z],
+                    nav.height_datum_m.map(|datum| datum - position.z),
+                    Some(yaw_sigma_deg),
+                    Some([
+                        deg(attitude_sigma.x),
+                        deg(attitude_sigma.y),
+                        deg(attitude_sigma.z),
+                    ]),
+                    Some(tilt_sigma_deg),
+                    smoothed_push,
+                    // Estimated only while fused.
+                    nav.odometer_origin
+                        .filter(|_| config.odometer_aiding)
+                        .map(|_| {
+                            let sigma = filter.p[(ODOMETER, ODOMETER)].max(0.0).sqrt();
+                            (1.0 + nav.odometer.scale_error, sigma)
+                        }),
+                ),
+            ),
             integrity: nav.integrity(t),
         }
     }
@@ -1014,6 +1022,9 @@ impl Navigation {
             && self.state.attitude.coords.iter().all(|x| x.is_finite())
             && self.distance_m.is_finite()
             && self.filter.is_sane()
+            // A scale of zero or less would divide the count by it.
+            && self.odometer.scale() > 0.1
+            && self.odometer.axis_rad.iter().all(|x| x.is_finite())
     }
 
     /// A filter epoch: propagate the covariance, make the updates that are
@@ -1135,10 +1146,7 @@ impl Navigation {
     /// compared from, each later one waits for the next epoch; the two
     /// distances' disagreement is updated.
     fn odometer_read(&mut self, previous: Option<(f64, f64)>, t: f64, counted_m: f64) {
-        let engine_m = match self.ins_distance_at(t) {
-            Some(at_m) => self.distance_m - (self.ins_distance_m - at_m),
-            None => self.distance_m,
-        };
+        let engine_m = self.engine_distance_at(t);
         let interval = previous
             .filter(|&(prev_t, _)| t - prev_t <= ODOMETER_MAX_GAP_S)
             .and_then(|(prev_t, prev_m)| {
@@ -1148,12 +1156,25 @@ impl Navigation {
                     dt_s: t - prev_t,
                 })
             });
+        // A reading not fused yet: its interval and this one's are
+        // checked for a slip as one.
+        let interval = match self.pending_odometer.take() {
+            None => interval,
+            Some(waiting) => waiting
+                .interval
+                .zip(interval)
+                .map(|(a, b)| OdometerInterval {
+                    advance_m: a.advance_m + b.advance_m,
+                    ins_advance_m: a.ins_advance_m + b.ins_advance_m,
+                    dt_s: a.dt_s + b.dt_s,
+                }),
+        };
         self.newest_count_m = Some(counted_m);
         let origin = match self.odometer_origin {
             Some(origin) => {
                 self.pending_odometer = Some(OdometerFix {
+                    t,
                     counted_m,
-                    engine_m,
                     interval,
                 });
                 origin
@@ -1166,6 +1187,15 @@ impl Navigation {
         };
         self.odometer_disagreement_m =
             (counted_m - origin.counted_m) / self.odometer.scale() - (engine_m - origin.engine_m);
+    }
+
+    /// The engine's along-track distance at `t` (at most the INS history
+    /// ago): now's less what the INS advanced since, m.
+    fn engine_distance_at(&self, t: f64) -> f64 {
+        match self.ins_distance_at(t) {
+            Some(at_m) => self.distance_m - (self.ins_distance_m - at_m),
+            None => self.distance_m,
+        }
     }
 
     /// The filter's variance of the position along the machine's axis, m².
@@ -1213,27 +1243,17 @@ impl Navigation {
             self.odometer_refused(t, excess_m, excess_m / interval.dt_s);
             return;
         }
+        // The count first: it corrects position and velocity only (a
+        // platform tilted, or a bias moved, to fit the count would carry
+        // the scale's error into the next push's own measurement,
+        // [`odometer_scale`]).
         let velocity_b = self.state.attitude.inverse() * self.state.velocity_mps;
-        let travelled_m = fix.engine_m - origin.engine_m;
-        let innovation =
-            self.odometer
-                .innovation(travelled_m, fix.counted_m - origin.counted_m, &velocity_b);
+        let counted_m = fix.counted_m - origin.counted_m;
+        let travelled_m = self.engine_distance_at(fix.t) - origin.engine_m;
+        let innovation = self
+            .odometer
+            .innovation(travelled_m, counted_m, &velocity_b);
         let h = odometer_matrix(c_bn, &self.state.velocity_mps, &self.odometer, travelled_m);
-        // Across the axis first: zero speed there tells the velocity and
-        // the platform's attitude.
-        let across = config.odometer_sigma_mps.powi(2);
-        let result = self.filter.update(
-            &h.fixed_rows::<2>(1).into_owned(),
-            &nalgebra::Vector2::new(innovation.y, innovation.z),
-            &(SMatrix::<f64, 2, 2>::identity() * across),
-            gate,
-        );
-        if result != Err(eskf::UpdateError::Gated) {
-            self.apply(result, stats, |_| {});
-        }
-        // The count corrects position and velocity only: a platform tilted
-        // (or a bias moved) to fit the count would carry the scale's error
-        // into the next push's own measurement ([`odometer_scale`]).
         let r = SMatrix::<f64, 1, 1>::new(
             config.odometer_distance_sigma_m.powi(2) + origin.sigma_m.powi(2),
         );
@@ -1242,7 +1262,7 @@ impl Navigation {
             &SVector::<f64, 1>::new(innovation.x),
             &r,
             gate,
-            ATT..ODOMETER + 1,
+            ATT..eskf::N,
         );
         if result == Err(eskf::UpdateError::Gated) {
             stats.odometer_refused += 1;
@@ -1250,10 +1270,24 @@ impl Navigation {
                 .interval
                 .map_or(0.0, |i| (i.advance_m - scale * i.ins_advance_m) / i.dt_s);
             self.odometer_refused(t, 0.0, speed_mps);
-        } else {
-            self.odometer_refused_from_t = None;
-            self.odometer_slipped_m = 0.0;
-            self.apply(result, stats, |s| s.odometer_updates += 1);
+            return;
+        }
+        self.odometer_refused_from_t = None;
+        self.odometer_slipped_m = 0.0;
+        self.apply(result, stats, |s| s.odometer_updates += 1);
+        // Then zero speed across the axis, on the state the count left:
+        // it tells the velocity and the platform's attitude.
+        let velocity_b = self.state.attitude.inverse() * self.state.velocity_mps;
+        let across = self.odometer.innovation(0.0, 0.0, &velocity_b);
+        let h = odometer_matrix(c_bn, &self.state.velocity_mps, &self.odometer, 0.0);
+        let result = self.filter.update(
+            &h.fixed_rows::<2>(1).into_owned(),
+            &nalgebra::Vector2::new(across.y, across.z),
+            &(SMatrix::<f64, 2, 2>::identity() * config.odometer_sigma_mps.powi(2)),
+            gate,
+        );
+        if result != Err(eskf::UpdateError::Gated) {
+            self.apply(result, stats, |_| {});
         }
     }
 
@@ -1270,13 +1304,6 @@ impl Navigation {
         let Some(counted_m) = self.newest_count_m.map(|c| c - self.slipped_total_m) else {
             return;
         };
-        let anchor = InsPush::anchored(
-            counted_m,
-            &self.state,
-            &self.filter,
-            &self.accel_bias_mps2,
-            &self.gyro_bias_rad_per_s,
-        );
         if self.ins_push.as_ref().is_some_and(InsPush::moved) {
             let forward = self.state.attitude * V3::x();
             if let Some(measured) = self
@@ -1286,10 +1313,12 @@ impl Navigation {
             {
                 self.fuse_push_scale(config, &measured, gate, stats);
             }
+            // Anchored after the update: from what it says.
             self.ins_push = None;
-            self.ins_push_next = Some((t, anchor));
+            self.ins_push_next = Some((t, self.push_anchor(counted_m)));
             return;
         }
+        let anchor = self.push_anchor(counted_m);
         match &self.ins_push_next {
             None => self.ins_push_next = Some((t, anchor)),
             Some((anchored_t, _)) if t - anchored_t >= PUSH_ANCHOR_STAGGER_S => {
@@ -1298,6 +1327,17 @@ impl Navigation {
             }
             Some(_) => {}
         }
+    }
+
+    /// A push anchored here, the count `counted_m`.
+    fn push_anchor(&self, counted_m: f64) -> InsPush {
+        InsPush::anchored(
+            counted_m,
+            &self.state,
+            &self.filter,
+            &self.accel_bias_mps2,
+            &self.gyro_bias_rad_per_s,
+        )
     }
 
     /// Updates the scale with the one a measured push says.
@@ -1311,9 +1351,15 @@ impl Navigation {
         let (scale, sigma) = measured.scale(config.odometer_distance_sigma_m);
         let innovation = SVector::<f64, 1>::new(self.odometer.scale() - scale);
         let r = SMatrix::<f64, 1, 1>::new(sigma * sigma);
-        let result = self
-            .filter
-            .update_considering(&scale_matrix(), &innovation, &r, gate, 0..0);
+        let result = self.filter.update_considering(
+            &scale_matrix(),
+            &innovation,
+            &r,
+            gate,
+            // The push started from the filter's attitude and biases:
+            // its error shares theirs, so it moves none of them.
+            (ATT..ODOMETER).chain(ODOMETER + 1..eskf::N),
+        );
         if result == Err(eskf::UpdateError::Gated) {
             stats.odometer_scale_refused += 1;
         } else {
@@ -1348,6 +1394,9 @@ impl Navigation {
                 self.odometer_disagreement_m += slipped_m / scale;
                 self.slipped_total_m -= slipped_m;
             }
+            // The pushes in measurement counted without those slips.
+            self.ins_push = None;
+            self.ins_push_next = None;
             let along = forward * forward.transpose();
             let mut p_p = self.filter.p.fixed_view_mut::<3, 3>(POS, POS);
             p_p += along * self.odometer_disagreement_m.powi(2);

@@ -265,7 +265,7 @@ param_table! {
             1.0,
             7200.0,
             "s",
-            "longer pushes are not smoothed (the record of a push, kept in the engine's snapshot, grows by about 5 kB a second)",
+            "longer pushes are not smoothed (the record of a push, kept in the engine's snapshot, grows by about 7 kB a second)",
         ),
         level_sigma_m: f64 = real(
             0.002,
@@ -279,7 +279,7 @@ param_table! {
             0.0,
             1.0e6,
             "",
-            "a level height or odometer speed further than this many σ from the prediction is refused (0: no gate)",
+            "a level height, odometer count or push scale further than this many σ from the prediction is refused, and an odometer interval counting more or less than the INS advanced by this many σ is a slip (0: no gate)",
         ),
         odometer_aiding: bool = flag(
             true,
@@ -307,7 +307,7 @@ param_table! {
             "1σ of the odometer's scale (calibration) error before the drive: the filter estimates the scale from the zero-velocity-bounded INS (odometer_scale in the estimate) and starts from this",
         ),
         odometer_axis_sigma_deg: f64 = real(
-            0.5,
+            0.1,
             0.0,
             10.0,
             "deg",
@@ -337,6 +337,11 @@ pub struct ZuptConfig {
     pub zupt_sigma_mps: f64,
     /// The check of called rests; `None`: off (the paper).
     pub rest_check: Option<RestCheckConfig>,
+    /// The odometer's window (`odometer_rest_m` over
+    /// `odometer_rest_window_s`), which confirms a rest whether or not
+    /// the check is on: the creep bound and the scale's push measurements
+    /// need it.
+    pub odometer_window: RestCheckConfig,
     /// Zero-angular-rate updates at rest, and the settling rate allowed, rad/s.
     pub zaru: bool,
     pub zaru_sigma_rad_per_s: f64,
@@ -374,6 +379,15 @@ impl ZuptConfig {
         let site = Site {
             lat_rad: rad(p.latitude_deg),
             height_m: p.initial_height_m,
+        };
+        let odometer_window = RestCheckConfig {
+            gate_chi2: p.rest_gate_chi2,
+            odometer_advance_m: p.odometer_rest_m,
+            odometer_window_s: p.odometer_rest_window_s,
+            speed_change: p.rest_speed_change,
+            motion_evidence: p.rest_motion_evidence,
+            max_speed_mps: p.max_speed_mps,
+            zupt_variance_mps2: p.zupt_sigma_mps.powi(2),
         };
         ZuptConfig {
             site,
@@ -413,15 +427,8 @@ impl ZuptConfig {
             accel_bias_sigma_mps2: p.accel_bias_sigma_mg * 1e-3 * STANDARD_GRAVITY_MPS2,
             filter_period_s: p.filter_period_s,
             zupt_sigma_mps: p.zupt_sigma_mps,
-            rest_check: p.rest_check.then_some(RestCheckConfig {
-                gate_chi2: p.rest_gate_chi2,
-                odometer_advance_m: p.odometer_rest_m,
-                odometer_window_s: p.odometer_rest_window_s,
-                speed_change: p.rest_speed_change,
-                motion_evidence: p.rest_motion_evidence,
-                max_speed_mps: p.max_speed_mps,
-                zupt_variance_mps2: p.zupt_sigma_mps.powi(2),
-            }),
+            rest_check: p.rest_check.then_some(odometer_window),
+            odometer_window,
             zaru: p.zaru,
             zaru_sigma_rad_per_s: rad_per_s_from_deg_per_h(p.zaru_sigma_deg_per_h),
             smooth_pushes: p.smooth_pushes,
