@@ -124,14 +124,19 @@ impl ErrorStateFilter {
         let f_dt = Self::system_matrix(d) * dt_s;
         let phi = Covariance::identity() + f_dt + f_dt * f_dt * 0.5;
         let n = &self.noise;
-        let mut q = Covariance::zeros();
+        let mut q = ErrorState::zeros();
         for axis in 0..3 {
-            q[(VEL + axis, VEL + axis)] = n.accel_vrw * n.accel_vrw;
-            q[(ATT + axis, ATT + axis)] = n.gyro_arw * n.gyro_arw;
-            q[(ACCEL_BIAS + axis, ACCEL_BIAS + axis)] = n.accel_bias_rw * n.accel_bias_rw;
-            q[(GYRO_BIAS + axis, GYRO_BIAS + axis)] = n.gyro_bias_rw * n.gyro_bias_rw;
+            q[VEL + axis] = n.accel_vrw * n.accel_vrw;
+            q[ATT + axis] = n.gyro_arw * n.gyro_arw;
+            q[ACCEL_BIAS + axis] = n.accel_bias_rw * n.accel_bias_rw;
+            q[GYRO_BIAS + axis] = n.gyro_bias_rw * n.gyro_bias_rw;
         }
-        let q_d = (phi * q * phi.transpose() + q) * (0.5 * dt_s);
+        // Q is diagonal: Φ·Q is Φ's columns scaled, one product less.
+        let mut phi_q = phi;
+        for (mut column, q_j) in phi_q.column_iter_mut().zip(q.iter()) {
+            column *= *q_j;
+        }
+        let q_d = (phi_q * phi.transpose() + Covariance::from_diagonal(&q)) * (0.5 * dt_s);
         self.p = phi * self.p * phi.transpose() + q_d;
         self.symmetrise();
         phi

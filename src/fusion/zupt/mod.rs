@@ -93,9 +93,6 @@ const ODOMETER_DISAGREE_SIGMAS: f64 = 3.0;
 /// The least σ of that disagreement: the odometer's resolution and the
 /// reading's age against the engine's distance, m.
 const ODOMETER_DISAGREE_FLOOR_M: f64 = 0.01;
-/// How much older than the newest rest the odometer confirmed the rest a
-/// push is measured from is at least, s ([`Navigation::ins_push`]).
-const PUSH_ANCHOR_STAGGER_S: f64 = 3.0;
 /// The spacing of the INS distance kept to compare with the odometer, s.
 const INS_DISTANCE_STEP_S: f64 = 0.05;
 
@@ -233,17 +230,11 @@ struct Navigation {
     odometer_refused_t: Option<f64>,
     odometer_slipped_m: f64,
     /// The newest odometer count, every slip's excess so far, m, and the
-    /// INS's own motion since a rest the odometer confirmed
-    /// ([`odometer_scale`]): the one measured when the push ends, and a
-    /// newer one (anchored at `t`) that takes its place once
-    /// [`PUSH_ANCHOR_STAGGER_S`] old while the machine stands. The one
-    /// measured is so anchored at least that long before the last rest
-    /// the odometer confirmed, never in the second the odometer takes to
-    /// see a push begin.
+    /// INS's own motion since the newest rest the odometer confirmed
+    /// before the push ([`odometer_scale`]).
     newest_count_m: Option<f64>,
     slipped_total_m: f64,
     ins_push: Option<InsPush>,
-    ins_push_next: Option<(f64, InsPush)>,
 }
 
 /// An odometer reading not yet fused.
@@ -430,7 +421,6 @@ impl ZuptEngine {
                     nav.state.attitude * V3::x() * (self.config.max_speed_mps * gap_s);
                 nav.previous = None;
                 nav.ins_push = None;
-                nav.ins_push_next = None;
                 // No INS distance across the gap: no odometer interval
                 // reaching back over it is compared.
                 nav.ins_distance_history.clear();
@@ -663,11 +653,8 @@ impl ZuptEngine {
         if nav.previous.is_some() {
             nav.interval_still &= decision.zv;
         }
-        if let Some((accel, gyro, dt_s)) = raw_step {
-            let next = nav.ins_push_next.as_mut().map(|(_, push)| push);
-            for push in nav.ins_push.iter_mut().chain(next) {
-                push.advance(&config.site, &accel, &gyro, dt_s, decision.zv);
-            }
+        if let (Some((accel, gyro, dt_s)), Some(push)) = (raw_step, &mut nav.ins_push) {
+            push.advance(&config.site, &accel, &gyro, dt_s, decision.zv);
         }
         nav.previous = Some(sample);
         let mut smoothed_push = None;
@@ -916,7 +903,6 @@ impl ZuptEngine {
             newest_count_m: None,
             slipped_total_m: 0.0,
             ins_push: None,
-            ins_push_next: None,
             odometer_refused_from_t: None,
             odometer_refused_t: None,
         }
@@ -1056,8 +1042,12 @@ impl Navigation {
             gravity_gradient: 2.0 * normal_gravity_mps2(lat, height) / radius,
         };
         let phi = self.filter.propagate(&dynamics, self.interval_s);
-        let next = self.ins_push_next.as_mut().map(|(_, push)| push);
-        for push in self.ins_push.iter_mut().chain(next) {
+        // A push not begun is anchored afresh at the end of a confirmed
+        // still epoch: its propagation would be thrown away.
+        let anchored_again = zv && self.interval_still && rest_confirmed && config.odometer_aiding;
+        if let Some(push) = &mut self.ins_push
+            && (!anchored_again || push.moved())
+        {
             push.epoch(&dynamics, config.zupt_sigma_mps);
         }
         if let Some(push) = &mut self.push {
@@ -1132,7 +1122,7 @@ impl Navigation {
             self.fuse_odometer(config, &fix, &origin, &c_bn, gate, t, stats);
         }
         if zv && interval_still && rest_confirmed && config.odometer_aiding {
-            self.confirmed_rest(config, t, gate, stats);
+            self.confirmed_rest(config, gate, stats);
         }
         if config.smooth_pushes {
             self.record_push(config, zv && interval_still, stats)
@@ -1294,13 +1284,7 @@ impl Navigation {
     /// At a still epoch the odometer confirms: a push since the last such
     /// rest is measured and its scale fused ([`odometer_scale`]), and the
     /// next push is anchored here.
-    fn confirmed_rest(
-        &mut self,
-        config: &ZuptConfig,
-        t: f64,
-        gate: Option<f64>,
-        stats: &mut ZuptStats,
-    ) {
+    fn confirmed_rest(&mut self, config: &ZuptConfig, gate: Option<f64>, stats: &mut ZuptStats) {
         let Some(counted_m) = self.newest_count_m.map(|c| c - self.slipped_total_m) else {
             return;
         };
@@ -1313,20 +1297,10 @@ impl Navigation {
             {
                 self.fuse_push_scale(config, &measured, gate, stats);
             }
-            // Anchored after the update: from what it says.
-            self.ins_push = None;
-            self.ins_push_next = Some((t, self.push_anchor(counted_m)));
-            return;
         }
-        let anchor = self.push_anchor(counted_m);
-        match &self.ins_push_next {
-            None => self.ins_push_next = Some((t, anchor)),
-            Some((anchored_t, _)) if t - anchored_t >= PUSH_ANCHOR_STAGGER_S => {
-                self.ins_push = self.ins_push_next.take().map(|(_, push)| push);
-                self.ins_push_next = Some((t, anchor));
-            }
-            Some(_) => {}
-        }
+        // Anchored afresh at every confirmed rest (after the update: from
+        // what it says), so from the newest calibration before the push.
+        self.ins_push = Some(self.push_anchor(counted_m));
     }
 
     /// A push anchored here, the count `counted_m`.
@@ -1394,9 +1368,8 @@ impl Navigation {
                 self.odometer_disagreement_m += slipped_m / scale;
                 self.slipped_total_m -= slipped_m;
             }
-            // The pushes in measurement counted without those slips.
+            // The push in measurement counted without those slips.
             self.ins_push = None;
-            self.ins_push_next = None;
             let along = forward * forward.transpose();
             let mut p_p = self.filter.p.fixed_view_mut::<3, 3>(POS, POS);
             p_p += along * self.odometer_disagreement_m.powi(2);
