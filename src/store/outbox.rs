@@ -387,6 +387,16 @@ pub struct ForwardHeld {
 }
 
 impl ForwardHeld {
+    /// From the mark's row (sequence, trusted_to), if any, and the
+    /// sequences applied: as both stores read it.
+    pub fn new(mark: Option<(i64, i64)>, applied: std::collections::BTreeSet<i64>) -> ForwardHeld {
+        ForwardHeld {
+            mark: mark.map(|(sequence, _)| sequence),
+            trusted_to: mark.map_or(-1, |(_, trusted_to)| trusted_to),
+            applied,
+        }
+    }
+
     /// Whether this office holds the row of `sequence`.
     pub fn holds(&self, sequence: i64) -> bool {
         sequence <= self.trusted_to || self.applied.contains(&sequence)
@@ -446,11 +456,7 @@ impl SqliteStore {
                 .prepare_cached("SELECT sequence FROM forward_applied WHERE machine_id = ?1")?
                 .query_map([machine_id], |row| row.get(0))?
                 .collect::<Result<_, _>>()?;
-            Ok(ForwardHeld {
-                mark: mark.map(|m| m.0),
-                trusted_to: mark.map_or(-1, |m| m.1),
-                applied,
-            })
+            Ok(ForwardHeld::new(mark, applied))
         })
     }
 

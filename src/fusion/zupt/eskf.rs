@@ -21,6 +21,7 @@
 use nalgebra::{Matrix3, SMatrix, SVector};
 use serde::{Deserialize, Serialize};
 
+use super::strapdown::NavState;
 use crate::fusion::geometry::{V3, skew};
 
 /// Number of error states.
@@ -219,6 +220,24 @@ impl ErrorStateFilter {
     pub fn is_sane(&self) -> bool {
         self.p.iter().all(|x| x.is_finite()) && (0..N).all(|i| self.p[(i, i)] >= 0.0)
     }
+}
+
+/// Closed-loop feedback of the INS block of an estimated error state into
+/// a navigation state and its bias estimates (δx = estimate − truth, so
+/// each is corrected by subtracting its error; Ĉ = (I − [φ×])·C, so
+/// C ≈ (I + [φ×])·Ĉ).
+pub fn feed_back(
+    dx: &ErrorState,
+    state: &mut NavState,
+    accel_bias_mps2: &mut V3,
+    gyro_bias_rad_per_s: &mut V3,
+) {
+    let block = |at: usize| V3::new(dx[at], dx[at + 1], dx[at + 2]);
+    state.position_m -= block(POS);
+    state.velocity_mps -= block(VEL);
+    state.attitude = nalgebra::UnitQuaternion::from_scaled_axis(block(ATT)) * state.attitude;
+    *accel_bias_mps2 += block(ACCEL_BIAS);
+    *gyro_bias_rad_per_s += block(GYRO_BIAS);
 }
 
 /// H of a zero-velocity update: the velocity error is measured directly,

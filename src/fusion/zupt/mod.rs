@@ -37,13 +37,13 @@ pub mod zero_velocity;
 
 use std::collections::VecDeque;
 
-use nalgebra::{SMatrix, SVector, UnitQuaternion};
+use nalgebra::{SMatrix, SVector};
 use serde::{Deserialize, Serialize};
 
 use self::detectors::Statistics;
 use self::eskf::{
-    ACCEL_BIAS, ATT, Dynamics, ErrorStateFilter, GYRO_BIAS, ODOMETER, OdometerModel, POS, VEL,
-    height_matrix, odometer_matrix, scale_matrix, zaru_matrix, zupt_matrix,
+    ATT, Dynamics, ErrorStateFilter, ODOMETER, OdometerModel, POS, VEL, height_matrix,
+    odometer_matrix, scale_matrix, zaru_matrix, zupt_matrix,
 };
 use self::estimate::{TrackPoint, ZuptEstimate};
 use self::imu_screen::{ImuScreen, Screened};
@@ -256,6 +256,13 @@ struct OdometerInterval {
     advance_m: f64,
     ins_advance_m: f64,
     dt_s: f64,
+}
+
+impl OdometerInterval {
+    /// What the count advanced beyond `scale` times the INS's advance, m.
+    fn excess_m(&self, scale: f64) -> f64 {
+        self.advance_m - scale * self.ins_advance_m
+    }
 }
 
 /// Where the odometer's count is compared from: its count and the
@@ -1217,7 +1224,7 @@ impl Navigation {
         let scale = self.odometer.scale();
         let forward = self.state.attitude * V3::x();
         let slip = fix.interval.and_then(|interval| {
-            let excess_m = interval.advance_m - scale * interval.ins_advance_m;
+            let excess_m = interval.excess_m(scale);
             let p_v = self.filter.p.fixed_view::<3, 3>(VEL, VEL);
             let along_v = (forward.transpose() * p_v * forward)[(0, 0)].max(0.0);
             let p_s = self.filter.p[(ODOMETER, ODOMETER)].max(0.0);
@@ -1256,9 +1263,7 @@ impl Navigation {
         );
         if result == Err(eskf::UpdateError::Gated) {
             stats.odometer_refused += 1;
-            let speed_mps = fix
-                .interval
-                .map_or(0.0, |i| (i.advance_m - scale * i.ins_advance_m) / i.dt_s);
+            let speed_mps = fix.interval.map_or(0.0, |i| i.excess_m(scale) / i.dt_s);
             self.odometer_refused(t, 0.0, speed_mps);
             return;
         }
@@ -1453,15 +1458,14 @@ impl Navigation {
         if let Some(push) = &mut self.push {
             push.fed_back(&dx);
         }
-        let block = |at: usize| V3::new(dx[at], dx[at + 1], dx[at + 2]);
-        let position_correction = -block(POS);
+        let position_correction = -V3::new(dx[POS], dx[POS + 1], dx[POS + 2]);
         self.distance_m += along_track(&self.state, &position_correction);
-        self.state.position_m += position_correction;
-        self.state.velocity_mps -= block(VEL);
-        // Ĉ = (I − [φ×])·C, so C ≈ (I + [φ×])·Ĉ.
-        self.state.attitude = UnitQuaternion::from_scaled_axis(block(ATT)) * self.state.attitude;
-        self.accel_bias_mps2 += block(ACCEL_BIAS);
-        self.gyro_bias_rad_per_s += block(GYRO_BIAS);
+        eskf::feed_back(
+            &dx,
+            &mut self.state,
+            &mut self.accel_bias_mps2,
+            &mut self.gyro_bias_rad_per_s,
+        );
         self.odometer.correct(&dx);
     }
 }

@@ -23,10 +23,10 @@
 //! detector calls in the middle of a push would cut it short, and the
 //! rest check refuses the readings the odometer saw advance.
 
-use nalgebra::{SMatrix, UnitQuaternion};
+use nalgebra::SMatrix;
 use serde::{Deserialize, Serialize};
 
-use super::eskf::{ACCEL_BIAS, ATT, Dynamics, ErrorStateFilter, GYRO_BIAS, POS, VEL, zupt_matrix};
+use super::eskf::{Dynamics, ErrorStateFilter, POS, feed_back, zupt_matrix};
 use super::strapdown::{Increment, NavState, Site};
 use crate::fusion::geometry::V3;
 
@@ -167,12 +167,12 @@ impl InsPush {
         else {
             return;
         };
-        let block = |at: usize| V3::new(dx[at], dx[at + 1], dx[at + 2]);
-        self.state.position_m -= block(POS);
-        self.state.velocity_mps -= block(VEL);
-        self.state.attitude = UnitQuaternion::from_scaled_axis(block(ATT)) * self.state.attitude;
-        self.accel_bias_mps2 += block(ACCEL_BIAS);
-        self.gyro_bias_rad_per_s += block(GYRO_BIAS);
+        feed_back(
+            &dx,
+            &mut self.state,
+            &mut self.accel_bias_mps2,
+            &mut self.gyro_bias_rad_per_s,
+        );
     }
 
     /// The push measured at a confirmed rest (the count then `counted_m`,
@@ -197,6 +197,8 @@ impl InsPush {
 
 #[cfg(test)]
 mod tests {
+    use nalgebra::UnitQuaternion;
+
     use super::*;
     use crate::fusion::geometry::normal_gravity_mps2;
     use crate::fusion::zupt::eskf::ProcessNoise;

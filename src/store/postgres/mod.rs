@@ -775,11 +775,7 @@ impl PgStore {
                 .iter()
                 .map(|row| row.get(0))
                 .collect();
-            Ok(crate::store::outbox::ForwardHeld {
-                mark: mark.map(|m| m.0),
-                trusted_to: mark.map_or(-1, |m| m.1),
-                applied,
-            })
+            Ok(crate::store::outbox::ForwardHeld::new(mark, applied))
         })
     }
 
