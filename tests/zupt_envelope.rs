@@ -24,17 +24,9 @@ fn envelope_drives_seeds_1_to_12() {
     assert_eq!(summary.bars.len(), 14);
     // Issue 58, on these twelve: the recall's median, and an odometer
     // never making a drive worse than the same drive without it.
-    let recall = summary
-        .bars
-        .iter()
-        .find(|b| b.bar.starts_with("recall"))
-        .unwrap();
+    let recall = summary.bar("recall").unwrap();
     assert!(recall.met, "{recall:?}");
-    let odometer = summary
-        .bars
-        .iter()
-        .find(|b| b.bar.starts_with("with an odometer"))
-        .unwrap();
+    let odometer = summary.bar("with an odometer").unwrap();
     assert!(odometer.met, "{odometer:?}");
     for d in &drives {
         let oracle = d.run("oracle").unwrap();

@@ -443,6 +443,13 @@ pub struct Summary {
     pub bars: Vec<Bar>,
 }
 
+impl Summary {
+    /// The bar whose wording starts with `starts`.
+    pub fn bar(&self, starts: &str) -> Option<&Bar> {
+        self.bars.iter().find(|b| b.bar.starts_with(starts))
+    }
+}
+
 /// The spread of every run and the bars.
 pub fn summarise(drives: &[DriveScores]) -> Summary {
     let values = |label: &str, f: fn(&RunScores) -> f64| -> Vec<f64> {
@@ -837,9 +844,7 @@ mod tests {
 
     fn bar<'a>(summary: &'a Summary, starts: &str) -> &'a Bar {
         summary
-            .bars
-            .iter()
-            .find(|b| b.bar.starts_with(starts))
+            .bar(starts)
             .unwrap_or_else(|| panic!("no bar {starts}"))
     }
 
