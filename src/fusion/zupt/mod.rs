@@ -1327,7 +1327,11 @@ impl Navigation {
         gate: Option<f64>,
         stats: &mut ZuptStats,
     ) {
-        let (scale, sigma) = measured.scale(config.odometer_distance_sigma_m);
+        let Some((scale, sigma)) =
+            measured.scale(self.odometer.scale(), config.odometer_distance_sigma_m)
+        else {
+            return;
+        };
         let innovation = SVector::<f64, 1>::new(self.odometer.scale() - scale);
         let r = SMatrix::<f64, 1, 1>::new(sigma * sigma);
         let result = self.filter.update_considering(

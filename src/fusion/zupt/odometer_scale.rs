@@ -64,14 +64,29 @@ pub struct MeasuredPush {
 }
 
 impl MeasuredPush {
-    /// The scale this push says (count ÷ advance) and its 1σ, with
-    /// `count_sigma_m` the noise of one count (two enter the push's).
-    pub fn scale(&self, count_sigma_m: f64) -> (f64, f64) {
-        let scale = self.counted_m / self.advance_m;
-        let sigma = (scale * scale * self.advance_sigma_m.powi(2) + 2.0 * count_sigma_m.powi(2))
-            .sqrt()
-            / self.advance_m;
-        (scale, sigma)
+    /// The scale this push says and its 1σ, linearised about the filter's
+    /// `prior_scale`, with `count_sigma_m` the noise of one count (two
+    /// enter the push's); `None` when the advance the count implies is
+    /// not [`MIN_ADVANCE_SIGMAS`] σ of the INS's.
+    ///
+    /// The model is advance = count ÷ k + the INS's error: the weight of a
+    /// push comes from its count, the prior and the push filter's σ, never
+    /// from the advance the INS measured. (Taken as k = count ÷ advance,
+    /// a push the INS measured long would weigh more and say a smaller
+    /// scale: the scale came out biased low by about 4σ² of a push's
+    /// relative error, and the distance long.)
+    pub fn scale(&self, prior_scale: f64, count_sigma_m: f64) -> Option<(f64, f64)> {
+        let expected_m = self.counted_m / prior_scale;
+        // d(count ÷ k)/dk, its magnitude.
+        let slope_m = self.counted_m / (prior_scale * prior_scale);
+        let sigma_m =
+            (self.advance_sigma_m.powi(2) + 2.0 * (count_sigma_m / prior_scale).powi(2)).sqrt();
+        (expected_m > MIN_ADVANCE_SIGMAS * sigma_m).then(|| {
+            (
+                prior_scale + (expected_m - self.advance_m) / slope_m,
+                sigma_m / slope_m,
+            )
+        })
     }
 }
 
@@ -177,9 +192,10 @@ impl InsPush {
 
     /// The push measured at a confirmed rest (the count then `counted_m`,
     /// `forward` the machine's axis, NED); `None` when it did not move or
-    /// its advance is too small to tell.
+    /// the odometer counted none of it.
     pub fn measure(&self, counted_m: f64, forward: &V3) -> Option<MeasuredPush> {
-        if !self.moved {
+        let counted_m = counted_m - self.counted_m;
+        if !self.moved || counted_m <= 0.0 {
             return None;
         }
         let advance_m = forward.dot(&(self.state.position_m - self.origin_m));
@@ -187,10 +203,10 @@ impl InsPush {
         let advance_sigma_m = (forward.transpose() * p_pos * forward)[(0, 0)]
             .max(0.0)
             .sqrt();
-        (advance_m > MIN_ADVANCE_SIGMAS * advance_sigma_m).then_some(MeasuredPush {
+        Some(MeasuredPush {
             advance_m,
             advance_sigma_m,
-            counted_m: counted_m - self.counted_m,
+            counted_m,
         })
     }
 }
@@ -268,12 +284,32 @@ mod tests {
         let measured = p.measure(101.2064, &V3::x()).unwrap();
         assert!((measured.advance_m - 1.16).abs() < 0.002, "{measured:?}");
         assert!((measured.counted_m - 1.2064).abs() < 1e-9);
-        // 1.2064 / 1.16 = 1.04; σ² = (k² σ_a² + 2·(1 mm)²) / a².
-        let (scale, sigma) = measured.scale(0.001);
-        assert!((scale - 1.04).abs() < 0.002, "{scale}");
-        let expected =
-            (scale * scale * measured.advance_sigma_m.powi(2) + 2e-6).sqrt() / measured.advance_m;
+        // Linearised about a prior of 1: the count implies 1.2064 m, the
+        // slope d(c/k)/dk is 1.2064 m, so the push says 1 + (1.2064 −
+        // 1.16) / 1.2064 = 1.0385 (the first step toward 1.2064 / 1.16 =
+        // 1.04), σ = √(σ_a² + 2·(1 mm)²) / 1.2064.
+        let (scale, sigma) = measured.scale(1.0, 0.001).unwrap();
+        assert!((scale - 1.0385).abs() < 0.002, "{scale}");
+        let expected = (measured.advance_sigma_m.powi(2) + 2e-6).sqrt() / 1.2064;
         assert!((sigma - expected).abs() < 1e-12, "{sigma}");
+        // About the true scale, the step is to it: 1.04 + (1.16 − a) / (1.2064 / 1.04²).
+        let (at_truth, _) = measured.scale(1.04, 0.001).unwrap();
+        let hand = 1.04 + (1.16 - measured.advance_m) * 1.04 * 1.04 / 1.2064;
+        assert!((at_truth - hand).abs() < 1e-12, "{at_truth} {hand}");
+        assert!((at_truth - 1.04).abs() < 0.002, "{at_truth}");
+        // The weight comes from the count and the prior, not the advance:
+        // a push the INS measured 5 % long says the same σ.
+        let long = MeasuredPush {
+            advance_m: measured.advance_m * 1.05,
+            ..measured
+        };
+        assert_eq!(long.scale(1.0, 0.001).unwrap().1, sigma);
+        // A count that implies less than 3σ of advance is not measured.
+        let tiny = MeasuredPush {
+            counted_m: 2.0 * measured.advance_sigma_m,
+            ..measured
+        };
+        assert!(tiny.scale(1.0, 0.001).is_none());
         // A bias of 1e-4 m/s² drifts the bare strapdown by 1e-4 × 70²/2
         // = 0.245 m; the zero-velocity updates at both ends take it out
         // to within the push's own σ.
