@@ -90,6 +90,10 @@ pub enum IntegrityReason {
     /// the start: before the laser has checked the inclinometer between
     /// its samples).
     Unverified,
+    /// The engine's speed is beyond what the machine can do (its declared
+    /// maximum): its velocity, and the position it integrates, have run
+    /// away.
+    SpeedImplausible,
 }
 
 impl IntegrityReason {
@@ -109,6 +113,7 @@ impl IntegrityReason {
             IntegrityReason::ClockStep => "clock_step",
             IntegrityReason::Unaligned => "unaligned",
             IntegrityReason::Unverified => "unverified",
+            IntegrityReason::SpeedImplausible => "speed_implausible",
         }
     }
 
@@ -127,6 +132,7 @@ impl IntegrityReason {
         IntegrityReason::ClockStep,
         IntegrityReason::Unaligned,
         IntegrityReason::Unverified,
+        IntegrityReason::SpeedImplausible,
     ];
 }
 

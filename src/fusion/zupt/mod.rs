@@ -75,8 +75,9 @@ use crate::fusion::geometry::{
 /// zero-angular-rate update is estimated from the rates; 7: the distance
 /// the odometer carried (its scale error in the position σ); 8: the creep
 /// a rest no odometer confirmed may hide (in the position σ); 9: the
-/// odometer's scale and axis as filter states (issue 58).
-pub const STATE_VERSION: u32 = 9;
+/// odometer's scale and axis as filter states (issue 58); 10: a speed the
+/// machine cannot have, pushes the odometer contradicts (issue 58).
+pub const STATE_VERSION: u32 = 10;
 /// Level or odometer readings kept waiting for the navigation time.
 const MAX_PENDING_AIDS: usize = 1024;
 /// Two odometer readings further apart than this bound no interval for
@@ -87,6 +88,9 @@ const ODOMETER_MAX_GAP_S: f64 = 10.0;
 /// (a wheel slips for seconds; an INS that drifted stays refused); an
 /// estimate this close to a refusal is `degraded`, s.
 const ODOMETER_LOCKOUT_S: f64 = 10.0;
+/// A speed beyond `max_speed_mps` by more than this many σ of the
+/// filter's velocity along it is one the machine cannot have.
+const SPEED_BOUND_SIGMAS: f64 = 3.0;
 /// The odometer's distance and the engine's disagreeing by more than this
 /// many σ make an estimate `degraded`.
 const ODOMETER_DISAGREE_SIGMAS: f64 = 3.0;
@@ -235,6 +239,10 @@ struct Navigation {
     newest_count_m: Option<f64>,
     slipped_total_m: f64,
     ins_push: Option<InsPush>,
+    /// Whether the newest epoch's speed was beyond the machine's
+    /// `max_speed_mps` by more than [`SPEED_BOUND_SIGMAS`] σ: the INS has
+    /// run away (`lost`, `speed_implausible`).
+    speed_implausible: bool,
 }
 
 /// An odometer reading not yet fused.
@@ -568,7 +576,12 @@ impl ZuptEngine {
                 continue;
             }
             if let Some(nav) = &mut self.navigation {
-                nav.odometer_read(self.odometer, odo_t, distance_m);
+                nav.odometer_read(
+                    self.odometer,
+                    odo_t,
+                    distance_m,
+                    self.config.odometer_window.odometer_advance_m,
+                );
             }
             // Kept whether or not the rest check is on: the odometer's
             // window confirms rests for the creep bound and the scale.
@@ -910,6 +923,7 @@ impl ZuptEngine {
             newest_count_m: None,
             slipped_total_m: 0.0,
             ins_push: None,
+            speed_implausible: false,
             odometer_refused_from_t: None,
             odometer_refused_t: None,
         }
@@ -1067,6 +1081,9 @@ impl Navigation {
         self.force_integral = V3::zeros();
         self.rate_integral = V3::zeros();
         self.interval_still = true;
+        // On the velocity the interval ended with, before this epoch's
+        // updates: the epoch that ends a run-away still counts its advance.
+        self.bound_speed(config, interval_s);
 
         // The gate is on the squared Mahalanobis distance.
         let gate = (config.aid_gate_sigma > 0.0).then(|| config.aid_gate_sigma.powi(2));
@@ -1138,11 +1155,62 @@ impl Navigation {
         }
     }
 
+    /// The machine cannot go faster than its declared `max_speed_mps`.
+    /// An epoch whose speed is beyond it by more than
+    /// [`SPEED_BOUND_SIGMAS`] σ of the filter's velocity along it has run
+    /// away (a tilt or a bias a rest update mistook, a push called a
+    /// rest): the estimate is `lost` (`speed_implausible`), and what the
+    /// INS advanced over the `interval_s` is added to the bound the
+    /// position's σ grows by ([`with_creep_bound`]: none of it is
+    /// confirmed, and the machine's own advance, at most `max_speed_mps`,
+    /// is a small part of it), so that the position after it says how
+    /// little it is worth.
+    fn bound_speed(&mut self, config: &ZuptConfig, interval_s: f64) {
+        let velocity = self.state.velocity_mps;
+        let speed_mps = velocity.norm();
+        self.speed_implausible = false;
+        if speed_mps <= config.max_speed_mps {
+            return;
+        }
+        let direction = velocity / speed_mps;
+        let p_v = self.filter.p.fixed_view::<3, 3>(VEL, VEL);
+        let sigma_mps = (direction.transpose() * p_v * direction)[(0, 0)]
+            .max(0.0)
+            .sqrt();
+        if speed_mps - SPEED_BOUND_SIGMAS * sigma_mps > config.max_speed_mps {
+            self.speed_implausible = true;
+            // Away from zero, with the sign the bound's other terms take
+            // (the axis's: the creep and the odometer's disagreement).
+            let run_m = direction * (speed_mps * interval_s);
+            let forward = self.state.attitude * V3::x();
+            for k in 0..3 {
+                let sign = if self.unverified_m[k] != 0.0 {
+                    self.unverified_m[k].signum()
+                } else if forward[k] != 0.0 {
+                    forward[k].signum()
+                } else {
+                    1.0
+                };
+                self.unverified_m[k] += sign * run_m[k].abs();
+            }
+        }
+    }
+
     /// Takes an odometer reading of `counted_m` at `t` (`previous`: the
     /// one before): the first after alignment is the origin the count is
     /// compared from, each later one waits for the next epoch; the two
-    /// distances' disagreement is updated.
-    fn odometer_read(&mut self, previous: Option<(f64, f64)>, t: f64, counted_m: f64) {
+    /// distances' disagreement is updated. An advance beyond `moved_m`
+    /// over epochs all still contradicts the push being measured.
+    fn odometer_read(
+        &mut self,
+        previous: Option<(f64, f64)>,
+        t: f64,
+        counted_m: f64,
+        moved_m: f64,
+    ) {
+        if let (Some((_, previous_m)), Some(push)) = (previous, &mut self.ins_push) {
+            push.counted(counted_m - previous_m, moved_m);
+        }
         let engine_m = self.engine_distance_at(t);
         let interval = previous
             .filter(|&(prev_t, _)| t - prev_t <= ODOMETER_MAX_GAP_S)
@@ -1395,6 +1463,9 @@ impl Navigation {
     /// filter's along-track σ, the odometer's scale error over its
     /// distance, [`ODOMETER_DISAGREE_FLOOR_M`]); else `ok`.
     fn integrity(&self, t: f64) -> Integrity {
+        if self.speed_implausible {
+            return Integrity::lost(IntegrityReason::SpeedImplausible);
+        }
         let refused = self
             .odometer_refused_t
             .is_some_and(|refused_t| t - refused_t < ODOMETER_LOCKOUT_S);
@@ -1805,6 +1876,48 @@ mod tests {
         ));
     }
 
+    /// Standing 20 s heading north (it aligns), then +0.04 m/s² forward
+    /// for 10 s, with `max_speed_mps` 0.1: beyond 0.1 m/s (2.5 s in, and
+    /// 3σ of the filter's velocity, a few mm/s) the machine cannot be
+    /// going so fast, so the estimate is `lost` (`speed_implausible`),
+    /// and the INS's advance since then, 0.02 × (9.9² − 2.6²) = 1.83 m by
+    /// 29.9 s, joins the position's bound (σ north is the bound over √3,
+    /// the filter's own a few cm): before, the standing since alignment
+    /// no odometer confirmed, 0.1 m/s × 19–20 s.
+    #[test]
+    fn a_speed_the_machine_cannot_have_is_lost_and_widens_the_position() {
+        let params =
+            Params::from_assignments(PARAMS, ["initial_yaw_deg=0", "max_speed_mps=0.1"]).unwrap();
+        let c = ZuptEngine::new(params.clone()).unwrap().config;
+        let g = normal_gravity_mps2(c.site.lat_rad, c.site.height_m);
+        let gyro = earth_rate_n(c.site.lat_rad);
+        let mut engine = ZuptEngine::new(params).unwrap();
+        let t0 = 1.7e9;
+        let mut out = Vec::new();
+        for k in 0..3000_u32 {
+            let t = f64::from(k) * 0.01;
+            let forward = if t >= 20.0 { 0.04 } else { 0.0 };
+            engine.feed(&imu(t0 + t, V3::new(forward, 0.0, -g), gyro), &mut out);
+        }
+        engine.flush(&mut out);
+        let at_t = |t: f64| out.iter().find(|o| o.t >= t0 + t - 1e-6).unwrap().clone();
+        let at = [at_t(21.5), at_t(29.9)];
+        let sigma_north = |o: &EngineOutput| o.values.as_zupt().unwrap().position_sigma_m[0];
+        // 21.5 s: 0.06 m/s, within what the machine can do.
+        assert_ne!(
+            at[0].integrity.reason,
+            Some(IntegrityReason::SpeedImplausible)
+        );
+        let bound_m = |o: &EngineOutput| sigma_north(o) * 3f64.sqrt();
+        assert!((1.9..2.0).contains(&bound_m(&at[0])), "{:?}", at[0]);
+        assert_eq!(
+            at[1].integrity,
+            Integrity::lost(IntegrityReason::SpeedImplausible)
+        );
+        let run_m = bound_m(&at[1]) - bound_m(&at[0]);
+        assert!((1.8..1.95).contains(&run_m), "{run_m} {:?}", at[1]);
+    }
+
     #[test]
     fn a_snapshot_from_before_the_state_version_is_outdated() {
         let mut engine = ZuptEngine::with_defaults();
@@ -1819,7 +1932,7 @@ mod tests {
             ZuptEngine::restore(old),
             Err(SnapshotError::Outdated {
                 found: 1,
-                expected: 9,
+                expected: 10,
                 ..
             })
         ));

@@ -12,16 +12,21 @@
 //! INS; the push filter's covariance says how well, tilt and gyro drift
 //! included (its bridge is the error model's, not a line).
 //!
-//! Each push so measured is one observation of the scale, k = count ÷
-//! advance, with σ_k from the advance's σ and the count's noise; it
-//! updates the filter's scale state directly. Every other update only
+//! Each push so measured is one observation of the scale k: advance =
+//! count ÷ k + the INS's error, linearised about the filter's scale, so
+//! that a push weighs by its count and the push filter's σ, never by the
+//! advance it measured ([`MeasuredPush::scale`]); it updates the filter's
+//! scale state directly. Every other update only
 //! considers the scale (Schmidt–Kalman,
 //! [`super::eskf::ErrorStateFilter::update`]): the running odometer
 //! fusion would otherwise learn the scale from the INS's velocity within
 //! a push, which vibration shakes by millimetres per second. A push is
 //! measured only where the odometer confirmed both ends: a rest the
 //! detector calls in the middle of a push would cut it short, and the
-//! rest check refuses the readings the odometer saw advance.
+//! rest check refuses the readings the odometer saw advance. For the same
+//! reason a push is not measured when the odometer counted an advance
+//! over epochs the push took all for still ([`InsPush::counted`]), nor
+//! when its INS advance is known to worse than [`MAX_RELATIVE_SIGMA`].
 
 use nalgebra::SMatrix;
 use serde::{Deserialize, Serialize};
@@ -30,8 +35,12 @@ use super::eskf::{Dynamics, ErrorStateFilter, POS, feed_back, zupt_matrix};
 use super::strapdown::{Increment, NavState, Site};
 use crate::fusion::geometry::V3;
 
-/// A push whose advance is not this many σ of it is not measured.
-const MIN_ADVANCE_SIGMAS: f64 = 3.0;
+/// A push whose INS advance is known to worse than this share of it is
+/// not measured: it says little about a scale of a few per cent, and over
+/// such long bridges between zero-velocity updates an error the push
+/// filter does not model (a bias the odometer's fusion pulled before the
+/// anchor) is not averaged out but repeated push after push.
+const MAX_RELATIVE_SIGMA: f64 = 0.1;
 /// The 1σ a push's displacement starts from (it is measured from there), m.
 const ANCHOR_SIGMA_M: f64 = 1e-6;
 
@@ -52,6 +61,17 @@ pub struct InsPush {
     force_integral: V3,
     interval_still: bool,
     moved: bool,
+    /// Whether every epoch since the newest odometer reading was still,
+    /// and whether the odometer counted an advance over epochs all still
+    /// (a rest called while the machine moved: the push's zero-velocity
+    /// updates cut its advance short, so it is not measured).
+    still_since_count: bool,
+    contradicted: bool,
+    /// Epochs since the newest odometer reading judged, and what the
+    /// readings since then counted, m (readings faster than the epochs
+    /// are judged together at the first with an epoch behind it).
+    epochs_since_count: u32,
+    counted_since_m: f64,
 }
 
 /// One push measured: the INS's advance along the machine's axis, its
@@ -66,8 +86,8 @@ pub struct MeasuredPush {
 impl MeasuredPush {
     /// The scale this push says and its 1σ, linearised about the filter's
     /// `prior_scale`, with `count_sigma_m` the noise of one count (two
-    /// enter the push's); `None` when the advance the count implies is
-    /// not [`MIN_ADVANCE_SIGMAS`] σ of the INS's.
+    /// enter the push's); `None` when the INS's advance is known to worse
+    /// than [`MAX_RELATIVE_SIGMA`] of the advance the count implies.
     ///
     /// The model is advance = count ÷ k + the INS's error: the weight of a
     /// push comes from its count, the prior and the push filter's σ, never
@@ -81,7 +101,7 @@ impl MeasuredPush {
         let slope_m = self.counted_m / (prior_scale * prior_scale);
         let sigma_m =
             (self.advance_sigma_m.powi(2) + 2.0 * (count_sigma_m / prior_scale).powi(2)).sqrt();
-        (expected_m > MIN_ADVANCE_SIGMAS * sigma_m).then(|| {
+        (sigma_m <= MAX_RELATIVE_SIGMA * expected_m).then(|| {
             (
                 prior_scale + (expected_m - self.advance_m) / slope_m,
                 sigma_m / slope_m,
@@ -121,6 +141,10 @@ impl InsPush {
             force_integral: V3::zeros(),
             interval_still: true,
             moved: false,
+            still_since_count: true,
+            contradicted: false,
+            epochs_since_count: 0,
+            counted_since_m: 0.0,
         }
     }
 
@@ -169,6 +193,8 @@ impl InsPush {
         };
         self.filter.propagate(&own, self.interval_s);
         let still = self.interval_still;
+        self.still_since_count &= still;
+        self.epochs_since_count += 1;
         self.interval_s = 0.0;
         self.force_integral = V3::zeros();
         self.interval_still = true;
@@ -190,12 +216,30 @@ impl InsPush {
         );
     }
 
+    /// An odometer reading that counted `advance_m` since the one before.
+    /// Judged at the first reading with an epoch behind it (with the
+    /// readings since the last judged): a count beyond `moved_m` over
+    /// epochs that were all still contradicts the push (its rests were
+    /// not all rests), which will not be measured.
+    pub fn counted(&mut self, advance_m: f64, moved_m: f64) {
+        self.counted_since_m += advance_m;
+        if self.epochs_since_count == 0 {
+            return;
+        }
+        if self.still_since_count && self.counted_since_m.abs() > moved_m {
+            self.contradicted = true;
+        }
+        self.still_since_count = true;
+        self.epochs_since_count = 0;
+        self.counted_since_m = 0.0;
+    }
+
     /// The push measured at a confirmed rest (the count then `counted_m`,
-    /// `forward` the machine's axis, NED); `None` when it did not move or
-    /// the odometer counted none of it.
+    /// `forward` the machine's axis, NED); `None` when it did not move,
+    /// the odometer counted none of it or contradicted its rests.
     pub fn measure(&self, counted_m: f64, forward: &V3) -> Option<MeasuredPush> {
         let counted_m = counted_m - self.counted_m;
-        if !self.moved || counted_m <= 0.0 {
+        if !self.moved || self.contradicted || counted_m <= 0.0 {
             return None;
         }
         let advance_m = forward.dot(&(self.state.position_m - self.origin_m));
@@ -218,6 +262,17 @@ mod tests {
     use super::*;
     use crate::fusion::geometry::normal_gravity_mps2;
     use crate::fusion::zupt::eskf::ProcessNoise;
+
+    /// Level on the equator, heading north.
+    fn level_dynamics() -> Dynamics {
+        Dynamics {
+            specific_force_n: V3::new(0.0, 0.0, -normal_gravity_mps2(0.0, 0.0)),
+            c_bn: nalgebra::Matrix3::identity(),
+            earth_rate_n: V3::new(7.292_115e-5, 0.0, 0.0),
+            transport_rate_n: V3::zeros(),
+            gravity_gradient: 3e-6,
+        }
+    }
 
     /// On the equator, level, heading north: 20 s still, a push of 30 s
     /// at 40 mm/s (1 s ramps of 0.04 m/s²: 29 × 0.04 = 1.16 m), 20 s
@@ -256,13 +311,7 @@ mod tests {
                 _ => 0.0,
             }
         };
-        let dynamics = Dynamics {
-            specific_force_n: V3::new(0.0, 0.0, -g),
-            c_bn: nalgebra::Matrix3::identity(),
-            earth_rate_n: V3::new(earth_rate, 0.0, 0.0),
-            transport_rate_n: V3::zeros(),
-            gravity_gradient: 3e-6,
-        };
+        let dynamics = level_dynamics();
         let dt = 0.01;
         for k in 0..7000 {
             let t = k as f64 * dt;
@@ -304,12 +353,18 @@ mod tests {
             ..measured
         };
         assert_eq!(long.scale(1.0, 0.001).unwrap().1, sigma);
-        // A count that implies less than 3σ of advance is not measured.
-        let tiny = MeasuredPush {
-            counted_m: 2.0 * measured.advance_sigma_m,
+        // A push whose INS advance is known to worse than 10 % is not
+        // measured.
+        let vague = MeasuredPush {
+            advance_sigma_m: 0.11 * 1.2064,
             ..measured
         };
-        assert!(tiny.scale(1.0, 0.001).is_none());
+        assert!(vague.scale(1.0, 0.0).is_none());
+        let clear_enough = MeasuredPush {
+            advance_sigma_m: 0.09 * 1.2064,
+            ..measured
+        };
+        assert!(clear_enough.scale(1.0, 0.0).is_some());
         // A bias of 1e-4 m/s² drifts the bare strapdown by 1e-4 × 70²/2
         // = 0.245 m; the zero-velocity updates at both ends take it out
         // to within the push's own σ.
@@ -325,6 +380,39 @@ mod tests {
             (0.02..0.06).contains(&measured.advance_sigma_m),
             "{measured:?}"
         );
+    }
+
+    /// The odometer's readings against the push's still epochs: a count
+    /// that advanced 10 mm over epochs all still contradicts the push; 3 mm
+    /// (within the 6 mm that still counts as standing) or 10 mm over an
+    /// interval with an epoch in motion does not. Readings faster than the
+    /// epochs are judged together: 4 mm with no epoch behind it, then a
+    /// still epoch and 4 mm more, is 8 mm over still epochs.
+    #[test]
+    fn a_rest_the_odometer_saw_move_leaves_the_push_unmeasured() {
+        // Each reading's count, m, after an epoch (still or not) or none.
+        let measured = |readings: &[(f64, Option<bool>)]| {
+            let (mut p, _) = push(0.0);
+            // The reading before: the push's own motion is behind it.
+            p.counted(0.0, 0.006);
+            for &(advance_m, epoch) in readings {
+                if let Some(still) = epoch {
+                    p.interval_s = 0.1;
+                    p.interval_still = still;
+                    p.epoch(&level_dynamics(), 0.002);
+                }
+                p.counted(advance_m, 0.006);
+            }
+            p.measure(101.2064, &V3::x())
+        };
+        assert!(measured(&[]).is_some());
+        assert!(measured(&[(0.003, Some(true))]).is_some());
+        assert!(measured(&[(0.010, Some(false))]).is_some());
+        assert!(measured(&[(0.010, Some(true))]).is_none());
+        assert!(measured(&[(0.010, Some(false)), (0.0, Some(true))]).is_some());
+        assert!(measured(&[(0.004, Some(true)), (0.004, Some(true))]).is_some());
+        assert!(measured(&[(0.004, None), (0.004, Some(true))]).is_none());
+        assert!(measured(&[(0.004, Some(true)), (0.004, None), (0.004, Some(true))]).is_none());
     }
 
     #[test]

@@ -229,7 +229,7 @@ param_table! {
             0.001,
             100.0,
             "m/s",
-            "the fastest the machine advances: the rest check books motion only along the machine's axis and up to this speed (a velocity beyond, an INS gone wrong, leaves the call to the detector); a rest no odometer confirms may hide a creep this fast, and the position σ along the axis grows by it",
+            "the fastest the machine advances: the rest check books motion only along the machine's axis and up to this speed (a velocity beyond, an INS gone wrong, leaves the call to the detector); a rest no odometer confirms may hide a creep this fast, and the position σ along the axis grows by it; an INS faster than this by 3σ has run away: its estimate is lost (speed_implausible) and its advance joins that σ",
         ),
         odometer_rest_m: f64 = real(
             0.006,
