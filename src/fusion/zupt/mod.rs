@@ -271,6 +271,17 @@ impl OdometerInterval {
     fn excess_m(&self, scale: f64) -> f64 {
         self.advance_m - scale * self.ins_advance_m
     }
+
+    /// The part of `excess_m` a wheel can have slipped: the machine's true
+    /// advance lies between 0 and `max_speed_mps` over the interval, so
+    /// the count is off by at most its own advance (all counted at a
+    /// standstill) and at least its advance less the fastest possible one.
+    /// The rest of the excess is the INS's error (a backward drift while
+    /// the count stood still is no slip), m.
+    fn possible_slip_m(&self, excess_m: f64, scale: f64, max_speed_mps: f64) -> f64 {
+        let fastest_m = (scale * max_speed_mps * self.dt_s).max(0.0);
+        excess_m.clamp(self.advance_m - fastest_m, self.advance_m)
+    }
 }
 
 /// Where the odometer's count is compared from: its count and the
@@ -1273,8 +1284,9 @@ impl Navigation {
     /// Fuses an odometer reading (the monitor first): an interval whose
     /// count exceeds the scale times the INS's advance by more than
     /// `aid_gate_sigma` σ (the count's noise twice, the INS's velocity σ
-    /// over the interval, the scale's σ) is a slip, not fused, and the
-    /// origin moves on by the excess; otherwise the count since the origin
+    /// over the interval, the scale's σ) is not fused, and the origin
+    /// moves on by the part of the excess a wheel can have slipped
+    /// ([`OdometerInterval::possible_slip_m`]); otherwise the count since the origin
     /// is compared with the scale times the engine's advance since then
     /// (Eq. of [`odometer_matrix`]) with zero speed across the odometer's
     /// axis, gated as a whole.
@@ -1305,7 +1317,8 @@ impl Navigation {
         });
         if let Some((excess_m, interval)) = slip {
             stats.odometer_refused += 1;
-            self.odometer_refused(t, excess_m, excess_m / interval.dt_s);
+            let slipped_m = interval.possible_slip_m(excess_m, scale, config.max_speed_mps);
+            self.odometer_refused(t, slipped_m, excess_m / interval.dt_s);
             return;
         }
         // The count first: it corrects position and velocity only (a
@@ -1916,6 +1929,32 @@ mod tests {
         );
         let run_m = bound_m(&at[1]) - bound_m(&at[0]);
         assert!((1.8..1.95).contains(&run_m), "{run_m} {:?}", at[1]);
+    }
+
+    #[test]
+    fn only_what_a_wheel_can_have_counted_is_a_slip() {
+        // 2 s at most 0.15 m/s: the machine advanced 0 to 0.3 m (scale 1).
+        let interval = |advance_m: f64, ins_advance_m: f64| OdometerInterval {
+            advance_m,
+            ins_advance_m,
+            dt_s: 2.0,
+        };
+        let slip = |i: OdometerInterval| i.possible_slip_m(i.excess_m(1.0), 1.0, 0.15);
+        // Counted 0.05 m, the INS 0.01 m: a slip of 0.04 m.
+        assert!((slip(interval(0.05, 0.01)) - 0.04).abs() < 1e-12);
+        // Counted nothing while the INS ran 0.2 m backward: the INS's
+        // drift, no slip (the wheel counted nothing to take back).
+        assert_eq!(slip(interval(0.0, -0.2)), 0.0);
+        // Counted 0.05 m, the INS 0.1 m backward: at most the 0.05 m counted.
+        assert!((slip(interval(0.05, -0.1)) - 0.05).abs() < 1e-12);
+        // Counted 0.1 m, the INS 1 m ahead: the wheel missed at most what
+        // the fastest machine ran beyond its count, 0.1 − 0.3 = −0.2 m.
+        assert!((slip(interval(0.1, 1.0)) + 0.2).abs() < 1e-12);
+        // Counted 0.5 m, the INS 0.7 m: faster than the machine goes, so
+        // the wheel counted at least 0.5 − 0.3 = 0.2 m too many.
+        assert!((slip(interval(0.5, 0.7)) - 0.2).abs() < 1e-12);
+        // Counted 0.02 m, the INS 0.03 m: a wheel that missed 0.01 m.
+        assert!((slip(interval(0.02, 0.03)) + 0.01).abs() < 1e-12);
     }
 
     #[test]
