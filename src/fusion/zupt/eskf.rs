@@ -212,6 +212,13 @@ impl ErrorStateFilter {
         )
     }
 
+    /// Variance of one block along the unit vector `direction` (uᵀ·P·u),
+    /// never negative.
+    pub fn variance_along(&self, block: usize, direction: &V3) -> f64 {
+        let p_block = self.p.fixed_view::<3, 3>(block, block);
+        (direction.transpose() * p_block * direction)[(0, 0)].max(0.0)
+    }
+
     fn symmetrise(&mut self) {
         self.p = (self.p + self.p.transpose()) * 0.5;
     }

@@ -1184,10 +1184,7 @@ impl Navigation {
             return;
         }
         let direction = velocity / speed_mps;
-        let p_v = self.filter.p.fixed_view::<3, 3>(VEL, VEL);
-        let sigma_mps = (direction.transpose() * p_v * direction)[(0, 0)]
-            .max(0.0)
-            .sqrt();
+        let sigma_mps = self.filter.variance_along(VEL, &direction).sqrt();
         if speed_mps - SPEED_BOUND_SIGMAS * sigma_mps > config.max_speed_mps {
             self.speed_implausible = true;
             // Away from zero, with the sign the bound's other terms take
@@ -1277,8 +1274,7 @@ impl Navigation {
     /// The filter's variance of the position along the machine's axis, m².
     fn along_variance_m2(&self) -> f64 {
         let forward = self.state.attitude * V3::x();
-        let p_pos = self.filter.p.fixed_view::<3, 3>(POS, POS);
-        (forward.transpose() * p_pos * forward)[(0, 0)].max(0.0)
+        self.filter.variance_along(POS, &forward)
     }
 
     /// Fuses an odometer reading (the monitor first): an interval whose
@@ -1305,8 +1301,7 @@ impl Navigation {
         let forward = self.state.attitude * V3::x();
         let slip = fix.interval.and_then(|interval| {
             let excess_m = interval.excess_m(scale);
-            let p_v = self.filter.p.fixed_view::<3, 3>(VEL, VEL);
-            let along_v = (forward.transpose() * p_v * forward)[(0, 0)].max(0.0);
+            let along_v = self.filter.variance_along(VEL, &forward);
             let p_s = self.filter.p[(ODOMETER, ODOMETER)].max(0.0);
             let sigma_m = (2.0 * config.odometer_distance_sigma_m.powi(2)
                 + scale * scale * along_v * interval.dt_s.powi(2)

@@ -243,10 +243,7 @@ impl InsPush {
             return None;
         }
         let advance_m = forward.dot(&(self.state.position_m - self.origin_m));
-        let p_pos = self.filter.p.fixed_view::<3, 3>(POS, POS);
-        let advance_sigma_m = (forward.transpose() * p_pos * forward)[(0, 0)]
-            .max(0.0)
-            .sqrt();
+        let advance_sigma_m = self.filter.variance_along(POS, forward).sqrt();
         Some(MeasuredPush {
             advance_m,
             advance_sigma_m,
