@@ -233,7 +233,8 @@ struct Navigation {
     odometer_refused_from_t: Option<f64>,
     odometer_refused_t: Option<f64>,
     odometer_slipped_m: f64,
-    /// The newest odometer count, every slip's excess so far, m, and the
+    /// The newest odometer count, every slip booked so far
+    /// ([`OdometerInterval::possible_slip_m`]), m, and the
     /// INS's own motion since the newest rest the odometer confirmed
     /// before the push ([`odometer_scale`]).
     newest_count_m: Option<f64>,
@@ -1313,7 +1314,7 @@ impl Navigation {
         if let Some((excess_m, interval)) = slip {
             stats.odometer_refused += 1;
             let slipped_m = interval.possible_slip_m(excess_m, scale, config.max_speed_mps);
-            self.odometer_refused(t, slipped_m, excess_m / interval.dt_s);
+            self.odometer_refused(t, slipped_m, excess_m / scale / interval.dt_s);
             return;
         }
         // The count first: it corrects position and velocity only (a
@@ -1339,7 +1340,9 @@ impl Navigation {
         );
         if result == Err(eskf::UpdateError::Gated) {
             stats.odometer_refused += 1;
-            let speed_mps = fix.interval.map_or(0.0, |i| i.excess_m(scale) / i.dt_s);
+            let speed_mps = fix
+                .interval
+                .map_or(0.0, |i| i.excess_m(scale) / scale / i.dt_s);
             self.odometer_refused(t, 0.0, speed_mps);
             return;
         }
@@ -1433,7 +1436,7 @@ impl Navigation {
     /// slips), the INS is taken to have drifted instead: the slips of the
     /// run are taken back and the position's and velocity's covariance
     /// along the axis open by the disagreement (`speed_mps` the newest
-    /// interval's), so that the next reading is fused rather than refused
+    /// interval's, in the engine's metres per second), so that the next reading is fused rather than refused
     /// for the rest of the drive.
     fn odometer_refused(&mut self, t: f64, slipped_m: f64, speed_mps: f64) {
         let scale = self.odometer.scale();
@@ -1950,6 +1953,15 @@ mod tests {
         assert!((slip(interval(0.5, 0.7)) - 0.2).abs() < 1e-12);
         // Counted 0.02 m, the INS 0.03 m: a wheel that missed 0.01 m.
         assert!((slip(interval(0.02, 0.03)) + 0.01).abs() < 1e-12);
+        // A wheel reading 5 % long: the fastest count over 2 s is
+        // 1.05 × 0.3 = 0.315 m. Counted 0.5 m, the INS 0.1 m: the excess
+        // 0.5 − 0.105 = 0.395 m lies within [0.185, 0.5], all of it a slip.
+        let i = interval(0.5, 0.1);
+        assert!((i.possible_slip_m(i.excess_m(1.05), 1.05, 0.15) - 0.395).abs() < 1e-12);
+        // Counted 0.5 m, the INS 0.8 m: the excess −0.34 m is beyond what
+        // a wheel can miss; at least 0.5 − 0.315 = 0.185 m was counted too many.
+        let i = interval(0.5, 0.8);
+        assert!((i.possible_slip_m(i.excess_m(1.05), 1.05, 0.15) - 0.185).abs() < 1e-12);
     }
 
     #[test]
