@@ -10,7 +10,7 @@ use std::sync::Arc;
 
 use crate::fusion::alarms::AlarmConfig;
 use crate::fusion::alignment::{Alignment, AlignmentError, AlignmentSpec};
-use crate::fusion::dta::{MachineGeometry, Tolerances};
+use crate::fusion::declaration::{MachineGeometry, Tolerances};
 use crate::fusion::pipeline::Pipeline;
 use crate::fusion::reading::ProjectPoint;
 use crate::fusion::steering::SteeringSpec;

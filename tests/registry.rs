@@ -252,7 +252,7 @@ fn zupt_on_an_axis(engine: EngineKind) -> Option<Declaration> {
                 serde_json::from_str(axis).unwrap();
             Declaration {
                 alignment: Some(std::sync::Arc::new(spec.build().unwrap())),
-                geometry: Some(tunnelnav::fusion::dta::MachineGeometry {
+                geometry: Some(tunnelnav::fusion::declaration::MachineGeometry {
                     front_m: [1.5, 0.0, 0.0],
                     rear_m: [-1.5, 0.0, 0.0],
                 }),

@@ -11,8 +11,8 @@
 use serde::Serialize;
 
 use super::ErrorStats;
+use crate::fusion::Declaration;
 use crate::fusion::pipeline::Pipeline;
-use crate::fusion::stage::Declaration;
 use crate::fusion::{EngineKind, EngineOutput, EstimateValues, Params};
 use crate::sim::axis_drive::{AxisDrive, AxisDriveScenario, AxisTruth};
 

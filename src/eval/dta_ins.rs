@@ -27,11 +27,12 @@ use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
 use super::{ErrorStats, median};
+use crate::fusion::Declaration;
 use crate::fusion::alignment::{AlignmentSpec, ElementSpec, ProfileSpec, StartPose};
-use crate::fusion::dta::{DtaSource, MachineGeometry};
+use crate::fusion::declaration::MachineGeometry;
+use crate::fusion::dta::DtaSource;
 use crate::fusion::pipeline::Pipeline;
 use crate::fusion::reading::ProjectPoint;
-use crate::fusion::stage::Declaration;
 use crate::fusion::{EngineKind, EngineOutput, EstimateValues, ParamValue, Params};
 use crate::sim::pipejack::{Case, PipeJackDrive, PipeJackScenario, PipeJackTruth};
 

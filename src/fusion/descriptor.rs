@@ -18,8 +18,7 @@ use utoipa::openapi::{RefOr, Schema};
 use super::json_fields::JsonFields;
 use super::params::{ParamError, Params, Retired, TypedParams};
 use super::reading::SensorKind;
-use super::stage::{Declaration, Stage};
-use super::{Engine, SnapshotError};
+use super::{Declaration, Engine, SnapshotError, Stage};
 
 /// What an engine module declares about itself.
 pub trait EngineDescriptor {

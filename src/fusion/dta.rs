@@ -17,6 +17,7 @@ use serde::{Deserialize, Serialize};
 
 use super::alignment::Alignment;
 use super::angles::rad;
+use super::declaration::{Limits, MachineGeometry, Tolerances};
 use super::descriptor::{DeviationSignal, SignalKind, Signals, StageDescriptor, StreamValues};
 use super::estimate::{EngineOutput, EstimateValues};
 use super::geometry::{V3, attitude_from_euler};
@@ -24,7 +25,7 @@ use super::integrity::{Integrity, IntegrityLevel};
 use super::json_fields::JsonFields;
 use super::reading::{ProjectPoint, Reading, SensorData, SensorKind};
 use super::registry::{EngineKind, StageKind};
-use super::stage::{Declaration, Stage};
+use super::{Declaration, Stage};
 use super::{SnapshotError, StreamKind};
 
 /// Version of the stage's snapshot.
@@ -32,32 +33,6 @@ pub const STATE_VERSION: u32 = 1;
 /// Version of the stored [`DtaEstimate`]. 1: before the points' σ
 /// ([`DtaEstimateV1`]).
 pub const CODEC_VERSION: u32 = 2;
-
-/// Where the machine's front and rear points are on it: metres from the
-/// navigation reference point in the body frame (x forward, y right, z
-/// down).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
-#[serde(deny_unknown_fields)]
-pub struct MachineGeometry {
-    pub front_m: [f64; 3],
-    pub rear_m: [f64; 3],
-}
-
-/// Warn and alarm limits of one deviation, mm (of its magnitude).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
-#[serde(deny_unknown_fields)]
-pub struct Limits {
-    pub warn: f64,
-    pub alarm: f64,
-}
-
-/// The tolerances the deviations are held to.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
-#[serde(deny_unknown_fields)]
-pub struct Tolerances {
-    pub horizontal_mm: Limits,
-    pub vertical_mm: Limits,
-}
 
 /// Which positions a `dta` estimate comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]

@@ -7,6 +7,7 @@ pub mod alarms;
 pub mod alignment;
 pub mod angles;
 pub mod attitude;
+pub mod declaration;
 pub mod descriptor;
 pub mod dta;
 pub mod estimate;
@@ -23,11 +24,11 @@ pub mod registry;
 pub mod reorder;
 pub mod rings;
 pub mod robust;
-pub mod stage;
 pub mod steer;
 pub mod steering;
 pub mod zupt;
 
+pub use declaration::Declaration;
 pub use descriptor::{
     EngineDescriptor, ModelReport, NoModel, Signals, StageDescriptor, StreamValues,
 };
@@ -39,7 +40,6 @@ pub use integrity::{Integrity, IntegrityLevel, IntegrityReason};
 pub use params::{ParamError, ParamKind, ParamSpec, ParamValue, Params, Retired};
 pub use reading::{Reading, ReadingError, SensorData, SensorKind, parse_reading};
 pub use registry::{CodecError, EngineKind, EngineModel, StageKind, StreamKind, UnknownEngine};
-pub use stage::{Declaration, Stage};
 
 /// A fusion method that turns a machine's readings into estimates.
 ///
@@ -70,6 +70,37 @@ pub trait Engine: Send {
     fn model(&self) -> Option<EngineModel> {
         None
     }
+}
+
+/// A stage after the engines: it derives a stream of its own from a
+/// machine's declaration, the readings its engines are fed and the
+/// estimates they emit (the jacking log from `zupt`'s pushes; the
+/// deviation from the design axis from positions and attitude). Pure like
+/// the engines: the server's machine actor and `replay` run the same
+/// [`pipeline::Pipeline`] and get the same outputs.
+pub trait Stage: Send {
+    /// Which stage this is.
+    fn kind(&self) -> StageKind;
+
+    /// Whether the stage reads readings of `sensor` (a reading no engine
+    /// and no stage reads is not fed at all).
+    fn reads(&self, _sensor: SensorKind) -> bool {
+        false
+    }
+
+    /// A reading as the engines are fed it (in time order, after the
+    /// reorder buffer); appends what it derives to `out`. Most stages
+    /// need only estimates.
+    fn reading(&mut self, _reading: &Reading, _out: &mut Vec<EngineOutput>) {}
+
+    /// An engine's estimate, or an earlier stage's output, in the order
+    /// they are emitted; appends what it derives to `out` (offered in
+    /// turn to the stages after this one).
+    fn estimate(&mut self, estimate: &EngineOutput, out: &mut Vec<EngineOutput>);
+
+    /// The whole state, serialisable: [`StageKind::restore`] continues
+    /// from it exactly.
+    fn snapshot(&self) -> serde_json::Value;
 }
 
 /// Why a snapshot could not be restored.

@@ -10,7 +10,7 @@ use super::estimate::EngineOutput;
 use super::params::{ParamError, Params};
 use super::reading::Reading;
 use super::registry::{EngineKind, EngineModel, StageKind};
-use super::stage::{Declaration, Stage};
+use super::{Declaration, Stage};
 use super::{Engine, SnapshotError};
 
 /// Engines, then stages.

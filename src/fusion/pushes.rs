@@ -17,7 +17,7 @@ use super::descriptor::{SignalKind, Signals, StageDescriptor, StreamValues};
 use super::estimate::{EngineOutput, EstimateValues, TrackPoint};
 use super::json_fields::JsonFields;
 use super::registry::{EngineKind, StageKind};
-use super::stage::{Declaration, Stage};
+use super::{Declaration, Stage};
 use super::{SnapshotError, StreamKind};
 
 /// Version of the stage's snapshot. 1: before the unsmoothed pushes (no

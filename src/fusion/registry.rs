@@ -20,7 +20,7 @@ use super::descriptor::{
 use super::json_fields::JsonFields;
 use super::params::{ParamError, ParamSpec, ParamValue, Params, Retired, TypedParams};
 use super::reading::SensorKind;
-use super::stage::{Declaration, Stage};
+use super::{Declaration, Stage};
 use super::{Engine, SnapshotError, attitude, dta, fuzzy, pushes, rings, steer, zupt};
 
 /// Why a stored estimate could not be read.

@@ -17,7 +17,7 @@ use super::estimate::{EngineOutput, EstimateValues};
 use super::json_fields::JsonFields;
 use super::reading::{Reading, SensorData, SensorKind};
 use super::registry::StageKind;
-use super::stage::{Declaration, Stage};
+use super::{Declaration, Stage};
 use super::{SnapshotError, StreamKind};
 
 /// A station this far behind the last ring's is no advance, m (a machine

@@ -19,14 +19,15 @@ use std::sync::Arc;
 use serde::{Deserialize, Serialize};
 
 use super::alignment::Alignment;
+use super::declaration::Tolerances;
 use super::descriptor::{SignalKind, Signals, StageDescriptor, StreamValues};
-use super::dta::{DtaEstimate, Tolerances};
+use super::dta::DtaEstimate;
 use super::estimate::{EngineOutput, EstimateValues};
 use super::json_fields::JsonFields;
 use super::reading::{Reading, SensorData, SensorKind};
 use super::registry::StageKind;
-use super::stage::{Declaration, Stage};
 use super::steering::{self, Front, GroupTarget, Plan, PlaneStart, Start, SteeringSpec};
+use super::{Declaration, Stage};
 
 mod response;
 

@@ -47,7 +47,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::alignment::Alignment;
-use super::dta::Tolerances;
+use super::declaration::Tolerances;
 
 /// The longest correction looked for: a machine that cannot reach the
 /// axis within this is told so.

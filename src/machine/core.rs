@@ -130,7 +130,7 @@ impl MachineCore {
         state: &str,
         pipeline: impl FnOnce(
             PipelineState,
-            &crate::fusion::stage::Declaration,
+            &crate::fusion::Declaration,
         ) -> Result<Pipeline, SnapshotError>,
     ) -> Result<MachineCore, SnapshotError> {
         let state: CoreState =

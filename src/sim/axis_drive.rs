@@ -32,7 +32,7 @@ use serde::{Deserialize, Serialize};
 
 use super::tbm::{DEFAULT_START_T, incl_pitch_error_deg};
 use crate::fusion::alignment::{AlignmentSpec, ElementSpec, ProfileSpec, Pvi, StartPose};
-use crate::fusion::dta::{MachineGeometry, Tolerances};
+use crate::fusion::declaration::{MachineGeometry, Tolerances};
 use crate::fusion::reading::ProjectPoint;
 use crate::fusion::{Reading, SensorData};
 
@@ -84,11 +84,11 @@ impl AxisDriveScenario {
                 rear_m: [-5.1, 0.4, 1.1],
             },
             tolerances: Tolerances {
-                horizontal_mm: crate::fusion::dta::Limits {
+                horizontal_mm: crate::fusion::declaration::Limits {
                     warn: 50.0,
                     alarm: 100.0,
                 },
-                vertical_mm: crate::fusion::dta::Limits {
+                vertical_mm: crate::fusion::declaration::Limits {
                     warn: 30.0,
                     alarm: 60.0,
                 },

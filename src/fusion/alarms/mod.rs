@@ -41,8 +41,8 @@ use serde::{Deserialize, Serialize};
 use self::debounce::{Debounced, Edge, Hysteresis, Timing};
 use self::period::LearnedPeriod;
 use super::StreamKind;
+use super::declaration::Tolerances;
 use super::descriptor::{DeviationSignal, Navigation, SignalKind, Signals};
-use super::dta::Tolerances;
 use super::estimate::EngineOutput;
 use super::integrity::{Integrity, IntegrityLevel, IntegrityReason};
 use super::reading::{Reading, SensorKind};
@@ -795,7 +795,7 @@ impl AlarmRules {
             ("rear", d.rear_mm, d.rear_sigma_mm),
         ];
         for (i, severity) in SEVERITIES.into_iter().enumerate() {
-            let limit = |l: super::dta::Limits| if i == 0 { l.warn } else { l.alarm };
+            let limit = |l: super::declaration::Limits| if i == 0 { l.warn } else { l.alarm };
             let (h, v) = (limit(tol.horizontal_mm), limit(tol.vertical_mm));
             let was = self.state.deviation[i].beyond;
             // The worst of the four against its own limit, as a ratio;

@@ -1,7 +1,8 @@
 use super::*;
 use crate::fusion::AttitudeEstimate;
 use crate::fusion::EstimateValues;
-use crate::fusion::dta::{DtaEstimate, DtaSource, Limits, PointDeviation};
+use crate::fusion::declaration::Limits;
+use crate::fusion::dta::{DtaEstimate, DtaSource, PointDeviation};
 use crate::fusion::reading::SensorData;
 
 fn rules() -> AlarmRules {

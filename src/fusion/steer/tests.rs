@@ -3,7 +3,8 @@ use rand_distr::{Distribution, StandardNormal};
 
 use super::*;
 use crate::fusion::alignment::AlignmentSpec;
-use crate::fusion::dta::{DtaSource, Limits, MachineGeometry, PointDeviation};
+use crate::fusion::declaration::{Limits, MachineGeometry};
+use crate::fusion::dta::{DtaSource, PointDeviation};
 
 /// An axis from north at the origin: `horizontal` elements, level.
 fn axis(horizontal: &str) -> Arc<Alignment> {

@@ -1,7 +1,7 @@
 use super::plan as plan_curve;
 use super::*;
 use crate::fusion::alignment::AlignmentSpec;
-use crate::fusion::dta::Limits;
+use crate::fusion::declaration::Limits;
 
 /// A machine with 1.5 m rings and thrust cylinders on a 6.0 m circle,
 /// steering no tighter than `min_radius_m`.

@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 
 use super::layout::{self, ReportPage};
 use super::{ChartPoint, ReportFormat, RingRow, csv, report_permit, respond, too_many_rows};
-use crate::fusion::dta::Tolerances;
+use crate::fusion::declaration::Tolerances;
 use crate::fusion::{EstimateValues, StreamKind};
 use crate::server::error::ApiError;
 use crate::server::history::parse_time;

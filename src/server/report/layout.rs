@@ -420,7 +420,7 @@ fn decimals(step: f64) -> usize {
 /// two points.
 pub fn chart(
     points: &[super::ChartPoint],
-    tolerances: Option<crate::fusion::dta::Tolerances>,
+    tolerances: Option<crate::fusion::declaration::Tolerances>,
 ) -> Option<Chart> {
     if points.len() < 2 {
         return None;
@@ -445,7 +445,7 @@ pub fn chart(
     let panel = |title,
                  colour,
                  value: &dyn Fn(&super::ChartPoint) -> f64,
-                 limit: Option<crate::fusion::dta::Limits>| {
+                 limit: Option<crate::fusion::declaration::Limits>| {
         // Room for the data and the alarm limit.
         let mut extent = points.iter().fold(10.0_f64, |m, p| m.max(value(p).abs()));
         if let Some(l) = limit {

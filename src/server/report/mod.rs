@@ -190,7 +190,7 @@ pub struct Report {
     pub generated_t: f64,
     /// The declared tolerances the chart's bands show; `null` without.
     #[schema(value_type = Option<Object>)]
-    pub tolerances: Option<crate::fusion::dta::Tolerances>,
+    pub tolerances: Option<crate::fusion::declaration::Tolerances>,
     pub advance: Advance,
     /// Front and rear, horizontal and vertical: empty without `dta`
     /// estimates in the range.
