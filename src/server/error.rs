@@ -211,11 +211,16 @@ impl IntoResponse for ApiError {
             // Details go to the log, not to the client.
             tracing::error!(%detail, "internal error");
         }
-        if let ApiError::Unavailable { reason, .. } = &self {
-            super::metrics::refused(*reason);
-        }
+        let refusal = match &self {
+            ApiError::Unavailable { reason, .. } => Some(*reason),
+            _ => None,
+        };
         let status = self.status();
         let mut response = (status, Json(self.body())).into_response();
+        // Counted by the response middleware (`metrics::count_responses`).
+        if let Some(reason) = refusal {
+            response.extensions_mut().insert(reason);
+        }
         if status == StatusCode::SERVICE_UNAVAILABLE {
             response.headers_mut().insert(
                 axum::http::header::RETRY_AFTER,

@@ -1,28 +1,26 @@
-//! `/healthz` and `/metrics` (Prometheus text), and the series the handlers
-//! record. Names follow Prometheus conventions (base units, `_total` for
-//! counters, `_seconds`, `_bytes`); every series that can be known at start
-//! is registered then, at zero, so alert rules see it before its first
-//! event. The list is documented in `docs/api.md` ("Metrics") and checked
-//! against a fresh server by `tests/metrics.rs`.
+//! The series the service records (the handlers count, the response
+//! middleware counts every answer and refusal); [`serve`] shows them at
+//! `/metrics`, with `/healthz`. Names follow Prometheus conventions (base
+//! units, `_total` for counters, `_seconds`, `_bytes`); every series that
+//! can be known at start is registered then, at zero, so alert rules see
+//! it before its first event. The list is documented in `docs/api.md`
+//! ("Metrics") and checked against a fresh server by `tests/metrics.rs`.
 
 use std::collections::BTreeMap;
 use std::sync::OnceLock;
 use std::time::Duration;
 
-use axum::Json;
-use axum::extract::{MatchedPath, Request, State};
-use axum::http::header;
+use axum::extract::{MatchedPath, Request};
 use axum::middleware::Next;
-use axum::response::{IntoResponse, Response};
+use axum::response::Response;
 use metrics_exporter_prometheus::{Matcher, PrometheusBuilder, PrometheusHandle};
 
 use super::error::{Refusal, Rejected};
-use super::state::SharedState;
 use crate::config::MachineSpec;
-use crate::fusion::alarms::{AlarmKind, Severity};
 use crate::fusion::descriptor::SignalKind;
 use crate::fusion::{Reading, SensorKind};
-use crate::store::alarms::AlarmFilter;
+
+pub mod serve;
 
 const ACCEPTED: &str = "tunnelnav_readings_accepted_total";
 const REJECTED: &str = "tunnelnav_readings_rejected_total";
@@ -247,12 +245,13 @@ pub fn rejected(machine: &str, rejected: &[Rejected]) {
 }
 
 /// Records a request answered 503.
-pub fn refused(reason: Refusal) {
+fn refused(reason: Refusal) {
     metrics::counter!(REFUSALS, "reason" => reason.as_str()).increment(1);
 }
 
 /// Middleware (inside the router, so the route is known): counts every
-/// response by declared route, method and status.
+/// response by declared route, method and status, and each refusal (a
+/// 503, its [`Refusal`] carried in the response's extensions) by reason.
 pub async fn count_responses(request: Request, next: Next) -> Response {
     let route = request
         .extensions()
@@ -260,6 +259,9 @@ pub async fn count_responses(request: Request, next: Next) -> Response {
         .map_or_else(|| "unmatched".to_string(), |m| m.as_str().to_string());
     let method = request.method().to_string();
     let response = next.run(request).await;
+    if let Some(reason) = response.extensions().get::<Refusal>() {
+        refused(*reason);
+    }
     metrics::counter!(
         HTTP_RESPONSES,
         "route" => route,
@@ -268,104 +270,4 @@ pub async fn count_responses(request: Request, next: Next) -> Response {
     )
     .increment(1);
     response
-}
-
-/// The liveness answer.
-#[derive(Debug, serde::Serialize, utoipa::ToSchema)]
-pub struct Health {
-    /// Always `ok`: the server answers.
-    pub status: &'static str,
-    /// Machines declared.
-    pub machines: usize,
-}
-
-/// Liveness.
-///
-/// `GET /healthz`.
-#[utoipa::path(get, path = "/healthz", operation_id = "healthz", tag = "service",
-    responses((status = OK, description = "The server answers", body = Health)))]
-pub async fn healthz(State(state): State<SharedState>) -> Json<Health> {
-    Json(Health {
-        status: "ok",
-        machines: state.all_machines().len(),
-    })
-}
-
-/// Prometheus metrics.
-///
-/// `GET /metrics`: the counters as recorded, and the gauges read now.
-#[utoipa::path(get, path = "/metrics", operation_id = "metrics", tag = "service",
-    responses((status = OK, description = "Prometheus text exposition (docs/api.md, \"Metrics\")", content_type = "text/plain", body = String)))]
-pub async fn render(State(state): State<SharedState>) -> impl IntoResponse {
-    let now = state.clock.now_s();
-    let machines = state.all_machines();
-    metrics::gauge!(MACHINES).set(machines.len() as f64);
-    for machine in &machines {
-        let id = machine.spec.id.clone();
-        let status = super::machines::status(machine, now);
-        metrics::gauge!(LIVE_CLIENTS, "machine" => id.clone()).set(status.live_clients as f64);
-        for (sensor, report) in &status.sensors {
-            metrics::gauge!(LAST_READING, "machine" => id.clone(), "sensor" => sensor.as_str())
-                .set(report.last_t);
-        }
-        if let Some(laser) = &status.laser {
-            metrics::gauge!(LASER_DROPOUT, "machine" => id.clone()).set(if laser.dropout {
-                1.0
-            } else {
-                0.0
-            });
-        }
-    }
-    match state.store.size_bytes().await {
-        Ok(bytes) => metrics::gauge!(STORE_BYTES).set(bytes as f64),
-        Err(e) => tracing::warn!(error = %e, "store size unknown"),
-    }
-    set_active_alarms(&state).await;
-    process().collect();
-    let text = handle().map(|h| h.render()).unwrap_or_default();
-    (
-        [(
-            header::CONTENT_TYPE,
-            "text/plain; version=0.0.4; charset=utf-8",
-        )],
-        text,
-    )
-}
-
-/// Every machine × kind × severity, zero when none is active, so an alert
-/// rule sees the series before the first alarm.
-async fn set_active_alarms(state: &SharedState) {
-    let filter = AlarmFilter {
-        machine: None,
-        active_only: true,
-        ..Default::default()
-    };
-    let active = match super::alarms::stored(state, filter).await {
-        Ok(active) => active,
-        Err(e) => {
-            tracing::warn!(error = %e, "active alarms not read for /metrics");
-            return;
-        }
-    };
-    for machine in state.all_machines() {
-        for kind in AlarmKind::ALL {
-            for severity in Severity::ALL {
-                let count = active
-                    .iter()
-                    .filter(|a| {
-                        a.machine == machine.spec.id
-                            && a.kind == kind.as_str()
-                            && a.severity == severity.as_str()
-                    })
-                    .count();
-                metrics::gauge!(
-                    ALARMS_ACTIVE,
-                    "machine" => machine.spec.id.clone(),
-                    "kind" => kind.as_str(),
-                    "severity" => severity.as_str()
-                )
-                .set(count as f64);
-            }
-        }
-    }
 }
