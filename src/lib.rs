@@ -3,8 +3,11 @@
 //!
 //! # Layout
 //! - [`fusion`]: the pure core. Protocol readings and estimates, the
-//!   [`fusion::Engine`] trait, parameters, the reorder buffer, and one module
-//!   per engine (`attitude`: He et al. 2021). No IO, no async, no clocks.
+//!   [`fusion::Engine`] and [`fusion::Stage`] traits, what a machine
+//!   declares to them ([`fusion::Declaration`]), parameters, the reorder
+//!   buffer, and one module per engine (`attitude`: He et al. 2021; `zupt`:
+//!   Zhang et al. 2024; `fuzzy`: Wang 2005) and per stage. No IO, no async,
+//!   no clocks.
 //! - [`sim`]: seeded, pure scenario generators with known truth (`simulate`,
 //!   `eval`, tests, benchmarks).
 //! - [`eval`]: runs engines and baselines over simulated drives, and over
@@ -15,13 +18,18 @@
 //!   `[machines]`), validated.
 //! - [`clock`]: the service's clock (possibly accelerated, in the demo).
 //! - [`auth`]: access tokens, hashed in the store.
+//! - [`tls`]: TLS for the service's own outgoing connections (the MQTT
+//!   broker, PostgreSQL): rustls, a peer checked against a named CA file
+//!   or the system's roots.
 //! - [`store`]: one `Store` over two backends, SQLite (the default: one
 //!   writer thread with group commit, pooled readers) and PostgreSQL
 //!   (`store::postgres`: writer tasks with the same group commit, day
 //!   partitions, several nodes by leases, `tunnelnav migrate`).
 //! - [`machine`]: one task per machine owning its engines; the only bridge
-//!   from async code to the fusion core. It hands committed alarm changes
-//!   to a [`machine::AlarmSink`] it defines.
+//!   from async code to the fusion core (`core`: the synchronous
+//!   [`machine::MachineCore`]; `actor`: the task; `recover`: a machine
+//!   rebuilt from the store; `lease`: the epoch each write carries). It
+//!   hands committed alarm changes to a [`machine::AlarmSink`] it defines.
 //! - [`server`]: axum routes (the router and `run` in its `mod.rs`), shared
 //!   state (`server::state`), settings and the config file
 //!   (`server::settings`), errors, live stream, MQTT, metrics, alarm
@@ -31,7 +39,8 @@
 //!   engine touches (docs/development.md).
 //!
 //! Imports run downwards only: nothing below `server` (the fusion core,
-//! `sim`, `eval`, `replay`, `config`, `clock`, `auth`, `store`, `machine`)
+//! `sim`, `eval`, `replay`, `config`, `clock`, `auth`, `tls`, `store`,
+//! `machine`)
 //! imports it or `cli`, and `server` does not import `cli`
 //! (`tests/layering.rs`).
 
