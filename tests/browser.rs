@@ -713,11 +713,16 @@ async fn the_dashboard_signs_in_when_tokens_are_required() {
     let dir = tempfile::tempdir().unwrap();
     let (admin, reader) = {
         let conn = tunnelnav::store::Store::connect(dir.path()).unwrap();
-        let admin =
-            tunnelnav::auth::create(&conn, "admin", tunnelnav::auth::Scope::Admin, None, 0.0)
-                .unwrap()
-                .1;
-        let reader = tunnelnav::auth::create(
+        let admin = tunnelnav::store::tokens::create(
+            &conn,
+            "admin",
+            tunnelnav::auth::Scope::Admin,
+            None,
+            0.0,
+        )
+        .unwrap()
+        .1;
+        let reader = tunnelnav::store::tokens::create(
             &conn,
             "control room",
             tunnelnav::auth::Scope::Read,
@@ -785,9 +790,9 @@ async fn the_dashboard_signs_in_when_tokens_are_required() {
     // live), offers to sign in again, and the clock stops.
     {
         let conn = tunnelnav::store::Store::connect(dir.path()).unwrap();
-        let tokens = tunnelnav::auth::list(&conn).unwrap();
+        let tokens = tunnelnav::store::tokens::list(&conn).unwrap();
         let id = tokens.iter().find(|t| t.name == "control room").unwrap().id;
-        tunnelnav::auth::revoke(&conn, id, tunnelnav::clock::wall_clock_s()).unwrap();
+        tunnelnav::store::tokens::revoke(&conn, id, tunnelnav::clock::wall_clock_s()).unwrap();
     }
     wait_for(
         &browser,

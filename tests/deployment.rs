@@ -72,7 +72,7 @@ fn load_passes_its_token_to_a_server_that_requires_one() {
     let dir = tempfile::tempdir().unwrap();
     let token = {
         let conn = tunnelnav::store::Store::connect(dir.path()).unwrap();
-        tunnelnav::auth::create(&conn, "bench", tunnelnav::auth::Scope::Admin, None, 0.0)
+        tunnelnav::store::tokens::create(&conn, "bench", tunnelnav::auth::Scope::Admin, None, 0.0)
             .unwrap()
             .1
     };

@@ -75,7 +75,7 @@ impl Tokens {
     ) -> Result<(i64, String), CliError> {
         let now = wall_clock_s();
         Ok(match self {
-            Tokens::Sqlite(conn) => auth::create(conn, name, scope, machine, now)?,
+            Tokens::Sqlite(conn) => crate::store::tokens::create(conn, name, scope, machine, now)?,
             Tokens::Postgres(store, runtime) => {
                 runtime.block_on(store.create_token(name, scope, machine, now))?
             }
@@ -84,7 +84,7 @@ impl Tokens {
 
     fn list(&self) -> Result<Vec<auth::Token>, CliError> {
         Ok(match self {
-            Tokens::Sqlite(conn) => auth::list(conn)?,
+            Tokens::Sqlite(conn) => crate::store::tokens::list(conn)?,
             Tokens::Postgres(store, runtime) => runtime.block_on(store.tokens())?,
         })
     }
@@ -92,7 +92,7 @@ impl Tokens {
     fn revoke(&self, id: i64) -> Result<auth::Token, CliError> {
         let now = wall_clock_s();
         Ok(match self {
-            Tokens::Sqlite(conn) => auth::revoke(conn, id, now)?,
+            Tokens::Sqlite(conn) => crate::store::tokens::revoke(conn, id, now)?,
             Tokens::Postgres(store, runtime) => runtime.block_on(store.revoke_token(id, now))?,
         })
     }

@@ -16,7 +16,8 @@ use crate::fusion::{
 };
 use crate::store::{EstimateRow, StoreError};
 
-use super::REORDER_MAX_LEN;
+/// Most readings the reorder buffer holds per machine.
+pub const REORDER_MAX_LEN: usize = 100_000;
 
 /// An estimate as the machine emits it: attributed, serialised once.
 #[derive(Debug, Clone)]

@@ -20,15 +20,13 @@ mod recover;
 #[cfg(test)]
 mod tests;
 
-pub use self::core::{Emitted, FusedEstimate, LiveEstimate, MachineCore};
+pub use self::core::{Emitted, FusedEstimate, LiveEstimate, MachineCore, REORDER_MAX_LEN};
 pub use actor::{
     AlarmSink, ForwardedPart, MachineHandle, MachineStatus, SensorStatus, Surroundings, spawn,
 };
 pub use lease::LeaseEpoch;
 pub use recover::{newest_outputs, recover, stored_status};
 
-/// Most readings the reorder buffer holds per machine.
-pub const REORDER_MAX_LEN: usize = 100_000;
 /// A snapshot is stored after this many readings, so a restart re-feeds at
 /// most this many.
 pub const SNAPSHOT_EVERY_READINGS: u64 = 20_000;

@@ -19,6 +19,7 @@ pub mod queries;
 mod read_pool;
 pub mod retention;
 pub mod schema;
+pub mod tokens;
 mod writer;
 
 pub use error::StoreError;
@@ -370,12 +371,7 @@ impl SqliteStore {
 
     /// The tokens in force, with their hashes.
     pub fn active_tokens(&self) -> Result<Vec<(String, crate::auth::Token)>, StoreError> {
-        self.read(|conn| {
-            crate::auth::active(conn).map_err(|e| match e {
-                crate::auth::TokenError::Sql(e) => StoreError::Sqlite(e),
-                other => StoreError::Corrupt(other.to_string()),
-            })
-        })
+        self.read(tokens::active)
     }
 
     /// Every stored machine, its parameters made current (a machine

@@ -486,7 +486,7 @@ pub fn operator_token(dir: &Path, name: &str) -> String {
 /// Creates a token of `scope` (for no machine) in the SQLite store in `dir`.
 fn token_of(dir: &Path, name: &str, scope: tunnelnav::auth::Scope) -> String {
     let conn = tunnelnav::store::Store::connect(dir).unwrap();
-    tunnelnav::auth::create(&conn, name, scope, None, tunnelnav::clock::wall_clock_s())
+    tunnelnav::store::tokens::create(&conn, name, scope, None, tunnelnav::clock::wall_clock_s())
         .unwrap()
         .1
 }

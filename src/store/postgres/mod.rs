@@ -888,14 +888,14 @@ impl PgStore {
     }
 
     /// Stores a new token; its id and text (shown once), as
-    /// [`crate::auth::create`] does on SQLite.
+    /// [`crate::store::tokens::create`] does on SQLite.
     pub async fn create_token(
         &self,
         name: &str,
         scope: Scope,
         machine: Option<&str>,
         now_t: f64,
-    ) -> Result<(i64, String), TokenError> {
+    ) -> Result<(i64, String), StoreError> {
         crate::auth::check_new(scope, machine)?;
         let (token, hash) = crate::auth::generate();
         let client = self.pooled().await?;
@@ -924,7 +924,7 @@ impl PgStore {
     }
 
     /// Revokes a token.
-    pub async fn revoke_token(&self, id: i64, now_t: f64) -> Result<Token, TokenError> {
+    pub async fn revoke_token(&self, id: i64, now_t: f64) -> Result<Token, StoreError> {
         let client = self.pooled().await?;
         client
             .execute(
@@ -941,7 +941,7 @@ impl PgStore {
             .await
             .map_err(StoreError::from)?
             .map(|row| token(&row))
-            .ok_or(TokenError::NoSuchToken(id))
+            .ok_or(StoreError::Token(TokenError::NoSuchToken(id)))
     }
 
     /// A pooled connection (async).
