@@ -1,6 +1,7 @@
 //! Access tokens: what a token may do, how tokens are made, stored and
-//! checked. Plain logic and SQL on a connection; the HTTP side is
-//! `server::auth`.
+//! checked. Plain logic: the tokens table is the store's
+//! (`store::tokens` on SQLite, `store::postgres` on PostgreSQL), the HTTP
+//! side is `server::auth`.
 //!
 //! A token is `tnv_` followed by 64 hex digits (256 random bits from the
 //! operating system's generator). Only its SHA-256 is stored; the token

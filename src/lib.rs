@@ -27,8 +27,9 @@
 //!   partitions, several nodes by leases, `tunnelnav migrate`).
 //! - [`machine`]: one task per machine owning its engines; the only bridge
 //!   from async code to the fusion core (`core`: the synchronous
-//!   [`machine::MachineCore`]; `actor`: the task; `recover`: a machine
-//!   rebuilt from the store; `lease`: the epoch each write carries). It
+//!   [`machine::MachineCore`]; `actor`: the task; `status`: what it looks
+//!   like now; `recover`: a machine rebuilt from the store; `lease`: the
+//!   epoch each write carries; `error`). It
 //!   hands committed alarm changes to a [`machine::AlarmSink`] it defines.
 //! - [`server`]: axum routes (the router and `run` in its `mod.rs`), shared
 //!   state (`server::state`), settings and the config file

@@ -20,7 +20,8 @@ for d, _, fs in os.walk(root):
         p = os.path.join(d, f)
         rel = os.path.relpath(p, root)[:-3].split(os.sep)
         if rel[-1] in ('mod',): rel = rel[:-1]
-        if rel in (['lib'], ['main']): rel = []
+        if rel == ['main']: continue  # a crate of its own (the binary)
+        if rel == ['lib']: rel = []
         if rel and rel[-1] == 'tests': continue  # unit tests
         if rel == ['toy_engine']: continue
         mods[tuple(rel)] = p
@@ -42,11 +43,13 @@ for m, p in mods.items():
     # strip tests module inline
     i = text.find('#[cfg(test)]\nmod tests {')
     if i >= 0: text = text[:i]
-    text = re.sub(r'//[^\n]*', '', text)
+    text = re.sub(r'(?<![:"])//[^\n]*', '', text)
+    # `mod x;` declared here: a path starting `x::` is `self::x::`.
+    children = set(re.findall(r'^\s*(?:pub(?:\([^)]*\))?\s+)?mod\s+([a-z_][a-z0-9_]*)\s*;', text, re.M))
+    text = re.sub(r'(?<![A-Za-z0-9_:])(' + '|'.join(sorted(children)) + r')::', r'self::\1::', text) if children else text
     targets = set()
     def base(kind):
         if kind == 'crate': return []
-        isdir = os.path.basename(p) in ('mod.rs', 'lib.rs')
         here = list(m)
         if kind == 'self': return here
         # super
@@ -89,7 +92,7 @@ for v in list(edges):
 import os as _os
 only = _os.environ.get('ONLY')
 if only:
-    keep = {m for m in edges if '/'.join(m).startswith(only)}
+    keep = {m for m in edges if m and (m[0] == only or '/'.join(m).startswith(only.rstrip('/') + '/'))}
     edges = {m: {t for t in ts if t in keep} for m, ts in edges.items() if m in keep}
     index.clear(); low.clear(); stack.clear(); on.clear(); sccs.clear(); c[0] = 0
     for v in list(edges):

@@ -83,8 +83,6 @@ pub enum CliError {
     #[error(transparent)]
     Store(#[from] crate::store::StoreError),
     #[error(transparent)]
-    Token(#[from] crate::auth::TokenError),
-    #[error(transparent)]
     ClusterKey(#[from] crate::server::signing::KeyFileError),
     #[error("{0}")]
     Refused(String),

@@ -5,43 +5,26 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use serde::Serialize;
 use tokio::sync::{broadcast, mpsc, oneshot, watch};
 
 use crate::clock::Clock;
 use crate::config::MachineSpec;
-use crate::fusion::alarms::{AlarmKind, AlarmNow};
 use crate::fusion::reorder::Admission;
-use crate::fusion::{EngineKind, EngineModel, Reading, SensorKind, StreamKind};
+use crate::fusion::{EngineKind, EngineModel, Reading};
 use crate::store::alarms::{AlarmChange, AlarmRow};
 use crate::store::{EstimateRow, ReadingRow, Store, StoreError, Write, WriteOutcome};
 
-use super::{
-    LIVE_BUFFER, LeaseEpoch, LiveEstimate, MachineCore, MachineError, SNAPSHOT_EVERY_READINGS,
-    recover,
-};
+use super::core::{LiveEstimate, MachineCore};
+use super::error::MachineError;
+use super::lease::LeaseEpoch;
+use super::recover::recover;
+use super::status::{MachineStatus, SensorStatus};
 
-/// Last reading of one sensor.
-#[derive(Debug, Clone, Copy, Serialize)]
-pub struct SensorStatus {
-    /// Time of the newest reading received, Unix seconds.
-    pub last_t: f64,
-    /// Readings received since the server started.
-    pub readings: u64,
-}
-
-/// What a machine looks like now; published after every request.
-#[derive(Debug, Clone, Default)]
-pub struct MachineStatus {
-    /// Latest estimate of each engine and stage, protocol JSON.
-    pub latest: BTreeMap<StreamKind, LiveEstimate>,
-    pub sensors: BTreeMap<SensorKind, SensorStatus>,
-    /// Readings dropped as older than one of the same sensor already fused
-    /// (stored all the same), since the server started.
-    pub late: u64,
-    /// What each active alarm's quantity reads now, by kind and subject.
-    pub alarm_now: BTreeMap<(AlarmKind, String), AlarmNow>,
-}
+/// A snapshot is stored after this many readings, so a restart re-feeds at
+/// most this many.
+pub const SNAPSHOT_EVERY_READINGS: u64 = 20_000;
+/// Estimates a slow live client may fall behind by before it gets a `gap`.
+pub const LIVE_BUFFER: usize = 4096;
 
 /// One part of what a site forwards for a machine, with its sequence.
 #[derive(Debug, Clone)]

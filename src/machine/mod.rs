@@ -10,42 +10,21 @@
 //! The task does not wait for the commit, so one machine's requests are
 //! pipelined into the store's group commits.
 
-use crate::fusion::{ParamError, SnapshotError};
-use crate::store::StoreError;
-
 mod actor;
 mod core;
+mod error;
 mod lease;
 mod recover;
+mod status;
 #[cfg(test)]
 mod tests;
 
 pub use self::core::{Emitted, FusedEstimate, LiveEstimate, MachineCore, REORDER_MAX_LEN};
 pub use actor::{
-    AlarmSink, ForwardedPart, MachineHandle, MachineStatus, SensorStatus, Surroundings, spawn,
+    AlarmSink, ForwardedPart, LIVE_BUFFER, MachineHandle, SNAPSHOT_EVERY_READINGS, Surroundings,
+    spawn,
 };
+pub use error::MachineError;
 pub use lease::LeaseEpoch;
 pub use recover::{newest_outputs, recover, stored_status};
-
-/// A snapshot is stored after this many readings, so a restart re-feeds at
-/// most this many.
-pub const SNAPSHOT_EVERY_READINGS: u64 = 20_000;
-/// Estimates a slow live client may fall behind by before it gets a `gap`.
-pub const LIVE_BUFFER: usize = 4096;
-
-/// Why a machine could not be built or restored.
-#[derive(Debug, thiserror::Error)]
-pub enum MachineError {
-    #[error(transparent)]
-    Params(#[from] ParamError),
-    #[error(transparent)]
-    Snapshot(#[from] SnapshotError),
-    #[error(transparent)]
-    Store(#[from] StoreError),
-    #[error("stored reading is invalid: {0}")]
-    StoredReading(String),
-    #[error("machine `{0}` has stopped")]
-    Stopped(String),
-    #[error("machine `{machine}` is busy: {queued} requests are waiting for it")]
-    Busy { machine: String, queued: usize },
-}
+pub use status::{MachineStatus, SensorStatus};

@@ -11,7 +11,9 @@ use crate::fusion::{EngineOutput, SensorKind, SnapshotError};
 use crate::store::alarms::AlarmRow;
 use crate::store::{Store, StoreError, Write};
 
-use super::{Emitted, FusedEstimate, MachineCore, MachineError, MachineStatus, SensorStatus};
+use super::core::{Emitted, FusedEstimate, MachineCore};
+use super::error::MachineError;
+use super::status::{MachineStatus, SensorStatus};
 
 /// Estimates written per store request while re-feeding after a restart.
 const REFEED_CHUNK: usize = 10_000;

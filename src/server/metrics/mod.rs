@@ -187,7 +187,7 @@ pub fn install() {
 /// Registers a machine's series at zero (at start and when declared): its
 /// readings accepted and rejected and its newest reading's time per
 /// sensor its engines use, its live clients and laser dropout (its alarms:
-/// see [`render`]).
+/// see [`serve::render`]).
 pub fn register_machine(spec: &MachineSpec) {
     let machine = spec.id.clone();
     let mut sensors: Vec<SensorKind> = spec
