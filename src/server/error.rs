@@ -211,15 +211,11 @@ impl IntoResponse for ApiError {
             // Details go to the log, not to the client.
             tracing::error!(%detail, "internal error");
         }
-        let refusal = match &self {
-            ApiError::Unavailable { reason, .. } => Some(*reason),
-            _ => None,
-        };
         let status = self.status();
         let mut response = (status, Json(self.body())).into_response();
         // Counted by the response middleware (`metrics::count_responses`).
-        if let Some(reason) = refusal {
-            response.extensions_mut().insert(reason);
+        if let ApiError::Unavailable { reason, .. } = &self {
+            response.extensions_mut().insert(*reason);
         }
         if status == StatusCode::SERVICE_UNAVAILABLE {
             response.headers_mut().insert(

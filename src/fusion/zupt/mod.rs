@@ -273,15 +273,16 @@ impl OdometerInterval {
         self.advance_m - scale * self.ins_advance_m
     }
 
-    /// The part of `excess_m` a wheel can have slipped: the machine's true
+    /// The part of [`Self::excess_m`] a wheel can have slipped: the machine's true
     /// advance lies between 0 and `max_speed_mps` over the interval, so
     /// the count is off by at most its own advance (all counted at a
     /// standstill) and at least its advance less the fastest possible one.
     /// The rest of the excess is the INS's error (a backward drift while
     /// the count stood still is no slip), m.
-    fn possible_slip_m(&self, excess_m: f64, scale: f64, max_speed_mps: f64) -> f64 {
+    fn possible_slip_m(&self, scale: f64, max_speed_mps: f64) -> f64 {
         let fastest_m = (scale * max_speed_mps * self.dt_s).max(0.0);
-        excess_m.clamp(self.advance_m - fastest_m, self.advance_m)
+        self.excess_m(scale)
+            .clamp(self.advance_m - fastest_m, self.advance_m)
     }
 }
 
@@ -1313,7 +1314,7 @@ impl Navigation {
         });
         if let Some((excess_m, interval)) = slip {
             stats.odometer_refused += 1;
-            let slipped_m = interval.possible_slip_m(excess_m, scale, config.max_speed_mps);
+            let slipped_m = interval.possible_slip_m(scale, config.max_speed_mps);
             self.odometer_refused(t, slipped_m, excess_m / scale / interval.dt_s);
             return;
         }

@@ -319,7 +319,7 @@ fn only_what_a_wheel_can_have_counted_is_a_slip() {
         ins_advance_m,
         dt_s: 2.0,
     };
-    let slip = |i: OdometerInterval| i.possible_slip_m(i.excess_m(1.0), 1.0, 0.15);
+    let slip = |i: OdometerInterval| i.possible_slip_m(1.0, 0.15);
     // Counted 0.05 m, the INS 0.01 m: a slip of 0.04 m.
     assert!((slip(interval(0.05, 0.01)) - 0.04).abs() < 1e-12);
     // Counted nothing while the INS ran 0.2 m backward: the INS's
@@ -339,11 +339,11 @@ fn only_what_a_wheel_can_have_counted_is_a_slip() {
     // 1.05 × 0.3 = 0.315 m. Counted 0.5 m, the INS 0.1 m: the excess
     // 0.5 − 0.105 = 0.395 m lies within [0.185, 0.5], all of it a slip.
     let i = interval(0.5, 0.1);
-    assert!((i.possible_slip_m(i.excess_m(1.05), 1.05, 0.15) - 0.395).abs() < 1e-12);
+    assert!((i.possible_slip_m(1.05, 0.15) - 0.395).abs() < 1e-12);
     // Counted 0.5 m, the INS 0.8 m: the excess −0.34 m is beyond what
     // a wheel can miss; at least 0.5 − 0.315 = 0.185 m was counted too many.
     let i = interval(0.5, 0.8);
-    assert!((i.possible_slip_m(i.excess_m(1.05), 1.05, 0.15) - 0.185).abs() < 1e-12);
+    assert!((i.possible_slip_m(1.05, 0.15) - 0.185).abs() < 1e-12);
 }
 
 #[test]
