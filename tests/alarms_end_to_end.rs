@@ -229,7 +229,7 @@ async fn a_drive_off_its_axis_without_laser_then_silent_raises_three_alarms_once
     let (admin, reader) = {
         let conn = tunnelnav::store::Store::connect(dir.path()).unwrap();
         let token = |name, scope| {
-            tunnelnav::store::tokens::create(&conn, name, scope, None, wall_clock_s())
+            tunnelnav::store::sqlite::tokens::create(&conn, name, scope, None, wall_clock_s())
                 .unwrap()
                 .1
         };

@@ -713,7 +713,7 @@ async fn the_dashboard_signs_in_when_tokens_are_required() {
     let dir = tempfile::tempdir().unwrap();
     let (admin, reader) = {
         let conn = tunnelnav::store::Store::connect(dir.path()).unwrap();
-        let admin = tunnelnav::store::tokens::create(
+        let admin = tunnelnav::store::sqlite::tokens::create(
             &conn,
             "admin",
             tunnelnav::auth::Scope::Admin,
@@ -722,7 +722,7 @@ async fn the_dashboard_signs_in_when_tokens_are_required() {
         )
         .unwrap()
         .1;
-        let reader = tunnelnav::store::tokens::create(
+        let reader = tunnelnav::store::sqlite::tokens::create(
             &conn,
             "control room",
             tunnelnav::auth::Scope::Read,
@@ -790,9 +790,10 @@ async fn the_dashboard_signs_in_when_tokens_are_required() {
     // live), offers to sign in again, and the clock stops.
     {
         let conn = tunnelnav::store::Store::connect(dir.path()).unwrap();
-        let tokens = tunnelnav::store::tokens::list(&conn).unwrap();
+        let tokens = tunnelnav::store::sqlite::tokens::list(&conn).unwrap();
         let id = tokens.iter().find(|t| t.name == "control room").unwrap().id;
-        tunnelnav::store::tokens::revoke(&conn, id, tunnelnav::clock::wall_clock_s()).unwrap();
+        tunnelnav::store::sqlite::tokens::revoke(&conn, id, tunnelnav::clock::wall_clock_s())
+            .unwrap();
     }
     wait_for(
         &browser,

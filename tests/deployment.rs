@@ -72,9 +72,15 @@ fn load_passes_its_token_to_a_server_that_requires_one() {
     let dir = tempfile::tempdir().unwrap();
     let token = {
         let conn = tunnelnav::store::Store::connect(dir.path()).unwrap();
-        tunnelnav::store::tokens::create(&conn, "bench", tunnelnav::auth::Scope::Admin, None, 0.0)
-            .unwrap()
-            .1
+        tunnelnav::store::sqlite::tokens::create(
+            &conn,
+            "bench",
+            tunnelnav::auth::Scope::Admin,
+            None,
+            0.0,
+        )
+        .unwrap()
+        .1
     };
     let server = common::ServerProcess::start(dir.path());
     let url = server.url("");

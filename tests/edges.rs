@@ -165,8 +165,14 @@ async fn a_failed_sign_in_is_shown_as_the_login_page() {
     let dir = tempfile::tempdir().unwrap();
     {
         let conn = tunnelnav::store::Store::connect(dir.path()).unwrap();
-        tunnelnav::store::tokens::create(&conn, "reader", tunnelnav::auth::Scope::Read, None, 0.0)
-            .unwrap();
+        tunnelnav::store::sqlite::tokens::create(
+            &conn,
+            "reader",
+            tunnelnav::auth::Scope::Read,
+            None,
+            0.0,
+        )
+        .unwrap();
     }
     let server = TestServer::start(dir.path()).await;
     let client = reqwest::Client::new();

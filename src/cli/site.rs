@@ -66,7 +66,7 @@ fn reset_mark(args: &ResetMarkArgs) -> Result<(), CliError> {
     let was = match location {
         None => {
             let mut conn = Store::connect(&args.dir.data_dir)?;
-            crate::store::outbox::reset_mark(&mut conn, &args.machine, args.to, ACTOR, now)?
+            crate::store::sqlite::outbox::reset_mark(&mut conn, &args.machine, args.to, ACTOR, now)?
         }
         Some(location) => {
             let runtime = tokio::runtime::Builder::new_current_thread()

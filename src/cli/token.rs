@@ -10,7 +10,6 @@ use super::CliError;
 use crate::auth::{self, Scope};
 use crate::clock::wall_clock_s;
 use crate::store::Store;
-use crate::store::postgres::PgStore;
 
 #[derive(Debug, Subcommand)]
 pub enum TokenCommand {
@@ -38,11 +37,11 @@ pub struct DataDir {
     pub store_ca_file: Option<PathBuf>,
 }
 
-/// Where the tokens are: the SQLite file (a plain connection beside a
-/// running server) or the PostgreSQL store.
-enum Tokens {
-    Sqlite(rusqlite::Connection),
-    Postgres(PgStore, tokio::runtime::Runtime),
+/// The server's store, where the tokens are (SQLite beside a running
+/// server: WAL lets both write), and a runtime to wait on it.
+struct Tokens {
+    store: Store,
+    runtime: tokio::runtime::Runtime,
 }
 
 impl Tokens {
@@ -55,16 +54,11 @@ impl Tokens {
             },
             &Default::default(),
         )?;
-        Ok(match location {
-            None => Tokens::Sqlite(Store::connect(&dir.data_dir)?),
-            Some(location) => {
-                let runtime = tokio::runtime::Builder::new_current_thread()
-                    .enable_all()
-                    .build()?;
-                let store = runtime.block_on(PgStore::open_client(&location))?;
-                Tokens::Postgres(store, runtime)
-            }
-        })
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()?;
+        let store = runtime.block_on(Store::open_client(&dir.data_dir, location.as_ref()))?;
+        Ok(Tokens { store, runtime })
     }
 
     fn create(
@@ -74,27 +68,18 @@ impl Tokens {
         machine: Option<&str>,
     ) -> Result<(i64, String), CliError> {
         let now = wall_clock_s();
-        Ok(match self {
-            Tokens::Sqlite(conn) => crate::store::tokens::create(conn, name, scope, machine, now)?,
-            Tokens::Postgres(store, runtime) => {
-                runtime.block_on(store.create_token(name, scope, machine, now))?
-            }
-        })
+        Ok(self
+            .runtime
+            .block_on(self.store.create_token(name, scope, machine, now))?)
     }
 
     fn list(&self) -> Result<Vec<auth::Token>, CliError> {
-        Ok(match self {
-            Tokens::Sqlite(conn) => crate::store::tokens::list(conn)?,
-            Tokens::Postgres(store, runtime) => runtime.block_on(store.tokens())?,
-        })
+        Ok(self.runtime.block_on(self.store.tokens())?)
     }
 
     fn revoke(&self, id: i64) -> Result<auth::Token, CliError> {
         let now = wall_clock_s();
-        Ok(match self {
-            Tokens::Sqlite(conn) => crate::store::tokens::revoke(conn, id, now)?,
-            Tokens::Postgres(store, runtime) => runtime.block_on(store.revoke_token(id, now))?,
-        })
+        Ok(self.runtime.block_on(self.store.revoke_token(id, now))?)
     }
 }
 

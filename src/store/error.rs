@@ -20,6 +20,13 @@ pub enum StoreError {
     },
     #[error("database schema version {found} is newer than this build supports ({supported})")]
     NewerSchema { found: i64, supported: i64 },
+    /// What this backend does not keep (an office's records in a store
+    /// kept in memory).
+    #[error("the {backend} store does not keep {what}")]
+    Unsupported {
+        backend: &'static str,
+        what: &'static str,
+    },
     #[error("the store has shut down")]
     Closed,
     #[error("stored data is corrupt: {0}")]

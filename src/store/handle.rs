@@ -1,19 +1,22 @@
 //! [`Store`]: the one store interface the rest of tunnelnav uses, over
-//! either backend — SQLite in the data dir (the default: one site, one
-//! file) or PostgreSQL (an office: many machines, several nodes). Both
-//! keep the same semantics; `tests/store_conformance.rs` holds them to it.
+//! whichever [`Backend`] it was opened with — SQLite in the data dir (the
+//! default: one site, one file) or PostgreSQL (an office: many machines,
+//! several nodes). Every backend keeps the same semantics;
+//! `tests/store_conformance.rs` holds them to it.
 
 use std::path::Path;
+use std::sync::Arc;
 
 use rusqlite::Connection;
 
 use super::alarms::{AlarmChange, AlarmFilter, StoredAlarm};
-use super::outbox::{OutboxConfig, SiteRecord, WebhookEntry};
+use super::backend::{Backend, Office};
+use super::history::EstimatesPage;
+use super::outbox::{AuditEntry, ForwardHeld, OutboxConfig, SiteRecord, WebhookEntry};
 use super::postgres::{PgLocation, PgStore};
-use super::queries::EstimatesPage;
 use super::retention::{Pruned, Retention, Step};
 use super::{SqliteStore, StoreError, StoredMachine, StoredSnapshot, Write};
-use crate::auth::Token;
+use crate::auth::{Scope, Token};
 use crate::config::MachineSpec;
 use crate::fusion::{EngineOutput, Reading, SensorKind, StreamKind};
 
@@ -22,26 +25,17 @@ use crate::fusion::{EngineOutput, Reading, SensorKind, StreamKind};
 /// with `spawn_blocking`).
 #[derive(Clone)]
 pub struct Store {
-    backend: Backend,
-}
-
-#[derive(Clone)]
-enum Backend {
-    Sqlite(SqliteStore),
-    Postgres(PgStore),
-}
-
-/// The same call on whichever backend the store has.
-macro_rules! on_backend {
-    ($store:expr, $b:ident => $call:expr) => {
-        match &$store.backend {
-            Backend::Sqlite($b) => $call,
-            Backend::Postgres($b) => $call,
-        }
-    };
+    backend: Arc<dyn Backend>,
 }
 
 impl Store {
+    /// The store kept by `backend`.
+    pub fn new(backend: impl Backend) -> Store {
+        Store {
+            backend: Arc::new(backend),
+        }
+    }
+
     /// The SQLite store in `data_dir` (created and migrated).
     pub fn open(data_dir: &Path) -> Result<Store, StoreError> {
         Store::open_capped(data_dir, None)
@@ -59,9 +53,9 @@ impl Store {
         max_bytes: Option<u64>,
         outbox: OutboxConfig,
     ) -> Result<Store, StoreError> {
-        Ok(Store {
-            backend: Backend::Sqlite(SqliteStore::open_with(data_dir, max_bytes, outbox)?),
-        })
+        Ok(Store::new(SqliteStore::open_with(
+            data_dir, max_bytes, outbox,
+        )?))
     }
 
     /// The PostgreSQL store at `location` (migrated), recording in its
@@ -73,55 +67,65 @@ impl Store {
     ) -> Result<Store, StoreError> {
         let store = PgStore::open(location).await?;
         store.set_outbox(outbox);
-        Ok(Store {
-            backend: Backend::Postgres(store),
-        })
+        Ok(Store::new(store))
+    }
+
+    /// The store a command beside a server uses (`tunnelnav token`): the
+    /// SQLite store in `data_dir`, or the PostgreSQL store at `postgres`
+    /// (not migrated: the server does that). Call within a Tokio runtime.
+    pub async fn open_client(
+        data_dir: &Path,
+        postgres: Option<&PgLocation>,
+    ) -> Result<Store, StoreError> {
+        match postgres {
+            None => Store::open(data_dir),
+            Some(location) => Ok(Store::new(PgStore::open_client(location).await?)),
+        }
     }
 
     /// A plain connection to the SQLite store in `data_dir`, for commands
-    /// that run beside a server (`tunnelnav token`, `backup`).
+    /// that run beside a server (`backup`, `site`).
     pub fn connect(data_dir: &Path) -> Result<Connection, StoreError> {
         SqliteStore::connect(data_dir)
     }
 
-    /// `sqlite` or `postgres`.
+    /// `sqlite`, `postgres`, …
     pub fn backend_name(&self) -> &'static str {
-        match self.backend {
-            Backend::Sqlite(_) => "sqlite",
-            Backend::Postgres(_) => "postgres",
-        }
+        self.backend.name()
     }
 
     /// The SQLite store, if this is one.
     pub fn sqlite(&self) -> Option<&SqliteStore> {
-        match &self.backend {
-            Backend::Sqlite(s) => Some(s),
-            Backend::Postgres(_) => None,
-        }
+        self.backend.as_any().downcast_ref()
     }
 
     /// The PostgreSQL store, if this is one (several nodes may share it).
     pub fn postgres(&self) -> Option<&PgStore> {
-        match &self.backend {
-            Backend::Sqlite(_) => None,
-            Backend::Postgres(p) => Some(p),
-        }
+        self.backend.as_any().downcast_ref()
+    }
+
+    /// The office's records, or an error naming the backend that has none.
+    fn office(&self) -> Result<&dyn Office, StoreError> {
+        self.backend.office().ok_or(StoreError::Unsupported {
+            backend: self.backend.name(),
+            what: "an office's forwarded machines",
+        })
     }
 
     /// Queues a write; its `reply` is answered after the commit.
     pub async fn write(&self, write: Write) -> Result<(), StoreError> {
-        on_backend!(self, b => b.write(write).await)
+        self.backend.write(write).await
     }
 
     /// Like [`Store::write`], from a blocking thread.
     pub fn write_blocking(&self, write: Write) -> Result<(), StoreError> {
-        on_backend!(self, b => b.write_blocking(write))
+        self.backend.write_blocking(write)
     }
 
     /// Commits what is queued and stops writing; later writes fail with
     /// [`StoreError::Closed`]. Reads still work.
     pub async fn close(&self) {
-        on_backend!(self, b => b.close().await)
+        self.backend.close().await
     }
 
     /// Creates or replaces a machine with a fresh engine snapshot: readings
@@ -131,7 +135,7 @@ impl Store {
         spec: MachineSpec,
         snapshot: String,
     ) -> Result<i64, StoreError> {
-        on_backend!(self, b => b.put_machine(spec, snapshot, None).await)
+        self.backend.put_machine(spec, snapshot, None).await
     }
 
     /// An office: stores a forwarded machine's declaration, and the site's
@@ -142,19 +146,21 @@ impl Store {
         snapshot: String,
         sequence: i64,
     ) -> Result<i64, StoreError> {
-        on_backend!(self, b => b.put_machine(spec, snapshot, Some(sequence)).await)
+        self.backend
+            .put_machine(spec, snapshot, Some(sequence))
+            .await
     }
 
     /// An office: the last sequence of forwarded machine `machine_id` its
     /// site sent that is committed here.
     pub fn forward_mark(&self, machine_id: i64) -> Result<Option<i64>, StoreError> {
-        on_backend!(self, b => b.forward_mark(machine_id))
+        self.office()?.forward_mark(machine_id)
     }
 
     /// An office: what this office holds of forwarded machine
     /// `machine_id`'s rows (blocking).
-    pub fn forward_held(&self, machine_id: i64) -> Result<super::outbox::ForwardHeld, StoreError> {
-        on_backend!(self, b => b.forward_held(machine_id))
+    pub fn forward_held(&self, machine_id: i64) -> Result<ForwardHeld, StoreError> {
+        self.office()?.forward_held(machine_id)
     }
 
     /// An office: sets forwarded machine `machine`'s mark back to
@@ -167,22 +173,24 @@ impl Store {
         actor: String,
         t: f64,
     ) -> Result<Option<i64>, StoreError> {
-        on_backend!(self, b => b.reset_forward_mark(machine, sequence, actor, t).await)
+        self.office()?
+            .reset_forward_mark(machine, sequence, actor, t)
+            .await
     }
 
     /// The audit log, oldest first (blocking).
-    pub fn audit(&self) -> Result<Vec<super::outbox::AuditEntry>, StoreError> {
-        on_backend!(self, b => b.audit())
+    pub fn audit(&self) -> Result<Vec<AuditEntry>, StoreError> {
+        self.office()?.audit()
     }
 
     /// An office: every site's record (blocking).
     pub fn sites(&self) -> Result<Vec<SiteRecord>, StoreError> {
-        on_backend!(self, b => b.sites())
+        self.office()?.sites()
     }
 
     /// An office: records a site's contact.
     pub async fn put_site(&self, site: SiteRecord) -> Result<(), StoreError> {
-        on_backend!(self, b => b.put_site(site).await)
+        self.office()?.put_site(site).await
     }
 
     /// Alarm changes owed to the webhook of `severity`, oldest first
@@ -192,18 +200,18 @@ impl Store {
         severity: &'static str,
         limit: usize,
     ) -> Result<Vec<WebhookEntry>, StoreError> {
-        on_backend!(self, b => b.webhook_pending(severity, limit))
+        self.backend.webhook_pending(severity, limit)
     }
 
     /// A webhook's change is done with (delivered or given up).
     pub async fn webhook_done(&self, id: i64) -> Result<(), StoreError> {
-        on_backend!(self, b => b.webhook_done(id).await)
+        self.backend.webhook_done(id).await
     }
 
     /// Forgets the changes owed to a webhook no longer configured; how
     /// many.
     pub async fn webhook_dropped(&self, severity: &'static str) -> Result<u64, StoreError> {
-        on_backend!(self, b => b.webhook_dropped(severity).await)
+        self.backend.webhook_dropped(severity).await
     }
 
     /// The SQLite store a site's outbox is in (a site's store is SQLite).
@@ -219,12 +227,12 @@ impl Store {
 
     /// Every stored machine, its parameters made current.
     pub fn machines(&self) -> Result<Vec<StoredMachine>, StoreError> {
-        on_backend!(self, b => b.machines())
+        self.backend.machines()
     }
 
     /// A machine's latest snapshot.
     pub fn snapshot(&self, machine_id: i64) -> Result<Option<StoredSnapshot>, StoreError> {
-        on_backend!(self, b => b.snapshot(machine_id))
+        self.backend.snapshot(machine_id)
     }
 
     /// Calls `f` with each reading of the machine that arrived after
@@ -233,9 +241,9 @@ impl Store {
         &self,
         machine_id: i64,
         after_id: i64,
-        f: impl FnMut(Reading) -> Result<(), StoreError>,
+        mut f: impl FnMut(Reading) -> Result<(), StoreError>,
     ) -> Result<u64, StoreError> {
-        on_backend!(self, b => b.readings_since(machine_id, after_id, f))
+        self.backend.readings_since(machine_id, after_id, &mut f)
     }
 
     /// A machine's estimates of one stream in `[from_t, to_t]`, downsampled
@@ -248,7 +256,8 @@ impl Store {
         to_t: f64,
         max_points: usize,
     ) -> Result<EstimatesPage, StoreError> {
-        on_backend!(self, b => b.estimates_page(machine_id, engine, from_t, to_t, max_points))
+        self.backend
+            .estimates_page(machine_id, engine, from_t, to_t, max_points)
     }
 
     /// Each stored reading in `[from_t, to_t]` (of one sensor, or all), in
@@ -259,9 +268,10 @@ impl Store {
         sensor: Option<SensorKind>,
         from_t: f64,
         to_t: f64,
-        f: impl FnMut(&Reading) -> bool,
+        mut f: impl FnMut(&Reading) -> bool,
     ) -> Result<(), StoreError> {
-        on_backend!(self, b => b.export_readings(machine_id, sensor, from_t, to_t, f))
+        self.backend
+            .export_readings(machine_id, sensor, from_t, to_t, &mut f)
     }
 
     /// Each stored estimate of `engine` in `[from_t, to_t]`, in time order,
@@ -272,9 +282,10 @@ impl Store {
         engine: StreamKind,
         from_t: f64,
         to_t: f64,
-        f: impl FnMut(&EngineOutput) -> bool,
+        mut f: impl FnMut(&EngineOutput) -> bool,
     ) -> Result<(), StoreError> {
-        on_backend!(self, b => b.export_estimates(machine_id, engine, from_t, to_t, f))
+        self.backend
+            .export_estimates(machine_id, engine, from_t, to_t, &mut f)
     }
 
     /// The newest stored estimate of a stream.
@@ -283,7 +294,7 @@ impl Store {
         machine_id: i64,
         engine: StreamKind,
     ) -> Result<Option<EngineOutput>, StoreError> {
-        on_backend!(self, b => b.latest_estimate(machine_id, engine))
+        self.backend.latest_estimate(machine_id, engine)
     }
 
     /// Time of the newest stored reading of a sensor.
@@ -292,12 +303,12 @@ impl Store {
         machine_id: i64,
         sensor: SensorKind,
     ) -> Result<Option<f64>, StoreError> {
-        on_backend!(self, b => b.last_reading_t(machine_id, sensor))
+        self.backend.last_reading_t(machine_id, sensor)
     }
 
     /// The alarms `filter` asks for, newest first.
     pub fn alarms(&self, filter: &AlarmFilter) -> Result<Vec<StoredAlarm>, StoreError> {
-        on_backend!(self, b => b.alarms(filter))
+        self.backend.alarms(filter)
     }
 
     /// Acknowledges alarm `id` by `by` at `t` (the first acknowledgement
@@ -312,29 +323,42 @@ impl Store {
         t: f64,
         announce: impl FnOnce(AlarmChange) + Send + 'static,
     ) -> Result<Option<(StoredAlarm, bool)>, StoreError> {
-        on_backend!(self, b => b.ack_alarm(id, by, t, announce).await)
+        self.backend.ack_alarm(id, by, t, Box::new(announce)).await
     }
 
     /// Bytes the store takes on disk (SQLite: the file and its log;
     /// PostgreSQL: the database).
     pub async fn size_bytes(&self) -> Result<u64, StoreError> {
-        match &self.backend {
-            Backend::Sqlite(s) => Ok(s.size_bytes()),
-            Backend::Postgres(p) => p.size_bytes().await,
-        }
+        self.backend.size_bytes().await
     }
 
     /// The tokens in force, with their hashes.
     pub async fn active_tokens(&self) -> Result<Vec<(String, Token)>, StoreError> {
-        match &self.backend {
-            Backend::Sqlite(s) => {
-                let s = s.clone();
-                tokio::task::spawn_blocking(move || s.active_tokens())
-                    .await
-                    .map_err(|e| StoreError::Corrupt(format!("token read: {e}")))?
-            }
-            Backend::Postgres(p) => p.active_tokens().await,
-        }
+        self.backend.active_tokens().await
+    }
+
+    /// Stores a new token; its id and text (shown once: only its hash is
+    /// kept).
+    pub async fn create_token(
+        &self,
+        name: &str,
+        scope: Scope,
+        machine: Option<&str>,
+        now_t: f64,
+    ) -> Result<(i64, String), StoreError> {
+        self.backend
+            .create_token(name.to_string(), scope, machine.map(str::to_string), now_t)
+            .await
+    }
+
+    /// Every token, revoked ones included, oldest first.
+    pub async fn tokens(&self) -> Result<Vec<Token>, StoreError> {
+        self.backend.tokens().await
+    }
+
+    /// Revokes a token; the token.
+    pub async fn revoke_token(&self, id: i64, now_t: f64) -> Result<Token, StoreError> {
+        self.backend.revoke_token(id, now_t).await
     }
 
     /// The steps of a retention pass of `policy` at `now_t` (blocking).
@@ -344,17 +368,11 @@ impl Store {
         policy: &Retention,
         batch: usize,
     ) -> Result<Vec<Step>, StoreError> {
-        match &self.backend {
-            Backend::Sqlite(s) => s.read(|conn| super::retention::plan(conn, now_t, policy, batch)),
-            Backend::Postgres(p) => p.retention_plan(now_t, policy, batch),
-        }
+        self.backend.retention_plan(now_t, policy, batch)
     }
 
-    /// Does one step of a pass on the writer, between its group commits.
+    /// Does one step of a pass between group commits.
     pub async fn retention_step(&self, step: Step) -> Result<Pruned, StoreError> {
-        match &self.backend {
-            Backend::Sqlite(s) => s.maintain(move |conn| step.apply(conn)).await,
-            Backend::Postgres(p) => p.retention_step(step).await,
-        }
+        self.backend.retention_step(step).await
     }
 }

@@ -486,9 +486,15 @@ pub fn operator_token(dir: &Path, name: &str) -> String {
 /// Creates a token of `scope` (for no machine) in the SQLite store in `dir`.
 fn token_of(dir: &Path, name: &str, scope: tunnelnav::auth::Scope) -> String {
     let conn = tunnelnav::store::Store::connect(dir).unwrap();
-    tunnelnav::store::tokens::create(&conn, name, scope, None, tunnelnav::clock::wall_clock_s())
-        .unwrap()
-        .1
+    tunnelnav::store::sqlite::tokens::create(
+        &conn,
+        name,
+        scope,
+        None,
+        tunnelnav::clock::wall_clock_s(),
+    )
+    .unwrap()
+    .1
 }
 
 /// An attitude machine on a straight axis due north from (1000, 5000),

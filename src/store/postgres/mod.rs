@@ -11,6 +11,7 @@
 //! opened on. This first step stores and reads what a machine needs to
 //! run and restart; the rest of the store's operations follow.
 
+mod backend;
 pub mod cluster;
 pub mod migrate;
 mod schema;
@@ -28,9 +29,9 @@ use tokio_postgres::GenericClient;
 use tokio_postgres_rustls::MakeRustlsConnect;
 
 use super::alarms::{AlarmChange, AlarmFilter, Change, StoredAlarm};
-use super::queries::{self, EstimatesPage, Extremes, HistorySource};
+use super::history::{self, EstimatesPage, Extremes, HistorySource};
+use super::queue::{Queued, Request};
 use super::retention::{self, Pruned, Retention, Step};
-use super::writer::{Queued, Request};
 use super::{QUEUE_LEN, StoreError, StoredMachine, StoredSnapshot, Write};
 use crate::auth::{Scope, Token, TokenError};
 use crate::config::MachineSpec;
@@ -478,7 +479,7 @@ impl PgStore {
             machine_id,
             engine,
         };
-        queries::estimates_page(&mut source, from_t, to_t, max_points)
+        history::estimates_page(&mut source, from_t, to_t, max_points)
     }
 
     /// Calls `f` with each stored reading of the machine in `[from_t, to_t]`

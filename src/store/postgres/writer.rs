@@ -17,7 +17,7 @@ use super::schema;
 use crate::config::MachineSpec;
 use crate::store::alarms::{AlarmChange, AlarmRow, Change, StoredAlarm};
 use crate::store::outbox::{Forwarded, OutboxConfig};
-use crate::store::writer::{Buckets, Outcome, Queued, Request, answer, fold_buckets, gather};
+use crate::store::queue::{Buckets, Outcome, Queued, Request, answer, fold_buckets, gather};
 use crate::store::{MAX_GROUP, StoreError, Write, WriteOutcome};
 
 /// Work on the writer's connection between two group commits

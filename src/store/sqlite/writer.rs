@@ -3,44 +3,19 @@
 //! commit) and answers each only after the commit; a checkpointer beside
 //! it copies the write-ahead log back into the database.
 
-use std::collections::BTreeMap;
-
 use rusqlite::{Connection, params};
-use tokio::sync::{mpsc, oneshot};
+use tokio::sync::mpsc;
 
-use super::outbox::{self, OutboxConfig};
-use super::{
-    BUCKET_WIDTHS_S, CHECKPOINT_EVERY, Extremes, MAX_GROUP, StoreError, Write, WriteOutcome,
-};
+use super::CHECKPOINT_EVERY;
+use super::outbox;
 use crate::config::MachineSpec;
-use crate::fusion::StreamKind;
+use crate::store::alarms::AlarmChange;
+use crate::store::outbox::OutboxConfig;
+use crate::store::queue::{Buckets, Outcome, Queued, Request, answer, fold_buckets, gather};
+use crate::store::{MAX_GROUP, StoreError, Write, WriteOutcome};
 
 /// A job for the writing connection (see [`super::SqliteStore::maintain`]).
 pub(super) type Job = Box<dyn FnOnce(&mut Connection) + Send>;
-
-/// What a writer's queue carries; `J`, the backend's maintenance job.
-pub(super) enum Queued<J = Job> {
-    Request(Request),
-    /// Commit what is queued and stop writing (SQLite: checkpoint the
-    /// log into the database first).
-    Close(oneshot::Sender<()>),
-    /// Work on the writing connection outside any group (retention): run
-    /// after the group gathered before it is committed.
-    Job(J),
-}
-
-/// A request the writer commits in a group.
-pub(super) enum Request {
-    Write(Write),
-    PutMachine {
-        spec: Box<MachineSpec>,
-        /// The fresh state of the (re)declared machine's engines.
-        snapshot: String,
-        /// An office: the site's sequence of this declaration.
-        forwarded: Option<i64>,
-        reply: oneshot::Sender<Result<i64, StoreError>>,
-    },
-}
 
 /// Copies the write-ahead log back into the database now and then, off
 /// the writer's path. A passive checkpoint never blocks the writer; when
@@ -63,36 +38,11 @@ pub(super) fn checkpoints(conn: Connection, writer_gone: std::sync::mpsc::Receiv
     }
 }
 
-/// Puts `first` and the requests waiting behind it (up to [`MAX_GROUP`]
-/// in `group`) into `group`; a job or a close ends the gathering and is
-/// returned, to run after the group's commit.
-pub(super) fn gather<J>(
-    first: Queued<J>,
-    queue: &mut mpsc::Receiver<Queued<J>>,
-    group: &mut Vec<Request>,
-) -> (Option<J>, Option<oneshot::Sender<()>>) {
-    let (mut job, mut close) = (None, None);
-    let mut next = Some(first);
-    while let Some(request) = next.take() {
-        match request {
-            Queued::Close(reply) => close = Some(reply),
-            Queued::Job(queued) => job = Some(queued),
-            Queued::Request(request) => {
-                group.push(request);
-                if group.len() < MAX_GROUP {
-                    next = queue.try_recv().ok();
-                }
-            }
-        }
-    }
-    (job, close)
-}
-
 /// The writer thread: takes every waiting request, commits them together,
 /// then answers each.
 pub(super) fn writer(
     mut conn: Connection,
-    mut queue: mpsc::Receiver<Queued>,
+    mut queue: mpsc::Receiver<Queued<Job>>,
     outbox: OutboxConfig,
 ) {
     let mut group = Vec::with_capacity(MAX_GROUP);
@@ -147,42 +97,6 @@ fn commit(conn: &mut Connection, group: &mut Vec<Request>, outbox: &OutboxConfig
     }
 }
 
-/// What a committed request did.
-pub(super) enum Outcome {
-    /// What a write stored and the alarms it changed.
-    Write(WriteOutcome, Vec<super::alarms::AlarmChange>),
-    Put(i64),
-}
-
-/// Answers `request` with `result`: a write's `after_commit`, then its
-/// reply; a declaration's reply.
-pub(super) fn answer(request: Request, result: Result<Outcome, StoreError>) {
-    match request {
-        Request::Write(write) => {
-            let result = result.map(|o| match o {
-                Outcome::Write(w, alarms) => (w, alarms),
-                Outcome::Put(_) => (WriteOutcome::default(), Vec::new()),
-            });
-            let (outcome, alarms) = match result {
-                Ok((w, alarms)) => (Ok(w), Some(alarms)),
-                Err(e) => (Err(e), None),
-            };
-            if let Some(after_commit) = write.after_commit {
-                after_commit(alarms);
-            }
-            if let Some(reply) = write.reply {
-                let _ = reply.send(outcome);
-            }
-        }
-        Request::PutMachine { reply, .. } => {
-            let _ = reply.send(result.map(|o| match o {
-                Outcome::Put(id) => id,
-                Outcome::Write(..) => 0,
-            }));
-        }
-    }
-}
-
 fn apply_group(
     conn: &mut Connection,
     group: &[Request],
@@ -212,31 +126,12 @@ fn apply_group(
     Ok(outcomes)
 }
 
-/// Extremes per (machine, engine, bucket width, bucket).
-pub(super) type Buckets = BTreeMap<(i64, StreamKind, i64, i64), Extremes>;
-
-/// Folds the extremes of `write`'s estimates into `buckets`. A recomputed
-/// estimate is the stored one again (same time, same values), so folding
-/// it in changes nothing.
-pub(super) fn fold_buckets(write: &Write, buckets: &mut Buckets) {
-    for estimate in &write.estimates {
-        let point = Extremes::point(estimate.t, estimate.extremes);
-        for width_s in BUCKET_WIDTHS_S {
-            let bucket = (estimate.t / width_s as f64).floor() as i64;
-            buckets
-                .entry((write.machine_id, estimate.engine, width_s, bucket))
-                .and_modify(|b| b.merge(&point))
-                .or_insert(point);
-        }
-    }
-}
-
 fn apply_write(
     tx: &rusqlite::Transaction,
     write: &Write,
     buckets: &mut Buckets,
     outbox: &OutboxConfig,
-) -> Result<(WriteOutcome, Vec<super::alarms::AlarmChange>), StoreError> {
+) -> Result<(WriteOutcome, Vec<AlarmChange>), StoreError> {
     let mut outcome = WriteOutcome::default();
     let machine_id = write.machine_id;
     // A site owes its office what it stores of the machines it has told

@@ -81,7 +81,7 @@ mod tests {
     #[test]
     fn tokens_are_stored_hashed_and_revoked() {
         let mut conn = Connection::open_in_memory().unwrap();
-        crate::store::schema::migrate(&mut conn).unwrap();
+        crate::store::sqlite::schema::migrate(&mut conn).unwrap();
         let (id, token) = create(&conn, "gw", Scope::Ingest, Some("tbm-1"), 1.0).unwrap();
         assert!(token.starts_with("tnv_") && token.len() == 68);
         let stored: String = conn
