@@ -17,7 +17,7 @@ use sha2::{Digest, Sha256};
 use tokio::sync::mpsc;
 use tokio_postgres::{AsyncMessage, Client, GenericClient};
 
-use super::{Endpoint, connect};
+use super::{Endpoint, connect, with_causes};
 use crate::store::StoreError;
 use crate::store::alarms::AlarmChange;
 
@@ -474,10 +474,7 @@ async fn listen_once(
         .connect(endpoint.tls.clone())
         .await
         .map_err(|e| {
-            StoreError::Unavailable(format!(
-                "cannot reach PostgreSQL: {}",
-                super::with_causes(&e)
-            ))
+            StoreError::Unavailable(format!("cannot reach PostgreSQL: {}", with_causes(&e)))
         })?;
     let (messages_tx, mut messages) = mpsc::unbounded_channel();
     let driver = tokio::spawn(async move {

@@ -560,7 +560,7 @@ async fn apply_alarms(
             (Change::Cleared, cleared.iter().map(|r| r.get(0)).collect())
         };
         for id in ids {
-            if let Some(alarm) = super::alarm_by_id(tx, id).await? {
+            if let Some(alarm) = super::alarms::alarm_by_id(tx, id).await? {
                 changed.push(AlarmChange { transition, alarm });
             }
         }
@@ -609,7 +609,7 @@ async fn apply_forwarded(
             )
             .await?;
         for row in ids {
-            if let Some(alarm) = super::alarm_by_id(tx, row.get(0)).await? {
+            if let Some(alarm) = super::alarms::alarm_by_id(tx, row.get(0)).await? {
                 changed.push(AlarmChange {
                     transition: Change::Acknowledged,
                     alarm,
