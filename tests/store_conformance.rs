@@ -1,7 +1,9 @@
-//! One conformance suite, run against both stores (issue 37): SQLite in a
-//! temporary data dir, PostgreSQL in a cluster of the test's own
-//! (tests/common/postgres.rs; skipped without PostgreSQL unless
-//! `TUNNELNAV_POSTGRES_TEST=required`). Each operation the PostgreSQL
+//! One conformance suite, run against every store backend through the
+//! `Backend` trait (issues 37, 59): SQLite in a temporary data dir,
+//! PostgreSQL in a cluster of the test's own (tests/common/postgres.rs;
+//! skipped without PostgreSQL unless `TUNNELNAV_POSTGRES_TEST=required`),
+//! and a test-only backend kept in memory (tests/memory_store/: what a new
+//! backend takes, one folder and the `mod` line below). Each operation the PostgreSQL
 //! store has so far is held to the SQLite store's answers: declaring
 //! machines, group-committed writes (readings stored once, in arrival
 //! order; estimates with their codec; alarms raised and cleared once;
@@ -9,8 +11,10 @@
 //! schema refused, a refused connection reported as transient.
 
 mod common;
+mod memory_store;
 
 use common::postgres::PgCluster;
+use memory_store::MemoryStore;
 use tokio::sync::oneshot;
 use tunnelnav::config::{MachineDeclaration, MachineSpec};
 use tunnelnav::fusion::alarms::{AlarmKey, AlarmKind, Severity, Transition};
@@ -647,10 +651,93 @@ async fn large_batches(store: Store) -> Vec<String> {
     seen
 }
 
+/// Tokens: made (an ingest token names its machine), read in force with
+/// the hash of the text shown once, listed oldest first, revoked once
+/// (the first time stands), an unknown id refused.
+async fn tokens(store: Store) -> Vec<String> {
+    use tunnelnav::auth::{Scope, TokenError, hash};
+    assert!(matches!(
+        store
+            .create_token("gateway", Scope::Ingest, None, 1.0)
+            .await,
+        Err(StoreError::Token(TokenError::MachineMissing))
+    ));
+    let (reader, reader_text) = store
+        .create_token("reader", Scope::Read, None, 1.0)
+        .await
+        .unwrap();
+    let (gateway, _) = store
+        .create_token("gateway", Scope::Ingest, Some("tbm-a"), 2.0)
+        .await
+        .unwrap();
+    assert_ne!(reader, gateway);
+    let active = store.active_tokens().await.unwrap();
+    assert_eq!(active.len(), 2);
+    assert!(
+        active
+            .iter()
+            .any(|(h, t)| *h == hash(&reader_text) && t.id == reader)
+    );
+    let revoked = store.revoke_token(reader, 5.0).await.unwrap();
+    assert_eq!(revoked.revoked_t, Some(5.0));
+    let again = store.revoke_token(reader, 6.0).await.unwrap();
+    assert_eq!(again.revoked_t, Some(5.0));
+    assert!(matches!(
+        store.revoke_token(gateway + 100, 7.0).await,
+        Err(StoreError::Token(TokenError::NoSuchToken(_)))
+    ));
+    let active = store.active_tokens().await.unwrap();
+    assert_eq!(
+        active.iter().map(|(_, t)| t.id).collect::<Vec<_>>(),
+        [gateway]
+    );
+    store
+        .tokens()
+        .await
+        .unwrap()
+        .iter()
+        .map(|t| {
+            format!(
+                "{} {} {:?} {} {:?}",
+                t.name,
+                t.scope.as_str(),
+                t.machine,
+                t.created_t,
+                t.revoked_t
+            )
+        })
+        .collect()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn every_store_keeps_tokens_alike() {
+    let dir = tempfile::tempdir().unwrap();
+    let sqlite = tokens(Store::open(dir.path()).unwrap()).await;
+    let memory = tokens(Store::new(MemoryStore::new(Default::default()))).await;
+    assert_eq!(memory, sqlite);
+    let Some(cluster) = PgCluster::start() else {
+        return;
+    };
+    let location = PgLocation {
+        url: cluster.database("tokens"),
+        password_file: None,
+        ca_file: None,
+    };
+    let postgres = tokens(
+        Store::open_postgres(&location, Default::default())
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(postgres, sqlite);
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn both_stores_take_large_batches_alike() {
     let dir = tempfile::tempdir().unwrap();
     let sqlite = large_batches(Store::open(dir.path()).unwrap()).await;
+    let memory = large_batches(Store::new(MemoryStore::new(Default::default()))).await;
+    assert_eq!(memory, sqlite);
     let Some(cluster) = PgCluster::start() else {
         return;
     };
@@ -672,6 +759,8 @@ async fn both_stores_take_large_batches_alike() {
 async fn both_stores_keep_alike() {
     let dir = tempfile::tempdir().unwrap();
     let sqlite = retention(Store::open(dir.path()).unwrap()).await;
+    let memory = retention(Store::new(MemoryStore::new(Default::default()))).await;
+    assert_eq!(memory, sqlite);
     let Some(cluster) = PgCluster::start() else {
         return;
     };
@@ -694,6 +783,9 @@ async fn both_stores_answer_alike() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().to_path_buf();
     let sqlite = conformance(async || Store::open(&path).unwrap()).await;
+    let rows = MemoryStore::new(Default::default());
+    let memory = conformance(async || Store::new(rows.reopen())).await;
+    assert_eq!(memory, sqlite);
 
     let Some(cluster) = PgCluster::start() else {
         return;

@@ -1,4 +1,4 @@
-//! What a store backend implements. [`Store`](super::Store) holds one as
+//! What a store backend implements. [`Store`](super::handle::Store) holds one as
 //! `Arc<dyn Backend>`; the server, the command line and the tests use
 //! nothing else (a site's outbox, an office's leases and notifications
 //! are the SQLite and PostgreSQL stores' own, reached through
@@ -12,10 +12,13 @@ use std::any::Any;
 use async_trait::async_trait;
 
 use super::alarms::{AlarmChange, AlarmFilter, StoredAlarm};
+use super::error::StoreError;
 use super::history::EstimatesPage;
 use super::outbox::{AuditEntry, ForwardHeld, SiteRecord, WebhookEntry};
 use super::retention::{Pruned, Retention, Step};
-use super::{StoreError, StoredMachine, StoredSnapshot, Write};
+use super::rows::StoredMachine;
+use super::rows::StoredSnapshot;
+use super::rows::Write;
 use crate::auth::{Scope, Token};
 use crate::config::MachineSpec;
 use crate::fusion::{EngineOutput, Reading, SensorKind, StreamKind};
@@ -68,7 +71,7 @@ pub trait Backend: Send + Sync + 'static {
     // Machines and history.
 
     /// Every stored machine, by protocol id, its parameters made current
-    /// ([`super::stored_machine`]).
+    /// ([`super::rows::stored_machine`]).
     fn machines(&self) -> Result<Vec<StoredMachine>, StoreError>;
 
     /// A machine's latest snapshot.

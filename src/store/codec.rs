@@ -17,7 +17,7 @@ use crate::fusion::{
     EngineOutput, EstimateValues, Integrity, Reading, SensorData, SensorKind, StreamKind,
 };
 
-use super::StoreError;
+use super::error::StoreError;
 
 /// The stored bytes of a reading's data.
 pub fn encode_reading(data: &SensorData) -> Vec<u8> {

@@ -11,11 +11,15 @@ use rusqlite::Connection;
 
 use super::alarms::{AlarmChange, AlarmFilter, StoredAlarm};
 use super::backend::{Backend, Office};
+use super::error::StoreError;
 use super::history::EstimatesPage;
 use super::outbox::{AuditEntry, ForwardHeld, OutboxConfig, SiteRecord, WebhookEntry};
 use super::postgres::{PgLocation, PgStore};
 use super::retention::{Pruned, Retention, Step};
-use super::{SqliteStore, StoreError, StoredMachine, StoredSnapshot, Write};
+use super::rows::StoredMachine;
+use super::rows::StoredSnapshot;
+use super::rows::Write;
+use super::sqlite::SqliteStore;
 use crate::auth::{Scope, Token};
 use crate::config::MachineSpec;
 use crate::fusion::{EngineOutput, Reading, SensorKind, StreamKind};

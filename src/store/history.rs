@@ -2,7 +2,7 @@
 //! [`HistorySource`]'s few questions in its own query language and
 //! [`estimates_page`] does the rest.
 
-use super::StoreError;
+use super::error::StoreError;
 use crate::fusion::EngineOutput;
 
 /// Estimates of a time range, possibly downsampled.

@@ -17,8 +17,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::StoreError;
 use super::alarms::AlarmChange;
+use super::error::StoreError;
 use crate::fusion::Reading;
 
 /// What a store records in its outbox, fixed when it is opened.

@@ -7,10 +7,16 @@ use std::collections::BTreeMap;
 use tokio::sync::{mpsc, oneshot};
 
 use super::alarms::AlarmChange;
+use super::error::StoreError;
 use super::history::{BUCKET_WIDTHS_S, Extremes};
-use super::{MAX_GROUP, StoreError, Write, WriteOutcome};
+use super::rows::{Write, WriteOutcome};
 use crate::config::MachineSpec;
 use crate::fusion::StreamKind;
+
+/// Most requests committed in one transaction.
+pub(crate) const MAX_GROUP: usize = 512;
+/// Requests waiting for the writer before senders wait (backpressure).
+pub(crate) const QUEUE_LEN: usize = 1024;
 
 /// What a writer's queue carries; `J`, the backend's maintenance job.
 pub(crate) enum Queued<J> {

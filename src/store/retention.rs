@@ -12,7 +12,7 @@
 //! are never pruned. A gateway resending a pruned reading gets it stored
 //! again, as a late reading (stored, not fused).
 
-use super::StoreError;
+use super::error::StoreError;
 use crate::fusion::StreamKind;
 
 /// What to keep, and how often the server applies it.

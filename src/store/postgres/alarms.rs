@@ -3,9 +3,10 @@
 
 use tokio_postgres::GenericClient;
 
-use super::{PgStore, cluster, writer};
-use crate::store::StoreError;
+use super::handle::PgStore;
+use super::{cluster, writer};
 use crate::store::alarms::{AlarmChange, AlarmFilter, Change, StoredAlarm};
+use crate::store::error::StoreError;
 
 impl PgStore {
     /// The alarms `filter` asks for, newest first.

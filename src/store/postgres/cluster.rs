@@ -17,9 +17,9 @@ use sha2::{Digest, Sha256};
 use tokio::sync::mpsc;
 use tokio_postgres::{AsyncMessage, Client, GenericClient};
 
-use super::{Endpoint, connect, with_causes};
-use crate::store::StoreError;
+use super::connect::{Endpoint, connect, with_causes};
 use crate::store::alarms::AlarmChange;
+use crate::store::error::StoreError;
 
 /// A node as registered.
 #[derive(Debug, Clone, PartialEq)]

@@ -7,8 +7,10 @@ use std::str::FromStr;
 use deadpool_postgres::{Manager, ManagerConfig, Pool, RecyclingMethod};
 use tokio_postgres_rustls::MakeRustlsConnect;
 
-use super::READERS;
-use crate::store::StoreError;
+use crate::store::error::StoreError;
+
+/// Connections the read pool keeps.
+const READERS: usize = 4;
 
 /// Where the office database is: a `postgres://USER@HOST:PORT/DB` URL and,
 /// if the password is not in it, the file holding it.

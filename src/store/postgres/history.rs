@@ -2,10 +2,11 @@
 //! [`crate::store::history::estimates_page`], readings and estimates
 //! exported in time order.
 
-use super::PgStore;
+use super::handle::PgStore;
 use crate::fusion::{EngineOutput, Reading, SensorKind, StreamKind};
+use crate::store::codec;
+use crate::store::error::StoreError;
 use crate::store::history::{self, EstimatesPage, Extremes, HistorySource};
-use crate::store::{StoreError, codec};
 
 impl PgStore {
     /// The newest stored estimate of a stream.

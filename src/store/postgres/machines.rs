@@ -3,12 +3,14 @@
 
 use tokio::sync::oneshot;
 
-use super::PgStore;
+use super::handle::PgStore;
 use super::history::reading;
 use crate::config::MachineSpec;
 use crate::fusion::Reading;
+use crate::store::error::StoreError;
 use crate::store::queue::{Queued, Request};
-use crate::store::{StoreError, StoredMachine, StoredSnapshot};
+use crate::store::rows::StoredMachine;
+use crate::store::rows::StoredSnapshot;
 
 impl PgStore {
     /// Creates or replaces a machine with a fresh engine snapshot; returns
@@ -39,7 +41,7 @@ impl PgStore {
                 .query("SELECT id, spec FROM machines ORDER BY machine", &[])
                 .await?;
             rows.iter()
-                .map(|row| crate::store::stored_machine(row.get(0), row.get(1)))
+                .map(|row| crate::store::rows::stored_machine(row.get(0), row.get(1)))
                 .collect()
         })
     }

@@ -17,7 +17,8 @@ use tokio_postgres::binary_copy::BinaryCopyInWriter;
 use tokio_postgres::types::{ToSql, Type};
 
 use super::{PgLocation, connect, schema};
-use crate::store::{SqliteStore, StoreError};
+use crate::store::error::StoreError;
+use crate::store::sqlite::SqliteStore;
 
 /// One table as moved: its rows and their checksum (equal on both sides).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -193,7 +194,7 @@ pub async fn from_sqlite(
     data_dir: &Path,
     target: &PgLocation,
 ) -> Result<Vec<TableReport>, StoreError> {
-    let database = data_dir.join(crate::store::DB_FILE);
+    let database = data_dir.join(crate::store::sqlite::DB_FILE);
     if !database.exists() {
         return Err(StoreError::Location(format!(
             "to migrate: there is no SQLite store at {}",

@@ -1,8 +1,8 @@
 //! What a PostgreSQL store owes its webhooks, and an office's records:
 //! forwarded machines' marks and held rows, sites and the audit log.
 
-use super::PgStore;
-use crate::store::StoreError;
+use super::handle::PgStore;
+use crate::store::error::StoreError;
 use crate::store::outbox::{
     AuditEntry, Backlog, ForwardHeld, RESET_FORWARD_MARK, SiteRecord, WebhookEntry,
 };

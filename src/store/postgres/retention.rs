@@ -2,9 +2,10 @@
 //! keeps): whole days' partitions dropped where they can be, rows deleted
 //! where not.
 
-use super::{PARTITION_S, PgStore, schema};
+use super::handle::PgStore;
+use super::schema::{self, PARTITION_S};
 use crate::fusion::StreamKind;
-use crate::store::StoreError;
+use crate::store::error::StoreError;
 use crate::store::retention::{self, Pruned, Retention, Step};
 
 impl PgStore {

@@ -6,7 +6,7 @@
 
 use tokio_postgres::Client;
 
-use crate::store::StoreError;
+use crate::store::error::StoreError;
 
 /// Migration `i` takes the database from version `i` to `i + 1`.
 const MIGRATIONS: &[&str] = &[

@@ -1,9 +1,9 @@
 //! Access tokens in PostgreSQL (their scopes and hashing are
 //! [`crate::auth`]'s).
 
-use super::PgStore;
+use super::handle::PgStore;
 use crate::auth::{Scope, Token, TokenError};
-use crate::store::StoreError;
+use crate::store::error::StoreError;
 
 impl PgStore {
     /// The tokens in force, with their hashes.

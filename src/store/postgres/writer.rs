@@ -13,17 +13,17 @@ use tokio_postgres::error::SqlState;
 use tokio_postgres::types::{ToSql, Type};
 use tokio_postgres::{Client, Transaction};
 
+use super::connect::{Endpoint, connect_writer};
+use super::handle::Job;
 use super::schema;
 use crate::config::MachineSpec;
 use crate::store::alarms::{AlarmChange, AlarmRow, Change, StoredAlarm};
+use crate::store::error::StoreError;
 use crate::store::outbox::{Forwarded, OutboxConfig};
+use crate::store::queue::MAX_GROUP;
 use crate::store::queue::{Buckets, Outcome, Queued, Request, answer, fold_buckets, gather};
-use crate::store::{MAX_GROUP, StoreError, Write, WriteOutcome};
-
-/// Work on the writer's connection between two group commits
-/// (acknowledgements, retention), so it is ordered with the commits.
-pub(super) type Job =
-    Box<dyn for<'c> FnOnce(&'c mut Client) -> futures_util::future::BoxFuture<'c, ()> + Send>;
+use crate::store::rows::Write;
+use crate::store::rows::WriteOutcome;
 
 /// The writer task: takes every waiting request, commits them together,
 /// then answers each. A lost connection is made again (with `config`)
@@ -32,7 +32,7 @@ pub(super) type Job =
 /// or when every handle is gone.
 pub(super) async fn writer(
     mut client: Client,
-    endpoint: super::Endpoint,
+    endpoint: Endpoint,
     mut queue: mpsc::Receiver<Queued<Job>>,
     fence: Arc<OnceLock<String>>,
     outbox: Arc<OnceLock<OutboxConfig>>,
@@ -53,7 +53,7 @@ pub(super) async fn writer(
         let job;
         (job, close) = gather(first, &mut queue, &mut group);
         if client.is_closed() {
-            match super::connect_writer(&endpoint).await {
+            match connect_writer(&endpoint).await {
                 Ok(fresh) => {
                     tracing::info!("PostgreSQL connection made again");
                     client = fresh;

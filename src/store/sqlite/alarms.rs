@@ -6,9 +6,9 @@
 
 use rusqlite::{Connection, OptionalExtension, Row, params};
 
-use super::SqliteStore;
-use crate::store::StoreError;
+use super::handle::SqliteStore;
 use crate::store::alarms::{AlarmChange, AlarmFilter, AlarmRow, Change, StoredAlarm};
+use crate::store::error::StoreError;
 
 /// Writes `rows` of machine `machine_id` in `tx`: a raise inserts (once),
 /// a clear closes the open alarm of its key. Returns the alarms that

@@ -5,16 +5,20 @@ use std::any::Any;
 
 use async_trait::async_trait;
 
-use super::{SqliteStore, retention, tokens};
+use super::handle::SqliteStore;
+use super::{retention, tokens};
 use crate::auth::{Scope, Token};
 use crate::config::MachineSpec;
 use crate::fusion::{EngineOutput, Reading, SensorKind, StreamKind};
 use crate::store::alarms::{AlarmFilter, StoredAlarm};
 use crate::store::backend::{Announce, Backend, EachReading, Office};
+use crate::store::error::StoreError;
 use crate::store::history::EstimatesPage;
 use crate::store::outbox::{AuditEntry, ForwardHeld, SiteRecord, WebhookEntry};
 use crate::store::retention::{Pruned, Retention, Step};
-use crate::store::{StoreError, StoredMachine, StoredSnapshot, Write};
+use crate::store::rows::StoredMachine;
+use crate::store::rows::StoredSnapshot;
+use crate::store::rows::Write;
 
 #[async_trait]
 impl Backend for SqliteStore {

@@ -2,10 +2,10 @@
 
 use rusqlite::{OptionalExtension, params};
 
-use super::SqliteStore;
+use super::handle::SqliteStore;
 use crate::fusion::{EngineOutput, Reading, SensorKind, StreamKind};
-use crate::store::StoreError;
 use crate::store::codec::{decode_output, decode_reading};
+use crate::store::error::StoreError;
 use crate::store::history::{EstimatesPage, Extremes, HistorySource, estimates_page};
 
 /// Decodes a `(t, sensor, body)` row of `readings`.

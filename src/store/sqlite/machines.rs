@@ -3,9 +3,12 @@
 
 use rusqlite::{OptionalExtension, params};
 
-use super::SqliteStore;
+use super::handle::SqliteStore;
 use crate::fusion::Reading;
-use crate::store::{StoreError, StoredMachine, StoredSnapshot, stored_machine};
+use crate::store::error::StoreError;
+use crate::store::rows::StoredMachine;
+use crate::store::rows::StoredSnapshot;
+use crate::store::rows::stored_machine;
 
 impl SqliteStore {
     /// Every stored machine, its parameters made current (a machine

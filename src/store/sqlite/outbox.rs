@@ -18,11 +18,11 @@
 use rusqlite::{Connection, OptionalExtension, params};
 use serde::Serialize;
 
-use super::SqliteStore;
+use super::handle::SqliteStore;
 use crate::clock::wall_clock_s;
 use crate::fusion::Reading;
-use crate::store::StoreError;
 use crate::store::alarms::{AlarmChange, Change};
+use crate::store::error::StoreError;
 use crate::store::outbox::{
     AuditEntry, Backlog, Declared, ForwardHeld, Forwarded, OfficeEntry, OfficeItem, OutboxConfig,
     RESET_FORWARD_MARK, SiteRecord, WebhookEntry, mark_moved,

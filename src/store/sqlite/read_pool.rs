@@ -6,7 +6,7 @@ use std::sync::Mutex;
 
 use rusqlite::{Connection, OpenFlags};
 
-use super::StoreError;
+use crate::store::error::StoreError;
 
 /// Read-only connections, opened on demand and reused.
 pub(super) struct ReadPool {

@@ -13,7 +13,7 @@
 
 use rusqlite::{Connection, params};
 
-use crate::store::StoreError;
+use crate::store::error::StoreError;
 use crate::store::retention::{Pruned, Retention, Step, THIN_TO_S, plan_steps};
 
 /// The steps of a pass of `policy` at `now_t`.
@@ -104,7 +104,7 @@ mod tests {
 
     fn database() -> Connection {
         let mut conn = Connection::open_in_memory().unwrap();
-        super::super::schema::migrate(&mut conn).unwrap();
+        crate::store::sqlite::schema::migrate(&mut conn).unwrap();
         conn.execute(
             "INSERT INTO machines (id, machine, spec) VALUES (1, 'm', '{}')",
             [],

@@ -4,8 +4,8 @@
 
 use rusqlite::{Connection, OptionalExtension, params};
 
-use super::StoreError;
 use crate::auth::{Scope, Token, TokenError, check_new, generate};
+use crate::store::error::StoreError;
 
 /// Stores a new token; returns its id and the token text (shown once).
 pub fn create(

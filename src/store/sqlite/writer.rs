@@ -6,16 +6,19 @@
 use rusqlite::{Connection, params};
 use tokio::sync::mpsc;
 
-use super::CHECKPOINT_EVERY;
+use super::handle::Job;
 use super::outbox;
 use crate::config::MachineSpec;
 use crate::store::alarms::AlarmChange;
+use crate::store::error::StoreError;
 use crate::store::outbox::OutboxConfig;
+use crate::store::queue::MAX_GROUP;
 use crate::store::queue::{Buckets, Outcome, Queued, Request, answer, fold_buckets, gather};
-use crate::store::{MAX_GROUP, StoreError, Write, WriteOutcome};
+use crate::store::rows::Write;
+use crate::store::rows::WriteOutcome;
 
-/// A job for the writing connection (see [`super::SqliteStore::maintain`]).
-pub(super) type Job = Box<dyn FnOnce(&mut Connection) + Send>;
+/// Interval between write-ahead-log checkpoints.
+const CHECKPOINT_EVERY: std::time::Duration = std::time::Duration::from_millis(500);
 
 /// Copies the write-ahead log back into the database now and then, off
 /// the writer's path. A passive checkpoint never blocks the writer; when

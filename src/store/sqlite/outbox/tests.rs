@@ -1,7 +1,10 @@
 use super::*;
 use crate::config::MachineDeclaration;
 use crate::store::alarms::AlarmRow;
-use crate::store::{ReadingRow, Store, Write, WriteOutcome};
+use crate::store::handle::Store;
+use crate::store::rows::ReadingRow;
+use crate::store::rows::Write;
+use crate::store::rows::WriteOutcome;
 use tokio::sync::oneshot;
 
 fn spec(id: &str) -> crate::config::MachineSpec {
