@@ -25,13 +25,12 @@ use axum::response::{Html, IntoResponse, Redirect, Response};
 use serde::Deserialize;
 
 use super::error::ApiError;
+use super::openapi::COOKIE;
 use super::signing::{self, Grant};
 use super::state::SharedState;
 use crate::auth::{self, Need, Token};
 use crate::store::Store;
 
-/// The dashboard's cookie.
-pub const COOKIE: &str = "tunnelnav_token";
 /// How long the token list is trusted before it is read again.
 const REFRESH: Duration = Duration::from_secs(2);
 

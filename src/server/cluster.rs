@@ -86,7 +86,7 @@ pub struct Cluster {
     /// Machines whose start failed here, and when (tried again later).
     failed: std::sync::Mutex<HashMap<i64, Instant>>,
     /// Live feeds of machines other nodes fuse, followed here.
-    pub feeds: super::feeds::Feeds,
+    pub feeds: Arc<super::feeds::Feeds>,
     http: reqwest::Client,
 }
 
@@ -161,7 +161,7 @@ impl Cluster {
             renewed: std::sync::Mutex::new(Instant::now()),
             left: std::sync::atomic::AtomicBool::new(false),
             failed: std::sync::Mutex::new(HashMap::new()),
-            feeds: super::feeds::Feeds::default(),
+            feeds: Arc::default(),
             http,
         })
     }
@@ -289,7 +289,7 @@ impl Cluster {
         url: &str,
         machine: &str,
         readings: &[Reading],
-    ) -> Result<super::ingest::Ack, ApiError> {
+    ) -> Result<super::openapi::Ack, ApiError> {
         let mut body = String::new();
         for reading in readings {
             body.push_str(&reading.to_json());

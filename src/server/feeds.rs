@@ -15,7 +15,7 @@ use std::sync::{Arc, Mutex};
 use tokio::sync::{broadcast, mpsc};
 
 use super::error::ApiError;
-use super::state::SharedState;
+use super::notify::AlarmNotifier;
 use crate::config::MachineSpec;
 use crate::fusion::{EngineOutput, StreamKind};
 use crate::machine::{FusedEstimate, LIVE_BUFFER, LiveEstimate, MachineStatus};
@@ -148,10 +148,14 @@ async fn fetch(store: &Store, feed: &Feed) -> Result<(), ApiError> {
 
 /// Takes other nodes' notices until the server stops: new estimates to the
 /// feeds that follow their machine, alarm changes to this node's sockets.
-pub async fn relay(state: SharedState, mut notices: mpsc::Receiver<Notice>) {
-    let Some(cluster) = state.cluster.clone() else {
-        return;
-    };
+/// `node`: this node's name; `feeds`: the machines followed here.
+pub async fn relay(
+    store: Store,
+    node: String,
+    feeds: Arc<Feeds>,
+    alarms: AlarmNotifier,
+    mut notices: mpsc::Receiver<Notice>,
+) {
     while let Some(first) = notices.recv().await {
         // Everything waiting, each machine fetched once.
         let mut dirty = std::collections::BTreeSet::new();
@@ -163,20 +167,23 @@ pub async fn relay(state: SharedState, mut notices: mpsc::Receiver<Notice>) {
                     dirty.insert(id);
                 }
                 Notice::Resync => all = true,
-                Notice::Alarm { node, change } => {
-                    if node != cluster.node() {
-                        state.alarms.relay(*change);
+                Notice::Alarm {
+                    node: node_of_change,
+                    change,
+                } => {
+                    if node_of_change != node {
+                        alarms.relay(*change);
                     }
                 }
             }
             next = notices.try_recv().ok();
         }
-        let feeds = cluster.feeds.followed();
         for feed in feeds
+            .followed()
             .into_iter()
             .filter(|feed| all || dirty.contains(&feed.db_id))
         {
-            if let Err(e) = fetch(&state.store, &feed).await {
+            if let Err(e) = fetch(&store, &feed).await {
                 tracing::warn!(machine = %feed.spec.id, error = %e, "cannot fetch a followed machine's estimates");
             }
         }

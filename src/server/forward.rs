@@ -12,10 +12,29 @@
 use std::fmt::Write as _;
 use std::time::{Duration, Instant};
 
-use super::sites::{ForwardAnswer, SiteReport};
-use super::state::SharedState;
+use tokio::sync::watch;
+
 use crate::store::outbox::{Backlog, OfficeEntry, OfficeItem};
-use crate::store::{SqliteStore, StoreError};
+use crate::store::{SqliteStore, Store, StoreError};
+
+/// The office's answer: every row up to `applied` is committed here.
+#[derive(Debug, serde::Serialize, serde::Deserialize, utoipa::ToSchema)]
+pub struct ForwardAnswer {
+    pub machine: String,
+    pub applied: i64,
+}
+
+/// A site's report of what it has not sent.
+#[derive(Debug, serde::Serialize, serde::Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct SiteReport {
+    /// Outbox rows not sent.
+    pub backlog_items: u64,
+    /// Readings in them.
+    pub backlog_readings: u64,
+    /// Age of the oldest, seconds by the site's clock (0 if none).
+    pub oldest_unsent_s: f64,
+}
 
 /// Interval between the site's reports to the office.
 pub const REPORT_EVERY: Duration = Duration::from_secs(2);
@@ -75,9 +94,14 @@ impl ForwardOptions {
 
 /// Starts forwarding the store's outbox: declares to the office every
 /// machine it has not been told of yet, then sends as rows are committed.
-pub async fn start(state: SharedState, options: ForwardOptions) -> Result<(), ForwardError> {
+/// The task ends when `stopping` turns true.
+pub async fn start(
+    store: &Store,
+    stopping: watch::Receiver<bool>,
+    options: ForwardOptions,
+) -> Result<(), ForwardError> {
     options.validate()?;
-    let store = state.store.site_outbox()?.clone();
+    let store = store.site_outbox()?.clone();
     store
         .forward_to(options.office.clone(), options.site.clone())
         .await?;
@@ -87,7 +111,7 @@ pub async fn start(state: SharedState, options: ForwardOptions) -> Result<(), Fo
         .build()
         .map_err(|e| ForwardError::Client(e.to_string()))?;
     super::metrics::forward_link(&options.site, false, 0, 0.0);
-    tokio::spawn(run(state, store, client, options));
+    tokio::spawn(run(stopping, store, client, options));
     Ok(())
 }
 
@@ -128,13 +152,12 @@ impl Failure {
 }
 
 async fn run(
-    state: SharedState,
+    mut stopping: watch::Receiver<bool>,
     store: SqliteStore,
     client: reqwest::Client,
     options: ForwardOptions,
 ) {
     let office = options.office.trim_end_matches('/').to_string();
-    let mut stopping = state.shutdown_signal();
     let mut link = Link {
         connected: false,
         retry: FIRST_RETRY,

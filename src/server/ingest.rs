@@ -13,11 +13,11 @@ use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
 use axum::extract::{Path, State};
 use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::Response;
-use serde::Serialize;
 use serde_json::value::RawValue;
 
 use super::error::{ApiError, Rejected};
 use super::metrics;
+pub use super::openapi::Ack;
 use super::openapi::{MachinePath, ReadingsBody};
 use super::settings::Limits;
 use super::state::{AppState, SharedState};
@@ -28,16 +28,6 @@ use crate::fusion::{Reading, SensorKind, parse_reading};
 #[derive(Debug, Default)]
 pub struct ParsedBatch {
     pub readings: Vec<Reading>,
-    pub rejected: Vec<Rejected>,
-}
-
-/// The answer to an ingest request or frame.
-#[derive(Debug, Serialize, serde::Deserialize, utoipa::ToSchema)]
-pub struct Ack {
-    /// Valid readings, now stored (including duplicates).
-    pub accepted: usize,
-    /// Of those, readings already stored before (same sensor and time).
-    pub duplicates: usize,
     pub rejected: Vec<Rejected>,
 }
 

@@ -7,10 +7,12 @@ mod alarms;
 mod alignment;
 mod audit;
 pub mod auth;
+mod boot;
 pub mod cluster;
 pub mod csv_text;
 mod error;
 mod feeds;
+mod fleet;
 pub mod forward;
 mod history;
 mod ingest;
@@ -24,6 +26,7 @@ pub mod pages;
 mod report;
 pub mod settings;
 pub mod signing;
+mod site_links;
 pub mod sites;
 pub mod state;
 mod steering;
@@ -41,9 +44,10 @@ use utoipa::OpenApi;
 use utoipa_axum::router::{OpenApiRouter, UtoipaMethodRouter};
 use utoipa_axum::routes;
 
+pub use boot::ServerOptions;
 pub use error::{ApiError, Rejected};
 pub use ingest::{BatchRules, ParsedBatch, parse_batch};
-pub use state::{AppState, ServerError, ServerOptions, SharedState};
+pub use state::{AppState, ServerError, SharedState};
 
 /// What a route needs of the caller's token (see `auth`).
 #[derive(Debug, Clone, Copy)]

@@ -23,9 +23,11 @@ use utoipa::openapi::security::{ApiKey, ApiKeyValue, HttpAuthScheme, HttpBuilder
 use utoipa::openapi::{Content, HeaderBuilder, OpenApi, Ref, RefOr, ResponseBuilder};
 use utoipa::{Modify, PartialSchema, ToSchema};
 
-use super::auth::COOKIE;
 use crate::fusion::reading::field_bounds;
 use crate::fusion::{EngineKind, IntegrityLevel, IntegrityReason, StreamKind};
+
+/// The dashboard's cookie.
+pub const COOKIE: &str = "tunnelnav_token";
 
 /// The document's frame: title, tags, security schemes and the schemas no
 /// handler names directly.
@@ -574,6 +576,16 @@ const DOCS_PAGE: &str = r#"<!doctype html>
 <script src="/static/vendor/swagger-ui/swagger-ui-bundle.js"></script>
 <script src="/static/api-docs.js"></script>
 </body></html>"#;
+
+/// The answer to an ingest request or frame.
+#[derive(Debug, serde::Serialize, serde::Deserialize, utoipa::ToSchema)]
+pub struct Ack {
+    /// Valid readings, now stored (including duplicates).
+    pub accepted: usize,
+    /// Of those, readings already stored before (same sensor and time).
+    pub duplicates: usize,
+    pub rejected: Vec<super::error::Rejected>,
+}
 
 #[cfg(test)]
 mod tests {

@@ -7,7 +7,7 @@
 
 use serde_json::Value;
 
-use super::Report;
+use super::contents::Report;
 
 /// The sections: the table name, the report's field, and whether it is a
 /// list of rows (else one object).

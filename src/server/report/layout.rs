@@ -6,7 +6,7 @@ use crate::fusion::Integrity;
 use askama::Template;
 use chrono::{DateTime, Utc};
 
-use super::Report;
+use super::contents::Report;
 use crate::fusion::rings::BACKWARD_JUMP_M;
 
 /// One table: its title, column headings and formatted rows.
@@ -338,7 +338,7 @@ impl ReportPage {
 }
 
 /// The ring log as a table (`strokes`: with each ring's strokes).
-pub fn ring_table(title: &'static str, rings: &[super::RingRow], strokes: bool) -> Table {
+pub fn ring_table(title: &'static str, rings: &[super::contents::RingRow], strokes: bool) -> Table {
     let mut headings = vec![
         "ring",
         "completed (UTC)",
@@ -419,7 +419,7 @@ fn decimals(step: f64) -> usize {
 /// The chart of `points` with the `tolerances`' bands; `None` without
 /// two points.
 pub fn chart(
-    points: &[super::ChartPoint],
+    points: &[super::contents::ChartPoint],
     tolerances: Option<crate::fusion::declaration::Tolerances>,
 ) -> Option<Chart> {
     if points.len() < 2 {
@@ -444,7 +444,7 @@ pub fn chart(
     let limits = tolerances.map(|t| (t.horizontal_mm, t.vertical_mm));
     let panel = |title,
                  colour,
-                 value: &dyn Fn(&super::ChartPoint) -> f64,
+                 value: &dyn Fn(&super::contents::ChartPoint) -> f64,
                  limit: Option<crate::fusion::declaration::Limits>| {
         // Room for the data and the alarm limit.
         let mut extent = points.iter().fold(10.0_f64, |m, p| m.max(value(p).abs()));
