@@ -176,7 +176,7 @@ impl AppState {
                         postgres.listen(),
                     ));
                 }
-                super::cluster::start(&state, cluster)
+                super::cluster::leases::start(&state, cluster)
                     .await
                     .map_err(|e| ServerError::Cluster(e.to_string()))?;
             }

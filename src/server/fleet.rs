@@ -357,7 +357,7 @@ impl AppState {
     ) -> Result<(), ApiError> {
         let lease_epoch = match (&existing, &self.cluster) {
             (Some(existing), _) => existing.lease_epoch.get(),
-            (None, Some(cluster)) => match super::cluster::claim(cluster, db_id).await? {
+            (None, Some(cluster)) => match super::cluster::leases::claim(cluster, db_id).await? {
                 Some(epoch) => Some(epoch),
                 None => {
                     return Err(super::cluster::moving(

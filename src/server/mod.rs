@@ -97,7 +97,7 @@ fn guarded(
     // forwarded there.
     let routes = routes.layer(axum::middleware::from_fn_with_state(
         state.clone(),
-        cluster::forward,
+        cluster::proxy::forward,
     ));
     let routes = match role {
         Role::Read => routes.layer(axum::middleware::from_fn_with_state(state, auth::read)),
@@ -140,7 +140,7 @@ fn api_routes(state: &SharedState) -> OpenApiRouter<SharedState> {
         .routes(guard(Read, routes!(alarms::list)))
         .routes(guard(Read, routes!(live::alarms_websocket)))
         .routes(guard(Operator, routes!(alarms::ack)))
-        .routes(guard(Read, routes!(cluster::show)))
+        .routes(guard(Read, routes!(cluster::api::show)))
         .routes(guard(Site, routes!(sites::forward)))
         .routes(guard(Admin, routes!(sites::reset_mark)))
         .routes(guard(Admin, routes!(audit::list)))

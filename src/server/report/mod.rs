@@ -581,8 +581,8 @@ fn dropouts(
 
 #[cfg(test)]
 mod tests {
-    use super::*;
     use super::contents::RingRun;
+    use super::*;
 
     #[test]
     fn ring_numbers_run_as_logged() {
