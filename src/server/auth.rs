@@ -25,7 +25,7 @@ use axum::response::{Html, IntoResponse, Redirect, Response};
 use serde::Deserialize;
 
 use super::error::ApiError;
-use super::openapi::COOKIE;
+pub use super::openapi::COOKIE;
 use super::signing::{self, Grant};
 use super::state::SharedState;
 use crate::auth::{self, Need, Token};

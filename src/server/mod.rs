@@ -1,6 +1,7 @@
 //! The HTTP server: the router and `run` (serve until told to stop, then
-//! close sockets and snapshot every machine). Shared state and start-up
-//! are in [`state`], settings in [`settings`]. Handlers only translate:
+//! close sockets and snapshot every machine). Shared state is in
+//! [`state`], start-up in `boot.rs`, the machines' comings and goings in
+//! `fleet.rs`, settings in [`settings`]. Handlers only translate:
 //! extract, ask the store or a machine's task, map errors.
 
 mod alarms;

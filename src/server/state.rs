@@ -58,7 +58,7 @@ pub struct AppState {
     pub sites: super::site_links::SiteLinks,
     /// An office: a site's backlog older than this raises `site_link`.
     pub site_backlog_alarm_s: f64,
-    /// [`ServerOptions::access_log`].
+    /// [`super::ServerOptions::access_log`].
     pub access_log: tracing::Level,
     /// Reports being read and drawn ([`Limits::reports_at_once`] permits):
     /// each holds its rows in memory, so more wait their turn.

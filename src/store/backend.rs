@@ -70,7 +70,8 @@ pub trait Backend: Send + Sync + 'static {
 
     // Machines and history.
 
-    /// Every stored machine, by protocol id, its parameters made current
+    /// Every stored machine, ordered by protocol id (PostgreSQL: in the
+    /// database's collation), its parameters made current
     /// ([`super::rows::stored_machine`]).
     fn machines(&self) -> Result<Vec<StoredMachine>, StoreError>;
 
@@ -151,7 +152,9 @@ pub trait Backend: Send + Sync + 'static {
         announce: Announce,
     ) -> Result<Option<(StoredAlarm, bool)>, StoreError>;
 
-    // Tokens (their hashing is `crate::auth`'s).
+    // Tokens (their hashing is `crate::auth`'s). SQLite writes them
+    // through its writer (so not after `close`); PostgreSQL through its
+    // pool, beside its writers.
 
     /// The tokens in force, with their hashes.
     async fn active_tokens(&self) -> Result<Vec<(String, Token)>, StoreError>;

@@ -74,15 +74,17 @@ impl Store {
         Ok(Store::new(store))
     }
 
-    /// The store a command beside a server uses (`tunnelnav token`): the
-    /// SQLite store in `data_dir`, or the PostgreSQL store at `postgres`
-    /// (not migrated: the server does that). Call within a Tokio runtime.
+    /// The store a command beside a running server uses (`tunnelnav
+    /// token`): the SQLite store in `data_dir`, leaving checkpoints to the
+    /// server ([`SqliteStore::open_client`]), or the PostgreSQL store at
+    /// `postgres` without writers. Either brings the schema to this
+    /// release's first. Call within a Tokio runtime.
     pub async fn open_client(
         data_dir: &Path,
         postgres: Option<&PgLocation>,
     ) -> Result<Store, StoreError> {
         match postgres {
-            None => Store::open(data_dir),
+            None => Ok(Store::new(SqliteStore::open_client(data_dir)?)),
             Some(location) => Ok(Store::new(PgStore::open_client(location).await?)),
         }
     }

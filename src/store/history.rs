@@ -13,6 +13,7 @@ pub struct EstimatesPage {
     pub estimates: Vec<EngineOutput>,
 }
 
+/// Widths of the stored extreme buckets (`estimate_buckets`), seconds.
 /// A query uses the widest one no wider than its own buckets.
 pub const BUCKET_WIDTHS_S: [i64; 3] = [60, 900, 14400];
 

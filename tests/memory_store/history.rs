@@ -31,15 +31,15 @@ impl MemoryHistory<'_> {
             .into_iter()
             .flat_map(move |stream| {
                 let end = if inclusive {
-                    std::ops::Bound::Included(Time(hi))
+                    std::ops::Bound::Included(Time::of(hi))
                 } else {
-                    std::ops::Bound::Excluded(Time(hi))
+                    std::ops::Bound::Excluded(Time::of(hi))
                 };
                 // An empty range for lo > hi (BTreeMap::range panics on it).
                 let (lo, end) = if lo > hi {
-                    (Time(hi), std::ops::Bound::Excluded(Time(hi)))
+                    (Time::of(hi), std::ops::Bound::Excluded(Time::of(hi)))
                 } else {
-                    (Time(lo), end)
+                    (Time::of(lo), end)
                 };
                 stream.range((std::ops::Bound::Included(lo), end))
             })

@@ -5,8 +5,9 @@
 //! "restart" is [`MemoryStore::reopen`], a new handle on the same rows.
 //!
 //! It keeps no office's records ([`Backend::office`] is `None`: a
-//! forwarded write is refused) and no leases (a write under a lease epoch
-//! is refused).
+//! forwarded write is refused), no leases (a write under a lease epoch is
+//! refused) and no site's outbox (`OutboxConfig::forward` is SQLite's
+//! alone: a site keeps its outbox there).
 
 mod history;
 mod retention;
@@ -33,6 +34,10 @@ use rows::Rows;
 #[derive(Clone)]
 pub struct MemoryStore {
     rows: Arc<Mutex<Rows>>,
+    /// Held from a commit (or an acknowledgement) to the end of its
+    /// callbacks, so they run in commit order, as a writer thread runs
+    /// them; the rows' lock is not held while they run.
+    order: Arc<Mutex<()>>,
     /// Cleared by [`Backend::close`]: this handle then refuses writes.
     open: Arc<AtomicBool>,
 }
@@ -42,6 +47,7 @@ impl MemoryStore {
     pub fn new(outbox: OutboxConfig) -> MemoryStore {
         MemoryStore {
             rows: Arc::new(Mutex::new(Rows::new(outbox))),
+            order: Arc::default(),
             open: Arc::new(AtomicBool::new(true)),
         }
     }
@@ -51,6 +57,7 @@ impl MemoryStore {
     pub fn reopen(&self) -> MemoryStore {
         MemoryStore {
             rows: self.rows.clone(),
+            order: self.order.clone(),
             open: Arc::new(AtomicBool::new(true)),
         }
     }
@@ -76,6 +83,7 @@ impl MemoryStore {
     /// reply.
     fn commit(&self, mut write: Write) -> Result<(), StoreError> {
         self.writable()?;
+        let _in_order = self.order.lock().unwrap_or_else(|p| p.into_inner());
         let result = self.rows().write(&write);
         let (outcome, changes) = match result {
             Ok((outcome, changes)) => (Ok(outcome), Some(changes)),
@@ -143,7 +151,8 @@ impl Backend for MemoryStore {
         after_id: i64,
         each: EachReading<'_>,
     ) -> Result<u64, StoreError> {
-        // Decoded under the lock, handed out after it: `each` may be slow.
+        // Decoded under the lock, handed out after it (`each` may be slow):
+        // the rows are all in memory anyway.
         let readings = self.rows().readings_since(machine_id, after_id)?;
         let count = readings.len() as u64;
         for reading in readings {
@@ -235,6 +244,7 @@ impl Backend for MemoryStore {
         announce: Announce,
     ) -> Result<Option<(StoredAlarm, bool)>, StoreError> {
         self.writable()?;
+        let _in_order = self.order.lock().unwrap_or_else(|p| p.into_inner());
         let (alarm, acked) = {
             let mut rows = self.rows();
             let Some((alarm, acked)) = rows.ack_alarm(id, &by, t) else {
@@ -343,11 +353,13 @@ impl Backend for MemoryStore {
     }
 
     async fn webhook_done(&self, id: i64) -> Result<(), StoreError> {
+        self.writable()?;
         self.rows().webhooks.retain(|entry| entry.id != id);
         Ok(())
     }
 
     async fn webhook_dropped(&self, severity: &'static str) -> Result<u64, StoreError> {
+        self.writable()?;
         let mut rows = self.rows();
         let before = rows.webhooks.len();
         rows.webhooks

@@ -74,7 +74,7 @@ fn thin(rows: &mut Rows, machine: i64, stream: StreamKind, from: f64, to: f64) -
     }
     let mut kept_slot = None;
     let mut doomed = Vec::new();
-    for (t, _) in estimates.range(Time(from)..Time(to)) {
+    for (t, _) in estimates.range(Time::of(from)..Time::of(to)) {
         // SQLite's CAST(t / 60 AS INTEGER): toward zero.
         let slot = (t.0 / THIN_TO_S).trunc() as i64;
         if kept_slot == Some(slot) {

@@ -15,9 +15,16 @@ use tunnelnav::store::{
     Extremes, StoreError, StoredMachine, StoredSnapshot, Write, WriteOutcome, stored_machine,
 };
 
-/// A time as a key: ordered by `f64::total_cmp`.
+/// A time as a key: ordered by `f64::total_cmp`, −0 taken as 0 (as
+/// SQLite's unique index takes them).
 #[derive(Debug, Clone, Copy)]
 pub struct Time(pub f64);
+
+impl Time {
+    pub fn of(t: f64) -> Time {
+        Time(if t == 0.0 { 0.0 } else { t })
+    }
+}
 
 impl PartialEq for Time {
     fn eq(&self, other: &Self) -> bool {
@@ -165,7 +172,7 @@ impl Rows {
         }
         let mut outcome = WriteOutcome::default();
         for reading in &write.readings {
-            let key = (machine_id, reading.sensor, Time(reading.t));
+            let key = (machine_id, reading.sensor, Time::of(reading.t));
             if self.reading_keys.contains(&key) {
                 outcome.duplicates += 1;
                 continue;
@@ -189,7 +196,7 @@ impl Rows {
             self.estimates
                 .entry((machine_id, engine))
                 .or_default()
-                .entry(Time(estimate.t))
+                .entry(Time::of(estimate.t))
                 .or_insert_with(|| StoredEstimate {
                     extremes: estimate.extremes,
                     values: estimate.values.clone(),
@@ -323,7 +330,7 @@ impl Rows {
                     && r.t <= to_t
                     && sensor.is_none_or(|s| s == r.sensor)
             })
-            .map(|(&id, r)| (Time(r.t), id, r))
+            .map(|(&id, r)| (Time::of(r.t), id, r))
             .collect();
         found.sort_by_key(|&(t, id, _)| (t, id));
         found
@@ -346,7 +353,7 @@ impl Rows {
             return Ok(Vec::new());
         }
         stream
-            .range(Time(from_t)..=Time(to_t))
+            .range(Time::of(from_t)..=Time::of(to_t))
             .map(|(t, e)| decode_output(engine, t.0, e.codec, &e.values))
             .collect()
     }
@@ -367,7 +374,7 @@ impl Rows {
         self.readings
             .values()
             .filter(|r| r.machine_id == machine_id && r.sensor == sensor)
-            .map(|r| Time(r.t))
+            .map(|r| Time::of(r.t))
             .max()
             .map(|t| t.0)
     }
@@ -426,7 +433,7 @@ impl Rows {
     pub fn delete_reading(&mut self, id: i64) {
         if let Some(r) = self.readings.remove(&id) {
             self.reading_keys
-                .remove(&(r.machine_id, r.sensor, Time(r.t)));
+                .remove(&(r.machine_id, r.sensor, Time::of(r.t)));
         }
     }
 }

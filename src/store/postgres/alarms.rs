@@ -33,7 +33,7 @@ impl PgStore {
     }
 
     /// Acknowledges alarm `id` by `by` at `t`, as
-    /// [`Store::ack_alarm`](super::Store::ack_alarm) does.
+    /// [`Store::ack_alarm`](crate::store::Store::ack_alarm) does.
     pub async fn ack_alarm(
         &self,
         id: i64,

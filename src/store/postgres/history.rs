@@ -47,7 +47,7 @@ impl PgStore {
     }
 
     /// A machine's estimates of one stream in `[from_t, to_t]`, downsampled
-    /// above `max_points` as on SQLite ([`queries::estimates_page`]).
+    /// above `max_points` as on SQLite ([`history::estimates_page`]).
     pub fn estimates_page(
         &self,
         machine_id: i64,

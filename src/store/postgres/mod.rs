@@ -1,6 +1,6 @@
 //! The office store: PostgreSQL, for a company's many machines on one
 //! database that several tunnelnav nodes share (issue 37). The semantics
-//! are the SQLite store's (`store/mod.rs`): one writer connection with
+//! are the SQLite store's (`store/sqlite/`): one writer connection with
 //! group commit answering each request only after the commit; readings
 //! stored once per (machine, sensor, time) with their arrival order;
 //! estimates with their codec version; snapshots after a known reading.

@@ -123,7 +123,7 @@ impl PgStore {
 
     /// An office: sets forwarded machine `machine`'s mark back to
     /// `sequence` (never forward), with an audit row, as on SQLite
-    /// ([`reset_mark`]); the mark it had.
+    /// ([`crate::store::sqlite::outbox::reset_mark`]); the mark it had.
     pub async fn reset_forward_mark(
         &self,
         machine: String,

@@ -1,5 +1,5 @@
 //! The PostgreSQL schema, created and migrated at start: the SQLite
-//! schema's tables and meaning (`store/schema.rs`), with readings and
+//! schema's tables and meaning (`store/sqlite/schema.rs`), with readings and
 //! estimates partitioned by time (one partition per day, made when the
 //! first row of its day is written) so retention drops whole partitions.
 //! Several nodes may start at once: migrations run under an advisory lock.

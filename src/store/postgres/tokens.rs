@@ -20,7 +20,7 @@ impl PgStore {
     }
 
     /// Stores a new token; its id and text (shown once), as
-    /// [`crate::store::tokens::create`] does on SQLite.
+    /// [`crate::store::sqlite::tokens::create`] does on SQLite.
     pub async fn create_token(
         &self,
         name: &str,

@@ -1,7 +1,7 @@
 //! A PostgreSQL writer: a task and its connection that take every
 //! request waiting in its queue, apply them in one transaction (group
 //! commit) and answer each only after the commit — the SQLite writer's
-//! semantics (`store/writer.rs`), in SQL that moves a whole write in a few
+//! semantics (`store/sqlite/writer.rs`), in SQL that moves a whole write in a few
 //! statements (arrays unnested server-side).
 
 use std::collections::BTreeSet;
@@ -705,7 +705,7 @@ async fn apply_put_machine(
     Ok(id)
 }
 
-/// A stored alarm from a row of [`super::ALARM_COLUMNS`].
+/// A stored alarm from a row of `ALARM_COLUMNS` (`alarms.rs`).
 pub(super) fn stored_alarm(row: &tokio_postgres::Row) -> StoredAlarm {
     StoredAlarm {
         id: row.get(0),

@@ -25,7 +25,6 @@ fn output_row(engine: StreamKind, row: &rusqlite::Row) -> Result<EngineOutput, S
     decode_output(engine, row.get(0)?, row.get(2)?, bytes)
 }
 
-/// Widths of the stored extreme buckets (`estimate_buckets`), seconds.
 /// One machine's estimates of one stream in the SQLite store.
 struct SqliteHistory<'c> {
     conn: &'c rusqlite::Connection,

@@ -40,6 +40,13 @@ use super::queue::QUEUE_LEN;
 /// The database file inside the data dir.
 pub const DB_FILE: &str = "tunnelnav.sqlite3";
 
+/// Who opens the store: the server, or a command beside it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Role {
+    Server,
+    Client,
+}
+
 /// Page size of a database this release creates. A commit writes every
 /// page it dirtied to the WAL, and each machine's rows dirty their own
 /// leaf of every machine-keyed B-tree: with 2 KiB pages a group commit of
@@ -78,6 +85,24 @@ impl SqliteStore {
         max_bytes: Option<u64>,
         outbox: OutboxConfig,
     ) -> Result<SqliteStore, StoreError> {
+        SqliteStore::open_as(data_dir, max_bytes, outbox, Role::Server)
+    }
+
+    /// The store in `data_dir` for a command beside a running server
+    /// (`tunnelnav token`): its writes go through a writer of its own, as
+    /// the server's do, but it leaves the write-ahead log to the server —
+    /// no checkpoints, none when it ends — so it never waits for the
+    /// server's readers or makes the server's commits wait.
+    pub fn open_client(data_dir: &Path) -> Result<SqliteStore, StoreError> {
+        SqliteStore::open_as(data_dir, None, OutboxConfig::default(), Role::Client)
+    }
+
+    fn open_as(
+        data_dir: &Path,
+        max_bytes: Option<u64>,
+        outbox: OutboxConfig,
+        role: Role,
+    ) -> Result<SqliteStore, StoreError> {
         std::fs::create_dir_all(data_dir).map_err(|source| StoreError::DataDir {
             path: data_dir.display().to_string(),
             source,
@@ -105,22 +130,25 @@ impl SqliteStore {
             let pages = (max_bytes as i64 / page_bytes.max(1)).max(1);
             conn.query_row(&format!("PRAGMA max_page_count = {pages}"), [], |_| Ok(()))?;
         }
-        let checkpointer = Connection::open(&path)?;
-        checkpointer.busy_timeout(std::time::Duration::from_secs(5))?;
         // The writer holds `alive`; the checkpointer stops when it ends.
         let (alive, writer_gone) = std::sync::mpsc::channel::<()>();
-        std::thread::Builder::new()
-            .name("store-checkpoint".into())
-            .spawn(move || checkpoints(checkpointer, writer_gone))
-            .map_err(|source| StoreError::DataDir {
-                path: data_dir.display().to_string(),
-                source,
-            })?;
+        if role == Role::Server {
+            let checkpointer = Connection::open(&path)?;
+            checkpointer.busy_timeout(std::time::Duration::from_secs(5))?;
+            std::thread::Builder::new()
+                .name("store-checkpoint".into())
+                .spawn(move || checkpoints(checkpointer, writer_gone))
+                .map_err(|source| StoreError::DataDir {
+                    path: data_dir.display().to_string(),
+                    source,
+                })?;
+        }
         let (requests, queue) = mpsc::channel(QUEUE_LEN);
+        let final_checkpoint = role == Role::Server;
         std::thread::Builder::new()
             .name("store-writer".into())
             .spawn(move || {
-                writer::writer(conn, queue, outbox);
+                writer::writer(conn, queue, outbox, final_checkpoint);
                 drop(alive);
             })
             .map_err(|source| StoreError::DataDir {
@@ -140,7 +168,7 @@ impl SqliteStore {
 
     /// A plain connection to the database in `data_dir` (created and
     /// migrated if need be), for commands that run beside a server, such
-    /// as `tunnelnav token`: WAL lets them share the file.
+    /// as `tunnelnav site` and `backup`: WAL lets them share the file.
     pub fn connect(data_dir: &Path) -> Result<Connection, StoreError> {
         std::fs::create_dir_all(data_dir).map_err(|source| StoreError::DataDir {
             path: data_dir.display().to_string(),

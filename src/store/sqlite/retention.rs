@@ -44,6 +44,7 @@ pub fn apply(conn: &Connection, step: &Step) -> Result<Pruned, StoreError> {
                 "DELETE FROM readings WHERE id IN (
                          SELECT r.id FROM readings r JOIN snapshots s ON s.machine_id = r.machine_id
                          WHERE r.t < ?1 AND r.id <= s.last_reading_id
+                         AND r.id < (SELECT max(id) FROM readings)
                          AND NOT EXISTS (SELECT 1 FROM outbox o WHERE o.destination = 'office'
                              AND o.kind = 'readings' AND o.machine_id = r.machine_id
                              AND o.first_reading_id <= r.id)
@@ -156,6 +157,35 @@ mod tests {
             3600
         );
         assert_eq!(prune(&conn, 10_800.0, &policy, 1000).unwrap().readings, 0);
+    }
+
+    #[test]
+    fn the_newest_reading_id_stays_so_ids_never_go_back() {
+        // Every reading old and covered: all but the newest go. Without
+        // it SQLite would give the next reading the id after the highest
+        // left, at or below the snapshot's, and a restart would not
+        // re-feed it.
+        let conn = database();
+        conn.execute(
+            "INSERT INTO snapshots (machine_id, last_reading_id, state) VALUES (1, 10800, '{}')",
+            [],
+        )
+        .unwrap();
+        let policy = Retention {
+            keep_readings_s: Some(60.0),
+            ..Retention::default()
+        };
+        let pruned = prune(&conn, 1.0e6, &policy, 100_000).unwrap();
+        assert_eq!(pruned.readings, 10_799);
+        conn.execute(
+            "INSERT INTO readings (machine_id, t, sensor, body) VALUES (1, 2.0e6, 1, x'00')",
+            [],
+        )
+        .unwrap();
+        let newest: i64 = conn
+            .query_row("SELECT max(id) FROM readings", [], |r| r.get(0))
+            .unwrap();
+        assert_eq!(newest, 10_801);
     }
 
     #[test]

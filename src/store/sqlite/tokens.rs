@@ -1,6 +1,6 @@
 //! Access tokens in the SQLite store: made, listed, read in force and
 //! revoked (the tokens themselves, their scopes and hashing are
-//! [`crate::auth`]'s; PostgreSQL's are in [`super::postgres`]).
+//! [`crate::auth`]'s; PostgreSQL's are in `store/postgres/tokens.rs`).
 
 use rusqlite::{Connection, OptionalExtension, params};
 

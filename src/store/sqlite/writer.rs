@@ -47,6 +47,7 @@ pub(super) fn writer(
     mut conn: Connection,
     mut queue: mpsc::Receiver<Queued<Job>>,
     outbox: OutboxConfig,
+    final_checkpoint: bool,
 ) {
     let mut group = Vec::with_capacity(MAX_GROUP);
     let mut close = None;
@@ -64,8 +65,11 @@ pub(super) fn writer(
     // Later sends fail at once; requests already queued are dropped, and
     // their senders see the store closed.
     queue.close();
-    // Whether closed or dropped by every handle: leave no log behind.
-    if let Err(e) = conn.query_row("PRAGMA wal_checkpoint(TRUNCATE)", [], |_| Ok(())) {
+    // Whether closed or dropped by every handle: leave no log behind
+    // (the server; a command beside it leaves the log to the server).
+    if final_checkpoint
+        && let Err(e) = conn.query_row("PRAGMA wal_checkpoint(TRUNCATE)", [], |_| Ok(()))
+    {
         tracing::warn!(error = %e, "final checkpoint failed");
     }
     if let Some(reply) = close {
