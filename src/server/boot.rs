@@ -141,13 +141,6 @@ impl AppState {
             .await
             .map_err(std::io::Error::other)??
         };
-        if !options.retention.keeps_everything() {
-            tokio::spawn(apply_retention(
-                store.clone(),
-                options.retention,
-                options.clock,
-            ));
-        }
         let state = Arc::new(AppState {
             store,
             machines: RwLock::new(BTreeMap::new()),
@@ -164,21 +157,28 @@ impl AppState {
             sites,
             site_backlog_alarm_s: options.site_backlog_alarm_s,
             access_log: options.access_log,
+            tasks: Default::default(),
         });
         match cluster {
             Some(cluster) => {
                 if let Some(postgres) = state.store.postgres() {
-                    tokio::spawn(super::feeds::relay(
-                        state.store.clone(),
-                        cluster.node().to_string(),
-                        cluster.feeds.clone(),
-                        state.alarms.clone(),
-                        postgres.listen(),
-                    ));
+                    state.own(
+                        "feeds",
+                        tokio::spawn(super::feeds::relay(
+                            state.store.clone(),
+                            cluster.node().to_string(),
+                            cluster.feeds.clone(),
+                            state.alarms.clone(),
+                            postgres.listen(),
+                            state.shutdown_signal(),
+                        )),
+                    );
                 }
-                super::cluster::leases::start(&state, cluster)
+                let [renewing, balancing] = super::cluster::leases::start(&state, cluster)
                     .await
                     .map_err(|e| ServerError::Cluster(e.to_string()))?;
+                state.own("leases", renewing);
+                state.own("balancing", balancing);
             }
             None => {
                 for stored in state.stored_machines().await? {
@@ -190,7 +190,9 @@ impl AppState {
         // reading): the office is told of those it does not know yet.
         match options.forward {
             Some(forward) => {
-                super::forward::start(&state.store, state.shutdown_signal(), forward).await?
+                let forwarding =
+                    super::forward::start(&state.store, state.shutdown_signal(), forward).await?;
+                state.own("forwarding", forwarding);
             }
             None => {
                 if let Some(sqlite) = state.store.sqlite() {
@@ -204,48 +206,18 @@ impl AppState {
                 }
             }
         }
-        tokio::spawn(super::sites::watch(state.clone()));
-        Ok(state)
-    }
-}
-
-/// Applies the retention policy now and every `every_s`: each pass is
-/// planned on a read connection and done step by step on the store's
-/// writer between its commits (see `store::retention`).
-async fn apply_retention(store: Store, policy: crate::store::retention::Retention, clock: Clock) {
-    use crate::store::retention::Pruned;
-    let every = std::time::Duration::from_secs_f64(policy.every_s.max(1.0));
-    let mut tick = tokio::time::interval(every);
-    loop {
-        tick.tick().await;
-        let now_t = clock.now_s();
-        let pass = async {
-            let planner = store.clone();
-            let steps =
-                tokio::task::spawn_blocking(move || planner.retention_plan(now_t, &policy, 5000))
-                    .await
-                    .map_err(|e| {
-                        crate::store::StoreError::Corrupt(format!("retention plan: {e}"))
-                    })??;
-            let mut pruned = Pruned::default();
-            for step in steps {
-                loop {
-                    let done = store.retention_step(step).await?;
-                    pruned.add(done);
-                    if !step.again(&done) {
-                        break;
-                    }
-                }
-            }
-            Ok::<_, crate::store::StoreError>(pruned)
-        };
-        match pass.await {
-            Ok(pruned) => tracing::info!(
-                readings = pruned.readings,
-                estimates = pruned.estimates,
-                "retention pass"
-            ),
-            Err(e) => tracing::warn!(error = %e, "retention pass failed; next time again"),
+        state.own("sites", tokio::spawn(super::sites::watch(state.clone())));
+        if !options.retention.keeps_everything() {
+            state.own(
+                "retention",
+                tokio::spawn(super::retention::keep(
+                    state.store.clone(),
+                    options.retention,
+                    options.clock,
+                    state.shutdown_signal(),
+                )),
+            );
         }
+        Ok(state)
     }
 }

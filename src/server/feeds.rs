@@ -12,7 +12,7 @@
 use std::collections::{BTreeMap, HashMap};
 use std::sync::{Arc, Mutex};
 
-use tokio::sync::{broadcast, mpsc};
+use tokio::sync::{broadcast, mpsc, watch};
 
 use super::error::ApiError;
 use super::notify::AlarmNotifier;
@@ -146,7 +146,7 @@ async fn fetch(store: &Store, feed: &Feed) -> Result<(), ApiError> {
     Ok(())
 }
 
-/// Takes other nodes' notices until the server stops: new estimates to the
+/// Takes other nodes' notices until the server stops (`stopping`): new estimates to the
 /// feeds that follow their machine, alarm changes to this node's sockets.
 /// `node`: this node's name; `feeds`: the machines followed here.
 pub async fn relay(
@@ -155,8 +155,16 @@ pub async fn relay(
     feeds: Arc<Feeds>,
     alarms: AlarmNotifier,
     mut notices: mpsc::Receiver<Notice>,
+    mut stopping: watch::Receiver<bool>,
 ) {
-    while let Some(first) = notices.recv().await {
+    loop {
+        let first = tokio::select! {
+            notice = notices.recv() => match notice {
+                Some(notice) => notice,
+                None => return,
+            },
+            _ = stopping.wait_for(|stopping| *stopping) => return,
+        };
         // Everything waiting, each machine fetched once.
         let mut dirty = std::collections::BTreeSet::new();
         let mut all = false;

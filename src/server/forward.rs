@@ -99,7 +99,7 @@ pub async fn start(
     store: &Store,
     stopping: watch::Receiver<bool>,
     options: ForwardOptions,
-) -> Result<(), ForwardError> {
+) -> Result<tokio::task::JoinHandle<()>, ForwardError> {
     options.validate()?;
     let store = store.site_outbox()?.clone();
     store
@@ -111,8 +111,7 @@ pub async fn start(
         .build()
         .map_err(|e| ForwardError::Client(e.to_string()))?;
     super::metrics::forward_link(&options.site, false, 0, 0.0);
-    tokio::spawn(run(stopping, store, client, options));
-    Ok(())
+    Ok(tokio::spawn(run(stopping, store, client, options)))
 }
 
 /// What the loop knows of the link.

@@ -25,6 +25,7 @@ pub mod notify;
 pub(crate) mod openapi;
 pub mod pages;
 mod report;
+mod retention;
 pub mod settings;
 pub mod signing;
 mod site_links;

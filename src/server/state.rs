@@ -63,7 +63,15 @@ pub struct AppState {
     /// Reports being read and drawn ([`Limits::reports_at_once`] permits):
     /// each holds its rows in memory, so more wait their turn.
     pub reports: Arc<tokio::sync::Semaphore>,
+    /// The services' tasks (retention, forwarding, the sites' watch, the
+    /// feeds' relay, the cluster's leases), by name: each ends when the
+    /// server stops, and [`AppState::stop`] waits for them.
+    pub(super) tasks: std::sync::Mutex<Vec<(&'static str, tokio::task::JoinHandle<()>)>>,
 }
+
+/// How long [`AppState::stop`] waits for a service's task to end before
+/// ending it.
+const TASK_STOP: std::time::Duration = std::time::Duration::from_secs(3);
 
 /// Counts an open live socket while it lives.
 pub struct LiveSocketGuard(Arc<std::sync::atomic::AtomicUsize>);
@@ -110,8 +118,16 @@ impl AppState {
         self.shutdown.subscribe()
     }
 
-    /// Closes live sockets, stores a final snapshot of every machine and
-    /// closes the store.
+    /// A service's task, ended when the server stops.
+    pub(super) fn own(&self, name: &'static str, task: tokio::task::JoinHandle<()>) {
+        self.tasks
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .push((name, task));
+    }
+
+    /// Closes live sockets, stores a final snapshot of every machine,
+    /// waits for the services' tasks to end and closes the store.
     pub async fn stop(&self) {
         self.shutdown.send_replace(true);
         for machine in self.all_machines() {
@@ -119,6 +135,14 @@ impl AppState {
         }
         if let Some(cluster) = &self.cluster {
             cluster.leave().await;
+        }
+        let tasks = std::mem::take(&mut *self.tasks.lock().unwrap_or_else(|p| p.into_inner()));
+        for (name, task) in tasks {
+            let abort = task.abort_handle();
+            if tokio::time::timeout(TASK_STOP, task).await.is_err() {
+                abort.abort();
+                tracing::warn!(task = name, "a service's task did not end in time: ended");
+            }
         }
         self.store.close().await;
     }

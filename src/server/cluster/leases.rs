@@ -13,12 +13,16 @@ use crate::server::state::SharedState;
 /// Joins the work: renews once, takes this node's share and starts it,
 /// then keeps renewing (every second, on its own) and rebalancing (every
 /// second) until the node leaves.
-pub async fn start(state: &SharedState, cluster: Arc<Cluster>) -> Result<(), ApiError> {
+pub async fn start(
+    state: &SharedState,
+    cluster: Arc<Cluster>,
+) -> Result<[tokio::task::JoinHandle<()>; 2], ApiError> {
     renew(&cluster).await?;
     balance(state, &cluster).await?;
-    tokio::spawn(keep_renewing(state.clone(), cluster.clone()));
-    tokio::spawn(keep_balancing(state.clone(), cluster));
-    Ok(())
+    Ok([
+        tokio::spawn(keep_renewing(state.clone(), cluster.clone())),
+        tokio::spawn(keep_balancing(state.clone(), cluster)),
+    ])
 }
 
 /// Renews this node's leases; the ones it holds are known afterwards
