@@ -21,18 +21,21 @@
 //! - [`tls`]: TLS for the service's own outgoing connections (the MQTT
 //!   broker, PostgreSQL): rustls, a peer checked against a named CA file
 //!   or the system's roots.
-//! - [`store`]: one `Store` over two backends, SQLite (the default: one
-//!   writer thread with group commit, pooled readers) and PostgreSQL
-//!   (`store::postgres`: writer tasks with the same group commit, day
-//!   partitions, several nodes by leases, `tunnelnav migrate`).
+//! - [`store`]: one `Store` over the `store::Backend` trait, a folder per
+//!   backend with the same topic files: SQLite (`store::sqlite`, the
+//!   default: one writer thread with group commit, pooled readers) and
+//!   PostgreSQL (`store::postgres`: writer tasks with the same group
+//!   commit, day partitions, several nodes by leases, `tunnelnav
+//!   migrate`); a test-only backend in memory under `tests/`.
 //! - [`machine`]: one task per machine owning its engines; the only bridge
 //!   from async code to the fusion core (`core`: the synchronous
 //!   [`machine::MachineCore`]; `actor`: the task; `status`: what it looks
 //!   like now; `recover`: a machine rebuilt from the store; `lease`: the
 //!   epoch each write carries; `error`). It
 //!   hands committed alarm changes to a [`machine::AlarmSink`] it defines.
-//! - [`server`]: axum routes (the router and `run` in its `mod.rs`), shared
-//!   state (`server::state`), settings and the config file
+//! - [`server`]: axum routes (the router and `run` in its `mod.rs`),
+//!   start-up (`boot.rs`), shared state (`server::state`), the fleet
+//!   (`fleet.rs`), the cluster (`server::cluster`), settings and the config file
 //!   (`server::settings`), errors, live stream, MQTT, metrics, alarm
 //!   notifications (the sink's subscriber).
 //! - [`cli`]: one file per subcommand; `main.rs` only parses and dispatches.
