@@ -12,6 +12,7 @@ use crate::config::MachineSpec;
 use crate::fusion::reorder::Admission;
 use crate::fusion::{EngineKind, EngineModel, Reading};
 use crate::store::alarms::{AlarmChange, AlarmRow};
+use crate::store::outbox::ForwardedAck;
 use crate::store::{EstimateRow, ReadingRow, Store, StoreError, Write, WriteOutcome};
 
 use super::core::{LiveEstimate, MachineCore};
@@ -31,8 +32,13 @@ pub const LIVE_BUFFER: usize = 4096;
 pub enum ForwardedPart {
     /// Readings, fused in the order the site stored them.
     Readings(Vec<Reading>),
-    /// An alarm change the site made.
-    Alarm(Box<AlarmChange>),
+    /// An alarm change the site made, as the rows that bring the stored
+    /// alarm to where the change left it and the acknowledgement in it
+    /// (the office makes them: `store::alarms::forwarded_rows`).
+    Alarm {
+        rows: Vec<AlarmRow>,
+        ack: Option<Box<ForwardedAck>>,
+    },
 }
 
 enum Command {
@@ -474,17 +480,12 @@ impl Actor {
             forwarded.sequence = sequence;
             match part {
                 ForwardedPart::Readings(batch) => readings.extend(batch),
-                ForwardedPart::Alarm(change) => {
-                    match crate::store::alarms::forwarded_rows(&change) {
-                        Some((raise_and_clear, ack)) => {
-                            rows.extend(raise_and_clear);
-                            forwarded.acks.extend(ack);
-                        }
-                        None => tracing::warn!(
-                            machine = %self.spec.id, kind = %change.alarm.kind,
-                            "a forwarded alarm of a kind or severity this release does not know: not stored"
-                        ),
-                    }
+                ForwardedPart::Alarm {
+                    rows: raise_and_clear,
+                    ack,
+                } => {
+                    rows.extend(raise_and_clear);
+                    forwarded.acks.extend(ack.map(|ack| *ack));
                 }
             }
         }

@@ -35,7 +35,7 @@ use crate::fusion::alarms::AlarmKind;
 use crate::fusion::reading::parse_reading;
 use crate::machine::{ForwardedPart, MachineError};
 use crate::store::StoreError;
-use crate::store::alarms::{AlarmChange, AlarmRow};
+use crate::store::alarms::{AlarmChange, AlarmRow, forwarded_rows};
 use crate::store::outbox::Declared;
 
 /// How far beyond this office's clock a site's sequence may be, seconds.
@@ -265,7 +265,20 @@ fn read_rows(items: Vec<ForwardItem>, highest: i64) -> Result<Vec<(i64, Row)>, A
                     )));
                 }
                 bounded_alarm_texts(sequence, &change.alarm)?;
-                Row::Part(ForwardedPart::Alarm(Box::new(change)))
+                // The rows that bring the stored alarm to where the site's
+                // change left it; a kind or severity this release does not
+                // know is applied as nothing (its sequence still counts).
+                let (rows, ack) = forwarded_rows(&change).unwrap_or_else(|| {
+                    tracing::warn!(
+                        sequence, kind = %change.alarm.kind,
+                        "a forwarded alarm of a kind or severity this release does not know: not stored"
+                    );
+                    (Vec::new(), None)
+                });
+                Row::Part(ForwardedPart::Alarm {
+                    rows,
+                    ack: ack.map(Box::new),
+                })
             }
             _ => {
                 return Err(ApiError::BadRequest(format!(
