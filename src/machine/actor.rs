@@ -2,15 +2,15 @@
 //! live broadcast and status, and the writes it sends the store.
 
 use std::collections::BTreeMap;
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
 
 use tokio::sync::{broadcast, mpsc, oneshot, watch};
 
 use crate::clock::Clock;
 use crate::config::MachineSpec;
 use crate::fusion::reorder::Admission;
-use crate::fusion::{EngineKind, EngineModel, Reading};
+use crate::fusion::{EngineKind, EngineModel, Reading, SensorKind};
 use crate::store::alarms::{AlarmChange, AlarmRow};
 use crate::store::outbox::ForwardedAck;
 use crate::store::{EstimateRow, ReadingRow, Store, StoreError, Write, WriteOutcome};
@@ -231,6 +231,7 @@ pub fn spawn(
         lease_epoch: lease_epoch.clone(),
         core,
         write_failed: Arc::default(),
+        uncounted: Arc::default(),
         live: live.clone(),
         status: status_tx,
         current,
@@ -261,6 +262,9 @@ struct Actor {
     /// engines have seen readings that are not stored, so they are rebuilt
     /// from the store before the next request.
     write_failed: Arc<AtomicBool>,
+    /// What failed writes had added to the status's counters, taken back
+    /// before the next request (a gateway resends what was refused).
+    uncounted: Arc<Mutex<Counted>>,
     live: broadcast::Sender<LiveEstimate>,
     status: watch::Sender<Arc<MachineStatus>>,
     current: MachineStatus,
@@ -271,6 +275,34 @@ struct Actor {
     alarm_changes: Arc<dyn AlarmSink>,
     /// An office: the last sequence of the machine's site fused here.
     forward_mark: Option<i64>,
+}
+
+/// What one write adds to the status's counters: its readings per sensor
+/// and those fused late.
+#[derive(Debug, Default)]
+struct Counted {
+    readings: BTreeMap<SensorKind, u64>,
+    late: u64,
+}
+
+impl Counted {
+    /// Adds `other`'s counts to these.
+    fn add(&mut self, other: Counted) {
+        for (sensor, n) in other.readings {
+            *self.readings.entry(sensor).or_default() += n;
+        }
+        self.late += other.late;
+    }
+
+    /// Takes these counts back from `status`.
+    fn take_back_from(&self, status: &mut MachineStatus) {
+        for (sensor, n) in &self.readings {
+            if let Some(entry) = status.sensors.get_mut(sensor) {
+                entry.readings = entry.readings.saturating_sub(*n);
+            }
+        }
+        status.late = status.late.saturating_sub(self.late);
+    }
 }
 
 /// Real time between the checks for silent sensors.
@@ -293,6 +325,7 @@ impl Actor {
             };
             let mut stale = None;
             if self.write_failed.swap(false, Ordering::SeqCst) {
+                self.take_back_uncounted();
                 stale = self.rebuild().await;
             }
             match command {
@@ -398,6 +431,19 @@ impl Actor {
         if let Err(e) = self.store.write(write).await {
             tracing::error!(error = %e, "store closed");
         }
+    }
+
+    /// Takes back from the status what failed writes had counted: their
+    /// readings are not stored, and a gateway resends them.
+    fn take_back_uncounted(&mut self) {
+        let failed = std::mem::take(
+            &mut *self
+                .uncounted
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner),
+        );
+        failed.take_back_from(&mut self.current);
+        self.status.send_replace(Arc::new(self.current.clone()));
     }
 
     /// Rebuilds the engines from the latest snapshot and the stored
@@ -555,6 +601,7 @@ impl Actor {
         }
         let mut estimates = Vec::new();
         let mut rows = Vec::with_capacity(readings.len());
+        let mut counted = Counted::default();
         for reading in readings {
             let sensor = reading.sensor();
             let entry = self.current.sensors.entry(sensor).or_insert(SensorStatus {
@@ -563,9 +610,11 @@ impl Actor {
             });
             entry.last_t = entry.last_t.max(reading.t);
             entry.readings += 1;
+            *counted.readings.entry(sensor).or_default() += 1;
             rows.push(ReadingRow::new(&reading));
             if self.core.push(reading, &mut estimates) == Admission::Late {
                 self.current.late += 1;
+                counted.late += 1;
             }
         }
         self.since_snapshot += rows.len() as u64;
@@ -586,6 +635,7 @@ impl Actor {
         self.status.send_replace(Arc::new(self.current.clone()));
         let sender = self.live.clone();
         let write_failed = self.write_failed.clone();
+        let uncounted = self.uncounted.clone();
         let notifier = self.alarm_changes.clone();
         let mut alarms: Vec<AlarmRow> = self.core.take_alarms().iter().map(AlarmRow::new).collect();
         alarms.extend(alarm_rows);
@@ -603,7 +653,13 @@ impl Actor {
                     }
                     notifier.publish(changes);
                 }
-                None => write_failed.store(true, Ordering::SeqCst),
+                None => {
+                    uncounted
+                        .lock()
+                        .unwrap_or_else(PoisonError::into_inner)
+                        .add(counted);
+                    write_failed.store(true, Ordering::SeqCst);
+                }
             })),
             reply: Some(reply),
             lease_epoch: self.lease_epoch.get(),

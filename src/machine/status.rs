@@ -15,7 +15,8 @@ use super::core::LiveEstimate;
 pub struct SensorStatus {
     /// Time of the newest reading received, Unix seconds.
     pub last_t: f64,
-    /// Readings received since the server started.
+    /// Readings received since the server started, less those of writes
+    /// that failed (the gateway resends them).
     pub readings: u64,
 }
 
@@ -26,7 +27,8 @@ pub struct MachineStatus {
     pub latest: BTreeMap<StreamKind, LiveEstimate>,
     pub sensors: BTreeMap<SensorKind, SensorStatus>,
     /// Readings dropped as older than one of the same sensor already fused
-    /// (stored all the same), since the server started.
+    /// (stored all the same), since the server started, less those of
+    /// writes that failed.
     pub late: u64,
     /// What each active alarm's quantity reads now, by kind and subject.
     pub alarm_now: BTreeMap<(AlarmKind, String), AlarmNow>,

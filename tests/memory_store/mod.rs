@@ -9,12 +9,15 @@
 //! refused) and no site's outbox (`OutboxConfig::forward` is SQLite's
 //! alone: a site keeps its outbox there).
 
+// Not every test binary that includes this module uses all of it.
+#![allow(dead_code)]
+
 mod history;
 mod retention;
 mod rows;
 
 use std::any::Any;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 
 use async_trait::async_trait;
@@ -40,6 +43,9 @@ pub struct MemoryStore {
     order: Arc<Mutex<()>>,
     /// Cleared by [`Backend::close`]: this handle then refuses writes.
     open: Arc<AtomicBool>,
+    /// Writes still to fail, as a busy database fails them: rolled back,
+    /// `after_commit(None)` and the error in the reply.
+    failing: Arc<AtomicU32>,
 }
 
 impl MemoryStore {
@@ -49,7 +55,13 @@ impl MemoryStore {
             rows: Arc::new(Mutex::new(Rows::new(outbox))),
             order: Arc::default(),
             open: Arc::new(AtomicBool::new(true)),
+            failing: Arc::default(),
         }
+    }
+
+    /// Fails the next `writes` writes, as a busy database would.
+    pub fn fail_next_writes(&self, writes: u32) {
+        self.failing.store(writes, Ordering::SeqCst);
     }
 
     /// A new handle on the same rows, open for writing: the store after
@@ -59,6 +71,7 @@ impl MemoryStore {
             rows: self.rows.clone(),
             order: self.order.clone(),
             open: Arc::new(AtomicBool::new(true)),
+            failing: Arc::default(),
         }
     }
 
@@ -84,7 +97,17 @@ impl MemoryStore {
     fn commit(&self, mut write: Write) -> Result<(), StoreError> {
         self.writable()?;
         let _in_order = self.order.lock().unwrap_or_else(|p| p.into_inner());
-        let result = self.rows().write(&write);
+        let fails = self
+            .failing
+            .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |n| n.checked_sub(1))
+            .is_ok();
+        let result = if fails {
+            Err(StoreError::Unavailable(
+                "database is locked (injected)".into(),
+            ))
+        } else {
+            self.rows().write(&write)
+        };
         let (outcome, changes) = match result {
             Ok((outcome, changes)) => (Ok(outcome), Some(changes)),
             Err(e) => (Err(e), None),
