@@ -22,6 +22,7 @@ pub mod pushes;
 pub mod reading;
 pub mod registry;
 pub mod reorder;
+pub mod ring_build;
 pub mod rings;
 pub mod robust;
 pub mod steer;
