@@ -35,6 +35,23 @@ pub enum EvalTarget {
     /// axis through the `zupt` engine, scored also against the INS's own
     /// σ (`--source zupt`).
     Dta(DtaArgs),
+    /// The ring build plan (issue 60) on simulated drives: built axis,
+    /// clearance, keys and cost against a brute-force 3-ring look-ahead
+    /// and the naive rule (the key that turns toward the axis).
+    Rings(RingsArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct RingsArgs {
+    /// First seed.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Drives, each drawn from its seed, from --seed on.
+    #[arg(long, default_value_t = 40)]
+    pub seeds: u64,
+    /// Print {"summary", "drives"} as JSON instead of a table.
+    #[arg(long)]
+    pub json: bool,
 }
 
 /// Where the `dta` positions come from.
@@ -244,6 +261,19 @@ pub fn run(target: EvalTarget) -> Result<(), CliError> {
                 }
             }
             Ok(())
+        }
+        EvalTarget::Rings(args) => {
+            let seeds: Vec<u64> = envelope_seeds(args.seed, args.seeds).collect();
+            let drives = crate::eval::parallel_map(&seeds, cores(), |&seed| {
+                crate::eval::rings::evaluate(seed)
+            })
+            .into_iter()
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(|e| CliError::Scenario(e.to_string()))?;
+            let summary = crate::eval::rings::summarise(&drives);
+            print_envelope(args.json, &summary, &drives, || {
+                crate::eval::rings::render(&drives, &summary)
+            })
         }
         EvalTarget::Dta(args) if args.source == DtaSourceArg::Zupt => run_dta_zupt(&args),
         EvalTarget::Dta(args) => {

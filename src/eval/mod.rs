@@ -10,6 +10,7 @@ pub mod fuzzy_envelope;
 pub mod integrity;
 pub mod kf3;
 pub mod recording;
+pub mod rings;
 pub mod zupt;
 pub mod zupt_envelope;
 

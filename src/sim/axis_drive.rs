@@ -321,7 +321,7 @@ impl OwnElement {
 
 /// The design axis, placed by the simulator's own integration.
 #[derive(Debug, Clone)]
-struct OwnAxis {
+pub(super) struct OwnAxis {
     elements: Vec<OwnElement>,
     /// (station, height) of the start, each PVI with its curve length, and
     /// the end grade.
@@ -330,7 +330,7 @@ struct OwnAxis {
 }
 
 impl OwnAxis {
-    fn new(spec: &AlignmentSpec) -> Result<OwnAxis, String> {
+    pub(super) fn new(spec: &AlignmentSpec) -> Result<OwnAxis, String> {
         let mut elements = Vec::new();
         let (mut station, mut e, mut n) = (
             spec.start_station_m,
@@ -384,17 +384,17 @@ impl OwnAxis {
         })
     }
 
-    fn start_station_m(&self) -> f64 {
+    pub(super) fn start_station_m(&self) -> f64 {
         self.elements[0].start_station_m
     }
 
-    fn end_station_m(&self) -> f64 {
+    pub(super) fn end_station_m(&self) -> f64 {
         let last = self.elements[self.elements.len() - 1];
         last.start_station_m + last.length_m
     }
 
     /// East, north, azimuth at `station_m` (clamped to the axis).
-    fn plan(&self, station_m: f64) -> (f64, f64, f64) {
+    pub(super) fn plan(&self, station_m: f64) -> (f64, f64, f64) {
         let element = self
             .elements
             .iter()
@@ -414,7 +414,7 @@ impl OwnAxis {
 
     /// Design height at `station_m`: tangents through the PVIs, each
     /// rounded by z = z_BVC + g₁x + (g₂ − g₁)x²/(2L) within L/2 of it.
-    fn height(&self, station_m: f64) -> f64 {
+    pub(super) fn height(&self, station_m: f64) -> f64 {
         for i in 1..self.pvis.len() {
             let (s, h, l) = self.pvis[i];
             let (g1, g2) = (self.grade_after(i - 1), self.grade_after(i));

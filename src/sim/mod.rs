@@ -6,6 +6,7 @@ pub mod faults;
 mod noise;
 pub mod pipejack;
 pub mod pipejack_envelope;
+pub mod ring_build;
 pub mod tbm;
 pub mod tbm_envelope;
 pub mod vehicle;

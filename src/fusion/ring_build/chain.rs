@@ -40,7 +40,7 @@ pub struct Face {
 }
 
 /// A ring built from a face.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Ring {
     pub key: u32,
     /// Where it started (the previous ring's front face).
@@ -53,7 +53,13 @@ impl Ring {
     /// The ring's centre line at `x` metres from its back face: its
     /// station and its offset from the axis, m.
     pub fn at<A: Axis + ?Sized>(&self, axis: &A, spec: &RingSpec, x_m: f64) -> Face {
-        point_on_ring(axis, spec, &self.back, turn_rad(spec, self.key), x_m)
+        point_on_ring(
+            axis,
+            spec.width_m,
+            &self.back,
+            turn_rad(spec, self.key),
+            x_m,
+        )
     }
 
     /// The ring's centre (half its width from the back face).
@@ -71,12 +77,18 @@ pub fn turn_rad(spec: &RingSpec, key: u32) -> [f64; 2] {
 
 /// The ring built with `key` on the face `back`.
 pub fn build<A: Axis + ?Sized>(axis: &A, spec: &RingSpec, back: &Face, key: u32) -> Ring {
-    let front = point_on_ring(axis, spec, back, turn_rad(spec, key), spec.width_m);
+    let front = point_on_ring(axis, spec.width_m, back, turn_rad(spec, key), spec.width_m);
     Ring {
         key,
         back: *back,
         front,
     }
+}
+
+/// The point `x_m` ahead of `face` (behind, negative) on the straight line
+/// along its direction.
+pub fn along<A: Axis + ?Sized>(axis: &A, face: &Face, x_m: f64) -> Face {
+    point_on_ring(axis, 1.0, face, [0.0; 2], x_m)
 }
 
 /// The axis's change of direction from `from_m` to `to_m` per plane, rad
@@ -97,10 +109,11 @@ fn wrap(angle_rad: f64) -> f64 {
     }
 }
 
-/// The centre line `x_m` along a ring of turn `turn` from `back`.
+/// The centre line `x_m` along a ring of width `w` and turn `turn` from
+/// `back`.
 fn point_on_ring<A: Axis + ?Sized>(
     axis: &A,
-    spec: &RingSpec,
+    w: f64,
     back: &Face,
     turn: [f64; 2],
     x_m: f64,
@@ -108,7 +121,6 @@ fn point_on_ring<A: Axis + ?Sized>(
     let s = back.station_m;
     let half = axis_turn(axis, s, s + x_m / 2.0);
     let whole = axis_turn(axis, s, s + x_m);
-    let w = spec.width_m;
     let mut face = Face {
         station_m: s + x_m,
         offset_m: [0.0; 2],

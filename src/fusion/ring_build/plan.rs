@@ -4,11 +4,13 @@
 //! `clearance_weight`)
 //!
 //!   cost = |centre − target|² + clearance_weight·mean((cᵢ − m)²)
-//!          + SHORTFALL_COST·(max(0, min_clearance − min cᵢ))²
+//!          + SHORTFALL_COST·(max(0, min_clearance + margin − min cᵢ))²
 //!
 //! with the ring's centre against the target curve (the correction curve
-//! the machine follows, or the axis) and cᵢ its clearance after the push
-//! that follows its build, predicted from where the shield will be then.
+//! the machine follows, or the axis) and cᵢ its clearance when the tail's
+//! end passes the ring's centre and its front face, predicted from where
+//! the shield will be then; the margin is 2σ of where the lining is
+//! known to be, so a gap counts as short before it is.
 //! A forbidden key is never built, and no ring repeats the key of the ring
 //! before it (their longitudinal joints would line up). A sequence's cost
 //! is the sum of its rings'. The search keeps the `BEAM` cheapest partial
@@ -52,6 +54,9 @@ pub struct Situation<'a, A: Axis + ?Sized, C: Course + ?Sized> {
     pub points: usize,
     /// The gap of a centred ring, mm (the last measured mean, or nominal).
     pub centred_clearance_mm: f64,
+    /// How far a predicted gap may be wrong, mm (2σ of where the lining
+    /// is): a gap is short when it is within this of the least allowed.
+    pub margin_mm: f64,
 }
 
 /// One ring of a plan.
@@ -60,8 +65,8 @@ pub struct PlannedRing {
     pub ring: Ring,
     /// The ring's centre off the target, mm (right, up).
     pub off_target_mm: [f64; 2],
-    /// The ring's clearance at each point after the push that follows its
-    /// build, mm, clockwise from the top.
+    /// The ring's clearance at each point when the tail's end passes its
+    /// centre, mm, clockwise from the top.
     pub predicted_clearance_mm: Vec<f64>,
     /// This ring's part of the cost, mm².
     pub cost: f64,

@@ -34,9 +34,10 @@ pub struct RingSpec {
     pub nominal_clearance_mm: f64,
     /// The least gap a ring may be given, mm.
     pub min_clearance_mm: f64,
-    /// Length of the newest ring inside the tail skin, from the tail's end
-    /// (the machine's declared rear point) to the ring's front face, m;
-    /// one ring width when not declared.
+    /// From the tail skin's end (the machine's declared rear point) to
+    /// the newest ring's front face once it is built, m: the lining inside
+    /// the tail; two ring widths when not declared. Longer than a ring, so
+    /// that a ring stays in the tail after the push that follows its build.
     #[serde(default)]
     pub overlap_m: Option<f64>,
     /// The plan's trade-off: a millimetre of clearance off nominal costs
@@ -75,7 +76,7 @@ impl RingSpec {
         )?;
         within("clearance_weight", self.clearance_weight, 0.0, 1.0e6)?;
         if let Some(overlap) = self.overlap_m {
-            within("overlap_m", overlap, 0.0, 20.0)?;
+            within("overlap_m", overlap, self.width_m, 20.0)?;
         }
         if !(2..=64).contains(&self.key_positions) {
             return Err(format!(
@@ -120,7 +121,7 @@ impl RingSpec {
 
     /// From the tail's end to the newest ring's front face, m.
     pub fn overlap_m(&self) -> f64 {
-        self.overlap_m.unwrap_or(self.width_m)
+        self.overlap_m.unwrap_or(2.0 * self.width_m)
     }
 
     /// Whether rings of keys `a` and `b` built one after the other have

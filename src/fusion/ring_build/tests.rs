@@ -133,6 +133,7 @@ fn drive(axis: &Arc, start: Face, last_key: Option<u32>, rings: usize) -> Vec<ch
             last_key,
             points: 8,
             centred_clearance_mm: spec.nominal_clearance_mm,
+            margin_mm: 0.0,
         };
         let plan = situation.search(LOOK_AHEAD, BEAM);
         let next = &plan.rings[0];
@@ -228,6 +229,7 @@ fn the_beam_finds_the_exhaustive_searchs_cost_within_1_percent() {
             last_key: Some(i % 16),
             points: 8,
             centred_clearance_mm: 50.0,
+            margin_mm: 0.0,
         };
         let beam = situation.search(LOOK_AHEAD, BEAM);
         let exhaustive = situation.search(LOOK_AHEAD, usize::MAX);
