@@ -284,6 +284,7 @@ fn with_advances(stage: StageKind, mut readings: Vec<Reading>) -> Vec<Reading> {
                 data: tunnelnav::fusion::SensorData::Advance {
                     ring: 100 + ring,
                     strokes_mm: (ring % 2 == 0).then(|| vec![1500.0 + ring as f64, 1498.25]),
+                    key: None,
                 },
             },
         );

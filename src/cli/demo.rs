@@ -592,6 +592,7 @@ impl Iterator for AxisDrives {
                 data: SensorData::Advance {
                     ring: self.ring,
                     strokes_mm: None,
+                    key: None,
                 },
             });
         }

@@ -40,11 +40,12 @@ pub enum SensorKind {
     Level,
     Odometer,
     Advance,
+    TailClearance,
 }
 
 impl SensorKind {
     /// Every sensor kind, in protocol order.
-    pub const ALL: [SensorKind; 7] = [
+    pub const ALL: [SensorKind; 8] = [
         SensorKind::Laser,
         SensorKind::Inclinometer,
         SensorKind::Imu,
@@ -52,6 +53,7 @@ impl SensorKind {
         SensorKind::Level,
         SensorKind::Odometer,
         SensorKind::Advance,
+        SensorKind::TailClearance,
     ];
 
     /// The protocol name (`"laser"`, `"inclinometer"`, ...).
@@ -64,6 +66,7 @@ impl SensorKind {
             SensorKind::Level => "level",
             SensorKind::Odometer => "odometer",
             SensorKind::Advance => "advance",
+            SensorKind::TailClearance => "tail_clearance",
         }
     }
 
@@ -121,12 +124,19 @@ pub enum SensorData {
     /// Travelled distance from an odometer or encoder.
     Odometer { distance_m: f64 },
     /// A ring built (a TBM) or a pipe pushed home (a jacked string): its
-    /// number, and the thrust cylinders' strokes if the gateway has them.
+    /// number, the thrust cylinders' strokes if the gateway has them, and
+    /// the key position the ring was built with, if it is a universal ring.
     Advance {
         ring: u64,
         #[serde(skip_serializing_if = "Option::is_none")]
         strokes_mm: Option<Vec<f64>>,
+        #[serde(skip_serializing_if = "Option::is_none")]
+        key: Option<u32>,
     },
+    /// The gap between the shield's tail skin and the ring in it, mm, at
+    /// 4 or more points evenly round the ring, clockwise from the top,
+    /// looking forward.
+    TailClearance { clearance_mm: Vec<f64> },
 }
 
 impl SensorData {
@@ -140,6 +150,7 @@ impl SensorData {
             SensorData::Level { .. } => SensorKind::Level,
             SensorData::Odometer { .. } => SensorKind::Odometer,
             SensorData::Advance { .. } => SensorKind::Advance,
+            SensorData::TailClearance { .. } => SensorKind::TailClearance,
         }
     }
 }
@@ -217,7 +228,15 @@ const BOUNDS: &[(&str, f64, f64)] = &[
     ("ring", 0.0, 1.0e7),
     // A thrust cylinder's stroke: up to 10 m.
     ("strokes_mm", 0.0, 10_000.0),
+    // A key position: whole, at most 64 round a ring.
+    ("key", 0.0, 63.0),
+    // A tail clearance: a gap of up to a metre.
+    ("clearance_mm", 0.0, 1000.0),
 ];
+
+/// Points round the ring a `tail_clearance` reading gives, at least and at
+/// most.
+pub const CLEARANCE_POINTS: (usize, usize) = (4, 64);
 
 /// Thrust cylinders an `advance` reading may give the strokes of.
 pub const MAX_STROKES: usize = 64;
@@ -274,6 +293,32 @@ fn ring_number(value: f64) -> Result<u64, ReadingError> {
         });
     }
     Ok(value as u64)
+}
+
+/// A key position: a whole number within bounds.
+fn key_position(value: f64) -> Result<u32, ReadingError> {
+    check("key", value)?;
+    if value.fract() != 0.0 {
+        return Err(ReadingError::WrongType {
+            field: "key",
+            expected: "a whole number",
+        });
+    }
+    Ok(value as u32)
+}
+
+/// A tail clearance: 4 to 64 gaps within bounds.
+fn clearances(values: Vec<f64>) -> Result<Vec<f64>, ReadingError> {
+    if values.len() < CLEARANCE_POINTS.0 || values.len() > CLEARANCE_POINTS.1 {
+        return Err(ReadingError::WrongType {
+            field: "clearance_mm",
+            expected: "an array of 4 to 64 numbers",
+        });
+    }
+    for &v in &values {
+        check("clearance_mm", v)?;
+    }
+    Ok(values)
 }
 
 /// Thrust-cylinder strokes: 1 to [`MAX_STROKES`] numbers within bounds.
@@ -334,6 +379,8 @@ struct RawReading {
     northing_m: Option<f64>,
     ring: Option<f64>,
     strokes_mm: Option<Vec<f64>>,
+    key: Option<f64>,
+    clearance_mm: Option<Vec<f64>>,
 }
 
 impl RawReading {
@@ -379,6 +426,12 @@ impl RawReading {
             SensorKind::Advance => SensorData::Advance {
                 ring: ring_number(required("ring", self.ring)?)?,
                 strokes_mm: self.strokes_mm.map(strokes).transpose()?,
+                key: self.key.map(key_position).transpose()?,
+            },
+            SensorKind::TailClearance => SensorData::TailClearance {
+                clearance_mm: clearances(self.clearance_mm.ok_or(ReadingError::Missing {
+                    field: "clearance_mm",
+                })?)?,
             },
         };
         Ok(Reading { t, data })
@@ -400,6 +453,8 @@ const FIELD_TYPES: &[(&str, FieldType)] = &[
     ("distance_m", FieldType::Number),
     ("ring", FieldType::Number),
     ("strokes_mm", FieldType::Numbers),
+    ("key", FieldType::Number),
+    ("clearance_mm", FieldType::Numbers),
 ];
 
 #[derive(Clone, Copy)]
@@ -541,11 +596,21 @@ impl Reading {
             SensorData::Odometer { distance_m } => {
                 check("distance_m", *distance_m)?;
             }
-            SensorData::Advance { ring, strokes_mm } => {
+            SensorData::Advance {
+                ring,
+                strokes_mm,
+                key,
+            } => {
                 check("ring", *ring as f64)?;
                 if let Some(s) = strokes_mm {
                     strokes(s.clone())?;
                 }
+                if let Some(key) = key {
+                    key_position(f64::from(*key))?;
+                }
+            }
+            SensorData::TailClearance { clearance_mm } => {
+                clearances(clearance_mm.clone())?;
             }
         }
         Ok(())
@@ -576,7 +641,8 @@ mod tests {
             r#"{"t":1772431200,"sensor":"magnetometer","field_ut":[20,1,43]}"#,
             r#"{"t":1772431200,"sensor":"level","height_m":12.5}"#,
             r#"{"t":1772431200,"sensor":"odometer","distance_m":3.25}"#,
-            r#"{"t":1772431200,"sensor":"advance","ring":412,"strokes_mm":[1510.5,1498,1502.25,1507]}"#,
+            r#"{"t":1772431200,"sensor":"advance","ring":412,"strokes_mm":[1510.5,1498,1502.25,1507],"key":5}"#,
+            r#"{"t":1772431200,"sensor":"tail_clearance","clearance_mm":[48,51.5,52,47.5,49,50,50.5,49]}"#,
         ];
         for (line, kind) in lines.iter().zip(SensorKind::ALL) {
             let r = parse_reading(line.as_bytes()).unwrap();
@@ -671,13 +737,49 @@ mod tests {
     }
 
     #[test]
+    fn a_key_is_whole_and_a_tail_clearance_has_4_to_64_gaps() {
+        let keyed =
+            parse_reading(br#"{"t":1772431200,"sensor":"advance","ring":7,"key":15}"#).unwrap();
+        assert_eq!(
+            keyed.to_json(),
+            r#"{"t":1772431200.0,"sensor":"advance","ring":7,"key":15}"#
+        );
+        for (line, field) in [
+            (
+                r#"{"t":1772431200,"sensor":"advance","ring":7,"key":64}"#,
+                "key",
+            ),
+            (
+                r#"{"t":1772431200,"sensor":"advance","ring":7,"key":1.5}"#,
+                "key",
+            ),
+            (
+                r#"{"t":1772431200,"sensor":"tail_clearance","clearance_mm":[50,50,50]}"#,
+                "clearance_mm",
+            ),
+            (
+                r#"{"t":1772431200,"sensor":"tail_clearance","clearance_mm":[50,50,50,-1]}"#,
+                "clearance_mm",
+            ),
+            (
+                r#"{"t":1772431200,"sensor":"tail_clearance"}"#,
+                "clearance_mm",
+            ),
+        ] {
+            let e = parse_reading(line.as_bytes()).unwrap_err();
+            assert_eq!(e.field(), Some(field), "{line}: {e}");
+        }
+    }
+
+    #[test]
     fn an_advance_has_a_whole_ring_number_and_at_most_64_strokes_in_bounds() {
         let plain = parse_reading(br#"{"t":1772431200,"sensor":"advance","ring":0}"#).unwrap();
         assert_eq!(
             plain.data,
             SensorData::Advance {
                 ring: 0,
-                strokes_mm: None
+                strokes_mm: None,
+                key: None,
             }
         );
         assert_eq!(

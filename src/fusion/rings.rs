@@ -182,7 +182,10 @@ impl Stage for RingLog {
     }
 
     fn reading(&mut self, reading: &Reading, out: &mut Vec<EngineOutput>) {
-        let SensorData::Advance { ring, strokes_mm } = &reading.data else {
+        let SensorData::Advance {
+            ring, strokes_mm, ..
+        } = &reading.data
+        else {
             return;
         };
         let position = self.position;
@@ -290,7 +293,11 @@ mod tests {
     fn advance(t: f64, ring: u64, strokes_mm: Option<Vec<f64>>) -> Reading {
         Reading {
             t,
-            data: SensorData::Advance { ring, strokes_mm },
+            data: SensorData::Advance {
+                ring,
+                strokes_mm,
+                key: None,
+            },
         }
     }
 

@@ -344,16 +344,19 @@ pub struct ReadingsQuery {
 
 /// Columns of the CSV export; a reading fills those of its sensor (a
 /// laser's position: `easting_m`, `northing_m` and `height_m`; an
-/// advance's strokes: one cell, the numbers separated by spaces).
+/// advance's strokes and a tail clearance's gaps: one cell each, the
+/// numbers separated by spaces).
 pub const CSV_HEADER: &str = "t,sensor,pitch_deg,roll_deg,yaw_deg,temp_c,\
 accel_x_mps2,accel_y_mps2,accel_z_mps2,gyro_x_dps,gyro_y_dps,gyro_z_dps,\
 field_x_ut,field_y_ut,field_z_ut,height_m,distance_m,easting_m,northing_m,\
-ring,strokes_mm\n";
+ring,strokes_mm,key,clearance_mm\n";
 
 fn csv_row(reading: &Reading, out: &mut String) {
     use std::fmt::Write;
     let mut cells: [Option<f64>; 18] = [None; 18];
     let mut strokes: &[f64] = &[];
+    let mut key = None;
+    let mut gaps: &[f64] = &[];
     match &reading.data {
         SensorData::Laser {
             pitch_deg,
@@ -390,10 +393,16 @@ fn csv_row(reading: &Reading, out: &mut String) {
         }
         SensorData::Level { height_m } => cells[13] = Some(*height_m),
         SensorData::Odometer { distance_m } => cells[14] = Some(*distance_m),
-        SensorData::Advance { ring, strokes_mm } => {
+        SensorData::Advance {
+            ring,
+            strokes_mm,
+            key: built,
+        } => {
             cells[17] = Some(*ring as f64);
             strokes = strokes_mm.as_deref().unwrap_or_default();
+            key = *built;
         }
+        SensorData::TailClearance { clearance_mm } => gaps = clearance_mm,
     }
     let _ = write!(out, "{},{}", reading.t, reading.sensor());
     for cell in cells {
@@ -402,10 +411,18 @@ fn csv_row(reading: &Reading, out: &mut String) {
             let _ = write!(out, "{x}");
         }
     }
+    let joined = |out: &mut String, numbers: &[f64]| {
+        out.push(',');
+        for (i, x) in numbers.iter().enumerate() {
+            let _ = write!(out, "{}{x}", if i > 0 { " " } else { "" });
+        }
+    };
+    joined(out, strokes);
     out.push(',');
-    for (i, stroke) in strokes.iter().enumerate() {
-        let _ = write!(out, "{}{stroke}", if i > 0 { " " } else { "" });
+    if let Some(key) = key {
+        let _ = write!(out, "{key}");
     }
+    joined(out, gaps);
     out.push('\n');
 }
 

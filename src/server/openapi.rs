@@ -259,20 +259,49 @@ impl PartialSchema for ReadingInput {
                             .into(),
                     ),
                 )],
+                &[
+                    (
+                        "strokes_mm",
+                        RefOr::T(
+                            ArrayBuilder::new()
+                                .schema_type(SchemaType::from_iter([Type::Array, Type::Null]))
+                                .items(bounded("strokes_mm", "one cylinder's stroke, mm"))
+                                .min_items(Some(1))
+                                .max_items(Some(crate::fusion::reading::MAX_STROKES))
+                                .description(Some(
+                                    "the thrust cylinders' strokes, in the gateway's order; null: as absent",
+                                ))
+                                .into(),
+                        ),
+                    ),
+                    (
+                        "key",
+                        RefOr::T(
+                            bounded_or_null(
+                                "key",
+                                "the key position the ring was built with (universal rings)",
+                            )
+                            .schema_type(SchemaType::from_iter([Type::Integer, Type::Null]))
+                            .into(),
+                        ),
+                    ),
+                ],
+            ))
+            .item(sensor_reading(
+                "tail_clearance",
+                "The gap between the shield's tail skin and the ring, evenly round it, clockwise from the top looking forward",
                 &[(
-                    "strokes_mm",
+                    "clearance_mm",
                     RefOr::T(
                         ArrayBuilder::new()
-                            .schema_type(SchemaType::from_iter([Type::Array, Type::Null]))
-                            .items(bounded("strokes_mm", "one cylinder's stroke, mm"))
-                            .min_items(Some(1))
-                            .max_items(Some(crate::fusion::reading::MAX_STROKES))
-                            .description(Some(
-                                "the thrust cylinders' strokes, in the gateway's order; null: as absent",
-                            ))
+                            .items(bounded("clearance_mm", "one gap, mm"))
+                            .min_items(Some(crate::fusion::reading::CLEARANCE_POINTS.0))
+                            .max_items(Some(crate::fusion::reading::CLEARANCE_POINTS.1))
+                            .description(Some("the gaps, from the top, clockwise"))
                             .into(),
                     ),
                 )],
+                &[],
             ))
             .into()
     }

@@ -5,14 +5,17 @@
 //!
 //! - A reading's data: its numbers in protocol field order as little-endian
 //!   f64s; an absent optional field (`yaw_deg`, `temp_c`, a laser's
-//!   position) is left off (the count tells which are there). 16–48 bytes where the JSON is 90–180. Written by hand: the
+//!   position) is left off (the count tells which are there). An
+//!   `advance` with a key position stores its ring as −(ring + 1), then
+//!   the key, then the strokes (a release before the key stored no
+//!   negative ring); a `tail_clearance` stores its gaps. 16–48 bytes where the JSON is 90–180. Written by hand: the
 //!   variant is the `sensor` column and every field is an f64.
 //! - An estimate's values: postcard, about 60 bytes for an `attitude`
 //!   estimate where its JSON is about 330, of the engine's codec version
 //!   (the row's `codec` column); each engine's `estimate.rs` decodes every
 //!   version it has had.
 
-use crate::fusion::reading::{MAX_STROKES, ProjectPoint};
+use crate::fusion::reading::{CLEARANCE_POINTS, MAX_STROKES, ProjectPoint};
 use crate::fusion::{
     EngineOutput, EstimateValues, Integrity, Reading, SensorData, SensorKind, StreamKind,
 };
@@ -47,12 +50,21 @@ pub fn encode_reading(data: &SensorData) -> Vec<u8> {
         SensorData::Magnetometer { field_ut } => numbers.extend(field_ut),
         SensorData::Level { height_m } => numbers.push(*height_m),
         SensorData::Odometer { distance_m } => numbers.push(*distance_m),
-        // The ring number (exact as an f64 within its bounds), then the
-        // strokes, if any.
-        SensorData::Advance { ring, strokes_mm } => {
-            numbers.push(*ring as f64);
+        // The ring number (exact as an f64 within its bounds; negative,
+        // −(ring + 1), when the key follows), the key, then the strokes,
+        // if any.
+        SensorData::Advance {
+            ring,
+            strokes_mm,
+            key,
+        } => {
+            match key {
+                Some(key) => numbers.extend([-(*ring as f64) - 1.0, f64::from(*key)]),
+                None => numbers.push(*ring as f64),
+            }
             numbers.extend(strokes_mm.iter().flatten());
         }
+        SensorData::TailClearance { clearance_mm } => numbers.extend(clearance_mm),
     }
     numbers.iter().flat_map(|x| x.to_le_bytes()).collect()
 }
@@ -112,12 +124,33 @@ pub fn decode_reading(t: f64, sensor: SensorKind, bytes: &[u8]) -> Result<Readin
         (SensorKind::Odometer, [distance_m]) => SensorData::Odometer {
             distance_m: *distance_m,
         },
+        (SensorKind::Advance, [marked, key, strokes @ ..])
+            if *marked < 0.0
+                && marked.fract() == 0.0
+                && key.fract() == 0.0
+                && (0.0..64.0).contains(key)
+                && strokes.len() <= MAX_STROKES =>
+        {
+            SensorData::Advance {
+                ring: (-marked - 1.0) as u64,
+                strokes_mm: (!strokes.is_empty()).then(|| strokes.to_vec()),
+                key: Some(*key as u32),
+            }
+        }
         (SensorKind::Advance, [ring, strokes @ ..])
             if ring.fract() == 0.0 && *ring >= 0.0 && strokes.len() <= MAX_STROKES =>
         {
             SensorData::Advance {
                 ring: *ring as u64,
                 strokes_mm: (!strokes.is_empty()).then(|| strokes.to_vec()),
+                key: None,
+            }
+        }
+        (SensorKind::TailClearance, gaps)
+            if (CLEARANCE_POINTS.0..=CLEARANCE_POINTS.1).contains(&gaps.len()) =>
+        {
+            SensorData::TailClearance {
+                clearance_mm: gaps.to_vec(),
             }
         }
         _ => return Err(corrupt()),
@@ -237,10 +270,25 @@ mod tests {
             SensorData::Advance {
                 ring: 412,
                 strokes_mm: None,
+                key: None,
             },
             SensorData::Advance {
                 ring: 9_999_999,
                 strokes_mm: Some(vec![1510.5, 0.0, 1e-3]),
+                key: None,
+            },
+            SensorData::Advance {
+                ring: 0,
+                strokes_mm: None,
+                key: Some(0),
+            },
+            SensorData::Advance {
+                ring: 9_999_999,
+                strokes_mm: Some(vec![1510.5, 0.0]),
+                key: Some(63),
+            },
+            SensorData::TailClearance {
+                clearance_mm: vec![48.0, 51.5, 52.0, 47.25],
             },
         ] {
             let bytes = encode_reading(&data);
@@ -249,6 +297,25 @@ mod tests {
             assert_eq!(back.to_json(), reading.to_json());
             assert_eq!(back, reading);
         }
+    }
+
+    /// An `advance` as a release before the key stored it (its ring, then
+    /// its strokes) still reads.
+    #[test]
+    fn an_advance_stored_before_keys_reads() {
+        let bytes: Vec<u8> = [412.0f64, 1500.0, 1502.5]
+            .iter()
+            .flat_map(|x| x.to_le_bytes())
+            .collect();
+        let back = decode_reading(1.0, SensorKind::Advance, &bytes).unwrap();
+        assert_eq!(
+            back.data,
+            SensorData::Advance {
+                ring: 412,
+                strokes_mm: Some(vec![1500.0, 1502.5]),
+                key: None
+            }
+        );
     }
 
     #[test]

@@ -99,6 +99,7 @@ fn a_pipeline_offers_the_dta_estimates_to_steer_and_rings() {
         data: SensorData::Advance {
             ring: 7,
             strokes_mm: None,
+            key: None,
         },
     };
     pipeline.feed(&ring, &mut out);
@@ -178,6 +179,7 @@ fn a_snapshot_from_before_the_ring_log_continues_seeded_as_a_replay_would() {
         data: SensorData::Advance {
             ring: 12,
             strokes_mm: None,
+            key: None,
         },
     };
     let (mut a, mut b) = (Vec::new(), Vec::new());

@@ -58,6 +58,8 @@ pub(super) fn scan(bytes: &[u8]) -> Option<RawReading> {
             Key::NorthingM => raw.northing_m = Some(scanner.number()?),
             Key::Ring => raw.ring = Some(scanner.number()?),
             Key::StrokesMm => raw.strokes_mm = Some(scanner.numbers()?),
+            Key::Key => raw.key = Some(scanner.number()?),
+            Key::ClearanceMm => raw.clearance_mm = Some(scanner.numbers()?),
         }
         match scanner.next()? {
             b',' => continue,
@@ -85,6 +87,8 @@ enum Key {
     NorthingM,
     Ring,
     StrokesMm,
+    Key,
+    ClearanceMm,
 }
 
 /// A known key's bit (for duplicates) and field.
@@ -105,6 +109,8 @@ fn field(key: &str) -> Option<(u32, Key)> {
         "northing_m" => Key::NorthingM,
         "ring" => Key::Ring,
         "strokes_mm" => Key::StrokesMm,
+        "key" => Key::Key,
+        "clearance_mm" => Key::ClearanceMm,
         _ => return None,
     };
     Some((1 << field as u32, field))

@@ -119,6 +119,14 @@ impl PlaneCovariance {
     fn offset_sigma_mm(&self) -> f64 {
         self.p[0][0].max(0.0).sqrt() * 1000.0
     }
+
+    /// 1σ of the offset `behind_m` behind the face, mm: √(h·P·hᵀ),
+    /// h = [1, −behind].
+    fn sigma_behind_mm(&self, behind_m: f64) -> f64 {
+        let p = self.p;
+        let variance = p[0][0] - behind_m * (p[0][1] + p[1][0]) + behind_m * behind_m * p[1][1];
+        variance.max(0.0).sqrt() * 1000.0
+    }
 }
 
 /// What the builder knows.
@@ -153,7 +161,7 @@ pub struct BuiltRing {
     pub key: u32,
     /// The ring's centre: internal station and offsets (m).
     pub centre: Face,
-    /// 1σ of the front face's offsets, mm.
+    /// 1σ of the centre's offsets, mm.
     pub sigma_mm: [f64; 2],
 }
 
@@ -314,7 +322,7 @@ impl RingBuilder {
             ring: self.newest_ring,
             key: newest.key,
             centre: newest.centre(axis, spec),
-            sigma_mm: covariance.map(|c| c.offset_sigma_mm()),
+            sigma_mm: covariance.map(|c| c.sigma_behind_mm(spec.width_m / 2.0)),
         })
     }
 
