@@ -13,6 +13,7 @@ use crate::fusion::alignment::{Alignment, AlignmentError, AlignmentSpec};
 use crate::fusion::declaration::{MachineGeometry, Tolerances};
 use crate::fusion::pipeline::Pipeline;
 use crate::fusion::reading::ProjectPoint;
+use crate::fusion::ring_build::RingSpec;
 use crate::fusion::steering::SteeringSpec;
 use crate::fusion::{
     Declaration, EngineKind, ParamError, ParamValue, Params, StreamKind, UnknownEngine,
@@ -59,6 +60,10 @@ pub struct MachineDeclaration {
     /// curve: `GET .../steering`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub steering: Option<SteeringSpec>,
+    /// Its universal tapered rings (the ring build plan:
+    /// `GET .../rings/plan`, docs/rings.md).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rings: Option<RingSpec>,
 }
 
 /// A validated machine: id, name, engines with complete parameters.
@@ -82,6 +87,9 @@ pub struct MachineSpec {
     /// How it may be steered (absent in a machine stored before issue 39).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub steering: Option<SteeringSpec>,
+    /// Its rings (absent in a machine stored before issue 60).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rings: Option<RingSpec>,
     /// `alignment` built (when validated or loaded).
     #[serde(skip)]
     pub built_alignment: Option<Arc<Alignment>>,
@@ -278,6 +286,14 @@ impl MachineDeclaration {
                 ));
             }
         }
+        if let Some(rings) = &self.rings {
+            rings.check().map_err(invalid)?;
+            if self.geometry.is_none() {
+                return Err(invalid(
+                    "`rings` needs a `geometry` (its rear point is the tail skin's end)".into(),
+                ));
+            }
+        }
         Ok(MachineSpec {
             id: id.to_string(),
             name,
@@ -289,6 +305,7 @@ impl MachineDeclaration {
             alignment: self.alignment,
             alarms,
             steering: self.steering,
+            rings: self.rings,
             built_alignment,
         })
     }
@@ -319,6 +336,7 @@ impl MachineSpec {
             tolerances: self.tolerances,
             start: self.start,
             steering: self.steering.clone(),
+            rings: self.rings.clone(),
             ..Declaration::of_engines(self.engines.keys().copied())
         }
     }
@@ -376,6 +394,7 @@ impl MachineSpec {
             alignment: self.alignment.clone(),
             alarms: (self.alarms != AlarmConfig::default()).then_some(self.alarms),
             steering: self.steering.clone(),
+            rings: self.rings.clone(),
         }
     }
 }

@@ -236,6 +236,17 @@ fn declaration_for(stage: StageKind, engine: EngineKind) -> Option<Declaration> 
             EngineKind::Zupt => zupt_on_an_axis(engine),
             _ => Some(Declaration::of_engines([engine])),
         },
+        // The lining of a zupt machine on the axis.
+        StageKind::RingPlan => zupt_on_an_axis(engine).map(|declaration| Declaration {
+            rings: Some(
+                serde_json::from_value(serde_json::json!({
+                    "taper_mm": 40.0, "diameter_m": 6.0, "width_m": 1.5, "key_positions": 16,
+                    "forbidden_keys": [7, 8, 9], "nominal_clearance_mm": 50.0,
+                    "min_clearance_mm": 20.0}))
+                .unwrap(),
+            ),
+            ..declaration
+        }),
     }
 }
 
@@ -267,12 +278,14 @@ fn zupt_on_an_axis(engine: EngineKind) -> Option<Declaration> {
     }
 }
 
-/// `readings` with, for the `rings` stage, an `advance` reading every
-/// seventh of the way (every other one with strokes).
+/// `readings` with, for the `rings` and `ring_plan` stages, an `advance`
+/// reading every seventh of the way (every other one with strokes; for
+/// `ring_plan` with a key, after a tail clearance).
 fn with_advances(stage: StageKind, mut readings: Vec<Reading>) -> Vec<Reading> {
-    if stage != StageKind::Rings {
+    if !matches!(stage, StageKind::Rings | StageKind::RingPlan) {
         return readings;
     }
+    let keyed = stage == StageKind::RingPlan;
     let every = readings.len() / 7;
     for ring in (1..7u64).rev() {
         let at = ring as usize * every;
@@ -284,10 +297,21 @@ fn with_advances(stage: StageKind, mut readings: Vec<Reading>) -> Vec<Reading> {
                 data: tunnelnav::fusion::SensorData::Advance {
                     ring: 100 + ring,
                     strokes_mm: (ring % 2 == 0).then(|| vec![1500.0 + ring as f64, 1498.25]),
-                    key: None,
+                    key: keyed.then_some((ring as u32 * 5) % 16),
                 },
             },
         );
+        if keyed {
+            readings.insert(
+                at + 1,
+                Reading {
+                    t,
+                    data: tunnelnav::fusion::SensorData::TailClearance {
+                        clearance_mm: vec![50.0, 48.0 + ring as f64, 47.5, 52.0, 51.0, 49.0],
+                    },
+                },
+            );
+        }
     }
     readings
 }

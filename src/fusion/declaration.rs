@@ -10,6 +10,7 @@ use serde::{Deserialize, Serialize};
 use super::alignment::Alignment;
 use super::reading::ProjectPoint;
 use super::registry::{EngineKind, StageKind};
+use super::ring_build::RingSpec;
 use super::steering::SteeringSpec;
 
 /// The part of a machine's declaration stages read.
@@ -27,6 +28,8 @@ pub struct Declaration {
     pub start: Option<ProjectPoint>,
     /// How the machine may be steered (the `steer` stage's curve).
     pub steering: Option<SteeringSpec>,
+    /// Its universal tapered rings (the `ring_plan` stage).
+    pub rings: Option<RingSpec>,
 }
 
 impl Declaration {

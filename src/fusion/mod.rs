@@ -23,6 +23,7 @@ pub mod reading;
 pub mod registry;
 pub mod reorder;
 pub mod ring_build;
+pub mod ring_plan;
 pub mod rings;
 pub mod robust;
 pub mod steer;

@@ -21,7 +21,7 @@ use super::json_fields::JsonFields;
 use super::params::{ParamError, ParamSpec, ParamValue, Params, Retired, TypedParams};
 use super::reading::SensorKind;
 use super::{Declaration, Stage};
-use super::{Engine, SnapshotError, attitude, dta, fuzzy, pushes, rings, steer, zupt};
+use super::{Engine, SnapshotError, attitude, dta, fuzzy, pushes, ring_plan, rings, steer, zupt};
 
 /// Why a stored estimate could not be read.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -394,6 +394,8 @@ registry! {
         Steer = "steer" => steer::Steer,
         /// The ring (or pipe) log: one record per `advance` reading.
         Rings = "rings" => rings::Rings,
+        /// The built lining and the next rings' key positions (machines that declare their rings).
+        RingPlan = "ring_plan" => ring_plan::RingPlan,
     }
 }
 

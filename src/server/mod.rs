@@ -26,6 +26,7 @@ pub(crate) mod openapi;
 pub mod pages;
 mod report;
 mod retention;
+mod ring_plan;
 pub mod settings;
 pub mod signing;
 mod site_links;
@@ -137,6 +138,7 @@ fn api_routes(state: &SharedState) -> OpenApiRouter<SharedState> {
         .routes(guard(Admin, routes!(alignment::put)))
         .routes(guard(Read, routes!(alignment::axis)))
         .routes(guard(Read, routes!(steering::show)))
+        .routes(guard(Read, routes!(ring_plan::show)))
         .routes(guard(Read, routes!(report::show)))
         .routes(guard(Read, routes!(report::as_built::show)))
         .routes(guard(Read, routes!(alarms::list)))

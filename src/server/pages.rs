@@ -201,7 +201,9 @@ pub fn stage_section(
             }
             .render()
         }
-        StageKind::Pushes | StageKind::Steer | StageKind::Rings => return Ok(None),
+        StageKind::Pushes | StageKind::Steer | StageKind::Rings | StageKind::RingPlan => {
+            return Ok(None);
+        }
     }
     .map_err(|source| SectionError::RenderStage { stage, source })?;
     Ok(Some(EngineSection {
@@ -215,7 +217,7 @@ fn stage_script(stage: StageKind) -> Option<&'static Asset> {
     const DTA: Asset = asset!("dta.js", "text/javascript; charset=utf-8");
     match stage {
         StageKind::Dta => Some(&DTA),
-        StageKind::Pushes | StageKind::Steer | StageKind::Rings => None,
+        StageKind::Pushes | StageKind::Steer | StageKind::Rings | StageKind::RingPlan => None,
     }
 }
 

@@ -31,6 +31,7 @@ fn declaration(engines: &[EngineKind]) -> Declaration {
             height_m: 50.0,
         }),
         steering: None,
+        rings: None,
         engines: engines.to_vec(),
     }
 }

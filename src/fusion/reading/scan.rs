@@ -58,7 +58,7 @@ pub(super) fn scan(bytes: &[u8]) -> Option<RawReading> {
             Key::NorthingM => raw.northing_m = Some(scanner.number()?),
             Key::Ring => raw.ring = Some(scanner.number()?),
             Key::StrokesMm => raw.strokes_mm = Some(scanner.numbers()?),
-            Key::Key => raw.key = Some(scanner.number()?),
+            Key::Position => raw.key = Some(scanner.number()?),
             Key::ClearanceMm => raw.clearance_mm = Some(scanner.numbers()?),
         }
         match scanner.next()? {
@@ -87,7 +87,8 @@ enum Key {
     NorthingM,
     Ring,
     StrokesMm,
-    Key,
+    /// `key`: an advance's key position.
+    Position,
     ClearanceMm,
 }
 
@@ -109,7 +110,7 @@ fn field(key: &str) -> Option<(u32, Key)> {
         "northing_m" => Key::NorthingM,
         "ring" => Key::Ring,
         "strokes_mm" => Key::StrokesMm,
-        "key" => Key::Key,
+        "key" => Key::Position,
         "clearance_mm" => Key::ClearanceMm,
         _ => return None,
     };

@@ -333,6 +333,11 @@ impl RingBuilder {
         })
     }
 
+    /// The newest ring's key position, if known.
+    pub fn newest_key(&self) -> Option<u32> {
+        self.newest_key
+    }
+
     /// The newest ring's number, if any advance was seen.
     pub fn newest_ring(&self) -> Option<u64> {
         self.newest_ring

@@ -40,6 +40,7 @@ fn stage(spec: SteeringSpec, alignment: Arc<Alignment>) -> SteerStage {
         }),
         start: None,
         steering: Some(spec),
+        rings: None,
     };
     Steer::create(&declaration).unwrap()
 }
@@ -148,6 +149,7 @@ fn a_restored_stage_continues_exactly_and_codec_1_still_reads() {
         tolerances: live.tolerances,
         start: None,
         steering: Some(spec),
+        rings: None,
     };
     let mut restored = Steer::restore(&declaration, live.snapshot()).unwrap();
     let next = dta(120.0, 103.0, 29.0, 0.0);
