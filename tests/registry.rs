@@ -280,7 +280,7 @@ fn zupt_on_an_axis(engine: EngineKind) -> Option<Declaration> {
 
 /// `readings` with, for the `rings` and `ring_plan` stages, an `advance`
 /// reading every seventh of the way (every other one with strokes; for
-/// `ring_plan` with a key, after a tail clearance).
+/// `ring_plan` with a key, followed by a tail clearance).
 fn with_advances(stage: StageKind, mut readings: Vec<Reading>) -> Vec<Reading> {
     if !matches!(stage, StageKind::Rings | StageKind::RingPlan) {
         return readings;

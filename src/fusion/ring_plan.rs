@@ -35,10 +35,10 @@ pub const CODEC_VERSION: u32 = 1;
 /// The newest ring as the stage knows it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct BuiltRingOut {
-    /// Its number (the `advance` reading's); `null` for the ring the
-    /// lining was started from.
+    /// Its number (the `advance` reading's); `null` before any `advance`.
     pub ring: Option<u64>,
-    /// Its key position; `null` for the ring the lining was started from.
+    /// Its key position; `null` where the lining was started from a
+    /// clearance (the ring in the tail, its key not known).
     pub key: Option<u32>,
     /// Station of its centre, as the stationing reads.
     pub station_m: f64,

@@ -217,7 +217,8 @@ pub struct RingDrive {
 }
 
 impl RingDrive {
-    /// The drive's start: one ring built, centred in the tail.
+    /// The drive's start: one ring built, centred in the tail, and the
+    /// push after it made (the gauge reads after a push).
     pub fn new(scenario: RingDriveScenario) -> Result<RingDrive, String> {
         let axis = OwnAxis::new(&scenario.alignment)?;
         let mut rng = ChaCha8Rng::seed_from_u64(scenario.seed);
@@ -233,7 +234,7 @@ impl RingDrive {
         let (rear, front) = drive.machine_points();
         let direction = (front - rear).normalize();
         let spec = &drive.scenario.spec;
-        let face = rear + direction * spec.overlap_m();
+        let face = rear + direction * (spec.overlap_m() - spec.width_m);
         let (top, _) = frame(&direction);
         drive.rings.push(TrueRing {
             back: face - direction * spec.width_m,

@@ -190,26 +190,38 @@ impl RingBuilder {
         }
     }
 
-    /// Starts the lining from the machine: the newest ring centred in the
-    /// tail, headed as the machine, its front face `overlap_m` ahead of
-    /// the tail's end. `None` without a machine position.
-    fn start<A: Axis + ?Sized>(&mut self, axis: &A, spec: &RingSpec) -> Option<()> {
+    /// Starts the lining from the machine: the newest ring (straight,
+    /// `key`) centred in the tail, headed as the machine, its front face
+    /// `ahead_m` ahead of the tail's end. `None` without a machine
+    /// position.
+    fn start<A: Axis + ?Sized>(
+        &mut self,
+        axis: &A,
+        spec: &RingSpec,
+        key: u32,
+        ahead_m: f64,
+    ) -> Option<()> {
         let m = self.machine?;
-        let length = (m.front_station_m - m.rear_station_m).max(0.1);
-        let angle = [0, 1].map(|i| (m.front_m[i] - m.rear_m[i]) / length);
+        let angle = chain::heading_through(
+            axis,
+            (m.rear_station_m, m.rear_m),
+            (m.front_station_m, m.front_m),
+        );
         let tail = Face {
             station_m: m.rear_station_m,
             offset_m: m.rear_m,
             angle_rad: angle,
         };
         // A straight piece of lining to the front face, on the axis's frame.
-        let front = chain::along(axis, &tail, spec.overlap_m());
+        let front = chain::along(axis, &tail, ahead_m);
         let back = chain::along(axis, &front, -spec.width_m);
         self.newest = Some(Ring {
-            key: 0,
+            key,
+            straight: true,
             back,
             front,
         });
+        self.previous = None;
         let start = PlaneCovariance::diagonal(
             START_OFFSET_SIGMA_MM / 1000.0,
             START_ANGLE_SIGMA_MRAD / 1000.0,
@@ -227,19 +239,17 @@ impl RingBuilder {
         ring: u64,
         key: Option<u32>,
     ) -> Option<BuiltRing> {
-        self.newest_key = key;
         let Some(key) = key else {
             self.newest = None;
             self.previous = None;
             self.covariance = None;
             self.newest_ring = Some(ring);
+            self.newest_key = None;
             return None;
         };
         if self.newest.is_none() {
-            self.start(axis, spec)?;
-            // The machine's tail holds the ring just built.
-            let newest = self.newest.as_mut()?;
-            newest.key = key;
+            // The machine's tail holds the ring just built, before the push.
+            self.start(axis, spec, key, spec.overlap_m())?;
         } else {
             let front = self.newest?.front;
             self.previous = self.newest;
@@ -252,6 +262,7 @@ impl RingBuilder {
             }
         }
         self.newest_ring = Some(ring);
+        self.newest_key = Some(key);
         self.built(axis, spec)
     }
 
@@ -267,7 +278,11 @@ impl RingBuilder {
         self.points = Some(clearances_mm.len());
         let machine = self.machine?;
         if self.newest.is_none() {
-            self.start(axis, spec)?;
+            // Gauged after a push: the newest ring's front face a ring
+            // width nearer the tail's end than when it was built. Its key
+            // is not known.
+            self.start(axis, spec, 0, spec.overlap_m() - spec.width_m)?;
+            self.newest_key = None;
         }
         let newest = self.newest?;
         // The lining at the tail's end, as the chain has it.

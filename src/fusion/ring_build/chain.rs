@@ -43,6 +43,9 @@ pub struct Face {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Ring {
     pub key: u32,
+    /// A piece of lining taken as straight (where the lining was started
+    /// from the machine): its key's taper is not applied.
+    pub straight: bool,
     /// Where it started (the previous ring's front face).
     pub back: Face,
     /// Its front face: where the next ring starts.
@@ -53,13 +56,12 @@ impl Ring {
     /// The ring's centre line at `x` metres from its back face: its
     /// station and its offset from the axis, m.
     pub fn at<A: Axis + ?Sized>(&self, axis: &A, spec: &RingSpec, x_m: f64) -> Face {
-        point_on_ring(
-            axis,
-            spec.width_m,
-            &self.back,
-            turn_rad(spec, self.key),
-            x_m,
-        )
+        let turn = if self.straight {
+            [0.0; 2]
+        } else {
+            turn_rad(spec, self.key)
+        };
+        point_on_ring(axis, spec.width_m, &self.back, turn, x_m)
     }
 
     /// The ring's centre (half its width from the back face).
@@ -80,9 +82,27 @@ pub fn build<A: Axis + ?Sized>(axis: &A, spec: &RingSpec, back: &Face, key: u32)
     let front = point_on_ring(axis, spec.width_m, back, turn_rad(spec, key), spec.width_m);
     Ring {
         key,
+        straight: false,
         back: *back,
         front,
     }
+}
+
+/// The direction against the axis of the straight line from `from` to
+/// `to` (internal station, offsets in m), rad per plane: the offsets'
+/// difference plus what the axis bends away between, over the length.
+pub fn heading_through<A: Axis + ?Sized>(
+    axis: &A,
+    from: (f64, [f64; 2]),
+    to: (f64, [f64; 2]),
+) -> [f64; 2] {
+    let (s, length) = (from.0, (to.0 - from.0).max(0.1));
+    let half = axis_turn(axis, s, s + length / 2.0);
+    let whole = axis_turn(axis, s, s + length);
+    [0, 1].map(|i| {
+        let axis_bend = length / 6.0 * (4.0 * half[i] + whole[i]);
+        (to.1[i] - from.1[i] + axis_bend) / length
+    })
 }
 
 /// The point `x_m` ahead of `face` (behind, negative) on the straight line

@@ -87,21 +87,21 @@ impl<A: Axis + ?Sized, C: Course + ?Sized> Situation<'_, A, C> {
         let centre = ring.centre(self.axis, spec);
         let target = self.course.target_m(centre.station_m);
         let off_target_mm = [0, 1].map(|i| (centre.offset_m[i] - target[i]) * 1000.0);
-        // The tail's end after the push that follows the build.
-        let x_m = (spec.width_m - spec.overlap_m() + spec.width_m).clamp(0.0, spec.width_m);
-        let at_tail = ring.at(self.axis, spec, x_m);
-        let shield = self.course.shield_m(at_tail.station_m);
-        let off_shield_mm = [0, 1].map(|i| (at_tail.offset_m[i] - shield[i]) * 1000.0);
         let m = self.centred_clearance_mm;
-        let predicted = clearance::predict(m, off_shield_mm, self.points);
-        let spread =
-            predicted.iter().map(|c| (c - m).powi(2)).sum::<f64>() / predicted.len() as f64;
-        let least = predicted.iter().copied().fold(f64::INFINITY, f64::min);
-        let shortfall = (spec.min_clearance_mm - least).max(0.0);
-        let cost = off_target_mm[0].powi(2)
-            + off_target_mm[1].powi(2)
-            + spec.clearance_weight * spread
-            + SHORTFALL_COST * shortfall * shortfall;
+        // The gaps as the tail's end passes the centre, then the front face.
+        let gaps = |face: &Face| {
+            let shield = self.course.shield_m(face.station_m);
+            let off_shield_mm = [0, 1].map(|i| (face.offset_m[i] - shield[i]) * 1000.0);
+            clearance::predict(m, off_shield_mm, self.points)
+        };
+        let mut cost = off_target_mm[0].powi(2) + off_target_mm[1].powi(2);
+        let predicted = gaps(&centre);
+        for gaps in [&predicted, &gaps(&ring.front)] {
+            let spread = gaps.iter().map(|c| (c - m).powi(2)).sum::<f64>() / gaps.len() as f64;
+            let least = gaps.iter().copied().fold(f64::INFINITY, f64::min);
+            let shortfall = (spec.min_clearance_mm + self.margin_mm - least).max(0.0);
+            cost += (spec.clearance_weight * spread + SHORTFALL_COST * shortfall * shortfall) / 2.0;
+        }
         PlannedRing {
             ring,
             off_target_mm,

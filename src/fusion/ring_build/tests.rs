@@ -241,3 +241,13 @@ fn the_beam_finds_the_exhaustive_searchs_cost_within_1_percent() {
         );
     }
 }
+
+#[test]
+fn the_line_between_two_points_on_an_arc_heads_half_its_turn_off_the_axis() {
+    // Two points on a 300 m arc 10 m apart: the chord leaves the first at
+    // half the arc's turn, 10/(2 × 300) = 0.016 667 rad to the right.
+    let arc = Arc { radius_m: 300.0 };
+    let heading = chain::heading_through(&arc, (0.0, [0.0; 2]), (10.0, [0.0; 2]));
+    assert!(close(heading[0], 10.0 / 600.0, 1e-12), "{heading:?}");
+    assert!(close(heading[1], 0.0, 1e-15));
+}
