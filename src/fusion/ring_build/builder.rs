@@ -368,6 +368,29 @@ impl RingBuilder {
         look_ahead: usize,
         beam: usize,
     ) -> Option<Plan> {
+        self.at_newest(axis, spec, target, |s| s.search(look_ahead, beam))
+    }
+
+    /// The key the naive rule builds next (the one that turns most nearly
+    /// toward the target), the yardstick of `eval rings`.
+    pub fn naive_key<A: Axis + ?Sized>(
+        &self,
+        axis: &A,
+        spec: &RingSpec,
+        target: Option<&dyn Fn(f64) -> [f64; 2]>,
+    ) -> Option<u32> {
+        self.at_newest(axis, spec, target, |s| s.naive())
+    }
+
+    /// `decide` on the situation at the newest ring's front face; `None`
+    /// before the lining is known.
+    fn at_newest<A: Axis + ?Sized, R>(
+        &self,
+        axis: &A,
+        spec: &RingSpec,
+        target: Option<&dyn Fn(f64) -> [f64; 2]>,
+        decide: impl FnOnce(&Situation<'_, A, TrackCourse<'_>>) -> R,
+    ) -> Option<R> {
         let newest = self.newest?;
         let course = TrackCourse {
             track: &self.track,
@@ -385,33 +408,7 @@ impl RingBuilder {
                 .unwrap_or(spec.nominal_clearance_mm),
             margin_mm: self.margin_mm(),
         };
-        Some(situation.search(look_ahead, beam))
-    }
-
-    /// The key the naive rule builds next (the one that turns most nearly
-    /// toward the target), the yardstick of `eval rings`.
-    pub fn naive_key<A: Axis + ?Sized>(
-        &self,
-        axis: &A,
-        spec: &RingSpec,
-        target: Option<&dyn Fn(f64) -> [f64; 2]>,
-    ) -> Option<u32> {
-        let newest = self.newest?;
-        let course = TrackCourse {
-            track: &self.track,
-            target,
-        };
-        let situation = Situation {
-            axis,
-            spec,
-            course: &course,
-            front: newest.front,
-            last_key: self.newest_key,
-            points: self.points.unwrap_or(DEFAULT_POINTS),
-            centred_clearance_mm: spec.nominal_clearance_mm,
-            margin_mm: 0.0,
-        };
-        Some(situation.naive())
+        Some(decide(&situation))
     }
 }
 
